@@ -1,0 +1,22 @@
+"""invrender: Monte Carlo rendering of Kajiya's rendering equation ``I = g(eps + M I)`` on torch
+tensors, differentiable in emission eps and reflectance rho.
+
+Public API::
+
+    import invrender as ir
+    scene = ir.load_scene("cornell_box", resolution=(64, 64))
+    img = ir.render(scene, spp=64, max_depth=8, seed=0)     # (H, W, 3) float32, linear
+    ir.write_image("out.exr", img)
+"""
+
+from invrender.errors import ImageError, InvRenderError, ParameterError, SceneError
+from invrender.io import read_image, write_image
+from invrender.scene import load_scene
+from invrender.transport.render import render
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "load_scene", "render", "read_image", "write_image",
+    "InvRenderError", "SceneError", "ImageError", "ParameterError",
+]  # fmt: skip

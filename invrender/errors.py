@@ -1,0 +1,22 @@
+"""One exception hierarchy for everything a user can get wrong.
+
+Every error raised on bad input is a subclass of :class:`InvRenderError`, and its message names the
+file, key or value at fault and what was expected, on one line. The CLI prints that line and exits
+with status 2.
+"""
+
+
+class InvRenderError(Exception):
+    """Base class of every error invrender raises on bad input."""
+
+
+class SceneError(InvRenderError):
+    """A scene file, built-in scene name, mesh or scene setting is missing or invalid."""
+
+
+class ImageError(InvRenderError):
+    """An image file is missing, corrupt, of the wrong shape, or cannot be written."""
+
+
+class ParameterError(InvRenderError):
+    """A parameter name, value or render setting is unknown or out of range."""

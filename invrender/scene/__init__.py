@@ -1,0 +1,46 @@
+"""Scenes: geometry as tensors, named materials/emitters, camera; built-ins and loaders."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from invrender.errors import SceneError
+from invrender.scene.builtin import BUILTIN_SCENES, builtin_scene
+from invrender.scene.camera import Camera
+from invrender.scene.scene import Scene, build_scene
+from invrender.scene.shapes import Mesh
+
+MESH_SUFFIXES = (".gltf", ".glb", ".obj")
+
+
+def load_scene(source, resolution=None, device=None, **kwargs) -> Scene:
+    """A scene from a built-in name or a file path.
+
+    Args:
+        source: a built-in name (``"cornell_box"``, ``"furnace"``) or a path to a ``.toml`` scene
+            file or a ``.gltf``/``.glb``/``.obj`` file.
+        resolution: (width, height) in pixels; None = the scene's own.
+        device: move the scene there (None = CPU).
+        kwargs: arguments of a built-in scene (e.g. ``rho=0.5, eps=1.0`` for ``furnace``).
+    """
+    source_str = str(source)
+    if source_str in BUILTIN_SCENES:
+        if resolution is not None:
+            kwargs["resolution"] = resolution
+        scene = builtin_scene(source_str, **kwargs)
+    else:
+        path = Path(source_str)
+        suffix = path.suffix.lower()
+        if suffix not in (".toml", *MESH_SUFFIXES):
+            raise SceneError(f"unknown scene {source_str!r}: not a built-in ({', '.join(BUILTIN_SCENES)}) nor a .toml/.gltf/.glb/.obj file")
+        if kwargs:
+            raise SceneError(f"scene options {', '.join(kwargs)} apply to built-in scenes only")
+        if not path.is_file():
+            raise SceneError(f"scene file not found: {source_str}")
+        from invrender.scene import loaders
+
+        scene = loaders.load_toml(path, resolution) if suffix == ".toml" else loaders.load_mesh_file(path, resolution)
+    return scene.to(device) if device is not None else scene
+
+
+__all__ = ["Camera", "Mesh", "Scene", "build_scene", "load_scene", "BUILTIN_SCENES"]

@@ -1,0 +1,92 @@
+"""The perspective pinhole camera: pixel positions -> primary rays.
+
+Conventions (shared with Mitsuba 3): the camera looks from ``origin`` at ``target``; image x grows to
+the camera's right (``forward x up``) and image rows grow downwards, so row 0 is the top of the
+image; ``fov`` is the full field of view in degrees along ``fov_axis``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from invrender.errors import SceneError
+
+FOV_AXES = ("x", "y", "smaller", "larger")
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A perspective camera.
+
+    Attributes:
+        origin: eye position, world units.
+        target: point the camera looks at.
+        up: approximate up direction (need not be orthogonal to the view direction).
+        fov: full field of view in degrees, measured along ``fov_axis``.
+        fov_axis: ``"x"``, ``"y"``, ``"smaller"`` or ``"larger"`` image axis.
+    """
+
+    origin: tuple[float, float, float] = (0.0, 0.0, 3.9)
+    target: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    up: tuple[float, float, float] = (0.0, 1.0, 0.0)
+    fov: float = 39.3077
+    fov_axis: str = "smaller"
+
+    def __post_init__(self):
+        if not (0.0 < self.fov < 180.0):
+            raise SceneError(f"camera fov must be in (0, 180) degrees, got {self.fov}")
+        if self.fov_axis not in FOV_AXES:
+            raise SceneError(f"camera fov_axis must be one of {', '.join(FOV_AXES)}, got {self.fov_axis!r}")
+        forward = [t - o for t, o in zip(self.target, self.origin)]
+        if math.hypot(*forward) == 0.0:
+            raise SceneError("camera origin and target coincide")
+        cross = _cross(forward, self.up)
+        if math.hypot(*cross) < 1e-9 * math.hypot(*forward) * max(math.hypot(*self.up), 1e-30):
+            raise SceneError("camera up is parallel to the view direction (or zero)")
+
+    def frame(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Orthonormal camera frame ``(right, up, forward)``, each a float64 tensor of shape (3,)."""
+        o = torch.tensor(self.origin, dtype=torch.float64)
+        forward = torch.tensor(self.target, dtype=torch.float64) - o
+        forward = forward / forward.norm()
+        right = torch.linalg.cross(forward, torch.tensor(self.up, dtype=torch.float64))
+        right = right / right.norm()
+        up = torch.linalg.cross(right, forward)
+        return right, up, forward
+
+    def tan_half_fov(self, width: int, height: int) -> tuple[float, float]:
+        """``tan`` of the half field of view along image x and y for a ``width x height`` film."""
+        axis = self.fov_axis
+        if axis == "smaller":
+            axis = "x" if width <= height else "y"
+        elif axis == "larger":
+            axis = "x" if width >= height else "y"
+        t = math.tan(math.radians(self.fov) / 2.0)
+        if axis == "x":
+            return t, t * height / width
+        return t * width / height, t
+
+    def generate_rays(self, film_xy: torch.Tensor, width: int, height: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """Primary rays through continuous film positions.
+
+        Args:
+            film_xy: (N, 2) float32 positions in pixel units, x in [0, width) left to right,
+                y in [0, height) top to bottom.
+        Returns:
+            origins (N, 3) and unit directions (N, 3), float32 on ``film_xy``'s device.
+        """
+        right, up, forward = (v.to(film_xy.device, torch.float32) for v in self.frame())
+        tx, ty = self.tan_half_fov(width, height)
+        sx = (2.0 * film_xy[:, 0] / width - 1.0) * tx
+        sy = (1.0 - 2.0 * film_xy[:, 1] / height) * ty
+        d = sx[:, None] * right + sy[:, None] * up + forward
+        d = d / d.norm(dim=1, keepdim=True)
+        o = torch.tensor(self.origin, dtype=torch.float32, device=film_xy.device).expand_as(d)
+        return o, d
+
+
+def _cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])

@@ -1,0 +1,229 @@
+"""The Scene: triangles as tensors, named materials and emitters, camera, resolution, parameters.
+
+Geometry is never differentiated (DESIGN.md decision 1), so positions are plain float32 tensors.
+What can be differentiated lives in ``scene.params``, a flat dict of dotted names to leaf tensors:
+
+- ``"<material>.reflectance"``: diffuse albedo rho, shape (3,) for a constant or (h, w, 3) for a
+  texture over the mesh UVs, values in [0, 1];
+- ``"<emitter>.emission"``: emitted radiance eps, shape (3,) or (h, w, 3), values >= 0.
+
+``render`` reads these tensors at every call, so changing one in place (under ``torch.no_grad()``)
+changes the next render.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from invrender.errors import ParameterError, SceneError
+from invrender.scene.camera import Camera
+from invrender.scene.shapes import Mesh
+
+
+@dataclass(frozen=True)
+class Triangles:
+    """Per-triangle geometry, detached, on one device.
+
+    Attributes:
+        p0: (T, 3) first vertex.
+        e1: (T, 3) edge p1 - p0.
+        e2: (T, 3) edge p2 - p0.
+        normal: (T, 3) unit geometric normal, on the front side (counter-clockwise winding).
+        area: (T,) area.
+        uv: (T, 3, 2) texture coordinates at the three vertices.
+        material: (T,) int64 index into ``Scene.materials``.
+        emitter: (T,) int64 index into ``Scene.emitters``, -1 where the triangle does not emit.
+    """
+
+    p0: torch.Tensor
+    e1: torch.Tensor
+    e2: torch.Tensor
+    normal: torch.Tensor
+    area: torch.Tensor
+    uv: torch.Tensor
+    material: torch.Tensor
+    emitter: torch.Tensor
+
+    @property
+    def count(self) -> int:
+        return int(self.p0.shape[0])
+
+    def to(self, device) -> "Triangles":
+        return Triangles(*(getattr(self, f).to(device) for f in self.__dataclass_fields__))
+
+    def corners(self) -> torch.Tensor:
+        """(T, 3, 3) vertex positions."""
+        return torch.stack([self.p0, self.p0 + self.e1, self.p0 + self.e2], dim=1)
+
+
+@dataclass
+class Scene:
+    """A renderable scene.
+
+    Attributes:
+        triangles: per-triangle geometry (see :class:`Triangles`).
+        materials: material names; ``triangles.material`` indexes this tuple.
+        emitters: emitter names; ``triangles.emitter`` indexes this tuple.
+        camera: the perspective camera.
+        resolution: (width, height) in pixels.
+        params: ``{"<material>.reflectance": rho, "<emitter>.emission": eps}``, leaf tensors.
+        name: a label for messages and reports.
+    """
+
+    triangles: Triangles
+    materials: tuple[str, ...]
+    emitters: tuple[str, ...]
+    camera: Camera
+    resolution: tuple[int, int]
+    params: dict[str, torch.Tensor] = field(default_factory=dict)
+    name: str = "scene"
+
+    @property
+    def device(self) -> torch.device:
+        return self.triangles.p0.device
+
+    @property
+    def width(self) -> int:
+        return self.resolution[0]
+
+    @property
+    def height(self) -> int:
+        return self.resolution[1]
+
+    def to(self, device) -> "Scene":
+        """This scene on ``device`` (parameters moved as new leaf tensors keeping requires_grad)."""
+        params = {k: v.detach().to(device).requires_grad_(v.requires_grad) for k, v in self.params.items()}
+        return Scene(self.triangles.to(device), self.materials, self.emitters, self.camera, self.resolution, params, self.name)
+
+    def with_resolution(self, resolution) -> "Scene":
+        """The same scene (sharing geometry and parameter tensors) at another resolution."""
+        return Scene(self.triangles, self.materials, self.emitters, self.camera, check_resolution(resolution), self.params, self.name)
+
+    def with_camera(self, camera: Camera) -> "Scene":
+        """The same scene (sharing geometry and parameter tensors) seen from another camera."""
+        return Scene(self.triangles, self.materials, self.emitters, camera, self.resolution, self.params, self.name)
+
+    def reflectance_of(self, material: int) -> torch.Tensor:
+        return self.params[f"{self.materials[material]}.reflectance"]
+
+    def emission_of(self, emitter: int) -> torch.Tensor:
+        return self.params[f"{self.emitters[emitter]}.emission"]
+
+
+def check_resolution(resolution) -> tuple[int, int]:
+    """Validate ``(width, height)``: two positive integers."""
+    try:
+        w, h = (int(r) for r in resolution)
+        ok = all(float(r) == int(r) for r in resolution) and len(tuple(resolution)) == 2
+    except (TypeError, ValueError):
+        ok = False
+    if not ok or w <= 0 or h <= 0:
+        raise SceneError(f"resolution must be two positive integers (width, height), got {resolution!r}")
+    return w, h
+
+
+def check_param_value(name: str, value) -> torch.Tensor:
+    """Validate one parameter value: shape (3,) or (h, w, 3), finite, rho in [0, 1], eps >= 0."""
+    try:
+        t = torch.as_tensor(value, dtype=torch.float32).detach().clone()
+    except (TypeError, ValueError, RuntimeError):
+        raise ParameterError(f"{name}: expected an RGB triple or an (h, w, 3) texture, got {value!r}") from None
+    if t.ndim == 0:
+        t = t.expand(3).clone()
+    if not (t.shape == (3,) or (t.ndim == 3 and t.shape[2] == 3 and t.shape[0] > 0 and t.shape[1] > 0)):
+        raise ParameterError(f"{name}: expected shape (3,) or (h, w, 3), got {tuple(t.shape)}")
+    if not torch.isfinite(t).all():
+        raise ParameterError(f"{name}: values must be finite")
+    if name.endswith(".reflectance") and (t.min() < 0 or t.max() > 1):
+        raise ParameterError(f"{name}: reflectance rho must lie in [0, 1], got values in [{t.min():.4g}, {t.max():.4g}]")
+    if name.endswith(".emission") and t.min() < 0:
+        raise ParameterError(f"{name}: emission eps must be >= 0, got a minimum of {t.min():.4g}")
+    return t
+
+
+def build_scene(
+    meshes: Sequence[Mesh],
+    reflectance: dict[str, object],
+    emission: dict[str, object],
+    camera: Camera,
+    resolution,
+    name: str = "scene",
+) -> Scene:
+    """Assemble a :class:`Scene` from meshes and named parameter values.
+
+    Args:
+        meshes: the shapes; each names a material in ``reflectance`` and optionally an emitter in
+            ``emission``.
+        reflectance: material name -> rho, an RGB triple or an (h, w, 3) texture.
+        emission: emitter name -> eps, an RGB triple or an (h, w, 3) texture.
+    Raises:
+        SceneError: unknown material or emitter names, bad indices, no triangles.
+    """
+    resolution = check_resolution(resolution)
+    overlap = set(reflectance) & set(emission)
+    if overlap:
+        raise SceneError(f"names used both as material and emitter: {', '.join(sorted(overlap))}")
+    materials = tuple(reflectance)
+    emitters = tuple(emission)
+    params = {f"{k}.reflectance": check_param_value(f"{k}.reflectance", v) for k, v in reflectance.items()}
+    params.update({f"{k}.emission": check_param_value(f"{k}.emission", v) for k, v in emission.items()})
+
+    tris, uvs, mats, emits = [], [], [], []
+    for mesh in meshes:
+        if mesh.material not in reflectance:
+            raise SceneError(f"shape uses unknown material {mesh.material!r} (known: {', '.join(materials) or 'none'})")
+        if mesh.emitter is not None and mesh.emitter not in emission:
+            raise SceneError(f"shape uses unknown emitter {mesh.emitter!r} (known: {', '.join(emitters) or 'none'})")
+        v = np.asarray(mesh.vertices, dtype=np.float64)
+        f = np.asarray(mesh.faces)
+        if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
+            raise SceneError(f"mesh arrays must be vertices (V, 3) and faces (F, 3), got {v.shape} and {f.shape}")
+        if not np.isfinite(v).all():
+            raise SceneError("mesh has non-finite vertex positions")
+        if f.size and (f.min() < 0 or f.max() >= len(v)):
+            raise SceneError(f"mesh face index out of range: indices must be in [0, {len(v) - 1}], got [{f.min()}, {f.max()}]")
+        uv = np.zeros((len(v), 2)) if mesh.uvs is None else np.asarray(mesh.uvs, dtype=np.float64)
+        if uv.shape != (len(v), 2):
+            raise SceneError(f"mesh uvs must have shape ({len(v)}, 2), got {uv.shape}")
+        tris.append(v[f])
+        uvs.append(uv[f])
+        mats.append(np.full(len(f), materials.index(mesh.material)))
+        emits.append(np.full(len(f), -1 if mesh.emitter is None else emitters.index(mesh.emitter)))
+    if not tris or sum(len(t) for t in tris) == 0:
+        raise SceneError("scene has no triangles")
+
+    corners = np.concatenate(tris)
+    cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    area = 0.5 * np.linalg.norm(cross, axis=1)
+    extent = np.ptp(corners.reshape(-1, 3), axis=0).max()
+    keep = area > 1e-12 * max(extent, 1e-30) ** 2
+    if not keep.all():
+        warnings.warn(f"dropped {int((~keep).sum())} degenerate triangle(s) of zero area", stacklevel=2)
+    if not keep.any():
+        raise SceneError("scene has only degenerate (zero-area) triangles")
+
+    def t(a, dtype=torch.float32):
+        return torch.as_tensor(np.ascontiguousarray(a[keep]), dtype=dtype)
+
+    triangles = Triangles(
+        p0=t(corners[:, 0]),
+        e1=t(corners[:, 1] - corners[:, 0]),
+        e2=t(corners[:, 2] - corners[:, 0]),
+        normal=t(cross / np.maximum(2 * area, 1e-300)[:, None]),
+        area=t(area),
+        uv=t(np.concatenate(uvs)),
+        material=t(np.concatenate(mats), torch.int64),
+        emitter=t(np.concatenate(emits), torch.int64),
+    )
+    return Scene(triangles, materials, emitters, camera, resolution, params, name)
+
+
+def scene_extent(triangles: Triangles) -> float:
+    """Largest side of the scene's bounding box (for ray offsets)."""
+    c = triangles.corners().reshape(-1, 3)
+    return float((c.max(0).values - c.min(0).values).max())

@@ -1,0 +1,174 @@
+"""Ray-triangle intersection backends (DESIGN.md decision 1: geometry is never differentiated).
+
+A backend answers two queries for a batch of rays and returns plain, non-differentiable tensors:
+``intersect`` (closest hit: distance, triangle id, barycentrics) and ``occluded`` (any hit before a
+given distance). Two backends give the same answers up to float rounding:
+
+- ``embree``: Intel Embree through embreex, on the CPU (the fast default there), rays split across
+  threads;
+- ``torch``: Moller-Trumbore against every triangle in blocks sized to a memory budget, on any
+  device (the default on CUDA; fine for scenes of up to a few thousand triangles).
+
+Barycentrics follow Embree: the hit point is ``p0 + u e1 + v e2``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from invrender.errors import ParameterError
+from invrender.scene.scene import Triangles
+
+
+@dataclass(frozen=True)
+class Hits:
+    """Closest hits of N rays.
+
+    Attributes:
+        t: (N,) float32 distance along the (unit) ray direction; ``inf`` where the ray missed.
+        prim: (N,) int64 triangle index; -1 where the ray missed.
+        u: (N,) float32 barycentric weight of the triangle's second vertex.
+        v: (N,) float32 barycentric weight of the third vertex.
+    """
+
+    t: torch.Tensor
+    prim: torch.Tensor
+    u: torch.Tensor
+    v: torch.Tensor
+
+    @property
+    def valid(self) -> torch.Tensor:
+        """(N,) bool, True where the ray hit something."""
+        return self.prim >= 0
+
+    def select(self, mask: torch.Tensor) -> "Hits":
+        """The hits where ``mask`` (N,) is True."""
+        return Hits(self.t[mask], self.prim[mask], self.u[mask], self.v[mask])
+
+
+class EmbreeIntersector:
+    """Embree (embreex) on the CPU; results are moved to the rays' device."""
+
+    name = "embree"
+
+    def __init__(self, triangles: Triangles, threads: int | None = None):
+        from embreex import rtcore_scene
+        from embreex.mesh_construction import TriangleMesh
+
+        self._scene = rtcore_scene.EmbreeScene()
+        corners = triangles.corners().detach().cpu().numpy().astype(np.float32)
+        self._mesh = TriangleMesh(self._scene, corners)  # keep a reference: Embree does not own the buffer
+        self._threads = max(1, threads or len(os.sched_getaffinity(0)))
+        self._pool = ThreadPoolExecutor(self._threads) if self._threads > 1 else None
+
+    def _run(self, o: np.ndarray, d: np.ndarray, **kwargs):
+        """Split the batch across threads (embreex releases the GIL inside Embree)."""
+        n = len(o)
+        if self._pool is None or n < 4096:
+            return [self._scene.run(o, d, **kwargs)]
+        bounds = np.linspace(0, n, self._threads + 1).astype(int)
+        jobs = []
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            kw = {k: (v[a:b] if isinstance(v, np.ndarray) else v) for k, v in kwargs.items()}
+            jobs.append(self._pool.submit(self._scene.run, o[a:b], d[a:b], **kw))
+        return [j.result() for j in jobs]
+
+    def intersect(self, o: torch.Tensor, d: torch.Tensor) -> Hits:
+        """Closest hits of rays with origins ``o`` (N, 3) and unit directions ``d`` (N, 3)."""
+        on, dn = _numpy(o), _numpy(d)
+        parts = self._run(on, dn, output=1)
+        prim = np.concatenate([p["primID"] for p in parts]).astype(np.int64)
+        geom = np.concatenate([p["geomID"] for p in parts])
+        prim[geom < 0] = -1
+        t = np.concatenate([p["tfar"] for p in parts]).astype(np.float32)
+        t[prim < 0] = np.inf
+        u = np.concatenate([p["u"] for p in parts]).astype(np.float32)
+        v = np.concatenate([p["v"] for p in parts]).astype(np.float32)
+        dev = o.device
+        return Hits(*(torch.from_numpy(a).to(dev) for a in (t, prim, u, v)))
+
+    def occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
+        """(N,) bool: does anything lie along each ray strictly before ``tmax`` (N,)?"""
+        parts = self._run(_numpy(o), _numpy(d), dists=_numpy(tmax), query="OCCLUDED")
+        hit = np.concatenate(parts) != -1
+        return torch.from_numpy(hit).to(o.device)
+
+
+class TorchIntersector:
+    """Brute-force Moller-Trumbore in torch, on any device, blocked to bound memory."""
+
+    name = "torch"
+
+    def __init__(self, triangles: Triangles, block_elements: int = 1 << 22):
+        self.p0, self.e1, self.e2 = triangles.p0, triangles.e1, triangles.e2
+        self.block_elements = block_elements
+
+    def _closest(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor | None):
+        n, count = o.shape[0], self.p0.shape[0]
+        t_best = torch.full((n,), math.inf, device=o.device)
+        prim = torch.full((n,), -1, dtype=torch.int64, device=o.device)
+        u_best = torch.zeros(n, device=o.device)
+        v_best = torch.zeros(n, device=o.device)
+        tri_block = max(1, min(count, self.block_elements // 64))
+        ray_block = max(1, self.block_elements // tri_block)
+        for r0 in range(0, n, ray_block):
+            rs = slice(r0, min(n, r0 + ray_block))
+            ro, rd = o[rs, None, :], d[rs, None, :]
+            for t0 in range(0, count, tri_block):
+                ts = slice(t0, min(count, t0 + tri_block))
+                p0, e1, e2 = self.p0[None, ts], self.e1[None, ts], self.e2[None, ts]
+                pvec = torch.linalg.cross(rd.expand(-1, e2.shape[1], -1), e2.expand(rd.shape[0], -1, -1))
+                det = (e1 * pvec).sum(-1)
+                inv = 1.0 / det
+                tvec = ro - p0
+                u = (tvec * pvec).sum(-1) * inv
+                qvec = torch.linalg.cross(tvec, e1.expand_as(tvec))
+                v = (rd * qvec).sum(-1) * inv
+                t = (e2 * qvec).sum(-1) * inv
+                ok = (det.abs() > 1e-20) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0)
+                if tmax is not None:
+                    ok &= t < tmax[rs, None]
+                t = torch.where(ok, t, math.inf)
+                tmin, arg = t.min(dim=1)
+                better = tmin < t_best[rs]
+                t_best[rs] = torch.where(better, tmin, t_best[rs])
+                prim[rs] = torch.where(better, arg + t0, prim[rs])
+                u_best[rs] = torch.where(better, u.gather(1, arg[:, None])[:, 0], u_best[rs])
+                v_best[rs] = torch.where(better, v.gather(1, arg[:, None])[:, 0], v_best[rs])
+        return Hits(t_best, prim, u_best, v_best)
+
+    def intersect(self, o: torch.Tensor, d: torch.Tensor) -> Hits:
+        """Closest hits of rays with origins ``o`` (N, 3) and unit directions ``d`` (N, 3)."""
+        return self._closest(o, d, None)
+
+    def occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
+        """(N,) bool: does anything lie along each ray strictly before ``tmax`` (N,)?"""
+        return self._closest(o, d, tmax).valid
+
+
+BACKENDS = {"embree": EmbreeIntersector, "torch": TorchIntersector}
+
+
+def default_backend(device: torch.device) -> str:
+    """``embree`` on the CPU, ``torch`` elsewhere."""
+    return "embree" if torch.device(device).type == "cpu" else "torch"
+
+
+def make_intersector(triangles: Triangles, backend: str | None = None):
+    """An intersector for ``triangles`` by backend name (``None`` = the device's default)."""
+    backend = backend or default_backend(triangles.p0.device)
+    try:
+        cls = BACKENDS[backend]
+    except KeyError:
+        raise ParameterError(f"unknown intersection backend {backend!r} (known: {', '.join(BACKENDS)})") from None
+    return cls(triangles)
+
+
+def _numpy(x: torch.Tensor) -> np.ndarray:
+    return np.ascontiguousarray(x.detach().to("cpu", torch.float32).numpy())

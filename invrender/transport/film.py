@@ -1,0 +1,35 @@
+"""The film: accumulates path contributions per pixel, optionally one image per Neumann term."""
+
+from __future__ import annotations
+
+import torch
+
+
+class Film:
+    """Box-filtered accumulation of radiance samples.
+
+    With ``terms`` each contribution is kept in the image of its Neumann term k (the contribution of
+    paths with k reflections, ``g (Mg)^k eps``); otherwise everything goes to one image. Sums are
+    kept in float64, so the float32 image does not depend on the order in which chunks arrive.
+    """
+
+    def __init__(self, width: int, height: int, terms: bool, device):
+        self.width, self.height, self.terms, self.device = width, height, terms, device
+        self._images: dict[int, torch.Tensor] = {}
+
+    def add(self, term: int, pixel: torch.Tensor, radiance: torch.Tensor) -> None:
+        """Add ``radiance`` (N, 3) to the flat ``pixel`` indices (N,) of Neumann term ``term``."""
+        key = term if self.terms else 0
+        if key not in self._images:
+            self._images[key] = torch.zeros(self.width * self.height, 3, dtype=torch.float64, device=self.device)
+        self._images[key].index_add_(0, pixel, radiance.double())
+
+    def develop(self, spp: int) -> torch.Tensor:
+        """The mean over ``spp`` samples: (H, W, 3), or (K, H, W, 3) per term with ``terms``."""
+        shape = (self.height, self.width, 3)
+        if not self.terms:
+            img = self._images.get(0, torch.zeros(self.width * self.height, 3, device=self.device))
+            return (img / spp).float().reshape(shape)
+        count = max(self._images, default=-1) + 1
+        zero = torch.zeros(self.width * self.height, 3, dtype=torch.float64, device=self.device)
+        return torch.stack([(self._images.get(k, zero) / spp).float().reshape(shape) for k in range(count)])

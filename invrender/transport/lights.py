@@ -1,0 +1,62 @@
+"""Sampling points on emissive triangles for next-event estimation.
+
+Lights are sampled by detached power (DESIGN.md decision 4): an emissive triangle is picked with
+probability proportional to ``area x mean(eps)`` (eps read without gradient when the sampler is
+built), then a point uniformly on it. No pdf depends on the differentiable ``eps``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from invrender.scene.scene import Triangles
+
+
+@dataclass(frozen=True)
+class LightSample:
+    """N points sampled on emitters.
+
+    Attributes:
+        tri: (N,) int64 triangle index.
+        p: (N, 3) position.
+        n: (N, 3) unit normal of the emitting (front) side.
+        uv: (N, 2) texture coordinates.
+        pdf_area: (N,) density per unit area of having sampled ``p``.
+    """
+
+    tri: torch.Tensor
+    p: torch.Tensor
+    n: torch.Tensor
+    uv: torch.Tensor
+    pdf_area: torch.Tensor
+
+
+class EmitterSampler:
+    """Picks emissive triangles by detached power, then uniform points on them."""
+
+    def __init__(self, triangles: Triangles, emissions: list[torch.Tensor]):
+        """``emissions``: one (3,) or (h, w, 3) eps per emitter, indexed by ``triangles.emitter``."""
+        self.triangles = triangles
+        power = torch.tensor([float(e.detach().mean()) for e in emissions] + [0.0], device=triangles.area.device)
+        weight = triangles.area * power[triangles.emitter]  # emitter -1 -> the appended 0
+        self.tri = torch.nonzero(weight > 0)[:, 0]
+        total = weight.sum()
+        self.count = int(self.tri.numel())
+        #: (T,) pdf per unit area of the point sampler on each triangle (0 where it never samples)
+        self.pdf_area = torch.where(weight > 0, weight / total.clamp_min(1e-30) / triangles.area, 0.0)
+        cdf = torch.cumsum(weight[self.tri].double(), 0)
+        self.cdf = (cdf / cdf[-1]).float() if self.count else cdf.float()
+
+    def sample(self, u_pick: torch.Tensor, u: torch.Tensor) -> LightSample:
+        """Points from uniforms ``u_pick`` (N,) and ``u`` (N, 2)."""
+        k = torch.searchsorted(self.cdf, u_pick.contiguous(), right=True).clamp_max(self.count - 1)
+        tri = self.tri[k]
+        su = u[:, 0].sqrt()
+        b1, b2 = su * (1.0 - u[:, 1]), su * u[:, 1]  # uniform barycentrics (weights of p1, p2)
+        t = self.triangles
+        p = t.p0[tri] + b1[:, None] * t.e1[tri] + b2[:, None] * t.e2[tri]
+        uv3 = t.uv[tri]
+        uv = (1 - b1 - b2)[:, None] * uv3[:, 0] + b1[:, None] * uv3[:, 1] + b2[:, None] * uv3[:, 2]
+        return LightSample(tri, p, t.normal[tri], uv, self.pdf_area[tri])

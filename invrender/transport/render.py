@@ -1,0 +1,106 @@
+"""render(): the wavefront over (pixel, sample) ids, in chunks sized by a memory budget.
+
+Each chunk is a flat batch of path ids ``pixel * spp + sample``. Camera rays are generated from
+counter-based numbers, the integrator runs its bounce loop over the batch, and contributions
+accumulate in the film; chunks only add, so any spp fits in bounded memory and the image does not
+depend on the chunk size (DESIGN.md decisions 2 and 3).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import sys
+
+import torch
+from tqdm.auto import tqdm
+
+from invrender.errors import ParameterError
+from invrender.scene.scene import Scene
+from invrender.transport.context import PathState, RenderSettings, TransportContext
+from invrender.transport.film import Film
+from invrender.transport.integrators import INTEGRATOR_MODULES
+from invrender.transport.sampler import path_keys, uniform
+
+#: working-set estimate per path in a chunk (state, hits, temporaries, backend copies), bytes
+BYTES_PER_PATH = 2048
+
+
+def render(
+    scene: Scene,
+    integrator: str = "path",
+    spp: int = 64,
+    max_depth: int = 8,
+    seed: int = 0,
+    *,
+    terms: bool = False,
+    rr_depth: int = 5,
+    backend: str | None = None,
+    device=None,
+    chunk_paths: int | None = None,
+    memory_mb: float = 512.0,
+    progress: bool = True,
+) -> torch.Tensor:
+    """Render ``scene`` by Monte Carlo estimation of ``I = g eps + gMg eps + g(Mg)^2 eps + ...``.
+
+    Args:
+        scene: from :func:`invrender.load_scene`; its ``params`` are read at this call.
+        integrator: ``"path"`` or ``"random_walk"``.
+        spp: samples per pixel.
+        max_depth: Neumann terms kept (1 = emitters seen directly, 2 = + direct light, ...; -1 =
+            unbounded, ended by Russian roulette).
+        seed: the image is a pure function of the seed (and the scene and settings).
+        terms: return one image per Neumann term instead of their sum.
+        rr_depth: Russian roulette starts after this many terms.
+        backend: ``"embree"`` (CPU) or ``"torch"`` (any device); None = the device's default.
+        device: where to render; None = the scene's device. Parameters are moved differentiably.
+        chunk_paths: paths per chunk; None = from ``memory_mb``.
+        memory_mb: memory budget of a chunk's working set, MiB.
+        progress: show a progress bar with rate and ETA when the render takes over a second.
+    Returns:
+        float32 linear radiance, (H, W, 3) with row 0 at the top; (K, H, W, 3) with ``terms``.
+        Differentiable in any ``scene.params`` entry that requires grad.
+    """
+    settings = RenderSettings(
+        integrator=integrator, spp=spp, max_depth=max_depth, seed=seed, rr_depth=rr_depth, terms=terms,
+        backend=backend, chunk_paths=chunk_paths, memory_mb=memory_mb, progress=progress,
+    )  # fmt: skip
+    device = torch.device(device) if device is not None else scene.device
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ParameterError("device 'cuda' requested but torch has no CUDA device here")
+    ctx = TransportContext.build(scene, settings, device)
+    trace = INTEGRATOR_MODULES[settings.integrator].trace
+    film = Film(scene.width, scene.height, settings.terms, device)
+
+    total = scene.width * scene.height * settings.spp
+    chunk = settings.chunk_paths or max(1024, int(settings.memory_mb * 2**20 // BYTES_PER_PATH))
+    needs_grad = any(p.requires_grad for p in scene.params.values()) and torch.is_grad_enabled()
+    bar = tqdm(total=total, unit="path", unit_scale=True, delay=1.0, disable=not settings.progress, desc=f"render {scene.name}", file=sys.stderr, leave=False)
+    with bar, (contextlib.nullcontext() if needs_grad else torch.no_grad()):
+        for start in range(0, total, chunk):
+            ids = torch.arange(start, min(total, start + chunk), dtype=torch.int64, device=device)
+            trace(ctx, camera_paths(scene, settings, ids), film)
+            bar.update(ids.numel())
+    return film.develop(settings.spp)
+
+
+def camera_paths(scene: Scene, settings: RenderSettings, ids: torch.Tensor) -> PathState:
+    """Camera rays for flat path ids (N,) = ``pixel * spp + sample``.
+
+    Pixel samples are stratified: with n = floor(sqrt(spp)), samples 0 .. n^2 - 1 each jitter in
+    their own cell of an n x n grid over the pixel and the remaining ones are uniform, so every
+    sample's film position is uniform over the pixel on average (a box filter, unbiased).
+    """
+    spp = settings.spp
+    pixel, sample = ids // spp, ids % spp
+    keys = path_keys(settings.seed, pixel, sample)
+    u = uniform(keys, 0, 2)
+    n = math.isqrt(spp)
+    grid = sample < n * n
+    fx = torch.where(grid, ((sample % n).float() + u[:, 0]) / n, u[:, 0])
+    fy = torch.where(grid, ((sample // n).float() + u[:, 1]) / n, u[:, 1])
+    film_xy = torch.stack([(pixel % scene.width).float() + fx, (pixel // scene.width).float() + fy], dim=1)
+    o, d = scene.camera.generate_rays(film_xy, scene.width, scene.height)
+    n_paths = ids.shape[0]
+    beta = torch.ones(n_paths, 3, device=ids.device)
+    return PathState(keys=keys, pixel=pixel, o=o.contiguous(), d=d, beta=beta, pdf_dir=torch.ones(n_paths, device=ids.device))

@@ -1,0 +1,56 @@
+"""Looking up per-hit RGB values (rho or eps) from constant or textured parameters.
+
+A parameter is either a constant (3,) or a texture (h, w, 3) over UVs. Textures are filtered
+bilinearly with repeat wrapping; u runs along columns and v along rows, with v = 0 at row 0 of the
+tensor and texel centres at ((j + 0.5) / w, (i + 0.5) / h). Lookups are differentiable in the values
+(each result is a weighted sum of four texels), never in the UVs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+
+
+def lookup(value: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
+    """Values at ``uv`` (N, 2) of a constant (3,) or a texture (h, w, 3): (N, 3)."""
+    if value.ndim == 1:
+        return value.expand(uv.shape[0], 3)
+    h, w = value.shape[0], value.shape[1]
+    x = uv[:, 0].detach() * w - 0.5
+    y = uv[:, 1].detach() * h - 0.5
+    x0, y0 = torch.floor(x), torch.floor(y)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    i0 = y0.long().remainder(h)
+    j0 = x0.long().remainder(w)
+    i1, j1 = (i0 + 1).remainder(h), (j0 + 1).remainder(w)
+    flat = value.reshape(h * w, 3)
+    return (
+        flat[i0 * w + j0] * (1 - fx) * (1 - fy)
+        + flat[i0 * w + j1] * fx * (1 - fy)
+        + flat[i1 * w + j0] * (1 - fx) * fy
+        + flat[i1 * w + j1] * fx * fy
+    )
+
+
+def gather_rgb(values: Sequence[torch.Tensor], index: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
+    """Per-hit RGB from a list of parameters.
+
+    Args:
+        values: K parameters, each (3,) or (h, w, 3).
+        index: (N,) int64 which parameter each hit uses; -1 means zero.
+        uv: (N, 2) texture coordinates of the hits.
+    Returns:
+        (N, 3), differentiable in ``values``.
+    """
+    n = index.shape[0]
+    zero = torch.zeros(3, device=index.device)
+    table = torch.stack([v if v.ndim == 1 else zero for v in values] + [zero])  # (K + 1, 3); row K = "none"
+    out = table[torch.where(index >= 0, index, len(values))]
+    for k, v in enumerate(values):
+        if v.ndim == 3:
+            mask = index == k
+            if bool(mask.any()):
+                out = out.index_put((mask.nonzero()[:, 0],), lookup(v, uv[mask]))
+    return out if n else out.reshape(0, 3)
