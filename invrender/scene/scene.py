@@ -13,6 +13,7 @@ changes the next render.
 
 from __future__ import annotations
 
+import functools
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -55,6 +56,11 @@ class Triangles:
 
     def to(self, device) -> "Triangles":
         return Triangles(*(getattr(self, f).to(device) for f in self.__dataclass_fields__))
+
+    @functools.cached_property
+    def packed(self) -> torch.Tensor:
+        """(T, 18) float32 rows ``[p0, e1, e2, normal, uv0, uv1, uv2]``: one gather per hit batch."""
+        return torch.cat([self.p0, self.e1, self.e2, self.normal, self.uv.reshape(-1, 6)], dim=1)
 
     def corners(self) -> torch.Tensor:
         """(T, 3, 3) vertex positions."""

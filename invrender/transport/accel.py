@@ -49,7 +49,8 @@ class Hits:
 
     def select(self, mask: torch.Tensor) -> "Hits":
         """The hits where ``mask`` (N,) is True."""
-        return Hits(self.t[mask], self.prim[mask], self.u[mask], self.v[mask])
+        index = mask.nonzero()[:, 0]
+        return Hits(*(x.index_select(0, index) for x in (self.t, self.prim, self.u, self.v)))
 
 
 class EmbreeIntersector:

@@ -157,7 +157,8 @@ class PathState:
 
     def select(self, mask: torch.Tensor) -> "PathState":
         """The paths where ``mask`` (N,) is True (compaction: dead paths are dropped, not masked)."""
-        return PathState(*(getattr(self, f)[mask] for f in self.__dataclass_fields__))
+        index = mask.nonzero()[:, 0]
+        return PathState(*(getattr(self, f).index_select(0, index) for f in self.__dataclass_fields__))
 
     @property
     def count(self) -> int:

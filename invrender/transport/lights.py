@@ -53,10 +53,9 @@ class EmitterSampler:
         """Points from uniforms ``u_pick`` (N,) and ``u`` (N, 2)."""
         k = torch.searchsorted(self.cdf, u_pick.contiguous(), right=True).clamp_max(self.count - 1)
         tri = self.tri[k]
+        g = self.triangles.packed.index_select(0, tri)
         su = u[:, 0].sqrt()
-        b1, b2 = su * (1.0 - u[:, 1]), su * u[:, 1]  # uniform barycentrics (weights of p1, p2)
-        t = self.triangles
-        p = t.p0[tri] + b1[:, None] * t.e1[tri] + b2[:, None] * t.e2[tri]
-        uv3 = t.uv[tri]
-        uv = (1 - b1 - b2)[:, None] * uv3[:, 0] + b1[:, None] * uv3[:, 1] + b2[:, None] * uv3[:, 2]
-        return LightSample(tri, p, t.normal[tri], uv, self.pdf_area[tri])
+        b1, b2 = (su * (1.0 - u[:, 1]))[:, None], (su * u[:, 1])[:, None]  # uniform barycentrics (weights of p1, p2)
+        p = g[:, 0:3] + b1 * g[:, 3:6] + b2 * g[:, 6:9]
+        uv = (1 - b1 - b2) * g[:, 12:14] + b1 * g[:, 14:16] + b2 * g[:, 16:18]
+        return LightSample(tri, p, g[:, 9:12], uv, self.pdf_area.index_select(0, tri))

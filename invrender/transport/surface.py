@@ -40,12 +40,12 @@ class Surface:
 def surface_at(triangles: Triangles, hits: Hits, o: torch.Tensor, d: torch.Tensor) -> Surface:
     """The :class:`Surface` of valid ``hits`` of rays ``o + t d`` (N, 3 each)."""
     tri = hits.prim
+    g = triangles.packed.index_select(0, tri)
     u, v = hits.u[:, None], hits.v[:, None]
-    p = triangles.p0[tri] + u * triangles.e1[tri] + v * triangles.e2[tri]
-    ng = triangles.normal[tri]
+    p = g[:, 0:3] + u * g[:, 3:6] + v * g[:, 6:9]
+    ng = g[:, 9:12]
     cos = -(ng * d).sum(-1)
     front = cos > 0
     n = torch.where(front[:, None], ng, -ng)
-    uv3 = triangles.uv[tri]
-    uv = (1 - u - v) * uv3[:, 0] + u * uv3[:, 1] + v * uv3[:, 2]
+    uv = (1 - u - v) * g[:, 12:14] + u * g[:, 14:16] + v * g[:, 16:18]
     return Surface(p, n, front, cos.abs(), uv, tri, hits.t)
