@@ -1,0 +1,65 @@
+"""Built-in scenes: the Cornell box as Mitsuba 3 defines it, the furnace, parameters."""
+
+import pytest
+import torch
+
+import invrender as ir
+from invrender.errors import ParameterError, SceneError
+
+
+def test_cornell_box_params_and_counts():
+    scene = ir.load_scene("cornell_box", resolution=(64, 48))
+    assert scene.resolution == (64, 48)
+    assert set(scene.params) == {"white.reflectance", "red.reflectance", "green.reflectance", "light.emission"}
+    assert torch.allclose(scene.params["light.emission"], torch.tensor([18.387, 13.9873, 6.75357]))
+    assert scene.triangles.count == 5 * 2 + 2 * 12 + 2
+    light = scene.triangles.emitter >= 0
+    assert torch.isclose(scene.triangles.area[light].sum(), torch.tensor(0.46 * 0.38), rtol=1e-5)
+    assert torch.allclose(scene.triangles.normal[light], torch.tensor([0.0, -1.0, 0.0]).expand(2, 3), atol=1e-6)
+
+
+def test_cornell_box_red_left_green_right_top_row_is_ceiling():
+    scene = ir.load_scene("cornell_box", resolution=(32, 32))
+    img = ir.render(scene, spp=16, max_depth=3, progress=False)
+    left, right = img[8:24, 1], img[8:24, 30]
+    assert (left[:, 0] > 2 * left[:, 1]).all()  # red wall on the left
+    assert (right[:, 1] > 2 * right[:, 0]).all()  # green wall on the right
+    terms = ir.render(scene, spp=4, max_depth=1, progress=False)
+    rows = (terms.sum(-1) > 0).nonzero()[:, 0]
+    assert rows.max() < 8  # the light is seen in the top rows: row 0 is the top
+
+
+def test_params_are_leaves_read_at_render_time():
+    scene = ir.load_scene("cornell_box", resolution=(16, 16))
+    before = ir.render(scene, spp=4, progress=False)
+    with torch.no_grad():
+        scene.params["light.emission"].mul_(2.0)
+    after = ir.render(scene, spp=4, progress=False)
+    assert torch.allclose(after, 2 * before, rtol=1e-5, atol=1e-6)
+    assert all(p.is_leaf for p in scene.params.values())
+
+
+def test_furnace_arguments_and_validation():
+    scene = ir.load_scene("furnace", rho=0.25, eps=[1.0, 2.0, 3.0], resolution=(4, 4))
+    assert torch.allclose(scene.params["wall.reflectance"], torch.tensor([0.25] * 3))
+    assert torch.allclose(scene.params["glow.emission"], torch.tensor([1.0, 2.0, 3.0]))
+    with pytest.raises(ParameterError, match=r"rho must lie in \[0, 1\]"):
+        ir.load_scene("furnace", rho=1.5)
+    with pytest.raises(ParameterError, match="eps must be >= 0"):
+        ir.load_scene("furnace", eps=-1.0)
+    with pytest.raises(SceneError, match="unknown scene .cornel_box."):
+        ir.load_scene("cornel_box")
+    with pytest.raises(SceneError, match="resolution"):
+        ir.load_scene("cornell_box", resolution=(0, 4))
+
+
+def test_degenerate_triangles_dropped_with_warning():
+    from invrender.scene import Camera, Mesh, build_scene
+
+    v = torch.tensor([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 0]], dtype=torch.float64).numpy()
+    f = torch.tensor([[0, 1, 2], [0, 1, 3]]).numpy()  # the second is a line
+    with pytest.warns(UserWarning, match="degenerate"):
+        scene = build_scene([Mesh(v, f, None, "m")], {"m": [0.5] * 3}, {}, Camera(), (4, 4))
+    assert scene.triangles.count == 1
+    with pytest.raises(SceneError, match="index out of range"):
+        build_scene([Mesh(v, f + 3, None, "m")], {"m": [0.5] * 3}, {}, Camera(), (4, 4))

@@ -1,0 +1,82 @@
+"""The command line: renders, --help, and one-line errors with exit status 2 on bad input."""
+
+import subprocess
+import sys
+
+import pytest
+import torch
+
+import invrender as ir
+from invrender.cli import main
+
+
+def run(args, capsys):
+    code = main(args)
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_render_writes_exr_and_png(tmp_path, capsys):
+    exr, png = tmp_path / "a.exr", tmp_path / "sub" / "a.png"
+    code, _, err = run(["render", "cornell_box", "--spp", "4", "--resolution", "16x12", "--out", str(exr), str(png), "--quiet"], capsys)
+    assert code == 0, err
+    img = ir.read_image(exr)
+    assert img.shape == (12, 16, 3)
+    assert png.exists()
+    expected = ir.render(ir.load_scene("cornell_box", resolution=(16, 12)), spp=4, seed=0, progress=False)
+    assert torch.equal(img, expected)
+
+
+def test_render_terms(tmp_path, capsys):
+    out = tmp_path / "f.exr"
+    code, _, err = run(["render", "furnace", "--integrator", "random_walk", "--max-depth", "3", "--spp", "1", "--resolution", "4x4", "--terms", "--out", str(out), "--quiet"], capsys)
+    assert code == 0, err
+    terms = [ir.read_image(tmp_path / f"f.term{k}.exr") for k in range(3)]
+    assert torch.allclose(terms[0] + terms[1] + terms[2], ir.read_image(out))
+    assert torch.allclose(terms[2], torch.full_like(terms[2], 0.25))
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["render", "no_such_scene"], "unknown scene"),
+        (["render", "missing.toml"], "not found"),
+        (["render", "--integrator", "bogus"], "unknown integrator"),
+        (["render", "--spp", "0"], "spp must be positive"),
+        (["render", "--max-depth", "0"], "max_depth"),
+        (["render", "--out", "x.jpg2"], "suffix"),
+        (["render", "--backend", "optix"], "unknown intersection backend"),
+    ],
+)
+def test_bad_input_is_one_line_exit_2(args, words, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run(args + ["--resolution", "4x4", "--spp", "1"] if "--spp" not in args else args + ["--resolution", "4x4"], capsys)
+    assert code == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("invrender: error:") and words in lines[0], err
+    assert not any(tmp_path.iterdir())  # nothing written
+
+
+def test_unwritable_output_fails_before_rendering(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    code, _, err = run(["render", "--resolution", "4x4", "--spp", "1", "--out", str(blocker / "img.exr")], capsys)
+    assert code == 2 and "cannot write" in err and len(err.strip().splitlines()) == 1
+
+
+def test_corrupt_scene_file(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("resolution = [16, \n")
+    code, _, err = run(["render", str(bad), "--out", str(tmp_path / "o.exr")], capsys)
+    assert code == 2 and "bad.toml" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "o.exr").exists()
+
+
+def test_console_script_help_and_bad_resolution():
+    """Through a real process: --help explains the commands; argparse errors exit 2."""
+    help_text = subprocess.run([sys.executable, "-m", "invrender.cli", "--help"], capture_output=True, text=True)
+    assert help_text.returncode == 0 and "render" in help_text.stdout
+    sub = subprocess.run([sys.executable, "-m", "invrender.cli", "render", "--help"], capture_output=True, text=True)
+    assert "--max-depth" in sub.stdout and "Neumann" in sub.stdout
+    bad = subprocess.run([sys.executable, "-m", "invrender.cli", "render", "--resolution", "64by64"], capture_output=True, text=True)
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr
