@@ -36,6 +36,12 @@ class Camera:
     fov_axis: str = "smaller"
 
     def __post_init__(self):
+        for name in ("origin", "target", "up"):
+            value = tuple(float(x) for x in getattr(self, name))
+            if len(value) != 3:
+                raise SceneError(f"camera {name} must have 3 components, got {len(value)}")
+            object.__setattr__(self, name, value)
+        object.__setattr__(self, "fov", float(self.fov))
         if not (0.0 < self.fov < 180.0):
             raise SceneError(f"camera fov must be in (0, 180) degrees, got {self.fov}")
         if self.fov_axis not in FOV_AXES:

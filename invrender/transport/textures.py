@@ -1,8 +1,9 @@
 """Looking up per-hit RGB values (rho or eps) from constant or textured parameters.
 
 A parameter is either a constant (3,) or a texture (h, w, 3) over UVs. Textures are filtered
-bilinearly with repeat wrapping; u runs along columns and v along rows, with v = 0 at row 0 of the
-tensor and texel centres at ((j + 0.5) / w, (i + 0.5) / h). Lookups are differentiable in the values
+bilinearly with repeat wrapping. UVs follow OpenGL's (and OBJ's, and trimesh's) convention: u runs
+left to right along columns, v bottom to top, and the tensor is stored as images are, row 0 at the
+top; texel (i, j) has its centre at u = (j + 0.5) / w, v = 1 - (i + 0.5) / h. Lookups are differentiable in the values
 (each result is a weighted sum of four texels), never in the UVs.
 """
 
@@ -19,7 +20,7 @@ def lookup(value: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
         return value.expand(uv.shape[0], 3)
     h, w = value.shape[0], value.shape[1]
     x = uv[:, 0].detach() * w - 0.5
-    y = uv[:, 1].detach() * h - 0.5
+    y = (1.0 - uv[:, 1].detach()) * h - 0.5
     x0, y0 = torch.floor(x), torch.floor(y)
     fx, fy = (x - x0)[:, None], (y - y0)[:, None]
     i0 = y0.long().remainder(h)

@@ -7,11 +7,11 @@ from invrender.transport.textures import gather_rgb, lookup
 
 def test_texel_centres_and_bilinear_midpoint():
     tex = torch.arange(2 * 4 * 3, dtype=torch.float32).reshape(2, 4, 3)  # h=2, w=4
-    centres = torch.tensor([[(j + 0.5) / 4, (i + 0.5) / 2] for i in range(2) for j in range(4)])
+    centres = torch.tensor([[(j + 0.5) / 4, 1 - (i + 0.5) / 2] for i in range(2) for j in range(4)])
     assert torch.allclose(lookup(tex, centres), tex.reshape(8, 3))
-    mid = lookup(tex, torch.tensor([[1.0 / 4, 0.25]]))  # halfway between texels (0, 0) and (0, 1)
+    mid = lookup(tex, torch.tensor([[1.0 / 4, 0.75]]))  # halfway between texels (0, 0) and (0, 1): top row
     assert torch.allclose(mid, (tex[0, 0] + tex[0, 1]) / 2)
-    wrap = lookup(tex, torch.tensor([[0.0, 0.25]]))  # halfway between the last and first column
+    wrap = lookup(tex, torch.tensor([[0.0, 0.75]]))  # halfway between the last and first column
     assert torch.allclose(wrap, (tex[0, 3] + tex[0, 0]) / 2)
 
 
