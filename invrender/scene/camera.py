@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import torch
 
 from invrender.errors import SceneError
+from invrender.transport.vec import normalize
 
 FOV_AXES = ("x", "y", "smaller", "larger")
 
@@ -89,7 +90,7 @@ class Camera:
         sx = (2.0 * film_xy[:, 0] / width - 1.0) * tx
         sy = (1.0 - 2.0 * film_xy[:, 1] / height) * ty
         d = sx[:, None] * right + sy[:, None] * up + forward
-        d = d / d.norm(dim=1, keepdim=True)
+        d = normalize(d)
         o = torch.tensor(self.origin, dtype=torch.float32, device=film_xy.device).expand_as(d)
         return o, d
 

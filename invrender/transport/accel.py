@@ -161,14 +161,17 @@ def default_backend(device: torch.device) -> str:
     return "embree" if torch.device(device).type == "cpu" else "torch"
 
 
-def make_intersector(triangles: Triangles, backend: str | None = None):
-    """An intersector for ``triangles`` by backend name (``None`` = the device's default)."""
+def make_intersector(triangles: Triangles, backend: str | None = None, embree_threads: int | None = None):
+    """An intersector for ``triangles`` by backend name (``None`` = the device's default).
+
+    ``embree_threads``: threads each Embree query is split across (None = one per core).
+    """
     backend = backend or default_backend(triangles.p0.device)
     try:
         cls = BACKENDS[backend]
     except KeyError:
         raise ParameterError(f"unknown intersection backend {backend!r} (known: {', '.join(BACKENDS)})") from None
-    return cls(triangles)
+    return EmbreeIntersector(triangles, embree_threads) if cls is EmbreeIntersector else cls(triangles)
 
 
 def _numpy(x: torch.Tensor) -> np.ndarray:

@@ -11,40 +11,29 @@ import math
 
 import torch
 
+from invrender.transport.vec import dot, normalize
+
 
 def eval(rho: torch.Tensor, n: torch.Tensor, wi: torch.Tensor) -> torch.Tensor:
     """``f(wi) * cos(theta_i)``: (N, 3) from rho (N, 3), normal (N, 3), incident direction (N, 3)."""
-    cos_i = (n * wi).sum(-1, keepdim=True).clamp_min(0.0)
-    return rho * (cos_i / math.pi)
+    return rho * (dot(n, wi).clamp_min(0.0) / math.pi)[:, None]
 
 
 def pdf(n: torch.Tensor, wi: torch.Tensor) -> torch.Tensor:
     """Solid-angle density (N,) of cosine-weighted sampling: ``cos(theta_i) / pi``."""
-    return (n * wi).sum(-1).clamp_min(0.0) / math.pi
+    return dot(n, wi).clamp_min(0.0) / math.pi
 
 
 def sample(n: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
     """Cosine-weighted directions about ``n`` (N, 3) from uniforms ``u`` (N, 2): (N, 3) unit vectors.
 
     The sample weight ``f cos / pdf`` is exactly ``rho`` (REFERENCES.md, hemisphere integrals).
-    Malley's method: a uniform point on the unit disk (concentric map) lifted to the hemisphere.
+    ``normalize(n + s)`` with ``s`` uniform on the unit sphere is cosine-distributed about ``n``
+    (the tangent-sphere construction), which needs no tangent frame.
     """
-    a = 2.0 * u[:, 0] - 1.0
-    b = 2.0 * u[:, 1] - 1.0
-    use_a = a.abs() > b.abs()
-    r = torch.where(use_a, a, b)
-    phi = torch.where(use_a, (math.pi / 4) * b / torch.where(a == 0, 1.0, a), math.pi / 2 - (math.pi / 4) * a / torch.where(b == 0, 1.0, b))
-    x, y = r * torch.cos(phi), r * torch.sin(phi)
-    z = (1.0 - x * x - y * y).clamp_min(0.0).sqrt()
-    s, t = orthonormal_basis(n)
-    return x[:, None] * s + y[:, None] * t + z[:, None] * n
-
-
-def orthonormal_basis(n: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Two unit tangents ``(s, t)`` (N, 3) completing ``n`` to a right-handed frame (Duff et al. 2017)."""
-    sign = torch.where(n[:, 2] >= 0, 1.0, -1.0)
-    a = -1.0 / (sign + n[:, 2])
-    b = n[:, 0] * n[:, 1] * a
-    s = torch.stack([1.0 + sign * n[:, 0] * n[:, 0] * a, sign * b, -sign * n[:, 0]], dim=1)
-    t = torch.stack([b, sign + n[:, 1] * n[:, 1] * a, -n[:, 1]], dim=1)
-    return s, t
+    z = 1.0 - 2.0 * u[:, 0]
+    r = (1.0 - z * z).clamp_min(0.0).sqrt()
+    phi = (2.0 * math.pi) * u[:, 1]
+    s = torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], dim=1)
+    wi = n + s
+    return normalize(wi)

@@ -13,6 +13,7 @@ from invrender.transport.accel import make_intersector
 from invrender.transport.lights import EmitterSampler
 from invrender.transport.surface import Surface
 from invrender.transport.textures import gather_rgb
+from invrender.transport.vec import dot
 
 INTEGRATORS = ("path", "random_walk")
 
@@ -86,6 +87,7 @@ class TransportContext:
         eps: per-emitter emission parameters (differentiable), indexed by ``triangles.emitter``.
         ray_offset: distance new rays start off a surface, to avoid self-intersection.
         settings: the render settings.
+        textured: does any rho or eps vary over UVs (else hits skip texture coordinates)?
     """
 
     triangles: Triangles
@@ -95,22 +97,27 @@ class TransportContext:
     eps: list[torch.Tensor]
     ray_offset: float
     settings: RenderSettings
+    textured: bool
 
     @staticmethod
-    def build(scene: Scene, settings: RenderSettings, device: torch.device) -> "TransportContext":
-        """The context for rendering ``scene`` on ``device`` (parameters moved differentiably)."""
+    def build(scene: Scene, settings: RenderSettings, device: torch.device, embree_threads: int | None = None) -> "TransportContext":
+        """The context for rendering ``scene`` on ``device`` (parameters moved differentiably).
+
+        ``embree_threads``: threads each Embree query is split across (None = one per core).
+        """
         tris = scene.triangles.to(device)
         rho = [scene.reflectance_of(k).to(device) for k in range(len(scene.materials))]
         eps = [scene.emission_of(k).to(device) for k in range(len(scene.emitters))]
         lights = EmitterSampler(tris, eps)
         return TransportContext(
             triangles=tris,
-            accel=make_intersector(tris, settings.backend),
+            accel=make_intersector(tris, settings.backend, embree_threads),
             lights=lights if lights.count else None,
             rho=rho,
             eps=eps,
             ray_offset=1e-4 * max(scene_extent(tris), 1e-3),
             settings=settings,
+            textured=any(p.ndim == 3 for p in rho + eps),
         )
 
     def reflectance(self, s: Surface) -> torch.Tensor:
@@ -131,8 +138,8 @@ class TransportContext:
 
     def spawn(self, s: Surface, wi: torch.Tensor) -> torch.Tensor:
         """Origins (N, 3) of new rays leaving ``s`` in directions ``wi``, offset off the surface."""
-        side = torch.where((s.n * wi).sum(-1, keepdim=True) >= 0, 1.0, -1.0)
-        return s.p + side * self.ray_offset * s.n
+        side = torch.where(dot(s.n, wi) >= 0, self.ray_offset, -self.ray_offset)
+        return s.p + side[:, None] * s.n
 
 
 @dataclass(frozen=True)

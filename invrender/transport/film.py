@@ -24,6 +24,15 @@ class Film:
             self._images[key] = torch.zeros(self.width * self.height, 3, dtype=torch.float64, device=self.device)
         self._images[key].index_add_(0, pixel, radiance.double())
 
+    @staticmethod
+    def merge(films: list["Film"]) -> "Film":
+        """One film holding the sums of ``films`` (same size and ``terms``)."""
+        out = films[0]
+        for other in films[1:]:
+            for k, img in other._images.items():
+                out._images[k] = out._images[k] + img if k in out._images else img
+        return out
+
     def develop(self, spp: int) -> torch.Tensor:
         """The mean over ``spp`` samples: (H, W, 3), or (K, H, W, 3) per term with ``terms``."""
         shape = (self.height, self.width, 3)

@@ -4,13 +4,20 @@ Each chunk is a flat batch of path ids ``pixel * spp + sample``. Camera rays are
 counter-based numbers, the integrator runs its bounce loop over the batch, and contributions
 accumulate in the film; chunks only add, so any spp fits in bounded memory and the image does not
 depend on the chunk size (DESIGN.md decisions 2 and 3).
+
+On the CPU, one worker thread per core traces its own chunks single-threaded (torch ops and Embree
+release the GIL): this keeps both cores busy through the many small per-bounce tensor operations,
+which intra-op threading parallelizes poorly. Each worker has its own film; they are summed at the
+end in float64, so the image is the same whatever the number of workers.
 """
 
 from __future__ import annotations
 
-import contextlib
 import math
+import os
 import sys
+import threading
+from concurrent.futures import ThreadPoolExecutor
 
 import torch
 from tqdm.auto import tqdm
@@ -68,20 +75,50 @@ def render(
     device = torch.device(device) if device is not None else scene.device
     if device.type == "cuda" and not torch.cuda.is_available():
         raise ParameterError("device 'cuda' requested but torch has no CUDA device here")
-    ctx = TransportContext.build(scene, settings, device)
+    workers = cpu_workers(device)
+    ctx = TransportContext.build(scene, settings, device, embree_threads=1 if workers > 1 else None)
     trace = INTEGRATOR_MODULES[settings.integrator].trace
-    film = Film(scene.width, scene.height, settings.terms, device)
+    films = [Film(scene.width, scene.height, settings.terms, device) for _ in range(workers)]
 
     total = scene.width * scene.height * settings.spp
-    chunk = settings.chunk_paths or max(1024, int(settings.memory_mb * 2**20 // BYTES_PER_PATH))
+    chunk = settings.chunk_paths or max(1024, min(int(settings.memory_mb * 2**20 // BYTES_PER_PATH) // workers, -(-total // workers)))
+    starts = range(0, total, chunk)
     needs_grad = any(p.requires_grad for p in scene.params.values()) and torch.is_grad_enabled()
     bar = tqdm(total=total, unit="path", unit_scale=True, delay=1.0, disable=not settings.progress, desc=f"render {scene.name}", file=sys.stderr, leave=False)
-    with bar, (contextlib.nullcontext() if needs_grad else torch.no_grad()):
-        for start in range(0, total, chunk):
-            ids = torch.arange(start, min(total, start + chunk), dtype=torch.int64, device=device)
-            trace(ctx, camera_paths(scene, settings, ids), film)
-            bar.update(ids.numel())
-    return film.develop(settings.spp)
+    stop = threading.Event()
+
+    def work(w: int) -> None:
+        """Worker w traces chunks w, w + workers, ... into its own film (a fixed, seed-independent split)."""
+        if workers > 1:
+            torch.set_num_threads(1)  # per thread (OpenMP): the workers, not the ops, use the cores
+        with torch.set_grad_enabled(needs_grad):  # grad mode is thread-local
+            for start in starts[w::workers]:
+                if stop.is_set():
+                    return
+                ids = torch.arange(start, min(total, start + chunk), dtype=torch.int64, device=device)
+                trace(ctx, camera_paths(scene, settings, ids), films[w])
+                bar.update(ids.numel())
+
+    with bar:
+        if workers == 1:
+            work(0)
+        else:
+            with ThreadPoolExecutor(workers) as pool:
+                jobs = [pool.submit(work, w) for w in range(workers)]
+                try:
+                    for job in jobs:
+                        job.result()
+                except BaseException:
+                    stop.set()
+                    raise
+    return Film.merge(films).develop(settings.spp)
+
+
+def cpu_workers(device: torch.device) -> int:
+    """Chunks traced at once: one per core on the CPU (each single-threaded), one on a GPU."""
+    if device.type != "cpu":
+        return 1
+    return max(1, min(len(os.sched_getaffinity(0)), torch.get_num_threads()))
 
 
 def camera_paths(scene: Scene, settings: RenderSettings, ids: torch.Tensor) -> PathState:

@@ -74,8 +74,8 @@ def uniform(keys: torch.Tensor, bounce: int, dims: int) -> torch.Tensor:
         bounce: vertex index (0 = the camera's sample).
         dims: how many numbers per path.
     Returns:
-        (N, dims) float32, each the hash of (key, bounce, dimension), with 24 random bits.
+        (N, dims) float32, each the hash of (key, bounce, dimension): its low 24 bits / 2^24.
     """
     salts = torch.tensor([_signed(_mix_int(bounce * 0x10000 + d + 0x632BE5AB)) for d in range(dims)], dtype=torch.int32, device=keys.device)
     h = _mix(keys[:, None] ^ salts)
-    return ((h >> 8) & 0xFFFFFF).to(torch.float32) * (1.0 / 16777216.0)
+    return (h & 0xFFFFFF).to(torch.float32) * (1.0 / 16777216.0)

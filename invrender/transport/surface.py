@@ -8,6 +8,7 @@ import torch
 
 from invrender.scene.scene import Triangles
 from invrender.transport.accel import Hits
+from invrender.transport.vec import dot
 
 
 @dataclass(frozen=True)
@@ -19,7 +20,7 @@ class Surface:
         n: (N, 3) unit geometric normal turned towards the incoming ray (the side light leaves from).
         front: (N,) bool, True where the ray hit the triangle's front side (the emitting side).
         cos_o: (N,) cosine between ``n`` and the direction back along the ray (> 0).
-        uv: (N, 2) texture coordinates.
+        uv: (N, 2) texture coordinates (zeros when the scene has no textures).
         tri: (N,) int64 triangle index.
         t: (N,) distance from the ray origin.
     """
@@ -37,15 +38,18 @@ class Surface:
         return Surface(*(getattr(self, f)[index] for f in self.__dataclass_fields__))
 
 
-def surface_at(triangles: Triangles, hits: Hits, o: torch.Tensor, d: torch.Tensor) -> Surface:
-    """The :class:`Surface` of valid ``hits`` of rays ``o + t d`` (N, 3 each)."""
+def surface_at(triangles: Triangles, hits: Hits, d: torch.Tensor, with_uv: bool = True) -> Surface:
+    """The :class:`Surface` of valid ``hits`` of rays with directions ``d`` (N, 3).
+
+    ``with_uv=False`` skips interpolating texture coordinates (for scenes without textures).
+    """
     tri = hits.prim
     g = triangles.packed.index_select(0, tri)
     u, v = hits.u[:, None], hits.v[:, None]
     p = g[:, 0:3] + u * g[:, 3:6] + v * g[:, 6:9]
     ng = g[:, 9:12]
-    cos = -(ng * d).sum(-1)
+    cos = -dot(ng, d)
     front = cos > 0
     n = torch.where(front[:, None], ng, -ng)
-    uv = (1 - u - v) * g[:, 12:14] + u * g[:, 14:16] + v * g[:, 16:18]
+    uv = (1 - u - v) * g[:, 12:14] + u * g[:, 14:16] + v * g[:, 16:18] if with_uv else g[:, 12:14].new_zeros(()).expand(len(tri), 2)
     return Surface(p, n, front, cos.abs(), uv, tri, hits.t)

@@ -79,3 +79,19 @@ def test_different_seeds_differ(cbox32):
     a = ir.render(cbox32, spp=4, seed=0, progress=False)
     b = ir.render(cbox32, spp=4, seed=1, progress=False)
     assert not torch.equal(a, b)
+
+
+def test_two_workers_give_the_same_image(cbox32):
+    """On the CPU one worker thread per core traces chunks into its own film: the image is the
+    same as with one worker (the test session runs single-threaded, so force two here)."""
+    one = ir.render(cbox32, spp=8, seed=4, progress=False)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        from invrender.transport.render import cpu_workers
+
+        assert cpu_workers(torch.device("cpu")) == 2
+        two = ir.render(cbox32, spp=8, seed=4, progress=False)
+    finally:
+        torch.set_num_threads(threads)
+    assert torch.equal(one, two)

@@ -19,6 +19,7 @@ from invrender.transport.context import PathState, TransportContext, russian_rou
 from invrender.transport.film import Film
 from invrender.transport.sampler import uniform
 from invrender.transport.surface import Surface, surface_at
+from invrender.transport.vec import dot, norm
 
 
 def power_heuristic(pdf_a: torch.Tensor, pdf_b: torch.Tensor) -> torch.Tensor:
@@ -37,7 +38,7 @@ def trace(ctx: TransportContext, state: PathState, film: Film) -> None:
         state, hits = state.select(hit), hits.select(hit)
         if not state.count:
             break
-        s = surface_at(ctx.triangles, hits, state.o, state.d)
+        s = surface_at(ctx.triangles, hits, state.d, ctx.textured)
 
         # term k = depth, BSDF strategy: an emitter seen along the ray. Its MIS weight balances it
         # against NEE from the previous vertex; the camera ray (depth 0) has no competing strategy.
@@ -68,25 +69,22 @@ def trace(ctx: TransportContext, state: PathState, film: Film) -> None:
 
 
 def _next_event(ctx: TransportContext, state: PathState, s: Surface, rho: torch.Tensor, u: torch.Tensor, term: int, film: Film):
-    """Add ``beta f cos eps G / pdf_light`` (MIS-weighted) for one emitter sample per path."""
+    """Add ``beta f cos eps G V / pdf_light`` (MIS-weighted) for one emitter sample per path.
+
+    Every path casts its shadow ray and adds its (possibly zero) contribution: cheaper here than
+    compacting the dozen per-path tensors down to the samples that can contribute.
+    """
     ls = ctx.lights.sample(u[:, 2], u[:, 3:5])
     o = s.p + ctx.ray_offset * s.n
     to_light = ls.p - o
-    dist = to_light.norm(dim=1).clamp_min(1e-12)
+    dist = norm(to_light).clamp_min(1e-12)
     wl = to_light / dist[:, None]
-    cos_x = (s.n * wl).sum(-1)  # at the shading point
-    cos_l = -(ls.n * wl).sum(-1)  # at the light: only its front side emits
+    cos_x = dot(s.n, wl)  # at the shading point
+    cos_l = -dot(ls.n, wl)  # at the light: only its front side emits
     ok = (cos_x > 0) & (cos_l > 0)
-    if not bool(ok.any()):
-        return
-    m = ok.nonzero()[:, 0]
-    visible = ~ctx.accel.occluded(o[m], wl[m], dist[m] - ctx.ray_offset)
-    m = m[visible]
-    if not m.numel():
-        return
-    pdf_light = ls.pdf_area[m] * dist[m] ** 2 / cos_l[m]  # area -> solid angle
-    w = power_heuristic(pdf_light, cos_x[m] / math.pi)
-    Le = ctx.emission(ctx.triangles.emitter[ls.tri[m]], ls.uv[m])
-    f_cos = rho[m] * (cos_x[m] / math.pi)[:, None]
-    film.add(term, state.pixel[m], state.beta[m] * f_cos * Le * (w / pdf_light)[:, None])
-
+    ok &= ~ctx.accel.occluded(o, wl, dist - ctx.ray_offset)
+    pdf_light = ls.pdf_area * dist * dist / cos_l.clamp_min(1e-12)  # area -> solid angle
+    pdf_bsdf = cos_x.clamp_min(0.0) / math.pi
+    weight = torch.where(ok, power_heuristic(pdf_light, pdf_bsdf) * pdf_bsdf / pdf_light, 0.0)  # MIS w x cos/pi / pdf
+    Le = ctx.emission(ctx.triangles.emitter[ls.tri], ls.uv)
+    film.add(term, state.pixel, state.beta * rho * Le * weight[:, None])

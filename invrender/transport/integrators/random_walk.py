@@ -27,7 +27,7 @@ def trace(ctx: TransportContext, state: PathState, film: Film) -> None:
         state, hits = state.select(hit), hits.select(hit)
         if not state.count:
             break
-        s = surface_at(ctx.triangles, hits, state.o, state.d)
+        s = surface_at(ctx.triangles, hits, state.d, ctx.textured)
 
         # term k = depth: emission seen along the ray, weighted by the throughput
         film.add(depth, state.pixel, state.beta * ctx.emitted(s))

@@ -1,0 +1,1 @@
+"""Light transport: sampler, intersection, BSDF, lights, integrators, film, render."""
