@@ -13,7 +13,7 @@ import time
 import warnings
 from pathlib import Path
 
-from invrender.errors import ImageError, InvRenderError, ParameterError
+from invrender.errors import ImageError, InvRenderError
 
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
@@ -53,12 +53,19 @@ def parse_resolution(text: str) -> tuple[int, int]:
     return w, h
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line (``invrender: error: ...``) and exit status 2."""
+
+    def error(self, message):
+        self.exit(EXIT_BAD_INPUT, f"invrender: error: {message} (see '{self.prog} --help')\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="invrender", description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = OneLineParser(prog="invrender", description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
     from invrender import __version__
 
     parser.add_argument("--version", action="version", version=f"invrender {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=OneLineParser)
 
     r = sub.add_parser(
         "render",

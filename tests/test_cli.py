@@ -78,5 +78,6 @@ def test_console_script_help_and_bad_resolution():
     assert help_text.returncode == 0 and "render" in help_text.stdout
     sub = subprocess.run([sys.executable, "-m", "invrender.cli", "render", "--help"], capture_output=True, text=True)
     assert "--max-depth" in sub.stdout and "Neumann" in sub.stdout
-    bad = subprocess.run([sys.executable, "-m", "invrender.cli", "render", "--resolution", "64by64"], capture_output=True, text=True)
-    assert bad.returncode == 2 and "Traceback" not in bad.stderr
+    for args in (["render", "--resolution", "64by64"], ["render", "--resolution", "0x4"], ["render", "--spp", "many"], ["paint"]):
+        bad = subprocess.run([sys.executable, "-m", "invrender.cli", *args], capture_output=True, text=True)
+        assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and bad.stderr.startswith("invrender"), bad.stderr
