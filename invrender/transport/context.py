@@ -100,14 +100,16 @@ class TransportContext:
     textured: bool
 
     @staticmethod
-    def build(scene: Scene, settings: RenderSettings, device: torch.device, embree_threads: int | None = None) -> "TransportContext":
+    def build(scene: Scene, settings: RenderSettings, device: torch.device, embree_threads: int | None = None, params: dict | None = None) -> "TransportContext":
         """The context for rendering ``scene`` on ``device`` (parameters moved differentiably).
 
         ``embree_threads``: threads each Embree query is split across (None = one per core).
+        ``params``: values to use instead of ``scene.params`` (same names; all or some).
         """
         tris = scene.triangles.to(device)
-        rho = [scene.reflectance_of(k).to(device) for k in range(len(scene.materials))]
-        eps = [scene.emission_of(k).to(device) for k in range(len(scene.emitters))]
+        values = {**scene.params, **(params or {})}
+        rho = [values[f"{m}.reflectance"].to(device) for m in scene.materials]
+        eps = [values[f"{e}.emission"].to(device) for e in scene.emitters]
         lights = EmitterSampler(tris, eps)
         return TransportContext(
             triangles=tris,

@@ -13,6 +13,9 @@ class Film:
     kept in float64, so the float32 image does not depend on the order in which chunks arrive.
     """
 
+    #: replay's adjoint pass sets this: the integrator then carries the throughput beta detached
+    detach_throughput = False
+
     def __init__(self, width: int, height: int, terms: bool, device):
         self.width, self.height, self.terms, self.device = width, height, terms, device
         self._images: dict[int, torch.Tensor] = {}
@@ -23,6 +26,18 @@ class Film:
         if key not in self._images:
             self._images[key] = torch.zeros(self.width * self.height, 3, dtype=torch.float64, device=self.device)
         self._images[key].index_add_(0, pixel, radiance.double())
+
+    def reflect(self, pixel: torch.Tensor, rho: torch.Tensor) -> None:
+        """Hook called at each scattering vertex with its reflectance rho (N, 3), after every
+        contribution that does not pass through it was added. The film ignores it; path replay's
+        adjoint film turns it into the gradient of everything the path gathers beyond the vertex."""
+
+    def sums(self) -> torch.Tensor:
+        """(W * H, 3) float64 sums of all contributions so far, all terms together."""
+        total = torch.zeros(self.width * self.height, 3, dtype=torch.float64, device=self.device)
+        for img in self._images.values():
+            total = total + img
+        return total
 
     @staticmethod
     def merge(films: list["Film"]) -> "Film":

@@ -33,6 +33,9 @@ from invrender.transport.sampler import path_keys, uniform
 BYTES_PER_PATH = 2048
 
 
+ESTIMATORS = ("autodiff", "replay")
+
+
 def render(
     scene: Scene,
     integrator: str = "path",
@@ -42,6 +45,7 @@ def render(
     *,
     terms: bool = False,
     rr_depth: int = 5,
+    estimator: str | None = None,
     backend: str | None = None,
     device=None,
     chunk_paths: int | None = None,
@@ -59,6 +63,9 @@ def render(
         seed: the image is a pure function of the seed (and the scene and settings).
         terms: return one image per Neumann term instead of their sum.
         rr_depth: Russian roulette starts after this many terms.
+        estimator: how the image is differentiated when a parameter requires grad:
+            ``"replay"`` (default; path-replay backpropagation, memory flat in spp and depth) or
+            ``"autodiff"`` (torch records the whole wavefront).
         backend: ``"embree"`` (CPU) or ``"torch"`` (any device); None = the device's default.
         device: where to render; None = the scene's device. Parameters are moved differentiably.
         chunk_paths: paths per chunk; None = from ``memory_mb``.
@@ -72,46 +79,73 @@ def render(
         integrator=integrator, spp=spp, max_depth=max_depth, seed=seed, rr_depth=rr_depth, terms=terms,
         backend=backend, chunk_paths=chunk_paths, memory_mb=memory_mb, progress=progress,
     )  # fmt: skip
+    if estimator is not None and estimator not in ESTIMATORS:
+        raise ParameterError(f"unknown estimator {estimator!r} (known: {', '.join(ESTIMATORS)})")
     device = torch.device(device) if device is not None else scene.device
     if device.type == "cuda" and not torch.cuda.is_available():
         raise ParameterError("device 'cuda' requested but torch has no CUDA device here")
-    workers = cpu_workers(device)
-    ctx = TransportContext.build(scene, settings, device, embree_threads=1 if workers > 1 else None)
-    trace = INTEGRATOR_MODULES[settings.integrator].trace
-    films = [Film(scene.width, scene.height, settings.terms, device) for _ in range(workers)]
+    differentiable = [k for k, v in scene.params.items() if v.requires_grad] if torch.is_grad_enabled() else []
+    if differentiable and (estimator or "replay") == "replay":
+        if terms:
+            raise ParameterError("terms=True is not available with estimator='replay'; use estimator='autodiff'")
+        from invrender.inverse.replay import replay_render
 
+        return replay_render(scene, settings, device, differentiable)
+    return render_image(scene, settings, device)
+
+
+def render_image(scene: Scene, settings: RenderSettings, device: torch.device, params: dict | None = None) -> torch.Tensor:
+    """The image of :func:`render`, recording autograd where a parameter requires grad
+    (``params`` overrides ``scene.params`` values)."""
+    ctx = TransportContext.build(scene, settings, device, embree_threads=1 if cpu_workers(device) > 1 else None, params=params)
+    trace = INTEGRATOR_MODULES[settings.integrator].trace
+    films = [Film(scene.width, scene.height, settings.terms, device) for _ in range(cpu_workers(device))]
+
+    def chunk(worker: int, state: PathState) -> None:
+        trace(ctx, state, films[worker])
+
+    for_each_chunk(scene, settings, device, chunk)
+    return Film.merge(films).develop(settings.spp)
+
+
+def for_each_chunk(scene: Scene, settings: RenderSettings, device: torch.device, work, grad: bool | None = None) -> None:
+    """Call ``work(worker, camera_paths)`` for every chunk of the (pixel, sample) paths.
+
+    On the CPU, one worker thread per core takes chunks ``w, w + workers, ...`` (a fixed split, so
+    results do not depend on timing) and runs single-threaded; a progress bar shows rate and ETA.
+    ``grad``: autograd on or off inside the workers (default: the caller's mode).
+    """
+    workers = cpu_workers(device)
     total = scene.width * scene.height * settings.spp
     chunk = settings.chunk_paths or max(1024, min(int(settings.memory_mb * 2**20 // BYTES_PER_PATH) // workers, -(-total // workers)))
     starts = range(0, total, chunk)
-    needs_grad = any(p.requires_grad for p in scene.params.values()) and torch.is_grad_enabled()
+    grad = torch.is_grad_enabled() if grad is None else grad
     bar = tqdm(total=total, unit="path", unit_scale=True, delay=1.0, disable=not settings.progress, desc=f"render {scene.name}", file=sys.stderr, leave=False)
     stop = threading.Event()
 
-    def work(w: int) -> None:
-        """Worker w traces chunks w, w + workers, ... into its own film (a fixed, seed-independent split)."""
+    def run(w: int) -> None:
         if workers > 1:
             torch.set_num_threads(1)  # per thread (OpenMP): the workers, not the ops, use the cores
-        with torch.set_grad_enabled(needs_grad):  # grad mode is thread-local
+        with torch.set_grad_enabled(grad):  # grad mode is thread-local
             for start in starts[w::workers]:
                 if stop.is_set():
                     return
                 ids = torch.arange(start, min(total, start + chunk), dtype=torch.int64, device=device)
-                trace(ctx, camera_paths(scene, settings, ids), films[w])
+                work(w, camera_paths(scene, settings, ids))
                 bar.update(ids.numel())
 
     with bar:
         if workers == 1:
-            work(0)
-        else:
-            with ThreadPoolExecutor(workers) as pool:
-                jobs = [pool.submit(work, w) for w in range(workers)]
-                try:
-                    for job in jobs:
-                        job.result()
-                except BaseException:
-                    stop.set()
-                    raise
-    return Film.merge(films).develop(settings.spp)
+            run(0)
+            return
+        with ThreadPoolExecutor(workers) as pool:
+            jobs = [pool.submit(run, w) for w in range(workers)]
+            try:
+                for job in jobs:
+                    job.result()
+            except BaseException:
+                stop.set()
+                raise
 
 
 def cpu_workers(device: torch.device) -> int:

@@ -62,8 +62,10 @@ def trace(ctx: TransportContext, state: PathState, film: Film) -> None:
             _next_event(ctx, state, s, rho, u, depth + 1, film)
 
         # continue the path: cosine-weighted BSDF sample, weight f cos / pdf = rho
+        film.reflect(state.pixel, rho)
         wi = bsdf.sample(s.n, u[:, 0:2])
-        state = dataclasses.replace(state, o=ctx.spawn(s, wi), d=wi, beta=state.beta * rho, pdf_dir=bsdf.pdf(s.n, wi))
+        beta = state.beta * (rho.detach() if film.detach_throughput else rho)
+        state = dataclasses.replace(state, o=ctx.spawn(s, wi), d=wi, beta=beta, pdf_dir=bsdf.pdf(s.n, wi))
         state = russian_roulette(state, u[:, 5], depth, settings.rr_depth)
         depth += 1
 

@@ -35,9 +35,12 @@ def trace(ctx: TransportContext, state: PathState, film: Film) -> None:
             break
 
         # next direction from the cosine-weighted BSDF: weight f cos / pdf = rho
+        rho = ctx.reflectance(s)
+        film.reflect(state.pixel, rho)
         u = uniform(state.keys, depth + 1, 6)
         wi = bsdf.sample(s.n, u[:, 0:2])
-        state = dataclasses.replace(state, o=ctx.spawn(s, wi), d=wi, beta=state.beta * ctx.reflectance(s))
+        beta = state.beta * (rho.detach() if film.detach_throughput else rho)
+        state = dataclasses.replace(state, o=ctx.spawn(s, wi), d=wi, beta=beta)
         state = russian_roulette(state, u[:, 5], depth, settings.rr_depth)
         depth += 1
 

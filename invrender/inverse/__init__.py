@@ -1,0 +1,1 @@
+"""Inverse rendering: gradient estimators, losses, fitting, gradient checks."""
