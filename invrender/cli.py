@@ -13,7 +13,7 @@ import time
 import warnings
 from pathlib import Path
 
-from invrender.errors import ImageError, InvRenderError
+from invrender.errors import ImageError, InvRenderError, ParameterError
 
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
@@ -23,8 +23,12 @@ invrender renders Kajiya's rendering equation I = g(eps + M I) by Monte Carlo on
 (a path tracer estimating the Neumann series g eps + gMg eps + g(Mg)^2 eps + ...).
 
 commands:
-  render    render a built-in scene (cornell_box, furnace) or a scene file (.toml, .gltf, .glb, .obj)
-            to EXR (linear float32) and/or PNG (sRGB)
+  render     render a built-in scene (cornell_box, furnace) or a scene file (.toml, .gltf, .glb, .obj)
+             to EXR (linear float32) and/or PNG (sRGB)
+  fit        recover reflectances rho and emissions eps from target images by differentiating the
+             path tracer (from --scene/--target/--params, or an optimize/*.toml recipe)
+  gradcheck  compare each gradient estimator with central finite differences (common random numbers)
+  dataset    render a datasets_synthetic/*.toml recipe: target EXRs, ground truth, manifest
 
 Run 'invrender COMMAND --help' for a command's options.
 """
@@ -88,7 +92,77 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--memory-mb", type=float, default=512.0, help="memory budget of one chunk of paths, MiB (default: 512)")
     r.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     r.set_defaults(run=run_render)
+
+    f = sub.add_parser(
+        "fit",
+        help="recover rho and eps from target images",
+        description="Fit parameters to target images by gradient descent through the Monte Carlo estimate.",
+        epilog=FIT_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    f.add_argument("recipe", nargs="?", help="an optimize/*.toml fit recipe (instead of --scene/--target/--params)")
+    f.add_argument("--scene", help="built-in name or scene file whose parameters are fitted")
+    f.add_argument("--target", nargs="+", metavar="IMAGE", help="target image(s): EXR (linear) or PNG; one per view")
+    f.add_argument("--params", help="comma-separated parameter names, e.g. red.reflectance,light.emission")
+    f.add_argument("--init", action="append", default=[], metavar="KEY=VALUE", help="starting value: NAME=v or NAME=r,g,b; NAME may be 'reflectance' or 'emission' for all fitted ones (repeatable)")
+    f.add_argument("--resolution", type=parse_resolution, default=None, metavar="WxH", help="render size (default: the target's)")
+    f.add_argument("--out", required=True, help="output folder: report.json, loss.png, final.exr, checkpoint.pt")
+    f.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    for name, kind, doc in FIT_OPTIONS:
+        f.add_argument(f"--{name.replace('_', '-')}", dest=name, type=kind, default=None, help=doc)
+    f.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    f.set_defaults(run=run_fit)
+
+    g = sub.add_parser("gradcheck", help="check gradients against finite differences", description=GRADCHECK_DOC, formatter_class=argparse.RawDescriptionHelpFormatter)
+    g.add_argument("scene", nargs="?", default="cornell_box", help="built-in name or scene file (default: cornell_box)")
+    g.add_argument("--params", default="red.reflectance,white.reflectance,light.emission", help="comma-separated parameter names")
+    g.add_argument("--estimators", default="autodiff,replay", help="comma-separated: autodiff, replay")
+    g.add_argument("--resolution", type=parse_resolution, default=(32, 32), metavar="WxH", help="(default: 32x32)")
+    g.add_argument("--spp", type=int, default=32, help="(default: 32)")
+    g.add_argument("--max-depth", type=int, default=4, help="keep below --rr-depth so the estimate is smooth (default: 4)")
+    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--step", type=float, default=1e-2, help="finite-difference step, relative (default: 0.01)")
+    g.add_argument("--tolerance", type=float, default=None, help="exit 1 if any relative error exceeds this")
+    g.set_defaults(run=run_gradcheck)
+
+    d = sub.add_parser("dataset", help="render a synthetic dataset recipe", description="Render a datasets_synthetic/*.toml recipe: view_NN.exr/png, truth.json, manifest.json.")
+    d.add_argument("recipe", help="a dataset recipe (.toml)")
+    d.add_argument("--out", required=True, help="output folder")
+    d.add_argument("--quiet", action="store_true", help="no progress bar")
+    d.set_defaults(run=run_dataset)
     return parser
+
+
+FIT_EPILOG = """\
+examples:
+  invrender render cornell_box --resolution 64x64 --spp 1024 --out target.exr
+  invrender fit --scene cornell_box --target target.exr --init reflectance=0.5 --init emission=5 \\
+      --params red.reflectance,green.reflectance,white.reflectance,light.emission --out runs/cbox
+  invrender fit optimize/cornell_random.toml --out runs/cornell_random
+  invrender fit optimize/cornell_random.toml --out runs/cornell_random --resume     # after Ctrl-C
+
+Writes OUT/report.json (initial, recovered and, when a recipe knows it, true values with errors),
+OUT/loss.png (loss and parameter error per step), OUT/final.exr (the recovered scene rendered) and
+OUT/checkpoint.pt (every few steps and on Ctrl-C; --resume continues to the same result).
+"""
+
+GRADCHECK_DOC = """\
+Compare each gradient estimator (autodiff, replay) with central finite differences of a fixed random
+pixel weighting sum(W * I), re-rendered with the same seed (common random numbers). Prints one row
+per parameter component with the relative errors.
+"""
+
+FIT_OPTIONS = [
+    ("steps", int, "optimizer steps (default: 160)"),
+    ("spp", int, "samples per pixel, first half of the steps (default: 16)"),
+    ("spp_final", int, "samples per pixel, second half (default: 64)"),
+    ("max_depth", int, "Neumann terms kept (default: 8)"),
+    ("lr", float, "Adam step size for reflectances, logit units (default: 0.08)"),
+    ("lr_emission", float, "Adam step size for emissions, log units (default: 0.08)"),
+    ("loss", str, "l2, l1, relative_l2 or ssim (default: l2)"),
+    ("estimator", str, "replay or autodiff (default: replay)"),
+    ("seed", int, "seed of every render (default: 0)"),
+]
 
 
 def check_outputs(paths: list[str]) -> list[Path]:
@@ -132,6 +206,106 @@ def run_render(args) -> int:
         mean = ", ".join(f"{v:.4g}" for v in full.mean(dim=(0, 1)).tolist())
         print(f"{scene.name}: {scene.width}x{scene.height}, {args.spp} spp, {seconds:.2f} s ({paths / seconds / 1e6:.3g} M paths/s); mean RGB {mean}", file=sys.stderr)
         print("wrote " + ", ".join(str(p) for p in outputs) + (f" (+ {image.shape[0]} term images each)" if args.terms else ""), file=sys.stderr)
+    return 0
+
+
+def parse_init(items: list[str]) -> dict:
+    """``["NAME=v", "NAME=r,g,b"]`` -> {NAME: value}."""
+    init = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        try:
+            values = [float(x) for x in text.split(",")]
+        except ValueError:
+            values = []
+        if not sep or not key or len(values) not in (1, 3):
+            raise ParameterError(f"--init expects NAME=VALUE or NAME=R,G,B, got {item!r}")
+        init[key.strip()] = values[0] if len(values) == 1 else values
+    return init
+
+
+def run_fit(args) -> int:
+    import dataclasses
+
+    import invrender as ir
+    from invrender.inverse.fit import fit
+    from invrender.inverse.report import plot_history, report_dict, write_json
+    from invrender.recipes import apply_init, load_dataset, load_fit_recipe, make_dataset
+
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ImageError(f"cannot write to {out}: it is a file")
+    settings = {name: getattr(args, name) for name, _, _ in FIT_OPTIONS if getattr(args, name) is not None}
+    cameras, truth, extra = None, None, {}
+    if args.recipe:
+        if args.scene or args.target or args.params:
+            raise ParameterError("give either a recipe or --scene/--target/--params, not both")
+        recipe = load_fit_recipe(args.recipe)
+        data = out / "dataset"
+        if not (data / "manifest.json").is_file():
+            if not args.quiet:
+                print(f"rendering the dataset {recipe.dataset.path} into {data}", file=sys.stderr)
+            make_dataset(recipe.dataset.path, data, progress=not args.quiet)
+        scene, targets, cameras, truth = load_dataset(data)
+        names, init = recipe.params, {**recipe.init, **parse_init(args.init)}
+        settings = {**recipe.settings, **settings}
+        extra["recipe"] = str(recipe.path)
+    else:
+        if not (args.scene and args.target and args.params):
+            raise ParameterError("fit needs a recipe, or all of --scene, --target and --params")
+        targets = [ir.read_image(t) for t in args.target]
+        resolution = args.resolution or (targets[0].shape[1], targets[0].shape[0])
+        scene = ir.load_scene(args.scene, resolution=resolution)
+        names, init = [n.strip() for n in args.params.split(",") if n.strip()], parse_init(args.init)
+        extra["targets"] = list(args.target)
+    apply_init(scene, names, init)
+    try:
+        result = fit(scene, targets, names, cameras=cameras, truth=truth, checkpoint=out / "checkpoint.pt", resume=args.resume, progress=not args.quiet, **settings)
+    except KeyboardInterrupt:
+        print(f"invrender: interrupted; checkpoint saved to {out / 'checkpoint.pt'} (continue with --resume)", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    final_spp = 4 * result.settings.spp_final
+    views = cameras or [result.scene.camera]
+    for i, camera in enumerate(views):
+        name = "final.exr" if len(views) == 1 else f"final_{i:02d}.exr"
+        image = ir.render(result.scene.with_camera(camera), spp=final_spp, max_depth=result.settings.max_depth, seed=result.settings.seed + 1, progress=not args.quiet)
+        ir.write_image(out / name, image)
+    report = report_dict(result, **extra)
+    write_json(out / "report.json", report)
+    plot_history(result, out / "loss.png")
+    if not args.quiet:
+        print(f"{report['steps']} steps in {report['seconds']:.1f} s, final loss {report['final_loss']:.4g}", file=sys.stderr)
+        for name, value in result.params.items():
+            err = f"  (rel. error {result.errors[name]:.2%})" if name in result.errors else ""
+            print(f"  {name}: {_fmt(value)}{err}", file=sys.stderr)
+        print(f"wrote {out}/report.json, loss.png, final EXR, checkpoint.pt", file=sys.stderr)
+    return 0
+
+
+def _fmt(value) -> str:
+    flat = value.reshape(-1).tolist()
+    return ", ".join(f"{v:.4g}" for v in flat[:6]) + (" ..." if len(flat) > 6 else "")
+
+
+def run_gradcheck(args) -> int:
+    import invrender as ir
+    from invrender.inverse.gradcheck import format_rows, gradcheck
+
+    scene = ir.load_scene(args.scene, resolution=args.resolution)
+    estimators = [e.strip() for e in args.estimators.split(",") if e.strip()]
+    rows = gradcheck(scene, args.params, estimators=estimators, spp=args.spp, max_depth=args.max_depth, seed=args.seed, h=args.step)
+    print(format_rows(rows))
+    worst = max(max(r.rel_errors.values()) for r in rows)
+    print(f"largest relative error: {worst:.3e}")
+    return 1 if args.tolerance is not None and worst > args.tolerance else 0
+
+
+def run_dataset(args) -> int:
+    from invrender.recipes import make_dataset
+
+    manifest = make_dataset(args.recipe, args.out, progress=not args.quiet)
+    if not args.quiet:
+        print(f"wrote {len(manifest['views'])} view(s), truth.json and manifest.json to {args.out}", file=sys.stderr)
     return 0
 
 

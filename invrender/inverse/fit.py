@@ -1,0 +1,297 @@
+"""fit(): recover emission eps and reflectance rho from target images by gradient descent.
+
+Each step renders every view, back-propagates the loss through the Monte Carlo estimate (path
+replay by default, decorrelated by default: see losses.py) and takes an Adam step on reparametrized
+values: rho = sigmoid(x), eps = exp(x) (params.py). Every random number is a
+pure function of (seed, step, view), so a fit is deterministic, and a fit resumed from a checkpoint
+ends exactly where the uninterrupted one does.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+from tqdm.auto import tqdm
+
+from invrender.errors import ImageError, ParameterError
+from invrender.inverse import params as P
+from invrender.inverse.losses import LOSSES, loss_and_gradient
+from invrender.scene.camera import Camera
+from invrender.scene.scene import Scene
+from invrender.transport.render import ESTIMATORS, render
+
+CHECKPOINT_FORMAT = 1
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    """How to fit.
+
+    Attributes:
+        steps: optimizer steps.
+        lr: Adam step size for reflectances, in logit(rho) units (about a relative step for dark
+            channels: 0.05 = 5% per step).
+        lr_emission: Adam step size for emissions, in log(eps) units (0.05 = 5% per step).
+        lr_final: the step sizes decay along a cosine to this fraction of themselves.
+        spp: samples per pixel of each render in the first half of the steps.
+        spp_final: samples per pixel in the second half (less noise where the steps are small).
+        max_depth: Neumann terms kept by the renders (Mitsuba's count).
+        integrator: ``"path"`` or ``"random_walk"``.
+        loss: ``"l2"``, ``"l1"``, ``"relative_l2"`` or ``"ssim"``.
+        estimator: ``"replay"`` or ``"autodiff"``.
+        decorrelate: take ``dl/dI`` from an independent render (unbiased gradient; losses.py).
+        seed: seed of every render's random numbers.
+        checkpoint_every: steps between checkpoints (when a checkpoint path is given).
+    """
+
+    steps: int = 160
+    lr: float = 0.08
+    lr_emission: float = 0.08
+    lr_final: float = 0.05
+    spp: int = 16
+    spp_final: int = 64
+    max_depth: int = 8
+    integrator: str = "path"
+    loss: str = "l2"
+    estimator: str = "replay"
+    decorrelate: bool = True
+    seed: int = 0
+    checkpoint_every: int = 20
+
+    def __post_init__(self):
+        for name in ("steps", "spp", "spp_final", "max_depth", "seed", "checkpoint_every"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise ParameterError(f"fit setting {name} must be an integer, got {value!r}")
+        if self.steps <= 0 or self.spp <= 0 or self.spp_final <= 0 or self.checkpoint_every <= 0:
+            raise ParameterError("fit settings steps, spp, spp_final and checkpoint_every must be positive")
+        for name in ("lr", "lr_emission", "lr_final"):
+            if not getattr(self, name) > 0:
+                raise ParameterError(f"fit setting {name} must be positive, got {getattr(self, name)!r}")
+        if self.loss not in LOSSES:
+            raise ParameterError(f"unknown loss {self.loss!r} (known: {', '.join(LOSSES)})")
+        if self.estimator not in ESTIMATORS:
+            raise ParameterError(f"unknown estimator {self.estimator!r} (known: {', '.join(ESTIMATORS)})")
+
+    def spp_at(self, step: int) -> int:
+        return self.spp if step < self.steps // 2 else self.spp_final
+
+    def lr_factor(self, step: int) -> float:
+        """Cosine decay from 1 to ``lr_final``."""
+        return self.lr_final + (1 - self.lr_final) * 0.5 * (1 + math.cos(math.pi * step / self.steps))
+
+
+@dataclass
+class FitResult:
+    """What a fit recovered.
+
+    Attributes:
+        params: name -> recovered value (detached tensors).
+        history: one dict per step: ``step``, ``loss``, ``spp``, ``seconds`` (since the start),
+            ``params`` (name -> list), and ``errors`` (name -> largest relative error) when the
+            ground truth is known.
+        scene: the input scene with the recovered values in its params.
+        settings: the settings used.
+        initial: name -> starting value.
+        truth: name -> ground truth, when given.
+    """
+
+    params: dict[str, torch.Tensor]
+    history: list[dict]
+    scene: Scene
+    settings: FitSettings
+    initial: dict[str, torch.Tensor]
+    truth: dict[str, torch.Tensor] = field(default_factory=dict)
+
+    @property
+    def errors(self) -> dict[str, float]:
+        """name -> largest relative error against the ground truth (empty without one)."""
+        return {k: P.relative_error(self.params[k], v) for k, v in self.truth.items() if k in self.params}
+
+
+def fit(
+    scene: Scene,
+    target,
+    params,
+    *,
+    cameras: list[Camera] | None = None,
+    truth: dict | None = None,
+    checkpoint=None,
+    resume: bool = False,
+    progress: bool = True,
+    **settings,
+) -> FitResult:
+    """Recover ``params`` of ``scene`` from target image(s).
+
+    Args:
+        scene: the known geometry, with starting values in ``scene.params`` (left unchanged).
+        target: an (H, W, 3) tensor or image path, or a list of them (one per view).
+        params: names to fit (list or comma-separated string), e.g. ``["red.reflectance", "light.emission"]``.
+        cameras: one camera per target for several views (default: the scene's camera).
+        truth: name -> ground-truth value, to record errors in the history.
+        checkpoint: path of a checkpoint file written every ``checkpoint_every`` steps, on Ctrl-C
+            and at the end.
+        resume: continue from ``checkpoint`` (which must come from the same scene and parameters).
+        progress: show a progress bar with step, loss and ETA.
+        settings: any :class:`FitSettings` field, e.g. ``steps=300, loss="l1"``.
+    """
+    unknown = set(settings) - {f.name for f in dataclasses.fields(FitSettings)}
+    if unknown:
+        raise ParameterError(f"unknown fit setting {sorted(unknown)[0]!r} (known: {', '.join(f.name for f in dataclasses.fields(FitSettings))})")
+    cfg = FitSettings(**settings)
+    names = P.check_names(scene.params, params)
+    views = _views(scene, target, cameras)
+    truth = {k: torch.as_tensor(v, dtype=torch.float32) for k, v in (truth or {}).items()}
+
+    raw = {n: P.to_raw(n, scene.params[n]).requires_grad_(True) for n in names}
+    optimizer = torch.optim.Adam([{"params": [raw[n]], "lr": cfg.lr_emission if P.is_emission(n) else cfg.lr} for n in names])
+    base_lr = [g["lr"] for g in optimizer.param_groups]
+    initial = {n: scene.params[n].detach().clone() for n in names}
+    history: list[dict] = []
+    start = 0
+    checkpoint = Path(checkpoint) if checkpoint is not None else None
+    if resume:
+        if checkpoint is None or not checkpoint.is_file():
+            raise ParameterError(f"cannot resume: no checkpoint at {checkpoint}")
+        start, history = _load_checkpoint(checkpoint, scene, names, cfg, raw, optimizer)
+
+    clock = time.perf_counter() - (history[-1]["seconds"] if history else 0.0)
+    bar = tqdm(total=cfg.steps, initial=start, unit="step", disable=not progress, desc="fit", file=sys.stderr, dynamic_ncols=True)
+    step = start
+    try:
+        with bar:
+            for step in range(start, cfg.steps):
+                for group, lr in zip(optimizer.param_groups, base_lr):
+                    group["lr"] = lr * cfg.lr_factor(step)
+                optimizer.zero_grad(set_to_none=True)
+                values = {n: P.from_raw(n, raw[n]) for n in names}
+                loss = sum(_view_loss(view_scene, values, view_target, cfg, step, v, len(views)) for v, (view_scene, view_target) in enumerate(views))
+                if step == 0:
+                    P.warn_unused({n: raw[n].grad for n in names})
+                optimizer.step()
+                record = _record(step, float(loss), cfg.spp_at(step), time.perf_counter() - clock, names, raw, truth)
+                history.append(record)
+                bar.set_postfix(loss=f"{record['loss']:.4g}", refresh=False)
+                bar.update(1)
+                if checkpoint is not None and (step + 1) % cfg.checkpoint_every == 0:
+                    _save_checkpoint(checkpoint, scene, names, cfg, raw, optimizer, step + 1, history)
+    except KeyboardInterrupt:
+        if checkpoint is not None:
+            _save_checkpoint(checkpoint, scene, names, cfg, raw, optimizer, len(history), history)
+        raise
+    if checkpoint is not None:
+        _save_checkpoint(checkpoint, scene, names, cfg, raw, optimizer, len(history), history)
+
+    recovered = {n: P.from_raw(n, raw[n]).detach().clone() for n in names}
+    out_scene = dataclasses.replace(scene, params={**{k: v.detach().clone() for k, v in scene.params.items()}, **recovered})
+    return FitResult(recovered, history, out_scene, cfg, initial, {k: v for k, v in truth.items() if k in names})
+
+
+def _view_loss(view_scene: Scene, values, target, cfg: FitSettings, step: int, view: int, n_views: int) -> torch.Tensor:
+    """Render one view, back-propagate its share of the loss, return the loss value."""
+    work = dataclasses.replace(view_scene, params={**view_scene.params, **values})
+    spp = cfg.spp_at(step)
+    seed = cfg.seed * 1_000_003 + 2 * (step * n_views + view)
+    kw = dict(integrator=cfg.integrator, spp=spp, max_depth=cfg.max_depth, progress=False)
+    image = render(work, seed=seed, estimator=cfg.estimator, **kw)
+    if cfg.decorrelate:
+        with torch.no_grad():
+            residual = render(work, seed=seed + 1, **kw)
+    else:
+        residual = image
+    return loss_and_gradient(cfg.loss, target, residual, image / n_views) / n_views
+
+
+def _record(step, loss, spp, seconds, names, raw, truth) -> dict:
+    values = {n: P.from_raw(n, raw[n]).detach() for n in names}
+    record = {"step": step + 1, "loss": loss, "spp": spp, "seconds": seconds, "params": {n: v.tolist() for n, v in values.items()}}
+    if truth:
+        record["errors"] = {n: P.relative_error(values[n], truth[n]) for n in names if n in truth}
+    return record
+
+
+def _views(scene: Scene, target, cameras) -> list[tuple[Scene, torch.Tensor]]:
+    targets = list(target) if isinstance(target, (list, tuple)) else [target]
+    if cameras is not None and len(cameras) != len(targets):
+        raise ParameterError(f"{len(targets)} target(s) but {len(cameras)} camera(s): give one camera per target")
+    if cameras is None and len(targets) > 1:
+        raise ParameterError("several targets need one camera each (cameras=[...])")
+    views = []
+    for i, t in enumerate(targets):
+        label = str(t) if isinstance(t, (str, os.PathLike)) else f"target {i}"
+        image = _load_target(t, label)
+        view_scene = scene.with_camera(cameras[i]) if cameras is not None else scene
+        if image.shape[:2] != (view_scene.height, view_scene.width):
+            raise ImageError(f"{label} is {image.shape[1]}x{image.shape[0]} but the scene renders {view_scene.width}x{view_scene.height} (set the scene's resolution to the target's)")
+        views.append((view_scene, image.to(scene.device)))
+    return views
+
+
+def _load_target(t, label: str) -> torch.Tensor:
+    if isinstance(t, (str, os.PathLike)):
+        from invrender.io import read_image
+
+        t = read_image(t)
+    image = torch.as_tensor(t, dtype=torch.float32).detach()
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise ImageError(f"{label} must be an (H, W, 3) RGB image, got shape {tuple(image.shape)}")
+    if not torch.isfinite(image).all():
+        raise ImageError(f"{label} contains NaN or Inf values")
+    return image
+
+
+def _signature(scene: Scene, names: list[str]) -> dict:
+    return {
+        "scene": scene.name,
+        "triangles": scene.triangles.count,
+        "resolution": list(scene.resolution),
+        "params": {n: list(scene.params[n].shape) for n in names},
+    }
+
+
+def _save_checkpoint(path: Path, scene, names, cfg, raw, optimizer, step, history) -> None:
+    """Atomically write the fit state after ``step`` completed steps."""
+    state = {
+        "format": CHECKPOINT_FORMAT,
+        "signature": _signature(scene, names),
+        "settings": dataclasses.asdict(cfg),
+        "step": step,
+        "raw": {n: raw[n].detach().clone() for n in names},
+        "optimizer": optimizer.state_dict(),
+        "history": history,
+    }
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    os.close(fd)
+    try:
+        torch.save(state, tmp)
+        os.replace(tmp, path)
+    finally:
+        Path(tmp).unlink(missing_ok=True)
+
+
+def _load_checkpoint(path: Path, scene, names, cfg, raw, optimizer) -> tuple[int, list[dict]]:
+    try:
+        state = torch.load(path, weights_only=False)
+    except Exception as e:
+        raise ParameterError(f"cannot read checkpoint {path}: {str(e).splitlines()[0] if str(e) else type(e).__name__}") from None
+    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
+        raise ParameterError(f"{path} is not an invrender fit checkpoint")
+    if state["signature"] != _signature(scene, names):
+        raise ParameterError(f"checkpoint {path} comes from another scene or parameter set ({state['signature']['scene']}: {', '.join(state['signature']['params'])})")
+    if state["settings"] != dataclasses.asdict(cfg):
+        changed = sorted(k for k, v in dataclasses.asdict(cfg).items() if state["settings"].get(k) != v)
+        raise ParameterError(f"checkpoint {path} was written with other fit settings ({', '.join(changed)})")
+    with torch.no_grad():
+        for n in names:
+            raw[n].copy_(state["raw"][n])
+    optimizer.load_state_dict(state["optimizer"])
+    return int(state["step"]), list(state["history"])

@@ -1,0 +1,57 @@
+"""Image losses and their gradients through the Monte Carlo estimate.
+
+Losses compare a rendered image (H, W, 3) with a target: ``l2`` (mean squared error), ``l1`` (mean
+absolute error), ``relative_l2`` (squared error over the squared detached estimate plus 0.01, robust
+on HDR images, as in Lehtinen et al. 2018) and ``ssim`` (1 - SSIM, kornia's 11x11 gaussian window).
+
+**Decorrelation.** The gradient of ``l(I)`` is ``<dl/dI (I), dI/dtheta>``. If the same Monte Carlo
+image supplies both factors, their noise is correlated and the product is biased: for
+``l = 1/2 (I - T)^2`` the bias of the gradient is ``Cov(I, dI/dtheta) / N`` per pixel (in the furnace,
+``dl/deps`` is biased by ``eps rho / ((1 - rho)^2 N)`` at N samples per pixel; REFERENCES.md).
+:func:`loss_and_gradient` with ``decorrelate=True`` evaluates ``dl/dI`` on one image and
+differentiates an independent one (another seed), which makes the gradient unbiased.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from invrender.errors import ParameterError
+
+LOSSES = ("l2", "l1", "relative_l2", "ssim")
+
+
+def image_loss(name: str, image: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Scalar loss between ``image`` and ``target``, both (H, W, 3) linear."""
+    if name == "l2":
+        return torch.nn.functional.mse_loss(image, target)
+    if name == "l1":
+        return torch.nn.functional.l1_loss(image, target)
+    if name == "relative_l2":
+        return ((image - target) ** 2 / (image.detach() ** 2 + 0.01)).mean()
+    if name == "ssim":
+        import kornia
+
+        a, b = image.permute(2, 0, 1)[None], target.permute(2, 0, 1)[None]
+        scale = max(float(target.detach().max()), 1e-6)  # SSIM's constants assume a [0, 1] range
+        return kornia.losses.ssim_loss(a / scale, b / scale, window_size=min(11, _odd(min(image.shape[:2]))), reduction="mean")
+    raise ParameterError(f"unknown loss {name!r} (known: {', '.join(LOSSES)})")
+
+
+def _odd(n: int) -> int:
+    return n if n % 2 else n - 1
+
+
+def loss_and_gradient(loss: str, target: torch.Tensor, residual_image: torch.Tensor, differentiable_image: torch.Tensor) -> torch.Tensor:
+    """Back-propagate ``l`` through ``differentiable_image`` with ``dl/dI`` taken at ``residual_image``.
+
+    Pass the same tensor twice for the plain (correlated) gradient, or an independent render (no
+    grad needed) as ``residual_image`` for the decorrelated one. Calls ``backward`` and returns the
+    loss value at ``residual_image`` (detached).
+    """
+    probe = residual_image.detach().requires_grad_(True)
+    with torch.enable_grad():
+        value = image_loss(loss, probe, target)
+        (dl_dI,) = torch.autograd.grad(value, probe)
+    (dl_dI * differentiable_image).sum().backward()
+    return value.detach()

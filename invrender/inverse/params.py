@@ -1,0 +1,69 @@
+"""Which parameters a fit changes, and how it keeps them physical (DESIGN.md decision 6).
+
+Both are reparametrizations, so every value the optimizer can reach is feasible:
+
+- reflectance rho = sigmoid(x): rho stays in (0, 1); near 0 (and near 1) a step in x is a *relative*
+  step in rho (resp. 1 - rho), so a dark channel such as the red wall's green (0.04) converges to the
+  same relative accuracy as a bright one; and rho never reaches 0 exactly, where path replay's
+  vertex adjoint ``L_rem / rho`` is undefined.
+- emission eps = exp(x): eps > 0, and Adam's steps are relative, so dim and bright lights converge
+  alike.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import torch
+
+from invrender.errors import ParameterError
+
+RHO_MIN = 1e-4
+EPS_MIN = 1e-6
+
+
+def check_names(params, names) -> list[str]:
+    """Validate parameter names against ``params`` (a dict); accepts a list or a comma-separated string."""
+    if isinstance(names, str):
+        names = [n.strip() for n in names.split(",") if n.strip()]
+    names = list(names)
+    if not names:
+        raise ParameterError("no parameters to fit were given")
+    unknown = [n for n in names if n not in params]
+    if unknown:
+        raise ParameterError(f"unknown parameter {unknown[0]!r} (known: {', '.join(params)})")
+    if len(set(names)) != len(names):
+        raise ParameterError("a parameter is named twice")
+    return names
+
+
+def is_emission(name: str) -> bool:
+    return name.endswith(".emission")
+
+
+def to_raw(name: str, value: torch.Tensor) -> torch.Tensor:
+    """The unconstrained leaf the optimizer moves, from a parameter value."""
+    v = value.detach().clone()
+    if is_emission(name):
+        return v.clamp_min(EPS_MIN).log()
+    return torch.logit(v.clamp(RHO_MIN, 1.0 - RHO_MIN))
+
+
+def from_raw(name: str, raw: torch.Tensor) -> torch.Tensor:
+    """The parameter value (differentiable) from the optimizer's leaf."""
+    return raw.exp() if is_emission(name) else torch.sigmoid(raw)
+
+
+def warn_unused(grads: dict[str, torch.Tensor]) -> None:
+    """Warn about parameters with an identically zero gradient: no pixel depends on them."""
+    for name, g in grads.items():
+        if g is not None and not bool(g.abs().sum() > 0):
+            warnings.warn(f"parameter {name} has a zero gradient: no pixel of the target depends on it", stacklevel=3)
+
+
+def relative_error(value: torch.Tensor, truth: torch.Tensor) -> float:
+    """Largest per-channel relative error ``|value - truth| / |truth|``."""
+    denom = truth.abs().clamp_min(1e-12)
+    err = ((value - truth).abs() / denom).max()
+    return float(err) if math.isfinite(float(err)) else float("inf")
