@@ -7,9 +7,12 @@ Public API::
     scene = ir.load_scene("cornell_box", resolution=(64, 64))
     img = ir.render(scene, spp=64, max_depth=8, seed=0)     # (H, W, 3) float32, linear
     ir.write_image("out.exr", img)
+    res = ir.fit(scene, target, params=["red.reflectance", "light.emission"])   # inverse rendering
 """
 
 from invrender.errors import ImageError, InvRenderError, ParameterError, SceneError
+from invrender.inverse.fit import FitResult, fit
+from invrender.inverse.gradcheck import gradcheck
 from invrender.io import read_image, write_image
 from invrender.scene import load_scene
 from invrender.transport.render import render
@@ -17,6 +20,6 @@ from invrender.transport.render import render
 __version__ = "0.1.0"
 
 __all__ = [
-    "load_scene", "render", "read_image", "write_image",
+    "load_scene", "render", "fit", "gradcheck", "read_image", "write_image", "FitResult",
     "InvRenderError", "SceneError", "ImageError", "ParameterError",
 ]  # fmt: skip

@@ -2,7 +2,8 @@
 
 - torus.obj: a low-poly torus (trimesh.creation), with UVs, for forward/mesh_in_box.toml;
 - lamp.glb: a glTF 2.0 binary with a grey floor quad (baseColorFactor), an emissive quad
-  (emissiveFactor x KHR_materials_emissive_strength) and a perspective camera, for the glTF loader.
+  (emissiveFactor x KHR_materials_emissive_strength) and a perspective camera, for the glTF loader;
+- ../textures/checker.png: a 4 x 4 checker for forward/textured_floor.toml.
 """
 
 import json
@@ -83,7 +84,18 @@ def lamp_glb(path: Path) -> None:
     path.write_bytes(struct.pack("<4sII", b"glTF", 2, 12 + len(chunks)) + chunks)
 
 
+def checker_png(path: Path) -> None:
+    """A 4 x 4 two-tone checker (sRGB PNG) for the textured floor."""
+    from PIL import Image
+
+    cells = (np.add.outer(np.arange(4), np.arange(4)) % 2)[..., None]
+    rgb = np.where(cells == 1, [200, 190, 170], [90, 110, 140]).astype(np.uint8)
+    path.parent.mkdir(exist_ok=True)
+    Image.fromarray(rgb, mode="RGB").save(path)
+
+
 if __name__ == "__main__":
     torus_obj(HERE / "torus.obj")
     lamp_glb(HERE / "lamp.glb")
-    print("wrote", HERE / "torus.obj", HERE / "lamp.glb")
+    checker_png(HERE.parent / "textures" / "checker.png")
+    print("wrote", HERE / "torus.obj", HERE / "lamp.glb", HERE.parent / "textures" / "checker.png")

@@ -41,6 +41,9 @@ class FitSettings:
             channels: 0.05 = 5% per step).
         lr_emission: Adam step size for emissions, in log(eps) units (0.05 = 5% per step).
         lr_final: the step sizes decay along a cosine to this fraction of themselves.
+        beta2: Adam's second-moment decay. Shorter than the usual 0.999 so that the step size does
+            not stay scaled down by the large gradients of the first steps (a fit is a few hundred
+            steps, not tens of thousands).
         spp: samples per pixel of each render in the first half of the steps.
         spp_final: samples per pixel in the second half (less noise where the steps are small).
         max_depth: Neumann terms kept by the renders (Mitsuba's count).
@@ -56,6 +59,7 @@ class FitSettings:
     lr: float = 0.08
     lr_emission: float = 0.08
     lr_final: float = 0.05
+    beta2: float = 0.95
     spp: int = 16
     spp_final: int = 64
     max_depth: int = 8
@@ -152,7 +156,7 @@ def fit(
     truth = {k: torch.as_tensor(v, dtype=torch.float32) for k, v in (truth or {}).items()}
 
     raw = {n: P.to_raw(n, scene.params[n]).requires_grad_(True) for n in names}
-    optimizer = torch.optim.Adam([{"params": [raw[n]], "lr": cfg.lr_emission if P.is_emission(n) else cfg.lr} for n in names])
+    optimizer = torch.optim.Adam([{"params": [raw[n]], "lr": cfg.lr_emission if P.is_emission(n) else cfg.lr} for n in names], betas=(0.9, cfg.beta2))
     base_lr = [g["lr"] for g in optimizer.param_groups]
     initial = {n: scene.params[n].detach().clone() for n in names}
     history: list[dict] = []

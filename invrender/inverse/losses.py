@@ -1,8 +1,9 @@
 """Image losses and their gradients through the Monte Carlo estimate.
 
 Losses compare a rendered image (H, W, 3) with a target: ``l2`` (mean squared error), ``l1`` (mean
-absolute error), ``relative_l2`` (squared error over the squared detached estimate plus 0.01, robust
-on HDR images, as in Lehtinen et al. 2018) and ``ssim`` (1 - SSIM, kornia's 11x11 gaussian window).
+absolute error), ``relative_l2`` (squared error over the squared target plus 0.01: every pixel's
+error counts relative to its brightness, so dark pixels and dark colour channels weigh as much as
+bright ones on HDR images; the weights are fixed, so the objective stays an unbiased weighted L2) and ``ssim`` (1 - SSIM, kornia's 11x11 gaussian window).
 
 **Decorrelation.** The gradient of ``l(I)`` is ``<dl/dI (I), dI/dtheta>``. If the same Monte Carlo
 image supplies both factors, their noise is correlated and the product is biased: for
@@ -28,7 +29,7 @@ def image_loss(name: str, image: torch.Tensor, target: torch.Tensor) -> torch.Te
     if name == "l1":
         return torch.nn.functional.l1_loss(image, target)
     if name == "relative_l2":
-        return ((image - target) ** 2 / (image.detach() ** 2 + 0.01)).mean()
+        return ((image - target) ** 2 / (target**2 + 0.01)).mean()
     if name == "ssim":
         import kornia
 
