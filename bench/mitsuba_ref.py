@@ -1,43 +1,112 @@
 """Mitsuba 3 as an optional reference: the same Cornell box, rendered and timed by Mitsuba.
 
-Nothing here is needed by invrender or its tests. To install on Debian bookworm (Mitsuba's LLVM
-CPU variant needs a libLLVM newer than bookworm's default 15):
+Nothing here is needed by invrender or its tests, and nothing here imports invrender. The module
+imports without Mitsuba; ``available()`` says whether it can be used (``False`` on any failure).
 
-    apt-get install -y libllvm19
-    pip install mitsuba==3.9.1 drjit
-    export DRJIT_LIBLLVM_PATH=/usr/lib/x86_64-linux-gnu/libLLVM-19.so    # set automatically below if unset
+Install (Debian bookworm; Mitsuba's LLVM CPU variant needs a libLLVM newer than bookworm's default
+15, whose code generator aborts the process on Mitsuba 3.9.1's kernels)::
 
-Dr.Jit renders asynchronously, so every timing calls ``dr.eval(img); dr.sync_thread()`` before it
-stops the clock.
+    apt-get update && apt-get install -y libllvm19
+    pip install mitsuba==3.9.1 drjit           # drjit 1.5.0 came with it; do not reinstall torch
+    export DRJIT_LIBLLVM_PATH=/usr/lib/x86_64-linux-gnu/libLLVM-19.so   # optional: set below if unset
+
+API (all renders use the ``llvm_ad_rgb`` variant, independent sampler, box pixel filter)::
+
+    available() -> bool
+    version() -> str
+    cornell_scene(width, height, spp, max_depth, filter="box", integrator="path") -> mi.Scene
+    render(scene, spp, seed=0) -> np.ndarray float32 (H, W, 3), linear RGB
+    render_cornell(width, height, spp, max_depth, seed=0) -> np.ndarray float32 (H, W, 3)
+    time_forward(width, height, spp, max_depth, repeats) -> [seconds per render]
+    time_gradient(width=128, height=128, spp=64, max_depth=8, integrator="prb",
+                  params=("white", "red", "green", "light")) -> dict(seconds=..., peak_rss_mib=..., ...)
+
+Command line (from the repository root)::
+
+    python bench/mitsuba_ref.py forward [--resolution 128 --spp 64 --max-depth 8 --repeats 5]
+    python bench/mitsuba_ref.py means [--resolution 64 --spp 4096 --max-depth 8 2 1 --write PATH]
+    python bench/mitsuba_ref.py grad [--integrator prb|path --resolution 128 --spp 64 --max-depth 8]
+
+Dr.Jit evaluates lazily and asynchronously, so every render and every timing ends with
+``dr.eval(...); dr.sync_thread()`` before the result is read or the clock is stopped.
 """
 
 from __future__ import annotations
 
 import glob
+import json
 import os
 import re
+import statistics
+import subprocess
+import sys
 import time
 
 VARIANT = "llvm_ad_rgb"
+MIN_LLVM = 16  # libLLVM 15.0.6 (bookworm's default) aborts in instruction selection on Mitsuba 3.9.1
+
+# Names of the differentiable Cornell-box parameters and their keys in ``mi.traverse(scene)``.
+# mi.traverse(mi.load_dict(mi.cornell_box())).keys() with Mitsuba 3.9.1 (llvm_ad_rgb):
+#   allow_thread_reordering, sensor.near_clip, sensor.far_clip, sensor.shutter_open,
+#   sensor.shutter_open_time, sensor.film.size, sensor.film.crop_size, sensor.film.crop_offset,
+#   sensor.x_fov, sensor.principal_point_offset_x, sensor.principal_point_offset_y, sensor.to_world,
+#   white.reflectance.value, green.reflectance.value, red.reflectance.value,
+#   red-wall.silhouette_sampling_weight, red-wall.to_world, green-wall.silhouette_sampling_weight,
+#   green-wall.to_world, object_<id>.{silhouette_sampling_weight,faces,vertex_positions,
+#   vertex_normals,vertex_texcoords}, light.emitter.sampling_weight, light.emitter.radiance.value,
+#   light.silhouette_sampling_weight, light.to_world
+PARAM_KEYS = {
+    "white": "white.reflectance.value",
+    "red": "red.reflectance.value",
+    "green": "green.reflectance.value",
+    "light": "light.emitter.radiance.value",
+}
+
+_JSON_TAG = "MITSUBA_REF_JSON "
 _mi = _dr = None
 
 
+def _llvm_candidates() -> list[str]:
+    """Shared libLLVM files on this machine, newest version first."""
+    found = glob.glob("/usr/lib/llvm-*/lib/libLLVM*.so*") + glob.glob("/usr/lib/x86_64-linux-gnu/libLLVM*.so*")
+    ranked = []
+    for path in set(found):
+        name = os.path.basename(path)
+        # libLLVM-19.so, libLLVM.so.19.1, libLLVM-14.0.6.so.1; a bare libLLVM.so takes its folder's version.
+        m = re.match(r"libLLVM(?:-(\d+)[.\d]*\.so(?:\.[\d.]+)?|\.so\.(\d+)[.\d]*)$", name)
+        if m:
+            major = int(m.group(1) or m.group(2))
+        elif name == "libLLVM.so" and (d := re.search(r"llvm-(\d+)", path)):
+            major = int(d.group(1))
+        else:
+            continue  # static archives of components (libLLVMX86CodeGen.a ...) and the like
+        ranked.append((major, len(name), path))
+    ranked.sort(key=lambda t: (-t[0], t[1], t[2]))  # newest first; for one version, the shortest name
+    return [p for _, _, p in ranked]
+
+
 def available() -> bool:
-    """True when Mitsuba 3 imports and its ``llvm_ad_rgb`` variant can be set; never raises."""
+    """True when Mitsuba 3 imports and its ``llvm_ad_rgb`` variant can be set; never raises.
+
+    Sets ``DRJIT_LIBLLVM_PATH`` to the newest libLLVM found when it is unset (before importing
+    Mitsuba), and answers False when Dr.Jit ends up on a libLLVM older than ``MIN_LLVM``.
+    """
     global _mi, _dr
     if _mi is not None:
         return True
-    if "DRJIT_LIBLLVM_PATH" not in os.environ:
-        found = glob.glob("/usr/lib/x86_64-linux-gnu/libLLVM-*.so") + glob.glob("/usr/lib/llvm-*/lib/libLLVM-*.so")
-        versions = {int(m.group(1)): f for f in found if (m := re.search(r"libLLVM-(\d+)\.so$", f))}
-        if versions:
-            os.environ["DRJIT_LIBLLVM_PATH"] = versions[max(versions)]
     try:
+        if not os.environ.get("DRJIT_LIBLLVM_PATH"):
+            candidates = _llvm_candidates()
+            if candidates:
+                os.environ["DRJIT_LIBLLVM_PATH"] = candidates[0]
         import drjit as dr
         import mitsuba as mi
 
         mi.set_variant(VARIANT)
-    except Exception:
+        llvm = getattr(getattr(dr, "detail", None), "llvm_version", None)
+        if llvm is not None and llvm()[0] < MIN_LLVM:
+            return False
+    except BaseException:  # ImportError, missing libLLVM, anything: Mitsuba is optional
         return False
     _mi, _dr = mi, dr
     return True
@@ -47,62 +116,241 @@ def version() -> str:
     return _mi.__version__ if available() else "unavailable"
 
 
-def cornell_scene(width: int, height: int, spp: int, max_depth: int, integrator: str = "path"):
-    """Mitsuba's own ``cornell_box()`` with a box pixel filter, the given film and integrator."""
-    mi = _mi
+def _require():
+    if not available():
+        raise RuntimeError("Mitsuba 3 (llvm_ad_rgb) is not available; see bench/mitsuba_ref.py for the install steps")
+    return _mi, _dr
+
+
+def cornell_scene(width: int, height: int, spp: int, max_depth: int, filter: str = "box", integrator: str = "path"):
+    """Mitsuba's own ``cornell_box()``: ``width`` x ``height`` film with a ``filter`` pixel filter,
+    independent sampler at ``spp``, integrator ``{'type': integrator, 'max_depth': max_depth}``."""
+    mi, _ = _require()
     d = mi.cornell_box()
-    d["sensor"]["film"]["width"], d["sensor"]["film"]["height"] = width, height
-    d["sensor"]["film"]["rfilter"] = {"type": "box"}
-    d["sensor"]["sampler"] = {"type": "independent", "sample_count": spp}
-    d["integrator"] = {"type": integrator, "max_depth": max_depth}
+    film = d["sensor"]["film"]
+    film["width"], film["height"] = int(width), int(height)
+    film["rfilter"] = {"type": filter}
+    d["sensor"]["sampler"]["sample_count"] = int(spp)
+    d["integrator"] = {"type": integrator, "max_depth": int(max_depth)}
     return mi.load_dict(d)
 
 
 def render(scene, spp: int, seed: int = 0):
-    """(H, W, 3) numpy float32 linear RGB, evaluated and synchronized."""
-    img = _mi.render(scene, spp=spp, seed=seed)
-    _dr.eval(img)
-    _dr.sync_thread()
-    return img.numpy()[..., :3]
+    """(H, W, 3) numpy float32 linear RGB of a loaded scene, evaluated and synchronized."""
+    mi, dr = _require()
+    img = mi.render(scene, spp=spp, seed=seed)
+    dr.eval(img)
+    dr.sync_thread()
+    return img.numpy()[..., :3].astype("float32", copy=False)
+
+
+def render_cornell(width: int, height: int, spp: int, max_depth: int, seed: int = 0):
+    """(H, W, 3) numpy float32 linear RGB of the box-filtered Cornell box (``path`` integrator)."""
+    return render(cornell_scene(width, height, spp, max_depth), spp, seed)
 
 
 def time_render(scene, spp: int, seed: int = 0) -> float:
-    """Seconds for one forward render, the clock stopped after Dr.Jit has finished."""
+    """Seconds for one forward render of a loaded scene, the clock stopped after Dr.Jit has finished."""
+    mi, dr = _require()
     start = time.perf_counter()
-    render(scene, spp, seed)
+    img = mi.render(scene, spp=spp, seed=seed)
+    dr.eval(img)
+    dr.sync_thread()
     return time.perf_counter() - start
 
 
+def time_forward(width: int, height: int, spp: int, max_depth: int, repeats: int) -> list[float]:
+    """Seconds of each of ``repeats`` forward renders (seeds 1..repeats) after one warm-up render
+    (seed 0), which compiles the kernels. Path samples per second: width*height*spp / seconds."""
+    scene = cornell_scene(width, height, spp, max_depth)
+    time_render(scene, spp, seed=0)
+    return [time_render(scene, spp, seed=i + 1) for i in range(repeats)]
+
+
 def albedo_keys(params) -> dict[str, str]:
-    """Mitsuba parameter keys of the Cornell box's white/red/green albedos and the light radiance."""
-    keys = {}
-    for name, key in (("white", "white.reflectance.value"), ("red", "red.reflectance.value"), ("green", "green.reflectance.value"), ("light", "light.emitter.radiance.value")):
-        if key in params:
-            keys[name] = key
-    return keys
+    """The keys of ``PARAM_KEYS`` present in ``params`` (a ``mi.traverse`` result)."""
+    return {name: key for name, key in PARAM_KEYS.items() if key in params}
+
+
+def _gradient_in_process(width, height, spp, max_depth, integrator, params, repeats, seed, perturb) -> dict:
+    """Gradient of mean((render - target)^2) w.r.t. the named parameters, timed in this process.
+
+    The target is rendered once at the same settings (seed ``seed + 1000``) with the scene's own
+    values; the differentiated values are then multiplied by ``perturb`` (1.0: unchanged). One
+    warm-up gradient compiles the kernels; ``repeats`` timed ones follow (seeds seed+1, ...).
+    """
+    import resource
+
+    mi, dr = _require()
+    scene = cornell_scene(width, height, spp, max_depth, integrator=integrator)
+    target = mi.render(scene, spp=spp, seed=seed + 1000)
+    dr.eval(target)
+    dr.sync_thread()
+    p = mi.traverse(scene)
+    unknown = [n for n in params if n not in PARAM_KEYS or PARAM_KEYS[n] not in p]
+    if unknown:
+        raise KeyError(f"unknown Cornell-box parameters {unknown}; known: {sorted(PARAM_KEYS)}")
+    keys = [PARAM_KEYS[n] for n in params]
+    for k in keys:
+        if perturb != 1.0:
+            p[k] = p[k] * perturb
+        dr.enable_grad(p[k])
+    p.update()
+
+    def once(s):
+        for k in keys:
+            dr.clear_grad(p[k])
+        start = time.perf_counter()
+        img = mi.render(scene, p, spp=spp, seed=s)
+        loss = dr.mean(dr.square(img - target), axis=None)
+        dr.backward(loss)
+        grads = [dr.grad(p[k]) for k in keys]
+        dr.eval(loss, *grads)
+        dr.sync_thread()
+        seconds = time.perf_counter() - start
+        return seconds, float(loss.array[0] if hasattr(loss, "array") else loss[0]), grads
+
+    warmup, _, _ = once(seed)
+    runs = [once(seed + 1 + i) for i in range(repeats)]
+    times = [r[0] for r in runs]
+    _, loss, grads = runs[-1]
+    return {
+        "seconds": statistics.median(times),
+        "all_seconds": times,
+        "warmup_seconds": warmup,
+        "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "loss": loss,
+        "grads": {n: [float(v) for v in g.numpy().ravel()] for n, g in zip(params, grads)},
+        "integrator": integrator,
+        "width": width,
+        "height": height,
+        "spp": spp,
+        "max_depth": max_depth,
+        "mitsuba": mi.__version__,
+        "variant": VARIANT,
+    }
+
+
+def time_gradient(
+    width: int = 128,
+    height: int = 128,
+    spp: int = 64,
+    max_depth: int = 8,
+    integrator: str = "prb",
+    params=("white", "red", "green", "light"),
+    repeats: int = 1,
+    seed: int = 0,
+    perturb: float = 1.0,
+    timeout: float = 1800,
+) -> dict:
+    """Time one gradient of an L2 loss against a fixed target w.r.t. the white, red, green
+    reflectances and the light's radiance, in a fresh subprocess so that ``peak_rss_mib`` (the
+    child's ``ru_maxrss``) is this gradient's alone.
+
+    ``integrator``: ``"prb"`` (``mi.ad.integrators`` path replay) or ``"path"`` (plain AD through
+    the C++ path tracer). Returns ``dict(seconds=median of the timed gradients, peak_rss_mib=...,
+    warmup_seconds=..., all_seconds=[...], loss=..., grads={name: [r, g, b]}, ...)``; raises
+    RuntimeError when the child fails.
+    """
+    cmd = [
+        sys.executable, os.path.abspath(__file__), "grad", "--json",
+        "--width", str(width), "--height", str(height), "--spp", str(spp), "--max-depth", str(max_depth),
+        "--integrator", integrator, "--params", *params, "--repeats", str(repeats), "--seed", str(seed),
+        "--perturb", repr(float(perturb)),
+    ]  # fmt: skip
+    if not os.environ.get("DRJIT_LIBLLVM_PATH"):
+        available()  # picks the libLLVM so that the child inherits DRJIT_LIBLLVM_PATH
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+    for line in reversed(proc.stdout.splitlines()):
+        if line.startswith(_JSON_TAG):
+            return json.loads(line[len(_JSON_TAG):])
+    raise RuntimeError(f"Mitsuba gradient subprocess failed (exit {proc.returncode}):\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}")
 
 
 def gradient_seconds(width: int, height: int, spp: int, max_depth: int, integrator: str = "prb", seed: int = 0) -> float:
-    """Seconds for one gradient of an L2 loss (against a fixed target) w.r.t. the three albedos and
-    the light radiance, with Mitsuba's ``prb`` (path replay) or plain-AD ``path`` integrator."""
-    mi, dr = _mi, _dr
-    scene = cornell_scene(width, height, spp, max_depth, integrator)
-    target = mi.TensorXf(render(scene, spp, seed + 1000))
-    params = mi.traverse(scene)
-    keys = albedo_keys(params)
-    for k in keys.values():
-        dr.enable_grad(params[k])
-    params.update()
+    """Seconds of one gradient (after a warm-up) in this process; see ``time_gradient``."""
+    return _gradient_in_process(width, height, spp, max_depth, integrator, tuple(PARAM_KEYS), 1, seed, 1.0)["seconds"]
 
-    def once():
-        start = time.perf_counter()
-        img = mi.render(scene, params, spp=spp, seed=seed)
-        loss = dr.mean(dr.square(img - target))
-        dr.backward(loss)
-        grads = [dr.grad(params[k]) for k in keys.values()]
-        dr.eval(*grads)
-        dr.sync_thread()
-        return time.perf_counter() - start
 
-    once()  # compiles the kernels
-    return once()
+def channel_means(width: int, height: int, spp: int, max_depths=(8, 2, 1), seed: int = 0) -> dict[int, list[float]]:
+    """{max_depth: [R, G, B] image means} of box-filtered renders."""
+    return {d: [float(v) for v in render_cornell(width, height, spp, d, seed).mean(axis=(0, 1), dtype="float64")] for d in max_depths}
+
+
+def _main(argv=None) -> int:
+    import argparse
+
+    parser = argparse.ArgumentParser(description="Mitsuba 3 reference for the Cornell box (see the module docstring).")
+    sub = parser.add_subparsers(dest="cmd", required=True)
+    f = sub.add_parser("forward", help="forward throughput: path samples per second")
+    f.add_argument("--resolution", type=int, default=128)
+    f.add_argument("--spp", type=int, default=64)
+    f.add_argument("--max-depth", type=int, default=8)
+    f.add_argument("--repeats", type=int, default=5)
+    m = sub.add_parser("means", help="channel means of box-filtered renders")
+    m.add_argument("--resolution", type=int, default=64)
+    m.add_argument("--spp", type=int, default=4096)
+    m.add_argument("--max-depth", type=int, nargs="+", default=[8, 2, 1])
+    m.add_argument("--seed", type=int, default=0)
+    m.add_argument("--write", help="write the means as JSON to this path")
+    g = sub.add_parser("grad", help="gradient timing and peak RSS (in a fresh subprocess unless --json)")
+    g.add_argument("--width", type=int, default=128)
+    g.add_argument("--height", type=int, default=128)
+    g.add_argument("--spp", type=int, default=64)
+    g.add_argument("--max-depth", type=int, default=8)
+    g.add_argument("--integrator", default="prb", choices=["prb", "path", "prb_basic"])
+    g.add_argument("--params", nargs="+", default=list(PARAM_KEYS), choices=list(PARAM_KEYS))
+    g.add_argument("--repeats", type=int, default=1)
+    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--perturb", type=float, default=1.0)
+    g.add_argument("--json", action="store_true", help="run in this process and print one tagged JSON line")
+    args = parser.parse_args(argv)
+
+    if not available():
+        print("Mitsuba 3 (llvm_ad_rgb) is not available; see the install steps in bench/mitsuba_ref.py", file=sys.stderr)
+        return 1
+    if args.cmd == "forward":
+        n = args.resolution
+        times = time_forward(n, n, args.spp, args.max_depth, args.repeats)
+        t = statistics.median(times)
+        print(f"Mitsuba {version()} {VARIANT} path, Cornell box {n}x{n}, {args.spp} spp, max_depth {args.max_depth}")
+        print(f"  times: {' '.join(f'{x:.3f}' for x in times)} s; median {t:.4f} s = {n * n * args.spp / t / 1e6:.4g} M path samples/s")
+    elif args.cmd == "means":
+        n = args.resolution
+        means = channel_means(n, n, args.spp, args.max_depth, args.seed)
+        print(f"Mitsuba {version()} {VARIANT} path, Cornell box {n}x{n}, {args.spp} spp, box filter, seed {args.seed}")
+        for d, rgb in means.items():
+            print(f"  max_depth {d}: R {rgb[0]:.6g}  G {rgb[1]:.6g}  B {rgb[2]:.6g}")
+        if args.write:
+            out = {
+                f"{n}x{n}": {f"max_depth_{d}": [float(f"{v:.6g}") for v in rgb] for d, rgb in means.items()},
+                "spp": args.spp,
+                "mitsuba": version(),
+                "variant": VARIANT,
+                "rfilter": "box",
+                "seed": args.seed,
+            }
+            with open(args.write, "w") as fh:
+                json.dump(out, fh, indent=2)
+                fh.write("\n")
+            print(f"  written to {args.write}")
+    else:
+        kw = dict(width=args.width, height=args.height, spp=args.spp, max_depth=args.max_depth, integrator=args.integrator,
+                  params=tuple(args.params), repeats=args.repeats, seed=args.seed, perturb=args.perturb)  # fmt: skip
+        if args.json:
+            res = _gradient_in_process(**kw)
+            sys.stdout.flush()
+            print(_JSON_TAG + json.dumps(res), flush=True)
+        else:
+            res = time_gradient(**kw)
+            print(f"Mitsuba {res['mitsuba']} {VARIANT} {res['integrator']} gradient, Cornell box {res['width']}x{res['height']}, "
+                  f"{res['spp']} spp, max_depth {res['max_depth']}, params {', '.join(args.params)}")  # fmt: skip
+            print(f"  {res['seconds']:.3f} s (warm-up {res['warmup_seconds']:.3f} s), peak RSS {res['peak_rss_mib']:.0f} MiB, "
+                  f"loss {res['loss']:.6g}")  # fmt: skip
+            for name, grad in res["grads"].items():
+                print(f"  d loss / d {name}: {' '.join(f'{v:+.4e}' for v in grad)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_main())

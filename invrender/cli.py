@@ -167,7 +167,7 @@ FIT_OPTIONS = [
 
 def check_outputs(paths: list[str]) -> list[Path]:
     """Fail early (before a long render) on output paths that cannot be written."""
-    from invrender.io.images import SUFFIXES
+    from invrender.io.images import WRITE_SUFFIXES as SUFFIXES
 
     out = []
     for p in paths:

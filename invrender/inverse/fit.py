@@ -176,8 +176,10 @@ def fit(
                 for group, lr in zip(optimizer.param_groups, base_lr):
                     group["lr"] = lr * cfg.lr_factor(step)
                 optimizer.zero_grad(set_to_none=True)
-                values = {n: P.from_raw(n, raw[n]) for n in names}
-                loss = sum(_view_loss(view_scene, values, view_target, cfg, step, v, len(views)) for v, (view_scene, view_target) in enumerate(views))
+                loss = sum(
+                    _view_loss(view_scene, {n: P.from_raw(n, raw[n]) for n in names}, view_target, cfg, step, v, len(views))  # a fresh graph per view
+                    for v, (view_scene, view_target) in enumerate(views)
+                )
                 if step == 0:
                     P.warn_unused({n: raw[n].grad for n in names})
                 optimizer.step()

@@ -1,4 +1,4 @@
-"""Image input and output (OpenEXR, PNG)."""
+"""Image input and output: linear-radiance tensors to and from EXR, PNG and JPEG files."""
 
 from invrender.io.images import read_image, write_image
 

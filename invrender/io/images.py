@@ -1,133 +1,171 @@
-"""Reading and writing images: OpenEXR (linear float32 RGB) and PNG (sRGB-encoded, 8-bit).
+"""Read and write images as linear-radiance torch tensors.
 
-Images are torch tensors (H, W, 3) of linear radiance with row 0 at the top. Writes are atomic
-(temporary file in the target's folder, then ``os.replace``), so a failure never leaves a partial
-file and never damages an existing one.
+Every image in invrender is a float tensor of shape (H, W, 3): linear RGB radiance (W sr^-1 m^-2 per
+channel, unitless scale), row 0 at the top. EXR files hold those values exactly (float32); PNG and
+JPEG files hold sRGB-encoded 8-bit values in [0, 1] and are converted to and from linear on the way.
+Every failure raises :class:`~invrender.errors.ImageError` with a one-line message naming the file.
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
-import tempfile
+import secrets
 from pathlib import Path
 
+import kornia
 import numpy as np
+import OpenEXR
 import torch
+from PIL import Image
 
 from invrender.errors import ImageError
 
-SUFFIXES = (".exr", ".png")
+WRITE_SUFFIXES = (".exr", ".png")
 READ_SUFFIXES = (".exr", ".png", ".jpg", ".jpeg")
 
 
-def srgb_encode(linear: np.ndarray) -> np.ndarray:
-    """Linear values in [0, 1] -> sRGB-encoded values in [0, 1] (IEC 61966-2-1)."""
-    return np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * np.power(np.maximum(linear, 0.0031308), 1 / 2.4) - 0.055)
+def write_image(path: str | os.PathLike, image: torch.Tensor) -> None:
+    """Write a linear-radiance image to ``path``, atomically.
 
+    Args:
+        path: target file; ``.exr`` stores float32 R, G, B channels exactly, ``.png`` stores the
+            image sRGB-encoded, clipped to [0, 1], 8 bits per channel. Missing parent directories
+            are created.
+        image: (H, W, 3) or (H, W) float tensor of linear radiance, row 0 at the top, on any device;
+            gradients are ignored. A (H, W) image is written as grey.
 
-def srgb_decode(encoded: np.ndarray) -> np.ndarray:
-    """sRGB-encoded values in [0, 1] -> linear values in [0, 1]."""
-    return np.where(encoded <= 0.04045, encoded / 12.92, np.power((encoded + 0.055) / 1.055, 2.4))
-
-
-def write_image(path, image: torch.Tensor) -> None:
-    """Write ``image`` (H, W, 3) or (H, W), linear radiance, to ``.exr`` (float32) or ``.png`` (sRGB).
+    The image goes to a temporary file in the target's directory which then replaces the target, so a
+    failed write leaves any existing target untouched and no partial file behind.
 
     Raises:
-        ImageError: unknown suffix, wrong shape, NaN/Inf values, or a path that cannot be written.
+        ImageError: unknown suffix, wrong shape, NaN/Inf values, or the path cannot be written.
     """
     path = Path(path)
     suffix = path.suffix.lower()
-    if suffix not in SUFFIXES:
-        raise ImageError(f"cannot write {path}: unknown image suffix {path.suffix or '(none)'!r} (use {', '.join(SUFFIXES)})")
-    rgb = _as_rgb(image, path)
+    if suffix not in WRITE_SUFFIXES:
+        raise ImageError(f"cannot write image {path}: unknown suffix {suffix!r}, expected one of {', '.join(WRITE_SUFFIXES)}")
+    rgb = _to_rgb_array(image, path)
+
+    parent = path.parent
+    if parent.exists() and not parent.is_dir():
+        raise ImageError(f"cannot write image {path}: {parent} is not a directory")
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=f".tmp{suffix}", dir=path.parent)
-        os.close(fd)
+        parent.mkdir(parents=True, exist_ok=True)
     except OSError as e:
-        raise ImageError(f"cannot write {path}: {e.strerror or e}") from None
+        raise ImageError(f"cannot write image {path}: cannot create directory {parent}: {e.strerror or e}") from None
+
+    # open(..., "xb") rather than tempfile.mkstemp: mkstemp makes the file mode 0600, which the
+    # final image would keep; a plain exclusive create honours the umask like any other file.
+    tmp = parent / f".{path.name}.{secrets.token_hex(4)}.tmp"
     try:
-        if suffix == ".exr":
-            _write_exr(tmp, rgb)
-        else:
-            _write_png(tmp, rgb)
+        with open(tmp, "xb") as f:
+            if suffix == ".exr":
+                _write_exr(f, rgb)
+            else:
+                _write_png(f, rgb)
         os.replace(tmp, path)
-    except Exception as e:
-        Path(tmp).unlink(missing_ok=True)
-        reason = e.strerror if isinstance(e, OSError) and e.strerror else str(e)
-        raise ImageError(f"cannot write {path}: {reason}") from None
+    except Exception as e:  # OSError, or OpenEXR's RuntimeError; never leave the temp file behind
+        tmp.unlink(missing_ok=True)
+        raise ImageError(f"cannot write image {path}: {_reason(e)}") from None
 
 
-def read_image(path, device=None) -> torch.Tensor:
-    """Read an image as float32 linear RGB (H, W, 3): EXR as stored, PNG/JPEG decoded from sRGB.
+def read_image(path: str | os.PathLike, device: torch.device | str | None = None) -> torch.Tensor:
+    """Read an image file as linear radiance.
+
+    Args:
+        path: ``.exr`` (R, G, B channels; a Y-only file is replicated to grey, alpha is dropped), or
+            ``.png`` / ``.jpg`` / ``.jpeg`` (decoded from sRGB to linear; alpha dropped).
+        device: device of the returned tensor (default CPU).
+
+    Returns:
+        (H, W, 3) float32 tensor of linear RGB, row 0 at the top.
 
     Raises:
-        ImageError: missing, unreadable or corrupt file, or an unknown suffix.
+        ImageError: the file is missing, has an unknown suffix, or cannot be decoded.
     """
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in READ_SUFFIXES:
-        raise ImageError(f"cannot read {path}: unknown image suffix {path.suffix or '(none)'!r} (use {', '.join(READ_SUFFIXES)})")
+        raise ImageError(f"cannot read image {path}: unknown suffix {suffix!r}, expected one of {', '.join(READ_SUFFIXES)}")
+    if not path.exists():
+        raise ImageError(f"cannot read image {path}: file not found")
     if not path.is_file():
-        raise ImageError(f"image file not found: {path}")
+        raise ImageError(f"cannot read image {path}: not a regular file")
     try:
-        rgb = _read_exr(path) if suffix == ".exr" else _read_8bit(path)
+        rgb = _read_exr(path) if suffix == ".exr" else _read_srgb(path)
     except ImageError:
         raise
-    except Exception as e:
-        raise ImageError(f"cannot read {path}: not a valid {suffix[1:].upper()} file ({str(e).splitlines()[0] if str(e) else type(e).__name__})") from None
-    return torch.from_numpy(np.ascontiguousarray(rgb, dtype=np.float32)).to(device or "cpu")
+    except Exception as e:  # OpenEXR raises RuntimeError/ValueError, PIL OSError/SyntaxError/...
+        raise ImageError(f"cannot read image {path}: not a valid {suffix[1:].upper()} file ({_reason(e)})") from None
+    return rgb.to(device) if device is not None else rgb
 
 
-def _as_rgb(image, path: Path) -> np.ndarray:
-    if not isinstance(image, torch.Tensor):
-        image = torch.as_tensor(np.asarray(image))
-    a = image.detach().to("cpu", torch.float32)
-    if a.ndim == 2:
-        a = a[..., None].expand(-1, -1, 3)
-    if a.ndim != 3 or a.shape[2] != 3 or a.shape[0] == 0 or a.shape[1] == 0:
-        raise ImageError(f"cannot write {path}: expected an image of shape (H, W, 3), got {tuple(image.shape)}")
-    if not torch.isfinite(a).all():
-        raise ImageError(f"cannot write {path}: the image contains NaN or Inf values")
-    return a.contiguous().numpy()
+def _reason(e: Exception) -> str:
+    """The OS reason (``strerror``) or the first line of an exception's message, for a one-line error."""
+    if isinstance(e, OSError) and e.strerror:
+        return e.strerror
+    lines = str(e).strip().splitlines()
+    return lines[0] if lines else type(e).__name__
 
 
-def _write_exr(path: str, rgb: np.ndarray) -> None:
-    import OpenEXR
+def _to_rgb_array(image, path: Path) -> np.ndarray:
+    """Validate ``image`` and return it as a C-contiguous float32 (H, W, 3) numpy array."""
+    image = torch.as_tensor(image).detach()
+    if image.ndim == 2:
+        image = image[..., None].expand(-1, -1, 3)
+    if image.ndim != 3 or image.shape[-1] != 3 or image.shape[0] == 0 or image.shape[1] == 0:
+        raise ImageError(f"cannot write image {path}: expected shape (H, W, 3) or (H, W), got {tuple(image.shape)}")
+    if not image.is_floating_point():
+        raise ImageError(f"cannot write image {path}: expected a float image, got dtype {image.dtype}")
+    if not torch.isfinite(image).all():
+        raise ImageError(f"cannot write image {path}: image contains NaN/Inf")
+    return np.ascontiguousarray(image.to("cpu", torch.float32).numpy())
 
+
+def _write_exr(f, rgb: np.ndarray) -> None:
+    """Write (H, W, 3) float32 ``rgb`` to the binary file ``f`` as lossless float32 R, G, B channels."""
+    channels = {name: np.ascontiguousarray(rgb[..., i]) for i, name in enumerate("RGB")}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    channels = {"RGB": np.ascontiguousarray(rgb, dtype=np.float32)}
-    with OpenEXR.File(header, channels) as f:
-        f.write(path)
+    OpenEXR.File(header, channels).write(f)
 
 
-def _write_png(path: str, rgb: np.ndarray) -> None:
-    from PIL import Image
-
-    encoded = srgb_encode(np.clip(rgb, 0.0, 1.0))
-    Image.fromarray(np.round(encoded * 255.0).astype(np.uint8), mode="RGB").save(path, format="PNG")
-
-
-def _read_exr(path: Path) -> np.ndarray:
-    import OpenEXR
-
-    with OpenEXR.File(str(path), separate_channels=True) as f:
-        names = {k.split(".")[-1]: np.array(v.pixels) for k, v in f.channels().items()}
-    if all(c in names for c in "RGB"):
-        return np.stack([names[c] for c in "RGB"], axis=-1).astype(np.float32)
-    if "Y" in names:
-        return np.repeat(names["Y"][..., None], 3, axis=-1).astype(np.float32)
-    raise ImageError(f"cannot read {path}: no R, G, B (or Y) channels, found {', '.join(sorted(names)) or 'none'}")
+def _write_png(f, rgb: np.ndarray) -> None:
+    """Write (H, W, 3) linear ``rgb`` to the binary file ``f`` as an 8-bit sRGB PNG."""
+    linear = torch.from_numpy(rgb).clamp(0.0, 1.0).permute(2, 0, 1)
+    srgb = kornia.color.linear_rgb_to_rgb(linear).clamp(0.0, 1.0).permute(1, 2, 0).numpy()
+    Image.fromarray(np.round(srgb * 255.0).astype(np.uint8), mode="RGB").save(f, format="PNG")
 
 
-def _read_8bit(path: Path) -> np.ndarray:
-    from PIL import Image
+def _read_exr(path: Path) -> torch.Tensor:
+    """Read an EXR file's first part as a (H, W, 3) float32 tensor."""
+    # On bad pixel data (e.g. a truncated file) OpenEXR prints a "Warning: ..." line to sys.stdout and
+    # returns a File with no parts; catch that line so it becomes the error message, not stray output.
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed), OpenEXR.File(str(path), separate_channels=True) as f:
+        if not f.parts:
+            reason = printed.getvalue().strip().splitlines()[-1:] or ["no readable parts"]
+            raise ImageError(f"cannot read image {path}: corrupt or truncated EXR pixel data ({reason[0]})")
+        channels = f.channels()
+        if all(c in channels for c in "RGB"):
+            planes = [channels[c].pixels for c in "RGB"]
+        elif "Y" in channels:
+            planes = [channels["Y"].pixels] * 3
+        else:
+            raise ImageError(f"cannot read image {path}: no R, G, B or Y channels (found {', '.join(sorted(channels)) or 'none'})")
+        rgb = np.stack([np.asarray(p, dtype=np.float32) for p in planes], axis=-1)
+    return torch.from_numpy(rgb)
 
-    with Image.open(path) as im:
-        im.load()
-        bits = 16 if im.mode in ("I;16", "I;16B", "I") else 8
-        rgb = np.asarray(im.convert("RGB") if bits == 8 else im, dtype=np.float64)
-    if rgb.ndim == 2:
-        rgb = np.repeat(rgb[..., None], 3, axis=-1)
-    return srgb_decode(rgb / (2**bits - 1)).astype(np.float32)
+
+def _read_srgb(path: Path) -> torch.Tensor:
+    """Read an 8-bit PNG/JPEG (or 16-bit grey PNG) as a (H, W, 3) float32 linear tensor."""
+    with Image.open(path) as img:
+        img.load()
+        if img.mode.startswith("I;16"):
+            grey = np.asarray(img, dtype=np.float32) / 65535.0
+            srgb = np.repeat(grey[..., None], 3, axis=-1)
+        else:
+            srgb = np.asarray(img.convert("RGB"), dtype=np.float32) / 255.0
+    linear = kornia.color.rgb_to_linear_rgb(torch.from_numpy(srgb).permute(2, 0, 1))
+    return linear.permute(1, 2, 0).contiguous()

@@ -1,44 +1,92 @@
-"""Scene files: the TOML scene format, and glTF/GLB/OBJ files through trimesh.
+"""Scene files: the TOML scene format, and whole scenes from glTF/GLB/OBJ files through trimesh.
 
-TOML scene format (every key optional unless marked; unknown keys are errors)::
+TOML scene format
+-----------------
 
-    name = "my scene"
-    resolution = [64, 64]              # width, height (default 256 x 256)
+Every key is optional unless marked *required*. An unknown key anywhere, a value of the wrong type
+(a string where a number is expected, a list of the wrong length, ``true`` where a number is
+expected), a missing or unreadable file is a :class:`~invrender.errors.SceneError` whose one-line
+message names the file, the table and the key, and what was expected (for unknown keys: the
+allowed keys). Out-of-range colours (rho outside [0, 1], eps < 0) are
+:class:`~invrender.errors.ParameterError` from :func:`~invrender.scene.scene.build_scene`::
 
-    [camera]                           # defaults: Camera()'s (the Cornell box view)
-    origin = [0, 0, 3.9]
-    target = [0, 0, 0]
-    up = [0, 1, 0]
-    fov = 39.3077                      # degrees, along fov_axis
+    name = "cornell box"               # default: the file name without .toml
+    resolution = [64, 64]              # width, height in pixels (default 256 x 256);
+                                       # the ``resolution`` argument (CLI --resolution) overrides it
+
+    [camera]                           # every key optional; defaults are Camera()'s (the Cornell box view)
+    origin = [0, 0, 3.9]               # eye position
+    target = [0, 0, 0]                 # point looked at
+    up = [0, 1, 0]                     # approximate up direction
+    fov = 39.3077                      # full field of view in degrees, along fov_axis
     fov_axis = "smaller"               # x | y | smaller | larger
 
-    [materials.white]                  # one table per material: diffuse reflectance rho
-    reflectance = [0.8, 0.8, 0.8]      # RGB in [0, 1] (or one number), or instead:
-    # reflectance_texture = "albedo.png"   (relative to this file; PNG/JPEG sRGB-decoded, EXR linear)
+    [materials.white]                  # one table per material: diffuse (Lambertian, two-sided) reflectance rho
+    reflectance = [0.8, 0.8, 0.8]      # linear RGB in [0, 1], or one number for grey; or instead
+    # reflectance_texture = "albedo.png"   # path relative to this file: PNG/JPEG sRGB-decoded to linear, EXR linear
 
-    [emitters.light]                   # one table per emitter: emitted radiance eps (front side)
-    emission = [17, 12, 4]             # RGB >= 0 (or one number), or emission_texture = "glow.exr"
+    [emitters.light]                   # one table per emitter: emitted radiance eps, from the front side only
+    emission = [17, 12, 4]             # linear RGB >= 0, or one number; or instead emission_texture = "glow.exr"
 
-    [[shapes]]                         # one table per shape
+    [[shapes]]                         # one table per shape, in order (triangles keep this order)
     type = "rectangle"                 # required: rectangle | cube | sphere | mesh
-    material = "white"                 # required
-    emitter = "light"
-    file = "bunny.obj"                 # mesh only, required there: relative to this file (OBJ, glTF, GLB, PLY, STL)
-    subdivisions = 3                   # sphere only: 20 * 4^n triangles
-    flip_normals = false               # turn the shape inside out (front side = emitting side)
+    material = "white"                 # required: the name of a [materials.NAME] table
+    emitter = "light"                  # the name of an [emitters.NAME] table: the shape also emits
+    flip_normals = false               # exchange front and back (applied before the transform)
+    subdivisions = 3                   # sphere only: an icosphere of 20 * 4^n triangles (0..7, default 3)
+    file = "bunny.obj"                 # mesh only, required there: relative to this file, any format trimesh
+                                       # reads (OBJ, glTF, GLB, PLY, STL); all its parts merged, in world space
     transform = [{ scale = [0.23, 0.19, 0.19] }, { rotate = { axis = [1, 0, 0], angle = 90 } }, { translate = [0, 0.99, 0.01] }]
-                                       # applied in the order listed (here: scale, then rotate, then translate)
 
-Whole-scene mesh files (.gltf, .glb, .obj) load through trimesh with their scene-graph transforms:
-each material becomes a material of the same name with rho = glTF ``baseColorFactor`` (RGB, linear)
-x ``baseColorTexture`` (sRGB-decoded), or OBJ ``Kd``; a material with a non-zero glTF
-``emissiveFactor`` x ``KHR_materials_emissive_strength`` (x ``emissiveTexture``) also becomes the
-emitter ``<material>_emission``. A perspective glTF camera is used when the file has one (``yfov``,
-looking down the camera node's -z); otherwise a camera looks at the bounding box from +z.
+``transform`` is a list of steps applied in the order listed (above: scale, then rotate, then
+translate): ``{ translate = [x, y, z] }``, ``{ scale = s }`` or ``{ scale = [x, y, z] }`` (non-zero),
+``{ rotate = { axis = [x, y, z], angle = degrees } }`` (right-handed). The primitives are Mitsuba 3's
+(:mod:`invrender.scene.shapes`): ``rectangle`` is [-1, 1]^2 at z = 0 facing +z, ``cube`` [-1, 1]^3
+facing outwards, ``sphere`` the unit sphere facing outwards.
+
+Texture coordinates
+-------------------
+
+UVs follow OpenGL's, OBJ's and trimesh's convention, which is also the renderer's
+(:mod:`invrender.transport.textures`): u grows left to right along the image's columns, v grows
+from the image's *bottom* row to its top row, so uv (0, 0) is the bottom-left corner of the image.
+Texture tensors are stored as images are, row 0 at the top, and no image is ever flipped: OBJ UVs
+are used as written, and trimesh already turns glTF UVs (origin top-left) into this convention
+(v -> 1 - v) when it reads them. The rectangle's uv (0, 0) is its (-1, -1) corner, so an image shows
+upright on a rectangle seen from its front.
+
+glTF, GLB and OBJ files
+-----------------------
+
+:func:`load_mesh_file` reads a whole scene with ``trimesh.load(path, force="scene")``; every
+geometry is moved to world space by its scene-graph transform, and triangles are ordered by
+geometry in file order (trimesh's node order is not). Everything is Lambertian
+(metallic, roughness, specular, alpha are ignored). Each distinct material becomes a material
+named as in the file (unnamed: ``material``), made unique with ``_2``, ``_3``, ... suffixes when
+two different materials share a name:
+
+- glTF: rho = ``baseColorFactor`` RGB (linear, read exactly from the file's JSON; trimesh rounds it
+  to 8 bits) x ``baseColorTexture`` RGB (8-bit sRGB-encoded per the glTF spec, decoded to linear).
+  eps = ``emissiveFactor`` x ``KHR_materials_emissive_strength.emissiveStrength`` (read from the
+  JSON, trimesh ignores this extension) x ``emissiveTexture`` (sRGB-decoded); when eps is non-zero
+  the material also becomes the emitter ``<material>_emission``. A primitive without a material
+  gets rho = 0.8 grey.
+- OBJ/MTL: rho = ``Kd`` (read as *linear* RGB, exactly as written in the .mtl) x ``map_Kd`` (sRGB-
+  decoded; the texture alone when ``Kd`` is absent); eps = ``Ke`` (linear; ``map_Ke`` is ignored).
+  Faces without a material (or an OBJ without .mtl) get rho = 0.8 grey (trimesh's placeholder
+  material, with its grey 2 x 2 image, is ignored).
+- Camera: the first perspective camera met walking the default glTF scene's node tree (depth
+  first, in file order) is used, with its ``yfov`` along the image's y axis and its node's world
+  transform (glTF cameras look down their local -z with +y up); its ``aspectRatio`` sets the
+  default resolution (height 256, width 256 x aspectRatio rounded). Without one (OBJ files,
+  orthographic cameras), a camera with a 45-degree field of view on the image's smaller axis looks
+  down -z at the bounding-box centre from far enough on +z to see the whole bounding sphere, and
+  the default resolution is 256 x 256.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import struct
@@ -48,45 +96,65 @@ from pathlib import Path
 import numpy as np
 
 from invrender.errors import InvRenderError, SceneError
-from invrender.scene.camera import Camera
+from invrender.scene.camera import FOV_AXES, Camera
 from invrender.scene.scene import Scene, build_scene
 from invrender.scene.shapes import PRIMITIVES, Mesh, rotate, scale, translate
 
 TOP_KEYS = {"name", "resolution", "camera", "materials", "emitters", "shapes"}
 CAMERA_KEYS = {"origin", "target", "up", "fov", "fov_axis"}
-MATERIAL_KEYS = {"reflectance", "reflectance_texture"}
-EMITTER_KEYS = {"emission", "emission_texture"}
 SHAPE_KEYS = {"type", "material", "emitter", "file", "subdivisions", "flip_normals", "transform"}
 SHAPE_TYPES = (*PRIMITIVES, "mesh")
+TRANSFORM_STEPS = ("translate", "rotate", "scale")
 DEFAULT_RESOLUTION = (256, 256)
+DEFAULT_RHO = 0.8  # reflectance of glTF primitives / OBJ faces without a material
+FRAMING_FOV = 45.0
 
 
 # ---------------------------------------------------------------- TOML
 
 
 def load_toml(path, resolution=None) -> Scene:
-    """A scene from a TOML scene file (format in this module's docstring)."""
+    """A scene from a TOML scene file (format in this module's docstring).
+
+    Args:
+        path: the .toml file; relative paths inside it are relative to its folder.
+        resolution: (width, height), overriding the file's ``resolution``; None = the file's.
+    Raises:
+        SceneError: missing/unreadable/invalid file, unknown keys, wrong types, missing mesh or
+            texture files, meshes without faces.
+        ParameterError: colours out of range.
+    """
     path = Path(path)
-    try:
-        doc = tomllib.loads(path.read_text())
-    except OSError as e:
-        raise SceneError(f"cannot read scene file {path}: {e.strerror or e}") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise SceneError(f"{path}: invalid TOML: {e}") from None
     where = str(path)
+    try:
+        doc = tomllib.loads(path.read_bytes().decode("utf-8"))
+    except FileNotFoundError:
+        raise SceneError(f"scene file not found: {path}") from None
+    except OSError as e:
+        raise SceneError(f"cannot read scene file {path}: {_one_line(e.strerror or e)}") from None
+    except UnicodeDecodeError as e:
+        raise SceneError(f"{path}: invalid TOML: not UTF-8 text ({_one_line(e)})") from None
+    except tomllib.TOMLDecodeError as e:
+        raise SceneError(f"{path}: invalid TOML: {_one_line(e)}") from None
+
     _check_keys(doc, TOP_KEYS, where)
-    name = doc.get("name", path.stem)
-    if not isinstance(name, str):
-        raise SceneError(f"{where}: 'name' must be a string")
+    name = _string(doc, "name", where) if "name" in doc else path.stem
+    file_resolution = tuple(_vector(doc, "resolution", where, length=2)) if "resolution" in doc else DEFAULT_RESOLUTION
 
     camera_doc = _table(doc, "camera", where)
-    _check_keys(camera_doc, CAMERA_KEYS, f"{where} [camera]")
-    cam_args = {k: _vector(camera_doc, k, f"{where} [camera]") for k in ("origin", "target", "up") if k in camera_doc}
+    cwhere = f"{where} [camera]"
+    _check_keys(camera_doc, CAMERA_KEYS, cwhere)
+    cam_args = {k: _vector(camera_doc, k, cwhere) for k in ("origin", "target", "up") if k in camera_doc}
     if "fov" in camera_doc:
-        cam_args["fov"] = _number(camera_doc, "fov", f"{where} [camera]")
+        cam_args["fov"] = _number(camera_doc, "fov", cwhere)
     if "fov_axis" in camera_doc:
-        cam_args["fov_axis"] = _string(camera_doc, "fov_axis", f"{where} [camera]")
-    camera = Camera(**cam_args)
+        cam_args["fov_axis"] = _string(camera_doc, "fov_axis", cwhere)
+        if cam_args["fov_axis"] not in FOV_AXES:
+            raise SceneError(f"{cwhere}: 'fov_axis' must be one of {', '.join(FOV_AXES)}, got {cam_args['fov_axis']!r}")
+    try:
+        camera = Camera(**cam_args)
+    except SceneError as e:
+        raise SceneError(f"{cwhere}: {e}") from None
 
     reflectance = {
         k: _colour_or_texture(v, "reflectance", f"{where} [materials.{k}]", path.parent)
@@ -98,12 +166,13 @@ def load_toml(path, resolution=None) -> Scene:
     }
     shapes_doc = doc.get("shapes", [])
     if not isinstance(shapes_doc, list) or not all(isinstance(s, dict) for s in shapes_doc):
-        raise SceneError(f"{where}: 'shapes' must be an array of tables ([[shapes]])")
+        raise SceneError(f"{where}: 'shapes' must be an array of tables ([[shapes]]), got {_show(shapes_doc)}")
     meshes = [_shape(s, f"{where} shapes[{i}]", path.parent) for i, s in enumerate(shapes_doc)]
 
-    if resolution is None:
-        resolution = tuple(_vector(doc, "resolution", where, length=2)) if "resolution" in doc else DEFAULT_RESOLUTION
-    return build_scene(meshes, reflectance, emission, camera, resolution, name=name)
+    try:
+        return build_scene(meshes, reflectance, emission, camera, file_resolution if resolution is None else resolution, name=name)
+    except SceneError as e:
+        raise SceneError(f"{where}: {e}") from None
 
 
 def _shape(doc: dict, where: str, base: Path) -> Mesh:
@@ -114,74 +183,91 @@ def _shape(doc: dict, where: str, base: Path) -> Mesh:
     material = _string(doc, "material", where, required=True)
     emitter = _string(doc, "emitter", where) if "emitter" in doc else None
     if kind != "sphere" and "subdivisions" in doc:
-        raise SceneError(f"{where}: 'subdivisions' applies to spheres only")
+        raise SceneError(f"{where}: 'subdivisions' applies to type = \"sphere\" only")
+    if kind != "mesh" and "file" in doc:
+        raise SceneError(f"{where}: 'file' applies to type = \"mesh\" only")
     if kind == "mesh":
-        v, f, uv = _mesh_arrays(base / _string(doc, "file", where, required=True))
+        try:
+            v, f, uv = _mesh_arrays(base / _string(doc, "file", where, required=True))
+        except SceneError as e:
+            raise e if str(e).startswith(where) else SceneError(f"{where}: {e}") from None
+    elif kind == "sphere" and "subdivisions" in doc:
+        n = doc["subdivisions"]
+        if not isinstance(n, int) or isinstance(n, bool):
+            raise SceneError(f"{where}: 'subdivisions' must be an integer, got {_show(n)}")
+        try:
+            v, f, uv = PRIMITIVES[kind](n)
+        except SceneError as e:
+            raise SceneError(f"{where}: {e}") from None
     else:
-        if "file" in doc:
-            raise SceneError(f"{where}: 'file' applies to type = \"mesh\" only")
-        v, f, uv = PRIMITIVES[kind](int(_number(doc, "subdivisions", where))) if "subdivisions" in doc else PRIMITIVES[kind]()
+        v, f, uv = PRIMITIVES[kind]()
     mesh = Mesh(v, f, uv, material, emitter)
     flip = doc.get("flip_normals", False)
     if not isinstance(flip, bool):
-        raise SceneError(f"{where}: 'flip_normals' must be true or false")
+        raise SceneError(f"{where}: 'flip_normals' must be true or false, got {_show(flip)}")
     if flip:
         mesh = mesh.flipped()
     return mesh.transformed(_transform(doc.get("transform", []), where))
 
 
 def _transform(ops, where: str) -> np.ndarray:
-    """4x4 matrix of a list of {translate|rotate|scale} steps applied in order."""
+    """4x4 matrix of a list of {translate|rotate|scale} steps applied in the order listed."""
+    usage = "{ translate = [x, y, z] }, { rotate = { axis = [x, y, z], angle = degrees } } or { scale = s or [x, y, z] }"
     if not isinstance(ops, list):
-        raise SceneError(f"{where}: 'transform' must be a list of {{translate|rotate|scale = ...}} tables")
+        raise SceneError(f"{where}: 'transform' must be a list of steps {usage}, got {_show(ops)}")
     matrix = np.eye(4)
     for i, op in enumerate(ops):
         w = f"{where} transform[{i}]"
         if not isinstance(op, dict) or len(op) != 1:
-            raise SceneError(f"{w}: each step must be one of {{ translate = [x, y, z] }}, {{ rotate = {{ axis = [x, y, z], angle = deg }} }}, {{ scale = s or [x, y, z] }}")
-        (kind, value), = op.items()
-        if kind == "translate":
-            step = translate(_vector(op, kind, w))
-        elif kind == "scale":
-            step = scale(value if _is_number(value) else _vector(op, kind, w))
-        elif kind == "rotate":
-            if not isinstance(value, dict):
-                raise SceneError(f"{w}: 'rotate' must be a table {{ axis = [x, y, z], angle = degrees }}")
-            _check_keys(value, {"axis", "angle"}, f"{w} rotate")
-            step = rotate(_vector(value, "axis", w), _number(value, "angle", w, required=True))
-        else:
-            raise SceneError(f"{w}: unknown transform step {kind!r} (known: translate, rotate, scale)")
+            raise SceneError(f"{w}: each step must be a table with one key, one of {usage}; got {_show(op)}")
+        ((kind, value),) = op.items()
+        try:
+            if kind == "translate":
+                step = translate(_vector(op, kind, w))
+            elif kind == "scale":
+                step = scale(float(value) if _is_number(value) else _vector(op, kind, w, scalar_ok=True))
+            elif kind == "rotate":
+                if not isinstance(value, dict):
+                    raise SceneError(f"{w}: 'rotate' must be a table {{ axis = [x, y, z], angle = degrees }}, got {_show(value)}")
+                _check_keys(value, {"axis", "angle"}, f"{w} rotate")
+                step = rotate(_vector(value, "axis", f"{w} rotate", required=True), _number(value, "angle", f"{w} rotate", required=True))
+            else:
+                raise SceneError(f"{w}: unknown transform step {kind!r} (allowed: {', '.join(TRANSFORM_STEPS)})")
+        except SceneError as e:
+            raise e if str(e).startswith(where) else SceneError(f"{w}: {e}") from None
         matrix = step @ matrix
     return matrix
 
 
 def _colour_or_texture(doc, kind: str, where: str, base: Path):
+    """An RGB list or a linear (h, w, 3) texture tensor from a material/emitter table."""
+    key_tex = f"{kind}_texture"
     if not isinstance(doc, dict):
-        raise SceneError(f"{where}: must be a table")
-    _check_keys(doc, {kind, f"{kind}_texture"}, where)
-    if (kind in doc) == (f"{kind}_texture" in doc):
-        raise SceneError(f"{where}: give exactly one of '{kind}' or '{kind}_texture'")
+        raise SceneError(f"{where}: must be a table with '{kind}' or '{key_tex}', got {_show(doc)}")
+    _check_keys(doc, {kind, key_tex}, where)
+    if (kind in doc) == (key_tex in doc):
+        raise SceneError(f"{where}: give exactly one of '{kind}' or '{key_tex}'")
     if kind in doc:
         value = doc[kind]
-        return [float(value)] * 3 if _is_number(value) else _vector(doc, kind, where)
-    from invrender.io import read_image
+        return [float(value)] * 3 if _is_number(value) else _vector(doc, kind, where, scalar_ok=True)
+    from invrender.io import read_image  # lazily: images need kornia/OpenEXR
 
-    texture_path = base / _string(doc, f"{kind}_texture", where)
+    texture_path = base / _string(doc, key_tex, where)
+    if not texture_path.is_file():
+        raise SceneError(f"{where}: texture file not found: {texture_path}")
     try:
         return read_image(texture_path)
     except InvRenderError as e:
-        raise SceneError(f"{where}: {e}") from None
+        raise SceneError(f"{where}: {_one_line(e)}") from None
 
 
 def _mesh_arrays(path: Path):
     """(vertices, faces, uvs) of a mesh file, all its parts merged in world space."""
     meshes = [m for m, _ in _trimesh_parts(path)]
-    v = np.concatenate([m.vertices for m in meshes])
+    v = np.concatenate([np.asarray(m.vertices, dtype=np.float64) for m in meshes])
     offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
-    f = np.concatenate([m.faces + o for m, o in zip(meshes, offsets)])
+    f = np.concatenate([np.asarray(m.faces, dtype=np.int64) + o for m, o in zip(meshes, offsets)])
     uv = np.concatenate([_uv(m) for m in meshes])
-    if len(f) == 0:
-        raise SceneError(f"mesh file {path} has no faces")
     return v, f, uv
 
 
@@ -189,49 +275,71 @@ def _mesh_arrays(path: Path):
 
 
 def load_mesh_file(path, resolution=None) -> Scene:
-    """A whole scene from a .gltf/.glb/.obj file (mapping in this module's docstring)."""
+    """A whole scene from a .gltf/.glb/.obj file (mapping in this module's docstring).
+
+    Args:
+        path: the file.
+        resolution: (width, height); None = from the glTF camera's aspect ratio (height 256), else
+            256 x 256.
+    Raises:
+        SceneError: missing or unreadable file, no triangles, an invalid camera.
+    """
     path = Path(path)
-    gltf = _gltf_json(path) if path.suffix.lower() in (".gltf", ".glb") else {}
-    factors = {m.get("name"): m for m in gltf.get("materials", []) if m.get("name")}
+    if not path.is_file():
+        raise SceneError(f"mesh file not found: {path}")
+    is_gltf = path.suffix.lower() in (".gltf", ".glb")
+    gltf = _gltf_json(path) if is_gltf else {}
+    json_materials = gltf.get("materials", []) if isinstance(gltf.get("materials"), list) else []
+
     meshes, reflectance, emission = [], {}, {}
+    names_by_key: dict[tuple, str] = {}
     for mesh, material in _trimesh_parts(path):
-        name = getattr(material, "name", None) or "default"
-        if name not in reflectance:
-            rho, eps = _material_values(material, factors.get(name, {}))
+        base_name, rho, eps = _material_values(material, json_materials, is_gltf, path)
+        key = (base_name, _fingerprint(rho), _fingerprint(eps))
+        if key not in names_by_key:
+            name = _unique_name(base_name, eps is not None, set(reflectance) | set(emission))
+            names_by_key[key] = name
             reflectance[name] = rho
             if eps is not None:
                 emission[f"{name}_emission"] = eps
+        name = names_by_key[key]
         emitter = f"{name}_emission" if f"{name}_emission" in emission else None
-        meshes.append(Mesh(np.asarray(mesh.vertices), np.asarray(mesh.faces), _uv(mesh), name, emitter))
-    camera, aspect = _gltf_camera(gltf)
+        meshes.append(Mesh(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64), _uv(mesh), name, emitter))
+
+    camera, aspect = _gltf_camera(gltf, path) if is_gltf else (None, None)
     if camera is None:
         camera = _framing_camera(np.concatenate([m.vertices for m in meshes]))
     if resolution is None:
-        resolution = (round(256 * aspect), 256) if aspect else DEFAULT_RESOLUTION
-    return build_scene(meshes, reflectance, emission, camera, resolution, name=path.stem)
+        resolution = (max(1, round(256 * aspect)), 256) if aspect else DEFAULT_RESOLUTION
+    try:
+        return build_scene(meshes, reflectance, emission, camera, resolution, name=path.stem)
+    except SceneError as e:
+        raise SceneError(f"{path}: {e}") from None
 
 
-def _trimesh_parts(path: Path):
-    """[(trimesh.Trimesh in world space, its material or None)] of a mesh file."""
+def _trimesh_parts(path: Path) -> list:
+    """[(trimesh.Trimesh in world space, its material or None)] of a mesh file, in scene-graph order."""
     import trimesh
 
     if not path.is_file():
         raise SceneError(f"mesh file not found: {path}")
     try:
         scene = trimesh.load(str(path), force="scene")
-    except Exception as e:
-        raise SceneError(f"cannot read mesh file {path}: {str(e).splitlines()[0] if str(e) else type(e).__name__}") from None
+    except Exception as e:  # trimesh raises anything from ValueError to KeyError on bad files
+        raise SceneError(f"cannot read mesh file {path}: {_one_line(e) or type(e).__name__}") from None
     parts = []
-    for node in scene.graph.nodes_geometry:
-        transform, geometry = scene.graph[node]
-        mesh = scene.geometry[geometry]
+    order = {name: i for i, name in enumerate(scene.geometry)}  # file order; nodes_geometry's order is not
+    nodes = [(node, *scene.graph[node]) for node in scene.graph.nodes_geometry]
+    for node, transform, geometry in sorted(nodes, key=lambda n: (order.get(n[2], len(order)), str(n[0]))):
+        mesh = scene.geometry.get(geometry)
         if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
             continue
+        material = getattr(mesh.visual, "material", None)  # before copy(): shared objects stay shared
         mesh = mesh.copy()
         mesh.apply_transform(transform)
-        parts.append((mesh, getattr(mesh.visual, "material", None)))
+        parts.append((mesh, material))
     if not parts:
-        raise SceneError(f"mesh file {path} has no triangle meshes")
+        raise SceneError(f"mesh file {path} has no faces (no triangle meshes)")
     return parts
 
 
@@ -242,107 +350,225 @@ def _uv(mesh) -> np.ndarray:
     return np.asarray(uv, dtype=np.float64)
 
 
-def _material_values(material, gltf_material: dict):
-    """(rho, eps or None) of a trimesh material, exact factors taken from the glTF JSON when known."""
-    pbr = gltf_material.get("pbrMetallicRoughness", {})
-    if "baseColorFactor" in pbr:
-        base = np.asarray(pbr["baseColorFactor"][:3], dtype=np.float64)
-    elif material is not None and getattr(material, "baseColorFactor", None) is not None:
-        base = np.asarray(material.baseColorFactor[:3], dtype=np.float64) / 255.0
-    elif material is not None and getattr(material, "diffuse", None) is not None:  # OBJ Kd (0-255)
-        base = np.asarray(material.diffuse[:3], dtype=np.float64) / 255.0
-    else:
-        base = np.full(3, 0.8)
-    texture = getattr(material, "baseColorTexture", None) or getattr(material, "image", None)
-    rho = _texture(texture) * base if texture is not None else np.clip(base, 0.0, 1.0)
+def _material_values(material, json_materials: list, is_gltf: bool, path: Path):
+    """(name, rho, eps or None) of a trimesh material: rho (3,) or (h, w, 3) linear, likewise eps."""
+    from trimesh.visual.material import PBRMaterial, SimpleMaterial
 
-    strength = gltf_material.get("extensions", {}).get("KHR_materials_emissive_strength", {}).get("emissiveStrength", 1.0)
-    factor = gltf_material.get("emissiveFactor")
-    if factor is None and getattr(material, "emissiveFactor", None) is not None:
-        factor = material.emissiveFactor
-    eps = None
-    if factor is not None and np.any(np.asarray(factor, dtype=np.float64) > 0):
-        eps = np.asarray(factor, dtype=np.float64)[:3] * float(strength)
-        emissive_texture = getattr(material, "emissiveTexture", None)
-        if emissive_texture is not None:
-            eps = _texture(emissive_texture) * eps
-    return rho, eps
+    name = getattr(material, "name", None) or "material"
+    if isinstance(material, PBRMaterial):
+        entry = _json_material(material, json_materials) if is_gltf else {}
+        pbr = entry.get("pbrMetallicRoughness", {}) if isinstance(entry.get("pbrMetallicRoughness"), dict) else {}
+        if "baseColorFactor" in pbr:
+            base = _factor(pbr["baseColorFactor"], "baseColorFactor", path)
+        elif material.baseColorFactor is not None:
+            base = np.asarray(material.baseColorFactor, dtype=np.float64)[:3] / 255.0
+        else:
+            base = np.ones(3)
+        rho = _times_texture(base, material.baseColorTexture)
+
+        extension = entry.get("extensions", {}).get("KHR_materials_emissive_strength", {}) if isinstance(entry.get("extensions"), dict) else {}
+        strength = extension.get("emissiveStrength", 1.0) if isinstance(extension, dict) else 1.0
+        if not _is_number(strength):
+            raise SceneError(f"{path}: material {name!r}: emissiveStrength must be a number, got {_show(strength)}")
+        if "emissiveFactor" in entry:
+            factor = _factor(entry["emissiveFactor"], "emissiveFactor", path)
+        elif material.emissiveFactor is not None:
+            factor = np.asarray(material.emissiveFactor, dtype=np.float64).reshape(-1)[:3]
+        else:
+            factor = np.zeros(3)
+        eps = factor * float(strength)
+        eps = _times_texture(eps, material.emissiveTexture) if np.any(eps != 0) else None
+        return name, rho, eps
+
+    if isinstance(material, SimpleMaterial):
+        kwargs = material.kwargs or {}
+        if getattr(material, "_name", None) is None and "kd" not in kwargs:  # its .name is then "material_0"
+            return "material", np.full(3, DEFAULT_RHO), None  # trimesh's placeholder for faces without a material
+        kd = _mtl_colour(kwargs.get("kd"), "Kd", name, path)
+        rho = _times_texture(np.ones(3) if kd is None and material.image is not None else (kd if kd is not None else np.full(3, DEFAULT_RHO)), material.image)
+        ke = _mtl_colour(kwargs.get("ke"), "Ke", name, path)
+        eps = ke if ke is not None and np.any(ke != 0) else None
+        return name, rho, eps
+
+    return name, np.full(3, DEFAULT_RHO), None  # no material (e.g. vertex colours only)
 
 
-def _texture(image) -> np.ndarray:
-    """A PIL image (sRGB-encoded) -> linear (h, w, 3), row 0 at the top."""
-    from invrender.io.images import srgb_decode
+def _json_material(material, json_materials: list) -> dict:
+    """The glTF JSON material a trimesh PBRMaterial came from: by name, ties broken by its (8-bit) factors."""
+    candidates = [m for m in json_materials if isinstance(m, dict) and m.get("name") == material.name]
+    if len(candidates) <= 1:
+        return candidates[0] if candidates else {}
 
-    rgb = np.asarray(image.convert("RGB"), dtype=np.float64) / 255.0
-    return srgb_decode(rgb)
+    def rounded(x):
+        return None if x is None else np.round(np.asarray(x, dtype=np.float64).reshape(-1)[:3] * 255).astype(int).tolist()
+
+    for m in candidates:
+        pbr = m.get("pbrMetallicRoughness", {})
+        ok_base = rounded(pbr.get("baseColorFactor")) == (None if material.baseColorFactor is None else np.asarray(material.baseColorFactor)[:3].astype(int).tolist())
+        ok_emit = rounded(m.get("emissiveFactor")) == rounded(material.emissiveFactor)
+        if ok_base and ok_emit:
+            return m
+    return {}
+
+
+def _factor(value, key: str, path: Path) -> np.ndarray:
+    if not isinstance(value, list) or len(value) < 3 or not all(_is_number(x) for x in value):
+        raise SceneError(f"{path}: glTF {key} must be a list of 3 or 4 numbers, got {_show(value)}")
+    return np.asarray(value[:3], dtype=np.float64)
+
+
+def _mtl_colour(value, key: str, material: str, path: Path) -> np.ndarray | None:
+    """An MTL colour as trimesh keeps it (floats, or a list of strings) -> (3,) float64 or None."""
+    if value is None:
+        return None
+    try:
+        rgb = np.asarray([float(x) for x in np.atleast_1d(value)], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise SceneError(f"{path}: material {material!r}: {key} must be numbers, got {_show(value)}") from None
+    if rgb.size == 1:
+        rgb = np.repeat(rgb, 3)
+    if rgb.size < 3:
+        raise SceneError(f"{path}: material {material!r}: {key} must have 3 components, got {rgb.size}")
+    return rgb[:3]
+
+
+def _times_texture(factor: np.ndarray, image) -> np.ndarray:
+    """``factor`` (3,), times an sRGB-encoded PIL image decoded to linear (h, w, 3) when there is one."""
+    if image is None:
+        return factor
+    return _decode_texture(image) * factor
+
+
+def _decode_texture(image) -> np.ndarray:
+    """A PIL image (8-bit sRGB-encoded) -> linear float64 (h, w, 3), row 0 at the top (not flipped)."""
+    import kornia
+    import torch
+
+    rgb = np.asarray(image.convert("RGB"), dtype=np.float32) / 255.0
+    linear = kornia.color.rgb_to_linear_rgb(torch.from_numpy(rgb).permute(2, 0, 1))  # the decoding read_image uses
+    return linear.permute(1, 2, 0).numpy().astype(np.float64)
+
+
+def _fingerprint(value) -> str | None:
+    if value is None:
+        return None
+    a = np.ascontiguousarray(value, dtype=np.float64)
+    return f"{a.shape}:{hashlib.sha1(a.tobytes()).hexdigest()}"
+
+
+def _unique_name(base: str, emits: bool, used: set) -> str:
+    """``base``, or ``base_2``, ``base_3``, ...: unused, and so is its ``_emission`` emitter if it emits."""
+    candidate, i = base, 1
+    while candidate in used or (emits and f"{candidate}_emission" in used):
+        i += 1
+        candidate = f"{base}_{i}"
+    return candidate
 
 
 def _gltf_json(path: Path) -> dict:
-    """The JSON document of a .gltf, or of a .glb's first chunk."""
+    """The JSON document of a .gltf, or of a .glb's first (JSON) chunk."""
     try:
         data = path.read_bytes()
         if path.suffix.lower() == ".glb":
             magic, _, _ = struct.unpack_from("<4sII", data, 0)
             length, kind = struct.unpack_from("<I4s", data, 12)
             if magic != b"glTF" or kind != b"JSON":
-                raise ValueError("not a binary glTF file")
+                raise ValueError("not a binary glTF file (bad header)")
             data = data[20 : 20 + length]
-        return json.loads(data)
+        doc = json.loads(data)
     except FileNotFoundError:
         raise SceneError(f"mesh file not found: {path}") from None
-    except (OSError, ValueError, struct.error, UnicodeDecodeError) as e:
-        raise SceneError(f"cannot read mesh file {path}: {e}") from None
+    except (OSError, ValueError, struct.error) as e:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+        raise SceneError(f"cannot read mesh file {path}: {_one_line(e)}") from None
+    if not isinstance(doc, dict):
+        raise SceneError(f"cannot read mesh file {path}: the glTF JSON is not an object")
+    return doc
 
 
-def _gltf_camera(gltf: dict) -> tuple[Camera | None, float | None]:
-    """The first perspective camera of a glTF document and its aspect ratio, if any."""
+def _gltf_camera(gltf: dict, path: Path) -> tuple[Camera | None, float | None]:
+    """The first perspective camera of the default glTF scene (depth first) and its aspect ratio."""
     cameras = gltf.get("cameras", [])
     nodes = gltf.get("nodes", [])
-    parent = {c: i for i, n in enumerate(nodes) for c in n.get("children", [])}
-    for i, node in enumerate(nodes):
-        cam = cameras[node["camera"]] if "camera" in node and node["camera"] < len(cameras) else None
-        if cam is None or cam.get("type") != "perspective":
-            continue
-        world, j = np.eye(4), i
-        while j is not None:
-            world = _node_matrix(nodes[j]) @ world
-            j = parent.get(j)
-        persp = cam["perspective"]
-        origin = world[:3, 3]
-        forward = -world[:3, 2]
-        camera = Camera(origin=tuple(origin), target=tuple(origin + forward), up=tuple(world[:3, 1]), fov=math.degrees(persp["yfov"]), fov_axis="y")
-        return camera, persp.get("aspectRatio")
+    if not cameras or not isinstance(cameras, list) or not isinstance(nodes, list):
+        return None, None
+    scenes = gltf.get("scenes") if isinstance(gltf.get("scenes"), list) else []
+    index = gltf.get("scene", 0)
+    if scenes and isinstance(index, int) and 0 <= index < len(scenes) and isinstance(scenes[index], dict):
+        roots = list(scenes[index].get("nodes", []))
+    else:
+        children = {c for n in nodes if isinstance(n, dict) for c in n.get("children", [])}
+        roots = [i for i in range(len(nodes)) if i not in children]
+
+    try:
+        stack = [(i, np.eye(4)) for i in reversed(roots)]
+        seen = set()
+        while stack:
+            i, parent = stack.pop()
+            if i in seen:
+                continue
+            seen.add(i)
+            node = nodes[i]
+            world = parent @ _node_matrix(node)
+            if "camera" in node:
+                cam = cameras[node["camera"]]
+                if cam.get("type") == "perspective":
+                    persp = cam["perspective"]
+                    yfov = float(persp["yfov"])
+                    aspect = persp.get("aspectRatio")
+                    origin = world[:3, 3]
+                    camera = Camera(
+                        origin=tuple(origin), target=tuple(origin - world[:3, 2]), up=tuple(world[:3, 1]), fov=math.degrees(yfov), fov_axis="y"
+                    )
+                    if aspect is not None and not (_is_number(aspect) and aspect > 0):
+                        raise ValueError(f"aspectRatio must be a positive number, got {aspect!r}")
+                    return camera, (float(aspect) if aspect is not None else None)
+            stack.extend((c, world) for c in reversed(node.get("children", [])))
+    except SceneError as e:
+        raise SceneError(f"{path}: glTF camera: {e}") from None
+    except (KeyError, IndexError, TypeError, ValueError, AttributeError) as e:
+        raise SceneError(f"{path}: invalid glTF camera or node: {_one_line(e) or type(e).__name__}") from None
     return None, None
 
 
 def _node_matrix(node: dict) -> np.ndarray:
+    """A glTF node's local 4x4 transform: ``matrix`` (column-major), or T * R * S."""
     if "matrix" in node:
-        return np.asarray(node["matrix"], dtype=np.float64).reshape(4, 4).T  # column-major
-    x, y, z, w = node.get("rotation", [0, 0, 0, 1])
+        return np.asarray(node["matrix"], dtype=np.float64).reshape(4, 4).T
+    x, y, z, w = (float(c) for c in node.get("rotation", [0, 0, 0, 1]))
     r = np.array([
         [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
         [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
         [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
     ])  # fmt: skip
     m = np.eye(4)
-    m[:3, :3] = r * np.asarray(node.get("scale", [1, 1, 1]))
-    m[:3, 3] = node.get("translation", [0, 0, 0])
+    m[:3, :3] = r * np.asarray(node.get("scale", [1, 1, 1]), dtype=np.float64)
+    m[:3, 3] = np.asarray(node.get("translation", [0, 0, 0]), dtype=np.float64)
     return m
 
 
 def _framing_camera(vertices: np.ndarray) -> Camera:
-    """A camera on +z looking at the bounding box centre, far enough to see all of it (fov 45)."""
+    """A camera on +z looking down -z at the bounding-box centre, seeing the whole bounding sphere (fov 45)."""
     lo, hi = vertices.min(0), vertices.max(0)
-    centre, radius = (lo + hi) / 2, max(np.linalg.norm(hi - lo) / 2, 1e-6)
-    distance = radius / math.sin(math.radians(45 / 2)) * 1.05
-    return Camera(origin=tuple(centre + [0, 0, distance]), target=tuple(centre), up=(0, 1, 0), fov=45.0)
+    centre = (lo + hi) / 2
+    radius = max(float(np.linalg.norm(hi - lo)) / 2, 1e-6)
+    distance = 1.05 * radius / math.sin(math.radians(FRAMING_FOV / 2))
+    return Camera(origin=tuple(centre + [0.0, 0.0, distance]), target=tuple(centre), up=(0, 1, 0), fov=FRAMING_FOV, fov_axis="smaller")
 
 
 # ---------------------------------------------------------------- value checks
 
 
+def _one_line(x) -> str:
+    return " ".join(str(x).split())
+
+
+def _show(value) -> str:
+    text = repr(value)
+    return _one_line(text if len(text) <= 60 else text[:57] + "...")
+
+
 def _check_keys(doc: dict, allowed: set, where: str) -> None:
-    unknown = sorted(set(doc) - allowed)
+    unknown = sorted(str(k) for k in set(doc) - allowed)
     if unknown:
         raise SceneError(f"{where}: unknown key {unknown[0]!r} (allowed: {', '.join(sorted(allowed))})")
 
@@ -350,7 +576,7 @@ def _check_keys(doc: dict, allowed: set, where: str) -> None:
 def _table(doc: dict, key: str, where: str) -> dict:
     value = doc.get(key, {})
     if not isinstance(value, dict):
-        raise SceneError(f"{where}: '{key}' must be a table")
+        raise SceneError(f"{where}: '{key}' must be a table, got {_show(value)}")
     return value
 
 
@@ -360,24 +586,27 @@ def _is_number(x) -> bool:
 
 def _number(doc: dict, key: str, where: str, required: bool = False) -> float:
     if key not in doc and required:
-        raise SceneError(f"{where}: missing required key '{key}'")
+        raise SceneError(f"{where}: missing required key '{key}' (a number)")
     value = doc.get(key)
     if not _is_number(value):
-        raise SceneError(f"{where}: '{key}' must be a number, got {value!r}")
+        raise SceneError(f"{where}: '{key}' must be a number, got {_show(value)}")
     return float(value)
 
 
 def _string(doc: dict, key: str, where: str, required: bool = False) -> str:
     if key not in doc and required:
-        raise SceneError(f"{where}: missing required key '{key}'")
+        raise SceneError(f"{where}: missing required key '{key}' (a string)")
     value = doc.get(key)
     if not isinstance(value, str):
-        raise SceneError(f"{where}: '{key}' must be a string, got {value!r}")
+        raise SceneError(f"{where}: '{key}' must be a string, got {_show(value)}")
     return value
 
 
-def _vector(doc: dict, key: str, where: str, length: int = 3) -> list[float]:
+def _vector(doc: dict, key: str, where: str, length: int = 3, required: bool = False, scalar_ok: bool = False) -> list[float]:
+    expected = f"a number or a list of {length} numbers" if scalar_ok else f"a list of {length} numbers"
+    if key not in doc and required:
+        raise SceneError(f"{where}: missing required key '{key}' ({expected})")
     value = doc.get(key)
     if not isinstance(value, list) or len(value) != length or not all(_is_number(x) for x in value):
-        raise SceneError(f"{where}: '{key}' must be a list of {length} numbers, got {value!r}")
+        raise SceneError(f"{where}: '{key}' must be {expected}, got {_show(value)}")
     return [float(x) for x in value]

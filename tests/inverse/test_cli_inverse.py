@@ -1,0 +1,130 @@
+"""invrender fit / gradcheck / dataset from the command line: outputs, Ctrl-C and --resume, errors."""
+
+import json
+
+import pytest
+import torch
+
+import invrender as ir
+from invrender.cli import main
+
+DATASET = """
+scene = "cornell_box"
+resolution = [12, 12]
+spp = 64
+max_depth = 2
+seed = 5
+[randomize]
+"red.reflectance" = [0.2, 0.8]
+[set]
+"light.emission" = [10, 10, 10]
+[[views]]
+origin = [0, 0, 3.9]
+[[views]]
+origin = [0.5, 0, 3.8]
+"""
+
+RECIPE = """
+dataset = "data.toml"
+params = ["red.reflectance"]
+[init]
+reflectance = 0.5
+[fit]
+steps = 6
+spp = 2
+spp_final = 2
+max_depth = 2
+checkpoint_every = 2
+"""
+
+
+@pytest.fixture
+def recipe(tmp_path):
+    (tmp_path / "data.toml").write_text(DATASET)
+    (tmp_path / "fit.toml").write_text(RECIPE)
+    return tmp_path / "fit.toml"
+
+
+def test_dataset_command_writes_views_truth_manifest(tmp_path, capsys):
+    (tmp_path / "data.toml").write_text(DATASET)
+    assert main(["dataset", str(tmp_path / "data.toml"), "--out", str(tmp_path / "d"), "--quiet"]) == 0
+    manifest = json.loads((tmp_path / "d" / "manifest.json").read_text())
+    truth = json.loads((tmp_path / "d" / "truth.json").read_text())
+    assert len(manifest["views"]) == 2 and manifest["randomized"] == ["red.reflectance"]
+    assert truth["light.emission"] == [10.0, 10.0, 10.0] and all(0.2 <= v <= 0.8 for v in truth["red.reflectance"])
+    assert ir.read_image(tmp_path / "d" / "view_01.exr").shape == (12, 12, 3)
+    assert (tmp_path / "d" / "view_00.png").exists()
+
+
+def test_fit_recipe_writes_report_plot_render_checkpoint_and_resumes(recipe, tmp_path, capsys, monkeypatch):
+    out = tmp_path / "run"
+    assert main(["fit", str(recipe), "--out", str(out), "--quiet"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["steps"] == 6 and set(report) >= {"initial", "recovered", "truth", "relative_error", "settings"}
+    assert report["initial"]["red.reflectance"] == pytest.approx([0.5] * 3)
+    for name in ("loss.png", "final_00.exr", "final_01.exr", "checkpoint.pt"):
+        assert (out / name).exists(), name
+
+    import invrender.inverse.fit as fit_module
+
+    original, calls = fit_module._view_loss, {"n": 0}
+
+    def interrupt_at_step_3(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 2 * 3 + 1:  # two views per step
+            raise KeyboardInterrupt
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(fit_module, "_view_loss", interrupt_at_step_3)
+    out2 = tmp_path / "run2"
+    assert main(["fit", str(recipe), "--out", str(out2), "--quiet"]) == 130
+    assert not (out2 / "report.json").exists() and (out2 / "checkpoint.pt").exists()
+    monkeypatch.setattr(fit_module, "_view_loss", original)
+    assert main(["fit", str(recipe), "--out", str(out2), "--resume", "--quiet"]) == 0
+    resumed = json.loads((out2 / "report.json").read_text())
+    assert resumed["recovered"] == report["recovered"]
+
+
+def test_fit_from_scene_and_target(tmp_path, capsys):
+    target = tmp_path / "t.exr"
+    ir.write_image(target, ir.render(ir.load_scene("cornell_box", resolution=(8, 8)), spp=16, max_depth=2, progress=False))
+    code = main(["fit", "--scene", "cornell_box", "--target", str(target), "--params", "light.emission", "--init", "emission=5",
+                 "--steps", "3", "--spp", "2", "--spp-final", "2", "--max-depth", "2", "--out", str(tmp_path / "o"), "--quiet"])  # fmt: skip
+    assert code == 0
+    report = json.loads((tmp_path / "o" / "report.json").read_text())
+    assert report["initial"]["light.emission"] == [5.0, 5.0, 5.0] and "truth" not in report
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["fit", "--scene", "cornell_box", "--params", "light.emission"], "needs a recipe"),
+        (["fit", "--scene", "cornell_box", "--target", "missing.exr", "--params", "light.emission"], "not found"),
+        (["fit", "nope.toml"], "recipe not found"),
+        (["fit", "--scene", "cornell_box", "--target", "T", "--params", "lamp.emission"], "unknown parameter"),
+        (["fit", "--scene", "cornell_box", "--target", "T", "--params", "light.emission", "--init", "emission=a,b"], "--init expects"),
+        (["fit", "--scene", "cornell_box", "--target", "T", "--params", "light.emission", "--loss", "l3"], "unknown loss"),
+        (["fit", "--scene", "cornell_box", "--target", "T", "--params", "light.emission", "--resume"], "cannot resume"),
+        (["fit", "--scene", "cornell_box", "--target", "N", "--params", "light.emission"], "NaN"),
+    ],
+)
+def test_fit_bad_input_one_line_exit_2(args, words, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    ir.write_image("T.exr", torch.ones(8, 8, 3))
+    import numpy as np
+    import OpenEXR
+
+    with OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}, {"RGB": np.full((8, 8, 3), np.nan, dtype=np.float32)}) as f:
+        f.write("N.exr")
+    args = [a.replace("T", "T.exr") if a == "T" else a.replace("N", "N.exr") if a == "N" else a for a in args]
+    code = main(args + ["--out", "out", "--quiet", "--steps", "1"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and words in err[0], err
+
+
+def test_gradcheck_command(capsys):
+    code = main(["gradcheck", "cornell_box", "--params", "light.emission", "--resolution", "8x8", "--spp", "4", "--max-depth", "2", "--tolerance", "0.02"])
+    out = capsys.readouterr().out
+    assert code == 0 and "light.emission" in out and "replay" in out and "largest relative error" in out
+    rows = ir.gradcheck(ir.load_scene("cornell_box", resolution=(8, 8)), ["red.reflectance"], spp=4, max_depth=3)
+    assert len(rows) == 3 and all(r.rel_errors["replay"] < 0.02 for r in rows)
