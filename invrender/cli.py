@@ -7,6 +7,7 @@ written atomically, so a failed or interrupted run leaves no half-written file.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import time
@@ -29,6 +30,9 @@ commands:
              path tracer (from --scene/--target/--params, or an optimize/*.toml recipe)
   gradcheck  compare each gradient estimator with central finite differences (common random numbers)
   dataset    render a datasets_synthetic/*.toml recipe: target EXRs, ground truth, manifest
+  baseline   rasterize a scene with pyrender (the Utah approximation's independent baseline)
+  compare    pyrender, utah, path at max_depth 2 and the full path side by side: what ignoring
+             interreflection costs (a PNG figure and a table of channel means)
 
 Run 'invrender COMMAND --help' for a command's options.
 """
@@ -39,6 +43,7 @@ examples:
   invrender render cornell_box --spp 256 --resolution 128x128 --out cbox.exr cbox.png
   invrender render forward/mesh_in_box.toml --max-depth -1 --out mesh.png
   invrender render furnace --integrator random_walk --max-depth 4 --terms --out furnace.exr
+  invrender render cornell_box --integrator utah --ambient 0.05 --out utah.exr
 
 max_depth counts Neumann terms as Mitsuba 3 does: 1 = emitters seen directly, 2 = + direct
 illumination, ...; -1 = unbounded (paths end by Russian roulette only). With --terms, term k
@@ -55,6 +60,17 @@ def parse_resolution(text: str) -> tuple[int, int]:
     if w <= 0 or h <= 0:
         raise argparse.ArgumentTypeError(f"resolution must be positive, got {text!r}")
     return w, h
+
+
+def parse_rgb(text: str) -> list[float]:
+    """``"v"`` or ``"r,g,b"`` -> [r, g, b] (finite, >= 0)."""
+    try:
+        values = [float(p) for p in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected one number or R,G,B, got {text!r}") from None
+    if len(values) not in (1, 3) or not all(math.isfinite(v) and v >= 0 for v in values):
+        raise argparse.ArgumentTypeError(f"expected one number or R,G,B, finite and >= 0, got {text!r}")
+    return values * 3 if len(values) == 1 else values
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -83,7 +99,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--spp", type=int, default=64, help="samples per pixel (default: 64)")
     r.add_argument("--max-depth", type=int, default=8, help="Neumann terms kept, Mitsuba's count; -1 = unbounded (default: 8)")
     r.add_argument("--resolution", type=parse_resolution, default=None, metavar="WxH", help="image size in pixels (default: the scene's)")
-    r.add_argument("--integrator", default="path", help="path (NEE + MIS, default) or random_walk (BSDF sampling only)")
+    r.add_argument("--integrator", default="path", help="path (NEE + MIS, default), random_walk (BSDF sampling only) or utah (direct light + ambient rho*eps0, at most 2 terms)")
+    r.add_argument("--ambient", type=parse_rgb, default=None, metavar="R,G,B", help="ambient radiance eps0 for --integrator utah (one number or R,G,B; default: the scene's, else 0)")
     r.add_argument("--seed", type=int, default=0, help="random seed; the image is a pure function of it (default: 0)")
     r.add_argument("--rr-depth", type=int, default=5, help="Russian roulette starts after this many terms (default: 5)")
     r.add_argument("--terms", action="store_true", help="also write one image per Neumann term (OUT_STEM.termK.SUFFIX)")
@@ -130,6 +147,26 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--out", required=True, help="output folder")
     d.add_argument("--quiet", action="store_true", help="no progress bar")
     d.set_defaults(run=run_dataset)
+
+    b = sub.add_parser("baseline", help="rasterize a scene with pyrender (Utah baseline)", description=BASELINE_DOC, formatter_class=argparse.RawDescriptionHelpFormatter)
+    b.add_argument("scene", nargs="?", default="cornell_box", help="built-in name or scene file (default: cornell_box)")
+    b.add_argument("--out", nargs="+", default=["baseline.exr"], metavar="PATH", help="output image(s): .exr and/or .png (default: baseline.exr)")
+    b.add_argument("--resolution", type=parse_resolution, default=None, metavar="WxH", help="image size (default: the scene's)")
+    b.add_argument("--ambient", type=parse_rgb, default=None, metavar="R,G,B", help="ambient radiance eps0 (default: the scene's, else 0)")
+    b.add_argument("--quiet", action="store_true", help="no summary")
+    b.set_defaults(run=run_baseline)
+
+    c = sub.add_parser("compare", help="pyrender vs utah vs path: what ignoring interreflection costs", description=COMPARE_DOC, formatter_class=argparse.RawDescriptionHelpFormatter)
+    c.add_argument("scene", nargs="?", default="cornell_box", help="built-in name or scene file (default: cornell_box)")
+    c.add_argument("--out", default="compare.png", help="the figure, a .png (default: compare.png)")
+    c.add_argument("--resolution", type=parse_resolution, default=(128, 128), metavar="WxH", help="(default: 128x128)")
+    c.add_argument("--spp", type=int, default=64, help="samples per pixel of the Monte Carlo images (default: 64)")
+    c.add_argument("--max-depth", type=int, default=-1, help="Neumann terms of the full path image (default: -1, unbounded)")
+    c.add_argument("--ambient", type=parse_rgb, default=None, metavar="R,G,B", help="eps0 of utah and pyrender (default: the scene's, else 0)")
+    c.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    c.add_argument("--no-pyrender", action="store_true", help="leave out the pyrender image")
+    c.add_argument("--quiet", action="store_true", help="no progress bars")
+    c.set_defaults(run=run_compare)
     return parser
 
 
@@ -152,14 +189,27 @@ pixel weighting sum(W * I), re-rendered with the same seed (common random number
 per parameter component with the relative errors.
 """
 
+BASELINE_DOC = """\
+Rasterize a scene with pyrender (OpenGL, offscreen through EGL or OSMesa): the Utah approximation
+as a rasterizer computes it (emitters as lights, one reflection, ambient eps0; no interreflection).
+Writes linear radiance in the same convention as 'invrender render'.
+"""
+
+COMPARE_DOC = """\
+Render a scene with pyrender, with the utah integrator, with path at max_depth 2 and with the full
+path tracer; write one PNG with the images side by side over their differences to the full path,
+and print a table of channel means and relative differences, the share of energy the Utah
+approximation drops, and the ambient eps0 that best stands in for interreflection (least squares).
+"""
+
 FIT_OPTIONS = [
-    ("steps", int, "optimizer steps (default: 160)"),
+    ("steps", int, "optimizer steps (default: 200)"),
     ("spp", int, "samples per pixel, first half of the steps (default: 16)"),
     ("spp_final", int, "samples per pixel, second half (default: 64)"),
     ("max_depth", int, "Neumann terms kept (default: 8)"),
-    ("lr", float, "Adam step size for reflectances, logit units (default: 0.08)"),
-    ("lr_emission", float, "Adam step size for emissions, log units (default: 0.08)"),
-    ("loss", str, "l2, l1, relative_l2 or ssim (default: l2)"),
+    ("lr", float, "Adam step size for reflectances, logit units (default: 0.15)"),
+    ("lr_emission", float, "Adam step size for emissions, log units (default: 0.15)"),
+    ("loss", str, "relative_l2, l2, l1 or ssim (default: relative_l2)"),
     ("estimator", str, "replay or autodiff (default: replay)"),
     ("seed", int, "seed of every render (default: 0)"),
 ]
@@ -188,7 +238,7 @@ def run_render(args) -> int:
     import invrender as ir
 
     outputs = check_outputs(args.out)
-    scene = ir.load_scene(args.scene, resolution=args.resolution)
+    scene = ir.load_scene(args.scene, resolution=args.resolution, ambient=args.ambient)
     start = time.perf_counter()
     image = ir.render(
         scene, integrator=args.integrator, spp=args.spp, max_depth=args.max_depth, seed=args.seed, terms=args.terms,
@@ -225,12 +275,8 @@ def parse_init(items: list[str]) -> dict:
 
 
 def run_fit(args) -> int:
-    import dataclasses
-
     import invrender as ir
-    from invrender.inverse.fit import fit
-    from invrender.inverse.report import plot_history, report_dict, write_json
-    from invrender.recipes import apply_init, load_dataset, load_fit_recipe, make_dataset
+    from invrender.recipes import load_dataset, load_fit_recipe, make_dataset
 
     out = Path(args.out)
     if out.exists() and not out.is_dir():
@@ -250,6 +296,8 @@ def run_fit(args) -> int:
         names, init = recipe.params, {**recipe.init, **parse_init(args.init)}
         settings = {**recipe.settings, **settings}
         extra["recipe"] = str(recipe.path)
+        if recipe.variants:
+            return _run_study(args, recipe, scene, targets, cameras, truth, names, init, settings, extra)
     else:
         if not (args.scene and args.target and args.params):
             raise ParameterError("fit needs a recipe, or all of --scene, --target and --params")
@@ -258,17 +306,29 @@ def run_fit(args) -> int:
         scene = ir.load_scene(args.scene, resolution=resolution)
         names, init = [n.strip() for n in args.params.split(",") if n.strip()], parse_init(args.init)
         extra["targets"] = list(args.target)
+    result = _fit_into(out, args, scene, targets, cameras, truth, names, init, settings, extra)
+    return EXIT_INTERRUPTED if result is None else 0
+
+
+def _fit_into(out: Path, args, scene, targets, cameras, truth, names, init, settings, extra):
+    """One fit writing report.json, loss.png, the final render(s) and checkpoint.pt into ``out``;
+    the FitResult, or None when interrupted (the checkpoint is saved)."""
+    import invrender as ir
+    from invrender.inverse.fit import fit
+    from invrender.inverse.report import plot_history, report_dict, write_json
+    from invrender.recipes import apply_init
+
     apply_init(scene, names, init)
     try:
         result = fit(scene, targets, names, cameras=cameras, truth=truth, checkpoint=out / "checkpoint.pt", resume=args.resume, progress=not args.quiet, **settings)
     except KeyboardInterrupt:
         print(f"invrender: interrupted; checkpoint saved to {out / 'checkpoint.pt'} (continue with --resume)", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    final_spp = 4 * result.settings.spp_final
+        return None
+    s = result.settings
     views = cameras or [result.scene.camera]
     for i, camera in enumerate(views):
         name = "final.exr" if len(views) == 1 else f"final_{i:02d}.exr"
-        image = ir.render(result.scene.with_camera(camera), spp=final_spp, max_depth=result.settings.max_depth, seed=result.settings.seed + 1, progress=not args.quiet)
+        image = ir.render(result.scene.with_camera(camera), s.integrator, spp=4 * s.spp_final, max_depth=s.max_depth, seed=s.seed + 1, progress=not args.quiet)
         ir.write_image(out / name, image)
     report = report_dict(result, **extra)
     write_json(out / "report.json", report)
@@ -279,6 +339,32 @@ def run_fit(args) -> int:
             err = f"  (rel. error {result.errors[name]:.2%})" if name in result.errors else ""
             print(f"  {name}: {_fmt(value)}{err}", file=sys.stderr)
         print(f"wrote {out}/report.json, loss.png, final EXR, checkpoint.pt", file=sys.stderr)
+    return result
+
+
+def _run_study(args, recipe, scene, targets, cameras, truth, names, init, settings, extra) -> int:
+    """One fit per recipe variant into OUT/<label>/, then OUT/study.md and OUT/study.json."""
+    import dataclasses
+
+    from invrender.inverse.report import study_table, write_json, write_text
+
+    results = {}
+    for variant in recipe.variants:
+        if not args.quiet:
+            print(f"variant {variant.label!r}", file=sys.stderr)
+        own = dataclasses.replace(scene, params={k: v.detach().clone() for k, v in scene.params.items()})
+        result = _fit_into(
+            Path(args.out) / variant.slug, args, own, targets, cameras, truth, names + [p for p in variant.params if p not in names],
+            {**init, **variant.init}, {**settings, **variant.settings}, {**extra, "variant": variant.label},
+        )  # fmt: skip
+        if result is None:
+            return EXIT_INTERRUPTED
+        results[variant.label] = result
+    markdown, data = study_table(results, truth)
+    write_text(Path(args.out) / "study.md", markdown)
+    write_json(Path(args.out) / "study.json", data)
+    print(markdown)
+    print(f"wrote {args.out}/study.md, study.json and one folder per variant", file=sys.stderr)
     return 0
 
 
@@ -298,6 +384,40 @@ def run_gradcheck(args) -> int:
     worst = max(max(r.rel_errors.values()) for r in rows)
     print(f"largest relative error: {worst:.3e}")
     return 1 if args.tolerance is not None and worst > args.tolerance else 0
+
+
+def run_baseline(args) -> int:
+    import invrender as ir
+    from invrender.baseline import pyrender_render
+
+    outputs = check_outputs(args.out)
+    scene = ir.load_scene(args.scene, resolution=args.resolution, ambient=args.ambient)
+    image = pyrender_render(scene)
+    for path in outputs:
+        ir.write_image(path, image)
+    if not args.quiet:
+        mean = ", ".join(f"{v:.4g}" for v in image.mean(dim=(0, 1)).tolist())
+        print(f"{scene.name}: {scene.width}x{scene.height} rasterized by pyrender; mean RGB {mean}", file=sys.stderr)
+        print("wrote " + ", ".join(str(p) for p in outputs), file=sys.stderr)
+    return 0
+
+
+def run_compare(args) -> int:
+    import invrender as ir
+    from invrender.baseline.compare import compare, format_table, plot_comparison
+
+    (out,) = check_outputs([args.out])
+    if out.suffix.lower() != ".png":
+        raise ImageError(f"cannot write {args.out}: the comparison figure is a .png")
+    if args.spp <= 0:
+        raise ParameterError(f"spp must be positive, got {args.spp}")
+    scene = ir.load_scene(args.scene, resolution=args.resolution, ambient=args.ambient)
+    result = compare(scene, spp=args.spp, seed=args.seed, max_depth=args.max_depth, pyrender=not args.no_pyrender, progress=not args.quiet)
+    plot_comparison(result, out)
+    print(f"{scene.name}: {scene.width}x{scene.height}, {args.spp} spp")
+    print(format_table(result))
+    print(f"wrote {out}", file=sys.stderr)
+    return 0
 
 
 def run_dataset(args) -> int:

@@ -30,7 +30,13 @@ Fit recipe::
     emission = 5.0
 
     [fit]                              # any FitSettings field (invrender.inverse.fit)
-    steps = 160
+    steps = 200
+
+    [[variants]]                       # optional: one fit per variant, on the same targets, and a
+    label = "utah + eps0"              # table of every variant's parameter errors (a model study);
+    integrator = "utah"                # required label; any [fit] setting overrides [fit];
+    params = ["ambient.emission"]      # fitted in addition to the recipe's params
+    init = { "ambient.emission" = 0.05 }   # starting values in addition to [init]
 """
 
 from __future__ import annotations
@@ -46,10 +52,11 @@ import torch
 from invrender.errors import InvRenderError, ParameterError, SceneError
 from invrender.scene import load_scene
 from invrender.scene.camera import Camera
-from invrender.scene.scene import Scene, check_param_value
+from invrender.scene.scene import AMBIENT, Scene, check_param_value
 
 DATASET_KEYS = {"scene", "resolution", "spp", "max_depth", "seed", "randomize", "set", "views"}
-FIT_KEYS = {"dataset", "params", "init", "fit"}
+FIT_KEYS = {"dataset", "params", "init", "fit", "variants"}
+VARIANT_KEYS = {"label", "params", "init"}
 CAMERA_KEYS = {"origin", "target", "up", "fov", "fov_axis"}
 
 
@@ -77,6 +84,22 @@ class FitRecipe:
     params: list[str]
     init: dict[str, object]
     settings: dict
+    variants: list["FitVariant"] = dataclasses.field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class FitVariant:
+    """One fit of a model study: a label, settings overriding the recipe's, extra parameters."""
+
+    label: str
+    settings: dict
+    params: list[str]
+    init: dict[str, object]
+
+    @property
+    def slug(self) -> str:
+        """The label as a folder name."""
+        return "".join(c if c.isalnum() or c in "-_." else "_" for c in self.label).strip("_") or "variant"
 
 
 def _read_toml(path) -> dict:
@@ -215,15 +238,40 @@ def load_fit_recipe(path) -> FitRecipe:
     if not (isinstance(params, list) and params and all(isinstance(p, str) for p in params)):
         raise ParameterError(f"{where}: 'params' must be a non-empty list of parameter names")
     dataset = load_dataset_recipe(path.parent / doc["dataset"])
-    return FitRecipe(path, dataset, params, dict(doc.get("init", {})), dict(doc.get("fit", {})))
+    variants = [_variant(v, f"{where} variants[{i}]") for i, v in enumerate(doc.get("variants", []))]
+    if len({v.slug for v in variants}) != len(variants):
+        raise ParameterError(f"{where}: variant labels must differ")
+    return FitRecipe(path, dataset, params, dict(doc.get("init", {})), dict(doc.get("fit", {})), variants)
+
+
+def _variant(doc, where: str) -> FitVariant:
+    from invrender.inverse.fit import FitSettings
+
+    if not isinstance(doc, dict):
+        raise ParameterError(f"{where}: a variant must be a table ([[variants]])")
+    _check_keys(doc, VARIANT_KEYS | {f.name for f in dataclasses.fields(FitSettings)}, where)
+    if not isinstance(doc.get("label"), str) or not doc["label"]:
+        raise ParameterError(f"{where}: 'label' (a name for the table) is required")
+    params = doc.get("params", [])
+    if not (isinstance(params, list) and all(isinstance(p, str) for p in params)):
+        raise ParameterError(f"{where}: 'params' must be a list of parameter names")
+    if not isinstance(doc.get("init", {}), dict):
+        raise ParameterError(f"{where}: 'init' must be a table of starting values")
+    settings = {k: v for k, v in doc.items() if k not in VARIANT_KEYS}
+    return FitVariant(doc["label"], settings, list(params), dict(doc.get("init", {})))
 
 
 def apply_init(scene: Scene, names: list[str], init: dict) -> None:
     """Set starting values in place: keys are parameter names, or ``reflectance`` / ``emission``
     for every fitted parameter of that kind."""
-    for key, value in init.items():
-        targets = [n for n in names if n.endswith(f".{key}")] if key in ("reflectance", "emission") else [key]
+    kinds = [(k, v) for k, v in init.items() if k in ("reflectance", "emission")]
+    named = [(k, v) for k, v in init.items() if k not in ("reflectance", "emission")]
+    for key, value in kinds + named:  # a parameter's own starting value wins over its kind's
+        targets = [n for n in names if n.endswith(f".{key}") and n != AMBIENT] if key in ("reflectance", "emission") else [key]
         for name in targets:
+            if name == AMBIENT and name not in scene.params:
+                scene.params[AMBIENT] = check_param_value(AMBIENT, value)  # the scene had no eps0: start one
+                continue
             if name not in scene.params:
                 raise ParameterError(f"initial value for unknown parameter {name!r} (known: {', '.join(scene.params)})")
             try:

@@ -23,9 +23,11 @@ from tqdm.auto import tqdm
 
 from invrender.errors import ImageError, ParameterError
 from invrender.inverse import params as P
-from invrender.inverse.losses import LOSSES, loss_and_gradient
+from invrender.inverse.losses import LOSSES, loss_and_gradient, loss_gradient
+from invrender.inverse.replay import replay_gradient
 from invrender.scene.camera import Camera
 from invrender.scene.scene import Scene
+from invrender.transport.context import RenderSettings
 from invrender.transport.render import ESTIMATORS, render
 
 CHECKPOINT_FORMAT = 1
@@ -55,16 +57,16 @@ class FitSettings:
         checkpoint_every: steps between checkpoints (when a checkpoint path is given).
     """
 
-    steps: int = 160
-    lr: float = 0.08
-    lr_emission: float = 0.08
+    steps: int = 200
+    lr: float = 0.15
+    lr_emission: float = 0.15
     lr_final: float = 0.05
     beta2: float = 0.95
     spp: int = 16
     spp_final: int = 64
     max_depth: int = 8
     integrator: str = "path"
-    loss: str = "l2"
+    loss: str = "relative_l2"
     estimator: str = "replay"
     decorrelate: bool = True
     seed: int = 0
@@ -207,6 +209,15 @@ def _view_loss(view_scene: Scene, values, target, cfg: FitSettings, step: int, v
     spp = cfg.spp_at(step)
     seed = cfg.seed * 1_000_003 + 2 * (step * n_views + view)
     kw = dict(integrator=cfg.integrator, spp=spp, max_depth=cfg.max_depth, progress=False)
+    if cfg.decorrelate and cfg.estimator == "replay":
+        # the differentiated image's values are never needed, only its replayed adjoint: skip its forward render
+        with torch.no_grad():
+            residual = render(work, seed=seed + 1, **kw)
+        dl_dI, value = loss_gradient(cfg.loss, target, residual)
+        settings = RenderSettings(seed=seed, **kw)
+        grads = replay_gradient(work, settings, work.device, {k: v.detach() for k, v in values.items()}, dl_dI / n_views)
+        torch.autograd.backward([values[k] for k in grads], [grads[k].to(values[k].dtype) for k in grads])
+        return value / n_views
     image = render(work, seed=seed, estimator=cfg.estimator, **kw)
     if cfg.decorrelate:
         with torch.no_grad():

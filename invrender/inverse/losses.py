@@ -50,9 +50,15 @@ def loss_and_gradient(loss: str, target: torch.Tensor, residual_image: torch.Ten
     grad needed) as ``residual_image`` for the decorrelated one. Calls ``backward`` and returns the
     loss value at ``residual_image`` (detached).
     """
-    probe = residual_image.detach().requires_grad_(True)
+    dl_dI, value = loss_gradient(loss, target, residual_image)
+    (dl_dI * differentiable_image).sum().backward()
+    return value
+
+
+def loss_gradient(loss: str, target: torch.Tensor, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(dl/dI, l)`` at ``image``: the (H, W, 3) adjoint image and the scalar loss, detached."""
+    probe = image.detach().requires_grad_(True)
     with torch.enable_grad():
         value = image_loss(loss, probe, target)
         (dl_dI,) = torch.autograd.grad(value, probe)
-    (dl_dI * differentiable_image).sum().backward()
-    return value.detach()
+    return dl_dI, value.detach()

@@ -32,16 +32,58 @@ def report_dict(result: FitResult, **extra) -> dict:
 
 def write_json(path, data: dict) -> None:
     """Atomically write ``data`` as indented JSON."""
+    write_text(path, json.dumps(data, indent=2) + "\n")
+
+
+def write_text(path, text: str) -> None:
+    """Atomically write ``text`` (temp file + rename: never a half-written file)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     try:
         with os.fdopen(fd, "w") as f:
-            json.dump(data, f, indent=2)
-            f.write("\n")
+            f.write(text)
         os.replace(tmp, path)
     finally:
         Path(tmp).unlink(missing_ok=True)
+
+
+def study_table(results: dict[str, FitResult], truth: dict) -> tuple[str, dict]:
+    """A model study: every variant's signed relative error per parameter channel.
+
+    Args:
+        results: variant label -> its fit.
+        truth: parameter name -> ground truth.
+    Returns:
+        (a Markdown table, the same as plain data). Parameters without a ground truth (such as the
+        ambient eps0 of ``utah``) are listed with their recovered values.
+    """
+    labels = list(results)
+    names = list(dict.fromkeys(n for r in results.values() for n in r.params))
+    rows, data = [], {"variants": {}, "errors": {}, "recovered": {}}
+    for label, r in results.items():
+        data["variants"][label] = {"integrator": r.settings.integrator, "steps": len(r.history), "seconds": r.history[-1]["seconds"] if r.history else 0.0,
+                                   "max_relative_error": max(r.errors.values()) if r.errors else None}  # fmt: skip
+    for name in names:
+        size = next(r.params[name] for r in results.values() if name in r.params).numel()
+        channels = "RGB" if size == 3 else [str(i) for i in range(size)]
+        for c, channel in enumerate(channels):
+            key = f"{name} {channel}"
+            if name in truth:
+                t = float(truth[name].reshape(-1)[c])
+                errs = {lab: float(r.params[name].reshape(-1)[c]) / t - 1 if name in r.params else None for lab, r in results.items()}
+                data["errors"][key] = errs
+                cells = ["" if e is None else f"{100 * e:+.2f}%" for e in errs.values()]
+                rows.append(f"| {key} | {t:.4f} | " + " | ".join(cells) + " |")
+            else:
+                vals = {lab: float(r.params[name].reshape(-1)[c]) if name in r.params else None for lab, r in results.items()}
+                data["recovered"][key] = vals
+                cells = ["" if v is None else f"= {v:.4f}" for v in vals.values()]
+                rows.append(f"| {key} | - | " + " | ".join(cells) + " |")
+    worst = [data["variants"][lab]["max_relative_error"] for lab in labels]
+    rows.append("| largest error | | " + " | ".join("" if w is None else f"{100 * w:.2f}%" for w in worst) + " |")
+    head = "| parameter | truth | " + " | ".join(labels) + " |\n|---|---|" + "---|" * len(labels)
+    return head + "\n" + "\n".join(rows) + "\n", data
 
 
 def plot_history(result: FitResult, path) -> None:
@@ -71,6 +113,13 @@ def plot_history(result: FitResult, path) -> None:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     fig.tight_layout()
+    save_figure(fig, path)
+
+
+def save_figure(fig, path) -> None:
+    """Write a matplotlib figure to the PNG ``path`` atomically (temp file + rename), then close it."""
+    import matplotlib.pyplot as plt
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".png", dir=path.parent)

@@ -131,10 +131,15 @@ def _write_exr(f, rgb: np.ndarray) -> None:
     OpenEXR.File(header, channels).write(f)
 
 
+def to_srgb(image: torch.Tensor) -> torch.Tensor:
+    """(H, W, 3) linear radiance -> (H, W, 3) sRGB-encoded display values, clipped to [0, 1]."""
+    linear = torch.as_tensor(image).detach().float().cpu().clamp(0.0, 1.0).permute(2, 0, 1)
+    return kornia.color.linear_rgb_to_rgb(linear).clamp(0.0, 1.0).permute(1, 2, 0)
+
+
 def _write_png(f, rgb: np.ndarray) -> None:
     """Write (H, W, 3) linear ``rgb`` to the binary file ``f`` as an 8-bit sRGB PNG."""
-    linear = torch.from_numpy(rgb).clamp(0.0, 1.0).permute(2, 0, 1)
-    srgb = kornia.color.linear_rgb_to_rgb(linear).clamp(0.0, 1.0).permute(1, 2, 0).numpy()
+    srgb = to_srgb(torch.from_numpy(rgb)).numpy()
     Image.fromarray(np.round(srgb * 255.0).astype(np.uint8), mode="RGB").save(f, format="PNG")
 
 

@@ -13,7 +13,7 @@ from invrender.scene.shapes import Mesh
 MESH_SUFFIXES = (".gltf", ".glb", ".obj")
 
 
-def load_scene(source, resolution=None, device=None, **kwargs) -> Scene:
+def load_scene(source, resolution=None, device=None, ambient=None, **kwargs) -> Scene:
     """A scene from a built-in name or a file path.
 
     Args:
@@ -21,6 +21,8 @@ def load_scene(source, resolution=None, device=None, **kwargs) -> Scene:
             file or a ``.gltf``/``.glb``/``.obj`` file.
         resolution: (width, height) in pixels; None = the scene's own.
         device: move the scene there (None = CPU).
+        ambient: the Utah approximation's ambient radiance eps0 (RGB or one number, >= 0) stored in
+            ``params["ambient.emission"]``; None = the scene's own (a TOML ``ambient`` key), if any.
         kwargs: arguments of a built-in scene (e.g. ``rho=0.5, eps=1.0`` for ``furnace``).
     """
     source_str = str(source)
@@ -40,6 +42,8 @@ def load_scene(source, resolution=None, device=None, **kwargs) -> Scene:
         from invrender.scene import loaders
 
         scene = loaders.load_toml(path, resolution) if suffix == ".toml" else loaders.load_mesh_file(path, resolution)
+    if ambient is not None:
+        scene = scene.with_ambient(ambient)
     return scene.to(device) if device is not None else scene
 
 

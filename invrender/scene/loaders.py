@@ -13,6 +13,8 @@ allowed keys). Out-of-range colours (rho outside [0, 1], eps < 0) are
     name = "cornell box"               # default: the file name without .toml
     resolution = [64, 64]              # width, height in pixels (default 256 x 256);
                                        # the ``resolution`` argument (CLI --resolution) overrides it
+    ambient = [0.1, 0.1, 0.1]          # the Utah approximation's ambient radiance eps0 (RGB >= 0 or one
+                                       # number), read by the utah integrator and the pyrender baseline only
 
     [camera]                           # every key optional; defaults are Camera()'s (the Cornell box view)
     origin = [0, 0, 3.9]               # eye position
@@ -100,7 +102,7 @@ from invrender.scene.camera import FOV_AXES, Camera
 from invrender.scene.scene import Scene, build_scene
 from invrender.scene.shapes import PRIMITIVES, Mesh, rotate, scale, translate
 
-TOP_KEYS = {"name", "resolution", "camera", "materials", "emitters", "shapes"}
+TOP_KEYS = {"name", "resolution", "ambient", "camera", "materials", "emitters", "shapes"}
 CAMERA_KEYS = {"origin", "target", "up", "fov", "fov_axis"}
 SHAPE_KEYS = {"type", "material", "emitter", "file", "subdivisions", "flip_normals", "transform"}
 SHAPE_TYPES = (*PRIMITIVES, "mesh")
@@ -170,9 +172,13 @@ def load_toml(path, resolution=None) -> Scene:
     meshes = [_shape(s, f"{where} shapes[{i}]", path.parent) for i, s in enumerate(shapes_doc)]
 
     try:
-        return build_scene(meshes, reflectance, emission, camera, file_resolution if resolution is None else resolution, name=name)
+        scene = build_scene(meshes, reflectance, emission, camera, file_resolution if resolution is None else resolution, name=name)
     except SceneError as e:
         raise SceneError(f"{where}: {e}") from None
+    if "ambient" in doc:
+        grey = _is_number(doc["ambient"])
+        scene = scene.with_ambient(float(doc["ambient"]) if grey else _vector(doc, "ambient", where, scalar_ok=True))
+    return scene
 
 
 def _shape(doc: dict, where: str, base: Path) -> Mesh:

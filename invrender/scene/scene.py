@@ -5,7 +5,9 @@ What can be differentiated lives in ``scene.params``, a flat dict of dotted name
 
 - ``"<material>.reflectance"``: diffuse albedo rho, shape (3,) for a constant or (h, w, 3) for a
   texture over the mesh UVs, values in [0, 1];
-- ``"<emitter>.emission"``: emitted radiance eps, shape (3,) or (h, w, 3), values >= 0.
+- ``"<emitter>.emission"``: emitted radiance eps, shape (3,) or (h, w, 3), values >= 0;
+- ``"ambient.emission"`` (only when the scene sets one): the Utah approximation's constant ambient
+  radiance eps0, shape (3,), values >= 0, read by the ``utah`` integrator alone.
 
 ``render`` reads these tensors at every call, so changing one in place (under ``torch.no_grad()``)
 changes the next render.
@@ -24,6 +26,9 @@ import torch
 from invrender.errors import ParameterError, SceneError
 from invrender.scene.camera import Camera
 from invrender.scene.shapes import Mesh
+
+#: the parameter holding the ambient radiance eps0 of the Utah approximation ("ambient" is reserved)
+AMBIENT = "ambient.emission"
 
 
 @dataclass(frozen=True)
@@ -114,6 +119,16 @@ class Scene:
         """The same scene (sharing geometry and parameter tensors) seen from another camera."""
         return Scene(self.triangles, self.materials, self.emitters, camera, self.resolution, self.params, self.name)
 
+    def with_ambient(self, eps0) -> "Scene":
+        """The same scene (sharing geometry and the other parameters) with ambient radiance ``eps0``
+        (an RGB triple or one number, >= 0) in ``params["ambient.emission"]``; None removes it."""
+        params = {k: v for k, v in self.params.items() if k != AMBIENT}
+        if eps0 is not None:
+            params[AMBIENT] = check_param_value(AMBIENT, eps0)
+            if params[AMBIENT].ndim != 1:
+                raise ParameterError(f"{AMBIENT} must be an RGB triple or one number, not a texture")
+        return Scene(self.triangles, self.materials, self.emitters, self.camera, self.resolution, params, self.name)
+
     def reflectance_of(self, material: int) -> torch.Tensor:
         return self.params[f"{self.materials[material]}.reflectance"]
 
@@ -172,6 +187,8 @@ def build_scene(
     """
     resolution = check_resolution(resolution)
     overlap = set(reflectance) & set(emission)
+    if "ambient" in set(reflectance) | set(emission):
+        raise SceneError("'ambient' is reserved for the ambient radiance eps0: name the material or emitter otherwise")
     if overlap:
         raise SceneError(f"names used both as material and emitter: {', '.join(sorted(overlap))}")
     materials = tuple(reflectance)

@@ -8,14 +8,14 @@ from dataclasses import dataclass
 import torch
 
 from invrender.errors import ParameterError
-from invrender.scene.scene import Scene, Triangles, scene_extent
+from invrender.scene.scene import AMBIENT, Scene, Triangles, scene_extent
 from invrender.transport.accel import make_intersector
 from invrender.transport.lights import EmitterSampler
 from invrender.transport.surface import Surface
 from invrender.transport.textures import gather_rgb
 from invrender.transport.vec import dot
 
-INTEGRATORS = ("path", "random_walk")
+INTEGRATORS = ("path", "random_walk", "utah")
 
 
 @dataclass(frozen=True)
@@ -23,7 +23,8 @@ class RenderSettings:
     """How to render.
 
     Attributes:
-        integrator: ``"path"`` (NEE + MIS + Russian roulette) or ``"random_walk"`` (BSDF sampling only).
+        integrator: ``"path"`` (NEE + MIS + Russian roulette), ``"random_walk"`` (BSDF sampling
+            only) or ``"utah"`` (direct light + ambient ``rho eps0``: at most two terms).
         spp: samples (paths) per pixel, > 0.
         max_depth: Neumann terms kept, counted as Mitsuba counts: 1 = emitters seen directly,
             2 = + direct illumination, ...; -1 = unbounded (ended by Russian roulette only).
@@ -58,6 +59,8 @@ class RenderSettings:
             raise ParameterError(f"spp must be positive, got {self.spp}")
         if self.max_depth == 0 or self.max_depth < -1:
             raise ParameterError(f"max_depth must be >= 1, or -1 for unbounded, got {self.max_depth}")
+        if self.integrator == "utah" and self.max_depth != 1:
+            object.__setattr__(self, "max_depth", 2)  # the Utah approximation keeps two terms at most
         if self.rr_depth < 1:
             raise ParameterError(f"rr_depth must be >= 1, got {self.rr_depth}")
         if self.seed < 0:
@@ -85,6 +88,7 @@ class TransportContext:
         lights: the emitter sampler (None when nothing emits).
         rho: per-material reflectance parameters (differentiable), indexed by ``triangles.material``.
         eps: per-emitter emission parameters (differentiable), indexed by ``triangles.emitter``.
+        ambient: (3,) the Utah approximation's ambient radiance eps0 (differentiable), or None.
         ray_offset: distance new rays start off a surface, to avoid self-intersection.
         settings: the render settings.
         textured: does any rho or eps vary over UVs (else hits skip texture coordinates)?
@@ -95,6 +99,7 @@ class TransportContext:
     lights: EmitterSampler | None
     rho: list[torch.Tensor]
     eps: list[torch.Tensor]
+    ambient: torch.Tensor | None
     ray_offset: float
     settings: RenderSettings
     textured: bool
@@ -117,6 +122,7 @@ class TransportContext:
             lights=lights if lights.count else None,
             rho=rho,
             eps=eps,
+            ambient=values[AMBIENT].to(device) if AMBIENT in values else None,
             ray_offset=1e-4 * max(scene_extent(tris), 1e-3),
             settings=settings,
             textured=any(p.ndim == 3 for p in rho + eps),

@@ -5,8 +5,12 @@ adds their contributions to ``film``. The ladder, simplest first:
 
 - ``random_walk``: Kajiya's plain Markov-chain estimator (BSDF sampling only), the reference;
 - ``path``: + next-event estimation with multiple importance sampling.
+
+Beside the ladder, truncations of the series that older methods compute:
+
+- ``utah``: the Utah approximation ``g eps + g M eps + rho eps0``, what a rasterizer computes.
 """
 
-from invrender.transport.integrators import path, random_walk
+from invrender.transport.integrators import path, random_walk, utah
 
-INTEGRATOR_MODULES = {"path": path, "random_walk": random_walk}
+INTEGRATOR_MODULES = {"path": path, "random_walk": random_walk, "utah": utah}

@@ -28,8 +28,12 @@ def power_heuristic(pdf_a: torch.Tensor, pdf_b: torch.Tensor) -> torch.Tensor:
     return torch.where(a2 > 0, a2 / (a2 + b2).clamp_min(1e-30), 0.0)
 
 
-def trace(ctx: TransportContext, state: PathState, film: Film) -> None:
-    """Follow ``state``'s camera rays and add each term ``g(Mg)^k eps`` to ``film``."""
+def trace(ctx: TransportContext, state: PathState, film: Film, ambient: torch.Tensor | None = None) -> None:
+    """Follow ``state``'s camera rays and add each term ``g(Mg)^k eps`` to ``film``.
+
+    ``ambient``: (3,) radiance eps0 arriving from every direction at the first vertex, reflected
+    into term 1 as ``rho eps0`` (the Utah approximation's stand-in for interreflection); None = none.
+    """
     settings = ctx.settings
     depth = 0
     while state.count:
@@ -56,6 +60,9 @@ def trace(ctx: TransportContext, state: PathState, film: Film) -> None:
 
         u = uniform(state.keys, depth + 1, 6)
         rho = ctx.reflectance(s)
+        if ambient is not None and depth == 0:
+            # term 1, Utah's ambient: a Lambertian surface under uniform radiance eps0 reflects rho eps0
+            film.add(1, state.pixel, state.beta * rho * ambient)
 
         # term k = depth + 1, light strategy: NEE towards a point on an emitter
         if ctx.lights is not None:
