@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -99,7 +100,7 @@ class FitVariant:
     @property
     def slug(self) -> str:
         """The label as a folder name."""
-        return "".join(c if c.isalnum() or c in "-_." else "_" for c in self.label).strip("_") or "variant"
+        return re.sub(r"[^A-Za-z0-9.-]+", "_", self.label).strip("_") or "variant"
 
 
 def _read_toml(path) -> dict:
