@@ -8,9 +8,10 @@ Public API::
     img = ir.render(scene, spp=64, max_depth=8, seed=0)     # (H, W, 3) float32, linear
     ir.write_image("out.exr", img)
     res = ir.fit(scene, target, params=["red.reflectance", "light.emission"])   # inverse rendering
+    base = ir.baseline.pyrender_render(scene)               # the rasterized Utah baseline
 """
 
-from invrender.errors import ImageError, InvRenderError, ParameterError, SceneError
+from invrender.errors import BaselineError, ImageError, InvRenderError, ParameterError, SceneError
 from invrender.inverse.fit import FitResult, fit
 from invrender.inverse.gradcheck import gradcheck
 from invrender.io import read_image, write_image
@@ -18,6 +19,16 @@ from invrender.scene import load_scene
 from invrender.transport.render import render
 
 __version__ = "0.1.0"
+
+
+def __getattr__(name):
+    # ir.baseline is imported on first use: pyrender picks its OpenGL platform when imported
+    if name == "baseline":
+        import importlib
+
+        return importlib.import_module("invrender.baseline")
+    raise AttributeError(f"module 'invrender' has no attribute {name!r}")
+
 
 __all__ = [
     "load_scene", "render", "fit", "gradcheck", "read_image", "write_image", "FitResult",

@@ -415,7 +415,7 @@ def run_compare(args) -> int:
     result = compare(scene, spp=args.spp, seed=args.seed, max_depth=args.max_depth, pyrender=not args.no_pyrender, progress=not args.quiet)
     plot_comparison(result, out)
     print(f"{scene.name}: {scene.width}x{scene.height}, {args.spp} spp")
-    print(format_table(result))
+    print(format_table(result), flush=True)
     print(f"wrote {out}", file=sys.stderr)
     return 0
 

@@ -20,3 +20,7 @@ class ImageError(InvRenderError):
 
 class ParameterError(InvRenderError):
     """A parameter name, value or render setting is unknown or out of range."""
+
+
+class BaselineError(InvRenderError):
+    """A baseline renderer (pyrender) or an OpenGL context for it is not available."""

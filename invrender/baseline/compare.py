@@ -127,7 +127,7 @@ def plot_comparison(c: Comparison, path) -> None:
     diffs = {k: c.images[k] @ Y - full_y for k in labels}
     limit = max(float(torch.quantile(d.abs().flatten(), 0.99)) for d in diffs.values()) or 1.0
     rel = c.relative_differences()
-    fig, axes = plt.subplots(2, len(labels), figsize=(2.6 * len(labels), 5.6), squeeze=False)
+    fig, axes = plt.subplots(2, len(labels), figsize=(2.6 * len(labels) + 0.8, 5.8), squeeze=False, layout="constrained")
     for i, label in enumerate(labels):
         top, bottom = axes[0][i], axes[1][i]
         top.imshow(to_srgb(c.images[label]).numpy(), interpolation="nearest")

@@ -1,0 +1,355 @@
+"""Gradient cost: time and peak memory of one gradient of an L2 loss on the Cornell box.
+
+    python bench/gradient.py [--resolution 128] [--spp 64] [--max-depth 8] [--repeats 5]
+    python bench/gradient.py --quick                    # small smoke run (32x32, few spp)
+    python bench/gradient.py --tables 2 --max-autodiff-spp 64
+
+The problem: ``mse_loss(render(scene), target)`` differentiated w.r.t. all four Cornell-box
+parameters (``white``, ``red``, ``green`` reflectance and ``light`` emission, 12 scalars). The
+target is the ground-truth scene rendered at ``--spp`` with seed 1000 and the same max_depth; the
+parameters are then halved (Mitsuba's ``perturb=0.5``), so the gradient is far from zero. One
+gradient is forward + backward (for invrender: ``render`` + ``mse_loss(...).backward()``).
+
+Every configuration runs in its own fresh subprocess (``--child``), which reports as JSON its peak
+RSS (``VmHWM``; see ``peak_rss_mib``) and its RSS after the imports, the scene load and the target
+load but before the first gradient. The *increment* (peak minus that baseline) is the gradient's own memory;
+the absolute peak also counts torch/Dr.Jit and their libraries. Tables:
+
+1. the main problem for invrender ``autodiff`` and ``replay`` and, when installed, Mitsuba 3
+   ``prb`` (path replay) and ``path`` (plain AD): one warm-up gradient, then the median time of
+   ``--repeats``; the ratios invrender replay / Mitsuba prb;
+2. memory vs spp (16, 64, 256) for replay and autodiff: replay's increment should be flat;
+3. memory vs max_depth (2, 4, 8, 16) at ``--spp``: replay's increment should not depend on it.
+
+Tables 2 and 3 take one gradient per child, no warm-up. A child that fails or runs longer than
+``--timeout`` seconds is printed as "failed". Figures are printed, never asserted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+import mitsuba_ref  # noqa: E402
+
+PARAMS = ("white.reflectance", "red.reflectance", "green.reflectance", "light.emission")
+MI_PARAMS = ("white", "red", "green", "light")  # the same four, as named in mitsuba_ref.PARAM_KEYS
+PERTURB = 0.5  # differentiated values = ground truth * PERTURB (target: ground truth)
+TARGET_SEED = 1000  # Mitsuba's target seed (seed + 1000 with seed 0)
+_JSON_TAG = "GRADIENT_BENCH_JSON "
+
+
+def _status_mib(field: str) -> float | None:
+    """``VmRSS`` / ``VmHWM`` of this process from /proc/self/status, MiB (None where unavailable)."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith(field + ":"):
+                    return int(line.split()[1]) / 1024  # kB
+    except OSError:
+        pass
+    return None
+
+
+def rss_mib() -> float:
+    """Current resident set size of this process, MiB."""
+    value = _status_mib("VmRSS")
+    return peak_rss_mib() if value is None else value
+
+
+def peak_rss_mib() -> float:
+    """Peak resident set size of this process, MiB.
+
+    ``VmHWM`` (the high-water mark of this program's own address space) rather than ``ru_maxrss``:
+    on Linux ``ru_maxrss`` survives fork + exec, so a child started by a parent that already holds
+    torch and a rendered target would report at least the parent's RSS.
+    """
+    value = _status_mib("VmHWM")
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 if value is None else value  # KiB on Linux
+
+# --------------------------------------------------------------------------------------- children
+
+
+def child(args) -> dict:
+    """One configuration in this (fresh) process; the figures as a dict."""
+    if args.kind in ("prb", "path"):
+        return _child_mitsuba(args)
+    import torch
+
+    import invrender as ir
+
+    n = args.resolution
+    scene = ir.load_scene("cornell_box", resolution=(n, n))
+    target = torch.load(args.target)
+    with torch.no_grad():
+        for name in PARAMS:
+            scene.params[name].mul_(PERTURB)
+    for name in PARAMS:
+        scene.params[name].requires_grad_(True)
+    baseline = rss_mib()
+
+    def once(seed: int):
+        for name in PARAMS:
+            scene.params[name].grad = None
+        start = time.perf_counter()
+        img = ir.render(scene, spp=args.spp, max_depth=args.max_depth, seed=seed, estimator=args.kind, progress=False)
+        loss = torch.nn.functional.mse_loss(img, target)
+        loss.backward()
+        seconds = time.perf_counter() - start
+        return seconds, float(loss), {name: scene.params[name].grad.tolist() for name in PARAMS}
+
+    warmup = [once(0)[0] for _ in range(args.warmup)]
+    runs = [once(i + 1) for i in range(args.repeats)]
+    times = [r[0] for r in runs]
+    return {
+        "kind": args.kind,
+        "seconds": statistics.median(times),
+        "all_seconds": times,
+        "warmup_seconds": warmup,
+        "baseline_rss_mib": baseline,
+        "peak_rss_mib": peak_rss_mib(),
+        "loss": runs[-1][1],
+        "grads": runs[-1][2],
+    }
+
+
+def _child_mitsuba(args) -> dict:
+    """Mitsuba 3 through ``mitsuba_ref``'s in-process gradient, with a baseline RSS taken after
+    importing Mitsuba and loading the scene once (its target render happens inside the helper)."""
+    if not mitsuba_ref.available():
+        raise RuntimeError("Mitsuba 3 is not available")
+    n = args.resolution
+    mitsuba_ref.cornell_scene(n, n, args.spp, args.max_depth, integrator=args.kind)  # loads the plugins
+    baseline = rss_mib()
+    res = mitsuba_ref._gradient_in_process(n, n, args.spp, args.max_depth, args.kind, MI_PARAMS, args.repeats, 0, PERTURB)
+    if args.warmup == 0:
+        res["note"] = "mitsuba_ref always takes one warm-up gradient"
+    return {
+        "kind": args.kind,
+        "seconds": res["seconds"],
+        "all_seconds": res["all_seconds"],
+        "warmup_seconds": [res["warmup_seconds"]],
+        "baseline_rss_mib": baseline,
+        "peak_rss_mib": peak_rss_mib(),  # not the helper's ru_maxrss: see peak_rss_mib()
+        "ru_maxrss_mib": res["peak_rss_mib"],
+        "loss": res["loss"],
+        "grads": {name: res["grads"][mi] for name, mi in zip(PARAMS, MI_PARAMS)},
+        "mitsuba": res["mitsuba"],
+    }
+
+
+def run_child(kind: str, resolution: int, spp: int, max_depth: int, repeats: int, warmup: int, target: str | None, timeout: float) -> dict:
+    """Run one configuration in a fresh subprocess; its JSON, or ``{"failed": reason}``."""
+    cmd = [
+        sys.executable, os.path.abspath(__file__), "--child", kind, "--resolution", str(resolution), "--spp", str(spp),
+        "--max-depth", str(max_depth), "--repeats", str(repeats), "--warmup", str(warmup), "--target", target or "",
+    ]  # fmt: skip
+    start = time.perf_counter()
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return {"failed": f"timeout after {timeout:.0f} s"}
+    for line in reversed(proc.stdout.splitlines()):
+        if line.startswith(_JSON_TAG):
+            res = json.loads(line[len(_JSON_TAG) :])
+            res["child_seconds"] = time.perf_counter() - start
+            return res
+    why = "killed (out of memory?)" if proc.returncode in (-9, 137) else f"exit {proc.returncode}"
+    tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or [""]
+    return {"failed": f"{why}: {tail[0][:160]}"}
+
+
+# --------------------------------------------------------------------------------------- parent
+
+
+def machine_info() -> str:
+    import torch
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as fh:
+            cpu = next(line.split(":", 1)[1].strip() for line in fh if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
+    load = " ".join(f"{x:.2f}" for x in os.getloadavg())
+    mi = f"Mitsuba {mitsuba_ref.version()} {mitsuba_ref.VARIANT}" if mitsuba_ref.available() else "Mitsuba 3 not installed"
+    return f"{cpu}, {len(os.sched_getaffinity(0))} cores, {mem:.1f} GiB; torch {torch.__version__}; {mi}; load average {load}"
+
+
+class Targets:
+    """Target images (ground-truth scene, seed ``TARGET_SEED``), rendered once in the parent and
+    written where the children load them, so that no child pays for them in its peak memory."""
+
+    def __init__(self, folder: str, spp: int):
+        self.folder, self.spp, self.paths = folder, spp, {}
+
+    def __call__(self, resolution: int, max_depth: int) -> str:
+        key = (resolution, max_depth)
+        if key not in self.paths:
+            import torch
+
+            import invrender as ir
+
+            scene = ir.load_scene("cornell_box", resolution=(resolution, resolution))
+            with torch.no_grad():
+                img = ir.render(scene, spp=self.spp, max_depth=max_depth, seed=TARGET_SEED, progress=False)
+            path = os.path.join(self.folder, f"target_{resolution}_{max_depth}.pt")
+            torch.save(img, path)
+            self.paths[key] = path
+        return self.paths[key]
+
+
+def _fmt(res: dict | None, width: int = 7) -> tuple[str, str, str, str]:
+    """(time, peak, increment, note) columns of a child's result."""
+    if res is None:
+        return ("-".rjust(width), "-".rjust(width), "-".rjust(width), "")
+    if "failed" in res:
+        return ("failed".rjust(width), "-".rjust(width), "-".rjust(width), res["failed"])
+    inc = res["peak_rss_mib"] - res["baseline_rss_mib"]
+    return (f"{res['seconds']:{width}.3f}", f"{res['peak_rss_mib']:{width}.0f}", f"{inc:{width}.0f}", "")
+
+
+def increment(res: dict | None) -> float | None:
+    return None if not res or "failed" in res else res["peak_rss_mib"] - res["baseline_rss_mib"]
+
+
+def _grad_vector(res: dict) -> list[float]:
+    return [v for name in PARAMS for v in res["grads"][name]]
+
+
+def _rel_diff(a: dict, b: dict) -> float:
+    x, y = _grad_vector(a), _grad_vector(b)
+    return sum((p - q) ** 2 for p, q in zip(x, y)) ** 0.5 / max(sum(q * q for q in y) ** 0.5, 1e-30)
+
+
+def main_table(args, targets: Targets, with_mitsuba: bool) -> None:
+    n, spp, depth = args.resolution, args.spp, args.max_depth
+    target = targets(n, depth)
+    kinds = [("invrender autodiff", "autodiff"), ("invrender replay", "replay")]
+    if with_mitsuba:
+        kinds += [(f"Mitsuba {mitsuba_ref.version()} prb", "prb"), (f"Mitsuba {mitsuba_ref.version()} path (AD)", "path")]
+    print(f"\n1. one gradient, Cornell box {n}x{n}, {spp} spp, max_depth {depth}, 4 parameters (12 scalars), L2 loss;")
+    print(f"   one warm-up, then median of {args.repeats}; each estimator in a fresh process")
+    print(f"   {'estimator':<28} {'time s':>7} {'min-max s':>11} {'peak RSS MiB':>12} {'increment MiB':>13}   loss")
+    results = {}
+    for label, kind in kinds:
+        res = results[kind] = run_child(kind, n, spp, depth, args.repeats, 1, target, args.main_timeout)
+        t, peak, inc, note = _fmt(res)
+        loss = f"{res['loss']:.6g}" if "loss" in res else note
+        spread = f"{min(res['all_seconds']):.2f}-{max(res['all_seconds']):.2f}" if "all_seconds" in res else "-"
+        print(f"   {label:<28} {t:>7} {spread:>11} {peak:>12} {inc:>13}   {loss}", flush=True)
+    ad, rp = results["autodiff"], results["replay"]
+    if "failed" not in ad and "failed" not in rp:
+        print(f"   gradient |replay - autodiff| / |autodiff| = {_rel_diff(rp, ad):.2e} (same seeds)")
+    if not with_mitsuba:
+        print("   (Mitsuba 3 not installed or --no-mitsuba: no ratios; see bench/README.md)")
+        return
+    prb = results["prb"]
+    if "failed" in rp or "failed" in prb:
+        print("   (a run failed: no ratios)")
+        return
+    print(f"   gradient |replay - Mitsuba prb| / |Mitsuba prb| = {_rel_diff(rp, prb):.2e} (independent samples: Monte Carlo noise)")
+    print(f"   ratio invrender replay / Mitsuba prb: time {rp['seconds'] / prb['seconds']:.2f}x, "
+          f"peak RSS {rp['peak_rss_mib'] / prb['peak_rss_mib']:.2f}x, increment {increment(rp) / max(increment(prb), 1e-9):.2f}x")  # fmt: skip
+
+
+def _spread(label: str, values: list[float | None], within: float | None = None) -> None:
+    vals = [v for v in values if v is not None]
+    if len(vals) < 2:
+        print(f"   {label}: not enough successful runs")
+        return
+    lo, hi = min(vals), max(vals)
+    ratio = hi / max(lo, 1e-9)
+    verdict = f" ({'within' if ratio <= 1 + within else 'NOT within'} {within:.0%})" if within is not None else ""
+    print(f"   {label} increment max/min: {ratio:.2f}{verdict}")
+
+
+def sweep_table(title: str, column: str, points: list[int], config, skip_autodiff, args) -> None:
+    """One row per point: replay and autodiff time / peak / increment (one gradient per child)."""
+    print(f"\n{title}")
+    print(f"   {column:>9}   {'replay: time s':>14} {'peak MiB':>8} {'incr MiB':>8}   {'autodiff: time s':>16} {'peak MiB':>8} {'incr MiB':>8}")
+    rows, notes = {}, []
+    for x in points:
+        res, spp, depth = {}, *config(x)
+        for kind in ("replay", "autodiff"):
+            if kind == "autodiff" and skip_autodiff(x):
+                res[kind] = {"failed": f"skipped (spp > --max-autodiff-spp {args.max_autodiff_spp})"}
+                continue
+            res[kind] = run_child(kind, args.resolution, spp, depth, 1, 0, args.targets(args.resolution, depth), args.timeout)
+        rows[x] = res
+        r, a = _fmt(res["replay"]), _fmt(res["autodiff"])
+        print(f"   {x:>9}   {r[0]:>14} {r[1]:>8} {r[2]:>8}   {a[0]:>16} {a[1]:>8} {a[2]:>8}", flush=True)
+        notes += [f"{column} {x} {kind}: {res[kind]['failed']}" for kind in res if "failed" in res[kind]]
+    for note in notes:
+        print(f"   note: {note}")
+    _spread("replay", [increment(rows[x]["replay"]) for x in points], within=0.30)
+    _spread("autodiff", [increment(rows[x]["autodiff"]) for x in points])
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--resolution", type=int, default=128)
+    parser.add_argument("--spp", type=int, default=64)
+    parser.add_argument("--max-depth", type=int, default=8)
+    parser.add_argument("--repeats", type=int, default=5, help="timed gradients of table 1 (median)")
+    parser.add_argument("--quick", action="store_true", help="smoke run: 32x32, 16 spp, 1 repeat, spp 4 16 64, depth 2 8")
+    parser.add_argument("--tables", type=int, nargs="+", default=[1, 2, 3], choices=[1, 2, 3])
+    parser.add_argument("--sweep-spp", type=int, nargs="+", default=[16, 64, 256], help="spp of table 2")
+    parser.add_argument("--sweep-depth", type=int, nargs="+", default=[2, 4, 8, 16], help="max_depth of table 3")
+    parser.add_argument("--max-autodiff-spp", type=int, default=256, help="skip autodiff above this spp in table 2")
+    parser.add_argument("--timeout", type=float, default=600, help="seconds per child of tables 2 and 3")
+    parser.add_argument("--main-timeout", type=float, default=1800, help="seconds per child of table 1")
+    parser.add_argument("--no-mitsuba", action="store_true", help="skip Mitsuba even when installed")
+    parser.add_argument("--child", choices=["autodiff", "replay", "prb", "path"], help=argparse.SUPPRESS)
+    parser.add_argument("--warmup", type=int, default=1, help=argparse.SUPPRESS)
+    parser.add_argument("--target", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+
+    if args.child:
+        args.kind = args.child
+        res = child(args)
+        sys.stdout.flush()
+        print(_JSON_TAG + json.dumps(res), flush=True)
+        return 0
+
+    if args.quick:
+        args.resolution, args.spp, args.repeats = 32, 16, 1
+        args.sweep_spp, args.sweep_depth = [4, 16, 64], [2, 8]
+    with_mitsuba = not args.no_mitsuba and mitsuba_ref.available()
+    n = args.resolution
+    print(f"gradient benchmark: {machine_info()}")
+    print(f"target: ground truth at {args.spp} spp, seed {TARGET_SEED}; differentiated at parameters x {PERTURB}; "
+          f"increment = peak RSS - RSS before the first gradient")  # fmt: skip
+    start = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="invrender-gradient-bench-") as folder:
+        args.targets = targets = Targets(folder, args.spp)
+        if 1 in args.tables:
+            main_table(args, targets, with_mitsuba)
+        if 2 in args.tables:
+            sweep_table(
+                f"2. memory vs spp: one gradient, {n}x{n}, max_depth {args.max_depth}", "spp", args.sweep_spp,
+                lambda s: (s, args.max_depth), lambda s: s > args.max_autodiff_spp, args,
+            )  # fmt: skip
+        if 3 in args.tables:
+            sweep_table(
+                f"3. memory vs max_depth: one gradient, {n}x{n}, {args.spp} spp", "max_depth", args.sweep_depth,
+                lambda d: (args.spp, d), lambda d: False, args,
+            )  # fmt: skip
+    print(f"\n(total {time.perf_counter() - start:.0f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

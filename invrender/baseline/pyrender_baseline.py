@@ -1,0 +1,558 @@
+"""pyrender rasterization of an invrender Scene: the independent baseline of the Utah approximation.
+
+What pyrender 0.1.45 computes (``pyrender/shaders/mesh.frag``, metallic-roughness materials), per
+pixel, in linear RGB, before its output encoding::
+
+    color = sum_lights nl * radiance_i * ((1 - F) * c_diff / pi + F * G * D / (4 nl nv + 0.001))
+          + base_color * ambient_light                      # ambient: rho eps0, no 1/pi, no occlusion
+          + emissive_factor * emissive_factor               # sic: the factor is applied twice
+    out   = clamp(pow(color, 1 / 2.2), 0, 1)               # gamma 2.2, not the sRGB curve
+
+with ``c_diff = 0.96 base_color`` (``1 - F0``, F0 = 0.04 for a dielectric), Schlick's
+``F = 0.04 + 0.96 (1 - v.h)^5``, Smith-Schlick ``G`` with ``k = (roughness + 1)^2 / 8`` and GGX
+``D`` with ``alpha = roughness^2`` (= 1/pi at roughness 1), ``nl = clamp(n.l, 0.001, 1)``. Light
+radiance at the receiver is ``intensity * color / d^2`` for point lights and additionally times
+``clamp(cos_e * las + lao, 0, 1)^2`` for spot lights (``las = 1 / max(0.001, cos(inner) -
+cos(outer))``, ``lao = -cos(outer) las``), so ``intensity`` is a radiant intensity (W/sr) and the
+diffuse part of the shading is ``0.96 (1 - F) rho / pi * I cos_r / d^2``. :func:`pyrender_brdf_cos`
+evaluates the whole bracket so that tests can compare with a Lambertian renderer analytically.
+
+How a Scene is converted:
+
+- geometry: one pyrender primitive per (material, emitter, side), flat-shaded (vertices duplicated
+  per triangle, normals = face normals). invrender surfaces are two-sided, pyrender shades with the
+  stored normal, so every triangle is drawn twice, front and a flipped back copy, with back-face
+  culling on. Emitters emit from their front copy only.
+- reflectance rho -> ``baseColorFactor`` (metallic 0, roughness 1), or an 8-bit sRGB
+  ``baseColorTexture`` (pyrender stores textures as 8-bit and decodes sRGB in the shader).
+- emission eps -> ``emissiveFactor = sqrt(s eps)`` (because the shader squares it), textures as an
+  8-bit sRGB ``emissiveTexture`` of ``eps / max(eps)`` with ``emissiveFactor = sqrt(s max(eps))``.
+- emitters -> lights (:func:`emitter_lights`): a Lambertian emitter of radiance L and area A has
+  radiant intensity ``I(theta) = L A cos(theta)`` about its normal. pyrender's spot cone gives
+  ``clamp(...)^2``, i.e. ``cos^2`` for inner 0 / outer 90 degrees, never ``cos``; the ``"cosine"``
+  lobe therefore sums three spot lights at the same point, ``w1 f(a, 1) + w2 f(b, 1) + w3 step(a)``
+  with ``f(c0, c1) = clamp((c - c0) / (c1 - c0), 0, 1)^2``, weights chosen so that the sum is exactly
+  ``cos`` for ``cos >= b`` (b = cos 78.8 deg) and zero beyond 80 degrees (3% of a Lambertian
+  emitter's power lies beyond 80 degrees). Spot lights get shadow maps (pyrender has none for point
+  lights); the ``"point"`` lobe is the classic isotropic point light ``I = L A`` without shadows.
+- ambient eps0 -> ``ambient_light``: pyrender adds ``rho eps0``, exactly the Utah ambient term.
+- camera: the same pinhole, ``yfov = 2 atan(tan_half_fov_y)``, aspect ``width / height``.
+
+Readback: pyrender's colour buffer is 8-bit RGBA. The renderer here is a subclass whose main
+framebuffer is RGBA32F and read as float, so the only loss is pyrender's clamp to [0, 1] after the
+gamma: every pass is rendered with lights, emission and ambient scaled by an exposure ``s`` chosen
+so that no pixel reaches 1 (lowered and re-rendered until none does), then ``out ** 2.2 / s`` is the
+linear radiance. pyrender shades at most a few lights per draw (4 without shadows, one per free
+texture unit with shadows), so lights are split over several additive passes.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from invrender.errors import BaselineError, InvRenderError, ParameterError
+from invrender.scene.scene import Scene, check_param_value, scene_extent
+from invrender.transport.textures import lookup
+
+#: Debian (bookworm) packages for headless rendering through EGL with Mesa's llvmpipe
+DEBIAN_PACKAGES_EGL = "libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri"
+#: Debian package for the OSMesa fallback (PYOPENGL_PLATFORM=osmesa)
+DEBIAN_PACKAGES_OSMESA = "libosmesa6"
+
+POINT_LIGHT_MODES = ("center", "triangles")
+LOBES = ("cosine", "point")
+
+#: spot cone of the cosine lobe: zero beyond COS_A (80 deg), exactly cos from COS_B on
+COS_A = math.cos(math.radians(80.0))
+COS_B = COS_A + 0.02
+#: (outer angle, inner angle, weight) of the three spot lights summing to the cosine lobe
+COSINE_LOBE = (
+    (math.acos(COS_A), 0.0, (1.0 - COS_A) ** 2 / (2.0 * (COS_B - COS_A))),  # (c - a)^2 / (2 delta)
+    (math.acos(COS_B), 0.0, -((1.0 - COS_B) ** 2) / (2.0 * (COS_B - COS_A))),  # -(c - b)^2 / (2 delta)
+    (math.acos(COS_A), math.acos(COS_A), 0.5 * (COS_A + COS_B)),  # (a + b) / 2 for c > a (a step)
+)
+#: shadow-map camera of the spot lights: full angle (covers the 80 degree cone) and texels
+SHADOW_FOV = 2.0 * math.radians(82.0)
+SHADOW_SIZE = 2048
+#: encoded values at or above this count as clipped by pyrender's clamp to [0, 1]
+SATURATED = 0.999
+GAMMA = 2.2
+
+
+@dataclass(frozen=True)
+class LightPoint:
+    """Small lights standing in for emitters.
+
+    Attributes:
+        position: (K, 3) float64 light positions, world units.
+        normal: (K, 3) float64 unit emission axes (the emitters' front normals).
+        intensity: (K, 3) float64 on-axis radiant intensity ``L A`` per RGB channel, W/sr.
+    """
+
+    position: np.ndarray
+    normal: np.ndarray
+    intensity: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return int(self.position.shape[0])
+
+
+def emitter_lights(scene: Scene, point_lights="center") -> LightPoint:
+    """The lights replacing ``scene``'s emitters.
+
+    Args:
+        point_lights: ``"center"`` (default): one light per emitter at its area-weighted centroid,
+            axis = mean normal, intensity ``sum_t L_t A_t max(0, n_t . axis)`` (= L A for a flat
+            emitter); ``"triangles"``: one light per emissive triangle at its centroid with its own
+            ``L_t A_t``; an integer k >= 1: k lights per emitter at stratified points spread over
+            its area by area, each ``L(x) A / k``.
+    Raises:
+        ParameterError: unknown ``point_lights``; ``"center"`` on a closed emitter (no mean normal).
+    """
+    mode = _check_point_lights(point_lights)
+    tri = scene.triangles
+    corners = tri.corners().double().cpu().numpy()  # (T, 3, 3)
+    normal = tri.normal.double().cpu().numpy()
+    area = tri.area.double().cpu().numpy()
+    emitter = tri.emitter.cpu().numpy()
+    pos, axes, power = [], [], []
+    for j, name in enumerate(scene.emitters):
+        ids = np.nonzero(emitter == j)[0]
+        eps = scene.emission_of(j).detach().cpu().double()
+        if ids.size == 0 or float(eps.max()) <= 0.0:
+            continue
+        if mode == "center":
+            L = _mean_emission(eps, tri.uv[ids].double().cpu())  # (n, 3) per triangle
+            A = area[ids]
+            axis = (A[:, None] * normal[ids]).sum(0)
+            if np.linalg.norm(axis) < 1e-3 * A.sum():
+                raise ParameterError(f"emitter {name!r} has no mean normal (closed or folded); use point_lights='triangles' or an integer")
+            axis /= np.linalg.norm(axis)
+            cos = np.clip(normal[ids] @ axis, 0.0, None)
+            pos.append((A[:, None] * corners[ids].mean(1)).sum(0, keepdims=True) / A.sum())
+            axes.append(axis[None])
+            power.append((L * (A * cos)[:, None]).sum(0, keepdims=True))
+        elif mode == "triangles":
+            L = _mean_emission(eps, tri.uv[ids].double().cpu())
+            pos.append(corners[ids].mean(1))
+            axes.append(normal[ids])
+            power.append(L * area[ids][:, None])
+        else:
+            k = mode
+            cdf = np.cumsum(area[ids]) / area[ids].sum()
+            u = (np.arange(k) + 0.5) / k
+            pick = np.minimum(np.searchsorted(cdf, u, side="right"), ids.size - 1)
+            lo = np.concatenate([[0.0], cdf[:-1]])[pick]
+            u1 = np.clip((u - lo) / (cdf[pick] - lo), 0.0, 1.0)  # position within the picked triangle's share
+            u2 = (np.arange(k) * 0.6180339887498949 + 0.5) % 1.0  # golden-ratio sequence
+            su = np.sqrt(u1)
+            b1, b2 = su * (1.0 - u2), su * u2  # uniform barycentrics (weights of p1, p2)
+            c = corners[ids[pick]]
+            p = (1 - b1 - b2)[:, None] * c[:, 0] + b1[:, None] * c[:, 1] + b2[:, None] * c[:, 2]
+            uvt = tri.uv[ids[pick]].double().cpu().numpy()
+            uv = (1 - b1 - b2)[:, None] * uvt[:, 0] + b1[:, None] * uvt[:, 1] + b2[:, None] * uvt[:, 2]
+            L = lookup(eps, torch.as_tensor(uv)).numpy()
+            pos.append(p)
+            axes.append(normal[ids[pick]])
+            power.append(L * (area[ids].sum() / k))
+    if not pos:
+        z = np.zeros((0, 3))
+        return LightPoint(z, z, z)
+    return LightPoint(np.concatenate(pos), np.concatenate(axes), np.concatenate(power))
+
+
+def pyrender_brdf_cos(rho: torch.Tensor, n: torch.Tensor, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+    """pyrender's shading ``f(wi, wo) cos`` for metallic 0, roughness 1, as in ``mesh.frag``.
+
+    Args:
+        rho: (N, 3) base colour; n: (N, 3) unit normal; wi: (N, 3) unit direction to the light;
+            wo: (N, 3) unit direction to the camera.
+    Returns:
+        (N, 3) ``nl ((1 - F) 0.96 rho / pi + F G D / (4 nl nv + 0.001))``; the Lambertian value is
+        ``rho / pi * max(n . wi, 0)``.
+    """
+    nl = (n * wi).sum(-1).clamp(0.001, 1.0)
+    nv = (n * wo).sum(-1).abs().clamp(0.001, 1.0)
+    h = wi + wo
+    h = h / h.norm(dim=-1, keepdim=True)
+    vh = (wo * h).sum(-1).clamp(0.0, 1.0)
+    F = 0.04 + 0.96 * (1.0 - vh) ** 5
+    k = (1.0 + 1.0) ** 2 / 8.0  # Smith-Schlick, roughness 1
+    G = nv / (nv * (1 - k) + k) * nl / (nl * (1 - k) + k)
+    D = 1.0 / math.pi  # GGX with alpha^2 = roughness^4 = 1
+    diffuse = (1.0 - F)[:, None] * 0.96 * rho / math.pi
+    spec = (F * G * D / (4.0 * nl * nv + 0.001))[:, None]
+    return nl[:, None] * (diffuse + spec)
+
+
+def pyrender_render(
+    scene: Scene,
+    *,
+    ambient=None,
+    point_lights="center",
+    lobe: str = "cosine",
+    shadows: bool = True,
+    device=None,
+) -> torch.Tensor:
+    """Rasterize ``scene`` with pyrender: emitters seen directly + direct light + ambient.
+
+    Args:
+        scene: any invrender scene (textures allowed); parameters are read, never differentiated.
+        ambient: RGB (or scalar) ambient radiance eps0 >= 0 added as ``rho eps0``; None = the
+            scene's ``"ambient.emission"`` parameter if present, else zero.
+        point_lights: how emitters become lights, see :func:`emitter_lights` (default ``"center"``).
+        lobe: ``"cosine"`` (default; three spot lights per light summing to the Lambertian
+            ``cos`` lobe, shadowed) or ``"point"`` (isotropic point lights ``I = L A``, unshadowed).
+        shadows: shadow maps for the spot lights of the cosine lobe.
+        device: torch device of the result; None = the scene's.
+    Returns:
+        (H, W, 3) float32 linear radiance, row 0 at the top, pixel-aligned with ``invrender.render``.
+    Raises:
+        ParameterError: bad ``ambient``, ``point_lights`` or ``lobe``.
+        BaselineError: pyrender cannot be imported or no OpenGL context can be created.
+    """
+    if lobe not in LOBES:
+        raise ParameterError(f"unknown lobe {lobe!r} (known: {', '.join(LOBES)})")
+    eps0 = _ambient(scene, ambient)
+    lights = emitter_lights(scene, point_lights)
+    device = torch.device(device) if device is not None else scene.device
+    pr = _pyrender()
+    with _LOCK:
+        osr = _offscreen(pr, scene.width, scene.height)
+        image = _render_passes(pr, osr, scene, lights, eps0, lobe, shadows)
+    return torch.as_tensor(image, dtype=torch.float32, device=device)
+
+
+# --------------------------------------------------------------------------------------------------
+# conversion
+
+
+def _check_point_lights(point_lights):
+    if isinstance(point_lights, str) and point_lights in POINT_LIGHT_MODES:
+        return point_lights
+    if isinstance(point_lights, (int, np.integer)) and not isinstance(point_lights, bool) and point_lights >= 1:
+        return int(point_lights)
+    raise ParameterError(f"point_lights must be 'center', 'triangles' or an integer >= 1, got {point_lights!r}")
+
+
+def _ambient(scene: Scene, ambient) -> np.ndarray:
+    if ambient is None:
+        value = scene.params.get("ambient.emission")
+        if value is None:
+            return np.zeros(3)
+        ambient = value.detach().cpu()
+    t = check_param_value("ambient.emission", ambient)
+    if t.shape != (3,):
+        raise ParameterError(f"ambient.emission: expected an RGB triple, got shape {tuple(t.shape)}")
+    return t.double().numpy()
+
+
+def _mean_emission(eps: torch.Tensor, uv: torch.Tensor) -> np.ndarray:
+    """Mean of eps (3,) or (h, w, 3) over each triangle with UVs (n, 3, 2): (n, 3) float64."""
+    n = uv.shape[0]
+    if eps.ndim == 1:
+        return eps.expand(n, 3).numpy().copy()
+    g = (torch.arange(4, dtype=torch.float64) + 0.5) / 4  # 4 x 4 stratified barycentrics
+    su, u2 = torch.meshgrid(g.sqrt(), g, indexing="ij")
+    b1, b2 = (su * (1 - u2)).reshape(-1), (su * u2).reshape(-1)
+    w = torch.stack([1 - b1 - b2, b1, b2], dim=1)  # (16, 3)
+    pts = torch.einsum("sk,nkc->nsc", w, uv).reshape(-1, 2)
+    return lookup(eps, pts).reshape(n, -1, 3).mean(1).numpy()
+
+
+def _srgb_uint8(x: np.ndarray) -> np.ndarray:
+    """Linear (h, w, 3) values in [0, 1] -> (h, w, 4) 8-bit sRGB + opaque alpha, decoded by pyrender's
+    ``srgb_to_linear``. RGBA because pyrender uploads with OpenGL's default 4-byte row alignment, which
+    garbles RGB rows whose length is not a multiple of 4 bytes."""
+    x = np.clip(x, 0.0, 1.0)
+    y = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+    return np.concatenate([np.round(y * 255.0), np.full(x.shape[:2] + (1,), 255.0)], axis=2).astype(np.uint8)
+
+
+def _build_scene(pr, scene: Scene):
+    """pyrender Scene with meshes and camera; returns it and [(material, eps (3,) or scalar max)]."""
+    tri = scene.triangles
+    corners = tri.corners().cpu().numpy().astype(np.float32)
+    normal = tri.normal.cpu().numpy().astype(np.float32)
+    uv = tri.uv.cpu().numpy().astype(np.float32)
+    mat = tri.material.cpu().numpy()
+    emi = tri.emitter.cpu().numpy()
+    out = pr.Scene(ambient_light=np.zeros(3), bg_color=np.array([0.0, 0.0, 0.0, 1.0]))
+    emissive = []
+    base_cache = {}
+
+    def material(m: int, e: int):
+        rho = scene.reflectance_of(m).detach().cpu().double().numpy()
+        kw = dict(metallicFactor=0.0, roughnessFactor=1.0, alphaMode="OPAQUE", doubleSided=False)
+        if rho.ndim == 1:
+            kw["baseColorFactor"] = np.append(rho, 1.0)
+        else:
+            kw["baseColorFactor"] = np.ones(4)
+            if m not in base_cache:
+                base_cache[m] = pr.Texture(source=_srgb_uint8(rho), source_channels="RGBA", sampler=pr.Sampler())
+            kw["baseColorTexture"] = base_cache[m]
+        if e >= 0:
+            eps = scene.emission_of(e).detach().cpu().double().numpy()
+            if eps.ndim == 3:
+                top = max(float(eps.max()), 1e-30)
+                kw["emissiveTexture"] = pr.Texture(source=_srgb_uint8(eps / top), source_channels="RGBA", sampler=pr.Sampler())
+                eps = np.full(3, top)
+        m_out = pr.MetallicRoughnessMaterial(**kw)
+        if e >= 0:
+            emissive.append((m_out, eps))
+        return m_out
+
+    groups = {}
+    for t_ids, side in ((np.arange(tri.count), 1), (np.arange(tri.count), -1)):
+        e = emi if side == 1 else np.full(tri.count, -1)
+        for key in sorted(set(zip(mat[t_ids].tolist(), e[t_ids].tolist()))):
+            sel = t_ids[(mat[t_ids] == key[0]) & (e[t_ids] == key[1])]
+            groups[(key, side)] = sel
+    for ((m, e), side), sel in groups.items():
+        order = [0, 1, 2] if side == 1 else [0, 2, 1]  # the back copy: reversed winding
+        pos = corners[sel][:, order].reshape(-1, 3)
+        nrm = np.repeat(side * normal[sel], 3, axis=0)
+        tex = uv[sel][:, order].reshape(-1, 2)
+        prim = pr.Primitive(positions=pos, normals=nrm, texcoord_0=tex, material=material(m, e), mode=pr.constants.GLTF.TRIANGLES)
+        mesh = pr.Mesh([prim])
+        mesh._bounds = np.asarray(prim.bounds, dtype=np.float64)  # pyrender 0.1.45 computes it with np.infty (gone in NumPy 2)
+        out.add(mesh)
+
+    cam = scene.camera
+    right, up, forward = (v.numpy() for v in cam.frame())
+    pose = np.eye(4)
+    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = right, up, -forward, cam.origin
+    _, ty = cam.tan_half_fov(scene.width, scene.height)
+    far = float(np.linalg.norm(corners.reshape(-1, 3) - np.asarray(cam.origin, dtype=np.float32), axis=1).max())
+    extent = max(scene_extent(tri), 1e-6)
+    camera = pr.PerspectiveCamera(yfov=2.0 * math.atan(ty), aspectRatio=scene.width / scene.height,
+                                  znear=1e-4 * (far + extent), zfar=2.0 * (far + extent))  # fmt: skip
+    out.add(camera, pose=pose)
+    return out, emissive
+
+
+def _light_pose(p: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """4x4 pose whose -z axis is ``n`` (pyrender lights shine along -z), at ``p``."""
+    z = -n / np.linalg.norm(n)
+    a = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(a, z)
+    x /= np.linalg.norm(x)
+    pose = np.eye(4)
+    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = x, np.cross(z, x), z, p
+    return pose
+
+
+def _light_groups(pr, lights: LightPoint, lobe: str, s: float, shadows: bool, offset: float):
+    """Per light point, the pyrender lights (with poses) standing in for it, exposure ``s`` applied,
+    moved ``offset`` along the normal."""
+    classes = _classes(pr)
+    groups = []
+    for k in range(lights.count):
+        I = lights.intensity[k] * s
+        peak = float(I.max())
+        if peak <= 0.0:
+            continue
+        color = I / peak
+        # just in front of the emitter: fragments in the light's own plane would divide by w = 0 in
+        # pyrender's shadow lookup and come out NaN (black), the emitter itself included
+        pose = _light_pose(lights.position[k] + offset * lights.normal[k], lights.normal[k])
+        if lobe == "point":
+            groups.append([(pr.PointLight(color=color, intensity=peak), pose)])
+            continue
+        shared = pr.Texture(width=SHADOW_SIZE, height=SHADOW_SIZE, source_channels="D", data_format=classes.GL_FLOAT) if shadows else None
+        group = []
+        for outer, inner, w in COSINE_LOBE:
+            light = classes.SpotLight(color=color, intensity=peak * w, innerConeAngle=inner, outerConeAngle=outer)
+            light._shadow_texture = shared  # the three spots see the same depths: one map for all
+            group.append((light, pose))
+        groups.append(group)
+    return groups
+
+
+# --------------------------------------------------------------------------------------------------
+# rendering
+
+
+def _render_passes(pr, osr, scene: Scene, lights: LightPoint, eps0: np.ndarray, lobe: str, shadows: bool) -> np.ndarray:
+    """Linear (H, W, 3) float64: additive passes at an exposure lowered until nothing clips."""
+    pscene, emissive = _build_scene(pr, scene)
+    flags = pr.RenderFlags.OFFSCREEN | (pr.RenderFlags.SHADOWS_SPOT if shadows and lobe == "cosine" else 0)
+    osr._platform.make_current()
+    try:
+        if lobe == "cosine":
+            units = int(_classes(pr).glGetIntegerv(_classes(pr).GL_MAX_TEXTURE_IMAGE_UNITS))
+            capacity = max(3, units - 6) if shadows else pr.constants.MAX_N_LIGHTS  # pyrender's limits
+        else:
+            capacity = pr.constants.MAX_N_LIGHTS
+        top = max([float(eps0.max()), 1e-30] + [float(np.max(e)) for _, e in emissive])
+        s = 0.25 / top
+        for _ in range(12):
+            groups = _light_groups(pr, lights, lobe, s, shadows, 1e-5 * max(scene_extent(scene.triangles), 1e-6))
+            per_pass = max(1, capacity // max(1, max((len(g) for g in groups), default=1)))
+            chunks = [groups[i : i + per_pass] for i in range(0, len(groups), per_pass)] or [[]]
+            total, clipped = 0.0, False
+            for i, chunk in enumerate(chunks):
+                first = i == 0
+                pscene.ambient_light = (s * eps0 if first else np.zeros(3)).astype(np.float32)
+                for m, e in emissive:
+                    m.emissiveFactor = np.sqrt(s * np.asarray(e, dtype=np.float64)) if first else np.zeros(3)
+                nodes = [pscene.add(light, pose=pose) for g in chunk for light, pose in g]
+                encoded = osr._renderer.render(pscene, flags)
+                for node in nodes:
+                    pscene.remove_node(node)
+                clipped |= bool(encoded.max() >= SATURATED)
+                total = total + np.power(encoded.astype(np.float64), GAMMA)
+                if clipped:
+                    break
+            if not clipped:
+                return total / s
+            s /= 1024.0
+        raise BaselineError("pyrender output stays saturated at every exposure (non-finite or huge light intensities?)")
+    finally:
+        osr._platform.make_uncurrent()
+
+
+# --------------------------------------------------------------------------------------------------
+# pyrender and OpenGL setup
+
+_LOCK = threading.Lock()
+_STATE: dict = {}
+
+
+def _pyrender():
+    """Import pyrender headless: PYOPENGL_PLATFORM=egl unless set (osmesa when EGL cannot start)."""
+    if "module" in _STATE:
+        return _STATE["module"]
+    if "PYOPENGL_PLATFORM" not in os.environ:
+        os.environ["PYOPENGL_PLATFORM"] = "egl" if _egl_works() or not _osmesa_present() else "osmesa"
+    try:
+        import pyrender
+    except Exception as exc:  # ImportError, or OpenGL failing to load its platform libraries
+        raise BaselineError(
+            f"cannot import pyrender with PYOPENGL_PLATFORM={os.environ['PYOPENGL_PLATFORM']} ({type(exc).__name__}: "
+            f"{str(exc).splitlines()[0] if str(exc) else ''}); install it with 'pip install pyrender' and the Debian packages "
+            f"{DEBIAN_PACKAGES_EGL} (or {DEBIAN_PACKAGES_OSMESA} with PYOPENGL_PLATFORM=osmesa)"
+        ) from None
+    _STATE["module"] = pyrender
+    return pyrender
+
+
+def _egl_works() -> bool:
+    """Whether libEGL loads and initializes a display (probed with ctypes, before PyOpenGL binds a platform)."""
+    import ctypes
+
+    try:
+        egl = ctypes.CDLL("libEGL.so.1")
+        egl.eglGetDisplay.restype = ctypes.c_void_p
+        egl.eglGetDisplay.argtypes = [ctypes.c_void_p]
+        egl.eglInitialize.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p]
+        egl.eglTerminate.argtypes = [ctypes.c_void_p]
+        display = egl.eglGetDisplay(None)
+        if not display or not egl.eglInitialize(display, None, None):
+            return False
+        egl.eglTerminate(display)
+        return True
+    except (OSError, AttributeError):
+        return False
+
+
+def _osmesa_present() -> bool:
+    import ctypes.util
+
+    return ctypes.util.find_library("OSMesa") is not None
+
+
+class _Classes:
+    """pyrender subclasses, built once pyrender is imported (it binds OpenGL at import)."""
+
+    def __init__(self, pr):
+        from OpenGL import GL
+
+        self.GL_FLOAT = GL.GL_FLOAT
+        self.GL_MAX_TEXTURE_IMAGE_UNITS = GL.GL_MAX_TEXTURE_IMAGE_UNITS
+        self.glGetIntegerv = GL.glGetIntegerv
+
+        class SpotLight(pr.SpotLight):
+            """A spot light whose shadow camera covers the 80 degree cone (pyrender's adds pi/16 to
+            twice the outer angle, which degenerates at wide cones) with near/far from the scene size."""
+
+            def _get_shadow_camera(self, scene_scale):
+                return pr.PerspectiveCamera(znear=1e-3 * scene_scale, zfar=10.0 * scene_scale, yfov=SHADOW_FOV, aspectRatio=1.0)
+
+        class FloatRenderer(pr.Renderer):
+            """pyrender's Renderer with RGBA32F colour buffers, returning the encoded colour as float32."""
+
+            def _configure_main_framebuffer(self):
+                dims = (self.viewport_width, self.viewport_height)
+                if self._main_fb is not None and dims != self._main_fb_dims:
+                    self._delete_main_framebuffer()
+                if self._main_fb is not None:
+                    return
+                w, h = dims
+                self._main_cb, self._main_db = GL.glGenRenderbuffers(2)
+                GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, self._main_cb)
+                GL.glRenderbufferStorage(GL.GL_RENDERBUFFER, GL.GL_RGBA32F, w, h)
+                GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, self._main_db)
+                GL.glRenderbufferStorage(GL.GL_RENDERBUFFER, GL.GL_DEPTH_COMPONENT24, w, h)
+                self._main_fb = GL.glGenFramebuffers(1)
+                GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, self._main_fb)
+                GL.glFramebufferRenderbuffer(GL.GL_DRAW_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0, GL.GL_RENDERBUFFER, self._main_cb)
+                GL.glFramebufferRenderbuffer(GL.GL_DRAW_FRAMEBUFFER, GL.GL_DEPTH_ATTACHMENT, GL.GL_RENDERBUFFER, self._main_db)
+                self._main_cb_ms, self._main_db_ms = GL.glGenRenderbuffers(2)
+                GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, self._main_cb_ms)
+                GL.glRenderbufferStorageMultisample(GL.GL_RENDERBUFFER, 4, GL.GL_RGBA32F, w, h)
+                GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, self._main_db_ms)
+                GL.glRenderbufferStorageMultisample(GL.GL_RENDERBUFFER, 4, GL.GL_DEPTH_COMPONENT24, w, h)
+                self._main_fb_ms = GL.glGenFramebuffers(1)
+                GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, self._main_fb_ms)
+                GL.glFramebufferRenderbuffer(GL.GL_DRAW_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0, GL.GL_RENDERBUFFER, self._main_cb_ms)
+                GL.glFramebufferRenderbuffer(GL.GL_DRAW_FRAMEBUFFER, GL.GL_DEPTH_ATTACHMENT, GL.GL_RENDERBUFFER, self._main_db_ms)
+                self._main_fb_dims = dims
+
+            def _read_main_framebuffer(self, scene, flags):
+                w, h = self._main_fb_dims
+                GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, self._main_fb_ms)
+                GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, self._main_fb)
+                GL.glBlitFramebuffer(0, 0, w, h, 0, 0, w, h, GL.GL_COLOR_BUFFER_BIT, GL.GL_LINEAR)  # resolves the 4x MSAA
+                GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, self._main_fb)
+                buf = GL.glReadPixels(0, 0, w, h, GL.GL_RGB, GL.GL_FLOAT)
+                image = np.frombuffer(buf, dtype=np.float32).reshape(h, w, 3)
+                return np.flip(image, axis=0).copy()  # OpenGL's row 0 is the bottom
+
+        self.SpotLight = SpotLight
+        self.FloatRenderer = FloatRenderer
+
+
+def _classes(pr) -> _Classes:
+    if "classes" not in _STATE:
+        _STATE["classes"] = _Classes(pr)
+    return _STATE["classes"]
+
+
+def _offscreen(pr, width: int, height: int):
+    """The process's offscreen renderer (one OpenGL context, reused), sized ``width x height``."""
+    osr = _STATE.get("renderer")
+    if osr is None:
+        platform = os.environ.get("PYOPENGL_PLATFORM", "")
+        try:
+            osr = pr.OffscreenRenderer(width, height)
+            osr._platform.make_current()
+            osr._renderer.delete()
+            osr._renderer = _classes(pr).FloatRenderer(width, height)
+            osr._platform.make_uncurrent()
+        except Exception as exc:
+            packages = DEBIAN_PACKAGES_OSMESA if platform == "osmesa" else DEBIAN_PACKAGES_EGL
+            raise BaselineError(
+                f"pyrender cannot create an OpenGL context with PYOPENGL_PLATFORM={platform} ({type(exc).__name__}: "
+                f"{str(exc).splitlines()[0] if str(exc) else ''}); on Debian install {packages}"
+            ) from None
+        _STATE["renderer"] = osr
+    osr._renderer.viewport_width, osr._renderer.viewport_height = width, height
+    return osr
