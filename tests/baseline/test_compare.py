@@ -60,3 +60,13 @@ def test_compare_bad_input(argv, message, tmp_path, monkeypatch, capsys):
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1
     assert not list(tmp_path.iterdir())
+
+
+def test_baseline_command_writes_the_rasterized_image(tmp_path, capsys):
+    out = tmp_path / "b.exr"
+    assert main(["baseline", "cornell_box", "--resolution", "20x16", "--out", str(out), str(tmp_path / "b.png"), "--quiet"]) == 0
+    image = ir.read_image(out)
+    assert image.shape == (16, 20, 3) and (tmp_path / "b.png").is_file()
+    assert image[..., 0].mean() > image[..., 2].mean() > 0  # the Cornell box's warm light
+    assert main(["baseline", "cornell_box", "--out", str(tmp_path / "b.jpg")]) == 2
+    assert "unknown image suffix" in capsys.readouterr().err
