@@ -26,7 +26,11 @@ from invrender.scene.scene import Scene
 from invrender.transport.context import PathState, RenderSettings, TransportContext
 from invrender.transport.film import Film
 from invrender.transport.integrators import INTEGRATOR_MODULES
-from invrender.transport.render import cpu_workers, for_each_chunk, render_image
+from invrender.transport.render import cpu_workers, for_each_chunk, release_freed_memory, render_image
+
+
+#: chunks each worker replays between two releases of freed heap memory (see release_freed_memory)
+TRIM_EVERY = 2
 
 
 class AdjointFilm(Film):
@@ -98,6 +102,7 @@ def replay_gradient(scene: Scene, settings: RenderSettings, device, values: dict
     trace = INTEGRATOR_MODULES[settings.integrator].trace
     g_image = grad_image.detach().reshape(-1, 3).to(device, torch.float64) / settings.spp
     per_worker = [{k: torch.zeros_like(v) for k, v in leaves.items()} for _ in range(workers)]
+    chunks_done = [0] * workers
 
     def chunk(worker: int, state: PathState) -> None:
         n = state.count
@@ -110,6 +115,10 @@ def replay_gradient(scene: Scene, settings: RenderSettings, device, values: dict
             trace(ctx, local, adjoint)
         for k, v in adjoint.grads.items():
             per_worker[worker][k] += v
+        del primal, adjoint
+        chunks_done[worker] += 1
+        if chunks_done[worker] % TRIM_EVERY == 0:
+            release_freed_memory(device)  # keeps peak memory flat in the number of chunks (spp)
 
     for_each_chunk(scene, settings.replace(progress=False), device, chunk, grad=True)
     return {k: sum(w[k] for w in per_worker) for k in leaves}

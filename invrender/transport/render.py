@@ -148,6 +148,34 @@ def for_each_chunk(scene: Scene, settings: RenderSettings, device: torch.device,
                 raise
 
 
+def release_freed_memory(device: torch.device) -> None:
+    """Hand the heap pages a finished chunk freed back to the OS (glibc ``malloc_trim``).
+
+    Chunk-sized tensors are allocated and freed over and over; glibc keeps freed blocks of that size
+    in its heap, which fragments a little more with every chunk, so without this peak memory creeps
+    up with the number of chunks, i.e. with spp (measured: +34% from 16 to 256 spp for a replayed
+    gradient at 128x128, +15% with it after every chunk). Returned pages are faulted in again by the
+    next chunk, which costs up to 20% of a render's time if done after every chunk, so only path
+    replay, whose point is flat memory, calls it, and only every few chunks.
+    """
+    if device.type == "cpu" and _LIBC is not None:
+        _LIBC.malloc_trim(0)
+
+
+def _load_libc():
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL("libc.so.6")
+        libc.malloc_trim  # glibc only  # noqa: B018
+        return libc
+    except (OSError, AttributeError):
+        return None
+
+
+_LIBC = _load_libc() if sys.platform.startswith("linux") else None
+
+
 def cpu_workers(device: torch.device) -> int:
     """Chunks traced at once: one per core on the CPU (each single-threaded), one on a GPU."""
     if device.type != "cpu":
