@@ -62,8 +62,10 @@ from invrender.transport.textures import lookup
 
 #: Debian (bookworm) packages for headless rendering through EGL with Mesa's llvmpipe
 DEBIAN_PACKAGES_EGL = "libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri"
-#: Debian package for the OSMesa fallback (PYOPENGL_PLATFORM=osmesa)
+#: Debian package for the OSMesa fallback (PYOPENGL_PLATFORM=osmesa); pyrender's OSMesa platform
+#: also needs PyOpenGL >= 3.1.5 (OSMesaCreateContextAttribs), newer than the 3.1.0 pyrender pins
 DEBIAN_PACKAGES_OSMESA = "libosmesa6"
+OSMESA_PYOPENGL = "PyOpenGL>=3.1.5"
 
 POINT_LIGHT_MODES = ("center", "triangles")
 LOBES = ("cosine", "point")
@@ -548,10 +550,10 @@ def _offscreen(pr, width: int, height: int):
             osr._renderer = _classes(pr).FloatRenderer(width, height)
             osr._platform.make_uncurrent()
         except Exception as exc:
-            packages = DEBIAN_PACKAGES_OSMESA if platform == "osmesa" else DEBIAN_PACKAGES_EGL
+            fix = f"{DEBIAN_PACKAGES_OSMESA} and pip install '{OSMESA_PYOPENGL}'" if platform == "osmesa" else DEBIAN_PACKAGES_EGL
             raise BaselineError(
                 f"pyrender cannot create an OpenGL context with PYOPENGL_PLATFORM={platform} ({type(exc).__name__}: "
-                f"{str(exc).splitlines()[0] if str(exc) else ''}); on Debian install {packages}"
+                f"{str(exc).splitlines()[0] if str(exc) else ''}); on Debian install {fix}"
             ) from None
         _STATE["renderer"] = osr
     osr._renderer.viewport_width, osr._renderer.viewport_height = width, height
