@@ -433,7 +433,7 @@ def _pyrender():
     if "module" in _STATE:
         return _STATE["module"]
     if "PYOPENGL_PLATFORM" not in os.environ:
-        os.environ["PYOPENGL_PLATFORM"] = "egl" if _egl_works() or not _osmesa_present() else "osmesa"
+        os.environ["PYOPENGL_PLATFORM"] = "egl" if not _osmesa_present() or _egl_works() else "osmesa"
     try:
         import pyrender
     except Exception as exc:  # ImportError, or OpenGL failing to load its platform libraries
@@ -447,21 +447,17 @@ def _pyrender():
 
 
 def _egl_works() -> bool:
-    """Whether libEGL loads and initializes a display (probed with ctypes, before PyOpenGL binds a platform)."""
-    import ctypes
+    """Whether pyrender can open an EGL context here, probed in a child process (PyOpenGL binds its
+    platform once per process, at import). pyrender uses EGL's device platform, which needs no
+    display server, so probing ``eglGetDisplay`` in this process would wrongly fail headless."""
+    import subprocess
+    import sys
 
+    probe = "import pyrender; r = pyrender.OffscreenRenderer(8, 8); r.delete()"
+    env = {**os.environ, "PYOPENGL_PLATFORM": "egl"}
     try:
-        egl = ctypes.CDLL("libEGL.so.1")
-        egl.eglGetDisplay.restype = ctypes.c_void_p
-        egl.eglGetDisplay.argtypes = [ctypes.c_void_p]
-        egl.eglInitialize.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p]
-        egl.eglTerminate.argtypes = [ctypes.c_void_p]
-        display = egl.eglGetDisplay(None)
-        if not display or not egl.eglInitialize(display, None, None):
-            return False
-        egl.eglTerminate(display)
-        return True
-    except (OSError, AttributeError):
+        return subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, timeout=120).returncode == 0
+    except (OSError, subprocess.TimeoutExpired):
         return False
 
 
