@@ -177,10 +177,16 @@ examples:
       --params red.reflectance,green.reflectance,white.reflectance,light.emission --out runs/cbox
   invrender fit optimize/cornell_random.toml --out runs/cornell_random
   invrender fit optimize/cornell_random.toml --out runs/cornell_random --resume     # after Ctrl-C
+  invrender fit optimize/utah_bias.toml --out runs/utah_bias    # a model study: path vs utah
+
+Defaults: 200 Adam steps on rho = sigmoid(x), eps = exp(x) (step 0.15, cosine decay), 16 then 64
+spp, max_depth 8, relative L2 loss, path-replay gradients decorrelated from the loss's image.
 
 Writes OUT/report.json (initial, recovered and, when a recipe knows it, true values with errors),
 OUT/loss.png (loss and parameter error per step), OUT/final.exr (the recovered scene rendered) and
 OUT/checkpoint.pt (every few steps and on Ctrl-C; --resume continues to the same result).
+A recipe with [[variants]] runs one fit per variant into OUT/<label>/ and writes OUT/study.md and
+OUT/study.json: each parameter channel's relative error under each variant.
 """
 
 GRADCHECK_DOC = """\
@@ -209,6 +215,7 @@ FIT_OPTIONS = [
     ("max_depth", int, "Neumann terms kept (default: 8)"),
     ("lr", float, "Adam step size for reflectances, logit units (default: 0.15)"),
     ("lr_emission", float, "Adam step size for emissions, log units (default: 0.15)"),
+    ("integrator", str, "the model fitted: path, random_walk or utah (default: path)"),
     ("loss", str, "relative_l2, l2, l1 or ssim (default: relative_l2)"),
     ("estimator", str, "replay or autodiff (default: replay)"),
     ("seed", int, "seed of every render (default: 0)"),

@@ -27,7 +27,7 @@ from invrender.inverse.losses import LOSSES, loss_and_gradient, loss_gradient
 from invrender.inverse.replay import replay_gradient
 from invrender.scene.camera import Camera
 from invrender.scene.scene import Scene
-from invrender.transport.context import RenderSettings
+from invrender.transport.context import INTEGRATORS, RenderSettings
 from invrender.transport.render import ESTIMATORS, render
 
 CHECKPOINT_FORMAT = 1
@@ -49,7 +49,7 @@ class FitSettings:
         spp: samples per pixel of each render in the first half of the steps.
         spp_final: samples per pixel in the second half (less noise where the steps are small).
         max_depth: Neumann terms kept by the renders (Mitsuba's count).
-        integrator: ``"path"`` or ``"random_walk"``.
+        integrator: the model fitted: ``"path"``, ``"random_walk"`` or ``"utah"``.
         loss: ``"l2"``, ``"l1"``, ``"relative_l2"`` or ``"ssim"``.
         estimator: ``"replay"`` or ``"autodiff"``.
         decorrelate: take ``dl/dI`` from an independent render (unbiased gradient; losses.py).
@@ -82,6 +82,8 @@ class FitSettings:
         for name in ("lr", "lr_emission", "lr_final"):
             if not getattr(self, name) > 0:
                 raise ParameterError(f"fit setting {name} must be positive, got {getattr(self, name)!r}")
+        if self.integrator not in INTEGRATORS:
+            raise ParameterError(f"unknown integrator {self.integrator!r} (known: {', '.join(INTEGRATORS)})")
         if self.loss not in LOSSES:
             raise ParameterError(f"unknown loss {self.loss!r} (known: {', '.join(LOSSES)})")
         if self.estimator not in ESTIMATORS:
