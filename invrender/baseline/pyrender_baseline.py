@@ -85,6 +85,10 @@ SHADOW_SIZE = 2048
 #: encoded values at or above this count as clipped by pyrender's clamp to [0, 1]
 SATURATED = 0.999
 GAMMA = 2.2
+#: sub-pixels per pixel side: each pixel is the mean of SUPERSAMPLE^2 linear sub-pixel values (a box
+#: filter, as invrender's). Not MSAA: pyrender's shader encodes colour before the MSAA resolve, so the
+#: resolve would average gamma-encoded values and darken every partly covered pixel.
+SUPERSAMPLE = 4
 
 
 @dataclass(frozen=True)
@@ -226,9 +230,11 @@ def pyrender_render(
     lights = emitter_lights(scene, point_lights)
     device = torch.device(device) if device is not None else scene.device
     pr = _pyrender()
+    ss = SUPERSAMPLE
     with _LOCK:
-        osr = _offscreen(pr, scene.width, scene.height)
-        image = _render_passes(pr, osr, scene, lights, eps0, lobe, shadows)
+        osr = _offscreen(pr, scene.width * ss, scene.height * ss)
+        image = _render_passes(pr, osr, scene, lights, eps0, lobe, shadows)  # linear, (H ss, W ss, 3)
+    image = image.reshape(scene.height, ss, scene.width, ss, 3).mean(axis=(1, 3))  # box filter
     return torch.as_tensor(image, dtype=torch.float32, device=device)
 
 
@@ -505,9 +511,9 @@ class _Classes:
                 GL.glFramebufferRenderbuffer(GL.GL_DRAW_FRAMEBUFFER, GL.GL_DEPTH_ATTACHMENT, GL.GL_RENDERBUFFER, self._main_db)
                 self._main_cb_ms, self._main_db_ms = GL.glGenRenderbuffers(2)
                 GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, self._main_cb_ms)
-                GL.glRenderbufferStorageMultisample(GL.GL_RENDERBUFFER, 4, GL.GL_RGBA32F, w, h)
+                GL.glRenderbufferStorageMultisample(GL.GL_RENDERBUFFER, 0, GL.GL_RGBA32F, w, h)  # no MSAA: see SUPERSAMPLE
                 GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, self._main_db_ms)
-                GL.glRenderbufferStorageMultisample(GL.GL_RENDERBUFFER, 4, GL.GL_DEPTH_COMPONENT24, w, h)
+                GL.glRenderbufferStorageMultisample(GL.GL_RENDERBUFFER, 0, GL.GL_DEPTH_COMPONENT24, w, h)
                 self._main_fb_ms = GL.glGenFramebuffers(1)
                 GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, self._main_fb_ms)
                 GL.glFramebufferRenderbuffer(GL.GL_DRAW_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0, GL.GL_RENDERBUFFER, self._main_cb_ms)
@@ -518,7 +524,7 @@ class _Classes:
                 w, h = self._main_fb_dims
                 GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, self._main_fb_ms)
                 GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, self._main_fb)
-                GL.glBlitFramebuffer(0, 0, w, h, 0, 0, w, h, GL.GL_COLOR_BUFFER_BIT, GL.GL_LINEAR)  # resolves the 4x MSAA
+                GL.glBlitFramebuffer(0, 0, w, h, 0, 0, w, h, GL.GL_COLOR_BUFFER_BIT, GL.GL_NEAREST)  # a copy (single-sampled)
                 GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, self._main_fb)
                 buf = GL.glReadPixels(0, 0, w, h, GL.GL_RGB, GL.GL_FLOAT)
                 image = np.frombuffer(buf, dtype=np.float32).reshape(h, w, 3)

@@ -24,11 +24,11 @@ def test_comparison_on_the_cornell_box(cbox32):
     # the Utah approximation drops the interreflected light: about a third of red, an eighth of blue
     assert (rel["utah"] < -0.08).all() and (rel["utah"] > -0.5).all()
     assert (rel["utah, eps0 fitted"].abs() < 0.02).all()  # a constant ambient recovers the mean
-    # pyrender: the same model, darker: its diffuse factor 0.96 (1 - F) (~8%), the light's lobe cut
-    # beyond 80 degrees (the walls beside the light), hard shadows, and at 32x32 the light's pixels
-    # sampled at their centres instead of box-filtered (measured: 12% darker than utah at 64x64, 18% here)
-    assert (rel["pyrender"] < rel["utah"]).all()
-    assert (rel["pyrender"] > rel["utah"] - 0.2).all()
+    # pyrender: the same model; away from the light's own pixels (whose edge coverage a 4x4 grid of
+    # sub-pixels estimates coarsely) it is 7-10% darker, mostly its diffuse factor 0.96 (1 - F) ~ 0.92
+    off_light = ir.render(cbox32, "path", max_depth=1, spp=4, progress=False).sum(-1) == 0
+    ratio = c.images["pyrender"][off_light].mean(0) / c.images["utah"][off_light].mean(0)
+    assert ((ratio > 0.85) & (ratio < 0.97)).all(), ratio
     assert (c.eps0_fit > 0).all() and (c.eps0 == 0).all()
     assert "eps0 fitted" in format_table(c)
 
