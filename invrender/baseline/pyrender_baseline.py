@@ -42,8 +42,10 @@ Readback: pyrender's colour buffer is 8-bit RGBA. The renderer here is a subclas
 framebuffer is RGBA32F and read as float, so the only loss is pyrender's clamp to [0, 1] after the
 gamma: every pass is rendered with lights, emission and ambient scaled by an exposure ``s`` chosen
 so that no pixel reaches 1 (lowered and re-rendered until none does), then ``out ** 2.2 / s`` is the
-linear radiance. pyrender shades at most a few lights per draw (4 without shadows, one per free
-texture unit with shadows), so lights are split over several additive passes.
+linear radiance. The film is rendered at 4 x 4 sub-pixels per pixel without MSAA and averaged after
+linearization (a box filter, as invrender's; MSAA would average gamma-encoded values). pyrender
+shades at most a few lights per draw (4 without shadows, one per free texture unit with shadows), so
+lights are split over several additive passes.
 """
 
 from __future__ import annotations
