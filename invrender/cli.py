@@ -15,6 +15,7 @@ import warnings
 from pathlib import Path
 
 from invrender.errors import ImageError, InvRenderError, ParameterError
+from invrender.scene.builtin import BUILTIN_SCENES
 
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
@@ -64,13 +65,24 @@ def parse_resolution(text: str) -> tuple[int, int]:
 
 def parse_rgb(text: str) -> list[float]:
     """``"v"`` or ``"r,g,b"`` -> [r, g, b] (finite, >= 0)."""
+    values = _one_or_three_numbers(text)
+    if values is None or not all(math.isfinite(v) and v >= 0 for v in values):
+        raise argparse.ArgumentTypeError(f"expected one number or R,G,B, finite and >= 0, got {text!r}")
+    return values * 3 if len(values) == 1 else values
+
+
+def _one_or_three_numbers(text: str) -> list[float] | None:
+    """``"v"`` -> [v], ``"r,g,b"`` -> [r, g, b]; None for anything else."""
     try:
         values = [float(p) for p in text.split(",")]
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected one number or R,G,B, got {text!r}") from None
-    if len(values) not in (1, 3) or not all(math.isfinite(v) and v >= 0 for v in values):
-        raise argparse.ArgumentTypeError(f"expected one number or R,G,B, finite and >= 0, got {text!r}")
-    return values * 3 if len(values) == 1 else values
+        return None
+    return values if len(values) in (1, 3) else None
+
+
+def add_scene_argument(parser: argparse.ArgumentParser) -> None:
+    """The optional positional SCENE every rendering command takes."""
+    parser.add_argument("scene", nargs="?", default="cornell_box", help=f"built-in name ({', '.join(BUILTIN_SCENES)}) or a .toml/.gltf/.glb/.obj file (default: cornell_box)")
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -94,7 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=RENDER_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    r.add_argument("scene", nargs="?", default="cornell_box", help="built-in name (cornell_box, furnace) or a .toml/.gltf/.glb/.obj file (default: cornell_box)")
+    add_scene_argument(r)
     r.add_argument("--out", nargs="+", default=["out.exr"], metavar="PATH", help="output image(s): .exr (linear float32) and/or .png (sRGB, clipped) (default: out.exr)")
     r.add_argument("--spp", type=int, default=64, help="samples per pixel (default: 64)")
     r.add_argument("--max-depth", type=int, default=8, help="Neumann terms kept, Mitsuba's count; -1 = unbounded (default: 8)")
@@ -131,7 +143,7 @@ def build_parser() -> argparse.ArgumentParser:
     f.set_defaults(run=run_fit)
 
     g = sub.add_parser("gradcheck", help="check gradients against finite differences", description=GRADCHECK_DOC, formatter_class=argparse.RawDescriptionHelpFormatter)
-    g.add_argument("scene", nargs="?", default="cornell_box", help="built-in name or scene file (default: cornell_box)")
+    add_scene_argument(g)
     g.add_argument("--params", default="red.reflectance,white.reflectance,light.emission", help="comma-separated parameter names")
     g.add_argument("--estimators", default="autodiff,replay", help="comma-separated: autodiff, replay")
     g.add_argument("--resolution", type=parse_resolution, default=(32, 32), metavar="WxH", help="(default: 32x32)")
@@ -149,7 +161,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.set_defaults(run=run_dataset)
 
     b = sub.add_parser("baseline", help="rasterize a scene with pyrender (Utah baseline)", description=BASELINE_DOC, formatter_class=argparse.RawDescriptionHelpFormatter)
-    b.add_argument("scene", nargs="?", default="cornell_box", help="built-in name or scene file (default: cornell_box)")
+    add_scene_argument(b)
     b.add_argument("--out", nargs="+", default=["baseline.exr"], metavar="PATH", help="output image(s): .exr and/or .png (default: baseline.exr)")
     b.add_argument("--resolution", type=parse_resolution, default=None, metavar="WxH", help="image size (default: the scene's)")
     b.add_argument("--ambient", type=parse_rgb, default=None, metavar="R,G,B", help="ambient radiance eps0 (default: the scene's, else 0)")
@@ -157,7 +169,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.set_defaults(run=run_baseline)
 
     c = sub.add_parser("compare", help="pyrender vs utah vs path: what ignoring interreflection costs", description=COMPARE_DOC, formatter_class=argparse.RawDescriptionHelpFormatter)
-    c.add_argument("scene", nargs="?", default="cornell_box", help="built-in name or scene file (default: cornell_box)")
+    add_scene_argument(c)
     c.add_argument("--out", default="compare.png", help="the figure, a .png (default: compare.png)")
     c.add_argument("--resolution", type=parse_resolution, default=(128, 128), metavar="WxH", help="(default: 128x128)")
     c.add_argument("--spp", type=int, default=64, help="samples per pixel of the Monte Carlo images (default: 64)")
@@ -224,13 +236,13 @@ FIT_OPTIONS = [
 
 def check_outputs(paths: list[str]) -> list[Path]:
     """Fail early (before a long render) on output paths that cannot be written."""
-    from invrender.io.images import WRITE_SUFFIXES as SUFFIXES
+    from invrender.io.images import WRITE_SUFFIXES
 
     out = []
     for p in paths:
         path = Path(p)
-        if path.suffix.lower() not in SUFFIXES:
-            raise ImageError(f"cannot write {p}: unknown image suffix {path.suffix or '(none)'!r} (use {', '.join(SUFFIXES)})")
+        if path.suffix.lower() not in WRITE_SUFFIXES:
+            raise ImageError(f"cannot write {p}: unknown image suffix {path.suffix or '(none)'!r} (use {', '.join(WRITE_SUFFIXES)})")
         parent = path.parent if str(path.parent) else Path(".")
         existing = next((a for a in [parent, *parent.parents] if a.exists()), Path("."))
         if not existing.is_dir() or not os.access(existing, os.W_OK):
@@ -260,10 +272,13 @@ def run_render(args) -> int:
                 ir.write_image(path.with_name(f"{path.stem}.term{k}{path.suffix}"), image[k])
     if not args.quiet:
         paths = scene.width * scene.height * args.spp
-        mean = ", ".join(f"{v:.4g}" for v in full.mean(dim=(0, 1)).tolist())
-        print(f"{scene.name}: {scene.width}x{scene.height}, {args.spp} spp, {seconds:.2f} s ({paths / seconds / 1e6:.3g} M paths/s); mean RGB {mean}", file=sys.stderr)
+        print(f"{scene.name}: {scene.width}x{scene.height}, {args.spp} spp, {seconds:.2f} s ({paths / seconds / 1e6:.3g} M paths/s); mean RGB {_mean_rgb(full)}", file=sys.stderr)
         print("wrote " + ", ".join(str(p) for p in outputs) + (f" (+ {image.shape[0]} term images each)" if args.terms else ""), file=sys.stderr)
     return 0
+
+
+def _mean_rgb(image) -> str:
+    return ", ".join(f"{v:.4g}" for v in image.mean(dim=(0, 1)).tolist())
 
 
 def parse_init(items: list[str]) -> dict:
@@ -271,11 +286,8 @@ def parse_init(items: list[str]) -> dict:
     init = {}
     for item in items:
         key, sep, text = item.partition("=")
-        try:
-            values = [float(x) for x in text.split(",")]
-        except ValueError:
-            values = []
-        if not sep or not key or len(values) not in (1, 3):
+        values = _one_or_three_numbers(text)
+        if not sep or not key or values is None:
             raise ParameterError(f"--init expects NAME=VALUE or NAME=R,G,B, got {item!r}")
         init[key.strip()] = values[0] if len(values) == 1 else values
     return init
@@ -403,8 +415,7 @@ def run_baseline(args) -> int:
     for path in outputs:
         ir.write_image(path, image)
     if not args.quiet:
-        mean = ", ".join(f"{v:.4g}" for v in image.mean(dim=(0, 1)).tolist())
-        print(f"{scene.name}: {scene.width}x{scene.height} rasterized by pyrender; mean RGB {mean}", file=sys.stderr)
+        print(f"{scene.name}: {scene.width}x{scene.height} rasterized by pyrender; mean RGB {_mean_rgb(image)}", file=sys.stderr)
         print("wrote " + ", ".join(str(p) for p in outputs), file=sys.stderr)
     return 0
 
@@ -416,8 +427,6 @@ def run_compare(args) -> int:
     (out,) = check_outputs([args.out])
     if out.suffix.lower() != ".png":
         raise ImageError(f"cannot write {args.out}: the comparison figure is a .png")
-    if args.spp <= 0:
-        raise ParameterError(f"spp must be positive, got {args.spp}")
     scene = ir.load_scene(args.scene, resolution=args.resolution, ambient=args.ambient)
     result = compare(scene, spp=args.spp, seed=args.seed, max_depth=args.max_depth, pyrender=not args.no_pyrender, progress=not args.quiet)
     plot_comparison(result, out)

@@ -10,7 +10,8 @@ The four images estimate ever longer truncations of ``I = g eps + gMg eps + g(Mg
 The ambient radiance eps0 that best stands in for interreflection is found in closed form: the
 ``utah`` image is affine in eps0, ``U(eps0) = U(0) + R eps0`` per channel with ``R = U(1) - U(0)``
 (the reflectance each pixel sees), so the eps0 minimizing ``|U(eps0) - I_path|^2`` is
-``<R, I_path - U(0)> / <R, R>`` per channel (clamped at 0).
+``<R, I_path - U(0)> / <R, R>`` per channel (clamped at 0). The two renders ``U(0)`` and ``U(1)`` give
+every ``utah`` image of the comparison.
 """
 
 from __future__ import annotations
@@ -19,7 +20,9 @@ from dataclasses import dataclass
 
 import torch
 
+from invrender.errors import BaselineError
 from invrender.scene.scene import AMBIENT, Scene
+from invrender.transport.context import RenderSettings
 from invrender.transport.render import render
 
 FULL = "path"
@@ -54,14 +57,25 @@ class Comparison:
         return {k: m / full - 1 for k, m in self.means().items()}
 
 
-def fit_ambient(scene: Scene, reference: torch.Tensor, spp: int, seed: int) -> torch.Tensor:
-    """The (3,) eps0 >= 0 minimizing ``sum_pixels |utah(eps0) - reference|^2`` per channel (closed form)."""
+def utah_affine(scene: Scene, spp: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(U(0), R)``, each (H, W, 3): the ``utah`` image is ``U(eps0) = U(0) + R eps0`` for every
+    eps0 (the same seed, so the same paths), with ``R`` the reflectance each pixel sees."""
     with torch.no_grad():
         u0 = render(scene.with_ambient(0.0), "utah", spp=spp, seed=seed, progress=False)
         R = render(scene.with_ambient(1.0), "utah", spp=spp, seed=seed, progress=False) - u0
+    return u0, R
+
+
+def least_squares_ambient(u0: torch.Tensor, R: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
+    """The (3,) eps0 >= 0 minimizing ``sum_pixels |u0 + R eps0 - reference|^2`` per channel."""
     num = (R * (reference - u0)).sum(dim=(0, 1))
     den = (R * R).sum(dim=(0, 1)).clamp_min(1e-30)
     return (num / den).clamp_min(0.0)
+
+
+def fit_ambient(scene: Scene, reference: torch.Tensor, spp: int, seed: int) -> torch.Tensor:
+    """The (3,) eps0 >= 0 minimizing ``sum_pixels |utah(eps0) - reference|^2`` per channel (closed form)."""
+    return least_squares_ambient(*utah_affine(scene, spp, seed), reference)
 
 
 def compare(scene: Scene, spp: int = 64, seed: int = 0, max_depth: int = -1, pyrender: bool = True, progress: bool = True) -> Comparison:
@@ -72,27 +86,29 @@ def compare(scene: Scene, spp: int = 64, seed: int = 0, max_depth: int = -1, pyr
         spp: samples per pixel of the Monte Carlo images.
         max_depth: of the full ``path`` image (-1: unbounded, ended by Russian roulette).
         pyrender: include the rasterized baseline (needs pyrender and an EGL/OSMesa context); if it
-            fails the comparison goes on without it and says why.
+            cannot run, the comparison goes on without it and says why.
+    Raises:
+        ParameterError: bad ``spp``, ``seed`` or ``max_depth`` (checked before anything is rendered).
     """
+    RenderSettings(spp=spp, seed=seed, max_depth=max_depth)  # validates before the first render
     eps0 = scene.params[AMBIENT].detach() if AMBIENT in scene.params else torch.zeros(3)
-    kw = dict(spp=spp, seed=seed, progress=progress)
     with torch.no_grad():
         images, error = {}, None
         if pyrender:
             from invrender.baseline.pyrender_baseline import pyrender_render
-            from invrender.errors import InvRenderError
 
             try:
                 images["pyrender"] = pyrender_render(scene, ambient=eps0).cpu()
-            except InvRenderError as e:
+            except BaselineError as e:
                 error = str(e)
-        images["utah"] = render(scene, "utah", **kw).cpu()
-        images["path, max_depth 2"] = render(scene, "path", max_depth=2, **kw).cpu()
-        full = render(scene, "path", max_depth=max_depth, **kw).cpu()
-        eps0_fit = fit_ambient(scene, full, spp, seed)
-        images["utah, eps0 fitted"] = render(scene.with_ambient(eps0_fit), "utah", **kw).cpu()
+        u0, R = (x.cpu() for x in utah_affine(scene, spp, seed))
+        images["utah"] = u0 + R * eps0.cpu()
+        images["path, max_depth 2"] = render(scene, "path", max_depth=2, spp=spp, seed=seed, progress=progress).cpu()
+        full = render(scene, "path", max_depth=max_depth, spp=spp, seed=seed, progress=progress).cpu()
+        eps0_fit = least_squares_ambient(u0, R, full)
+        images["utah, eps0 fitted"] = u0 + R * eps0_fit
         images[FULL] = full
-    return Comparison(images, eps0.cpu(), eps0_fit.cpu(), error)
+    return Comparison(images, eps0.cpu(), eps0_fit, error)
 
 
 def format_table(c: Comparison) -> str:

@@ -13,7 +13,6 @@ import dataclasses
 import math
 import os
 import sys
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,11 +23,11 @@ from tqdm.auto import tqdm
 from invrender.errors import ImageError, ParameterError
 from invrender.inverse import params as P
 from invrender.inverse.losses import LOSSES, loss_and_gradient, loss_gradient
-from invrender.inverse.replay import replay_gradient
+from invrender.io.atomic import atomic_file
 from invrender.scene.camera import Camera
 from invrender.scene.scene import Scene
 from invrender.transport.context import INTEGRATORS, RenderSettings
-from invrender.transport.render import ESTIMATORS, render
+from invrender.transport.render import ESTIMATORS, backpropagate, render
 
 CHECKPOINT_FORMAT = 1
 
@@ -211,22 +210,15 @@ def _view_loss(view_scene: Scene, values, target, cfg: FitSettings, step: int, v
     spp = cfg.spp_at(step)
     seed = cfg.seed * 1_000_003 + 2 * (step * n_views + view)
     kw = dict(integrator=cfg.integrator, spp=spp, max_depth=cfg.max_depth, progress=False)
-    if cfg.decorrelate and cfg.estimator == "replay":
-        # the differentiated image's values are never needed, only its replayed adjoint: skip its forward render
-        with torch.no_grad():
-            residual = render(work, seed=seed + 1, **kw)
-        dl_dI, value = loss_gradient(cfg.loss, target, residual)
-        settings = RenderSettings(seed=seed, **kw)
-        grads = replay_gradient(work, settings, work.device, {k: v.detach() for k, v in values.items()}, dl_dI / n_views)
-        torch.autograd.backward([values[k] for k in grads], [grads[k].to(values[k].dtype) for k in grads])
-        return value / n_views
-    image = render(work, seed=seed, estimator=cfg.estimator, **kw)
-    if cfg.decorrelate:
-        with torch.no_grad():
-            residual = render(work, seed=seed + 1, **kw)
-    else:
-        residual = image
-    return loss_and_gradient(cfg.loss, target, residual, image / n_views) / n_views
+    if not cfg.decorrelate:
+        image = render(work, seed=seed, estimator=cfg.estimator, **kw)
+        return loss_and_gradient(cfg.loss, target, image, image / n_views) / n_views
+    # dl/dI from one render, differentiated through another (independent seed): unbiased (losses.py)
+    with torch.no_grad():
+        residual = render(work, seed=seed + 1, **kw)
+    dl_dI, value = loss_gradient(cfg.loss, target, residual)
+    backpropagate(work, dl_dI / n_views, RenderSettings(seed=seed, **kw), cfg.estimator)
+    return value / n_views
 
 
 def _record(step, loss, spp, seconds, names, raw, truth) -> dict:
@@ -287,14 +279,8 @@ def _save_checkpoint(path: Path, scene, names, cfg, raw, optimizer, step, histor
         "optimizer": optimizer.state_dict(),
         "history": history,
     }
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    os.close(fd)
-    try:
-        torch.save(state, tmp)
-        os.replace(tmp, path)
-    finally:
-        Path(tmp).unlink(missing_ok=True)
+    with atomic_file(path) as f:
+        torch.save(state, f)
 
 
 def _load_checkpoint(path: Path, scene, names, cfg, raw, optimizer) -> tuple[int, list[dict]]:

@@ -9,8 +9,9 @@ bright ones on HDR images; the weights are fixed, so the objective stays an unbi
 image supplies both factors, their noise is correlated and the product is biased: for
 ``l = 1/2 (I - T)^2`` the bias of the gradient is ``Cov(I, dI/dtheta) / N`` per pixel (in the furnace,
 ``dl/deps`` is biased by ``eps rho / ((1 - rho)^2 N)`` at N samples per pixel; REFERENCES.md).
-:func:`loss_and_gradient` with ``decorrelate=True`` evaluates ``dl/dI`` on one image and
-differentiates an independent one (another seed), which makes the gradient unbiased.
+Taking ``dl/dI`` from one image (:func:`loss_gradient`) and differentiating an independent one
+(another seed; :func:`loss_and_gradient` with two images, or
+:func:`invrender.transport.render.backpropagate`, which ``fit`` uses) makes the gradient unbiased.
 """
 
 from __future__ import annotations

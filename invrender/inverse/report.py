@@ -4,11 +4,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
-import tempfile
-from pathlib import Path
 
 from invrender.inverse.fit import FitResult
+from invrender.io.atomic import atomic_file
 
 
 def report_dict(result: FitResult, **extra) -> dict:
@@ -37,15 +35,8 @@ def write_json(path, data: dict) -> None:
 
 def write_text(path, text: str) -> None:
     """Atomically write ``text`` (temp file + rename: never a half-written file)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    finally:
-        Path(tmp).unlink(missing_ok=True)
+    with atomic_file(path) as f:
+        f.write(text.encode("utf-8"))
 
 
 def study_table(results: dict[str, FitResult], truth: dict) -> tuple[str, dict]:
@@ -117,16 +108,11 @@ def plot_history(result: FitResult, path) -> None:
 
 
 def save_figure(fig, path) -> None:
-    """Write a matplotlib figure to the PNG ``path`` atomically (temp file + rename), then close it."""
+    """Write a matplotlib figure to the PNG ``path`` atomically, then close it."""
     import matplotlib.pyplot as plt
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".png", dir=path.parent)
-    os.close(fd)
     try:
-        fig.savefig(tmp, dpi=110)
-        os.replace(tmp, path)
+        with atomic_file(path) as f:
+            fig.savefig(f, format="png", dpi=110)
     finally:
         plt.close(fig)
-        Path(tmp).unlink(missing_ok=True)

@@ -94,6 +94,28 @@ def render(
     return render_image(scene, settings, device)
 
 
+def backpropagate(scene: Scene, grad_image: torch.Tensor, settings: RenderSettings, estimator: str = "replay", device=None) -> None:
+    """Add ``<grad_image, dI/dtheta>`` to the gradient of every ``scene.params`` entry that requires
+    grad, I being the image :func:`render` returns for ``settings``.
+
+    What ``render(...).backward(grad_image)`` does, without the image: ``replay`` re-traces the
+    paths in its backward pass only, so no forward render is spent (a decorrelated loss gradient
+    takes ``grad_image = dl/dI`` from another render); ``autodiff`` has to record a forward render.
+    ``grad_image``: (H, W, 3).
+    """
+    if estimator not in ESTIMATORS:
+        raise ParameterError(f"unknown estimator {estimator!r} (known: {', '.join(ESTIMATORS)})")
+    device = torch.device(device) if device is not None else scene.device
+    if estimator == "autodiff":
+        render_image(scene, settings, device).backward(grad_image)
+        return
+    from invrender.inverse.replay import replay_gradient
+
+    values = {k: v for k, v in scene.params.items() if v.requires_grad}
+    grads = replay_gradient(scene, settings, device, {k: v.detach() for k, v in values.items()}, grad_image)
+    torch.autograd.backward(list(values.values()), [grads[k].to(v.device, v.dtype) for k, v in values.items()])
+
+
 def render_image(scene: Scene, settings: RenderSettings, device: torch.device, params: dict | None = None) -> torch.Tensor:
     """The image of :func:`render`, recording autograd where a parameter requires grad
     (``params`` overrides ``scene.params`` values)."""
@@ -146,34 +168,6 @@ def for_each_chunk(scene: Scene, settings: RenderSettings, device: torch.device,
             except BaseException:
                 stop.set()
                 raise
-
-
-def release_freed_memory(device: torch.device) -> None:
-    """Hand the heap pages a finished chunk freed back to the OS (glibc ``malloc_trim``).
-
-    Chunk-sized tensors are allocated and freed over and over; glibc keeps freed blocks of that size
-    in its heap, which fragments a little more with every chunk, so without this peak memory creeps
-    up with the number of chunks, i.e. with spp (measured: +34% from 16 to 256 spp for a replayed
-    gradient at 128x128, +15% with it after every chunk). Returned pages are faulted in again by the
-    next chunk, which costs up to 20% of a render's time if done after every chunk, so only path
-    replay, whose point is flat memory, calls it, and only every few chunks.
-    """
-    if device.type == "cpu" and _LIBC is not None:
-        _LIBC.malloc_trim(0)
-
-
-def _load_libc():
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL("libc.so.6")
-        libc.malloc_trim  # glibc only  # noqa: B018
-        return libc
-    except (OSError, AttributeError):
-        return None
-
-
-_LIBC = _load_libc() if sys.platform.startswith("linux") else None
 
 
 def cpu_workers(device: torch.device) -> int:
