@@ -15,6 +15,7 @@ changes the next render.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import warnings
 from collections.abc import Sequence
@@ -109,15 +110,15 @@ class Scene:
     def to(self, device) -> "Scene":
         """This scene on ``device`` (parameters moved as new leaf tensors keeping requires_grad)."""
         params = {k: v.detach().to(device).requires_grad_(v.requires_grad) for k, v in self.params.items()}
-        return Scene(self.triangles.to(device), self.materials, self.emitters, self.camera, self.resolution, params, self.name)
+        return dataclasses.replace(self, triangles=self.triangles.to(device), params=params)
 
     def with_resolution(self, resolution) -> "Scene":
         """The same scene (sharing geometry and parameter tensors) at another resolution."""
-        return Scene(self.triangles, self.materials, self.emitters, self.camera, check_resolution(resolution), self.params, self.name)
+        return dataclasses.replace(self, resolution=check_resolution(resolution))
 
     def with_camera(self, camera: Camera) -> "Scene":
         """The same scene (sharing geometry and parameter tensors) seen from another camera."""
-        return Scene(self.triangles, self.materials, self.emitters, camera, self.resolution, self.params, self.name)
+        return dataclasses.replace(self, camera=camera)
 
     def with_ambient(self, eps0) -> "Scene":
         """The same scene (sharing geometry and the other parameters) with ambient radiance ``eps0``
@@ -127,7 +128,7 @@ class Scene:
             params[AMBIENT] = check_param_value(AMBIENT, eps0)
             if params[AMBIENT].ndim != 1:
                 raise ParameterError(f"{AMBIENT} must be an RGB triple or one number, not a texture")
-        return Scene(self.triangles, self.materials, self.emitters, self.camera, self.resolution, params, self.name)
+        return dataclasses.replace(self, params=params)
 
     def reflectance_of(self, material: int) -> torch.Tensor:
         return self.params[f"{self.materials[material]}.reflectance"]
