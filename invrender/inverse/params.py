@@ -18,6 +18,7 @@ import warnings
 import torch
 
 from invrender.errors import ParameterError
+from invrender.scene.scene import AMBIENT
 
 RHO_MIN = 1e-4
 EPS_MIN = 1e-6
@@ -31,6 +32,8 @@ def check_names(params, names) -> list[str]:
     if not names:
         raise ParameterError("no parameters to fit were given")
     unknown = [n for n in names if n not in params]
+    if AMBIENT in unknown:
+        raise ParameterError(f"the scene has no {AMBIENT} to fit: give it a starting value (--init {AMBIENT}=0.05, a recipe's [init], or load_scene(..., ambient=0.05))")
     if unknown:
         raise ParameterError(f"unknown parameter {unknown[0]!r} (known: {', '.join(params)})")
     if len(set(names)) != len(names):
