@@ -11,7 +11,6 @@ the throughput and the ratio. Figures are printed, never asserted.
 from __future__ import annotations
 
 import argparse
-import resource
 import statistics
 import sys
 import time
@@ -20,6 +19,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).parent))
 
 import mitsuba_ref  # noqa: E402
+from _measure import peak_rss_mib  # noqa: E402
 
 import invrender as ir  # noqa: E402
 
@@ -49,7 +49,7 @@ def throughput(args) -> None:
     print(f"  invrender path (embree):             {t:.3f} s  {samples / t / 1e6:.3f} M path samples/s")
     if with_mitsuba:
         tm = statistics.median(mi_times)
-        print(f"  Mitsuba {mitsuba_ref.version()} {mitsuba_ref.VARIANT} path:     {tm:.3f} s  {samples / tm / 1e6:.3f} M path samples/s")
+        print(f"  {mitsuba_ref.label()} path:     {tm:.3f} s  {samples / tm / 1e6:.3f} M path samples/s")
         print(f"  ratio invrender / Mitsuba throughput: {tm / t:.3f}x")
     else:
         print("  (Mitsuba 3 not installed: no ratio; see bench/README.md)")
@@ -60,8 +60,7 @@ def memory(args) -> None:
     start = time.perf_counter()
     img = ir.render(scene, spp=args.memory_spp, max_depth=args.max_depth, seed=0, progress=True)
     seconds = time.perf_counter() - start
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    print(f"Cornell box 64x64, {args.memory_spp} spp, max_depth {args.max_depth}: {seconds:.1f} s, peak RSS {peak:.0f} MiB, mean RGB {img.mean(dim=(0, 1)).tolist()}")
+    print(f"Cornell box 64x64, {args.memory_spp} spp, max_depth {args.max_depth}: {seconds:.1f} s, peak RSS {peak_rss_mib():.0f} MiB, mean RGB {img.mean(dim=(0, 1)).tolist()}")
 
 
 def main() -> int:

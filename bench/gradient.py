@@ -11,9 +11,9 @@ parameters are then halved (Mitsuba's ``perturb=0.5``), so the gradient is far f
 gradient is forward + backward (for invrender: ``render`` + ``mse_loss(...).backward()``).
 
 Every configuration runs in its own fresh subprocess (``--child``), which reports as JSON its peak
-RSS (``VmHWM``; see ``peak_rss_mib``) and its RSS after the imports, the scene load and the target
-load but before the first gradient. The *increment* (peak minus that baseline) is the gradient's own memory;
-the absolute peak also counts torch/Dr.Jit and their libraries. Tables:
+RSS (``VmHWM``; see ``_measure.peak_rss_mib``) and its RSS after the imports, the scene load and
+the target load but before the first gradient. The *increment* (peak minus that baseline) is the
+gradient's own memory; the absolute peak also counts torch/Dr.Jit and their libraries. Tables:
 
 1. the main problem for invrender ``autodiff`` and ``replay`` and, when installed, Mitsuba 3
    ``prb`` (path replay) and ``path`` (plain AD): one warm-up gradient, then the median time of
@@ -30,12 +30,9 @@ printed as "failed". Figures are printed, never asserted.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
-import resource
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -44,48 +41,20 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).parent))
 
 import mitsuba_ref  # noqa: E402
+from _measure import ChildError, peak_rss_mib, print_json, rss_mib, run_json_child  # noqa: E402
 
 PARAMS = ("white.reflectance", "red.reflectance", "green.reflectance", "light.emission")
 MI_PARAMS = ("white", "red", "green", "light")  # the same four, as named in mitsuba_ref.PARAM_KEYS
 PERTURB = 0.5  # differentiated values = ground truth * PERTURB (target: ground truth)
 TARGET_SEED = 1000  # Mitsuba's target seed (seed + 1000 with seed 0)
-_JSON_TAG = "GRADIENT_BENCH_JSON "
 
-
-def _status_mib(field: str) -> float | None:
-    """``VmRSS`` / ``VmHWM`` of this process from /proc/self/status, MiB (None where unavailable)."""
-    try:
-        with open("/proc/self/status") as fh:
-            for line in fh:
-                if line.startswith(field + ":"):
-                    return int(line.split()[1]) / 1024  # kB
-    except OSError:
-        pass
-    return None
-
-
-def rss_mib() -> float:
-    """Current resident set size of this process, MiB."""
-    value = _status_mib("VmRSS")
-    return peak_rss_mib() if value is None else value
-
-
-def peak_rss_mib() -> float:
-    """Peak resident set size of this process, MiB.
-
-    ``VmHWM`` (the high-water mark of this program's own address space) rather than ``ru_maxrss``:
-    on Linux ``ru_maxrss`` survives fork + exec, so a child started by a parent that already holds
-    torch and a rendered target would report at least the parent's RSS.
-    """
-    value = _status_mib("VmHWM")
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 if value is None else value  # KiB on Linux
 
 # --------------------------------------------------------------------------------------- children
 
 
 def child(args) -> dict:
-    """One configuration in this (fresh) process; the figures as a dict."""
-    if args.kind in ("prb", "path"):
+    """One configuration (``args.child``) in this (fresh) process; the figures as a dict."""
+    if args.child in ("prb", "path"):
         return _child_mitsuba(args)
     import torch
 
@@ -105,7 +74,7 @@ def child(args) -> dict:
         for name in PARAMS:
             scene.params[name].grad = None
         start = time.perf_counter()
-        img = ir.render(scene, spp=args.spp, max_depth=args.max_depth, seed=seed, estimator=args.kind, progress=False)
+        img = ir.render(scene, spp=args.spp, max_depth=args.max_depth, seed=seed, estimator=args.child, progress=False)
         loss = torch.nn.functional.mse_loss(img, target)
         loss.backward()
         seconds = time.perf_counter() - start
@@ -115,7 +84,7 @@ def child(args) -> dict:
     runs = [once(i + 1) for i in range(args.repeats)]
     times = [r[0] for r in runs]
     return {
-        "kind": args.kind,
+        "kind": args.child,
         "seconds": statistics.median(times),
         "all_seconds": times,
         "warmup_seconds": warmup,
@@ -132,23 +101,23 @@ def _child_mitsuba(args) -> dict:
     if not mitsuba_ref.available():
         raise RuntimeError("Mitsuba 3 is not available")
     n = args.resolution
-    mitsuba_ref.cornell_scene(n, n, args.spp, args.max_depth, integrator=args.kind)  # loads the plugins
+    mitsuba_ref.cornell_scene(n, n, args.spp, args.max_depth, integrator=args.child)  # loads the plugins
     baseline = rss_mib()
-    res = mitsuba_ref._gradient_in_process(n, n, args.spp, args.max_depth, args.kind, MI_PARAMS, args.repeats, 0, PERTURB)
-    if args.warmup == 0:
-        res["note"] = "mitsuba_ref always takes one warm-up gradient"
-    return {
-        "kind": args.kind,
+    res = mitsuba_ref.gradient_in_process(n, n, args.spp, args.max_depth, args.child, MI_PARAMS, args.repeats, 0, PERTURB)
+    out = {
+        "kind": args.child,
         "seconds": res["seconds"],
         "all_seconds": res["all_seconds"],
         "warmup_seconds": [res["warmup_seconds"]],
         "baseline_rss_mib": baseline,
-        "peak_rss_mib": peak_rss_mib(),  # not the helper's ru_maxrss: see peak_rss_mib()
-        "ru_maxrss_mib": res["peak_rss_mib"],
+        "peak_rss_mib": res["peak_rss_mib"],  # this process's VmHWM, like the invrender children's
         "loss": res["loss"],
         "grads": {name: res["grads"][mi] for name, mi in zip(PARAMS, MI_PARAMS)},
         "mitsuba": res["mitsuba"],
     }
+    if args.warmup == 0:
+        out["note"] = "mitsuba_ref always takes one warm-up gradient"
+    return out
 
 
 def run_child(kind: str, resolution: int, spp: int, max_depth: int, repeats: int, warmup: int, target: str | None, timeout: float) -> dict:
@@ -159,17 +128,11 @@ def run_child(kind: str, resolution: int, spp: int, max_depth: int, repeats: int
     ]  # fmt: skip
     start = time.perf_counter()
     try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
-    except subprocess.TimeoutExpired:
-        return {"failed": f"timeout after {timeout:g} s"}
-    for line in reversed(proc.stdout.splitlines()):
-        if line.startswith(_JSON_TAG):
-            res = json.loads(line[len(_JSON_TAG) :])
-            res["child_seconds"] = time.perf_counter() - start
-            return res
-    why = "killed (out of memory?)" if proc.returncode in (-9, 137) else f"exit {proc.returncode}"
-    tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or [""]
-    return {"failed": f"{why}: {tail[0][:160]}"}
+        res = run_json_child(cmd, timeout)
+    except ChildError as e:
+        return {"failed": str(e)}
+    res["child_seconds"] = time.perf_counter() - start
+    return res
 
 
 # --------------------------------------------------------------------------------------- parent
@@ -186,7 +149,7 @@ def machine_info() -> str:
         pass
     mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
     load = " ".join(f"{x:.2f}" for x in os.getloadavg())
-    mi = f"Mitsuba {mitsuba_ref.version()} {mitsuba_ref.VARIANT}" if mitsuba_ref.available() else "Mitsuba 3 not installed"
+    mi = mitsuba_ref.label() if mitsuba_ref.available() else "Mitsuba 3 not installed"
     return f"{cpu}, {len(os.sched_getaffinity(0))} cores, {mem:.1f} GiB; torch {torch.__version__}; {mi}; load average {load}"
 
 
@@ -213,19 +176,17 @@ class Targets:
         return self.paths[key]
 
 
-def _fmt(res: dict | None, width: int = 7) -> tuple[str, str, str, str]:
-    """(time, peak, increment, note) columns of a child's result."""
-    if res is None:
-        return ("-".rjust(width), "-".rjust(width), "-".rjust(width), "")
+def increment(res: dict) -> float | None:
+    """Peak RSS minus the RSS before the first gradient, MiB (None for a failed child)."""
+    return None if "failed" in res else res["peak_rss_mib"] - res["baseline_rss_mib"]
+
+
+def _fmt(res: dict) -> tuple[str, str, str, str]:
+    """(time, peak, increment, note) columns of a child's result, 7 characters wide."""
     if "failed" in res:
         word = "skipped" if res["failed"].startswith("skipped") else "failed"
-        return (word.rjust(width), "-".rjust(width), "-".rjust(width), res["failed"])
-    inc = res["peak_rss_mib"] - res["baseline_rss_mib"]
-    return (f"{res['seconds']:{width}.3f}", f"{res['peak_rss_mib']:{width}.0f}", f"{inc:{width}.0f}", "")
-
-
-def increment(res: dict | None) -> float | None:
-    return None if not res or "failed" in res else res["peak_rss_mib"] - res["baseline_rss_mib"]
+        return (f"{word:>7}", f"{'-':>7}", f"{'-':>7}", res["failed"])
+    return (f"{res['seconds']:7.3f}", f"{res['peak_rss_mib']:7.0f}", f"{increment(res):7.0f}", "")
 
 
 def _grad_vector(res: dict) -> list[float]:
@@ -286,11 +247,10 @@ def median_child(results: list[dict]) -> dict:
         return results[0]
     res = dict(ok[(len(ok) - 1) // 2])
     res["seconds"] = statistics.median(r["seconds"] for r in ok)
-    res["increments"] = [increment(r) for r in ok]
     return res
 
 
-def sweep_table(title: str, column: str, points: list[int], config, skip_autodiff, args) -> None:
+def sweep_table(title: str, column: str, points: list[int], config, skip_autodiff, args, targets: Targets) -> None:
     """One row per point: replay and autodiff time / peak / increment (one gradient per child; the
     child of median increment among ``--memory-repeats``)."""
     print(f"\n{title}; the median increment of {args.memory_repeats} process(es) per point")
@@ -302,7 +262,7 @@ def sweep_table(title: str, column: str, points: list[int], config, skip_autodif
             if kind == "autodiff" and skip_autodiff(x):
                 res[kind] = {"failed": f"skipped (spp > --max-autodiff-spp {args.max_autodiff_spp})"}
                 continue
-            target = args.targets(args.resolution, depth)
+            target = targets(args.resolution, depth)
             res[kind] = median_child([run_child(kind, args.resolution, spp, depth, 1, 0, target, args.timeout) for _ in range(args.memory_repeats)])
         rows[x] = res
         r, a = _fmt(res["replay"]), _fmt(res["autodiff"])
@@ -335,10 +295,7 @@ def main() -> int:
     args = parser.parse_args()
 
     if args.child:
-        args.kind = args.child
-        res = child(args)
-        sys.stdout.flush()
-        print(_JSON_TAG + json.dumps(res), flush=True)
+        print_json(child(args))
         return 0
 
     if args.quick:
@@ -353,18 +310,18 @@ def main() -> int:
           f"increment = peak RSS - RSS before the first gradient")  # fmt: skip
     start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="invrender-gradient-bench-") as folder:
-        args.targets = targets = Targets(folder, args.spp)
+        targets = Targets(folder, args.spp)
         if 1 in args.tables:
             main_table(args, targets, with_mitsuba)
         if 2 in args.tables:
             sweep_table(
                 f"2. memory vs spp: one gradient, {n}x{n}, max_depth {args.max_depth}", "spp", args.sweep_spp,
-                lambda s: (s, args.max_depth), lambda s: s > args.max_autodiff_spp, args,
+                lambda s: (s, args.max_depth), lambda s: s > args.max_autodiff_spp, args, targets,
             )  # fmt: skip
         if 3 in args.tables:
             sweep_table(
                 f"3. memory vs max_depth: one gradient, {n}x{n}, {args.spp} spp", "max_depth", args.sweep_depth,
-                lambda d: (args.spp, d), lambda d: False, args,
+                lambda d: (args.spp, d), lambda d: False, args, targets,
             )  # fmt: skip
     print(f"\n(total {time.perf_counter() - start:.0f} s)")
     return 0

@@ -30,15 +30,15 @@ def main() -> int:
         return 0
     n = args.resolution
     scene = ir.load_scene("cornell_box", resolution=(n, n))
-    print(f"Cornell box {n}x{n}, {args.spp} spp, box filter; Mitsuba {mitsuba_ref.version()} {mitsuba_ref.VARIANT}")
+    print(f"Cornell box {n}x{n}, {args.spp} spp, box filter; {mitsuba_ref.label()}")
     print(f"{'max_depth':>9}  {'invrender RGB mean':>32}  {'Mitsuba 3 RGB mean':>32}  {'rel. diff (%)':>22}")
+    fmt = lambda v: " ".join(f"{x:10.6f}" for x in v)  # noqa: E731
     worst = 0.0
     for depth in args.max_depth:
         ours = ir.render(scene, spp=args.spp, max_depth=depth, seed=0, progress=False).mean(dim=(0, 1)).tolist()
-        theirs = mitsuba_ref.render(mitsuba_ref.cornell_scene(n, n, args.spp, depth), args.spp).mean(axis=(0, 1)).tolist()
+        theirs = mitsuba_ref.render_cornell(n, n, args.spp, depth).mean(axis=(0, 1)).tolist()
         rel = [100 * (a - b) / b for a, b in zip(ours, theirs)]
         worst = max(worst, *map(abs, rel))
-        fmt = lambda v: " ".join(f"{x:10.6f}" for x in v)  # noqa: E731
         print(f"{depth:>9}  {fmt(ours):>32}  {fmt(theirs):>32}  {' '.join(f'{r:+6.3f}' for r in rel):>22}")
     print(f"largest channel difference: {worst:.3f}% ({'within' if worst < 1 else 'NOT within'} 1%)")
     return 0

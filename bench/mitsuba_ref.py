@@ -14,12 +14,16 @@ API (all renders use the ``llvm_ad_rgb`` variant, independent sampler, box pixel
 
     available() -> bool
     version() -> str
+    label() -> str                                  "Mitsuba 3.9.1 llvm_ad_rgb", for printed headers
     cornell_scene(width, height, spp, max_depth, filter="box", integrator="path") -> mi.Scene
     render(scene, spp, seed=0) -> np.ndarray float32 (H, W, 3), linear RGB
     render_cornell(width, height, spp, max_depth, seed=0) -> np.ndarray float32 (H, W, 3)
+    time_render(scene, spp, seed=0) -> seconds of one render
     time_forward(width, height, spp, max_depth, repeats) -> [seconds per render]
+    gradient_in_process(width, height, spp, max_depth, integrator, params, repeats, seed, perturb)
+        -> dict(seconds=..., peak_rss_mib=..., ...), in this process
     time_gradient(width=128, height=128, spp=64, max_depth=8, integrator="prb",
-                  params=("white", "red", "green", "light")) -> dict(seconds=..., peak_rss_mib=..., ...)
+                  params=("white", "red", "green", "light")) -> the same dict, from a fresh subprocess
 
 Command line (from the repository root)::
 
@@ -38,9 +42,10 @@ import json
 import os
 import re
 import statistics
-import subprocess
 import sys
 import time
+
+import _measure
 
 VARIANT = "llvm_ad_rgb"
 MIN_LLVM = 16  # libLLVM 15.0.6 (bookworm's default) aborts in instruction selection on Mitsuba 3.9.1
@@ -62,7 +67,6 @@ PARAM_KEYS = {
     "light": "light.emitter.radiance.value",
 }
 
-_JSON_TAG = "MITSUBA_REF_JSON "
 _mi = _dr = None
 
 
@@ -116,6 +120,11 @@ def version() -> str:
     return _mi.__version__ if available() else "unavailable"
 
 
+def label() -> str:
+    """``"Mitsuba <version> llvm_ad_rgb"``: how the scripts name this reference in their output."""
+    return f"Mitsuba {version()} {VARIANT}"
+
+
 def _require():
     if not available():
         raise RuntimeError("Mitsuba 3 (llvm_ad_rgb) is not available; see bench/mitsuba_ref.py for the install steps")
@@ -135,13 +144,18 @@ def cornell_scene(width: int, height: int, spp: int, max_depth: int, filter: str
     return mi.load_dict(d)
 
 
-def render(scene, spp: int, seed: int = 0):
-    """(H, W, 3) numpy float32 linear RGB of a loaded scene, evaluated and synchronized."""
+def _render_synced(scene, spp: int, seed: int):
+    """``mi.render`` of a loaded scene (a Dr.Jit tensor), evaluated and finished."""
     mi, dr = _require()
     img = mi.render(scene, spp=spp, seed=seed)
     dr.eval(img)
     dr.sync_thread()
-    return img.numpy()[..., :3].astype("float32", copy=False)
+    return img
+
+
+def render(scene, spp: int, seed: int = 0):
+    """(H, W, 3) numpy float32 linear RGB of a loaded scene, evaluated and synchronized."""
+    return _render_synced(scene, spp, seed).numpy()[..., :3].astype("float32", copy=False)
 
 
 def render_cornell(width: int, height: int, spp: int, max_depth: int, seed: int = 0):
@@ -151,11 +165,8 @@ def render_cornell(width: int, height: int, spp: int, max_depth: int, seed: int 
 
 def time_render(scene, spp: int, seed: int = 0) -> float:
     """Seconds for one forward render of a loaded scene, the clock stopped after Dr.Jit has finished."""
-    mi, dr = _require()
     start = time.perf_counter()
-    img = mi.render(scene, spp=spp, seed=seed)
-    dr.eval(img)
-    dr.sync_thread()
+    _render_synced(scene, spp, seed)
     return time.perf_counter() - start
 
 
@@ -167,25 +178,18 @@ def time_forward(width: int, height: int, spp: int, max_depth: int, repeats: int
     return [time_render(scene, spp, seed=i + 1) for i in range(repeats)]
 
 
-def albedo_keys(params) -> dict[str, str]:
-    """The keys of ``PARAM_KEYS`` present in ``params`` (a ``mi.traverse`` result)."""
-    return {name: key for name, key in PARAM_KEYS.items() if key in params}
-
-
-def _gradient_in_process(width, height, spp, max_depth, integrator, params, repeats, seed, perturb) -> dict:
+def gradient_in_process(width, height, spp, max_depth, integrator, params, repeats, seed, perturb) -> dict:
     """Gradient of mean((render - target)^2) w.r.t. the named parameters, timed in this process.
 
     The target is rendered once at the same settings (seed ``seed + 1000``) with the scene's own
     values; the differentiated values are then multiplied by ``perturb`` (1.0: unchanged). One
     warm-up gradient compiles the kernels; ``repeats`` timed ones follow (seeds seed+1, ...).
+    ``peak_rss_mib`` is this process's peak so far (``_measure.peak_rss_mib``), so it counts whatever
+    the caller held before; ``time_gradient`` runs this in a fresh process and describes the dict.
     """
-    import resource
-
     mi, dr = _require()
     scene = cornell_scene(width, height, spp, max_depth, integrator=integrator)
-    target = mi.render(scene, spp=spp, seed=seed + 1000)
-    dr.eval(target)
-    dr.sync_thread()
+    target = _render_synced(scene, spp, seed + 1000)
     p = mi.traverse(scene)
     unknown = [n for n in params if n not in PARAM_KEYS or PARAM_KEYS[n] not in p]
     if unknown:
@@ -218,7 +222,7 @@ def _gradient_in_process(width, height, spp, max_depth, integrator, params, repe
         "seconds": statistics.median(times),
         "all_seconds": times,
         "warmup_seconds": warmup,
-        "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "peak_rss_mib": _measure.peak_rss_mib(),
         "loss": loss,
         "grads": {n: [float(v) for v in g.numpy().ravel()] for n, g in zip(params, grads)},
         "integrator": integrator,
@@ -245,12 +249,12 @@ def time_gradient(
 ) -> dict:
     """Time one gradient of an L2 loss against a fixed target w.r.t. the white, red, green
     reflectances and the light's radiance, in a fresh subprocess so that ``peak_rss_mib`` (the
-    child's ``ru_maxrss``) is this gradient's alone.
+    child's ``VmHWM``) counts this gradient, Mitsuba and Python, not the caller.
 
     ``integrator``: ``"prb"`` (``mi.ad.integrators`` path replay) or ``"path"`` (plain AD through
     the C++ path tracer). Returns ``dict(seconds=median of the timed gradients, peak_rss_mib=...,
     warmup_seconds=..., all_seconds=[...], loss=..., grads={name: [r, g, b]}, ...)``; raises
-    RuntimeError when the child fails.
+    RuntimeError when the child fails or times out.
     """
     cmd = [
         sys.executable, os.path.abspath(__file__), "grad", "--json",
@@ -260,16 +264,10 @@ def time_gradient(
     ]  # fmt: skip
     if not os.environ.get("DRJIT_LIBLLVM_PATH"):
         available()  # picks the libLLVM so that the child inherits DRJIT_LIBLLVM_PATH
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
-    for line in reversed(proc.stdout.splitlines()):
-        if line.startswith(_JSON_TAG):
-            return json.loads(line[len(_JSON_TAG):])
-    raise RuntimeError(f"Mitsuba gradient subprocess failed (exit {proc.returncode}):\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}")
-
-
-def gradient_seconds(width: int, height: int, spp: int, max_depth: int, integrator: str = "prb", seed: int = 0) -> float:
-    """Seconds of one gradient (after a warm-up) in this process; see ``time_gradient``."""
-    return _gradient_in_process(width, height, spp, max_depth, integrator, tuple(PARAM_KEYS), 1, seed, 1.0)["seconds"]
+    try:
+        return _measure.run_json_child(cmd, timeout)
+    except _measure.ChildError as e:
+        raise RuntimeError(f"Mitsuba gradient subprocess failed ({e}):\n{e.stdout[-2000:]}\n{e.stderr[-2000:]}") from None
 
 
 def channel_means(width: int, height: int, spp: int, max_depths=(8, 2, 1), seed: int = 0) -> dict[int, list[float]]:
@@ -313,12 +311,12 @@ def _main(argv=None) -> int:
         n = args.resolution
         times = time_forward(n, n, args.spp, args.max_depth, args.repeats)
         t = statistics.median(times)
-        print(f"Mitsuba {version()} {VARIANT} path, Cornell box {n}x{n}, {args.spp} spp, max_depth {args.max_depth}")
+        print(f"{label()} path, Cornell box {n}x{n}, {args.spp} spp, max_depth {args.max_depth}")
         print(f"  times: {' '.join(f'{x:.3f}' for x in times)} s; median {t:.4f} s = {n * n * args.spp / t / 1e6:.4g} M path samples/s")
     elif args.cmd == "means":
         n = args.resolution
         means = channel_means(n, n, args.spp, args.max_depth, args.seed)
-        print(f"Mitsuba {version()} {VARIANT} path, Cornell box {n}x{n}, {args.spp} spp, box filter, seed {args.seed}")
+        print(f"{label()} path, Cornell box {n}x{n}, {args.spp} spp, box filter, seed {args.seed}")
         for d, rgb in means.items():
             print(f"  max_depth {d}: R {rgb[0]:.6g}  G {rgb[1]:.6g}  B {rgb[2]:.6g}")
         if args.write:
@@ -338,9 +336,7 @@ def _main(argv=None) -> int:
         kw = dict(width=args.width, height=args.height, spp=args.spp, max_depth=args.max_depth, integrator=args.integrator,
                   params=tuple(args.params), repeats=args.repeats, seed=args.seed, perturb=args.perturb)  # fmt: skip
         if args.json:
-            res = _gradient_in_process(**kw)
-            sys.stdout.flush()
-            print(_JSON_TAG + json.dumps(res), flush=True)
+            _measure.print_json(gradient_in_process(**kw))
         else:
             res = time_gradient(**kw)
             print(f"Mitsuba {res['mitsuba']} {VARIANT} {res['integrator']} gradient, Cornell box {res['width']}x{res['height']}, "
