@@ -310,7 +310,7 @@ def run_fit(args) -> int:
         if not (data / "manifest.json").is_file():
             if not args.quiet:
                 print(f"rendering the dataset {recipe.dataset.path} into {data}", file=sys.stderr)
-            make_dataset(recipe.dataset.path, data, progress=not args.quiet)
+            make_dataset(recipe.dataset, data, progress=not args.quiet)
         scene, targets, cameras, truth = load_dataset(data)
         names, init = recipe.params, {**recipe.init, **parse_init(args.init)}
         settings = {**recipe.settings, **settings}

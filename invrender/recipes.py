@@ -42,23 +42,25 @@ Fit recipe::
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import re
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 
-from invrender.errors import InvRenderError, ParameterError, SceneError
+from invrender.errors import ParameterError, SceneError
 from invrender.scene import load_scene
 from invrender.scene.camera import Camera
+from invrender.scene.loaders import camera_from_table
+from invrender.scene.toml_values import check_keys, integer, read_toml, table, vector
 from invrender.scene.scene import AMBIENT, Scene, check_param_value
 
 DATASET_KEYS = {"scene", "resolution", "spp", "max_depth", "seed", "randomize", "set", "views"}
 FIT_KEYS = {"dataset", "params", "init", "fit", "variants"}
 VARIANT_KEYS = {"label", "params", "init"}
-CAMERA_KEYS = {"origin", "target", "up", "fov", "fov_axis"}
+KINDS = ("reflectance", "emission")  # [init] keys that start every fitted parameter of that kind
 
 
 @dataclass(frozen=True)
@@ -77,25 +79,25 @@ class DatasetRecipe:
 
 
 @dataclass(frozen=True)
-class FitRecipe:
-    """A parsed fit recipe (see the module docstring)."""
+class FitChoices:
+    """What one fit fits and how, as a fit recipe and each of its variants give it.
 
-    path: Path
-    dataset: DatasetRecipe
+    Attributes:
+        params: names of the fitted parameters (a variant's: in addition to the recipe's).
+        init: starting values, as :func:`apply_init` takes them (a variant's: over the recipe's).
+        settings: :class:`~invrender.inverse.fit.FitSettings` fields (a variant's: over the recipe's).
+    """
+
     params: list[str]
     init: dict[str, object]
     settings: dict
-    variants: list["FitVariant"] = dataclasses.field(default_factory=list)
 
 
 @dataclass(frozen=True)
-class FitVariant:
-    """One fit of a model study: a label, settings overriding the recipe's, extra parameters."""
+class FitVariant(FitChoices):
+    """One fit of a model study: a label and the choices it adds to the recipe's."""
 
     label: str
-    settings: dict
-    params: list[str]
-    init: dict[str, object]
 
     @property
     def slug(self) -> str:
@@ -103,62 +105,59 @@ class FitVariant:
         return re.sub(r"[^A-Za-z0-9.-]+", "_", self.label).strip("_") or "variant"
 
 
-def _read_toml(path) -> dict:
-    path = Path(path)
-    try:
-        return tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ParameterError(f"recipe not found: {path}") from None
-    except OSError as e:
-        raise ParameterError(f"cannot read recipe {path}: {e.strerror or e}") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise ParameterError(f"{path}: invalid TOML: {e}") from None
+@dataclass(frozen=True)
+class FitRecipe(FitChoices):
+    """A parsed fit recipe (see the module docstring)."""
+
+    path: Path
+    dataset: DatasetRecipe
+    variants: list[FitVariant] = dataclasses.field(default_factory=list)
 
 
-def _check_keys(doc: dict, allowed: set, where: str) -> None:
-    unknown = sorted(set(doc) - allowed)
-    if unknown:
-        raise ParameterError(f"{where}: unknown key {unknown[0]!r} (allowed: {', '.join(sorted(allowed))})")
+def _recipe_errors(parse):
+    """Recipes are checked with the scene format's helpers, which raise SceneError; a bad recipe
+    is a ParameterError (same message, naming the file and key)."""
+
+    @functools.wraps(parse)
+    def checked(path):
+        try:
+            return parse(path)
+        except SceneError as e:
+            raise ParameterError(str(e)) from None
+
+    return checked
 
 
-def _int(doc, key, default, where) -> int:
-    value = doc.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise ParameterError(f"{where}: '{key}' must be an integer, got {value!r}")
-    return value
-
-
+@_recipe_errors
 def load_dataset_recipe(path) -> DatasetRecipe:
+    """A dataset recipe (format in the module docstring); ParameterError naming the file and key."""
     path = Path(path)
-    doc = _read_toml(path)
     where = str(path)
-    _check_keys(doc, DATASET_KEYS, where)
+    doc = read_toml(path, "recipe")
+    check_keys(doc, DATASET_KEYS, where)
     if not isinstance(doc.get("scene"), str):
         raise ParameterError(f"{where}: 'scene' (a built-in name or a scene file) is required")
     scene = doc["scene"]
     if Path(scene).suffix:  # a file, relative to the recipe
         scene = str((path.parent / scene).resolve())
-    resolution = doc.get("resolution", [64, 64])
-    if not (isinstance(resolution, list) and len(resolution) == 2 and all(isinstance(r, int) and r > 0 for r in resolution)):
+    width, height = vector(doc, "resolution", where, length=2) if "resolution" in doc else (64, 64)
+    if not all(r > 0 and r == int(r) for r in (width, height)):
         raise ParameterError(f"{where}: 'resolution' must be [width, height], positive integers")
-    randomize = {}
-    for name, bounds in doc.get("randomize", {}).items():
-        if not (isinstance(bounds, list) and len(bounds) == 2 and all(isinstance(b, (int, float)) for b in bounds) and bounds[0] <= bounds[1]):
-            raise ParameterError(f"{where} [randomize]: '{name}' must be [low, high]")
-        randomize[name] = (float(bounds[0]), float(bounds[1]))
-    views = []
-    for i, v in enumerate(doc.get("views", [])):
-        if not isinstance(v, dict):
-            raise ParameterError(f"{where}: views[{i}] must be a table")
-        _check_keys(v, CAMERA_KEYS, f"{where} views[{i}]")
-        try:
-            views.append(Camera(**v))
-        except (TypeError, ValueError) as e:
-            raise ParameterError(f"{where} views[{i}]: {e}") from None
-    spp, depth = _int(doc, "spp", 1024, where), _int(doc, "max_depth", 8, where)
+    bounds = table(doc, "randomize", where)
+    randomize = {name: tuple(vector(bounds, name, f"{where} [randomize]", length=2)) for name in bounds}
+    for name, (low, high) in randomize.items():
+        if low > high:
+            raise ParameterError(f"{where} [randomize]: '{name}' must be [low, high], low <= high")
+    views = doc.get("views", [])
+    if not isinstance(views, list):
+        raise ParameterError(f"{where}: 'views' must be an array of tables ([[views]])")
+    cameras = [camera_from_table(v, f"{where} views[{i}]") for i, v in enumerate(views)]
+    spp = integer(doc, "spp", where) if "spp" in doc else 1024
     if spp <= 0:
         raise ParameterError(f"{where}: 'spp' must be positive")
-    return DatasetRecipe(path, scene, tuple(resolution), spp, depth, _int(doc, "seed", 0, where), randomize, dict(doc.get("set", {})), views)
+    max_depth = integer(doc, "max_depth", where) if "max_depth" in doc else 8
+    seed = integer(doc, "seed", where) if "seed" in doc else 0
+    return DatasetRecipe(path, scene, (int(width), int(height)), spp, max_depth, seed, randomize, dict(table(doc, "set", where)), cameras)
 
 
 def dataset_scene(recipe: DatasetRecipe) -> Scene:
@@ -174,18 +173,29 @@ def dataset_scene(recipe: DatasetRecipe) -> Scene:
             p = scene.params[name]
             p.copy_(low + (high - low) * torch.rand(p.shape, generator=generator))
             check_param_value(name, p)
-        for name, value in recipe.fixed.items():
-            scene.params[name].copy_(check_param_value(name, value).expand_as(scene.params[name]))
+    for name, value in recipe.fixed.items():
+        set_param(scene, name, value)
     return scene
 
 
-def make_dataset(recipe_path, out, progress: bool = True) -> dict:
-    """Render a dataset recipe into ``out``; returns the manifest."""
+def set_param(scene: Scene, name: str, value) -> None:
+    """Set ``scene.params[name]`` in place to a checked ``value`` (a number, an RGB triple, or a
+    texture of the parameter's own shape); ParameterError naming it otherwise."""
+    param = scene.params[name]
+    t = check_param_value(name, value)
+    if t.shape != param.shape and t.shape != (3,):
+        raise ParameterError(f"{name}: a value of shape {tuple(t.shape)} does not fit the parameter's shape {tuple(param.shape)}")
+    with torch.no_grad():
+        param.copy_(t.expand_as(param))
+
+
+def make_dataset(recipe, out, progress: bool = True) -> dict:
+    """Render a dataset recipe (a :class:`DatasetRecipe` or its path) into ``out``; returns the manifest."""
     from invrender.inverse.report import write_json
     from invrender.io import write_image
     from invrender.transport.render import render
 
-    recipe = load_dataset_recipe(recipe_path)
+    recipe = recipe if isinstance(recipe, DatasetRecipe) else load_dataset_recipe(recipe)
     scene = dataset_scene(recipe)
     out = Path(out)
     cameras = recipe.views or [scene.camera]
@@ -222,64 +232,76 @@ def load_dataset(directory) -> tuple[Scene, list[torch.Tensor], list[Camera], di
         raise ParameterError(f"not a dataset folder (no {Path(e.filename).name}): {directory}") from None
     except (OSError, ValueError) as e:
         raise ParameterError(f"cannot read dataset {directory}: {e}") from None
-    scene = load_scene(manifest["scene"], resolution=tuple(manifest["resolution"]))
-    targets = [read_image(directory / v["image"]) for v in manifest["views"]]
-    cameras = [Camera(**v["camera"]) for v in manifest["views"]]
-    return scene, targets, cameras, {k: torch.tensor(v) for k, v in truth.items()}
+    try:
+        scene_name, resolution, views = manifest["scene"], tuple(manifest["resolution"]), manifest["views"]
+        images, cameras = [directory / v["image"] for v in views], [Camera(**v["camera"]) for v in views]
+    except (KeyError, TypeError) as e:
+        raise ParameterError(f"{directory / 'manifest.json'} is not an invrender dataset manifest ({type(e).__name__}: {e})") from None
+    scene = load_scene(scene_name, resolution=resolution)
+    return scene, [read_image(p) for p in images], cameras, {k: torch.tensor(v) for k, v in truth.items()}
 
 
+@_recipe_errors
 def load_fit_recipe(path) -> FitRecipe:
+    """A fit recipe and the dataset recipe it names (format in the module docstring); ParameterError
+    naming the file and key."""
     path = Path(path)
-    doc = _read_toml(path)
     where = str(path)
-    _check_keys(doc, FIT_KEYS, where)
+    doc = read_toml(path, "recipe")
+    check_keys(doc, FIT_KEYS, where)
     if not isinstance(doc.get("dataset"), str):
         raise ParameterError(f"{where}: 'dataset' (a dataset recipe) is required")
-    params = doc.get("params")
-    if not (isinstance(params, list) and params and all(isinstance(p, str) for p in params)):
-        raise ParameterError(f"{where}: 'params' must be a non-empty list of parameter names")
+    settings = table(doc, "fit", where)
+    check_keys(settings, _setting_names(), f"{where} [fit]")
+    choices = _fit_choices(doc, settings, where, required=True)
     dataset = load_dataset_recipe(path.parent / doc["dataset"])
-    variants = [_variant(v, f"{where} variants[{i}]") for i, v in enumerate(doc.get("variants", []))]
+    variants = doc.get("variants", [])
+    if not isinstance(variants, list):
+        raise ParameterError(f"{where}: 'variants' must be an array of tables ([[variants]])")
+    variants = [_variant(v, f"{where} variants[{i}]") for i, v in enumerate(variants)]
     if len({v.slug for v in variants}) != len(variants):
         raise ParameterError(f"{where}: variant labels must differ")
-    return FitRecipe(path, dataset, params, dict(doc.get("init", {})), dict(doc.get("fit", {})), variants)
+    return FitRecipe(**choices, path=path, dataset=dataset, variants=variants)
 
 
 def _variant(doc, where: str) -> FitVariant:
-    from invrender.inverse.fit import FitSettings
-
     if not isinstance(doc, dict):
         raise ParameterError(f"{where}: a variant must be a table ([[variants]])")
-    _check_keys(doc, VARIANT_KEYS | {f.name for f in dataclasses.fields(FitSettings)}, where)
+    check_keys(doc, VARIANT_KEYS | _setting_names(), where)
     if not isinstance(doc.get("label"), str) or not doc["label"]:
         raise ParameterError(f"{where}: 'label' (a name for the table) is required")
-    params = doc.get("params", [])
-    if not (isinstance(params, list) and all(isinstance(p, str) for p in params)):
-        raise ParameterError(f"{where}: 'params' must be a list of parameter names")
-    if not isinstance(doc.get("init", {}), dict):
-        raise ParameterError(f"{where}: 'init' must be a table of starting values")
     settings = {k: v for k, v in doc.items() if k not in VARIANT_KEYS}
-    return FitVariant(doc["label"], settings, list(params), dict(doc.get("init", {})))
+    return FitVariant(**_fit_choices(doc, settings, where, required=False), label=doc["label"])
+
+
+def _fit_choices(doc: dict, settings: dict, where: str, required: bool) -> dict:
+    """The :class:`FitChoices` fields of a recipe or variant table ``doc``, checked; ``required``:
+    ``params`` must name at least one parameter."""
+    params = doc.get("params", [])
+    if not (isinstance(params, list) and all(isinstance(p, str) for p in params)) or (required and not params):
+        raise ParameterError(f"{where}: 'params' must be a {'non-empty ' if required else ''}list of parameter names")
+    return {"params": list(params), "init": dict(table(doc, "init", where)), "settings": dict(settings)}
+
+
+def _setting_names() -> set[str]:
+    from invrender.inverse.fit import FitSettings  # lazily: the fitting machinery is not needed to read a recipe
+
+    return {f.name for f in dataclasses.fields(FitSettings)}
 
 
 def apply_init(scene: Scene, names: list[str], init: dict) -> None:
     """Set starting values in place: keys are parameter names, or ``reflectance`` / ``emission``
-    for every fitted parameter of that kind."""
-    kinds = [(k, v) for k, v in init.items() if k in ("reflectance", "emission")]
-    named = [(k, v) for k, v in init.items() if k not in ("reflectance", "emission")]
-    for key, value in kinds + named:  # a parameter's own starting value wins over its kind's
-        targets = [n for n in names if n.endswith(f".{key}") and n != AMBIENT] if key in ("reflectance", "emission") else [key]
-        for name in targets:
-            if name == AMBIENT and name not in scene.params:
-                scene.params[AMBIENT] = check_param_value(AMBIENT, value)  # the scene had no eps0: start one
-                continue
-            if name not in scene.params:
-                raise ParameterError(f"initial value for unknown parameter {name!r} (known: {', '.join(scene.params)})")
-            try:
-                value_t = check_param_value(name, value)
-            except InvRenderError:
-                raise
-            except Exception as e:  # pragma: no cover - defensive
-                raise SceneError(f"initial value for {name}: {e}") from None
-            with torch.no_grad():
-                scene.params[name].copy_(value_t.expand_as(scene.params[name]))
+    for every fitted parameter of that kind (but not the ambient eps0); a parameter's own value
+    wins over its kind's. An ``ambient.emission`` value starts eps0 in a scene that had none."""
+    values = {}
+    for kind in KINDS:
+        if kind in init:
+            values.update({name: init[kind] for name in names if name.endswith(f".{kind}") and name != AMBIENT})
+    values.update({name: value for name, value in init.items() if name not in KINDS})
+    for name, value in values.items():
+        if name == AMBIENT and name not in scene.params:
+            scene.params[AMBIENT] = scene.with_ambient(value).params[AMBIENT]  # checked as eps0 is
+        elif name not in scene.params:
+            raise ParameterError(f"initial value for unknown parameter {name!r} (known: {', '.join(scene.params)})")
+        else:
+            set_param(scene, name, value)

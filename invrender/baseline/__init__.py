@@ -6,6 +6,7 @@ shadow maps) and a constant ambient term, i.e. the Utah approximation ``g eps + 
 by a program that shares no code with invrender's Monte Carlo integrators.
 """
 
-from invrender.baseline.pyrender_baseline import BaselineError, LightPoint, emitter_lights, pyrender_brdf_cos, pyrender_render
+from invrender.baseline.pyrender_baseline import LightPoint, emitter_lights, pyrender_brdf_cos, pyrender_render
+from invrender.errors import BaselineError
 
 __all__ = ["pyrender_render", "emitter_lights", "pyrender_brdf_cos", "LightPoint", "BaselineError"]

@@ -58,9 +58,11 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from invrender.errors import BaselineError, InvRenderError, ParameterError
-from invrender.scene.scene import Scene, check_param_value, scene_extent
+from invrender.errors import BaselineError, ParameterError
+from invrender.io.images import to_srgb
+from invrender.scene.scene import AMBIENT, Scene, scene_extent
 from invrender.transport.textures import lookup
+from invrender.transport.vec import dot, normalize
 
 #: Debian (bookworm) packages for headless rendering through EGL with Mesa's llvmpipe
 DEBIAN_PACKAGES_EGL = "libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri"
@@ -129,51 +131,62 @@ def emitter_lights(scene: Scene, point_lights="center") -> LightPoint:
     corners = tri.corners().double().cpu().numpy()  # (T, 3, 3)
     normal = tri.normal.double().cpu().numpy()
     area = tri.area.double().cpu().numpy()
+    uv = tri.uv.double().cpu()  # (T, 3, 2)
     emitter = tri.emitter.cpu().numpy()
-    pos, axes, power = [], [], []
+    parts = []  # per emitter: (position, axis, intensity), each (K_j, 3)
     for j, name in enumerate(scene.emitters):
         ids = np.nonzero(emitter == j)[0]
         eps = scene.emission_of(j).detach().cpu().double()
         if ids.size == 0 or float(eps.max()) <= 0.0:
             continue
-        if mode == "center":
-            L = _mean_emission(eps, tri.uv[ids].double().cpu())  # (n, 3) per triangle
-            A = area[ids]
-            axis = (A[:, None] * normal[ids]).sum(0)
-            if np.linalg.norm(axis) < 1e-3 * A.sum():
-                raise ParameterError(f"emitter {name!r} has no mean normal (closed or folded); use point_lights='triangles' or an integer")
-            axis /= np.linalg.norm(axis)
-            cos = np.clip(normal[ids] @ axis, 0.0, None)
-            pos.append((A[:, None] * corners[ids].mean(1)).sum(0, keepdims=True) / A.sum())
-            axes.append(axis[None])
-            power.append((L * (A * cos)[:, None]).sum(0, keepdims=True))
-        elif mode == "triangles":
-            L = _mean_emission(eps, tri.uv[ids].double().cpu())
-            pos.append(corners[ids].mean(1))
-            axes.append(normal[ids])
-            power.append(L * area[ids][:, None])
+        if not isinstance(mode, str):
+            parts.append(_sampled_lights(mode, eps, corners[ids], normal[ids], area[ids], uv[ids]))
+            continue
+        L = _mean_emission(eps, uv[ids])  # (n, 3) per triangle
+        if mode == "triangles":
+            parts.append((corners[ids].mean(1), normal[ids], L * area[ids][:, None]))
         else:
-            k = mode
-            cdf = np.cumsum(area[ids]) / area[ids].sum()
-            u = (np.arange(k) + 0.5) / k
-            pick = np.minimum(np.searchsorted(cdf, u, side="right"), ids.size - 1)
-            lo = np.concatenate([[0.0], cdf[:-1]])[pick]
-            u1 = np.clip((u - lo) / (cdf[pick] - lo), 0.0, 1.0)  # position within the picked triangle's share
-            u2 = (np.arange(k) * 0.6180339887498949 + 0.5) % 1.0  # golden-ratio sequence
-            su = np.sqrt(u1)
-            b1, b2 = su * (1.0 - u2), su * u2  # uniform barycentrics (weights of p1, p2)
-            c = corners[ids[pick]]
-            p = (1 - b1 - b2)[:, None] * c[:, 0] + b1[:, None] * c[:, 1] + b2[:, None] * c[:, 2]
-            uvt = tri.uv[ids[pick]].double().cpu().numpy()
-            uv = (1 - b1 - b2)[:, None] * uvt[:, 0] + b1[:, None] * uvt[:, 1] + b2[:, None] * uvt[:, 2]
-            L = lookup(eps, torch.as_tensor(uv)).numpy()
-            pos.append(p)
-            axes.append(normal[ids[pick]])
-            power.append(L * (area[ids].sum() / k))
-    if not pos:
+            parts.append(_centre_light(name, L, corners[ids], normal[ids], area[ids]))
+    if not parts:
         z = np.zeros((0, 3))
         return LightPoint(z, z, z)
-    return LightPoint(np.concatenate(pos), np.concatenate(axes), np.concatenate(power))
+    return LightPoint(*(np.concatenate(column) for column in zip(*parts)))
+
+
+def _centre_light(name: str, L: np.ndarray, corners: np.ndarray, normal: np.ndarray, area: np.ndarray):
+    """One light for a whole emitter of n triangles: radiance L (n, 3), corners (n, 3, 3), normals
+    (n, 3), areas (n,) -> (1, 3) centroid, (1, 3) mean normal, (1, 3) on-axis intensity."""
+    axis = (area[:, None] * normal).sum(0)
+    length = np.linalg.norm(axis)
+    if length < 1e-3 * area.sum():
+        raise ParameterError(f"emitter {name!r} has no mean normal (closed or folded); use point_lights='triangles' or an integer")
+    axis /= length
+    cos = np.clip(normal @ axis, 0.0, None)
+    position = (area[:, None] * corners.mean(1)).sum(0, keepdims=True) / area.sum()
+    return position, axis[None], (L * (area * cos)[:, None]).sum(0, keepdims=True)
+
+
+def _sampled_lights(k: int, eps: torch.Tensor, corners: np.ndarray, normal: np.ndarray, area: np.ndarray, uv: torch.Tensor):
+    """k lights at stratified points of an emitter of n triangles (picked by area, then uniform in
+    the triangle): eps (3,) or (h, w, 3), corners (n, 3, 3), normals (n, 3), areas (n,), UVs
+    (n, 3, 2) -> (k, 3) positions, (k, 3) normals, (k, 3) intensities ``L(x) A / k``."""
+    cdf = np.cumsum(area) / area.sum()
+    u = (np.arange(k) + 0.5) / k
+    pick = np.minimum(np.searchsorted(cdf, u, side="right"), area.size - 1)
+    lo = np.concatenate([[0.0], cdf[:-1]])[pick]
+    u1 = np.clip((u - lo) / (cdf[pick] - lo), 0.0, 1.0)  # position within the picked triangle's share
+    u2 = (np.arange(k) * 0.6180339887498949 + 0.5) % 1.0  # golden-ratio sequence
+    w = _uniform_barycentrics(u1, u2)[:, :, None]  # (k, 3, 1)
+    position = (w * corners[pick]).sum(1)
+    L = lookup(eps, torch.as_tensor((w * uv[pick].numpy()).sum(1))).numpy()
+    return position, normal[pick], L * (area.sum() / k)
+
+
+def _uniform_barycentrics(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
+    """(n, 3) barycentric weights of (p0, p1, p2) mapping (n,) u1, u2 in [0, 1] uniformly onto a triangle."""
+    su = np.sqrt(u1)
+    b1, b2 = su * (1.0 - u2), su * u2
+    return np.stack([1.0 - b1 - b2, b1, b2], axis=1)
 
 
 def pyrender_brdf_cos(rho: torch.Tensor, n: torch.Tensor, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
@@ -186,11 +199,9 @@ def pyrender_brdf_cos(rho: torch.Tensor, n: torch.Tensor, wi: torch.Tensor, wo: 
         (N, 3) ``nl ((1 - F) 0.96 rho / pi + F G D / (4 nl nv + 0.001))``; the Lambertian value is
         ``rho / pi * max(n . wi, 0)``.
     """
-    nl = (n * wi).sum(-1).clamp(0.001, 1.0)
-    nv = (n * wo).sum(-1).abs().clamp(0.001, 1.0)
-    h = wi + wo
-    h = h / h.norm(dim=-1, keepdim=True)
-    vh = (wo * h).sum(-1).clamp(0.0, 1.0)
+    nl = dot(n, wi).clamp(0.001, 1.0)
+    nv = dot(n, wo).abs().clamp(0.001, 1.0)
+    vh = dot(wo, normalize(wi + wo)).clamp(0.0, 1.0)
     F = 0.04 + 0.96 * (1.0 - vh) ** 5
     k = (1.0 + 1.0) ** 2 / 8.0  # Smith-Schlick, roughness 1
     G = nv / (nv * (1 - k) + k) * nl / (nl * (1 - k) + k)
@@ -253,15 +264,13 @@ def _check_point_lights(point_lights):
 
 
 def _ambient(scene: Scene, ambient) -> np.ndarray:
+    """eps0 (3,) float64: ``ambient``, else the scene's ``AMBIENT`` parameter, else zero. Validated by
+    :meth:`Scene.with_ambient` either way (``scene.params`` may have been edited in place)."""
     if ambient is None:
-        value = scene.params.get("ambient.emission")
-        if value is None:
+        ambient = scene.params.get(AMBIENT)
+        if ambient is None:
             return np.zeros(3)
-        ambient = value.detach().cpu()
-    t = check_param_value("ambient.emission", ambient)
-    if t.shape != (3,):
-        raise ParameterError(f"ambient.emission: expected an RGB triple, got shape {tuple(t.shape)}")
-    return t.double().numpy()
+    return scene.with_ambient(ambient).params[AMBIENT].cpu().double().numpy()
 
 
 def _mean_emission(eps: torch.Tensor, uv: torch.Tensor) -> np.ndarray:
@@ -269,25 +278,25 @@ def _mean_emission(eps: torch.Tensor, uv: torch.Tensor) -> np.ndarray:
     n = uv.shape[0]
     if eps.ndim == 1:
         return eps.expand(n, 3).numpy().copy()
-    g = (torch.arange(4, dtype=torch.float64) + 0.5) / 4  # 4 x 4 stratified barycentrics
-    su, u2 = torch.meshgrid(g.sqrt(), g, indexing="ij")
-    b1, b2 = (su * (1 - u2)).reshape(-1), (su * u2).reshape(-1)
-    w = torch.stack([1 - b1 - b2, b1, b2], dim=1)  # (16, 3)
+    g = (np.arange(4) + 0.5) / 4  # 4 x 4 stratified points per triangle
+    u1, u2 = np.meshgrid(g, g, indexing="ij")
+    w = torch.from_numpy(_uniform_barycentrics(u1.reshape(-1), u2.reshape(-1)))  # (16, 3)
     pts = torch.einsum("sk,nkc->nsc", w, uv).reshape(-1, 2)
     return lookup(eps, pts).reshape(n, -1, 3).mean(1).numpy()
 
 
-def _srgb_uint8(x: np.ndarray) -> np.ndarray:
-    """Linear (h, w, 3) values in [0, 1] -> (h, w, 4) 8-bit sRGB + opaque alpha, decoded by pyrender's
-    ``srgb_to_linear``. RGBA because pyrender uploads with OpenGL's default 4-byte row alignment, which
-    garbles RGB rows whose length is not a multiple of 4 bytes."""
-    x = np.clip(x, 0.0, 1.0)
-    y = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
-    return np.concatenate([np.round(y * 255.0), np.full(x.shape[:2] + (1,), 255.0)], axis=2).astype(np.uint8)
+def _texture(pr, linear: np.ndarray):
+    """pyrender texture of linear (h, w, 3) values in [0, 1], stored as 8-bit sRGB (pyrender decodes it
+    with ``srgb_to_linear``) plus opaque alpha. RGBA because pyrender uploads with OpenGL's default
+    4-byte row alignment, which garbles RGB rows whose length is not a multiple of 4 bytes."""
+    srgb = np.round(to_srgb(torch.from_numpy(linear)).double().numpy() * 255.0)
+    rgba = np.concatenate([srgb, np.full(srgb.shape[:2] + (1,), 255.0)], axis=2).astype(np.uint8)
+    return pr.Texture(source=rgba, source_channels="RGBA", sampler=pr.Sampler())
 
 
 def _build_scene(pr, scene: Scene):
-    """pyrender Scene with meshes and camera; returns it and [(material, eps (3,) or scalar max)]."""
+    """pyrender Scene with meshes and camera; returns it and [(emissive material, (3,) float64 eps, or
+    max(eps) per channel for an emission texture)], whose ``emissiveFactor`` is set per exposure."""
     tri = scene.triangles
     corners = tri.corners().cpu().numpy().astype(np.float32)
     normal = tri.normal.cpu().numpy().astype(np.float32)
@@ -306,34 +315,30 @@ def _build_scene(pr, scene: Scene):
         else:
             kw["baseColorFactor"] = np.ones(4)
             if m not in base_cache:
-                base_cache[m] = pr.Texture(source=_srgb_uint8(rho), source_channels="RGBA", sampler=pr.Sampler())
+                base_cache[m] = _texture(pr, rho)
             kw["baseColorTexture"] = base_cache[m]
         if e >= 0:
             eps = scene.emission_of(e).detach().cpu().double().numpy()
             if eps.ndim == 3:
                 top = max(float(eps.max()), 1e-30)
-                kw["emissiveTexture"] = pr.Texture(source=_srgb_uint8(eps / top), source_channels="RGBA", sampler=pr.Sampler())
+                kw["emissiveTexture"] = _texture(pr, eps / top)
                 eps = np.full(3, top)
         m_out = pr.MetallicRoughnessMaterial(**kw)
         if e >= 0:
             emissive.append((m_out, eps))
         return m_out
 
-    groups = {}
-    for t_ids, side in ((np.arange(tri.count), 1), (np.arange(tri.count), -1)):
-        e = emi if side == 1 else np.full(tri.count, -1)
-        for key in sorted(set(zip(mat[t_ids].tolist(), e[t_ids].tolist()))):
-            sel = t_ids[(mat[t_ids] == key[0]) & (e[t_ids] == key[1])]
-            groups[(key, side)] = sel
-    for ((m, e), side), sel in groups.items():
-        order = [0, 1, 2] if side == 1 else [0, 2, 1]  # the back copy: reversed winding
-        pos = corners[sel][:, order].reshape(-1, 3)
-        nrm = np.repeat(side * normal[sel], 3, axis=0)
-        tex = uv[sel][:, order].reshape(-1, 2)
-        prim = pr.Primitive(positions=pos, normals=nrm, texcoord_0=tex, material=material(m, e), mode=pr.constants.GLTF.TRIANGLES)
-        mesh = pr.Mesh([prim])
-        mesh._bounds = np.asarray(prim.bounds, dtype=np.float64)  # pyrender 0.1.45 computes it with np.infty (gone in NumPy 2)
-        out.add(mesh)
+    # the front copy emits; the back copy (reversed winding, flipped normal) never does
+    for side, emitter, order in ((1, emi, [0, 1, 2]), (-1, np.full(tri.count, -1), [0, 2, 1])):
+        for m, e in sorted(set(zip(mat.tolist(), emitter.tolist()))):
+            sel = np.nonzero((mat == m) & (emitter == e))[0]
+            pos = corners[sel][:, order].reshape(-1, 3)
+            nrm = np.repeat(side * normal[sel], 3, axis=0)
+            tex = uv[sel][:, order].reshape(-1, 2)
+            prim = pr.Primitive(positions=pos, normals=nrm, texcoord_0=tex, material=material(m, e), mode=pr.constants.GLTF.TRIANGLES)
+            mesh = pr.Mesh([prim])
+            mesh._bounds = np.asarray(prim.bounds, dtype=np.float64)  # pyrender 0.1.45 computes it with np.infty (gone in NumPy 2)
+            out.add(mesh)
 
     cam = scene.camera
     right, up, forward = (v.numpy() for v in cam.frame())
@@ -359,30 +364,48 @@ def _light_pose(p: np.ndarray, n: np.ndarray) -> np.ndarray:
     return pose
 
 
-def _light_groups(pr, lights: LightPoint, lobe: str, s: float, shadows: bool, offset: float):
-    """Per light point, the pyrender lights (with poses) standing in for it, exposure ``s`` applied,
-    moved ``offset`` along the normal."""
+@dataclass(frozen=True)
+class _LightGroup:
+    """The pyrender lights standing in for one light point, all at one pose.
+
+    Attributes:
+        intensity: (3,) float64 on-axis intensity of the light point, before exposure.
+        pose: (4, 4) float64 pose of every light of the group.
+        lights: ((pyrender light, weight), ...): one point light of weight 1, or COSINE_LOBE's spots.
+    """
+
+    intensity: np.ndarray
+    pose: np.ndarray
+    lights: tuple
+
+    def expose(self, s: float) -> None:
+        """Set each light to ``weight * s * intensity`` (pyrender: a colour times a scalar intensity)."""
+        exposed = self.intensity * s
+        peak = float(exposed.max())
+        for light, weight in self.lights:
+            light.color = exposed / peak
+            light.intensity = peak * weight
+
+
+def _light_groups(pr, lights: LightPoint, lobe: str, shadows: bool, offset: float) -> list[_LightGroup]:
+    """Per light point (dark ones skipped), the pyrender lights standing in for it, moved ``offset``
+    along the normal; their intensities are set per exposure by :meth:`_LightGroup.expose`."""
     classes = _classes(pr)
     groups = []
     for k in range(lights.count):
-        I = lights.intensity[k] * s
-        peak = float(I.max())
-        if peak <= 0.0:
+        if float(lights.intensity[k].max()) <= 0.0:
             continue
-        color = I / peak
         # just in front of the emitter: fragments in the light's own plane would divide by w = 0 in
         # pyrender's shadow lookup and come out NaN (black), the emitter itself included
         pose = _light_pose(lights.position[k] + offset * lights.normal[k], lights.normal[k])
         if lobe == "point":
-            groups.append([(pr.PointLight(color=color, intensity=peak), pose)])
-            continue
-        shared = pr.Texture(width=SHADOW_SIZE, height=SHADOW_SIZE, source_channels="D", data_format=classes.GL_FLOAT) if shadows else None
-        group = []
-        for outer, inner, w in COSINE_LOBE:
-            light = classes.SpotLight(color=color, intensity=peak * w, innerConeAngle=inner, outerConeAngle=outer)
-            light._shadow_texture = shared  # the three spots see the same depths: one map for all
-            group.append((light, pose))
-        groups.append(group)
+            members = ((pr.PointLight(), 1.0),)
+        else:
+            shared = pr.Texture(width=SHADOW_SIZE, height=SHADOW_SIZE, source_channels="D", data_format=classes.GL_FLOAT) if shadows else None
+            members = tuple((classes.SpotLight(innerConeAngle=inner, outerConeAngle=outer), w) for outer, inner, w in COSINE_LOBE)
+            for light, _ in members:
+                light._shadow_texture = shared  # the three spots see the same depths: one map for all
+        groups.append(_LightGroup(lights.intensity[k], pose, members))
     return groups
 
 
@@ -391,36 +414,40 @@ def _light_groups(pr, lights: LightPoint, lobe: str, s: float, shadows: bool, of
 
 
 def _render_passes(pr, osr, scene: Scene, lights: LightPoint, eps0: np.ndarray, lobe: str, shadows: bool) -> np.ndarray:
-    """Linear (H, W, 3) float64: additive passes at an exposure lowered until nothing clips."""
+    """Linear (H, W, 3) float64: additive passes at an exposure lowered until nothing clips.
+
+    The pyrender scene and lights are built once; a retry only changes intensities."""
     pscene, emissive = _build_scene(pr, scene)
-    flags = pr.RenderFlags.OFFSCREEN | (pr.RenderFlags.SHADOWS_SPOT if shadows and lobe == "cosine" else 0)
+    spots = lobe == "cosine"
+    flags = pr.RenderFlags.OFFSCREEN | (pr.RenderFlags.SHADOWS_SPOT if shadows and spots else 0)
+    groups = _light_groups(pr, lights, lobe, shadows, 1e-5 * max(scene_extent(scene.triangles), 1e-6))
     osr._platform.make_current()
     try:
-        if lobe == "cosine":
-            units = int(_classes(pr).glGetIntegerv(_classes(pr).GL_MAX_TEXTURE_IMAGE_UNITS))
-            capacity = max(3, units - 6) if shadows else pr.constants.MAX_N_LIGHTS  # pyrender's limits
-        else:
-            capacity = pr.constants.MAX_N_LIGHTS
-        top = max([float(eps0.max()), 1e-30] + [float(np.max(e)) for _, e in emissive])
+        capacity = pr.constants.MAX_N_LIGHTS  # pyrender's lights per draw: 4, or with shadow maps
+        if spots and shadows:  # one free texture unit per shadowed spot light
+            classes = _classes(pr)
+            capacity = max(3, int(classes.glGetIntegerv(classes.GL_MAX_TEXTURE_IMAGE_UNITS)) - 6)
+        per_pass = max(1, capacity // (len(COSINE_LOBE) if spots else 1))
+        passes = [groups[i : i + per_pass] for i in range(0, len(groups), per_pass)] or [[]]
+        top = max([float(eps0.max()), 1e-30] + [float(e.max()) for _, e in emissive])
         s = 0.25 / top
         for _ in range(12):
-            groups = _light_groups(pr, lights, lobe, s, shadows, 1e-5 * max(scene_extent(scene.triangles), 1e-6))
-            per_pass = max(1, capacity // max(1, max((len(g) for g in groups), default=1)))
-            chunks = [groups[i : i + per_pass] for i in range(0, len(groups), per_pass)] or [[]]
             total, clipped = 0.0, False
-            for i, chunk in enumerate(chunks):
-                first = i == 0
+            for i, chunk in enumerate(passes):
+                first = i == 0  # ambient and emission are drawn once, in the first pass
                 pscene.ambient_light = (s * eps0 if first else np.zeros(3)).astype(np.float32)
                 for m, e in emissive:
-                    m.emissiveFactor = np.sqrt(s * np.asarray(e, dtype=np.float64)) if first else np.zeros(3)
-                nodes = [pscene.add(light, pose=pose) for g in chunk for light, pose in g]
+                    m.emissiveFactor = np.sqrt(s * e) if first else np.zeros(3)
+                for group in chunk:
+                    group.expose(s)
+                nodes = [pscene.add(light, pose=group.pose) for group in chunk for light, _ in group.lights]
                 encoded = osr._renderer.render(pscene, flags)
                 for node in nodes:
                     pscene.remove_node(node)
-                clipped |= bool(encoded.max() >= SATURATED)
-                total = total + np.power(encoded.astype(np.float64), GAMMA)
+                clipped = bool(encoded.max() >= SATURATED)
                 if clipped:
                     break
+                total = total + np.power(encoded.astype(np.float64), GAMMA)
             if not clipped:
                 return total / s
             s /= 1024.0

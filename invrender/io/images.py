@@ -11,7 +11,6 @@ from __future__ import annotations
 import contextlib
 import io
 import os
-import secrets
 from pathlib import Path
 
 import kornia
@@ -21,6 +20,7 @@ import torch
 from PIL import Image
 
 from invrender.errors import ImageError
+from invrender.io.atomic import atomic_file
 
 WRITE_SUFFIXES = (".exr", ".png")
 READ_SUFFIXES = (".exr", ".png", ".jpg", ".jpeg")
@@ -55,19 +55,10 @@ def write_image(path: str | os.PathLike, image: torch.Tensor) -> None:
         parent.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise ImageError(f"cannot write image {path}: cannot create directory {parent}: {e.strerror or e}") from None
-
-    # open(..., "xb") rather than tempfile.mkstemp: mkstemp makes the file mode 0600, which the
-    # final image would keep; a plain exclusive create honours the umask like any other file.
-    tmp = parent / f".{path.name}.{secrets.token_hex(4)}.tmp"
     try:
-        with open(tmp, "xb") as f:
-            if suffix == ".exr":
-                _write_exr(f, rgb)
-            else:
-                _write_png(f, rgb)
-        os.replace(tmp, path)
-    except Exception as e:  # OSError, or OpenEXR's RuntimeError; never leave the temp file behind
-        tmp.unlink(missing_ok=True)
+        with atomic_file(path) as f:
+            (_write_exr if suffix == ".exr" else _write_png)(f, rgb)
+    except Exception as e:  # OSError, or OpenEXR's RuntimeError; atomic_file left no temporary file
         raise ImageError(f"cannot write image {path}: {_reason(e)}") from None
 
 
@@ -167,10 +158,16 @@ def _read_srgb(path: Path) -> torch.Tensor:
     """Read an 8-bit PNG/JPEG (or 16-bit grey PNG) as a (H, W, 3) float32 linear tensor."""
     with Image.open(path) as img:
         img.load()
-        if img.mode.startswith("I;16"):
-            grey = np.asarray(img, dtype=np.float32) / 65535.0
-            srgb = np.repeat(grey[..., None], 3, axis=-1)
-        else:
-            srgb = np.asarray(img.convert("RGB"), dtype=np.float32) / 255.0
+        return decode_srgb(img)
+
+
+def decode_srgb(img: Image.Image) -> torch.Tensor:
+    """An sRGB-encoded PIL image (8 bits per channel, or 16-bit grey) -> (H, W, 3) float32 linear
+    tensor, row 0 at the top; alpha dropped, grey replicated."""
+    if img.mode.startswith("I;16"):
+        grey = np.asarray(img, dtype=np.float32) / 65535.0
+        srgb = np.repeat(grey[..., None], 3, axis=-1)
+    else:
+        srgb = np.asarray(img.convert("RGB"), dtype=np.float32) / 255.0
     linear = kornia.color.rgb_to_linear_rgb(torch.from_numpy(srgb).permute(2, 0, 1))
     return linear.permute(1, 2, 0).contiguous()

@@ -92,7 +92,6 @@ import hashlib
 import json
 import math
 import struct
-import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -101,6 +100,7 @@ from invrender.errors import InvRenderError, SceneError
 from invrender.scene.camera import FOV_AXES, Camera
 from invrender.scene.scene import Scene, build_scene
 from invrender.scene.shapes import PRIMITIVES, Mesh, rotate, scale, translate
+from invrender.scene.toml_values import check_keys, integer, is_number, number, one_line, read_toml, show, string, table, vector
 
 TOP_KEYS = {"name", "resolution", "ambient", "camera", "materials", "emitters", "shapes"}
 CAMERA_KEYS = {"origin", "target", "up", "fov", "fov_axis"}
@@ -128,47 +128,22 @@ def load_toml(path, resolution=None) -> Scene:
     """
     path = Path(path)
     where = str(path)
-    try:
-        doc = tomllib.loads(path.read_bytes().decode("utf-8"))
-    except FileNotFoundError:
-        raise SceneError(f"scene file not found: {path}") from None
-    except OSError as e:
-        raise SceneError(f"cannot read scene file {path}: {_one_line(e.strerror or e)}") from None
-    except UnicodeDecodeError as e:
-        raise SceneError(f"{path}: invalid TOML: not UTF-8 text ({_one_line(e)})") from None
-    except tomllib.TOMLDecodeError as e:
-        raise SceneError(f"{path}: invalid TOML: {_one_line(e)}") from None
-
-    _check_keys(doc, TOP_KEYS, where)
-    name = _string(doc, "name", where) if "name" in doc else path.stem
-    file_resolution = tuple(_vector(doc, "resolution", where, length=2)) if "resolution" in doc else DEFAULT_RESOLUTION
-
-    camera_doc = _table(doc, "camera", where)
-    cwhere = f"{where} [camera]"
-    _check_keys(camera_doc, CAMERA_KEYS, cwhere)
-    cam_args = {k: _vector(camera_doc, k, cwhere) for k in ("origin", "target", "up") if k in camera_doc}
-    if "fov" in camera_doc:
-        cam_args["fov"] = _number(camera_doc, "fov", cwhere)
-    if "fov_axis" in camera_doc:
-        cam_args["fov_axis"] = _string(camera_doc, "fov_axis", cwhere)
-        if cam_args["fov_axis"] not in FOV_AXES:
-            raise SceneError(f"{cwhere}: 'fov_axis' must be one of {', '.join(FOV_AXES)}, got {cam_args['fov_axis']!r}")
-    try:
-        camera = Camera(**cam_args)
-    except SceneError as e:
-        raise SceneError(f"{cwhere}: {e}") from None
-
+    doc = read_toml(path, "scene file")
+    check_keys(doc, TOP_KEYS, where)
+    name = string(doc, "name", where) if "name" in doc else path.stem
+    file_resolution = tuple(vector(doc, "resolution", where, length=2)) if "resolution" in doc else DEFAULT_RESOLUTION
+    camera = camera_from_table(table(doc, "camera", where), f"{where} [camera]")
     reflectance = {
         k: _colour_or_texture(v, "reflectance", f"{where} [materials.{k}]", path.parent)
-        for k, v in _table(doc, "materials", where).items()
+        for k, v in table(doc, "materials", where).items()
     }
     emission = {
         k: _colour_or_texture(v, "emission", f"{where} [emitters.{k}]", path.parent)
-        for k, v in _table(doc, "emitters", where).items()
+        for k, v in table(doc, "emitters", where).items()
     }
     shapes_doc = doc.get("shapes", [])
     if not isinstance(shapes_doc, list) or not all(isinstance(s, dict) for s in shapes_doc):
-        raise SceneError(f"{where}: 'shapes' must be an array of tables ([[shapes]]), got {_show(shapes_doc)}")
+        raise SceneError(f"{where}: 'shapes' must be an array of tables ([[shapes]]), got {show(shapes_doc)}")
     meshes = [_shape(s, f"{where} shapes[{i}]", path.parent) for i, s in enumerate(shapes_doc)]
 
     try:
@@ -176,41 +151,52 @@ def load_toml(path, resolution=None) -> Scene:
     except SceneError as e:
         raise SceneError(f"{where}: {e}") from None
     if "ambient" in doc:
-        grey = _is_number(doc["ambient"])
-        scene = scene.with_ambient(float(doc["ambient"]) if grey else _vector(doc, "ambient", where, scalar_ok=True))
+        scene = scene.with_ambient(vector(doc, "ambient", where, scalar_ok=True))
     return scene
 
 
+def camera_from_table(doc, where: str) -> Camera:
+    """A :class:`Camera` from a table of the scene format's ``[camera]`` keys (each optional,
+    defaults Camera()'s); a :class:`SceneError` naming ``where`` and the key when it is invalid."""
+    if not isinstance(doc, dict):
+        raise SceneError(f"{where}: must be a table of camera keys, got {show(doc)}")
+    check_keys(doc, CAMERA_KEYS, where)
+    args = {k: vector(doc, k, where) for k in ("origin", "target", "up") if k in doc}
+    if "fov" in doc:
+        args["fov"] = number(doc, "fov", where)
+    if "fov_axis" in doc:
+        args["fov_axis"] = string(doc, "fov_axis", where)
+        if args["fov_axis"] not in FOV_AXES:
+            raise SceneError(f"{where}: 'fov_axis' must be one of {', '.join(FOV_AXES)}, got {args['fov_axis']!r}")
+    try:
+        return Camera(**args)
+    except SceneError as e:  # the camera's own checks (fov range, degenerate view)
+        raise SceneError(f"{where}: {e}") from None
+
+
 def _shape(doc: dict, where: str, base: Path) -> Mesh:
-    _check_keys(doc, SHAPE_KEYS, where)
-    kind = _string(doc, "type", where, required=True)
+    check_keys(doc, SHAPE_KEYS, where)
+    kind = string(doc, "type", where, required=True)
     if kind not in SHAPE_TYPES:
         raise SceneError(f"{where}: unknown shape type {kind!r} (known: {', '.join(SHAPE_TYPES)})")
-    material = _string(doc, "material", where, required=True)
-    emitter = _string(doc, "emitter", where) if "emitter" in doc else None
+    material = string(doc, "material", where, required=True)
+    emitter = string(doc, "emitter", where) if "emitter" in doc else None
     if kind != "sphere" and "subdivisions" in doc:
         raise SceneError(f"{where}: 'subdivisions' applies to type = \"sphere\" only")
     if kind != "mesh" and "file" in doc:
         raise SceneError(f"{where}: 'file' applies to type = \"mesh\" only")
     if kind == "mesh":
-        try:
-            v, f, uv = _mesh_arrays(base / _string(doc, "file", where, required=True))
-        except SceneError as e:
-            raise e if str(e).startswith(where) else SceneError(f"{where}: {e}") from None
-    elif kind == "sphere" and "subdivisions" in doc:
-        n = doc["subdivisions"]
-        if not isinstance(n, int) or isinstance(n, bool):
-            raise SceneError(f"{where}: 'subdivisions' must be an integer, got {_show(n)}")
-        try:
-            v, f, uv = PRIMITIVES[kind](n)
-        except SceneError as e:
-            raise SceneError(f"{where}: {e}") from None
+        make, args = _mesh_arrays, (base / string(doc, "file", where, required=True),)
     else:
-        v, f, uv = PRIMITIVES[kind]()
+        make, args = PRIMITIVES[kind], ((integer(doc, "subdivisions", where),) if "subdivisions" in doc else ())
+    try:
+        v, f, uv = make(*args)
+    except SceneError as e:  # a bad mesh file, subdivisions out of range
+        raise SceneError(f"{where}: {e}") from None
     mesh = Mesh(v, f, uv, material, emitter)
     flip = doc.get("flip_normals", False)
     if not isinstance(flip, bool):
-        raise SceneError(f"{where}: 'flip_normals' must be true or false, got {_show(flip)}")
+        raise SceneError(f"{where}: 'flip_normals' must be true or false, got {show(flip)}")
     if flip:
         mesh = mesh.flipped()
     return mesh.transformed(_transform(doc.get("transform", []), where))
@@ -220,28 +206,28 @@ def _transform(ops, where: str) -> np.ndarray:
     """4x4 matrix of a list of {translate|rotate|scale} steps applied in the order listed."""
     usage = "{ translate = [x, y, z] }, { rotate = { axis = [x, y, z], angle = degrees } } or { scale = s or [x, y, z] }"
     if not isinstance(ops, list):
-        raise SceneError(f"{where}: 'transform' must be a list of steps {usage}, got {_show(ops)}")
+        raise SceneError(f"{where}: 'transform' must be a list of steps {usage}, got {show(ops)}")
     matrix = np.eye(4)
     for i, op in enumerate(ops):
         w = f"{where} transform[{i}]"
         if not isinstance(op, dict) or len(op) != 1:
-            raise SceneError(f"{w}: each step must be a table with one key, one of {usage}; got {_show(op)}")
+            raise SceneError(f"{w}: each step must be a table with one key, one of {usage}; got {show(op)}")
         ((kind, value),) = op.items()
+        if kind == "translate":
+            make, args = translate, (vector(op, kind, w),)
+        elif kind == "scale":
+            make, args = scale, (vector(op, kind, w, scalar_ok=True),)
+        elif kind == "rotate":
+            if not isinstance(value, dict):
+                raise SceneError(f"{w}: 'rotate' must be a table {{ axis = [x, y, z], angle = degrees }}, got {show(value)}")
+            check_keys(value, {"axis", "angle"}, f"{w} rotate")
+            make, args = rotate, (vector(value, "axis", f"{w} rotate", required=True), number(value, "angle", f"{w} rotate", required=True))
+        else:
+            raise SceneError(f"{w}: unknown transform step {kind!r} (allowed: {', '.join(TRANSFORM_STEPS)})")
         try:
-            if kind == "translate":
-                step = translate(_vector(op, kind, w))
-            elif kind == "scale":
-                step = scale(float(value) if _is_number(value) else _vector(op, kind, w, scalar_ok=True))
-            elif kind == "rotate":
-                if not isinstance(value, dict):
-                    raise SceneError(f"{w}: 'rotate' must be a table {{ axis = [x, y, z], angle = degrees }}, got {_show(value)}")
-                _check_keys(value, {"axis", "angle"}, f"{w} rotate")
-                step = rotate(_vector(value, "axis", f"{w} rotate", required=True), _number(value, "angle", f"{w} rotate", required=True))
-            else:
-                raise SceneError(f"{w}: unknown transform step {kind!r} (allowed: {', '.join(TRANSFORM_STEPS)})")
-        except SceneError as e:
-            raise e if str(e).startswith(where) else SceneError(f"{w}: {e}") from None
-        matrix = step @ matrix
+            matrix = make(*args) @ matrix
+        except SceneError as e:  # e.g. a zero scale factor
+            raise SceneError(f"{w}: {e}") from None
     return matrix
 
 
@@ -249,22 +235,21 @@ def _colour_or_texture(doc, kind: str, where: str, base: Path):
     """An RGB list or a linear (h, w, 3) texture tensor from a material/emitter table."""
     key_tex = f"{kind}_texture"
     if not isinstance(doc, dict):
-        raise SceneError(f"{where}: must be a table with '{kind}' or '{key_tex}', got {_show(doc)}")
-    _check_keys(doc, {kind, key_tex}, where)
+        raise SceneError(f"{where}: must be a table with '{kind}' or '{key_tex}', got {show(doc)}")
+    check_keys(doc, {kind, key_tex}, where)
     if (kind in doc) == (key_tex in doc):
         raise SceneError(f"{where}: give exactly one of '{kind}' or '{key_tex}'")
     if kind in doc:
-        value = doc[kind]
-        return [float(value)] * 3 if _is_number(value) else _vector(doc, kind, where, scalar_ok=True)
+        return vector(doc, kind, where, scalar_ok=True)  # one number: grey
     from invrender.io import read_image  # lazily: images need kornia/OpenEXR
 
-    texture_path = base / _string(doc, key_tex, where)
+    texture_path = base / string(doc, key_tex, where)
     if not texture_path.is_file():
         raise SceneError(f"{where}: texture file not found: {texture_path}")
     try:
         return read_image(texture_path)
     except InvRenderError as e:
-        raise SceneError(f"{where}: {_one_line(e)}") from None
+        raise SceneError(f"{where}: {one_line(e)}") from None
 
 
 def _mesh_arrays(path: Path):
@@ -332,7 +317,7 @@ def _trimesh_parts(path: Path) -> list:
     try:
         scene = trimesh.load(str(path), force="scene")
     except Exception as e:  # trimesh raises anything from ValueError to KeyError on bad files
-        raise SceneError(f"cannot read mesh file {path}: {_one_line(e) or type(e).__name__}") from None
+        raise SceneError(f"cannot read mesh file {path}: {one_line(e) or type(e).__name__}") from None
     parts = []
     order = {name: i for i, name in enumerate(scene.geometry)}  # file order; nodes_geometry's order is not
     nodes = [(node, *scene.graph[node]) for node in scene.graph.nodes_geometry]
@@ -374,8 +359,8 @@ def _material_values(material, json_materials: list, is_gltf: bool, path: Path):
 
         extension = entry.get("extensions", {}).get("KHR_materials_emissive_strength", {}) if isinstance(entry.get("extensions"), dict) else {}
         strength = extension.get("emissiveStrength", 1.0) if isinstance(extension, dict) else 1.0
-        if not _is_number(strength):
-            raise SceneError(f"{path}: material {name!r}: emissiveStrength must be a number, got {_show(strength)}")
+        if not is_number(strength):
+            raise SceneError(f"{path}: material {name!r}: emissiveStrength must be a number, got {show(strength)}")
         if "emissiveFactor" in entry:
             factor = _factor(entry["emissiveFactor"], "emissiveFactor", path)
         elif material.emissiveFactor is not None:
@@ -418,8 +403,8 @@ def _json_material(material, json_materials: list) -> dict:
 
 
 def _factor(value, key: str, path: Path) -> np.ndarray:
-    if not isinstance(value, list) or len(value) < 3 or not all(_is_number(x) for x in value):
-        raise SceneError(f"{path}: glTF {key} must be a list of 3 or 4 numbers, got {_show(value)}")
+    if not isinstance(value, list) or len(value) < 3 or not all(is_number(x) for x in value):
+        raise SceneError(f"{path}: glTF {key} must be a list of 3 or 4 numbers, got {show(value)}")
     return np.asarray(value[:3], dtype=np.float64)
 
 
@@ -430,7 +415,7 @@ def _mtl_colour(value, key: str, material: str, path: Path) -> np.ndarray | None
     try:
         rgb = np.asarray([float(x) for x in np.atleast_1d(value)], dtype=np.float64)
     except (TypeError, ValueError):
-        raise SceneError(f"{path}: material {material!r}: {key} must be numbers, got {_show(value)}") from None
+        raise SceneError(f"{path}: material {material!r}: {key} must be numbers, got {show(value)}") from None
     if rgb.size == 1:
         rgb = np.repeat(rgb, 3)
     if rgb.size < 3:
@@ -439,20 +424,13 @@ def _mtl_colour(value, key: str, material: str, path: Path) -> np.ndarray | None
 
 
 def _times_texture(factor: np.ndarray, image) -> np.ndarray:
-    """``factor`` (3,), times an sRGB-encoded PIL image decoded to linear (h, w, 3) when there is one."""
+    """``factor`` (3,) float64, times an sRGB-encoded PIL image decoded to linear (h, w, 3), row 0
+    at the top (not flipped), when there is one."""
     if image is None:
         return factor
-    return _decode_texture(image) * factor
+    from invrender.io.images import decode_srgb  # lazily: images need kornia/OpenEXR
 
-
-def _decode_texture(image) -> np.ndarray:
-    """A PIL image (8-bit sRGB-encoded) -> linear float64 (h, w, 3), row 0 at the top (not flipped)."""
-    import kornia
-    import torch
-
-    rgb = np.asarray(image.convert("RGB"), dtype=np.float32) / 255.0
-    linear = kornia.color.rgb_to_linear_rgb(torch.from_numpy(rgb).permute(2, 0, 1))  # the decoding read_image uses
-    return linear.permute(1, 2, 0).numpy().astype(np.float64)
+    return decode_srgb(image).numpy().astype(np.float64) * factor
 
 
 def _fingerprint(value) -> str | None:
@@ -485,7 +463,7 @@ def _gltf_json(path: Path) -> dict:
     except FileNotFoundError:
         raise SceneError(f"mesh file not found: {path}") from None
     except (OSError, ValueError, struct.error) as e:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
-        raise SceneError(f"cannot read mesh file {path}: {_one_line(e)}") from None
+        raise SceneError(f"cannot read mesh file {path}: {one_line(e)}") from None
     if not isinstance(doc, dict):
         raise SceneError(f"cannot read mesh file {path}: the glTF JSON is not an object")
     return doc
@@ -525,14 +503,14 @@ def _gltf_camera(gltf: dict, path: Path) -> tuple[Camera | None, float | None]:
                     camera = Camera(
                         origin=tuple(origin), target=tuple(origin - world[:3, 2]), up=tuple(world[:3, 1]), fov=math.degrees(yfov), fov_axis="y"
                     )
-                    if aspect is not None and not (_is_number(aspect) and aspect > 0):
+                    if aspect is not None and not (is_number(aspect) and aspect > 0):
                         raise ValueError(f"aspectRatio must be a positive number, got {aspect!r}")
                     return camera, (float(aspect) if aspect is not None else None)
             stack.extend((c, world) for c in reversed(node.get("children", [])))
     except SceneError as e:
         raise SceneError(f"{path}: glTF camera: {e}") from None
     except (KeyError, IndexError, TypeError, ValueError, AttributeError) as e:
-        raise SceneError(f"{path}: invalid glTF camera or node: {_one_line(e) or type(e).__name__}") from None
+        raise SceneError(f"{path}: invalid glTF camera or node: {one_line(e) or type(e).__name__}") from None
     return None, None
 
 
@@ -559,60 +537,3 @@ def _framing_camera(vertices: np.ndarray) -> Camera:
     radius = max(float(np.linalg.norm(hi - lo)) / 2, 1e-6)
     distance = 1.05 * radius / math.sin(math.radians(FRAMING_FOV / 2))
     return Camera(origin=tuple(centre + [0.0, 0.0, distance]), target=tuple(centre), up=(0, 1, 0), fov=FRAMING_FOV, fov_axis="smaller")
-
-
-# ---------------------------------------------------------------- value checks
-
-
-def _one_line(x) -> str:
-    return " ".join(str(x).split())
-
-
-def _show(value) -> str:
-    text = repr(value)
-    return _one_line(text if len(text) <= 60 else text[:57] + "...")
-
-
-def _check_keys(doc: dict, allowed: set, where: str) -> None:
-    unknown = sorted(str(k) for k in set(doc) - allowed)
-    if unknown:
-        raise SceneError(f"{where}: unknown key {unknown[0]!r} (allowed: {', '.join(sorted(allowed))})")
-
-
-def _table(doc: dict, key: str, where: str) -> dict:
-    value = doc.get(key, {})
-    if not isinstance(value, dict):
-        raise SceneError(f"{where}: '{key}' must be a table, got {_show(value)}")
-    return value
-
-
-def _is_number(x) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool)
-
-
-def _number(doc: dict, key: str, where: str, required: bool = False) -> float:
-    if key not in doc and required:
-        raise SceneError(f"{where}: missing required key '{key}' (a number)")
-    value = doc.get(key)
-    if not _is_number(value):
-        raise SceneError(f"{where}: '{key}' must be a number, got {_show(value)}")
-    return float(value)
-
-
-def _string(doc: dict, key: str, where: str, required: bool = False) -> str:
-    if key not in doc and required:
-        raise SceneError(f"{where}: missing required key '{key}' (a string)")
-    value = doc.get(key)
-    if not isinstance(value, str):
-        raise SceneError(f"{where}: '{key}' must be a string, got {_show(value)}")
-    return value
-
-
-def _vector(doc: dict, key: str, where: str, length: int = 3, required: bool = False, scalar_ok: bool = False) -> list[float]:
-    expected = f"a number or a list of {length} numbers" if scalar_ok else f"a list of {length} numbers"
-    if key not in doc and required:
-        raise SceneError(f"{where}: missing required key '{key}' ({expected})")
-    value = doc.get(key)
-    if not isinstance(value, list) or len(value) != length or not all(_is_number(x) for x in value):
-        raise SceneError(f"{where}: '{key}' must be {expected}, got {_show(value)}")
-    return [float(x) for x in value]
