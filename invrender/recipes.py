@@ -128,15 +128,21 @@ def _recipe_errors(parse):
     return checked
 
 
+def _read_recipe(path, keys: set, required: str, what: str) -> tuple[Path, str, dict]:
+    """(path, its name for messages, the document) of a recipe whose keys must be among ``keys`` and
+    whose string key ``required`` (``what``) must be there."""
+    path = Path(path)
+    doc = read_toml(path, "recipe")
+    check_keys(doc, keys, str(path))
+    if not isinstance(doc.get(required), str):
+        raise ParameterError(f"{path}: '{required}' ({what}) is required")
+    return path, str(path), doc
+
+
 @_recipe_errors
 def load_dataset_recipe(path) -> DatasetRecipe:
     """A dataset recipe (format in the module docstring); ParameterError naming the file and key."""
-    path = Path(path)
-    where = str(path)
-    doc = read_toml(path, "recipe")
-    check_keys(doc, DATASET_KEYS, where)
-    if not isinstance(doc.get("scene"), str):
-        raise ParameterError(f"{where}: 'scene' (a built-in name or a scene file) is required")
+    path, where, doc = _read_recipe(path, DATASET_KEYS, "scene", "a built-in name or a scene file")
     scene = doc["scene"]
     if Path(scene).suffix:  # a file, relative to the recipe
         scene = str((path.parent / scene).resolve())
@@ -245,12 +251,7 @@ def load_dataset(directory) -> tuple[Scene, list[torch.Tensor], list[Camera], di
 def load_fit_recipe(path) -> FitRecipe:
     """A fit recipe and the dataset recipe it names (format in the module docstring); ParameterError
     naming the file and key."""
-    path = Path(path)
-    where = str(path)
-    doc = read_toml(path, "recipe")
-    check_keys(doc, FIT_KEYS, where)
-    if not isinstance(doc.get("dataset"), str):
-        raise ParameterError(f"{where}: 'dataset' (a dataset recipe) is required")
+    path, where, doc = _read_recipe(path, FIT_KEYS, "dataset", "a dataset recipe")
     settings = table(doc, "fit", where)
     check_keys(settings, _setting_names(), f"{where} [fit]")
     choices = _fit_choices(doc, settings, where, required=True)
