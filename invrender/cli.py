@@ -320,8 +320,10 @@ def run_fit(args) -> int:
     else:
         if not (args.scene and args.target and args.params):
             raise ParameterError("fit needs a recipe, or all of --scene, --target and --params")
-        targets = [ir.read_image(t) for t in args.target]
-        resolution = args.resolution or (targets[0].shape[1], targets[0].shape[0])
+        targets = list(args.target)  # paths: fit reads them, and its errors name the file
+        if args.resolution is None:
+            height, width = ir.read_image(targets[0]).shape[:2]
+        resolution = args.resolution or (width, height)
         scene = ir.load_scene(args.scene, resolution=resolution)
         names, init = [n.strip() for n in args.params.split(",") if n.strip()], parse_init(args.init)
         extra["targets"] = list(args.target)
