@@ -16,7 +16,7 @@ from invrender.inverse.fit import FitResult, fit
 from invrender.inverse.gradcheck import gradcheck
 from invrender.io import read_image, write_image
 from invrender.scene import load_scene
-from invrender.transport.render import render
+from invrender.diff import render
 
 __version__ = "0.1.0"
 

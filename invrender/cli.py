@@ -52,6 +52,13 @@ illumination, ...; -1 = unbounded (paths end by Russian roulette only). With --t
 """
 
 
+def integrator_help() -> str:
+    """One clause per registered integrator, for ``--integrator``'s help."""
+    from invrender.transport.integrators import INTEGRATORS
+
+    return "; ".join(f"{name}: {cls.summary}" for name, cls in INTEGRATORS.items()) + " (default: path)"
+
+
 def parse_resolution(text: str) -> tuple[int, int]:
     """``"WxH"`` -> (width, height)."""
     try:
@@ -109,12 +116,12 @@ def build_parser() -> argparse.ArgumentParser:
     add_scene_argument(r)
     r.add_argument("--out", nargs="+", default=["out.exr"], metavar="PATH", help="output image(s): .exr (linear float32) and/or .png (sRGB, clipped) (default: out.exr)")
     r.add_argument("--spp", type=int, default=64, help="samples per pixel (default: 64)")
-    r.add_argument("--max-depth", type=int, default=8, help="Neumann terms kept, Mitsuba's count; -1 = unbounded (default: 8)")
+    r.add_argument("--max-depth", type=int, default=None, help="Neumann terms kept, Mitsuba's count; -1 = unbounded (default: 8; utah: 2)")
     r.add_argument("--resolution", type=parse_resolution, default=None, metavar="WxH", help="image size in pixels (default: the scene's)")
-    r.add_argument("--integrator", default="path", help="path (NEE + MIS, default), random_walk (BSDF sampling only) or utah (direct light + ambient rho*eps0, at most 2 terms)")
-    r.add_argument("--ambient", type=parse_rgb, default=None, metavar="R,G,B", help="ambient radiance eps0 for --integrator utah (one number or R,G,B; default: the scene's, else 0)")
+    r.add_argument("--integrator", default="path", help=integrator_help())
+    r.add_argument("--ambient", type=parse_rgb, default=None, metavar="R,G,B", help="ambient radiance eps0 for --integrator utah, whitted or distributed (one number or R,G,B; default: the scene's, else 0)")
     r.add_argument("--seed", type=int, default=0, help="random seed; the image is a pure function of it (default: 0)")
-    r.add_argument("--rr-depth", type=int, default=5, help="Russian roulette starts after this many terms (default: 5)")
+    r.add_argument("--rr-depth", type=int, default=None, help="Russian roulette starts after this many terms (path, random_walk, distributed; default: 5)")
     r.add_argument("--terms", action="store_true", help="also write one image per Neumann term (OUT_STEM.termK.SUFFIX)")
     r.add_argument("--device", default="cpu", help="torch device: cpu or cuda (default: cpu)")
     r.add_argument("--backend", default=None, help="intersection backend: embree (CPU) or torch (any device); default by device")
@@ -227,7 +234,7 @@ FIT_OPTIONS = [
     ("max_depth", int, "Neumann terms kept (default: 8)"),
     ("lr", float, "Adam step size for reflectances, logit units (default: 0.15)"),
     ("lr_emission", float, "Adam step size for emissions, log units (default: 0.15)"),
-    ("integrator", str, "the model fitted: path, random_walk or utah (default: path)"),
+    ("integrator", str, "the model fitted: path, random_walk, utah, whitted or distributed (default: path)"),
     ("loss", str, "relative_l2, l2, l1 or ssim (default: relative_l2)"),
     ("estimator", str, "replay or autodiff (default: replay)"),
     ("seed", int, "seed of every render (default: 0)"),

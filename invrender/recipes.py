@@ -199,7 +199,7 @@ def make_dataset(recipe, out, progress: bool = True) -> dict:
     """Render a dataset recipe (a :class:`DatasetRecipe` or its path) into ``out``; returns the manifest."""
     from invrender.inverse.report import write_json
     from invrender.io import write_image
-    from invrender.transport.render import render
+    from invrender.diff import render
 
     recipe = recipe if isinstance(recipe, DatasetRecipe) else load_dataset_recipe(recipe)
     scene = dataset_scene(recipe)

@@ -22,8 +22,9 @@ import torch
 
 from invrender.errors import BaselineError
 from invrender.scene.scene import AMBIENT, Scene
-from invrender.transport.context import RenderSettings
-from invrender.transport.render import render
+from invrender.diff import render
+from invrender.transport.driver import RenderSettings
+from invrender.transport.integrators import make_integrator
 
 FULL = "path"
 
@@ -90,7 +91,8 @@ def compare(scene: Scene, spp: int = 64, seed: int = 0, max_depth: int = -1, pyr
     Raises:
         ParameterError: bad ``spp``, ``seed`` or ``max_depth`` (checked before anything is rendered).
     """
-    RenderSettings(spp=spp, seed=seed, max_depth=max_depth)  # validates before the first render
+    RenderSettings(spp=spp, seed=seed)  # validates before the first render
+    make_integrator("path", max_depth=max_depth)
     eps0 = scene.params[AMBIENT].detach() if AMBIENT in scene.params else torch.zeros(3)
     with torch.no_grad():
         images, error = {}, None

@@ -26,8 +26,10 @@ from invrender.inverse.losses import LOSSES, loss_and_gradient, loss_gradient
 from invrender.io.atomic import atomic_file
 from invrender.scene.camera import Camera
 from invrender.scene.scene import Scene
-from invrender.transport.context import INTEGRATORS, RenderSettings
-from invrender.transport.render import ESTIMATORS, backpropagate, render
+from invrender.diff import ESTIMATORS, backpropagate, render
+from invrender.scene.kinds import kind_of
+from invrender.transport.driver import RenderSettings
+from invrender.transport.integrators import make_integrator
 
 CHECKPOINT_FORMAT = 1
 
@@ -38,8 +40,8 @@ class FitSettings:
 
     Attributes:
         steps: optimizer steps.
-        lr: Adam step size for reflectances, in logit(rho) units (about a relative step for dark
-            channels: 0.05 = 5% per step).
+        lr: Adam step size for [0, 1] parameters (reflectance, specular reflectance), in logit
+            units (about a relative step for dark channels: 0.05 = 5% per step).
         lr_emission: Adam step size for emissions, in log(eps) units (0.05 = 5% per step).
         lr_final: the step sizes decay along a cosine to this fraction of themselves.
         beta2: Adam's second-moment decay. Shorter than the usual 0.999 so that the step size does
@@ -48,7 +50,8 @@ class FitSettings:
         spp: samples per pixel of each render in the first half of the steps.
         spp_final: samples per pixel in the second half (less noise where the steps are small).
         max_depth: Neumann terms kept by the renders (Mitsuba's count).
-        integrator: the model fitted: ``"path"``, ``"random_walk"`` or ``"utah"``.
+        integrator: the model fitted: ``"path"``, ``"random_walk"``, ``"utah"``, ``"whitted"`` or
+            ``"distributed"``.
         loss: ``"l2"``, ``"l1"``, ``"relative_l2"`` or ``"ssim"``.
         estimator: ``"replay"`` or ``"autodiff"``.
         decorrelate: take ``dl/dI`` from an independent render (unbiased gradient; losses.py).
@@ -81,8 +84,7 @@ class FitSettings:
         for name in ("lr", "lr_emission", "lr_final"):
             if not getattr(self, name) > 0:
                 raise ParameterError(f"fit setting {name} must be positive, got {getattr(self, name)!r}")
-        if self.integrator not in INTEGRATORS:
-            raise ParameterError(f"unknown integrator {self.integrator!r} (known: {', '.join(INTEGRATORS)})")
+        make_integrator(self.integrator, max_depth=self.max_depth)  # validates both
         if self.loss not in LOSSES:
             raise ParameterError(f"unknown loss {self.loss!r} (known: {', '.join(LOSSES)})")
         if self.estimator not in ESTIMATORS:
@@ -159,7 +161,7 @@ def fit(
     truth = {k: torch.as_tensor(v, dtype=torch.float32) for k, v in (truth or {}).items()}
 
     raw = {n: P.to_raw(n, scene.params[n]).requires_grad_(True) for n in names}
-    optimizer = torch.optim.Adam([{"params": [raw[n]], "lr": cfg.lr_emission if P.is_emission(n) else cfg.lr} for n in names], betas=(0.9, cfg.beta2))
+    optimizer = torch.optim.Adam([{"params": [raw[n]], "lr": getattr(cfg, kind_of(n).lr_setting)} for n in names], betas=(0.9, cfg.beta2))
     base_lr = [g["lr"] for g in optimizer.param_groups]
     initial = {n: scene.params[n].detach().clone() for n in names}
     history: list[dict] = []
@@ -209,15 +211,16 @@ def _view_loss(view_scene: Scene, values, target, cfg: FitSettings, step: int, v
     work = dataclasses.replace(view_scene, params={**view_scene.params, **values})
     spp = cfg.spp_at(step)
     seed = cfg.seed * 1_000_003 + 2 * (step * n_views + view)
-    kw = dict(integrator=cfg.integrator, spp=spp, max_depth=cfg.max_depth, progress=False)
+    integrator = make_integrator(cfg.integrator, max_depth=cfg.max_depth)
+    kw = dict(spp=spp, progress=False)
     if not cfg.decorrelate:
-        image = render(work, seed=seed, estimator=cfg.estimator, **kw)
+        image = render(work, integrator, seed=seed, estimator=cfg.estimator, **kw)
         return loss_and_gradient(cfg.loss, target, image, image / n_views) / n_views
     # dl/dI from one render, differentiated through another (independent seed): unbiased (losses.py)
     with torch.no_grad():
-        residual = render(work, seed=seed + 1, **kw)
+        residual = render(work, integrator, seed=seed + 1, **kw)
     dl_dI, value = loss_gradient(cfg.loss, target, residual)
-    backpropagate(work, dl_dI / n_views, RenderSettings(seed=seed, **kw), cfg.estimator)
+    backpropagate(work, dl_dI / n_views, integrator, RenderSettings(seed=seed, **kw), cfg.estimator)
     return value / n_views
 
 

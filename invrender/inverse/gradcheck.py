@@ -16,7 +16,8 @@ import torch
 from invrender.errors import ParameterError
 from invrender.inverse.params import check_names
 from invrender.scene.scene import Scene
-from invrender.transport.render import ESTIMATORS, render
+from invrender.diff import ESTIMATORS, render
+from invrender.scene.kinds import kind_of
 
 
 @dataclass(frozen=True)
@@ -56,7 +57,8 @@ def gradcheck(
     Args:
         params: names (list or comma-separated string).
         estimators: which estimators to check.
-        h: finite-difference step, relative to the component's magnitude (absolute below 1).
+        h: finite-difference step, relative to the component's magnitude (absolute below 1),
+            shortened where it would leave the parameter kind's range.
         max_components: at most this many components per parameter (textures have many).
     Returns:
         one :class:`GradcheckRow` per component checked.
@@ -89,10 +91,8 @@ def gradcheck(
         for n in names:
             flat = scene.params[n].view(-1)
             for i in range(min(flat.numel(), max_components)):
-                step = h * max(1.0, abs(float(flat[i])))
-                if n.endswith(".reflectance"):
-                    step = min(step, max(float(flat[i]), 1e-6), max(1.0 - float(flat[i]), 1e-6))  # stay inside [0, 1]
                 original = float(flat[i])
+                step = kind_of(n).fd_interval(original) * h / kind_of(n).fd_step  # stays inside the kind's range
                 flat[i] = original + step
                 plus = float((render(scene, **kw) * weights).sum())
                 flat[i] = original - step

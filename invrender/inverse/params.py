@@ -1,11 +1,12 @@
-"""Which parameters a fit changes, and how it keeps them physical (DESIGN.md decision 6).
+"""Which parameters a fit changes, and how it keeps them physical.
 
-Both are reparametrizations, so every value the optimizer can reach is feasible:
+Each parameter's kind (:mod:`invrender.scene.kinds`) says how; both are reparametrizations, so
+every value the optimizer can reach is feasible:
 
-- reflectance rho = sigmoid(x): rho stays in (0, 1); near 0 (and near 1) a step in x is a *relative*
-  step in rho (resp. 1 - rho), so a dark channel such as the red wall's green (0.04) converges to the
-  same relative accuracy as a bright one; and rho never reaches 0 exactly, where path replay's
-  vertex adjoint ``L_rem / rho`` is undefined.
+- [0, 1] kinds (reflectance rho, specular reflectance k_s) = sigmoid(x): they stay in (0, 1); near 0
+  (and near 1) a step in x is a *relative* step in rho (resp. 1 - rho), so a dark channel such as the
+  red wall's green (0.04) converges to the same relative accuracy as a bright one; and rho never
+  reaches 0 exactly, where path replay's vertex adjoint ``L_rem / w`` is undefined.
 - emission eps = exp(x): eps > 0, and Adam's steps are relative, so dim and bright lights converge
   alike.
 """
@@ -18,10 +19,9 @@ import warnings
 import torch
 
 from invrender.errors import ParameterError
+from invrender.scene.kinds import kind_of
 from invrender.scene.scene import AMBIENT
 
-RHO_MIN = 1e-4
-EPS_MIN = 1e-6
 
 
 def check_names(params, names) -> list[str]:
@@ -41,21 +41,14 @@ def check_names(params, names) -> list[str]:
     return names
 
 
-def is_emission(name: str) -> bool:
-    return name.endswith(".emission")
-
-
 def to_raw(name: str, value: torch.Tensor) -> torch.Tensor:
     """The unconstrained leaf the optimizer moves, from a parameter value."""
-    v = value.detach().clone()
-    if is_emission(name):
-        return v.clamp_min(EPS_MIN).log()
-    return torch.logit(v.clamp(RHO_MIN, 1.0 - RHO_MIN))
+    return kind_of(name).to_raw(value)
 
 
 def from_raw(name: str, raw: torch.Tensor) -> torch.Tensor:
     """The parameter value (differentiable) from the optimizer's leaf."""
-    return raw.exp() if is_emission(name) else torch.sigmoid(raw)
+    return kind_of(name).from_raw(raw)
 
 
 def warn_unused(grads: dict[str, torch.Tensor]) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from invrender.errors import SceneError
 from invrender.scene.camera import Camera
 from invrender.scene.scene import Scene, build_scene
-from invrender.scene.shapes import Mesh, cube, rectangle, rotate, scale, sphere, translate
+from invrender.scene.shapes import Mesh, primitive, rotate, scale, sphere, translate
 
 # Mitsuba 3's cornell_box() (REFERENCES.md): diffuse albedos in linear RGB and the light's radiance.
 CORNELL_WHITE = (0.885809, 0.698859, 0.666422)
@@ -14,9 +14,8 @@ CORNELL_RED = (0.570068, 0.0430135, 0.0443706)
 CORNELL_LIGHT = (18.387, 13.9873, 6.75357)
 
 
-def _shape(primitive, matrix, material, emitter=None) -> Mesh:
-    v, f, uv = primitive()
-    return Mesh(v, f, uv, material, emitter).transformed(matrix)
+def _shape(kind: str, matrix, material, emitter=None) -> Mesh:
+    return primitive(kind, material, emitter).transformed(matrix)
 
 
 def cornell_box(resolution=(256, 256)) -> Scene:
@@ -28,19 +27,19 @@ def cornell_box(resolution=(256, 256)) -> Scene:
     emitter: ``light``.
     """
     shapes = [
-        _shape(rectangle, translate([0, -1, 0]) @ rotate([1, 0, 0], -90), "white"),  # floor
-        _shape(rectangle, translate([0, 1, 0]) @ rotate([1, 0, 0], 90), "white"),  # ceiling
-        _shape(rectangle, translate([0, 0, -1]), "white"),  # back wall
-        _shape(rectangle, translate([1, 0, 0]) @ rotate([0, 1, 0], -90), "green"),  # right wall
-        _shape(rectangle, translate([-1, 0, 0]) @ rotate([0, 1, 0], 90), "red"),  # left wall
-        _shape(cube, translate([0.335, -0.7, 0.38]) @ rotate([0, 1, 0], -17) @ scale(0.3), "white"),
-        _shape(cube, translate([-0.33, -0.4, -0.28]) @ rotate([0, 1, 0], 18.25) @ scale([0.3, 0.61, 0.3]), "white"),
-        _shape(rectangle, translate([0, 0.99, 0.01]) @ rotate([1, 0, 0], 90) @ scale([0.23, 0.19, 0.19]), "white", "light"),
+        _shape("rectangle", translate([0, -1, 0]) @ rotate([1, 0, 0], -90), "white"),  # floor
+        _shape("rectangle", translate([0, 1, 0]) @ rotate([1, 0, 0], 90), "white"),  # ceiling
+        _shape("rectangle", translate([0, 0, -1]), "white"),  # back wall
+        _shape("rectangle", translate([1, 0, 0]) @ rotate([0, 1, 0], -90), "green"),  # right wall
+        _shape("rectangle", translate([-1, 0, 0]) @ rotate([0, 1, 0], 90), "red"),  # left wall
+        _shape("cube", translate([0.335, -0.7, 0.38]) @ rotate([0, 1, 0], -17) @ scale(0.3), "white"),
+        _shape("cube", translate([-0.33, -0.4, -0.28]) @ rotate([0, 1, 0], 18.25) @ scale([0.3, 0.61, 0.3]), "white"),
+        _shape("rectangle", translate([0, 0.99, 0.01]) @ rotate([1, 0, 0], 90) @ scale([0.23, 0.19, 0.19]), "white", "light"),
     ]
     camera = Camera(origin=(0, 0, 3.9), target=(0, 0, 0), up=(0, 1, 0), fov=39.3077, fov_axis="smaller")
     return build_scene(
         shapes,
-        reflectance={"white": CORNELL_WHITE, "red": CORNELL_RED, "green": CORNELL_GREEN},
+        materials={"white": CORNELL_WHITE, "red": CORNELL_RED, "green": CORNELL_GREEN},
         emission={"light": CORNELL_LIGHT},
         camera=camera,
         resolution=resolution,
@@ -58,7 +57,7 @@ def furnace(resolution=(32, 32), rho=0.5, eps=1.0, subdivisions: int = 3) -> Sce
     shell = Mesh(*sphere(subdivisions), material="wall", emitter="glow").flipped()  # faces point inwards
     camera = Camera(origin=(0, 0, 0), target=(0, 0, -1), up=(0, 1, 0), fov=60.0)
     return build_scene(
-        [shell], reflectance={"wall": _rgb(rho)}, emission={"glow": _rgb(eps)}, camera=camera, resolution=resolution, name="furnace"
+        [shell], materials={"wall": _rgb(rho)}, emission={"glow": _rgb(eps)}, camera=camera, resolution=resolution, name="furnace"
     )
 
 

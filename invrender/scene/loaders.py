@@ -22,6 +22,8 @@ allowed keys). Out-of-range colours (rho outside [0, 1], eps < 0) are
     up = [0, 1, 0]                     # approximate up direction
     fov = 39.3077                      # full field of view in degrees, along fov_axis
     fov_axis = "smaller"               # x | y | smaller | larger
+    aperture_radius = 0.0              # thin lens radius, >= 0 (0 = pinhole, the default)
+    focus_distance = 3.9               # distance of the plane in focus along the view axis, > 0
 
     [materials.white]                  # one table per material: diffuse (Lambertian, two-sided) reflectance rho
     reflectance = [0.8, 0.8, 0.8]      # linear RGB in [0, 1], or one number for grey; or instead
@@ -98,12 +100,13 @@ import numpy as np
 
 from invrender.errors import InvRenderError, SceneError
 from invrender.scene.camera import FOV_AXES, Camera
+from invrender.scene.materials import DEFAULT_TYPE, Material, material_type
 from invrender.scene.scene import Scene, build_scene
-from invrender.scene.shapes import PRIMITIVES, Mesh, rotate, scale, translate
+from invrender.scene.shapes import PRIMITIVES, Mesh, primitive, rotate, scale, translate
 from invrender.scene.toml_values import check_keys, integer, is_number, number, one_line, read_toml, show, string, table, vector
 
 TOP_KEYS = {"name", "resolution", "ambient", "camera", "materials", "emitters", "shapes"}
-CAMERA_KEYS = {"origin", "target", "up", "fov", "fov_axis"}
+CAMERA_KEYS = {"origin", "target", "up", "fov", "fov_axis", "aperture_radius", "focus_distance"}
 SHAPE_KEYS = {"type", "material", "emitter", "file", "subdivisions", "flip_normals", "transform"}
 SHAPE_TYPES = (*PRIMITIVES, "mesh")
 TRANSFORM_STEPS = ("translate", "rotate", "scale")
@@ -133,12 +136,9 @@ def load_toml(path, resolution=None) -> Scene:
     name = string(doc, "name", where) if "name" in doc else path.stem
     file_resolution = tuple(vector(doc, "resolution", where, length=2)) if "resolution" in doc else DEFAULT_RESOLUTION
     camera = camera_from_table(table(doc, "camera", where), f"{where} [camera]")
-    reflectance = {
-        k: _colour_or_texture(v, "reflectance", f"{where} [materials.{k}]", path.parent)
-        for k, v in table(doc, "materials", where).items()
-    }
+    materials = {k: _material(v, f"{where} [materials.{k}]", path.parent) for k, v in table(doc, "materials", where).items()}
     emission = {
-        k: _colour_or_texture(v, "emission", f"{where} [emitters.{k}]", path.parent)
+        k: _colour_or_texture(v, "emission", f"{where} [emitters.{k}]", path.parent, others=set())
         for k, v in table(doc, "emitters", where).items()
     }
     shapes_doc = doc.get("shapes", [])
@@ -147,7 +147,7 @@ def load_toml(path, resolution=None) -> Scene:
     meshes = [_shape(s, f"{where} shapes[{i}]", path.parent) for i, s in enumerate(shapes_doc)]
 
     try:
-        scene = build_scene(meshes, reflectance, emission, camera, file_resolution if resolution is None else resolution, name=name)
+        scene = build_scene(meshes, materials, emission, camera, file_resolution if resolution is None else resolution, name=name)
     except SceneError as e:
         raise SceneError(f"{where}: {e}") from None
     if "ambient" in doc:
@@ -162,8 +162,9 @@ def camera_from_table(doc, where: str) -> Camera:
         raise SceneError(f"{where}: must be a table of camera keys, got {show(doc)}")
     check_keys(doc, CAMERA_KEYS, where)
     args = {k: vector(doc, k, where) for k in ("origin", "target", "up") if k in doc}
-    if "fov" in doc:
-        args["fov"] = number(doc, "fov", where)
+    for key in ("fov", "aperture_radius", "focus_distance"):
+        if key in doc:
+            args[key] = number(doc, key, where)
     if "fov_axis" in doc:
         args["fov_axis"] = string(doc, "fov_axis", where)
         if args["fov_axis"] not in FOV_AXES:
@@ -185,15 +186,13 @@ def _shape(doc: dict, where: str, base: Path) -> Mesh:
         raise SceneError(f"{where}: 'subdivisions' applies to type = \"sphere\" only")
     if kind != "mesh" and "file" in doc:
         raise SceneError(f"{where}: 'file' applies to type = \"mesh\" only")
-    if kind == "mesh":
-        make, args = _mesh_arrays, (base / string(doc, "file", where, required=True),)
-    else:
-        make, args = PRIMITIVES[kind], ((integer(doc, "subdivisions", where),) if "subdivisions" in doc else ())
     try:
-        v, f, uv = make(*args)
+        if kind == "mesh":
+            mesh = Mesh(*_mesh_arrays(base / string(doc, "file", where, required=True)), material, emitter)
+        else:
+            mesh = primitive(kind, material, emitter, *((integer(doc, "subdivisions", where),) if "subdivisions" in doc else ()))
     except SceneError as e:  # a bad mesh file, subdivisions out of range
         raise SceneError(f"{where}: {e}") from None
-    mesh = Mesh(v, f, uv, material, emitter)
     flip = doc.get("flip_normals", False)
     if not isinstance(flip, bool):
         raise SceneError(f"{where}: 'flip_normals' must be true or false, got {show(flip)}")
@@ -231,12 +230,33 @@ def _transform(ops, where: str) -> np.ndarray:
     return matrix
 
 
-def _colour_or_texture(doc, kind: str, where: str, base: Path):
-    """An RGB list or a linear (h, w, 3) texture tensor from a material/emitter table."""
+def _material(doc, where: str, base: Path) -> Material:
+    """A :class:`Material` from a ``[materials.NAME]`` table: ``type`` (default diffuse), the type's
+    parameters (RGB, one number, or ``KEY_texture`` where the kind allows) and constants."""
+    if not isinstance(doc, dict):
+        raise SceneError(f"{where}: must be a table of material keys, got {show(doc)}")
+    kind = string(doc, "type", where) if "type" in doc else DEFAULT_TYPE
+    spec = material_type(kind, where)
+    check_keys(doc, spec.keys | {"type"}, where)
+    entries = {}
+    for key, (param_kind, _) in spec.params.items():
+        if key in doc or f"{key}_texture" in doc:
+            entries[key] = _colour_or_texture(doc, key, where, base)
+    for key in spec.constants:
+        if key in doc:
+            entries[key] = doc[key]
+    return Material.of(kind, where, **entries)
+
+
+def _colour_or_texture(doc, kind: str, where: str, base: Path, others: set | None = None):
+    """An RGB list or a linear (h, w, 3) texture tensor from a material/emitter table.
+
+    ``others``: further keys the table may hold (None: the table is checked by its caller)."""
     key_tex = f"{kind}_texture"
     if not isinstance(doc, dict):
         raise SceneError(f"{where}: must be a table with '{kind}' or '{key_tex}', got {show(doc)}")
-    check_keys(doc, {kind, key_tex}, where)
+    if others is not None:
+        check_keys(doc, {kind, key_tex} | others, where)
     if (kind in doc) == (key_tex in doc):
         raise SceneError(f"{where}: give exactly one of '{kind}' or '{key_tex}'")
     if kind in doc:

@@ -1,13 +1,18 @@
 """The Scene: triangles as tensors, named materials and emitters, camera, resolution, parameters.
 
 Geometry is never differentiated (DESIGN.md decision 1), so positions are plain float32 tensors.
-What can be differentiated lives in ``scene.params``, a flat dict of dotted names to leaf tensors:
+What can be differentiated lives in ``scene.params``, a flat dict of dotted names to leaf tensors
+(kinds, ranges and reparametrizations in :mod:`invrender.scene.kinds`):
 
 - ``"<material>.reflectance"``: diffuse albedo rho, shape (3,) for a constant or (h, w, 3) for a
   texture over the mesh UVs, values in [0, 1];
+- ``"<material>.specular_reflectance"``: a mirror's or glossy conductor's k_s, shape (3,), in [0, 1];
 - ``"<emitter>.emission"``: emitted radiance eps, shape (3,) or (h, w, 3), values >= 0;
-- ``"ambient.emission"`` (only when the scene sets one): the Utah approximation's constant ambient
-  radiance eps0, shape (3,), values >= 0, read by the ``utah`` integrator alone.
+- ``"ambient.emission"`` (only when the scene sets one): the ambient radiance eps0 of the Utah,
+  Whitted and distributed models, shape (3,), values >= 0.
+
+Material types and their constants (``ior``, ``roughness``) are in ``scene.material_specs``
+(:mod:`invrender.scene.materials`).
 
 ``render`` reads these tensors at every call, so changing one in place (under ``torch.no_grad()``)
 changes the next render.
@@ -26,6 +31,8 @@ import torch
 
 from invrender.errors import ParameterError, SceneError
 from invrender.scene.camera import Camera
+from invrender.scene.kinds import kind_of, param_name
+from invrender.scene.materials import Material
 from invrender.scene.shapes import Mesh
 
 #: the parameter holding the ambient radiance eps0 of the Utah approximation ("ambient" is reserved)
@@ -45,6 +52,9 @@ class Triangles:
         uv: (T, 3, 2) texture coordinates at the three vertices.
         material: (T,) int64 index into ``Scene.materials``.
         emitter: (T,) int64 index into ``Scene.emitters``, -1 where the triangle does not emit.
+        vertex_normal: (T, 3, 3) unit shading normals at the three vertices, on the front side
+            (the geometric normal, three times, where the mesh has none).
+        smooth: (T,) bool, True where the triangle shades with interpolated vertex normals.
     """
 
     p0: torch.Tensor
@@ -55,6 +65,8 @@ class Triangles:
     uv: torch.Tensor
     material: torch.Tensor
     emitter: torch.Tensor
+    vertex_normal: torch.Tensor
+    smooth: torch.Tensor
 
     @property
     def count(self) -> int:
@@ -67,6 +79,11 @@ class Triangles:
     def packed(self) -> torch.Tensor:
         """(T, 18) float32 rows ``[p0, e1, e2, normal, uv0, uv1, uv2]``: one gather per hit batch."""
         return torch.cat([self.p0, self.e1, self.e2, self.normal, self.uv.reshape(-1, 6)], dim=1)
+
+    @functools.cached_property
+    def any_smooth(self) -> bool:
+        """Does any triangle shade with vertex normals (else shading skips interpolating them)?"""
+        return bool(self.smooth.any())
 
     def corners(self) -> torch.Tensor:
         """(T, 3, 3) vertex positions."""
@@ -81,10 +98,12 @@ class Scene:
         triangles: per-triangle geometry (see :class:`Triangles`).
         materials: material names; ``triangles.material`` indexes this tuple.
         emitters: emitter names; ``triangles.emitter`` indexes this tuple.
-        camera: the perspective camera.
+        camera: the camera (pinhole or thin lens).
         resolution: (width, height) in pixels.
-        params: ``{"<material>.reflectance": rho, "<emitter>.emission": eps}``, leaf tensors.
+        params: ``{"<material>.reflectance": rho, "<emitter>.emission": eps, ...}``, leaf tensors.
         name: a label for messages and reports.
+        material_specs: one :class:`~invrender.scene.materials.Material` per material (type and
+            constants; its values live in ``params``); empty = every material diffuse.
     """
 
     triangles: Triangles
@@ -94,6 +113,7 @@ class Scene:
     resolution: tuple[int, int]
     params: dict[str, torch.Tensor] = field(default_factory=dict)
     name: str = "scene"
+    material_specs: tuple[Material, ...] = ()
 
     @property
     def device(self) -> torch.device:
@@ -130,8 +150,14 @@ class Scene:
                 raise ParameterError(f"{AMBIENT} must be an RGB triple or one number, not a texture")
         return dataclasses.replace(self, params=params)
 
+    def material_spec(self, material: int) -> Material:
+        """Type and constants of material ``material`` (an index into ``materials``)."""
+        return self.material_specs[material] if self.material_specs else Material()
+
     def reflectance_of(self, material: int) -> torch.Tensor:
-        return self.params[f"{self.materials[material]}.reflectance"]
+        """The diffuse reflectance rho of material ``material``; zero for materials without one."""
+        key = f"{self.materials[material]}.reflectance"
+        return self.params[key] if key in self.params else torch.zeros(3)
 
     def emission_of(self, emitter: int) -> torch.Tensor:
         return self.params[f"{self.emitters[emitter]}.emission"]
@@ -150,7 +176,7 @@ def check_resolution(resolution) -> tuple[int, int]:
 
 
 def check_param_value(name: str, value) -> torch.Tensor:
-    """Validate one parameter value: shape (3,) or (h, w, 3), finite, rho in [0, 1], eps >= 0."""
+    """Validate one parameter value: shape (3,) or (h, w, 3), finite, in its kind's range."""
     try:
         t = torch.as_tensor(value, dtype=torch.float32).detach().clone()
     except (TypeError, ValueError, RuntimeError):
@@ -161,46 +187,46 @@ def check_param_value(name: str, value) -> torch.Tensor:
         raise ParameterError(f"{name}: expected shape (3,) or (h, w, 3), got {tuple(t.shape)}")
     if not torch.isfinite(t).all():
         raise ParameterError(f"{name}: values must be finite")
-    if name.endswith(".reflectance") and (t.min() < 0 or t.max() > 1):
-        raise ParameterError(f"{name}: reflectance rho must lie in [0, 1], got values in [{t.min():.4g}, {t.max():.4g}]")
-    if name.endswith(".emission") and t.min() < 0:
-        raise ParameterError(f"{name}: emission eps must be >= 0, got a minimum of {t.min():.4g}")
+    kind_of(name).check(name, t)
     return t
 
 
 def build_scene(
     meshes: Sequence[Mesh],
-    reflectance: dict[str, object],
+    materials: dict[str, object],
     emission: dict[str, object],
     camera: Camera,
     resolution,
     name: str = "scene",
 ) -> Scene:
-    """Assemble a :class:`Scene` from meshes and named parameter values.
+    """Assemble a :class:`Scene` from meshes and named materials and emitters.
 
     Args:
-        meshes: the shapes; each names a material in ``reflectance`` and optionally an emitter in
+        meshes: the shapes; each names a material in ``materials`` and optionally an emitter in
             ``emission``.
-        reflectance: material name -> rho, an RGB triple or an (h, w, 3) texture.
+        materials: material name -> a :class:`~invrender.scene.materials.Material`, or just a
+            diffuse reflectance rho (an RGB triple, one number or an (h, w, 3) texture).
         emission: emitter name -> eps, an RGB triple or an (h, w, 3) texture.
     Raises:
         SceneError: unknown material or emitter names, bad indices, no triangles.
+        ParameterError: a value outside its kind's range.
     """
     resolution = check_resolution(resolution)
-    overlap = set(reflectance) & set(emission)
-    if "ambient" in set(reflectance) | set(emission):
+    overlap = set(materials) & set(emission)
+    if "ambient" in set(materials) | set(emission):
         raise SceneError("'ambient' is reserved for the ambient radiance eps0: name the material or emitter otherwise")
     if overlap:
         raise SceneError(f"names used both as material and emitter: {', '.join(sorted(overlap))}")
-    materials = tuple(reflectance)
+    specs = {k: v if isinstance(v, Material) else Material(values={"reflectance": v}) for k, v in materials.items()}
+    material_names = tuple(materials)
     emitters = tuple(emission)
-    params = {f"{k}.reflectance": check_param_value(f"{k}.reflectance", v) for k, v in reflectance.items()}
+    params = {param_name(k, key): check_param_value(param_name(k, key), v) for k, m in specs.items() for key, v in m.values.items()}
     params.update({f"{k}.emission": check_param_value(f"{k}.emission", v) for k, v in emission.items()})
 
-    tris, uvs, mats, emits = [], [], [], []
+    tris, uvs, mats, emits, normals, smooth = [], [], [], [], [], []
     for mesh in meshes:
-        if mesh.material not in reflectance:
-            raise SceneError(f"shape uses unknown material {mesh.material!r} (known: {', '.join(materials) or 'none'})")
+        if mesh.material not in materials:
+            raise SceneError(f"shape uses unknown material {mesh.material!r} (known: {', '.join(material_names) or 'none'})")
         if mesh.emitter is not None and mesh.emitter not in emission:
             raise SceneError(f"shape uses unknown emitter {mesh.emitter!r} (known: {', '.join(emitters) or 'none'})")
         v = np.asarray(mesh.vertices, dtype=np.float64)
@@ -216,7 +242,15 @@ def build_scene(
             raise SceneError(f"mesh uvs must have shape ({len(v)}, 2), got {uv.shape}")
         tris.append(v[f])
         uvs.append(uv[f])
-        mats.append(np.full(len(f), materials.index(mesh.material)))
+        if mesh.normals is not None:
+            vn = np.asarray(mesh.normals, dtype=np.float64)
+            if vn.shape != (len(v), 3) or not np.isfinite(vn).all():
+                raise SceneError(f"mesh normals must be finite with shape ({len(v)}, 3), got {vn.shape}")
+            normals.append(vn[f] / np.maximum(np.linalg.norm(vn[f], axis=2, keepdims=True), 1e-300))
+        else:
+            normals.append(None)
+        smooth.append(np.full(len(f), mesh.normals is not None))
+        mats.append(np.full(len(f), material_names.index(mesh.material)))
         emits.append(np.full(len(f), -1 if mesh.emitter is None else emitters.index(mesh.emitter)))
     if not tris or sum(len(t) for t in tris) == 0:
         raise SceneError("scene has no triangles")
@@ -234,17 +268,27 @@ def build_scene(
     def t(a, dtype=torch.float32):
         return torch.as_tensor(np.ascontiguousarray(a[keep]), dtype=dtype)
 
+    geometric = cross / np.maximum(2 * area, 1e-300)[:, None]
+    counts = np.cumsum([0] + [len(c) for c in tris])
+    vertex_normal = np.repeat(geometric[:, None, :], 3, axis=1)
+    for i, vn in enumerate(normals):
+        if vn is not None:
+            vertex_normal[counts[i] : counts[i + 1]] = vn
+
     triangles = Triangles(
         p0=t(corners[:, 0]),
         e1=t(corners[:, 1] - corners[:, 0]),
         e2=t(corners[:, 2] - corners[:, 0]),
-        normal=t(cross / np.maximum(2 * area, 1e-300)[:, None]),
+        normal=t(geometric),
         area=t(area),
         uv=t(np.concatenate(uvs)),
         material=t(np.concatenate(mats), torch.int64),
         emitter=t(np.concatenate(emits), torch.int64),
+        vertex_normal=t(vertex_normal),
+        smooth=t(np.concatenate(smooth), torch.bool),
     )
-    return Scene(triangles, materials, emitters, camera, resolution, params, name)
+    specs_only = tuple(Material(m.type, {}, m.constants) for m in specs.values())
+    return Scene(triangles, material_names, emitters, camera, resolution, params, name, specs_only)
 
 
 def scene_extent(triangles: Triangles) -> float:

@@ -25,8 +25,10 @@ class Mesh:
         vertices: (V, 3) float64 positions, world units.
         faces: (F, 3) int64 vertex indices, counter-clockwise seen from the front side.
         uvs: (V, 2) float64 texture coordinates, or None (all zero).
-        material: name of the material giving its reflectance rho.
+        material: name of its material.
         emitter: name of the emitter giving its emitted radiance eps, or None.
+        normals: (V, 3) float64 unit vertex normals on the front side, interpolated over each
+            triangle into its shading normal; None = flat (the geometric normal).
     """
 
     vertices: np.ndarray
@@ -34,16 +36,24 @@ class Mesh:
     uvs: np.ndarray | None
     material: str
     emitter: str | None = None
+    normals: np.ndarray | None = None
 
     def transformed(self, matrix: np.ndarray) -> "Mesh":
-        """This mesh with a 4x4 affine ``matrix`` applied to its vertices (winding kept front-facing)."""
-        v = self.vertices @ matrix[:3, :3].T + matrix[:3, 3]
-        faces = self.faces if np.linalg.det(matrix[:3, :3]) > 0 else self.faces[:, ::-1].copy()
-        return Mesh(v, faces, self.uvs, self.material, self.emitter)
+        """This mesh with a 4x4 affine ``matrix`` applied to its vertices (winding kept front-facing;
+        normals by the inverse transpose, which keeps them on the front side)."""
+        linear = matrix[:3, :3]
+        v = self.vertices @ linear.T + matrix[:3, 3]
+        faces = self.faces if np.linalg.det(linear) > 0 else self.faces[:, ::-1].copy()
+        normals = None
+        if self.normals is not None:
+            n = self.normals @ np.linalg.inv(linear)
+            normals = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        return Mesh(v, faces, self.uvs, self.material, self.emitter, normals)
 
     def flipped(self) -> "Mesh":
         """The same mesh with every triangle's front and back exchanged."""
-        return Mesh(self.vertices, self.faces[:, ::-1].copy(), self.uvs, self.material, self.emitter)
+        normals = None if self.normals is None else -self.normals
+        return Mesh(self.vertices, self.faces[:, ::-1].copy(), self.uvs, self.material, self.emitter, normals)
 
 
 def rectangle() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -85,6 +95,16 @@ def sphere(subdivisions: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 PRIMITIVES = {"rectangle": rectangle, "cube": cube, "sphere": sphere}
+
+
+def primitive(kind: str, material: str, emitter: str | None = None, *args) -> Mesh:
+    """A primitive by name as a :class:`Mesh`; ``args`` go to its constructor (``subdivisions``).
+
+    The sphere carries its exact normals (the unit vertex positions), so it shades smoothly
+    although it is tessellated, as Mitsuba's analytic sphere does; rectangle and cube are flat.
+    """
+    v, f, uv = PRIMITIVES[kind](*args)
+    return Mesh(v, f, uv, material, emitter, v.copy() if kind == "sphere" else None)
 
 
 def _rotation(axis, degrees: float) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Render settings and the per-render context shared by the integrators."""
+"""The per-render context the integrators read, and the loop state of a chunk of paths."""
 
 from __future__ import annotations
 
@@ -7,75 +7,14 @@ from dataclasses import dataclass
 
 import torch
 
-from invrender.errors import ParameterError
+from invrender.scene.kinds import param_name
 from invrender.scene.scene import AMBIENT, Scene, Triangles, scene_extent
 from invrender.transport.accel import make_intersector
+from invrender.transport.bsdfs import Materials, ShadingPoint
 from invrender.transport.lights import EmitterSampler
 from invrender.transport.surface import Surface
 from invrender.transport.textures import gather_rgb
 from invrender.transport.vec import dot
-
-INTEGRATORS = ("path", "random_walk", "utah")
-
-
-@dataclass(frozen=True)
-class RenderSettings:
-    """How to render.
-
-    Attributes:
-        integrator: ``"path"`` (NEE + MIS + Russian roulette), ``"random_walk"`` (BSDF sampling
-            only) or ``"utah"`` (direct light + ambient ``rho eps0``: at most two terms).
-        spp: samples (paths) per pixel, > 0.
-        max_depth: Neumann terms kept, counted as Mitsuba counts: 1 = emitters seen directly,
-            2 = + direct illumination, ...; -1 = unbounded (ended by Russian roulette only).
-        seed: seed of the counter-based random numbers.
-        rr_depth: Russian roulette starts after this many terms (Mitsuba's ``rr_depth``, default 5).
-        terms: return one image per Neumann term, shape (K, H, W, 3), summing to the full image.
-        backend: intersection backend ``"embree"`` or ``"torch"``; None = the device's default.
-        chunk_paths: paths traced per chunk; None = sized by ``memory_mb``.
-        memory_mb: memory budget for one chunk's working set, MiB.
-        progress: show a progress bar (rate, ETA) on renders that take longer than a second.
-    """
-
-    integrator: str = "path"
-    spp: int = 64
-    max_depth: int = 8
-    seed: int = 0
-    rr_depth: int = 5
-    terms: bool = False
-    backend: str | None = None
-    chunk_paths: int | None = None
-    memory_mb: float = 512.0
-    progress: bool = True
-
-    def __post_init__(self):
-        if self.integrator not in INTEGRATORS:
-            raise ParameterError(f"unknown integrator {self.integrator!r} (known: {', '.join(INTEGRATORS)})")
-        for name in ("spp", "max_depth", "seed", "rr_depth"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int):
-                raise ParameterError(f"{name} must be an integer, got {value!r}")
-        if self.spp <= 0:
-            raise ParameterError(f"spp must be positive, got {self.spp}")
-        if self.max_depth == 0 or self.max_depth < -1:
-            raise ParameterError(f"max_depth must be >= 1, or -1 for unbounded, got {self.max_depth}")
-        if self.integrator == "utah" and self.max_depth != 1:
-            object.__setattr__(self, "max_depth", 2)  # the Utah approximation keeps two terms at most
-        if self.rr_depth < 1:
-            raise ParameterError(f"rr_depth must be >= 1, got {self.rr_depth}")
-        if self.seed < 0:
-            raise ParameterError(f"seed must be >= 0, got {self.seed}")
-        if self.chunk_paths is not None and self.chunk_paths <= 0:
-            raise ParameterError(f"chunk_paths must be positive, got {self.chunk_paths}")
-        if not self.memory_mb > 0:
-            raise ParameterError(f"memory_mb must be positive, got {self.memory_mb}")
-
-    def replace(self, **changes) -> "RenderSettings":
-        return dataclasses.replace(self, **changes)
-
-    def continues_after(self, depth: int) -> bool:
-        """May a path whose last vertex has index ``depth`` (0 = first hit) add terms beyond ``depth``?"""
-        return self.max_depth == -1 or depth + 1 < self.max_depth
 
 
 @dataclass(frozen=True)
@@ -86,51 +25,58 @@ class TransportContext:
         triangles: scene geometry on the render device.
         accel: the intersection backend.
         lights: the emitter sampler (None when nothing emits).
-        rho: per-material reflectance parameters (differentiable), indexed by ``triangles.material``.
+        materials: the scene's BSDFs (differentiable in their parameters), indexed by
+            ``triangles.material``.
         eps: per-emitter emission parameters (differentiable), indexed by ``triangles.emitter``.
-        ambient: (3,) the Utah approximation's ambient radiance eps0 (differentiable), or None.
+        ambient: (3,) the ambient radiance eps0 of the Utah, Whitted and distributed models
+            (differentiable), or None.
         ray_offset: distance new rays start off a surface, to avoid self-intersection.
-        settings: the render settings.
-        textured: does any rho or eps vary over UVs (else hits skip texture coordinates)?
+        textured: does any parameter vary over UVs (else hits skip texture coordinates)?
+        extra: what an integrator's pre-pass computed for its ``trace`` (None without one).
     """
 
     triangles: Triangles
     accel: object
     lights: EmitterSampler | None
-    rho: list[torch.Tensor]
+    materials: Materials
     eps: list[torch.Tensor]
     ambient: torch.Tensor | None
     ray_offset: float
-    settings: RenderSettings
     textured: bool
+    extra: object = None
 
     @staticmethod
-    def build(scene: Scene, settings: RenderSettings, device: torch.device, embree_threads: int | None = None, params: dict | None = None) -> "TransportContext":
+    def build(scene: Scene, device: torch.device, backend: str | None = None, embree_threads: int | None = None, params: dict | None = None) -> "TransportContext":
         """The context for rendering ``scene`` on ``device`` (parameters moved differentiably).
 
+        ``backend``: intersection backend name (None = the device's default).
         ``embree_threads``: threads each Embree query is split across (None = one per core).
         ``params``: values to use instead of ``scene.params`` (same names; all or some).
         """
         tris = scene.triangles.to(device)
         values = {**scene.params, **(params or {})}
-        rho = [values[f"{m}.reflectance"].to(device) for m in scene.materials]
+        specs = [scene.material_spec(i) for i in range(len(scene.materials))]
+        material_values = [{key: values[param_name(m, key)].to(device) for key in spec.spec.params} for m, spec in zip(scene.materials, specs)]
         eps = [values[f"{e}.emission"].to(device) for e in scene.emitters]
         lights = EmitterSampler(tris, eps)
         return TransportContext(
             triangles=tris,
-            accel=make_intersector(tris, settings.backend, embree_threads),
+            accel=make_intersector(tris, backend, embree_threads),
             lights=lights if lights.count else None,
-            rho=rho,
+            materials=Materials([s.type for s in specs], material_values, [dict(s.constants) for s in specs], device),
             eps=eps,
             ambient=values[AMBIENT].to(device) if AMBIENT in values else None,
             ray_offset=1e-4 * max(scene_extent(tris), 1e-3),
-            settings=settings,
-            textured=any(p.ndim == 3 for p in rho + eps),
+            textured=any(p.ndim == 3 for p in eps + [v for m in material_values for v in m.values()]),
         )
 
-    def reflectance(self, s: Surface) -> torch.Tensor:
-        """rho at the hits (N, 3)."""
-        return gather_rgb(self.rho, self.triangles.material[s.tri], s.uv)
+    def material(self, s: Surface) -> torch.Tensor:
+        """(N,) int64 scene material of each hit."""
+        return self.triangles.material[s.tri]
+
+    def shading_point(self, s: Surface, wo: torch.Tensor) -> ShadingPoint:
+        """The hits as their BSDFs see them, for outgoing directions ``wo`` (N, 3)."""
+        return self.materials.shading_point(self.material(s), wo, s.ns, s.n, s.front, s.uv)
 
     def emission(self, emitter: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
         """eps (N, 3) of emitters ``emitter`` (N,) int64 (-1 = none) at ``uv`` (N, 2)."""
@@ -145,7 +91,8 @@ class TransportContext:
         return s.front & (self.triangles.emitter[s.tri] >= 0)
 
     def spawn(self, s: Surface, wi: torch.Tensor) -> torch.Tensor:
-        """Origins (N, 3) of new rays leaving ``s`` in directions ``wi``, offset off the surface."""
+        """Origins (N, 3) of new rays leaving ``s`` in directions ``wi``, offset off the surface on
+        the geometric side ``wi`` points to (so refracted rays start inside)."""
         side = torch.where(dot(s.n, wi) >= 0, self.ray_offset, -self.ray_offset)
         return s.p + side[:, None] * s.n
 
@@ -155,12 +102,14 @@ class PathState:
     """The live paths of one chunk (loop state of the bounce loop).
 
     Attributes:
-        keys: (N,) int64 counter-based random keys, one per path.
-        pixel: (N,) int64 flat pixel index each path contributes to.
+        keys: (N,) int32 counter-based random keys, one per path.
+        pixel: (N,) int64 film index each path contributes to (the pixel; path replay's films use
+            one index per path instead).
         o: (N, 3) origin of the current ray.
         d: (N, 3) unit direction of the current ray.
-        beta: (N, 3) path throughput: the product of BSDF sample weights (rho) / RR survival so far.
+        beta: (N, 3) path throughput: the product of BSDF sample weights / RR survival so far.
         pdf_dir: (N,) solid-angle pdf with which ``d`` was sampled (for MIS); unused at depth 0.
+        delta: (N,) bool, ``d`` came from a delta lobe (or the camera): no MIS on what it hits.
     """
 
     keys: torch.Tensor
@@ -169,11 +118,21 @@ class PathState:
     d: torch.Tensor
     beta: torch.Tensor
     pdf_dir: torch.Tensor
+    delta: torch.Tensor
 
     def select(self, mask: torch.Tensor) -> "PathState":
-        """The paths where ``mask`` (N,) is True (compaction: dead paths are dropped, not masked)."""
-        index = mask.nonzero()[:, 0]
+        """The paths where ``mask`` (N,) bool is True, or at ``mask`` (M,) int64 (compaction:
+        dead paths are dropped, not masked)."""
+        index = mask.nonzero()[:, 0] if mask.dtype == torch.bool else mask
         return PathState(*(getattr(self, f).index_select(0, index) for f in self.__dataclass_fields__))
+
+    @staticmethod
+    def cat(states: list["PathState"]) -> "PathState":
+        """The paths of ``states`` one after the other (for integrators whose paths split)."""
+        return PathState(*(torch.cat([getattr(s, f) for s in states]) for f in PathState.__dataclass_fields__))
+
+    def replace(self, **changes) -> "PathState":
+        return dataclasses.replace(self, **changes)
 
     @property
     def count(self) -> int:

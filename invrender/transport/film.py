@@ -27,10 +27,17 @@ class Film:
             self._images[key] = torch.zeros(self.width * self.height, 3, dtype=torch.float64, device=self.device)
         self._images[key].index_add_(0, pixel, radiance.double())
 
-    def reflect(self, pixel: torch.Tensor, rho: torch.Tensor) -> None:
-        """Hook called at each scattering vertex with its reflectance rho (N, 3), after every
-        contribution that does not pass through it was added. The film ignores it; path replay's
-        adjoint film turns it into the gradient of everything the path gathers beyond the vertex."""
+    def scatter(self, pixel: torch.Tensor, weight: torch.Tensor) -> None:
+        """Hook called at each scattering vertex with the sample weight ``f cos / pdf`` (N, 3) the
+        path's throughput is multiplied by, after every contribution that does not pass through it
+        was added. The film ignores it; path replay's adjoint film turns it into the gradient of
+        everything the path gathers beyond the vertex."""
+
+    def branch(self, pixel: torch.Tensor) -> torch.Tensor:
+        """Film indices (M,) for new paths split off paths writing to ``pixel`` (M,) (Whitted's
+        reflection and refraction): the same pixels here; path replay's films give each branch an
+        index of its own."""
+        return pixel
 
     def sums(self) -> torch.Tensor:
         """(W * H, 3) float64 sums of all contributions so far, all terms together."""

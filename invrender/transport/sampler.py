@@ -79,3 +79,9 @@ def uniform(keys: torch.Tensor, bounce: int, dims: int) -> torch.Tensor:
     salts = torch.tensor([_signed(_mix_int(bounce * 0x10000 + d + 0x632BE5AB)) for d in range(dims)], dtype=torch.int32, device=keys.device)
     h = _mix(keys[:, None] ^ salts)
     return (h & 0xFFFFFF).to(torch.float32) * (1.0 / 16777216.0)
+
+
+def branch_keys(keys: torch.Tensor, branch: int) -> torch.Tensor:
+    """Keys (N,) for branch ``branch`` of paths that split (Whitted's reflection and refraction):
+    independent of the parent's and of the other branches' numbers."""
+    return _mix(keys ^ _signed(_mix_int(0xB5297A4D + branch)))

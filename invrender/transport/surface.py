@@ -8,7 +8,7 @@ import torch
 
 from invrender.scene.scene import Triangles
 from invrender.transport.accel import Hits
-from invrender.transport.vec import dot
+from invrender.transport.vec import dot, normalize
 
 
 @dataclass(frozen=True)
@@ -18,6 +18,8 @@ class Surface:
     Attributes:
         p: (N, 3) hit position.
         n: (N, 3) unit geometric normal turned towards the incoming ray (the side light leaves from).
+        ns: (N, 3) unit shading normal (interpolated vertex normals, or ``n``), turned to the same
+            geometric side as ``n``: geometric normals decide which side a ray is on.
         front: (N,) bool, True where the ray hit the triangle's front side (the emitting side).
         cos_o: (N,) cosine between ``n`` and the direction back along the ray (> 0).
         uv: (N, 2) texture coordinates (zeros when the scene has no textures).
@@ -27,6 +29,7 @@ class Surface:
 
     p: torch.Tensor
     n: torch.Tensor
+    ns: torch.Tensor
     front: torch.Tensor
     cos_o: torch.Tensor
     uv: torch.Tensor
@@ -42,6 +45,7 @@ def surface_at(triangles: Triangles, hits: Hits, d: torch.Tensor, with_uv: bool 
     """The :class:`Surface` of valid ``hits`` of rays with directions ``d`` (N, 3).
 
     ``with_uv=False`` skips interpolating texture coordinates (for scenes without textures).
+    Shading normals are interpolated only when some triangle has vertex normals.
     """
     tri = hits.prim
     g = triangles.packed.index_select(0, tri)
@@ -50,6 +54,12 @@ def surface_at(triangles: Triangles, hits: Hits, d: torch.Tensor, with_uv: bool 
     ng = g[:, 9:12]
     cos = -dot(ng, d)
     front = cos > 0
-    n = torch.where(front[:, None], ng, -ng)
+    side = torch.where(front, 1.0, -1.0)[:, None]
+    n = ng * side
+    if triangles.any_smooth:
+        vn = triangles.vertex_normal.index_select(0, tri)
+        ns = normalize((1 - u - v) * vn[:, 0] + u * vn[:, 1] + v * vn[:, 2]) * side
+    else:
+        ns = n
     uv = (1 - u - v) * g[:, 12:14] + u * g[:, 14:16] + v * g[:, 16:18] if with_uv else g[:, 12:14].new_zeros(()).expand(len(tri), 2)
-    return Surface(p, n, front, cos.abs(), uv, tri, hits.t)
+    return Surface(p, n, ns, front, cos.abs(), uv, tri, hits.t)

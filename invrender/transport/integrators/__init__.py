@@ -1,16 +1,25 @@
 """Integrators: estimators of the Neumann series ``g eps + gMg eps + g(Mg)^2 eps + ...``.
 
-Each exposes ``trace(ctx, state, film)``, which follows the paths in ``state`` bounce by bounce and
-adds their contributions to ``film``. The ladder, simplest first:
+Each is a class registered by name (:data:`INTEGRATORS`), with its own settings. Kajiya's ladder:
 
-- ``random_walk``: Kajiya's plain Markov-chain estimator (BSDF sampling only), the reference;
-- ``path``: + next-event estimation with multiple importance sampling.
+- ``random_walk``: the plain Markov-chain estimator (BSDF sampling only), the reference;
+- ``path``: + next-event estimation with multiple importance sampling (the default).
 
-Beside the ladder, truncations of the series that older methods compute:
+Beside it, the older methods, each a truncation or approximation of the series:
 
-- ``utah``: the Utah approximation ``g eps + g M eps + rho eps0``, what a rasterizer computes.
+- ``utah``: ``g eps + g M g eps + rho eps0``, what a rasterizer computes;
+- ``whitted``: direct light + ambient at diffuse vertices, mirrors and glass followed recursively;
+- ``distributed``: Cook's distribution ray tracing: glossy lobes followed, soft shadows, ambient.
 """
 
-from invrender.transport.integrators import path, random_walk, utah
+from invrender.transport.integrators.base import INTEGRATORS, DepthSettings, Integrator, RouletteSettings, make_integrator
+from invrender.transport.integrators.distributed import Distributed
+from invrender.transport.integrators.path import Path
+from invrender.transport.integrators.random_walk import RandomWalk
+from invrender.transport.integrators.utah import Utah
+from invrender.transport.integrators.whitted import Whitted
 
-INTEGRATOR_MODULES = {"path": path, "random_walk": random_walk, "utah": utah}
+__all__ = [
+    "INTEGRATORS", "Integrator", "DepthSettings", "RouletteSettings", "make_integrator",
+    "RandomWalk", "Path", "Utah", "Whitted", "Distributed",
+]  # fmt: skip

@@ -1,46 +1,54 @@
 """Kajiya's random walk: the plain Markov-chain estimator of the Neumann series.
 
 At every vertex the emitted radiance seen along the ray is added with the path throughput; the
-next direction is drawn from the cosine-weighted BSDF, so the throughput gains exactly rho per
-bounce. No light sampling: deliberately minimal, the reference the ``path`` integrator is checked
-against.
+next direction is drawn from the BSDF, so the throughput gains the sample weight ``f cos / pdf``
+(rho for a Lambertian surface) per bounce. No light sampling: deliberately minimal, the reference
+the ``path`` integrator is checked against, and the bounce loop the richer integrators extend
+through two hooks (:meth:`RandomWalk.emitter_mis` and :meth:`RandomWalk.at_vertex`).
 """
 
 from __future__ import annotations
 
-import dataclasses
-
-from invrender.transport import bsdf
 from invrender.transport.context import PathState, TransportContext, russian_roulette
 from invrender.transport.film import Film
+from invrender.transport.integrators.base import Integrator, RouletteSettings
+from invrender.transport.integrators.vertex import add_emitted, next_vertex, scattered
 from invrender.transport.sampler import uniform
-from invrender.transport.surface import surface_at
+
+#: random numbers drawn per vertex: 0-1 BSDF direction, 2-4 emitter sample, 5 roulette, 6 BSDF lobe
+DIMS = 7
 
 
-def trace(ctx: TransportContext, state: PathState, film: Film) -> None:
-    """Follow ``state``'s camera rays and add each term ``g(Mg)^k eps`` to ``film``."""
-    settings = ctx.settings
-    depth = 0
-    while state.count:
-        hits = ctx.accel.intersect(state.o, state.d)
-        hit = hits.valid  # rays leaving the scene carry nothing (no environment light)
-        state, hits = state.select(hit), hits.select(hit)
-        if not state.count:
-            break
-        s = surface_at(ctx.triangles, hits, state.d, ctx.textured)
+class RandomWalk(Integrator):
+    name = "random_walk"
+    Settings = RouletteSettings
+    summary = "Kajiya's random walk: BSDF sampling only (the reference)"
 
-        # term k = depth: emission seen along the ray, weighted by the throughput
-        film.add(depth, state.pixel, state.beta * ctx.emitted(s))
-        if not settings.continues_after(depth):
-            break
+    #: weight emitter hits against the previous vertex's emitter sample (path tracer: True)
+    emitter_mis = False
 
-        # next direction from the cosine-weighted BSDF: weight f cos / pdf = rho
-        rho = ctx.reflectance(s)
-        film.reflect(state.pixel, rho)
-        u = uniform(state.keys, depth + 1, 6)
-        wi = bsdf.sample(s.n, u[:, 0:2])
-        beta = state.beta * (rho.detach() if film.detach_throughput else rho)
-        state = dataclasses.replace(state, o=ctx.spawn(s, wi), d=wi, beta=beta)
-        state = russian_roulette(state, u[:, 5], depth, settings.rr_depth)
-        depth += 1
+    def at_vertex(self, ctx: TransportContext, state: PathState, s, sp, u, depth: int, film: Film) -> PathState | None:
+        """What a vertex adds before the path scatters on (nothing here; the path tracer adds direct
+        light). Returns the paths that scatter on (None = all)."""
+        return None
 
+    def trace(self, ctx: TransportContext, state: PathState, film: Film) -> None:
+        """Follow ``state``'s camera rays and add each term ``g(Mg)^k eps`` to ``film``."""
+        cfg = self.settings
+        depth = 0
+        while state.count:
+            state, s = next_vertex(ctx, state)
+            if s is None:
+                break
+            add_emitted(ctx, state, s, depth, film, mis=self.emitter_mis)  # term depth
+            if not cfg.continues_after(depth):
+                break
+            u = uniform(state.keys, depth + 1, DIMS)
+            sp = ctx.shading_point(s, -state.d)
+            keep = self.at_vertex(ctx, state, s, sp, u, depth, film)  # terms depth + 1 (subclasses)
+            if keep is not None:
+                state, s, sp, u = state.select(keep), s.select(keep), sp.select(keep), u.index_select(0, keep)
+            bs = ctx.materials.sample(sp, u[:, 6], u[:, 0:2])
+            state = scattered(ctx, state, s, bs, film)
+            state = russian_roulette(state, u[:, 5], depth, cfg.rr_depth)
+            depth += 1

@@ -13,15 +13,44 @@ in rho, eps and eps0.
 
 from __future__ import annotations
 
-from invrender.transport.context import PathState, TransportContext
-from invrender.transport.film import Film
-from invrender.transport.integrators import path
+from dataclasses import dataclass
+
+from invrender.transport.integrators.base import DepthSettings
+from invrender.transport.integrators.path import Path
+from invrender.transport.integrators.vertex import add_ambient
 
 #: Neumann terms the Utah approximation keeps (Mitsuba's count: emitters seen, + direct light)
 MAX_TERMS = 2
 
 
-def trace(ctx: TransportContext, state: PathState, film: Film) -> None:
-    """Add ``g eps`` (term 0) and ``g M g eps + rho eps0`` (term 1) of ``state``'s paths to ``film``."""
-    assert ctx.settings.max_depth in (1, MAX_TERMS), "render() clips max_depth to 2 for utah"
-    path.trace(ctx, state, film, ambient=ctx.ambient if ctx.settings.max_depth == MAX_TERMS else None)
+@dataclass(frozen=True)
+class UtahSettings(DepthSettings):
+    """Settings of the Utah approximation.
+
+    Attributes:
+        max_depth: 1 = emitters seen directly only; any larger value (or -1) keeps both of its
+            terms, emitters seen and direct light + ambient (default 2).
+    """
+
+    max_depth: int = MAX_TERMS
+
+    @property
+    def rr_depth(self) -> int:
+        return MAX_TERMS + 1  # never reached: no roulette
+
+    def continues_after(self, depth: int) -> bool:
+        return depth == 0 and self.max_depth != 1
+
+
+class Utah(Path):
+    name = "utah"
+    Settings = UtahSettings
+    summary = "Utah approximation: emitters + direct light + ambient rho*eps0 (at most 2 terms)"
+
+    @property
+    def terms_kept(self) -> int:
+        return 1 if self.settings.max_depth == 1 else MAX_TERMS
+
+    def at_vertex(self, ctx, state, s, sp, u, depth, film):
+        add_ambient(ctx, state, sp, depth + 1, film)  # term 1: rho eps0
+        return super().at_vertex(ctx, state, s, sp, u, depth, film)

@@ -1,0 +1,114 @@
+"""Estimators: how an image is rendered and differentiated.
+
+- ``autodiff``: torch records the whole wavefront (memory grows with spp x depth);
+- ``replay``: path-replay backpropagation (:mod:`invrender.diff.replay`; memory flat in spp and depth);
+- decorrelated loss gradients: :func:`backpropagate` takes ``dl/dI`` from any image (an independent
+  render) and differentiates the render of ``settings`` with it.
+
+This is the one layer that knows about estimators: the transport core below it knows none, the
+inverse-rendering layer above it (fits, gradient checks) calls :func:`render` and
+:func:`backpropagate`.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from invrender.errors import ParameterError
+from invrender.scene.scene import Scene
+from invrender.transport.driver import RenderSettings
+from invrender.transport.integrators import Integrator, make_integrator
+
+ESTIMATORS = ("autodiff", "replay")
+
+
+def render(
+    scene: Scene,
+    integrator="path",
+    spp: int = 64,
+    max_depth: int | None = None,
+    seed: int = 0,
+    *,
+    terms: bool = False,
+    rr_depth: int | None = None,
+    estimator: str | None = None,
+    backend: str | None = None,
+    device=None,
+    chunk_paths: int | None = None,
+    memory_mb: float = 512.0,
+    progress: bool = True,
+    **options,
+) -> torch.Tensor:
+    """Render ``scene`` by Monte Carlo estimation of ``I = g eps + gMg eps + g(Mg)^2 eps + ...``.
+
+    Args:
+        scene: from :func:`invrender.load_scene`; its ``params`` are read at this call.
+        integrator: a name (``"path"``, ``"random_walk"``, ``"utah"``, ``"whitted"``,
+            ``"distributed"``) or an :class:`~invrender.transport.integrators.Integrator` object.
+        spp: samples per pixel.
+        max_depth: Neumann terms kept (1 = emitters seen directly, 2 = + direct light, ...; -1 =
+            unbounded, ended by Russian roulette); None = the integrator's default (8; utah 2).
+        seed: the image is a pure function of the seed (and the scene and settings).
+        terms: return one image per Neumann term instead of their sum.
+        rr_depth: Russian roulette starts after this many terms (None = the integrator's default, 5).
+        estimator: how the image is differentiated when a parameter requires grad:
+            ``"replay"`` (default; path-replay backpropagation, memory flat in spp and depth) or
+            ``"autodiff"`` (torch records the whole wavefront).
+        backend: ``"embree"`` (CPU) or ``"torch"`` (any device); None = the device's default.
+        device: where to render; None = the scene's device. Parameters are moved differentiably.
+        chunk_paths: paths per chunk; None = from ``memory_mb``.
+        memory_mb: memory budget of a chunk's working set, MiB.
+        progress: show a progress bar with rate and ETA when the render takes over a second.
+        options: further settings of the integrator.
+    Returns:
+        float32 linear radiance, (H, W, 3) with row 0 at the top; (K, H, W, 3) with ``terms``.
+        Differentiable in any ``scene.params`` entry that requires grad.
+    """
+    for key, value in (("max_depth", max_depth), ("rr_depth", rr_depth)):
+        if value is not None:
+            options[key] = value
+    model = make_integrator(integrator, **options)
+    settings = RenderSettings(spp=spp, seed=seed, terms=terms, backend=backend, chunk_paths=chunk_paths, memory_mb=memory_mb, progress=progress)
+    if estimator is not None and estimator not in ESTIMATORS:
+        raise ParameterError(f"unknown estimator {estimator!r} (known: {', '.join(ESTIMATORS)})")
+    device = _device(scene, device)
+    differentiable = [k for k, v in scene.params.items() if v.requires_grad] if torch.is_grad_enabled() else []
+    if differentiable and (estimator or "replay") == "replay":
+        if terms:
+            raise ParameterError("terms=True is not available with estimator='replay'; use estimator='autodiff'")
+        from invrender.diff.replay import replay_render
+
+        return replay_render(scene, model, settings, device, differentiable)
+    return model.render(scene, settings, device)
+
+
+def backpropagate(scene: Scene, grad_image: torch.Tensor, integrator: Integrator, settings: RenderSettings, estimator: str = "replay", device=None) -> None:
+    """Add ``<grad_image, dI/dtheta>`` to the gradient of every ``scene.params`` entry that requires
+    grad, I being the image ``integrator`` renders with ``settings``.
+
+    What ``render(...).backward(grad_image)`` does, without the image: ``replay`` re-traces the
+    paths in its backward pass only, so no forward render is spent (a decorrelated loss gradient
+    takes ``grad_image = dl/dI`` from another render); ``autodiff`` has to record a forward render.
+    ``grad_image``: (H, W, 3).
+    """
+    if estimator not in ESTIMATORS:
+        raise ParameterError(f"unknown estimator {estimator!r} (known: {', '.join(ESTIMATORS)})")
+    device = _device(scene, device)
+    if estimator == "autodiff":
+        integrator.render(scene, settings, device).backward(grad_image)
+        return
+    from invrender.diff.replay import replay_gradient
+
+    values = {k: v for k, v in scene.params.items() if v.requires_grad}
+    grads = replay_gradient(scene, integrator, settings, device, {k: v.detach() for k, v in values.items()}, grad_image)
+    torch.autograd.backward(list(values.values()), [grads[k].to(v.device, v.dtype) for k, v in values.items()])
+
+
+def _device(scene: Scene, device) -> torch.device:
+    device = torch.device(device) if device is not None else scene.device
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ParameterError("device 'cuda' requested but torch has no CUDA device here")
+    return device
+
+
+__all__ = ["ESTIMATORS", "render", "backpropagate"]

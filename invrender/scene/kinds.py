@@ -1,0 +1,100 @@
+"""Parameter kinds: what each differentiable scene parameter is, in one registry.
+
+A parameter's name is ``"<owner>.<kind>"`` (``"red.reflectance"``, ``"light.emission"``,
+``"mirror.specular_reflectance"``, ``"ambient.emission"``). Its kind fixes everything the rest of
+the program needs to know about it: the range its values must lie in (checked when a scene is built
+or a value is set), whether it may be a texture, the reparametrization ``fit`` moves it by, the
+default Adam step of that move, and the finite-difference step ``gradcheck`` uses. Nothing else
+reads a parameter's name to decide how to treat it: callers ask :func:`kind_of`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from invrender.errors import ParameterError
+
+#: smallest reflectance-like value a fit's sigmoid reaches (keeps logit finite)
+UNIT_MIN = 1e-4
+#: smallest emission a fit's exp starts from (keeps log finite)
+POSITIVE_MIN = 1e-6
+
+
+@dataclass(frozen=True)
+class ParamKind:
+    """One kind of differentiable parameter.
+
+    Attributes:
+        key: the name's suffix and the scene formats' key (``"reflectance"``).
+        symbol: its symbol in the rendering equation (``"rho"``, ``"eps"``, ``"k_s"``).
+        upper: values lie in ``[0, upper]``; ``math.inf`` = unbounded above.
+        texture: may vary over the surface as an (h, w, 3) texture (else an RGB triple only).
+        reparam: how ``fit`` keeps values in range: ``"sigmoid"`` (value = sigmoid(x), in (0, 1))
+            or ``"exp"`` (value = exp(x), > 0).
+        lr_setting: the :class:`~invrender.inverse.fit.FitSettings` field holding its Adam step
+            (``"lr"`` for [0, 1] kinds, in logit units; ``"lr_emission"``, in log units).
+        fd_step: ``gradcheck``'s central-difference step, relative to the value (absolute below 1).
+        doc: one line for messages and docs.
+    """
+
+    key: str
+    symbol: str
+    upper: float
+    texture: bool
+    reparam: str
+    lr_setting: str
+    fd_step: float
+    doc: str
+
+    def check(self, name: str, value: torch.Tensor) -> None:
+        """A :class:`ParameterError` naming ``name`` when ``value`` lies outside this kind's range."""
+        if value.ndim == 3 and not self.texture:
+            raise ParameterError(f"{name}: {self.key} must be an RGB triple, not a texture")
+        lo, hi = float(value.min()), float(value.max())
+        if lo < 0 or hi > self.upper:
+            expected = f"lie in [0, {self.upper:g}]" if math.isfinite(self.upper) else "be >= 0"
+            raise ParameterError(f"{name}: {self.key} {self.symbol} must {expected}, got values in [{lo:.4g}, {hi:.4g}]")
+
+    def to_raw(self, value: torch.Tensor) -> torch.Tensor:
+        """The unconstrained tensor ``fit`` moves, from a value (detached copy)."""
+        v = value.detach().clone()
+        if self.reparam == "exp":
+            return v.clamp_min(POSITIVE_MIN).log()
+        return torch.logit(v.clamp(UNIT_MIN, 1.0 - UNIT_MIN))
+
+    def from_raw(self, raw: torch.Tensor) -> torch.Tensor:
+        """The value (differentiable) from the unconstrained tensor."""
+        return raw.exp() if self.reparam == "exp" else torch.sigmoid(raw)
+
+    def fd_interval(self, value: float) -> float:
+        """Central-difference step at ``value``, kept inside the range on both sides."""
+        step = self.fd_step * max(1.0, abs(value))
+        if math.isfinite(self.upper):
+            step = min(step, max(value, 1e-6), max(self.upper - value, 1e-6))
+        return step
+
+
+REFLECTANCE = ParamKind("reflectance", "rho", 1.0, True, "sigmoid", "lr", 1e-2, "diffuse albedo rho, in [0, 1]")
+SPECULAR_REFLECTANCE = ParamKind(
+    "specular_reflectance", "k_s", 1.0, False, "sigmoid", "lr", 1e-2, "specular reflectance k_s of a mirror or glossy conductor, in [0, 1]"
+)
+EMISSION = ParamKind("emission", "eps", math.inf, True, "exp", "lr_emission", 1e-2, "emitted radiance eps, >= 0")
+
+#: every kind, by key
+KINDS: dict[str, ParamKind] = {k.key: k for k in (REFLECTANCE, SPECULAR_REFLECTANCE, EMISSION)}
+
+
+def kind_of(name: str) -> ParamKind:
+    """The kind of the parameter ``name`` (``"<owner>.<kind>"``)."""
+    owner, _, key = name.rpartition(".")
+    if not owner or key not in KINDS:
+        raise ParameterError(f"{name!r} is not a parameter name '<owner>.<kind>' with kind one of {', '.join(KINDS)}")
+    return KINDS[key]
+
+
+def param_name(owner: str, kind: ParamKind | str) -> str:
+    """``"<owner>.<kind>"``."""
+    return f"{owner}.{kind if isinstance(kind, str) else kind.key}"

@@ -1,0 +1,122 @@
+"""Materials as BSDF objects, registered in one place, and the dispatch of a batch of hits to them.
+
+Each material type of :mod:`invrender.scene.materials` has one :class:`~.base.BSDF` class here. A
+render builds one instance per type present in the scene (holding all materials of that type), and
+:class:`Materials` sends each hit to its type's instance: one batched call per type and bounce,
+so a scene with one material type pays no dispatch at all.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from invrender.scene.materials import MATERIAL_TYPES
+from invrender.transport.bsdfs.base import BSDF, BSDFSample, ShadingPoint
+from invrender.transport.bsdfs.dielectric import Dielectric
+from invrender.transport.bsdfs.diffuse import Diffuse
+from invrender.transport.bsdfs.glossy import Glossy
+from invrender.transport.bsdfs.mirror import Mirror
+
+#: material type name -> its BSDF class
+BSDFS: dict[str, type[BSDF]] = {cls.type_name: cls for cls in (Diffuse, Mirror, Dielectric, Glossy)}
+assert set(BSDFS) == set(MATERIAL_TYPES), "every material type needs a BSDF"
+
+
+class Materials:
+    """The scene's BSDFs on one device, and per-hit dispatch to them.
+
+    Args:
+        types: per scene material, its type name.
+        values: per scene material, parameter key -> tensor (differentiable).
+        constants: per scene material, constant key -> float.
+        device: where hits live.
+    """
+
+    def __init__(self, types: list[str], values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], device):
+        present = list(dict.fromkeys(types))  # first-seen order
+        self.bsdfs: list[BSDF] = []
+        slot_of, local_of = [], []
+        for t in present:
+            members = [i for i, ti in enumerate(types) if ti == t]
+            self.bsdfs.append(BSDFS[t]([values[i] for i in members], [constants[i] for i in members]))
+        for t in types:
+            k = present.index(t)
+            slot_of.append(k)
+            local_of.append(sum(1 for ti in types[: len(local_of)] if ti == t))
+        #: (M,) which of ``bsdfs`` each scene material uses, and its index among that BSDF's materials
+        self.slot_of = torch.tensor(slot_of, dtype=torch.int64, device=device)
+        self.local_of = torch.tensor(local_of, dtype=torch.int64, device=device)
+        self.single = len(self.bsdfs) == 1
+        self.any_delta = any(b.delta for b in self.bsdfs)
+        self.all_diffuse = all(b.lobe == "diffuse" for b in self.bsdfs)
+
+    def shading_point(self, material: torch.Tensor, wo, n, ng, front, uv) -> ShadingPoint:
+        """The :class:`ShadingPoint` of hits on scene materials ``material`` (N,) int64."""
+        if self.single:  # local index = scene index; no dispatch
+            return ShadingPoint(wo, n, ng, front, uv, material, torch.zeros_like(material))
+        return ShadingPoint(wo, n, ng, front, uv, self.local_of[material], self.slot_of[material])
+
+    def groups(self, sp: ShadingPoint) -> list[tuple[BSDF, torch.Tensor | None]]:
+        """``[(bsdf, index of its hits)]``; the index is None when one BSDF takes every hit."""
+        if self.single:
+            return [(self.bsdfs[0], None)]
+        slot = sp.slot
+        out = []
+        for k, bsdf in enumerate(self.bsdfs):
+            index = (slot == k).nonzero()[:, 0]
+            if index.numel():
+                out.append((bsdf, index))
+        return out
+
+    def lobe_mask(self, sp: ShadingPoint, lobes: tuple[str, ...]) -> torch.Tensor:
+        """(N,) bool: is each point's BSDF lobe one of ``lobes`` (``"diffuse"``, ``"glossy"``,
+        ``"specular"``)?"""
+        table = torch.tensor([b.lobe in lobes for b in self.bsdfs], device=sp.wo.device)
+        return table[sp.slot]
+
+    def _dispatch(self, sp: ShadingPoint, call):
+        groups = self.groups(sp)
+        if not groups or groups[0][1] is None:  # one BSDF for every hit (or no hits at all)
+            return call(self.bsdfs[0], sp, None)
+        out = None
+        for bsdf, index in groups:
+            part = call(bsdf, sp.select(index), index)
+            out = _scatter(_empty_like(part, sp.count) if out is None else out, index, part)
+        return out
+
+    def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        """``f |cos theta_i|`` (N, 3) of each hit's BSDF."""
+        return self._dispatch(sp, lambda b, p, i: b.eval(p, wi if i is None else wi[i]))
+
+    def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        """Solid-angle pdf (N,) of each hit's BSDF sampling ``wi``."""
+        return self._dispatch(sp, lambda b, p, i: b.pdf(p, wi if i is None else wi[i]))
+
+    def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
+        """One direction per hit from its BSDF."""
+        return self._dispatch(sp, lambda b, p, i: b.sample(p, u_lobe if i is None else u_lobe[i], u_dir if i is None else u_dir[i]))
+
+    def diffuse_reflectance(self, sp: ShadingPoint) -> torch.Tensor:
+        """k_d (N, 3) of each hit for the ambient term (0 for materials without a diffuse part)."""
+
+        def call(b, p, i):
+            value = b.diffuse_reflectance(p)
+            return value if value is not None else p.wo.new_zeros(p.count)
+
+        return self._dispatch(sp, call)
+
+
+def _empty_like(part, n: int):
+    if isinstance(part, BSDFSample):
+        return BSDFSample(*(_empty_like(getattr(part, f), n) for f in part.__dataclass_fields__))
+    return part.new_zeros((n, *part.shape[1:]))
+
+
+def _scatter(out, index: torch.Tensor, part):
+    """``out`` with rows ``index`` replaced by ``part`` (out of place, so autograd sees it)."""
+    if isinstance(part, BSDFSample):
+        return BSDFSample(*(_scatter(getattr(out, f), index, getattr(part, f)) for f in part.__dataclass_fields__))
+    return out.index_put((index,), part)
+
+
+__all__ = ["BSDF", "BSDFS", "BSDFSample", "Materials", "ShadingPoint"]

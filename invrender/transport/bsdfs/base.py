@@ -1,0 +1,131 @@
+"""The BSDF interface (pbrt-v4's ``BSDF`` / ``BSDFSample``, batched): ``eval``, ``sample``, ``pdf``.
+
+Conventions, shared by every material:
+
+- Directions are world-space unit vectors. ``wo`` points back along the ray that arrived (towards
+  the camera side of the path), ``wi`` towards where light comes from (the next vertex).
+- ``eval`` returns ``f(wo, wi) |cos theta_i|`` (the cosine folded in, as Mitsuba does), ``pdf`` the
+  solid-angle density with which ``sample`` would have produced ``wi``, and ``sample`` a direction
+  with its *weight* ``f |cos theta_i| / pdf``. Random numbers are arguments: ``u_lobe`` (N,) picks a
+  lobe (reflection or refraction), ``u_dir`` (N, 2) the direction within it.
+- Delta lobes (a mirror, smooth glass) have no density: ``eval`` and ``pdf`` return 0 for them and
+  ``sample`` flags them, and integrators never sample emitters towards them.
+- Sampling never depends on a differentiable parameter: pdfs read constants only (roughness, ior),
+  so the derivative of a weight is the derivative of its ``f`` alone. Weights are differentiable in
+  the material's parameters; that is what path replay's vertex adjoint differentiates.
+- ``n`` is the shading normal turned to ``wo``'s geometric side; ``front`` says whether that side
+  is the triangle's front (for glass: outside).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import torch
+
+from invrender.transport.textures import gather_rgb
+
+
+@dataclass(frozen=True)
+class ShadingPoint:
+    """N surface points as a BSDF sees them.
+
+    Attributes:
+        wo: (N, 3) unit direction back along the arriving ray.
+        n: (N, 3) unit shading normal on ``wo``'s geometric side.
+        ng: (N, 3) unit geometric normal on ``wo``'s side.
+        front: (N,) bool, True where ``wo`` lies on the triangle's front (outside) side.
+        uv: (N, 2) texture coordinates.
+        material: (N,) int64 index of each point's material among its BSDF's materials.
+        slot: (N,) int64 which of the render's BSDF instances takes each point (for dispatch).
+    """
+
+    wo: torch.Tensor
+    n: torch.Tensor
+    ng: torch.Tensor
+    front: torch.Tensor
+    uv: torch.Tensor
+    material: torch.Tensor
+    slot: torch.Tensor
+
+    def select(self, index: torch.Tensor) -> "ShadingPoint":
+        """The points at ``index`` (M,) int64."""
+        return ShadingPoint(*(getattr(self, f).index_select(0, index) for f in self.__dataclass_fields__))
+
+    @property
+    def count(self) -> int:
+        return int(self.wo.shape[0])
+
+
+@dataclass(frozen=True)
+class BSDFSample:
+    """N sampled directions.
+
+    Attributes:
+        wi: (N, 3) unit direction towards the next vertex.
+        weight: (N, 3) ``f |cos theta_i| / pdf`` (differentiable in the material's parameters);
+            zero where no valid direction was drawn.
+        pdf: (N,) solid-angle density (0 for a delta lobe).
+        delta: (N,) bool, True where ``wi`` came from a delta lobe.
+    """
+
+    wi: torch.Tensor
+    weight: torch.Tensor
+    pdf: torch.Tensor
+    delta: torch.Tensor
+
+
+class BSDF:
+    """Base class of the materials: one instance holds every material of one type in a scene.
+
+    Subclasses set ``type_name`` (the scene files' ``type``), ``lobe`` and implement
+    :meth:`eval`, :meth:`pdf` and :meth:`sample`; delta materials also :meth:`specular_lobes`.
+
+    Attributes:
+        values: per material of this type, parameter key -> tensor (3,) or (h, w, 3).
+        constants: per material, constant key -> float.
+    """
+
+    #: the material type it implements (a key of :data:`invrender.scene.materials.MATERIAL_TYPES`)
+    type_name: ClassVar[str]
+    #: ``"diffuse"``, ``"glossy"`` or ``"specular"`` (delta): how the older integrators treat it
+    lobe: ClassVar[str]
+
+    def __init__(self, values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]]):
+        self.values, self.constants = values, constants
+
+    @property
+    def delta(self) -> bool:
+        return self.lobe == "specular"
+
+    def param(self, key: str, sp: ShadingPoint) -> torch.Tensor:
+        """Parameter ``key`` at each point (N, 3), differentiable (textures filtered at ``sp.uv``)."""
+        return gather_rgb([v[key] for v in self.values], sp.material, sp.uv)
+
+    def constant(self, key: str, sp: ShadingPoint) -> torch.Tensor:
+        """Constant ``key`` at each point (N,)."""
+        table = torch.tensor([c[key] for c in self.constants], dtype=torch.float32, device=sp.wo.device)
+        return table[sp.material]
+
+    def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        """``f(wo, wi) |cos theta_i|`` (N, 3) for directions ``wi`` (N, 3); 0 for delta lobes."""
+        raise NotImplementedError
+
+    def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        """Solid-angle density (N,) of :meth:`sample` producing ``wi``; 0 for delta lobes."""
+        raise NotImplementedError
+
+    def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
+        """One direction per point from uniforms ``u_lobe`` (N,) and ``u_dir`` (N, 2)."""
+        raise NotImplementedError
+
+    def specular_lobes(self, sp: ShadingPoint) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """Every delta lobe as ``(wi (N, 3), weight (N, 3))``, weights not divided by any choice
+        probability (Whitted's split: a dielectric's reflection F and refraction 1 - F)."""
+        raise NotImplementedError(f"{self.type_name} has no delta lobes")
+
+    def diffuse_reflectance(self, sp: ShadingPoint) -> torch.Tensor | None:
+        """The Lambertian albedo k_d (N, 3) the ambient term ``k_d eps0`` reflects; None = no
+        diffuse part."""
+        return None

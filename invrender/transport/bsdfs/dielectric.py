@@ -1,0 +1,68 @@
+"""Smooth glass: Mitsuba's ``dielectric``. Fresnel reflection and refraction at an interface with
+relative index ``ior`` (interior over exterior; the exterior is vacuum, 1.0).
+
+With ``eta`` the index ratio transmitted over incident (``ior`` entering, ``1 / ior`` leaving) and
+``cos_t^2 = 1 - (1 - cos_i^2) / eta^2``, unpolarized Fresnel reflectance is the mean of
+
+    r_s = (cos_i - eta cos_t) / (cos_i + eta cos_t),   r_p = (eta cos_i - cos_t) / (eta cos_i + cos_t)
+
+squared (Born and Wolf, Principles of Optics, 1.5.2), ``((n - 1)/(n + 1))^2`` at normal incidence
+and 1 beyond the critical angle (total internal reflection). Sampling picks reflection with
+probability F, so the reflection's weight is 1 and the refraction's ``1 / eta^2``: radiance is
+compressed into a smaller solid angle on entering a denser medium (Veach's thesis, 5.2); entering and
+leaving a closed object cancel. No parameter is differentiable (``ior`` is a scene constant).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from invrender.transport.bsdfs.base import BSDF, BSDFSample, ShadingPoint
+from invrender.transport.bsdfs.mirror import reflect
+from invrender.transport.vec import dot
+
+
+def fresnel_dielectric(cos_i: torch.Tensor, eta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Unpolarized Fresnel reflectance F (N,) and the transmitted cosine cos_t (N,) (0 under total
+    internal reflection), for incident cosines ``cos_i`` (N,) >= 0 and index ratios ``eta`` (N,)."""
+    cos2_t = 1.0 - (1.0 - cos_i * cos_i) / (eta * eta)
+    tir = cos2_t <= 0
+    cos_t = cos2_t.clamp_min(0.0).sqrt()
+    r_s = (cos_i - eta * cos_t) / (cos_i + eta * cos_t).clamp_min(1e-12)
+    r_p = (eta * cos_i - cos_t) / (eta * cos_i + cos_t).clamp_min(1e-12)
+    F = torch.where(tir, 1.0, 0.5 * (r_s * r_s + r_p * r_p))
+    return F, cos_t
+
+
+class Dielectric(BSDF):
+    type_name = "dielectric"
+    lobe = "specular"
+
+    def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        return sp.wo.new_zeros(sp.count, 3)
+
+    def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        return sp.wo.new_zeros(sp.count)
+
+    def _interface(self, sp: ShadingPoint):
+        """(F, reflected wi, refracted wi, eta) at each point."""
+        ior = self.constant("ior", sp)
+        eta = torch.where(sp.front, ior, 1.0 / ior)  # transmitted over incident
+        cos_i = dot(sp.n, sp.wo).clamp_min(0.0)
+        F, cos_t = fresnel_dielectric(cos_i, eta)
+        wr = reflect(sp.wo, sp.n)
+        wt = -sp.wo / eta[:, None] + (cos_i / eta - cos_t)[:, None] * sp.n
+        return F, wr, wt, eta
+
+    def specular_lobes(self, sp: ShadingPoint) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """Reflection with weight F, refraction with weight ``(1 - F) / eta^2``."""
+        F, wr, wt, eta = self._interface(sp)
+        return [(wr, F[:, None].expand(-1, 3)), (wt, ((1.0 - F) / (eta * eta))[:, None].expand(-1, 3))]
+
+    def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
+        """Reflection with probability F (weight 1), else refraction (weight ``1 / eta^2``)."""
+        F, wr, wt, eta = self._interface(sp)
+        reflected = u_lobe < F
+        wi = torch.where(reflected[:, None], wr, wt)
+        weight = torch.where(reflected, 1.0, 1.0 / (eta * eta))[:, None].expand(-1, 3)
+        return BSDFSample(wi, weight, sp.wo.new_zeros(sp.count), torch.ones(sp.count, dtype=torch.bool, device=wi.device))

@@ -1,0 +1,37 @@
+"""A perfect mirror, two-sided: Mitsuba's ``conductor`` with ``material = "none"`` (Fresnel 1).
+
+All light arriving from the mirror direction ``wi = 2 (wo . n) n - wo`` is reflected, scaled by
+``specular_reflectance`` k_s: a delta lobe of weight k_s.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from invrender.transport.bsdfs.base import BSDF, BSDFSample, ShadingPoint
+from invrender.transport.vec import dot
+
+
+def reflect(wo: torch.Tensor, n: torch.Tensor) -> torch.Tensor:
+    """Mirror directions (N, 3) of ``wo`` about ``n``."""
+    return 2.0 * dot(wo, n)[:, None] * n - wo
+
+
+class Mirror(BSDF):
+    type_name = "mirror"
+    lobe = "specular"
+
+    def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        return sp.wo.new_zeros(sp.count, 3)
+
+    def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        return sp.wo.new_zeros(sp.count)
+
+    def specular_lobes(self, sp: ShadingPoint) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """The reflection, weight k_s (zero where ``wo`` lies below the shading normal)."""
+        above = (dot(sp.n, sp.wo) > 0)[:, None].to(sp.wo.dtype)
+        return [(reflect(sp.wo, sp.n), self.param("specular_reflectance", sp) * above)]
+
+    def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
+        ((wi, weight),) = self.specular_lobes(sp)
+        return BSDFSample(wi, weight, sp.wo.new_zeros(sp.count), torch.ones(sp.count, dtype=torch.bool, device=wi.device))

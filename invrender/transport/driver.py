@@ -1,0 +1,149 @@
+"""The chunked wavefront driver: (pixel, sample) paths in chunks sized by a memory budget.
+
+Each chunk is a flat batch of path ids ``pixel * spp + sample``. Camera rays are generated from
+counter-based numbers, the integrator runs its bounce loop over the batch, and contributions
+accumulate in the film; chunks only add, so any spp fits in bounded memory and the image does not
+depend on the chunk size (``docs/architecture.md``: wavefront, counter-based random numbers).
+
+On the CPU, one worker thread per core traces its own chunks single-threaded (torch ops and Embree
+release the GIL): this keeps both cores busy through the many small per-bounce tensor operations,
+which intra-op threading parallelizes poorly. Each worker has its own film; they are summed at the
+end in float64, so the image is the same whatever the number of workers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import sys
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import torch
+from tqdm.auto import tqdm
+
+from invrender.errors import ParameterError
+from invrender.scene.scene import Scene
+from invrender.transport.context import PathState
+from invrender.transport.sampler import path_keys, uniform
+
+#: working-set estimate per path in a chunk (state, hits, temporaries, backend copies), bytes
+BYTES_PER_PATH = 2048
+
+
+def check_int(owner: str, name: str, value, low: int | None = None) -> None:
+    """A :class:`ParameterError` unless ``value`` is an int (not a bool) >= ``low``."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ParameterError(f"{owner}{name} must be an integer, got {value!r}")
+    if low is not None and value < low:
+        raise ParameterError(f"{owner}{name} must be {'positive' if low == 1 else f'>= {low}'}, got {value}")
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """How to run a render, whatever the integrator.
+
+    Attributes:
+        spp: samples (paths) per pixel, > 0.
+        seed: seed of the counter-based random numbers, >= 0.
+        terms: return one image per Neumann term, shape (K, H, W, 3), summing to the full image.
+        backend: intersection backend ``"embree"`` or ``"torch"``; None = the device's default.
+        chunk_paths: paths traced per chunk; None = sized by ``memory_mb``.
+        memory_mb: memory budget for one chunk's working set, MiB.
+        progress: show a progress bar (rate, ETA) on renders that take longer than a second.
+    """
+
+    spp: int = 64
+    seed: int = 0
+    terms: bool = False
+    backend: str | None = None
+    chunk_paths: int | None = None
+    memory_mb: float = 512.0
+    progress: bool = True
+
+    def __post_init__(self):
+        check_int("", "spp", self.spp, 1)
+        check_int("", "seed", self.seed, 0)
+        if self.chunk_paths is not None:
+            check_int("", "chunk_paths", self.chunk_paths, 1)
+        if not self.memory_mb > 0:
+            raise ParameterError(f"memory_mb must be positive, got {self.memory_mb}")
+
+    def replace(self, **changes) -> "RenderSettings":
+        return dataclasses.replace(self, **changes)
+
+
+def for_each_chunk(scene: Scene, settings: RenderSettings, device: torch.device, work, grad: bool | None = None) -> None:
+    """Call ``work(worker, camera_paths)`` for every chunk of the (pixel, sample) paths.
+
+    On the CPU, one worker thread per core takes chunks ``w, w + workers, ...`` (a fixed split, so
+    results do not depend on timing) and runs single-threaded; a progress bar shows rate and ETA.
+    ``grad``: autograd on or off inside the workers (default: the caller's mode).
+    """
+    workers = cpu_workers(device)
+    total = scene.width * scene.height * settings.spp
+    chunk = settings.chunk_paths or max(1024, min(int(settings.memory_mb * 2**20 // BYTES_PER_PATH) // workers, -(-total // workers)))
+    starts = range(0, total, chunk)
+    grad = torch.is_grad_enabled() if grad is None else grad
+    bar = tqdm(total=total, unit="path", unit_scale=True, delay=1.0, disable=not settings.progress, desc=f"render {scene.name}", file=sys.stderr, leave=False)
+    stop = threading.Event()
+
+    def run(w: int) -> None:
+        if workers > 1:
+            torch.set_num_threads(1)  # per thread (OpenMP): the workers, not the ops, use the cores
+        with torch.set_grad_enabled(grad):  # grad mode is thread-local
+            for start in starts[w::workers]:
+                if stop.is_set():
+                    return
+                ids = torch.arange(start, min(total, start + chunk), dtype=torch.int64, device=device)
+                work(w, camera_paths(scene, settings, ids))
+                bar.update(ids.numel())
+
+    with bar:
+        if workers == 1:
+            run(0)
+            return
+        with ThreadPoolExecutor(workers) as pool:
+            jobs = [pool.submit(run, w) for w in range(workers)]
+            try:
+                for job in jobs:
+                    job.result()
+            except BaseException:
+                stop.set()
+                raise
+
+
+def cpu_workers(device: torch.device) -> int:
+    """Chunks traced at once: one per core on the CPU (each single-threaded), one on a GPU."""
+    if device.type != "cpu":
+        return 1
+    return max(1, min(len(os.sched_getaffinity(0)), torch.get_num_threads()))
+
+
+def camera_paths(scene: Scene, settings: RenderSettings, ids: torch.Tensor) -> PathState:
+    """Camera rays for flat path ids (N,) = ``pixel * spp + sample``.
+
+    Pixel samples are stratified: with n = floor(sqrt(spp)), samples 0 .. n^2 - 1 each jitter in
+    their own cell of an n x n grid over the pixel and the remaining ones are uniform, so every
+    sample's film position is uniform over the pixel on average (a box filter, unbiased). A thin
+    lens draws its lens point from dimensions 2 and 3 of the same counters.
+    """
+    spp = settings.spp
+    pixel, sample = ids // spp, ids % spp
+    keys = path_keys(settings.seed, pixel, sample)
+    camera = scene.camera
+    u = uniform(keys, 0, 2 if camera.is_pinhole else 4)
+    n = math.isqrt(spp)
+    grid = sample < n * n
+    fx = torch.where(grid, ((sample % n).float() + u[:, 0]) / n, u[:, 0])
+    fy = torch.where(grid, ((sample // n).float() + u[:, 1]) / n, u[:, 1])
+    film_xy = torch.stack([(pixel % scene.width).float() + fx, (pixel // scene.width).float() + fy], dim=1)
+    o, d = camera.generate_rays(film_xy, scene.width, scene.height, None if camera.is_pinhole else u[:, 2:4])
+    n_paths = ids.shape[0]
+    beta = torch.ones(n_paths, 3, device=ids.device)
+    return PathState(
+        keys=keys, pixel=pixel, o=o.contiguous(), d=d, beta=beta,
+        pdf_dir=torch.ones(n_paths, device=ids.device), delta=torch.ones(n_paths, dtype=torch.bool, device=ids.device),
+    )  # fmt: skip

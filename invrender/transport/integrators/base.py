@@ -1,0 +1,132 @@
+"""The integrator base class, its registry, and the settings every bounce-loop integrator shares.
+
+An integrator is an estimator of the Neumann series ``g eps + gMg eps + g(Mg)^2 eps + ...`` (or of a
+truncation of it). Subclasses name themselves (``name``), declare a frozen settings dataclass
+(``Settings``) that validates itself, and write only :meth:`Integrator.trace`, which follows one
+chunk of paths. The base class owns the chunked driver (:meth:`Integrator.render`); one that needs a
+pre-pass overrides :meth:`Integrator.prepare`, one whose paths split calls ``film.branch`` and
+:meth:`~invrender.transport.context.PathState.cat` inside its trace.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import ClassVar
+
+import torch
+
+from invrender.errors import ParameterError
+from invrender.scene.scene import Scene
+from invrender.transport.context import PathState, TransportContext
+from invrender.transport.driver import RenderSettings, check_int, cpu_workers, for_each_chunk
+from invrender.transport.film import Film
+
+#: integrator name -> class, filled by subclassing :class:`Integrator`
+INTEGRATORS: dict[str, type["Integrator"]] = {}
+
+
+@dataclass(frozen=True)
+class DepthSettings:
+    """Settings of an integrator that truncates the series.
+
+    Attributes:
+        max_depth: Neumann terms kept, counted as Mitsuba counts: 1 = emitters seen directly,
+            2 = + direct illumination, ...; -1 = unbounded (ended by Russian roulette only).
+    """
+
+    max_depth: int = 8
+
+    def __post_init__(self):
+        check_int("", "max_depth", self.max_depth)
+        if self.max_depth == 0 or self.max_depth < -1:
+            raise ParameterError(f"max_depth must be >= 1, or -1 for unbounded, got {self.max_depth}")
+
+    def continues_after(self, depth: int) -> bool:
+        """May a path whose last vertex has index ``depth`` (0 = first hit) add terms beyond ``depth``?"""
+        return self.max_depth == -1 or depth + 1 < self.max_depth
+
+
+@dataclass(frozen=True)
+class RouletteSettings(DepthSettings):
+    """Settings of an integrator with Russian roulette.
+
+    Attributes:
+        max_depth: as :class:`DepthSettings`.
+        rr_depth: Russian roulette starts after this many terms (Mitsuba's ``rr_depth``, default 5).
+    """
+
+    rr_depth: int = 5
+
+    def __post_init__(self):
+        super().__post_init__()
+        check_int("", "rr_depth", self.rr_depth, 1)
+
+
+class Integrator:
+    """Base class: a named estimator with validated settings and the default chunked driver.
+
+    Construct with the settings' fields as keywords (``Path(max_depth=4)``), or by name through
+    :func:`make_integrator`. Unknown keywords are errors naming the integrator's settings.
+    """
+
+    #: the name ``render(integrator=...)``, the CLI and recipes use
+    name: ClassVar[str]
+    #: the frozen settings dataclass
+    Settings: ClassVar[type] = DepthSettings
+    #: one line for ``--help`` and error messages
+    summary: ClassVar[str] = ""
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if "name" in cls.__dict__:
+            INTEGRATORS[cls.name] = cls
+
+    def __init__(self, **options):
+        known = {f.name for f in dataclasses.fields(self.Settings)}
+        unknown = sorted(set(options) - known)
+        if unknown:
+            raise ParameterError(f"integrator {self.name!r} has no setting {unknown[0]!r} (its settings: {', '.join(sorted(known)) or 'none'})")
+        self.settings = self.Settings(**options)
+
+    def __repr__(self) -> str:
+        fields = ", ".join(f"{k}={v!r}" for k, v in dataclasses.asdict(self.settings).items())
+        return f"{type(self).__name__}({fields})"
+
+    @property
+    def terms_kept(self) -> int:
+        """Largest number of Neumann terms this integrator can produce (-1 = unbounded)."""
+        return self.settings.max_depth
+
+    def prepare(self, ctx: TransportContext) -> TransportContext:
+        """Pre-pass hook, run once per render before any chunk is traced: return the context the
+        chunks are traced with (e.g. with ``extra`` holding a radiosity solution). Default: none."""
+        return ctx
+
+    def trace(self, ctx: TransportContext, state: PathState, film: Film) -> None:
+        """Follow ``state``'s camera rays and add their contributions to ``film`` (per Neumann term)."""
+        raise NotImplementedError
+
+    def context(self, scene: Scene, settings: RenderSettings, device: torch.device, params: dict | None = None) -> TransportContext:
+        """The prepared :class:`TransportContext` of one render."""
+        threads = 1 if cpu_workers(device) > 1 else None
+        return self.prepare(TransportContext.build(scene, device, settings.backend, threads, params))
+
+    def render(self, scene: Scene, settings: RenderSettings, device: torch.device, params: dict | None = None) -> torch.Tensor:
+        """The image: (H, W, 3), or (K, H, W, 3) per term with ``settings.terms``; records autograd
+        where a parameter requires grad (``params`` overrides ``scene.params`` values)."""
+        ctx = self.context(scene, settings, device, params)
+        films = [Film(scene.width, scene.height, settings.terms, device) for _ in range(cpu_workers(device))]
+        for_each_chunk(scene, settings, device, lambda worker, state: self.trace(ctx, state, films[worker]))
+        return Film.merge(films).develop(settings.spp)
+
+
+def make_integrator(integrator="path", **options) -> Integrator:
+    """An :class:`Integrator` from a name and its settings, or an instance (then no options)."""
+    if isinstance(integrator, Integrator):
+        if options:
+            raise ParameterError(f"settings {', '.join(sorted(options))} given beside an integrator object: set them on the object")
+        return integrator
+    if not isinstance(integrator, str) or integrator not in INTEGRATORS:
+        raise ParameterError(f"unknown integrator {integrator!r} (known: {', '.join(INTEGRATORS)})")
+    return INTEGRATORS[integrator](**options)

@@ -1,0 +1,107 @@
+"""The per-vertex steps the integrators share: find the next vertex, add the emission seen there,
+estimate direct light by sampling emitters, add the ambient term, continue along a BSDF sample.
+
+Each step comments the term of ``I = g eps + gMg eps + ...`` it adds: a vertex at depth k (0 = the
+camera ray's hit) sees emission in term k and gathers direct light into term k + 1.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from invrender.transport.bsdfs import BSDFSample, ShadingPoint
+from invrender.transport.context import PathState, TransportContext
+from invrender.transport.film import Film
+from invrender.transport.surface import Surface, surface_at
+from invrender.transport.vec import dot, norm
+
+
+def power_heuristic(pdf_a: torch.Tensor, pdf_b: torch.Tensor) -> torch.Tensor:
+    """MIS weight (N,) of strategy a against b (Veach's power heuristic, beta = 2)."""
+    a2, b2 = pdf_a * pdf_a, pdf_b * pdf_b
+    return torch.where(a2 > 0, a2 / (a2 + b2).clamp_min(1e-30), 0.0)
+
+
+def next_vertex(ctx: TransportContext, state: PathState) -> tuple[PathState, Surface | None]:
+    """Intersect ``state``'s rays; paths whose ray leaves the scene end (no environment light)."""
+    hits = ctx.accel.intersect(state.o, state.d)
+    hit = hits.valid
+    state, hits = state.select(hit), hits.select(hit)
+    if not state.count:
+        return state, None
+    return state, surface_at(ctx.triangles, hits, state.d, ctx.textured)
+
+
+def add_emitted(ctx: TransportContext, state: PathState, s: Surface, depth: int, film: Film, mis: bool) -> None:
+    """Term ``depth``: emission seen along the ray, ``beta w eps``.
+
+    With ``mis`` the weight w balances this BSDF-sampled hit against the emitter sample taken at
+    the previous vertex (power heuristic); it is 1 for camera rays and after delta lobes, where no
+    emitter sample competes.
+    """
+    emits = ctx.emits(s)
+    if not bool(emits.any()):
+        return
+    m = emits.nonzero()[:, 0]
+    se = s.select(m)
+    Le = ctx.emitted(se)
+    if mis and depth > 0:
+        pdf_light = ctx.lights.pdf_area[se.tri] * se.t * se.t / se.cos_o.clamp_min(1e-12)  # area -> solid angle
+        w = torch.where(state.delta[m], 1.0, power_heuristic(state.pdf_dir[m], pdf_light))[:, None]
+        Le = w * Le
+    film.add(depth, state.pixel[m], state.beta[m] * Le)
+
+
+def add_direct(ctx: TransportContext, state: PathState, s: Surface, sp: ShadingPoint, u: torch.Tensor, term: int, film: Film, mis: bool) -> None:
+    """Term ``term``: direct light by sampling one point on an emitter per path (soft shadows),
+    ``beta f cos_x eps cos_l / (r^2 pdf_area)`` if unoccluded, MIS-weighted against BSDF sampling
+    when ``mis`` (else the emitter sample alone estimates the term).
+
+    ``u`` (N, >= 5): dims 2 (emitter pick) and 3-4 (point). Every path casts its shadow ray and adds
+    its (possibly zero) contribution: cheaper than compacting a dozen tensors to the ones that count.
+    Vertices on delta lobes (mirror, glass) are skipped: no emitter sample can hit a delta lobe.
+    """
+    if ctx.lights is None:
+        return
+    if ctx.materials.any_delta:
+        keep = (~ctx.materials.lobe_mask(sp, ("specular",))).nonzero()[:, 0]
+        state, s, sp, u = state.select(keep), s.select(keep), sp.select(keep), u.index_select(0, keep)
+    ls = ctx.lights.sample(u[:, 2], u[:, 3:5])
+    o = s.p + ctx.ray_offset * s.n
+    to_light = ls.p - o
+    dist = norm(to_light).clamp_min(1e-12)
+    wl = to_light / dist[:, None]
+    cos_g = dot(s.n, wl)  # geometric side: light from behind the surface does not reach it
+    cos_l = -dot(ls.n, wl)  # at the light: only its front side emits
+    ok = (cos_g > 0) & (cos_l > 0)
+    ok &= ~ctx.accel.occluded(o, wl, dist - ctx.ray_offset)
+    pdf_light = ls.pdf_area * dist * dist / cos_l.clamp_min(1e-12)  # area -> solid angle
+    f_cos = ctx.materials.eval(sp, wl)
+    if mis:
+        w = power_heuristic(pdf_light, ctx.materials.pdf(sp, wl).detach())
+        weight = torch.where(ok, w / pdf_light, 0.0)
+    else:
+        weight = torch.where(ok, 1.0 / pdf_light, 0.0)
+    Le = ctx.emission(ctx.triangles.emitter[ls.tri], ls.uv)
+    film.add(term, state.pixel, state.beta * f_cos * Le * weight[:, None])
+
+
+def add_ambient(ctx: TransportContext, state: PathState, sp: ShadingPoint, term: int, film: Film) -> None:
+    """Term ``term``, the ambient stand-in for interreflection: a diffuse surface under uniform
+    radiance eps0 reflects ``k_d eps0`` (nothing when the scene has no ambient radiance)."""
+    if ctx.ambient is not None:
+        film.add(term, state.pixel, state.beta * ctx.materials.diffuse_reflectance(sp) * ctx.ambient)
+
+
+def scattered(ctx: TransportContext, state: PathState, s: Surface, bs: BSDFSample, film: Film) -> PathState:
+    """The paths continued along BSDF samples ``bs``: throughput times the sample weight.
+
+    The film sees the weight first (path replay differentiates everything the path gathers after
+    this vertex through it); paths whose weight is zero (absorbed, or no valid direction) end.
+    """
+    film.scatter(state.pixel, bs.weight)
+    weight = bs.weight.detach() if film.detach_throughput else bs.weight
+    state = state.replace(o=ctx.spawn(s, bs.wi), d=bs.wi, beta=state.beta * weight, pdf_dir=bs.pdf.detach(), delta=bs.delta)
+    if ctx.materials.all_diffuse and not ctx.triangles.any_smooth:
+        return state  # Lambertian weights are rho: nothing to drop but rho = 0 materials
+    return state.select(bs.weight.detach().amax(dim=1) > 0)
