@@ -101,7 +101,7 @@ class Materials:
 
         def call(b, p, i):
             value = b.diffuse_reflectance(p)
-            return value if value is not None else p.wo.new_zeros(p.count)
+            return value if value is not None else p.wo.new_zeros(p.count, 3)
 
         return self._dispatch(sp, call)
 
