@@ -1,9 +1,10 @@
-"""Built-in scenes by name: ``cornell_box`` (the default) and ``furnace``."""
+"""Built-in scenes by name: ``cornell_box`` (the default), ``cornell_specular`` and ``furnace``."""
 
 from __future__ import annotations
 
 from invrender.errors import SceneError
 from invrender.scene.camera import Camera
+from invrender.scene.materials import Material
 from invrender.scene.scene import Scene, build_scene
 from invrender.scene.shapes import Mesh, primitive, rotate, scale, sphere, translate
 
@@ -47,6 +48,43 @@ def cornell_box(resolution=(256, 256)) -> Scene:
     )
 
 
+#: the specular Cornell box: a mirror sphere, a glass sphere and a glossy (GGX) block
+SPECULAR_MIRROR = (0.95, 0.95, 0.95)
+SPECULAR_GLOSSY = (0.95, 0.75, 0.4)
+GLOSSY_ROUGHNESS = 0.25
+GLASS_IOR = 1.5
+
+
+def cornell_specular(resolution=(256, 256), subdivisions: int = 4) -> Scene:
+    """The Cornell box with the materials beyond Lambertian: Mitsuba's box, walls and light, with
+    the tall box turned into a glossy GGX conductor (``glossy``, roughness 0.25, a gold-like
+    specular reflectance), the short box replaced by a mirror sphere (``mirror``) and a glass
+    sphere (``glass``, ior 1.5) in front. Spheres are icospheres of ``subdivisions`` (20 * 4^n
+    triangles) shaded with their exact normals.
+    """
+    walls = cornell_box(resolution)
+    shapes = [
+        _shape("rectangle", translate([0, -1, 0]) @ rotate([1, 0, 0], -90), "white"),  # floor
+        _shape("rectangle", translate([0, 1, 0]) @ rotate([1, 0, 0], 90), "white"),  # ceiling
+        _shape("rectangle", translate([0, 0, -1]), "white"),  # back wall
+        _shape("rectangle", translate([1, 0, 0]) @ rotate([0, 1, 0], -90), "green"),  # right wall
+        _shape("rectangle", translate([-1, 0, 0]) @ rotate([0, 1, 0], 90), "red"),  # left wall
+        _shape("cube", translate([-0.33, -0.4, -0.28]) @ rotate([0, 1, 0], 18.25) @ scale([0.3, 0.61, 0.3]), "glossy"),
+        primitive("sphere", "mirror", None, subdivisions).transformed(translate([0.45, -0.7, -0.3]) @ scale(0.3)),
+        primitive("sphere", "glass", None, subdivisions).transformed(translate([0.1, -0.72, 0.45]) @ scale(0.28)),
+        _shape("rectangle", translate([0, 0.99, 0.01]) @ rotate([1, 0, 0], 90) @ scale([0.23, 0.19, 0.19]), "white", "light"),
+    ]
+    materials = {
+        "white": CORNELL_WHITE,
+        "red": CORNELL_RED,
+        "green": CORNELL_GREEN,
+        "mirror": Material.of("mirror", specular_reflectance=SPECULAR_MIRROR),
+        "glass": Material.of("dielectric", ior=GLASS_IOR),
+        "glossy": Material.of("glossy", specular_reflectance=SPECULAR_GLOSSY, roughness=GLOSSY_ROUGHNESS),
+    }
+    return build_scene(shapes, materials, {"light": CORNELL_LIGHT}, walls.camera, resolution, name="cornell_specular")
+
+
 def furnace(resolution=(32, 32), rho=0.5, eps=1.0, subdivisions: int = 3) -> Scene:
     """The inside of a closed unit sphere with uniform reflectance ``rho`` and emission ``eps``.
 
@@ -68,7 +106,7 @@ def _rgb(x):
         return x
 
 
-BUILTIN_SCENES = {"cornell_box": cornell_box, "furnace": furnace}
+BUILTIN_SCENES = {"cornell_box": cornell_box, "cornell_specular": cornell_specular, "furnace": furnace}
 
 
 def builtin_scene(name: str, **kwargs) -> Scene:

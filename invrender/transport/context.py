@@ -139,14 +139,15 @@ class PathState:
         return int(self.keys.shape[0])
 
 
-def russian_roulette(state: PathState, u: torch.Tensor, depth: int, rr_depth: int) -> PathState:
+def russian_roulette(state: PathState, u: torch.Tensor, depth: int, rr_depth: int, dead: torch.Tensor | None = None) -> PathState:
     """Unbiased Russian roulette after vertex ``depth`` once ``depth + 1 >= rr_depth``.
 
     Survival probability ``q = min(max_c beta_c, 0.95)`` from the detached throughput (Mitsuba's
-    rule); survivors' throughput is divided by q. ``u`` (N,) uniforms.
+    rule); survivors' throughput is divided by q. ``u`` (N,) uniforms. Paths flagged in ``dead``
+    (N,) bool end in any case (before ``rr_depth`` too).
     """
     if depth + 1 < rr_depth:
-        return state
+        return state if dead is None else state.select(~dead)
     q = state.beta.detach().amax(dim=1).clamp(max=0.95)
     alive = u < q
     state = state.select(alive)

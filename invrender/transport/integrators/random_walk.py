@@ -12,7 +12,7 @@ from __future__ import annotations
 from invrender.transport.context import PathState, TransportContext, russian_roulette
 from invrender.transport.film import Film
 from invrender.transport.integrators.base import Integrator, RouletteSettings
-from invrender.transport.integrators.vertex import add_emitted, next_vertex, scattered
+from invrender.transport.integrators.vertex import absorbed, add_emitted, next_vertex, scattered
 from invrender.transport.sampler import uniform
 
 #: random numbers drawn per vertex: 0-1 BSDF direction, 2-4 emitter sample, 5 roulette, 6 BSDF lobe
@@ -50,5 +50,5 @@ class RandomWalk(Integrator):
                 state, s, sp, u = state.select(keep), s.select(keep), sp.select(keep), u.index_select(0, keep)
             bs = ctx.materials.sample(sp, u[:, 6], u[:, 0:2])
             state = scattered(ctx, state, s, bs, film)
-            state = russian_roulette(state, u[:, 5], depth, cfg.rr_depth)
+            state = russian_roulette(state, u[:, 5], depth, cfg.rr_depth, absorbed(ctx, state))
             depth += 1

@@ -97,11 +97,17 @@ def scattered(ctx: TransportContext, state: PathState, s: Surface, bs: BSDFSampl
     """The paths continued along BSDF samples ``bs``: throughput times the sample weight.
 
     The film sees the weight first (path replay differentiates everything the path gathers after
-    this vertex through it); paths whose weight is zero (absorbed, or no valid direction) end.
+    this vertex through it).
     """
     film.scatter(state.pixel, bs.weight)
     weight = bs.weight.detach() if film.detach_throughput else bs.weight
-    state = state.replace(o=ctx.spawn(s, bs.wi), d=bs.wi, beta=state.beta * weight, pdf_dir=bs.pdf.detach(), delta=bs.delta)
+    return state.replace(o=ctx.spawn(s, bs.wi), d=bs.wi, beta=state.beta * weight, pdf_dir=bs.pdf.detach(), delta=bs.delta)
+
+
+def absorbed(ctx: TransportContext, state: PathState) -> torch.Tensor | None:
+    """(N,) bool: paths that carry nothing any more (zero throughput: absorbed, total internal
+    reflection's refracted branch, no valid direction), or None when no BSDF of the scene can
+    produce a zero weight (flat Lambertian scenes: the weight is rho)."""
     if ctx.materials.all_diffuse and not ctx.triangles.any_smooth:
-        return state  # Lambertian weights are rho: nothing to drop but rho = 0 materials
-    return state.select(bs.weight.detach().amax(dim=1) > 0)
+        return None
+    return state.beta.detach().amax(dim=1) <= 0

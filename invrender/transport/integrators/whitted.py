@@ -21,7 +21,7 @@ from invrender.transport.context import PathState, TransportContext
 from invrender.transport.film import Film
 from invrender.transport.integrators.base import DepthSettings, Integrator
 from invrender.transport.integrators.random_walk import DIMS
-from invrender.transport.integrators.vertex import add_ambient, add_direct, add_emitted, next_vertex, scattered
+from invrender.transport.integrators.vertex import absorbed, add_ambient, add_direct, add_emitted, next_vertex, scattered
 from invrender.transport.sampler import branch_keys, uniform
 
 
@@ -79,7 +79,9 @@ class Whitted(Integrator):
                     child = sub if len(lobes) == 1 else sub.replace(pixel=film.branch(sub.pixel), keys=branch_keys(sub.keys, k))
                     no_pdf = torch.zeros_like(child.pdf_dir)
                     sample = BSDFSample(wi, weight, no_pdf, torch.ones_like(child.delta))
-                    children.append(scattered(ctx, child, sub_s, sample, film))
+                    child = scattered(ctx, child, sub_s, sample, film)
+                    dead = absorbed(ctx, child)
+                    children.append(child if dead is None else child.select(~dead))
             if not children:
                 break
             state = PathState.cat(children)
