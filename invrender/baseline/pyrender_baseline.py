@@ -239,6 +239,9 @@ def pyrender_render(
     """
     if lobe not in LOBES:
         raise ParameterError(f"unknown lobe {lobe!r} (known: {', '.join(LOBES)})")
+    for i, name in enumerate(scene.materials):
+        if scene.material_spec(i).type != "diffuse":
+            raise BaselineError(f"the pyrender baseline rasterizes diffuse materials only (the Utah model); material {name!r} is {scene.material_spec(i).type}")
     eps0 = _ambient(scene, ambient)
     lights = emitter_lights(scene, point_lights)
     device = torch.device(device) if device is not None else scene.device

@@ -139,3 +139,11 @@ def test_render_rejects_settings_the_integrator_does_not_have():
         ir.render(scene, "whitted", max_depth=-1, spp=1)
     with pytest.raises(ParameterError, match="unknown integrator 'kajiya'"):
         ir.render(scene, "kajiya", spp=1)
+
+
+def test_pyrender_baseline_refuses_non_diffuse_materials_before_any_gl():
+    from invrender.baseline.pyrender_baseline import pyrender_render
+    from invrender.errors import BaselineError
+
+    with pytest.raises(BaselineError, match="diffuse materials only .* material 'mirror' is mirror"):
+        pyrender_render(ir.load_scene("cornell_specular", resolution=(8, 8), subdivisions=0))
