@@ -8,7 +8,7 @@ bright ones on HDR images; the weights are fixed, so the objective stays an unbi
 **Decorrelation.** The gradient of ``l(I)`` is ``<dl/dI (I), dI/dtheta>``. If the same Monte Carlo
 image supplies both factors, their noise is correlated and the product is biased: for
 ``l = 1/2 (I - T)^2`` the bias of the gradient is ``Cov(I, dI/dtheta) / N`` per pixel (in the furnace,
-``dl/deps`` is biased by ``eps rho / ((1 - rho)^2 N)`` at N samples per pixel; REFERENCES.md).
+``dl/deps`` is biased by ``eps rho / ((1 - rho)^2 N)`` at N samples per pixel for the analog random walk; docs/closed_forms.md#correlated-gradient-bias).
 Taking ``dl/dI`` from one image (:func:`loss_gradient`) and differentiating an independent one
 (another seed; :func:`loss_and_gradient` with two images, or
 :func:`invrender.diff.backpropagate`, which ``fit`` uses) makes the gradient unbiased.

@@ -1,4 +1,4 @@
-"""Atomic file writes: a failure never leaves a half-written output behind (DESIGN.md decision 8)."""
+"""Atomic file writes: a failure never leaves a half-written output behind (docs/architecture.md#errors-are-part-of-the-interface)."""
 
 from __future__ import annotations
 

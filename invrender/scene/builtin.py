@@ -8,7 +8,7 @@ from invrender.scene.materials import Material
 from invrender.scene.scene import Scene, build_scene
 from invrender.scene.shapes import Mesh, primitive, rotate, scale, sphere, translate
 
-# Mitsuba 3's cornell_box() (REFERENCES.md): diffuse albedos in linear RGB and the light's radiance.
+# Mitsuba 3's cornell_box() (docs/conventions.md#materials): diffuse albedos in linear RGB and the light's radiance.
 CORNELL_WHITE = (0.885809, 0.698859, 0.666422)
 CORNELL_GREEN = (0.105421, 0.37798, 0.076425)
 CORNELL_RED = (0.570068, 0.0430135, 0.0443706)

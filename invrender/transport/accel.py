@@ -1,4 +1,5 @@
-"""Ray-triangle intersection backends (DESIGN.md decision 1: geometry is never differentiated).
+"""Ray-triangle intersection backends (geometry is never differentiated:
+docs/architecture.md#geometry-is-never-differentiated).
 
 A backend answers two queries for a batch of rays and returns plain, non-differentiable tensors:
 ``intersect`` (closest hit: distance, triangle id, barycentrics) and ``occluded`` (any hit before a

@@ -1,6 +1,6 @@
 """Sampling points on emissive triangles for next-event estimation.
 
-Lights are sampled by detached power (DESIGN.md decision 4): an emissive triangle is picked with
+Lights are sampled by detached power (docs/architecture.md#detached-sampling-differentiable-evaluation): an emissive triangle is picked with
 probability proportional to ``area x mean(eps)`` (eps read without gradient when the sampler is
 built), then a point uniformly on it. No pdf depends on the differentiable ``eps``.
 """

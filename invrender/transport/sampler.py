@@ -1,4 +1,4 @@
-"""Counter-based random numbers (DESIGN.md decision 3).
+"""Counter-based random numbers (docs/architecture.md#counter-based-random-numbers).
 
 Every uniform number is a pure function of ``(seed, pixel, sample, bounce, dimension)``: a 32-bit
 integer hash (Wellons' ``lowbias32``, a strong avalanche mix) of those counters, mapped to [0, 1).

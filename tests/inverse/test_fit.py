@@ -121,7 +121,7 @@ transform = [{ translate = [0, 0, -5] }]
 def test_decorrelation_removes_the_same_sample_bias():
     """Furnace with the analog random walk (Russian roulette with q = rho, weight 1): the image of a
     path is eps n, n ~ geometric, dI/deps = n. With the target at the true radiance, the gradient of
-    the per-pixel L2 loss from the same sample has mean 2 eps rho/(1-rho)^2 = 4 (REFERENCES.md; the 2
+    the per-pixel L2 loss from the same sample has mean 2 eps rho/(1-rho)^2 = 4 (docs/closed_forms.md#correlated-gradient-bias; the 2
     from mse's derivative), from independent samples 0. 64x64 pixels at 1 spp: standard error 0.25."""
     scene = furnace(rho=0.5, eps=1.0, resolution=(64, 64))
     eps = scene.params["glow.emission"].requires_grad_(True)

@@ -1,5 +1,5 @@
 """Gradients of the Monte Carlo estimate: estimators against central finite differences with common
-random numbers, against each other, and against the furnace's closed forms (REFERENCES.md)."""
+random numbers, against each other, and against the furnace's closed forms (docs/closed_forms.md#furnace)."""
 
 import pytest
 import torch

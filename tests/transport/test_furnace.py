@@ -1,4 +1,4 @@
-"""The furnace: a closed Lambertian enclosure with uniform rho and eps (REFERENCES.md).
+"""The furnace: a closed Lambertian enclosure with uniform rho and eps (docs/closed_forms.md#furnace).
 
 Radiance everywhere is ``eps (1 - rho^D) / (1 - rho)`` with D Neumann terms and ``eps / (1 - rho)``
 unbounded. Cosine-weighted BSDF sampling at fixed depth is a zero-variance estimator here, so the

@@ -61,7 +61,7 @@ def test_utah_matches_path_depth_2_within_monte_carlo_error():
 
 def test_direct_light_under_a_square_emitter_is_rho_eps_F():
     """The centre pixel sees the point under the emitter: radiance rho eps F with F the point-to-
-    square form factor (REFERENCES.md, Howell), to 1% (pixel footprint and noise are ~0.2%)."""
+    square form factor (docs/closed_forms.md#form-factors, Howell), to 1% (pixel footprint and noise are ~0.2%)."""
     scene = plane_under_light()
     image = ir.render(scene, "utah", spp=256, seed=0, progress=False)
     F = form_factor_point_to_square(SIDE, HEIGHT)
