@@ -25,7 +25,8 @@ Fit recipe::
     dataset = "../datasets_synthetic/cornell_random.toml"   # required: a dataset recipe (generated on demand)
     params = ["red.reflectance", "light.emission"]          # required
 
-    [init]                             # starting values: a parameter name, or "reflectance" / "emission"
+    [init]                             # starting values: a parameter name, or a kind ("reflectance",
+                                       # "specular_reflectance", "emission")
     reflectance = 0.5                  # for every fitted parameter of that kind
     emission = 5.0
 
@@ -53,6 +54,8 @@ import torch
 from invrender.errors import ParameterError, SceneError
 from invrender.scene import load_scene
 from invrender.scene.camera import Camera
+from invrender.scene.kinds import KINDS as PARAM_KINDS
+from invrender.scene.kinds import kind_of
 from invrender.scene.loaders import camera_from_table
 from invrender.scene.toml_values import check_keys, integer, read_toml, table, vector
 from invrender.scene.scene import AMBIENT, Scene, check_param_value
@@ -60,7 +63,7 @@ from invrender.scene.scene import AMBIENT, Scene, check_param_value
 DATASET_KEYS = {"scene", "resolution", "spp", "max_depth", "seed", "randomize", "set", "views"}
 FIT_KEYS = {"dataset", "params", "init", "fit", "variants"}
 VARIANT_KEYS = {"label", "params", "init"}
-KINDS = ("reflectance", "emission")  # [init] keys that start every fitted parameter of that kind
+KINDS = tuple(PARAM_KINDS)  # [init] keys that start every fitted parameter of that kind
 
 
 @dataclass(frozen=True)
@@ -291,13 +294,13 @@ def _setting_names() -> set[str]:
 
 
 def apply_init(scene: Scene, names: list[str], init: dict) -> None:
-    """Set starting values in place: keys are parameter names, or ``reflectance`` / ``emission``
-    for every fitted parameter of that kind (but not the ambient eps0); a parameter's own value
+    """Set starting values in place: keys are parameter names, or a kind (``reflectance``,
+    ``specular_reflectance``, ``emission``) for every fitted parameter of that kind (but not the ambient eps0); a parameter's own value
     wins over its kind's. An ``ambient.emission`` value starts eps0 in a scene that had none."""
     values = {}
     for kind in KINDS:
         if kind in init:
-            values.update({name: init[kind] for name in names if name.endswith(f".{kind}") and name != AMBIENT})
+            values.update({name: init[kind] for name in names if kind_of(name).key == kind and name != AMBIENT})
     values.update({name: value for name, value in init.items() if name not in KINDS})
     for name, value in values.items():
         if name == AMBIENT and name not in scene.params:

@@ -64,21 +64,53 @@ glTF, GLB and OBJ files
 
 :func:`load_mesh_file` reads a whole scene with ``trimesh.load(path, force="scene")``; every
 geometry is moved to world space by its scene-graph transform, and triangles are ordered by
-geometry in file order (trimesh's node order is not). Everything is Lambertian
-(metallic, roughness, specular, alpha are ignored). Each distinct material becomes a material
+geometry in file order (trimesh's node order is not). Each distinct material becomes a material
 named as in the file (unnamed: ``material``), made unique with ``_2``, ``_3``, ... suffixes when
-two different materials share a name:
+two different materials share a name. A glTF material's type (:mod:`invrender.scene.materials`)
+is the first of these that applies:
 
-- glTF: rho = ``baseColorFactor`` RGB (linear, read exactly from the file's JSON; trimesh rounds it
-  to 8 bits) x ``baseColorTexture`` RGB (8-bit sRGB-encoded per the glTF spec, decoded to linear).
-  eps = ``emissiveFactor`` x ``KHR_materials_emissive_strength.emissiveStrength`` (read from the
-  JSON, trimesh ignores this extension) x ``emissiveTexture`` (sRGB-decoded); when eps is non-zero
-  the material also becomes the emitter ``<material>_emission``. A primitive without a material
-  gets rho = 0.8 grey.
-- OBJ/MTL: rho = ``Kd`` (read as *linear* RGB, exactly as written in the .mtl) x ``map_Kd`` (sRGB-
-  decoded; the texture alone when ``Kd`` is absent); eps = ``Ke`` (linear; ``map_Ke`` is ignored).
-  Faces without a material (or an OBJ without .mtl) get rho = 0.8 grey (trimesh's placeholder
-  material, with its grey 2 x 2 image, is ignored).
+1. ``KHR_materials_transmission.transmissionFactor`` > 0: ``dielectric``, ``ior`` =
+   ``KHR_materials_ior.ior`` (default 1.5);
+2. ``metallicFactor`` >= 0.5: a conductor with ``specular_reflectance`` = the base colour and GGX
+   alpha = ``roughnessFactor`` ^ 2: ``mirror`` when alpha < 1e-3, else ``glossy`` with
+   ``roughness`` = min(alpha, 1);
+3. otherwise ``diffuse`` with ``reflectance`` rho = the base colour.
+
+- glTF factors follow the spec's defaults: ``metallicFactor`` and ``roughnessFactor`` are 1 when
+  ``pbrMetallicRoughness`` omits them, so a material that does not say ``metallicFactor`` is a
+  metal (a rough white conductor when it says nothing at all). They are read from the file's JSON
+  (trimesh's values where the JSON has none, e.g. converted from
+  ``KHR_materials_pbrSpecularGlossiness``); each must be a number in [0, 1] (``ior`` > 0).
+  ``roughnessFactor`` is perceptual roughness r and GGX alpha = r^2, the glTF spec's convention.
+  A primitive without any material is the exception to the spec (whose default material is
+  metallic): it gets the grey diffuse of an OBJ face without a material.
+- What invrender's types cannot hold is dropped: ``metallicRoughnessTexture`` (factors only),
+  metallic factors strictly between 0 and 1 (a metal at >= 0.5; below, the dielectric base's
+  specular layer is dropped and only its diffuse part stays), a conductor's texture (its
+  ``specular_reflectance`` is RGB only: the linear mean of ``baseColorTexture`` x
+  ``baseColorFactor``), partial transmission (any ``transmissionFactor`` > 0 is clear glass, its
+  base colour ignored), normal, occlusion and alpha.
+- glTF base colour = ``baseColorFactor`` RGB (linear, read exactly from the file's JSON; trimesh
+  rounds it to 8 bits) x ``baseColorTexture`` RGB (8-bit sRGB-encoded per the glTF spec, decoded
+  to linear). eps = ``emissiveFactor`` x ``KHR_materials_emissive_strength.emissiveStrength`` (read
+  from the JSON, trimesh ignores this extension) x ``emissiveTexture`` (sRGB-decoded); when eps is
+  non-zero the material also becomes the emitter ``<material>_emission``, whatever its type.
+- OBJ/MTL: ``diffuse``, rho = ``Kd`` (read as *linear* RGB, exactly as written in the .mtl) x
+  ``map_Kd`` (sRGB-decoded; the texture alone when ``Kd`` is absent); except ``illum 3``
+  (reflection on) with a non-zero ``Ks``: a ``mirror`` with ``specular_reflectance`` = ``Ks``.
+  ``Ns``, ``Ni``, ``d`` and the other illumination models are ignored. eps = ``Ke`` (linear;
+  ``map_Ke`` is ignored). Faces without a material (or an OBJ without .mtl) get rho = 0.8 grey
+  (trimesh's placeholder material, with its grey 2 x 2 image, is ignored).
+- Shading normals: a part whose file gives vertex normals (OBJ ``vn``, glTF ``NORMAL``, PLY
+  ``nx ny nz``) shades with them, interpolated over each triangle; parts without (and STL files)
+  are flat (trimesh would compute normals for them: it is not asked to). They are taken to world
+  space by the inverse transpose of the node's transform (mirroring transforms reverse the
+  winding, and the normals stay on the front side), normalized (zero ones replaced by the mean of
+  the adjacent faces' normals), and negated when, over the whole part, they point to the back
+  side of its winding: the winding decides the front side. trimesh keeps vertices with different normals
+  apart when it merges vertices, so hard edges (an OBJ cube with one ``vn`` per side) stay hard.
+  A TOML ``type = "mesh"`` shape keeps its file's normals the same way (parts without normals in
+  a file that has some get their faces' geometric normals: still flat).
 - Camera: the first perspective camera met walking the default glTF scene's node tree (depth
   first, in file order) is used, with its ``yfov`` along the image's y axis and its node's world
   transform (glTF cameras look down their local -z with +y up); its ``aspectRatio`` sets the
@@ -113,6 +145,7 @@ TRANSFORM_STEPS = ("translate", "rotate", "scale")
 DEFAULT_RESOLUTION = (256, 256)
 DEFAULT_RHO = 0.8  # reflectance of glTF primitives / OBJ faces without a material
 FRAMING_FOV = 45.0
+MIRROR_ALPHA = 1e-3  # glTF conductors with a GGX alpha below this become mirrors
 
 
 # ---------------------------------------------------------------- TOML
@@ -188,7 +221,8 @@ def _shape(doc: dict, where: str, base: Path) -> Mesh:
         raise SceneError(f"{where}: 'file' applies to type = \"mesh\" only")
     try:
         if kind == "mesh":
-            mesh = Mesh(*_mesh_arrays(base / string(doc, "file", where, required=True)), material, emitter)
+            v, f, uv, vn = _mesh_arrays(base / string(doc, "file", where, required=True))
+            mesh = Mesh(v, f, uv, material, emitter, vn)
         else:
             mesh = primitive(kind, material, emitter, *((integer(doc, "subdivisions", where),) if "subdivisions" in doc else ()))
     except SceneError as e:  # a bad mesh file, subdivisions out of range
@@ -273,13 +307,34 @@ def _colour_or_texture(doc, kind: str, where: str, base: Path, others: set | Non
 
 
 def _mesh_arrays(path: Path):
-    """(vertices, faces, uvs) of a mesh file, all its parts merged in world space."""
-    meshes = [m for m, _ in _trimesh_parts(path)]
-    v = np.concatenate([np.asarray(m.vertices, dtype=np.float64) for m in meshes])
-    offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
-    f = np.concatenate([np.asarray(m.faces, dtype=np.int64) + o for m, o in zip(meshes, offsets)])
-    uv = np.concatenate([_uv(m) for m in meshes])
-    return v, f, uv
+    """(vertices, faces, uvs, normals) of a mesh file, all its parts merged in world space.
+
+    ``normals`` (V, 3) are the file's vertex normals (world space, on the front side), or None
+    when no part has any: the mesh is flat. When only some parts have them, the faces of the
+    others get their own three corners each, carrying the face's geometric normal (so they still
+    shade flat); the triangles are the same either way."""
+    parts = _trimesh_parts(path)
+    smooth = any(n is not None for _, _, n in parts)
+    vs, fs, uvs, ns = [], [], [], []
+    offset = 0
+    for mesh, _, normals in parts:
+        v, f, uv = np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64), _uv(mesh)
+        if smooth and normals is None:
+            v, f, uv, normals = _flat_corners(v, f, uv)
+        vs.append(v)
+        fs.append(f + offset)
+        uvs.append(uv)
+        ns.append(normals)
+        offset += len(v)
+    return np.concatenate(vs), np.concatenate(fs), np.concatenate(uvs), (np.concatenate(ns) if smooth else None)
+
+
+def _flat_corners(v: np.ndarray, f: np.ndarray, uv: np.ndarray):
+    """A flat mesh as unshared corners with their face's geometric normal: (vertices, faces, uvs, normals)."""
+    corners = v[f]
+    cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    n = cross / np.maximum(np.linalg.norm(cross, axis=1, keepdims=True), 1e-300)
+    return corners.reshape(-1, 3), np.arange(3 * len(f), dtype=np.int64).reshape(-1, 3), uv[f].reshape(-1, 2), np.repeat(n, 3, axis=0)
 
 
 # ---------------------------------------------------------------- glTF / GLB / OBJ
@@ -302,20 +357,21 @@ def load_mesh_file(path, resolution=None) -> Scene:
     gltf = _gltf_json(path) if is_gltf else {}
     json_materials = gltf.get("materials", []) if isinstance(gltf.get("materials"), list) else []
 
-    meshes, reflectance, emission = [], {}, {}
+    meshes, materials, emission = [], {}, {}
     names_by_key: dict[tuple, str] = {}
-    for mesh, material in _trimesh_parts(path):
-        base_name, rho, eps = _material_values(material, json_materials, is_gltf, path)
-        key = (base_name, _fingerprint(rho), _fingerprint(eps))
+    for mesh, material, normals in _trimesh_parts(path):
+        base_name, spec, eps = _material_values(material, json_materials, is_gltf, path)
+        key = (base_name, _material_key(spec), _fingerprint(eps))
         if key not in names_by_key:
-            name = _unique_name(base_name, eps is not None, set(reflectance) | set(emission))
+            name = _unique_name(base_name, eps is not None, set(materials) | set(emission))
             names_by_key[key] = name
-            reflectance[name] = rho
+            materials[name] = spec
             if eps is not None:
                 emission[f"{name}_emission"] = eps
         name = names_by_key[key]
         emitter = f"{name}_emission" if f"{name}_emission" in emission else None
-        meshes.append(Mesh(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64), _uv(mesh), name, emitter))
+        v, f = np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64)
+        meshes.append(Mesh(v, f, _uv(mesh), name, emitter, normals))
 
     camera, aspect = _gltf_camera(gltf, path) if is_gltf else (None, None)
     if camera is None:
@@ -323,13 +379,14 @@ def load_mesh_file(path, resolution=None) -> Scene:
     if resolution is None:
         resolution = (max(1, round(256 * aspect)), 256) if aspect else DEFAULT_RESOLUTION
     try:
-        return build_scene(meshes, reflectance, emission, camera, resolution, name=path.stem)
+        return build_scene(meshes, materials, emission, camera, resolution, name=path.stem)
     except SceneError as e:
         raise SceneError(f"{path}: {e}") from None
 
 
 def _trimesh_parts(path: Path) -> list:
-    """[(trimesh.Trimesh in world space, its material or None)] of a mesh file, in scene-graph order."""
+    """[(trimesh.Trimesh in world space, its material or None, its vertex normals or None)] of a
+    mesh file, in scene-graph order; normals (V, 3) as :func:`_world_normals` makes them."""
     import trimesh
 
     if not path.is_file():
@@ -346,12 +403,55 @@ def _trimesh_parts(path: Path) -> list:
         if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
             continue
         material = getattr(mesh.visual, "material", None)  # before copy(): shared objects stay shared
+        normals = _file_normals(mesh)  # before copy() too: copies drop trimesh's cache, which holds them
         mesh = mesh.copy()
         mesh.apply_transform(transform)
-        parts.append((mesh, material))
+        parts.append((mesh, material, None if normals is None else _world_normals(normals, transform, mesh)))
     if not parts:
         raise SceneError(f"mesh file {path} has no faces (no triangle meshes)")
     return parts
+
+
+def _file_normals(mesh) -> np.ndarray | None:
+    """The vertex normals a trimesh mesh was loaded with (OBJ ``vn``, glTF ``NORMAL``, PLY
+    ``nx ny nz``), or None when the file had none.
+
+    trimesh keeps loaded normals in its cache only, and puts computed ones there only when
+    ``vertex_normals`` is first read (nothing on the loading path reads it), so an entry in the
+    cache right after loading is one the file gave. Its vertex merging (``process=True``) keys
+    vertices on their normals too, so vertices on either side of a hard edge stay apart."""
+    normals = mesh._cache["vertex_normals"]
+    if normals is None or np.shape(normals) != np.shape(mesh.vertices):
+        return None
+    return np.array(normals, dtype=np.float64)
+
+
+def _world_normals(normals: np.ndarray, transform: np.ndarray, mesh) -> np.ndarray | None:
+    """Local vertex normals of ``mesh`` (already moved to world space by ``transform``) in world
+    space: by the inverse transpose of the linear part (trimesh reverses the faces of mirroring
+    transforms, and the inverse transpose keeps the normals on the new front side), unit length;
+    zero or non-finite normals replaced by the area-weighted mean of the adjacent faces' normals;
+    all negated when, over the whole mesh, they point to the back side of its winding (the winding
+    decides the front side, as everywhere in invrender). None for a singular transform."""
+    linear = np.asarray(transform, dtype=np.float64)[:3, :3]
+    if not abs(np.linalg.det(linear)) > 0:
+        return None
+    n = normals @ np.linalg.inv(linear)  # rows: (L^-T n)^T
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    bad = ~np.isfinite(length[:, 0]) | (length[:, 0] < 1e-12)
+    n = np.where(bad[:, None], 0.0, n / np.where(bad[:, None], 1.0, length))
+    v, f = np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64)
+    cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # front-side normal x 2 area
+    if bad.any():
+        mean = np.zeros_like(n)
+        for k in range(3):
+            np.add.at(mean, f[:, k], cross)
+        length = np.linalg.norm(mean, axis=1, keepdims=True)
+        mean = np.where(length > 0, mean / np.where(length > 0, length, 1.0), 0.0)
+        n[bad] = mean[bad]
+    if sum(np.einsum("ij,ij->", n[f[:, k]], cross) for k in range(3)) < 0:
+        n = -n
+    return n
 
 
 def _uv(mesh) -> np.ndarray:
@@ -362,25 +462,45 @@ def _uv(mesh) -> np.ndarray:
 
 
 def _material_values(material, json_materials: list, is_gltf: bool, path: Path):
-    """(name, rho, eps or None) of a trimesh material: rho (3,) or (h, w, 3) linear, likewise eps."""
+    """(name, :class:`Material`, eps or None) of a trimesh material, mapped as this module's
+    docstring says; eps (3,) or (h, w, 3) linear."""
     from trimesh.visual.material import PBRMaterial, SimpleMaterial
 
     name = getattr(material, "name", None) or "material"
+    where = f"{path}: material {name!r}"
     if isinstance(material, PBRMaterial):
         entry = _json_material(material, json_materials) if is_gltf else {}
         pbr = entry.get("pbrMetallicRoughness", {}) if isinstance(entry.get("pbrMetallicRoughness"), dict) else {}
+        extensions = entry.get("extensions", {}) if isinstance(entry.get("extensions"), dict) else {}
         if "baseColorFactor" in pbr:
             base = _factor(pbr["baseColorFactor"], "baseColorFactor", path)
         elif material.baseColorFactor is not None:
             base = np.asarray(material.baseColorFactor, dtype=np.float64)[:3] / 255.0
         else:
             base = np.ones(3)
-        rho = _times_texture(base, material.baseColorTexture)
 
-        extension = entry.get("extensions", {}).get("KHR_materials_emissive_strength", {}) if isinstance(entry.get("extensions"), dict) else {}
+        transmission = extensions.get("KHR_materials_transmission", {})
+        transmission = transmission if isinstance(transmission, dict) else {}
+        ior = extensions.get("KHR_materials_ior", {})
+        ior = ior if isinstance(ior, dict) else {}
+        if _gltf_number(transmission, "transmissionFactor", None, 0.0, where, high=1.0) > 0:
+            spec = Material.of("dielectric", where, ior=_gltf_number(ior, "ior", None, 1.5, where, high=math.inf))
+        elif _gltf_number(pbr, "metallicFactor", material.metallicFactor, 1.0, where) >= 0.5:
+            colour = base  # specular_reflectance is RGB only: a texture counts by its (linear) mean
+            if material.baseColorTexture is not None:
+                colour = base * _times_texture(np.ones(3), material.baseColorTexture).reshape(-1, 3).mean(0)
+            alpha = _gltf_number(pbr, "roughnessFactor", material.roughnessFactor, 1.0, where) ** 2  # perceptual roughness squared
+            if alpha < MIRROR_ALPHA:
+                spec = Material.of("mirror", where, specular_reflectance=colour)
+            else:
+                spec = Material.of("glossy", where, specular_reflectance=colour, roughness=min(alpha, 1.0))
+        else:
+            spec = Material.of("diffuse", where, reflectance=_times_texture(base, material.baseColorTexture))
+
+        extension = extensions.get("KHR_materials_emissive_strength", {})
         strength = extension.get("emissiveStrength", 1.0) if isinstance(extension, dict) else 1.0
         if not is_number(strength):
-            raise SceneError(f"{path}: material {name!r}: emissiveStrength must be a number, got {show(strength)}")
+            raise SceneError(f"{where}: emissiveStrength must be a number, got {show(strength)}")
         if "emissiveFactor" in entry:
             factor = _factor(entry["emissiveFactor"], "emissiveFactor", path)
         elif material.emissiveFactor is not None:
@@ -389,23 +509,58 @@ def _material_values(material, json_materials: list, is_gltf: bool, path: Path):
             factor = np.zeros(3)
         eps = factor * float(strength)
         eps = _times_texture(eps, material.emissiveTexture) if np.any(eps != 0) else None
-        return name, rho, eps
+        return name, spec, eps
 
     if isinstance(material, SimpleMaterial):
         kwargs = material.kwargs or {}
         if getattr(material, "_name", None) is None and "kd" not in kwargs:  # its .name is then "material_0"
-            return "material", np.full(3, DEFAULT_RHO), None  # trimesh's placeholder for faces without a material
-        kd = _mtl_colour(kwargs.get("kd"), "Kd", name, path)
-        rho = _times_texture(np.ones(3) if kd is None and material.image is not None else (kd if kd is not None else np.full(3, DEFAULT_RHO)), material.image)
+            # trimesh's placeholder for faces without a material
+            return "material", Material.of("diffuse", where, reflectance=np.full(3, DEFAULT_RHO)), None
         ke = _mtl_colour(kwargs.get("ke"), "Ke", name, path)
         eps = ke if ke is not None and np.any(ke != 0) else None
-        return name, rho, eps
+        ks = _mtl_colour(kwargs.get("ks"), "Ks", name, path) if _mtl_illum(kwargs.get("illum"), name, path) == 3 else None
+        if ks is not None and np.any(ks != 0):  # illum 3: reflection on
+            return name, Material.of("mirror", where, specular_reflectance=ks), eps
+        kd = _mtl_colour(kwargs.get("kd"), "Kd", name, path)
+        if kd is None:
+            kd = np.ones(3) if material.image is not None else np.full(3, DEFAULT_RHO)
+        rho = _times_texture(kd, material.image)
+        return name, Material.of("diffuse", where, reflectance=rho), eps
 
-    return name, np.full(3, DEFAULT_RHO), None  # no material (e.g. vertex colours only)
+    return name, Material.of("diffuse", where, reflectance=np.full(3, DEFAULT_RHO)), None  # no material (e.g. vertex colours only)
+
+
+def _gltf_number(table: dict, key: str, fallback, default: float, where: str, high: float = 1.0) -> float:
+    """A glTF material number in [0, ``high``]: the JSON's, else trimesh's ``fallback`` (what it
+    parsed, e.g. from KHR_materials_pbrSpecularGlossiness), else the spec's ``default``."""
+    value = table[key] if key in table else (default if fallback is None else fallback)
+    if isinstance(value, np.generic):
+        value = value.item()
+    if not is_number(value) or not math.isfinite(value):
+        raise SceneError(f"{where}: glTF {key} must be a number, got {show(value)}")
+    if not 0 <= value <= high:
+        raise SceneError(f"{where}: glTF {key} must lie in [0, {high:g}], got {value:g}")
+    return float(value)
+
+
+def _mtl_illum(value, material: str, path: Path) -> int | None:
+    """An MTL ``illum`` model as trimesh keeps it (a list of strings) -> int or None."""
+    if value is None:
+        return None
+    try:
+        return int(float(np.atleast_1d(value)[0]))
+    except (TypeError, ValueError, IndexError):
+        raise SceneError(f"{path}: material {material!r}: illum must be an integer, got {show(value)}") from None
+
+
+def _material_key(spec: Material) -> tuple:
+    """What tells two materials apart: type, values (fingerprinted) and constants."""
+    return (spec.type, tuple((k, _fingerprint(v)) for k, v in sorted(spec.values.items())), tuple(sorted(spec.constants.items())))
 
 
 def _json_material(material, json_materials: list) -> dict:
-    """The glTF JSON material a trimesh PBRMaterial came from: by name, ties broken by its (8-bit) factors."""
+    """The glTF JSON material a trimesh PBRMaterial came from: by name, ties broken by its factors
+    (base colour and emission compared at trimesh's 8 bits; metallic and roughness)."""
     candidates = [m for m in json_materials if isinstance(m, dict) and m.get("name") == material.name]
     if len(candidates) <= 1:
         return candidates[0] if candidates else {}
@@ -414,10 +569,11 @@ def _json_material(material, json_materials: list) -> dict:
         return None if x is None else np.round(np.asarray(x, dtype=np.float64).reshape(-1)[:3] * 255).astype(int).tolist()
 
     for m in candidates:
-        pbr = m.get("pbrMetallicRoughness", {})
+        pbr = m.get("pbrMetallicRoughness") if isinstance(m.get("pbrMetallicRoughness"), dict) else {}
         ok_base = rounded(pbr.get("baseColorFactor")) == (None if material.baseColorFactor is None else np.asarray(material.baseColorFactor)[:3].astype(int).tolist())
         ok_emit = rounded(m.get("emissiveFactor")) == rounded(material.emissiveFactor)
-        if ok_base and ok_emit:
+        ok_pbr = all(k not in pbr or pbr[k] == getattr(material, k, None) for k in ("metallicFactor", "roughnessFactor"))
+        if ok_base and ok_emit and ok_pbr:
             return m
     return {}
 

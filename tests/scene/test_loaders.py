@@ -260,10 +260,10 @@ def test_gltf_texture_duplicate_names_and_nested_camera(tmp_path):
     texture = np.zeros((2, 4, 3), dtype=np.uint8)
     texture[0] = [188, 188, 188]  # top row: linear 0.5
     Image.fromarray(texture).save(tmp_path / "base.png")
-    materials = [
-        {"name": "paint", "pbrMetallicRoughness": {"baseColorFactor": [1.0, 0.5, 1.0, 1.0], "baseColorTexture": {"index": 0}}},
-        {"name": "paint", "pbrMetallicRoughness": {"baseColorFactor": [0.2, 0.3, 0.4, 1.0]}, "emissiveFactor": [1, 1, 1]},
-        {"name": "paint_emission", "pbrMetallicRoughness": {"baseColorFactor": [0.1, 0.1, 0.1, 1.0]}},
+    materials = [  # metallicFactor 0: glTF's default is 1, a metal
+        gltf_material("paint", baseColorFactor=[1.0, 0.5, 1.0, 1.0], baseColorTexture={"index": 0}, metallicFactor=0),
+        {**gltf_material("paint", baseColorFactor=[0.2, 0.3, 0.4, 1.0], metallicFactor=0), "emissiveFactor": [1, 1, 1]},
+        gltf_material("paint_emission", baseColorFactor=[0.1, 0.1, 0.1, 1.0], metallicFactor=0.0),
     ]
     rig = [
         {"name": "rig", "translation": [0, 0, 5], "rotation": [0, 0.7071068, 0, 0.7071068], "children": [4]},  # 90 deg about +y
@@ -303,3 +303,265 @@ def test_loader_errors_are_one_line(tmp_path):
             call()
         messages.append(str(e.value))
     assert all(m and "\n" not in m for m in messages), messages
+
+
+# ---------------------------------------------------------------- shading normals and material types from files
+
+
+def icosphere(subdivisions=1):
+    """(vertices, faces) of trimesh's unit icosphere, faces outward."""
+    import trimesh
+
+    m = trimesh.creation.icosphere(subdivisions=subdivisions)
+    return np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64)
+
+
+def obj_text(vertices, faces, normals=None, normal_index=None):
+    """An OBJ: ``v`` lines, ``vn`` lines when ``normals`` is given, faces ``v//vn`` (normal per vertex,
+    or ``normal_index`` (F, 3) into ``normals``) or ``v``."""
+    lines = ["v " + " ".join(repr(float(c)) for c in row) for row in vertices]
+    if normals is None:
+        lines += [f"f {a} {b} {c}" for a, b, c in faces + 1]
+    else:
+        lines += ["vn " + " ".join(repr(float(c)) for c in row) for row in normals]
+        index = faces if normal_index is None else normal_index
+        lines += [" ".join(["f"] + [f"{v}//{n}" for v, n in zip(f, i)]) for f, i in zip(faces + 1, index + 1)]
+    return "\n".join(lines) + "\n"
+
+
+def unit(x):
+    return x / x.norm(dim=-1, keepdim=True)
+
+
+def test_obj_vertex_normals_are_shading_normals(tmp_path):
+    v, f = icosphere()
+    (tmp_path / "ball.obj").write_text(obj_text(2 * v, f, normals=v))  # radius 2, unit outward normals
+    tri = load_mesh_file(tmp_path / "ball.obj").triangles
+    assert tri.count == 80 and bool(tri.smooth.all())
+    assert torch.allclose(tri.vertex_normal, tri.corners().double().div(2).float(), atol=1e-5)  # the normals written
+
+    (tmp_path / "flat.obj").write_text(obj_text(2 * v, f))
+    flat = load_mesh_file(tmp_path / "flat.obj").triangles
+    assert not bool(flat.smooth.any()) and torch.equal(flat.vertex_normal, flat.normal[:, None].expand(-1, 3, -1))
+    assert torch.equal(flat.p0, tri.p0) and torch.equal(flat.e1, tri.e1) and torch.equal(flat.normal, tri.normal)  # same geometry
+
+
+def test_obj_normals_keep_hard_edges_and_follow_the_winding(tmp_path):
+    import trimesh
+
+    box = trimesh.creation.box()  # 8 vertices, 12 outward triangles
+    face_normals = np.asarray(box.face_normals)
+    axes, index = np.unique(np.round(face_normals), axis=0, return_inverse=True)  # the 6 face directions
+    index = np.repeat(index.reshape(-1, 1), 3, axis=1)
+    for sign in (1, -1):  # normals written inwards (against the winding) are turned to the front side
+        text = obj_text(np.asarray(box.vertices), np.asarray(box.faces), normals=sign * axes, normal_index=index)
+        (tmp_path / "box.obj").write_text(text)
+        tri = load_mesh_file(tmp_path / "box.obj").triangles
+        assert tri.count == 12 and bool(tri.smooth.all())
+        # not averaged across the cube's edges: every corner keeps its own face's normal
+        assert torch.allclose(tri.vertex_normal, tri.normal[:, None].expand(-1, 3, -1), atol=1e-6), sign
+
+
+def gltf_meshes(path: Path, parts: list):
+    """A .gltf with one mesh + node per part (vertices, faces, normals or None, node dict)."""
+    blob, views, accessors, meshes, nodes = b"", [], [], [], []
+
+    def add(array, kind):
+        nonlocal blob
+        data = np.ascontiguousarray(array).tobytes()
+        views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(data)})
+        accessor = {"bufferView": len(views) - 1, "count": len(array), "type": kind}
+        accessor["componentType"] = 5125 if array.dtype == np.uint32 else 5126
+        if kind == "VEC3":
+            accessor["min"], accessor["max"] = array.min(0).tolist(), array.max(0).tolist()
+        accessors.append(accessor)
+        blob += data + b"\0" * (-len(data) % 4)
+        return len(accessors) - 1
+
+    for i, (vertices, faces, normals, node) in enumerate(parts):
+        attributes = {"POSITION": add(vertices.astype(np.float32), "VEC3")}
+        if normals is not None:
+            attributes["NORMAL"] = add(normals.astype(np.float32), "VEC3")
+        meshes.append({"primitives": [{"attributes": attributes, "indices": add(faces.astype(np.uint32).reshape(-1), "SCALAR")}]})
+        nodes.append({"mesh": i, **node})
+    doc = {
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": list(range(len(nodes)))}],
+        "nodes": nodes,
+        "meshes": meshes,
+        "buffers": [{"byteLength": len(blob), "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}],
+        "bufferViews": views,
+        "accessors": accessors,
+    }
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def test_gltf_normals_move_to_world_space(tmp_path):
+    v, f = icosphere()
+    mirror = {"scale": [-2.0, 1.0, 0.5], "rotation": [0, 0, 0.3826834, 0.9238795], "translation": [5.0, 0, 0]}  # 45 deg about z
+    path = gltf_meshes(tmp_path / "balls.gltf", [(v, f, v, {}), (v, f, v, mirror), (v, f, None, {"translation": [0, 5.0, 0]})])
+    scene = load_mesh_file(path)
+    tri = scene.triangles
+    assert tri.count == 240 and tri.smooth.tolist() == [True] * 160 + [False] * 80
+    c = tri.corners().double()
+    assert torch.allclose(tri.vertex_normal[:80].double(), unit(c[:80]), atol=1e-6)
+    # the mirrored, stretched ball: normals by the inverse transpose, on the front (outer) side like its faces
+    h = 0.5**0.5  # cos and sin of 45 degrees
+    rotation = torch.tensor([[h, -h, 0], [h, h, 0], [0, 0, 1]], dtype=torch.float64)
+    linear = rotation @ torch.diag(torch.tensor([-2.0, 1.0, 0.5], dtype=torch.float64))
+    local = (c[80:160] - torch.tensor([5.0, 0, 0], dtype=torch.float64)) @ torch.linalg.inv(linear).T  # back on the unit sphere
+    assert torch.allclose(local.norm(dim=-1), torch.ones(80, 3, dtype=torch.float64), atol=1e-5)
+    expected = unit(local @ torch.linalg.inv(linear))
+    assert torch.allclose(tri.vertex_normal[80:160].double(), expected, atol=1e-5)
+    assert bool(((tri.vertex_normal[80:160] * tri.normal[80:160, None]).sum(-1) > 0.5).all())  # geometric normals outward too
+    assert torch.equal(tri.vertex_normal[160:], tri.normal[160:, None].expand(-1, 3, -1))  # no NORMAL: flat
+
+
+def gltf_material(name, extensions=None, **pbr):
+    return {"name": name, **({"pbrMetallicRoughness": pbr} if pbr else {}), **({"extensions": extensions} if extensions else {})}
+
+
+def test_gltf_material_types(tmp_path):
+    texture = np.zeros((2, 4, 3), dtype=np.uint8)
+    texture[0] = 188  # top row linear 0.5, bottom row 0: mean 0.25
+    Image.fromarray(texture).save(tmp_path / "base.png")
+    glass = {"KHR_materials_transmission": {"transmissionFactor": 1.0}, "KHR_materials_ior": {"ior": 1.33}}
+    materials = [
+        gltf_material("gold", baseColorFactor=[1.0, 0.766, 0.336, 1.0], metallicFactor=1.0, roughnessFactor=0.5),
+        gltf_material("chrome", baseColorFactor=[0.9, 0.8, 0.7, 1.0], roughnessFactor=0.0),  # metallic omitted: 1
+        gltf_material("glass", glass),
+        gltf_material("frosted", {"KHR_materials_transmission": {"transmissionFactor": 0.5}}, metallicFactor=0.0),
+        gltf_material("plastic", baseColorFactor=[0.2, 0.4, 0.6, 1.0], metallicFactor=0.3, roughnessFactor=0.1),
+        {"name": "bare"},  # every glTF default: metallic 1, roughness 1, white
+        gltf_material("polished", metallicFactor=0.5, roughnessFactor=0.03),  # alpha 9e-4: a mirror
+        gltf_material("brushed", metallicFactor=0.5, roughnessFactor=0.04),  # alpha 1.6e-3: glossy
+        gltf_material("patina", baseColorFactor=[1.0, 0.5, 1.0, 1.0], baseColorTexture={"index": 0}, roughnessFactor=0.2),
+    ]
+    scene = load_mesh_file(gltf_file(tmp_path / "m.gltf", materials, list(range(len(materials))), images=["base.png"]))
+    assert scene.materials == tuple(m["name"] for m in materials)
+    specs = dict(zip(scene.materials, scene.material_specs))
+    types = {k: (s.type, s.constants) for k, s in specs.items()}
+    assert types["gold"][0] == "glossy" and types["gold"][1]["roughness"] == pytest.approx(0.25)
+    assert types["chrome"] == ("mirror", {}) and types["polished"] == ("mirror", {})
+    assert types["glass"] == ("dielectric", {"ior": 1.33}) and types["frosted"] == ("dielectric", {"ior": 1.5})
+    assert types["plastic"] == ("diffuse", {}) and types["bare"] == ("glossy", {"roughness": 1.0})
+    assert types["brushed"][0] == "glossy" and types["brushed"][1]["roughness"] == pytest.approx(0.0016)
+    p = scene.params
+    assert torch.allclose(p["gold.specular_reflectance"], torch.tensor([1.0, 0.766, 0.336]))  # exact, not 8-bit
+    assert torch.allclose(p["chrome.specular_reflectance"], torch.tensor([0.9, 0.8, 0.7]))
+    assert torch.allclose(p["plastic.reflectance"], torch.tensor([0.2, 0.4, 0.6]))
+    assert torch.equal(p["bare.specular_reflectance"], torch.ones(3))
+    assert torch.allclose(p["patina.specular_reflectance"], torch.tensor([0.25, 0.125, 0.25]), atol=0.003)  # texture mean x factor
+    assert not any(k.startswith(("glass.", "frosted.")) for k in p)
+    assert "plastic.specular_reflectance" not in p and "gold.reflectance" not in p
+
+
+def test_bundled_assets_stay_diffuse_and_flat():
+    for name in ("lamp.glb", "torus.obj"):
+        scene = load_mesh_file(FORWARD / "meshes" / name)
+        assert all(m.type == "diffuse" for m in scene.material_specs) and not bool(scene.triangles.smooth.any()), name
+
+
+@pytest.mark.parametrize(
+    "material, words",
+    [
+        (gltf_material("x", metallicFactor=1.5), "material 'x': glTF metallicFactor must lie in [0, 1], got 1.5"),
+        (gltf_material("x", {"KHR_materials_transmission": {"transmissionFactor": "yes"}}), "glTF transmissionFactor must be a number"),
+        (gltf_material("x", roughnessFactor=2.0), "glTF roughnessFactor must lie in [0, 1]"),
+        (gltf_material("x", {"KHR_materials_transmission": {"transmissionFactor": 1}, "KHR_materials_ior": {"ior": 0}}), "'ior' must lie in (0"),
+    ],
+)
+def test_bad_gltf_material_factors(tmp_path, material, words):
+    with pytest.raises(SceneError) as e:
+        load_mesh_file(gltf_file(tmp_path / "bad.gltf", [material], [0]))
+    assert words in str(e.value) and "bad.gltf" in str(e.value) and "\n" not in str(e.value)
+
+
+def test_obj_mtl_illum_3_is_a_mirror(tmp_path):
+    (tmp_path / "m.mtl").write_text(
+        "newmtl chrome\nKd 0.1 0.1 0.1\nKs 0.9 0.8 0.7\nillum 3\n"
+        "newmtl shiny\nKd 0.5 0.4 0.3\nKs 1 1 1\nillum 2\n"  # highlights only: diffuse
+        "newmtl dull\nKd 0.2 0.2 0.2\nillum 3\n"  # reflection on but no Ks: diffuse
+    )
+    faces = "usemtl chrome\nf 1 2 3\nusemtl shiny\nf 1 3 4\nv 0 0 1\nusemtl dull\nf 1 2 5\n"
+    (tmp_path / "m.obj").write_text("mtllib m.mtl\n" + QUAD + faces)
+    scene = load_mesh_file(tmp_path / "m.obj")
+    types = {k: s.type for k, s in zip(scene.materials, scene.material_specs)}
+    assert types == {"chrome": "mirror", "shiny": "diffuse", "dull": "diffuse"}
+    assert torch.allclose(scene.params["chrome.specular_reflectance"], torch.tensor([0.9, 0.8, 0.7]))
+    assert torch.allclose(scene.params["shiny.reflectance"], torch.tensor([0.5, 0.4, 0.3]))
+
+
+MESH_SHAPE = """
+[materials.m]
+reflectance = 0.5
+[[shapes]]
+type = "mesh"
+material = "m"
+file = "FILE"
+"""
+
+
+def test_toml_mesh_shape_with_normals_is_smooth(tmp_path):
+    v, f = icosphere()
+    (tmp_path / "ball.obj").write_text(obj_text(v, f, normals=v))
+    text = MESH_SHAPE.replace("FILE", "ball.obj") + "transform = [{ scale = [2, 1, 1] }, { translate = [0, 0, 3] }]\n"
+    tri = load_toml(write(tmp_path, text)).triangles
+    assert tri.count == 80 and bool(tri.smooth.all())
+    local = (tri.corners().double() - torch.tensor([0.0, 0, 3], dtype=torch.float64)) / torch.tensor([2.0, 1, 1], dtype=torch.float64)
+    assert torch.allclose(tri.vertex_normal.double(), unit(local / torch.tensor([2.0, 1, 1], dtype=torch.float64)), atol=1e-5)
+    flipped = load_toml(write(tmp_path, text + "flip_normals = true\n")).triangles
+    assert torch.allclose(flipped.vertex_normal[:, [2, 1, 0]], -tri.vertex_normal, atol=1e-6)
+
+    (tmp_path / "flat.obj").write_text(obj_text(v, f))
+    assert not bool(load_toml(write(tmp_path, MESH_SHAPE.replace("FILE", "flat.obj"))).triangles.smooth.any())
+    # a file whose parts only partly have normals: the others keep their own flat normals
+    gltf_meshes(tmp_path / "mixed.gltf", [(v, f, v, {}), (v, f, None, {"translation": [3.0, 0, 0]})])
+    mixed = load_toml(write(tmp_path, MESH_SHAPE.replace("FILE", "mixed.gltf"))).triangles
+    assert mixed.count == 160 and bool(mixed.smooth.all())
+    assert torch.allclose(mixed.vertex_normal[:80].double(), unit(mixed.corners()[:80].double()), atol=1e-6)
+    assert torch.allclose(mixed.vertex_normal[80:], mixed.normal[80:, None].expand(-1, 3, -1), atol=1e-6)
+
+
+def test_smooth_ball_renders_without_facets(tmp_path):
+    v, f = icosphere(1)  # 80 triangles: facets a few pixels wide at 32 x 32
+    scene_text = """
+resolution = [32, 32]
+[camera]
+origin = [0, 0, 4]
+target = [0, 0, 0]
+fov = 40
+[materials.white]
+reflectance = 0.8
+[materials.black]
+reflectance = 0
+[emitters.light]
+emission = 3000
+[[shapes]]
+type = "mesh"
+file = "FILE"
+material = "white"
+[[shapes]]
+type = "rectangle"
+material = "black"
+emitter = "light"
+transform = [{ scale = 0.05 }, { rotate = { axis = [1, 0, 0], angle = 150 } }, { translate = [0, 2.5, 4.33] }]
+"""
+    (tmp_path / "smooth.obj").write_text(obj_text(v, f, normals=v))
+    (tmp_path / "flat.obj").write_text(obj_text(v, f))
+    luminance = {}
+    for kind in ("smooth", "flat"):
+        scene = load_toml(write(tmp_path, scene_text.replace("FILE", f"{kind}.obj"), f"{kind}.toml"))
+        luminance[kind] = ir.render(scene, spp=8, max_depth=2, progress=False) @ torch.tensor([0.2126, 0.7152, 0.0722])
+    lit = (luminance["smooth"] > 0) & (luminance["flat"] > 0)
+    inner = lit[1:-1, 1:-1] & lit[:-2, 1:-1] & lit[2:, 1:-1] & lit[1:-1, :-2] & lit[1:-1, 2:]
+    assert int(inner.sum()) > 200
+
+    def kinks(lum):  # mean squared second difference between neighbouring pixels: facet edges are kinks and steps
+        across = lum[1:-1, :-2] + lum[1:-1, 2:] - 2 * lum[1:-1, 1:-1]
+        down = lum[:-2, 1:-1] + lum[2:, 1:-1] - 2 * lum[1:-1, 1:-1]
+        return float(torch.cat([across[inner], down[inner]]).pow(2).mean())
+
+    assert kinks(luminance["smooth"]) < 0.6 * kinks(luminance["flat"]), (kinks(luminance["smooth"]), kinks(luminance["flat"]))
