@@ -25,9 +25,22 @@ allowed keys). Out-of-range colours (rho outside [0, 1], eps < 0) are
     aperture_radius = 0.0              # thin lens radius, >= 0 (0 = pinhole, the default)
     focus_distance = 3.9               # distance of the plane in focus along the view axis, > 0
 
-    [materials.white]                  # one table per material: diffuse (Lambertian, two-sided) reflectance rho
-    reflectance = [0.8, 0.8, 0.8]      # linear RGB in [0, 1], or one number for grey; or instead
-    # reflectance_texture = "albedo.png"   # path relative to this file: PNG/JPEG sRGB-decoded to linear, EXR linear
+    [materials.white]                  # one table per material; type = "diffuse" (the default when type is absent):
+    reflectance = [0.8, 0.8, 0.8]      # Lambertian, two-sided; rho in linear RGB [0, 1] or one number (default 0.5); or
+    # reflectance_texture = "albedo.png"   # relative to this file; PNG/JPEG are sRGB-decoded to linear, EXR read as linear
+
+    [materials.chrome]
+    type = "mirror"                    # a perfect mirror, two-sided (Mitsuba's conductor, material "none")
+    specular_reflectance = [0.9, 0.9, 0.9]   # k_s, RGB in [0, 1] (default 1), differentiable
+
+    [materials.glass]
+    type = "dielectric"                # smooth glass: Fresnel reflection and refraction (Mitsuba's dielectric)
+    ior = 1.5                          # interior index over the exterior's (1.0), > 0 (default 1.5); a constant
+
+    [materials.brushed]
+    type = "glossy"                    # GGX rough conductor, Fresnel 1, two-sided (Mitsuba's roughconductor, material "none")
+    roughness = 0.2                    # GGX alpha in (0, 1] (default 0.1); a constant
+    specular_reflectance = [0.95, 0.8, 0.5]   # k_s in [0, 1] (default 1), differentiable
 
     [emitters.light]                   # one table per emitter: emitted radiance eps, from the front side only
     emission = [17, 12, 4]             # linear RGB >= 0, or one number; or instead emission_texture = "glow.exr"
