@@ -59,7 +59,8 @@ allowed keys). Out-of-range colours (rho outside [0, 1], eps < 0) are
 translate): ``{ translate = [x, y, z] }``, ``{ scale = s }`` or ``{ scale = [x, y, z] }`` (non-zero),
 ``{ rotate = { axis = [x, y, z], angle = degrees } }`` (right-handed). The primitives are Mitsuba 3's
 (:mod:`invrender.scene.shapes`): ``rectangle`` is [-1, 1]^2 at z = 0 facing +z, ``cube`` [-1, 1]^3
-facing outwards, ``sphere`` the unit sphere facing outwards.
+facing outwards, ``sphere`` the unit sphere facing outwards,
+shaded with its exact normals (smooth although tessellated).
 
 Texture coordinates
 -------------------
