@@ -7,6 +7,7 @@ Public API::
     scene = ir.load_scene("cornell_box", resolution=(64, 64))
     img = ir.render(scene, spp=64, max_depth=8, seed=0)     # (H, W, 3) float32, linear
     ir.write_image("out.exr", img)
+    img = ir.render(scene, ir.integrators.Whitted(max_depth=6))   # an integrator object
     res = ir.fit(scene, target, params=["red.reflectance", "light.emission"])   # inverse rendering
     base = ir.baseline.pyrender_render(scene)               # the rasterized Utah baseline
 """
@@ -15,8 +16,11 @@ from invrender.errors import BaselineError, ImageError, InvRenderError, Paramete
 from invrender.inverse.fit import FitResult, fit
 from invrender.inverse.gradcheck import gradcheck
 from invrender.io import read_image, write_image
-from invrender.scene import load_scene
 from invrender.diff import render
+from invrender.scene import load_scene
+from invrender.scene.camera import Camera
+from invrender.scene.materials import Material
+from invrender.transport import integrators
 
 __version__ = "0.1.0"
 
@@ -31,6 +35,6 @@ def __getattr__(name):
 
 
 __all__ = [
-    "load_scene", "render", "fit", "gradcheck", "read_image", "write_image", "FitResult",
+    "load_scene", "render", "fit", "gradcheck", "read_image", "write_image", "FitResult", "Camera", "Material", "integrators",
     "InvRenderError", "SceneError", "ImageError", "ParameterError",
 ]  # fmt: skip
