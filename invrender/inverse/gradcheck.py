@@ -108,9 +108,10 @@ def gradcheck(
 def format_rows(rows: list[GradcheckRow]) -> str:
     """A plain-text table of gradcheck rows."""
     estimators = list(rows[0].gradients) if rows else []
-    head = f"{'parameter':<24} {'i':>3} {'finite diff':>12} " + " ".join(f"{e:>12} {'rel.err':>8}" for e in estimators)
+    width = max([len("parameter")] + [len(r.name) for r in rows])
+    head = f"{'parameter':<{width}} {'i':>3} {'finite diff':>12} " + " ".join(f"{e:>12} {'rel.err':>8}" for e in estimators)
     lines = [head, "-" * len(head)]
     for r in rows:
         cells = " ".join(f"{r.gradients[e]:>12.6g} {r.rel_errors[e]:>8.2e}" for e in estimators)
-        lines.append(f"{r.name:<24} {r.index:>3} {r.fd:>12.6g} {cells}")
+        lines.append(f"{r.name:<{width}} {r.index:>3} {r.fd:>12.6g} {cells}")
     return "\n".join(lines)

@@ -63,7 +63,7 @@ class TransportContext:
             triangles=tris,
             accel=make_intersector(tris, backend, embree_threads),
             lights=lights if lights.count else None,
-            materials=Materials([s.type for s in specs], material_values, [dict(s.constants) for s in specs], device),
+            materials=Materials([s.type for s in specs], material_values, [dict(s.constants) for s in specs], device, flat=not tris.any_smooth),
             eps=eps,
             ambient=values[AMBIENT].to(device) if AMBIENT in values else None,
             ray_offset=1e-4 * max(scene_extent(tris), 1e-3),

@@ -30,15 +30,16 @@ class Materials:
         values: per scene material, parameter key -> tensor (differentiable).
         constants: per scene material, constant key -> float.
         device: where hits live.
+        flat: the scene has no shading normals (BSDFs may skip checks that only they need).
     """
 
-    def __init__(self, types: list[str], values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], device):
+    def __init__(self, types: list[str], values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], device, flat: bool = False):
         present = list(dict.fromkeys(types))  # first-seen order
         self.bsdfs: list[BSDF] = []
         slot_of, local_of = [], []
         for t in present:
             members = [i for i, ti in enumerate(types) if ti == t]
-            self.bsdfs.append(BSDFS[t]([values[i] for i in members], [constants[i] for i in members]))
+            self.bsdfs.append(BSDFS[t]([values[i] for i in members], [constants[i] for i in members], flat))
         for t in types:
             k = present.index(t)
             slot_of.append(k)

@@ -92,8 +92,10 @@ class BSDF:
     #: ``"diffuse"``, ``"glossy"`` or ``"specular"`` (delta): how the older integrators treat it
     lobe: ClassVar[str]
 
-    def __init__(self, values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]]):
+    def __init__(self, values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], flat: bool = False):
         self.values, self.constants = values, constants
+        #: no shading normals in the scene: ``n`` is the geometric normal, ``wo`` always above it
+        self.flat = flat
 
     @property
     def delta(self) -> bool:

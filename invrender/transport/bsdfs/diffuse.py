@@ -19,14 +19,15 @@ class Diffuse(BSDF):
     type_name = "diffuse"
     lobe = "diffuse"
 
-    def _visible(self, sp: ShadingPoint) -> torch.Tensor:
-        """(N, 1) 1 where ``wo`` lies above the shading normal, else 0."""
-        return (dot(sp.n, sp.wo) > 0)[:, None].to(sp.wo.dtype)
+    def _rho(self, sp: ShadingPoint) -> torch.Tensor:
+        """rho (N, 3), zero where ``wo`` lies below the shading normal (never without shading normals)."""
+        rho = self.param("reflectance", sp)
+        return rho if self.flat else rho * (dot(sp.n, sp.wo) > 0)[:, None].to(rho.dtype)
 
     def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
         """``rho cos(theta_i) / pi`` (N, 3)."""
         cos_i = dot(sp.n, wi).clamp_min(0.0)
-        return self.param("reflectance", sp) * (cos_i * (1.0 / math.pi))[:, None] * self._visible(sp)
+        return self._rho(sp) * (cos_i * (1.0 / math.pi))[:, None]
 
     def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
         """``cos(theta_i) / pi`` (N,)."""
@@ -43,8 +44,7 @@ class Diffuse(BSDF):
         phi = (2.0 * math.pi) * u_dir[:, 1]
         s = torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], dim=1)
         wi = normalize(sp.n + s)
-        weight = self.param("reflectance", sp) * self._visible(sp)
-        return BSDFSample(wi, weight, self.pdf(sp, wi), torch.zeros_like(z, dtype=torch.bool))
+        return BSDFSample(wi, self._rho(sp), self.pdf(sp, wi), torch.zeros_like(z, dtype=torch.bool))
 
     def diffuse_reflectance(self, sp: ShadingPoint) -> torch.Tensor:
         return self.param("reflectance", sp)
