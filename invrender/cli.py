@@ -25,10 +25,11 @@ invrender renders Kajiya's rendering equation I = g(eps + M I) by Monte Carlo on
 (a path tracer estimating the Neumann series g eps + gMg eps + g(Mg)^2 eps + ...).
 
 commands:
-  render     render a built-in scene (cornell_box, furnace) or a scene file (.toml, .gltf, .glb, .obj)
-             to EXR (linear float32) and/or PNG (sRGB)
-  fit        recover reflectances rho and emissions eps from target images by differentiating the
-             path tracer (from --scene/--target/--params, or an optimize/*.toml recipe)
+  render     render a built-in scene (cornell_box, cornell_specular, furnace) or a scene file (.toml,
+             Mitsuba .xml, .gltf, .glb, .obj) to EXR (linear float32) and/or PNG (sRGB), with the
+             path tracer or an older method of the ladder (random_walk, utah, whitted, distributed)
+  fit        recover reflectances rho, specular reflectances k_s and emissions eps from target images
+             by differentiating the path tracer (from --scene/--target/--params, or an optimize/*.toml recipe)
   gradcheck  compare each gradient estimator with central finite differences (common random numbers)
   dataset    render a datasets_synthetic/*.toml recipe: target EXRs, ground truth, manifest
   baseline   rasterize a scene with pyrender (the Utah approximation's independent baseline)
@@ -45,11 +46,20 @@ examples:
   invrender render forward/mesh_in_box.toml --max-depth -1 --out mesh.png
   invrender render furnace --integrator random_walk --max-depth 4 --terms --out furnace.exr
   invrender render cornell_box --integrator utah --ambient 0.05 --out utah.exr
+  invrender render cornell_specular --spp 256 --out spec.png            # mirror, glass, glossy
+  invrender render cornell_specular --integrator whitted --ambient 0.02 --out whitted.png
+  invrender render cornell_specular --integrator distributed --out cook.png
 
 max_depth counts Neumann terms as Mitsuba 3 does: 1 = emitters seen directly, 2 = + direct
 illumination, ...; -1 = unbounded (paths end by Russian roulette only). With --terms, term k
 (the light reflected k times, g(Mg)^k eps) is also written to OUT_STEM.termK.SUFFIX.
 """
+
+
+def _integrator_names() -> list[str]:
+    from invrender.transport.integrators import INTEGRATORS
+
+    return list(INTEGRATORS)
 
 
 def integrator_help() -> str:
@@ -89,7 +99,10 @@ def _one_or_three_numbers(text: str) -> list[float] | None:
 
 def add_scene_argument(parser: argparse.ArgumentParser) -> None:
     """The optional positional SCENE every rendering command takes."""
-    parser.add_argument("scene", nargs="?", default="cornell_box", help=f"built-in name ({', '.join(BUILTIN_SCENES)}) or a .toml/.gltf/.glb/.obj file (default: cornell_box)")
+    parser.add_argument(
+        "scene", nargs="?", default="cornell_box",
+        help=f"built-in name ({', '.join(BUILTIN_SCENES)}) or a scene file: .toml, Mitsuba 3 .xml (a subset), .gltf/.glb/.obj (default: cornell_box)",
+    )  # fmt: skip
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -115,7 +128,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_scene_argument(r)
     r.add_argument("--out", nargs="+", default=["out.exr"], metavar="PATH", help="output image(s): .exr (linear float32) and/or .png (sRGB, clipped) (default: out.exr)")
-    r.add_argument("--spp", type=int, default=64, help="samples per pixel (default: 64)")
+    r.add_argument("--spp", type=int, default=None, help="samples per pixel (default: the scene file's, e.g. a Mitsuba sampler's sample_count, else 64)")
     r.add_argument("--max-depth", type=int, default=None, help="Neumann terms kept, Mitsuba's count; -1 = unbounded (default: 8; utah: 2)")
     r.add_argument("--resolution", type=parse_resolution, default=None, metavar="WxH", help="image size in pixels (default: the scene's)")
     r.add_argument("--integrator", default="path", help=integrator_help())
@@ -140,7 +153,7 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--scene", help="built-in name or scene file whose parameters are fitted")
     f.add_argument("--target", nargs="+", metavar="IMAGE", help="target image(s): EXR (linear) or PNG; one per view")
     f.add_argument("--params", help="comma-separated parameter names, e.g. red.reflectance,light.emission")
-    f.add_argument("--init", action="append", default=[], metavar="KEY=VALUE", help="starting value: NAME=v or NAME=r,g,b; NAME may be 'reflectance' or 'emission' for all fitted ones (repeatable)")
+    f.add_argument("--init", action="append", default=[], metavar="KEY=VALUE", help="starting value: NAME=v or NAME=r,g,b; NAME may be a kind (reflectance, specular_reflectance, emission) for all fitted ones of it (repeatable)")
     f.add_argument("--resolution", type=parse_resolution, default=None, metavar="WxH", help="render size (default: the target's)")
     f.add_argument("--out", required=True, help="output folder: report.json, loss.png, final.exr, checkpoint.pt")
     f.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
@@ -157,6 +170,8 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--spp", type=int, default=32, help="(default: 32)")
     g.add_argument("--max-depth", type=int, default=4, help="keep below --rr-depth so the estimate is smooth (default: 4)")
     g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--integrator", default="path", help="the integrator differentiated (default: path): " + ", ".join(_integrator_names()))
+    g.add_argument("--ambient", type=parse_rgb, default=None, metavar="R,G,B", help="ambient radiance eps0 (makes ambient.emission a parameter to check)")
     g.add_argument("--step", type=float, default=1e-2, help="finite-difference step, relative (default: 0.01)")
     g.add_argument("--tolerance", type=float, default=None, help="exit 1 if any relative error exceeds this")
     g.set_defaults(run=run_gradcheck)
@@ -265,10 +280,17 @@ def run_render(args) -> int:
 
     outputs = check_outputs(args.out)
     scene = ir.load_scene(args.scene, resolution=args.resolution, ambient=args.ambient)
+    # options not given fall back to the scene file's suggestions (scene.defaults), then to the
+    # built-in defaults; its max_depth and rr_depth belong to its integrator (Mitsuba's path)
+    defaults = scene.defaults
+    spp = args.spp if args.spp is not None else defaults.get("spp", 64)
+    same_integrator = args.integrator == defaults.get("integrator", "path")
+    max_depth = args.max_depth if args.max_depth is not None else defaults.get("max_depth") if same_integrator else None
+    rr_depth = args.rr_depth if args.rr_depth is not None else defaults.get("rr_depth") if same_integrator else None
     start = time.perf_counter()
     image = ir.render(
-        scene, integrator=args.integrator, spp=args.spp, max_depth=args.max_depth, seed=args.seed, terms=args.terms,
-        rr_depth=args.rr_depth, backend=args.backend, device=args.device, memory_mb=args.memory_mb, progress=not args.quiet,
+        scene, integrator=args.integrator, spp=spp, max_depth=max_depth, seed=args.seed, terms=args.terms,
+        rr_depth=rr_depth, backend=args.backend, device=args.device, memory_mb=args.memory_mb, progress=not args.quiet,
     )  # fmt: skip
     seconds = time.perf_counter() - start
     full = image.sum(0) if args.terms else image
@@ -278,8 +300,8 @@ def run_render(args) -> int:
             for k in range(image.shape[0]):
                 ir.write_image(path.with_name(f"{path.stem}.term{k}{path.suffix}"), image[k])
     if not args.quiet:
-        paths = scene.width * scene.height * args.spp
-        print(f"{scene.name}: {scene.width}x{scene.height}, {args.spp} spp, {seconds:.2f} s ({paths / seconds / 1e6:.3g} M paths/s); mean RGB {_mean_rgb(full)}", file=sys.stderr)
+        paths = scene.width * scene.height * spp
+        print(f"{scene.name}: {scene.width}x{scene.height}, {spp} spp, {seconds:.2f} s ({paths / seconds / 1e6:.3g} M paths/s); mean RGB {_mean_rgb(full)}", file=sys.stderr)
         print("wrote " + ", ".join(str(p) for p in outputs) + (f" (+ {image.shape[0]} term images each)" if args.terms else ""), file=sys.stderr)
     return 0
 
@@ -405,9 +427,9 @@ def run_gradcheck(args) -> int:
     import invrender as ir
     from invrender.inverse.gradcheck import format_rows, gradcheck
 
-    scene = ir.load_scene(args.scene, resolution=args.resolution)
+    scene = ir.load_scene(args.scene, resolution=args.resolution, ambient=args.ambient)
     estimators = [e.strip() for e in args.estimators.split(",") if e.strip()]
-    rows = gradcheck(scene, args.params, estimators=estimators, spp=args.spp, max_depth=args.max_depth, seed=args.seed, h=args.step)
+    rows = gradcheck(scene, args.params, estimators=estimators, spp=args.spp, max_depth=args.max_depth, seed=args.seed, h=args.step, integrator=args.integrator)
     print(format_rows(rows))
     worst = max(max(r.rel_errors.values()) for r in rows)
     print(f"largest relative error: {worst:.3e}")

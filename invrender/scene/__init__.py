@@ -18,7 +18,8 @@ def load_scene(source, resolution=None, device=None, ambient=None, **kwargs) -> 
 
     Args:
         source: a built-in name (``"cornell_box"``, ``"furnace"``) or a path to a ``.toml`` scene
-            file or a ``.gltf``/``.glb``/``.obj`` file.
+            file, a Mitsuba 3 ``.xml`` scene file (the subset in :mod:`invrender.scene.mitsuba_xml`)
+            or a ``.gltf``/``.glb``/``.obj`` file.
         resolution: (width, height) in pixels; None = the scene's own.
         device: move the scene there (None = CPU).
         ambient: the Utah approximation's ambient radiance eps0 (RGB or one number, >= 0) stored in
@@ -33,15 +34,22 @@ def load_scene(source, resolution=None, device=None, ambient=None, **kwargs) -> 
     else:
         path = Path(source_str)
         suffix = path.suffix.lower()
-        if suffix not in (".toml", *MESH_SUFFIXES):
-            raise SceneError(f"unknown scene {source_str!r}: not a built-in ({', '.join(BUILTIN_SCENES)}) nor a .toml/.gltf/.glb/.obj file")
+        if suffix not in (".toml", ".xml", *MESH_SUFFIXES):
+            raise SceneError(f"unknown scene {source_str!r}: not a built-in ({', '.join(BUILTIN_SCENES)}) nor a .toml/.xml/.gltf/.glb/.obj file")
         if kwargs:
             raise SceneError(f"scene options {', '.join(kwargs)} apply to built-in scenes only")
         if not path.is_file():
             raise SceneError(f"scene file not found: {source_str}")
         from invrender.scene import loaders
 
-        scene = loaders.load_toml(path, resolution) if suffix == ".toml" else loaders.load_mesh_file(path, resolution)
+        if suffix == ".xml":
+            from invrender.scene.mitsuba_xml import load_mitsuba_xml
+
+            scene = load_mitsuba_xml(path, resolution)
+        elif suffix == ".toml":
+            scene = loaders.load_toml(path, resolution)
+        else:
+            scene = loaders.load_mesh_file(path, resolution)
     if ambient is not None:
         scene = scene.with_ambient(ambient)
     return scene.to(device) if device is not None else scene

@@ -1,6 +1,6 @@
 """The Scene: triangles as tensors, named materials and emitters, camera, resolution, parameters.
 
-Geometry is never differentiated (DESIGN.md decision 1), so positions are plain float32 tensors.
+Geometry is never differentiated (docs/architecture.md#geometry-is-never-differentiated), so positions are plain float32 tensors.
 What can be differentiated lives in ``scene.params``, a flat dict of dotted names to leaf tensors
 (kinds, ranges and reparametrizations in :mod:`invrender.scene.kinds`):
 
@@ -104,6 +104,8 @@ class Scene:
         name: a label for messages and reports.
         material_specs: one :class:`~invrender.scene.materials.Material` per material (type and
             constants; its values live in ``params``); empty = every material diffuse.
+        defaults: render settings the scene file suggests, e.g. ``{"spp": 64, "max_depth": 8}``
+            (a Mitsuba XML file's ``sample_count``, ``max_depth``, ``rr_depth``); empty = none.
     """
 
     triangles: Triangles
@@ -114,6 +116,7 @@ class Scene:
     params: dict[str, torch.Tensor] = field(default_factory=dict)
     name: str = "scene"
     material_specs: tuple[Material, ...] = ()
+    defaults: dict = field(default_factory=dict)
 
     @property
     def device(self) -> torch.device:
