@@ -48,7 +48,7 @@ def main() -> None:
         ax.set_title(f"{title}\n{seconds:.1f} s", fontsize=9)
         ax.axis("off")
     fig.suptitle(f"{scene.name}, {args.resolution}x{args.resolution}, {args.spp} spp, max_depth {args.max_depth}, eps0 = {args.ambient} (path: none)", fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 0.92))
     fig.savefig(args.out, dpi=100)
     print(f"wrote {args.out}")
 

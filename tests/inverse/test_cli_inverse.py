@@ -128,3 +128,29 @@ def test_gradcheck_command(capsys):
     assert code == 0 and "light.emission" in out and "replay" in out and "largest relative error" in out
     rows = ir.gradcheck(ir.load_scene("cornell_box", resolution=(8, 8)), ["red.reflectance"], spp=4, max_depth=3)
     assert len(rows) == 3 and all(r.rel_errors["replay"] < 0.02 for r in rows)
+
+
+def test_every_shipped_recipe_parses_and_names_real_parameters():
+    """Each optimize/ recipe and its dataset load, and every fitted and randomized name is a
+    parameter of the dataset's scene (with its initial values applied)."""
+    from pathlib import Path
+
+    from invrender.recipes import apply_init, dataset_scene, load_fit_recipe
+
+    root = Path(__file__).resolve().parents[2]
+    recipes = sorted((root / "optimize").glob("*.toml"))
+    assert any(p.name == "cornell_specular.toml" for p in recipes)
+    for path in recipes:
+        recipe = load_fit_recipe(path)
+        scene = dataset_scene(recipe.dataset)
+        assert set(recipe.dataset.randomize) <= set(scene.params), path
+        names = recipe.params + [n for v in recipe.variants for n in v.params]
+        apply_init(scene, names, recipe.init)
+        assert set(recipe.params) <= set(scene.params), path
+
+
+def test_gradcheck_command_with_another_integrator(capsys):
+    args = ["gradcheck", "cornell_specular", "--integrator", "whitted", "--ambient", "0.05", "--resolution", "8x8", "--spp", "4", "--max-depth", "3"]
+    code = main(args + ["--params", "mirror.specular_reflectance,ambient.emission", "--tolerance", "0.02"])
+    out = capsys.readouterr().out
+    assert code == 0 and "mirror.specular_reflectance" in out and "ambient.emission" in out
