@@ -45,7 +45,7 @@ def main() -> None:
         mean = image.mean((0, 1)).tolist()
         print(f"{name:12s} {seconds:7.2f} s  mean RGB {mean[0]:.4f} {mean[1]:.4f} {mean[2]:.4f}")
         ax.imshow(to_srgb(image.clamp(0, 1)).numpy())
-        ax.set_title(f"{title}\n{seconds:.1f} s", fontsize=9)
+        ax.set_title(title, fontsize=9)
         ax.axis("off")
     fig.suptitle(f"{scene.name}, {args.resolution}x{args.resolution}, {args.spp} spp, max_depth {args.max_depth}, eps0 = {args.ambient} (path: none)", fontsize=10)
     fig.tight_layout(rect=(0, 0, 1, 0.92))
