@@ -19,7 +19,7 @@ Conventions, shared by every material:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import ClassVar
 
 import torch
@@ -39,6 +39,8 @@ class ShadingPoint:
         uv: (N, 2) texture coordinates.
         material: (N,) int64 index of each point's material among its BSDF's materials.
         slot: (N,) int64 which of the render's BSDF instances takes each point (for dispatch).
+        cache: parameter values already looked up at these points (a vertex's ``eval`` for its
+            emitter sample and its ``sample`` share one lookup); not carried by :meth:`select`.
     """
 
     wo: torch.Tensor
@@ -48,14 +50,18 @@ class ShadingPoint:
     uv: torch.Tensor
     material: torch.Tensor
     slot: torch.Tensor
+    cache: dict = field(default_factory=dict, compare=False, repr=False)
 
     def select(self, index: torch.Tensor) -> "ShadingPoint":
         """The points at ``index`` (M,) int64."""
-        return ShadingPoint(*(getattr(self, f).index_select(0, index) for f in self.__dataclass_fields__))
+        return ShadingPoint(*(getattr(self, f).index_select(0, index) for f in _POINT_FIELDS))
 
     @property
     def count(self) -> int:
         return int(self.wo.shape[0])
+
+
+_POINT_FIELDS = ("wo", "n", "ng", "front", "uv", "material", "slot")
 
 
 @dataclass(frozen=True)
@@ -102,8 +108,12 @@ class BSDF:
         return self.lobe == "specular"
 
     def param(self, key: str, sp: ShadingPoint) -> torch.Tensor:
-        """Parameter ``key`` at each point (N, 3), differentiable (textures filtered at ``sp.uv``)."""
-        return gather_rgb([v[key] for v in self.values], sp.material, sp.uv)
+        """Parameter ``key`` at each point (N, 3), differentiable (textures filtered at ``sp.uv``);
+        looked up once per point set."""
+        token = (id(self), key)
+        if token not in sp.cache:
+            sp.cache[token] = gather_rgb([v[key] for v in self.values], sp.material, sp.uv)
+        return sp.cache[token]
 
     def constant(self, key: str, sp: ShadingPoint) -> torch.Tensor:
         """Constant ``key`` at each point (N,)."""
