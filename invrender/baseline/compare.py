@@ -121,7 +121,7 @@ def format_table(c: Comparison) -> str:
         r = rel[label]
         lines.append(f"{label:<20} {mean[0]:9.4f} {mean[1]:9.4f} {mean[2]:9.4f}   {100 * r[0]:+8.2f}% {100 * r[1]:+7.2f}% {100 * r[2]:+7.2f}%")
     dropped = -rel["path, max_depth 2"]  # = utah without ambient
-    lines.append(f"energy the Utah approximation drops without ambient (interreflection, terms >= 3): "
+    lines.append("energy the Utah approximation drops without ambient (interreflection, terms >= 3): "
                  + ", ".join(f"{100 * x:.1f}%" for x in dropped.tolist()) + " (R, G, B)")  # fmt: skip
     lines.append("eps0 fitted to minimize |utah - path|^2: (" + ", ".join(f"{x:.4f}" for x in c.eps0_fit.tolist()) + ")")
     if c.pyrender_error:

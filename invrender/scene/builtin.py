@@ -15,8 +15,29 @@ CORNELL_RED = (0.570068, 0.0430135, 0.0443706)
 CORNELL_LIGHT = (18.387, 13.9873, 6.75357)
 
 
+CORNELL_CAMERA = Camera(origin=(0, 0, 3.9), target=(0, 0, 0), up=(0, 1, 0), fov=39.3077, fov_axis="smaller")
+#: the tall box's transform (unit cube scaled, rotated about y, translated)
+TALL_BOX = translate([-0.33, -0.4, -0.28]) @ rotate([0, 1, 0], 18.25) @ scale([0.3, 0.61, 0.3])
+
+
 def _shape(kind: str, matrix, material, emitter=None) -> Mesh:
     return primitive(kind, material, emitter).transformed(matrix)
+
+
+def _walls() -> list[Mesh]:
+    """The Cornell box's five 2 x 2 walls, facing inwards: floor, ceiling, back, green right, red left."""
+    return [
+        _shape("rectangle", translate([0, -1, 0]) @ rotate([1, 0, 0], -90), "white"),  # floor
+        _shape("rectangle", translate([0, 1, 0]) @ rotate([1, 0, 0], 90), "white"),  # ceiling
+        _shape("rectangle", translate([0, 0, -1]), "white"),  # back wall
+        _shape("rectangle", translate([1, 0, 0]) @ rotate([0, 1, 0], -90), "green"),  # right wall
+        _shape("rectangle", translate([-1, 0, 0]) @ rotate([0, 1, 0], 90), "red"),  # left wall
+    ]
+
+
+def _light() -> Mesh:
+    """The 0.46 x 0.38 light just below the ceiling, facing down, its surface ``white``."""
+    return _shape("rectangle", translate([0, 0.99, 0.01]) @ rotate([1, 0, 0], 90) @ scale([0.23, 0.19, 0.19]), "white", "light")
 
 
 def cornell_box(resolution=(256, 256)) -> Scene:
@@ -28,21 +49,16 @@ def cornell_box(resolution=(256, 256)) -> Scene:
     emitter: ``light``.
     """
     shapes = [
-        _shape("rectangle", translate([0, -1, 0]) @ rotate([1, 0, 0], -90), "white"),  # floor
-        _shape("rectangle", translate([0, 1, 0]) @ rotate([1, 0, 0], 90), "white"),  # ceiling
-        _shape("rectangle", translate([0, 0, -1]), "white"),  # back wall
-        _shape("rectangle", translate([1, 0, 0]) @ rotate([0, 1, 0], -90), "green"),  # right wall
-        _shape("rectangle", translate([-1, 0, 0]) @ rotate([0, 1, 0], 90), "red"),  # left wall
+        *_walls(),
         _shape("cube", translate([0.335, -0.7, 0.38]) @ rotate([0, 1, 0], -17) @ scale(0.3), "white"),
-        _shape("cube", translate([-0.33, -0.4, -0.28]) @ rotate([0, 1, 0], 18.25) @ scale([0.3, 0.61, 0.3]), "white"),
-        _shape("rectangle", translate([0, 0.99, 0.01]) @ rotate([1, 0, 0], 90) @ scale([0.23, 0.19, 0.19]), "white", "light"),
+        _shape("cube", TALL_BOX, "white"),
+        _light(),
     ]
-    camera = Camera(origin=(0, 0, 3.9), target=(0, 0, 0), up=(0, 1, 0), fov=39.3077, fov_axis="smaller")
     return build_scene(
         shapes,
         materials={"white": CORNELL_WHITE, "red": CORNELL_RED, "green": CORNELL_GREEN},
         emission={"light": CORNELL_LIGHT},
-        camera=camera,
+        camera=CORNELL_CAMERA,
         resolution=resolution,
         name="cornell_box",
     )
@@ -62,17 +78,12 @@ def cornell_specular(resolution=(256, 256), subdivisions: int = 4) -> Scene:
     sphere (``glass``, ior 1.5) in front. Spheres are icospheres of ``subdivisions`` (20 * 4^n
     triangles) shaded with their exact normals.
     """
-    walls = cornell_box(resolution)
     shapes = [
-        _shape("rectangle", translate([0, -1, 0]) @ rotate([1, 0, 0], -90), "white"),  # floor
-        _shape("rectangle", translate([0, 1, 0]) @ rotate([1, 0, 0], 90), "white"),  # ceiling
-        _shape("rectangle", translate([0, 0, -1]), "white"),  # back wall
-        _shape("rectangle", translate([1, 0, 0]) @ rotate([0, 1, 0], -90), "green"),  # right wall
-        _shape("rectangle", translate([-1, 0, 0]) @ rotate([0, 1, 0], 90), "red"),  # left wall
-        _shape("cube", translate([-0.33, -0.4, -0.28]) @ rotate([0, 1, 0], 18.25) @ scale([0.3, 0.61, 0.3]), "glossy"),
+        *_walls(),
+        _shape("cube", TALL_BOX, "glossy"),
         primitive("sphere", "mirror", None, subdivisions).transformed(translate([0.45, -0.7, -0.3]) @ scale(0.3)),
         primitive("sphere", "glass", None, subdivisions).transformed(translate([0.1, -0.72, 0.45]) @ scale(0.28)),
-        _shape("rectangle", translate([0, 0.99, 0.01]) @ rotate([1, 0, 0], 90) @ scale([0.23, 0.19, 0.19]), "white", "light"),
+        _light(),
     ]
     materials = {
         "white": CORNELL_WHITE,
@@ -82,7 +93,7 @@ def cornell_specular(resolution=(256, 256), subdivisions: int = 4) -> Scene:
         "glass": Material.of("dielectric", ior=GLASS_IOR),
         "glossy": Material.of("glossy", specular_reflectance=SPECULAR_GLOSSY, roughness=GLOSSY_ROUGHNESS),
     }
-    return build_scene(shapes, materials, {"light": CORNELL_LIGHT}, walls.camera, resolution, name="cornell_specular")
+    return build_scene(shapes, materials, {"light": CORNELL_LIGHT}, CORNELL_CAMERA, resolution, name="cornell_specular")
 
 
 def furnace(resolution=(32, 32), rho=0.5, eps=1.0, subdivisions: int = 3) -> Scene:

@@ -8,7 +8,6 @@ finite differences with the same seed are exact up to O(h^2) and float rounding.
 """
 
 import pytest
-import torch
 
 import invrender as ir
 

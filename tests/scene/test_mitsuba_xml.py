@@ -1,8 +1,6 @@
 """Mitsuba 3 XML scene files: the supported subset, its mapping to invrender's scene, and one-line
 errors with file and line for everything outside it."""
 
-import math
-import warnings
 from pathlib import Path
 
 import numpy as np

@@ -17,7 +17,7 @@ import invrender as ir
 from invrender.scene.camera import Camera
 from invrender.scene.materials import Material
 from invrender.scene.scene import build_scene
-from invrender.scene.shapes import cube, primitive, rotate, scale, translate
+from invrender.scene.shapes import primitive, rotate, scale, translate
 
 LE = (4.0, 2.0, 1.0)
 KS = (0.9, 0.6, 0.3)

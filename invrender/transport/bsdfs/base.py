@@ -19,6 +19,7 @@ Conventions, shared by every material:
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import ClassVar
 
@@ -82,7 +83,7 @@ class BSDFSample:
     delta: torch.Tensor
 
 
-class BSDF:
+class BSDF(ABC):
     """Base class of the materials: one instance holds every material of one type in a scene.
 
     Subclasses set ``type_name`` (the scene files' ``type``), ``lobe`` and implement
@@ -120,24 +121,47 @@ class BSDF:
         table = torch.tensor([c[key] for c in self.constants], dtype=torch.float32, device=sp.wo.device)
         return table[sp.material]
 
+    @abstractmethod
     def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
         """``f(wo, wi) |cos theta_i|`` (N, 3) for directions ``wi`` (N, 3); 0 for delta lobes."""
-        raise NotImplementedError
 
+    @abstractmethod
     def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
         """Solid-angle density (N,) of :meth:`sample` producing ``wi``; 0 for delta lobes."""
-        raise NotImplementedError
 
+    @abstractmethod
     def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
         """One direction per point from uniforms ``u_lobe`` (N,) and ``u_dir`` (N, 2)."""
-        raise NotImplementedError
 
     def specular_lobes(self, sp: ShadingPoint) -> list[tuple[torch.Tensor, torch.Tensor]]:
         """Every delta lobe as ``(wi (N, 3), weight (N, 3))``, weights not divided by any choice
-        probability (Whitted's split: a dielectric's reflection F and refraction 1 - F)."""
-        raise NotImplementedError(f"{self.type_name} has no delta lobes")
+        probability (Whitted's split: a dielectric's reflection F and refraction 1 - F); none for
+        materials without delta lobes."""
+        return []
 
     def diffuse_reflectance(self, sp: ShadingPoint) -> torch.Tensor | None:
         """The Lambertian albedo k_d (N, 3) the ambient term ``k_d eps0`` reflects; None = no
         diffuse part."""
         return None
+
+
+class DeltaBSDF(BSDF):
+    """A BSDF with delta lobes only (mirror, smooth glass): no density to evaluate or sample
+    towards, so ``eval`` and ``pdf`` are zero and integrators follow :meth:`specular_lobes`."""
+
+    lobe = "specular"
+
+    def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        return sp.wo.new_zeros(sp.count, 3)
+
+    def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        return sp.wo.new_zeros(sp.count)
+
+    @abstractmethod
+    def specular_lobes(self, sp: ShadingPoint) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """Every delta lobe as ``(wi (N, 3), weight (N, 3))``."""
+
+    def delta_sample(self, wi: torch.Tensor, weight: torch.Tensor) -> BSDFSample:
+        """A sample of a delta lobe: no density, flagged delta."""
+        n = wi.shape[0]
+        return BSDFSample(wi, weight, wi.new_zeros(n), torch.ones(n, dtype=torch.bool, device=wi.device))

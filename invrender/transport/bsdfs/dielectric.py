@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import torch
 
-from invrender.transport.bsdfs.base import BSDF, BSDFSample, ShadingPoint
+from invrender.transport.bsdfs.base import BSDFSample, DeltaBSDF, ShadingPoint
 from invrender.transport.bsdfs.mirror import reflect
 from invrender.transport.vec import dot
 
@@ -34,15 +34,8 @@ def fresnel_dielectric(cos_i: torch.Tensor, eta: torch.Tensor) -> tuple[torch.Te
     return F, cos_t
 
 
-class Dielectric(BSDF):
+class Dielectric(DeltaBSDF):
     type_name = "dielectric"
-    lobe = "specular"
-
-    def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        return sp.wo.new_zeros(sp.count, 3)
-
-    def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        return sp.wo.new_zeros(sp.count)
 
     def _interface(self, sp: ShadingPoint):
         """(F, reflected wi, refracted wi, eta) at each point."""
@@ -65,4 +58,4 @@ class Dielectric(BSDF):
         reflected = u_lobe < F
         wi = torch.where(reflected[:, None], wr, wt)
         weight = torch.where(reflected, 1.0, 1.0 / (eta * eta))[:, None].expand(-1, 3)
-        return BSDFSample(wi, weight, sp.wo.new_zeros(sp.count), torch.ones(sp.count, dtype=torch.bool, device=wi.device))
+        return self.delta_sample(wi, weight)

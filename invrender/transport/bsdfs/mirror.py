@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import torch
 
-from invrender.transport.bsdfs.base import BSDF, BSDFSample, ShadingPoint
+from invrender.transport.bsdfs.base import BSDFSample, DeltaBSDF, ShadingPoint
 from invrender.transport.vec import dot
 
 
@@ -17,15 +17,8 @@ def reflect(wo: torch.Tensor, n: torch.Tensor) -> torch.Tensor:
     return 2.0 * dot(wo, n)[:, None] * n - wo
 
 
-class Mirror(BSDF):
+class Mirror(DeltaBSDF):
     type_name = "mirror"
-    lobe = "specular"
-
-    def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        return sp.wo.new_zeros(sp.count, 3)
-
-    def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        return sp.wo.new_zeros(sp.count)
 
     def specular_lobes(self, sp: ShadingPoint) -> list[tuple[torch.Tensor, torch.Tensor]]:
         """The reflection, weight k_s (zero where ``wo`` lies below the shading normal)."""
@@ -34,4 +27,4 @@ class Mirror(BSDF):
 
     def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
         ((wi, weight),) = self.specular_lobes(sp)
-        return BSDFSample(wi, weight, sp.wo.new_zeros(sp.count), torch.ones(sp.count, dtype=torch.bool, device=wi.device))
+        return self.delta_sample(wi, weight)

@@ -11,6 +11,7 @@ pre-pass overrides :meth:`Integrator.prepare`, one whose paths split calls ``fil
 from __future__ import annotations
 
 import dataclasses
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -63,7 +64,7 @@ class RouletteSettings(DepthSettings):
         check_int("", "rr_depth", self.rr_depth, 1)
 
 
-class Integrator:
+class Integrator(ABC):
     """Base class: a named estimator with validated settings and the default chunked driver.
 
     Construct with the settings' fields as keywords (``Path(max_depth=4)``), or by name through
@@ -103,9 +104,9 @@ class Integrator:
         chunks are traced with (e.g. with ``extra`` holding a radiosity solution). Default: none."""
         return ctx
 
+    @abstractmethod
     def trace(self, ctx: TransportContext, state: PathState, film: Film) -> None:
         """Follow ``state``'s camera rays and add their contributions to ``film`` (per Neumann term)."""
-        raise NotImplementedError
 
     def context(self, scene: Scene, settings: RenderSettings, device: torch.device, params: dict | None = None) -> TransportContext:
         """The prepared :class:`TransportContext` of one render."""
