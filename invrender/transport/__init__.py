@@ -1,1 +1,3 @@
-"""Light transport: sampler, intersection, BSDF, lights, integrators, film, render."""
+"""Light transport: the chunked driver, counter-based sampler, intersection backends, BSDFs
+(``bsdfs/``), emitter sampling, integrators (``integrators/``), film. Knows no estimator: path
+replay and decorrelated gradients live in :mod:`invrender.diff`."""
