@@ -17,6 +17,7 @@ from invrender.inverse.fit import FitResult, fit
 from invrender.inverse.gradcheck import gradcheck
 from invrender.io import read_image, write_image
 from invrender.diff import render
+from invrender.diff.records import PathRecords, record_paths
 from invrender.scene import load_scene
 from invrender.scene.camera import Camera
 from invrender.scene.materials import Material
@@ -36,5 +37,6 @@ def __getattr__(name):
 
 __all__ = [
     "load_scene", "render", "fit", "gradcheck", "read_image", "write_image", "FitResult", "Camera", "Material", "integrators",
+    "record_paths", "PathRecords",
     "InvRenderError", "SceneError", "ImageError", "ParameterError",
 ]  # fmt: skip

@@ -1,0 +1,110 @@
+"""Path records: the traced estimate as a polynomial in the parameters (docs/closed_forms.md#furnace).
+
+- Furnace: every coefficient is the truncated Neumann series' ``eps rho^k`` term exactly (the
+  random walk at fixed depth is a zero-variance estimator there).
+- At the record point the polynomial is the render of the same seed; far from it, an unbiased
+  estimate of the image there (against independent renders, within Monte Carlo error).
+- Its Jacobian is exact: it equals autograd through the polynomial and the renderer's own gradient.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+import invrender as ir
+from invrender.errors import ParameterError
+from tests.conftest import furnace
+
+CORNELL = ["white.reflectance", "red.reflectance", "green.reflectance", "light.emission"]
+
+
+@pytest.mark.parametrize("rho, eps, depth", [(0.5, 1.0, 5), (0.8, 2.5, 7)])
+def test_furnace_coefficients_are_the_neumann_terms(rho, eps, depth):
+    scene = furnace(rho=rho, eps=eps, resolution=(8, 8))  # no roulette before the last term
+    rec = ir.record_paths(scene, ["wall.reflectance", "glow.emission"], spp=4, max_depth=depth, integrator="random_walk", rr_depth=depth, progress=False)
+    # one monomial per term k = 0 .. depth-1: rho^k eps with coefficient exactly 1 in every pixel
+    assert rec.exponents.tolist() == [[k, 1] for k in range(depth)]
+    torch.testing.assert_close(rec.coefficients, torch.ones_like(rec.coefficients), rtol=1e-6, atol=0)
+    img = rec.image({"wall.reflectance": 0.3, "glow.emission": [1.0, 2.0, 3.0]})
+    expected = torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64) * (1 - 0.3**depth) / (1 - 0.3)
+    torch.testing.assert_close(img, expected.expand_as(img), rtol=1e-6, atol=0)
+
+
+def test_record_point_image_is_the_render_of_the_same_seed(cbox32):
+    rec = ir.record_paths(cbox32, CORNELL, spp=16, max_depth=6, seed=3, progress=False)
+    img = ir.render(cbox32, spp=16, max_depth=6, seed=3, progress=False)
+    torch.testing.assert_close(rec.image().float(), img, rtol=1e-5, atol=1e-6)
+    # the Cornell box with depth 6: monomials rho_w^a rho_r^b rho_g^c eps with a + b + c <= 5
+    assert int(rec.exponents[:, :3].sum(1).max()) == 5 and bool((rec.exponents[:, 3] == 1).all())
+
+
+def test_far_from_the_record_point_the_image_is_unbiased():
+    """Recorded at grey 0.5 and emission 5, evaluated at the Cornell box's own values: channel means
+    agree with independent renders there within 4 standard errors (4 seeds each side)."""
+    scene = ir.load_scene("cornell_box", resolution=(24, 24))
+    truth = {n: scene.params[n].clone() for n in CORNELL}
+    start = ir.load_scene("cornell_box", resolution=(24, 24))
+    with torch.no_grad():
+        for n in CORNELL[:3]:
+            start.params[n].fill_(0.5)
+        start.params["light.emission"].fill_(5.0)
+    far = torch.stack([ir.record_paths(start, CORNELL, spp=64, max_depth=8, seed=s, progress=False).image(truth).mean((0, 1)) for s in range(4)])
+    ref = torch.stack([ir.render(scene, spp=64, max_depth=8, seed=10 + s, progress=False).double().mean((0, 1)) for s in range(4)])
+    se = (far.var(0) / 4 + ref.var(0) / 4).sqrt()
+    diff = (far.mean(0) - ref.mean(0)).abs()
+    assert (diff < 4 * se + 1e-5).all(), (far.mean(0), ref.mean(0), se)
+    assert (diff < 0.01 * ref.mean(0)).all()
+
+
+def test_jacobian_is_exact(cbox32):
+    rec = ir.record_paths(cbox32, CORNELL, spp=8, max_depth=5, seed=1, progress=False)
+    values = {"white.reflectance": torch.tensor([0.3, 0.6, 0.7], dtype=torch.float64, requires_grad=True), "light.emission": torch.tensor([9.0, 4.0, 12.0], dtype=torch.float64, requires_grad=True)}
+    weights = torch.rand(32, 32, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    (rec.image(values) * weights).sum().backward()
+    jac = rec.jacobian({k: v.detach() for k, v in values.items()})
+    for name, v in values.items():
+        torch.testing.assert_close((jac[name] * weights).sum((0, 1)), v.grad, rtol=1e-9, atol=1e-12)
+    # at the record point: the renderer's own gradient of the same seed (autodiff)
+    scene = ir.load_scene("cornell_box", resolution=(32, 32))
+    scene.params["red.reflectance"].requires_grad_(True)
+    (ir.render(scene, spp=8, max_depth=5, seed=1, estimator="autodiff", progress=False).double() * weights).sum().backward()
+    torch.testing.assert_close((rec.jacobian()["red.reflectance"] * weights).sum((0, 1)), scene.params["red.reflectance"].grad.double(), rtol=1e-4, atol=0)
+
+
+def test_every_material_records(cbox32):
+    """Mirror and glossy k_s are monomial factors too; glass (no parameter) only weights."""
+    scene = ir.load_scene("cornell_specular", resolution=(16, 16), subdivisions=2)
+    names = ["white.reflectance", "mirror.specular_reflectance", "glossy.specular_reflectance", "light.emission"]
+    rec = ir.record_paths(scene, names, spp=8, max_depth=5, seed=2, progress=False)
+    torch.testing.assert_close(rec.image().float(), ir.render(scene, spp=8, max_depth=5, seed=2, progress=False), rtol=1e-5, atol=1e-5)
+    assert int(rec.exponents[:, 1].max()) >= 1 and int(rec.exponents[:, 2].max()) >= 1
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        (dict(params=["red.albedo"]), "unknown parameter 'red.albedo'"),
+        (dict(params=["red.reflectance"], max_depth=-1), "finite max_depth"),
+        (dict(params=["floor.reflectance"]), "is a texture"),
+        (dict(params=["red.reflectance"], max_record_mb=0.01), "over max_record_mb"),
+    ],
+)
+def test_bad_input_is_refused_before_tracing(kwargs, message):
+    scene = ir.load_scene("forward/textured_floor.toml", resolution=(16, 16)) if "floor.reflectance" in kwargs["params"] else ir.load_scene("cornell_box", resolution=(16, 16))
+    with pytest.raises(ParameterError, match=message):
+        ir.record_paths(scene, progress=False, **kwargs)
+
+
+def test_record_point_must_be_positive():
+    scene = ir.load_scene("cornell_box", resolution=(8, 8))
+    with torch.no_grad():
+        scene.params["red.reflectance"][1] = 0.0
+    with pytest.raises(ParameterError, match=r"red.reflectance must be > 0 in every channel"):
+        ir.record_paths(scene, ["red.reflectance"], progress=False)
+    rec = ir.record_paths(ir.load_scene("cornell_box", resolution=(8, 8)), ["red.reflectance"], spp=1, max_depth=2, progress=False)
+    with pytest.raises(ParameterError, match="'light.emission' was not recorded"):
+        rec.image({"light.emission": 1.0})
+    assert math.isfinite(float(rec.image().sum()))
