@@ -253,6 +253,8 @@ FIT_OPTIONS = [
     ("loss", str, "relative_l2, l2, l1 or ssim (default: relative_l2)"),
     ("estimator", str, "replay or autodiff (default: replay)"),
     ("seed", int, "seed of every render (default: 0)"),
+    ("solver", str, "adam (gradient steps on re-traced renders, default), lm (Levenberg-Marquardt) or gauss_newton on path records"),
+    ("rounds", int, "lm / gauss_newton: most record-and-solve rounds, round r at spp*4^r (default: 5)"),
 ]
 
 

@@ -93,13 +93,16 @@ class PathRecords:
         """Exact derivatives of :meth:`image`: name -> (H, W, 3), the derivative of each pixel's
         channel c with respect to the parameter's channel c (channels are independent: the
         derivative across channels is zero)."""
-        V = self._values(values)
-        M = self.monomials(values)  # (S, 3)
-        E = self.exponents.to(V.device, torch.float64)
+        V = self._values(values)  # (P, 3)
+        E = self.exponents.to(V.device, torch.float64)  # (S, P)
+        powers = V[None, :, :] ** E[:, :, None]  # (S, P, 3)
         out = {}
         for p, name in enumerate(self.names):
-            dM = E[:, p : p + 1] * M / V[p][None, :]  # d/dv_p of v_p^k = k v_p^(k-1) (the rest unchanged)
-            out[name] = torch.einsum("sc,snc->nc", dM, self.coefficients).reshape(self.resolution[1], self.resolution[0], 3)
+            k = E[:, p : p + 1]
+            # d/dv_p of v_p^k = k v_p^(k - 1) (zero for k = 0, also where v_p = 0), times the other factors
+            d = torch.where(k > 0, k * V[p][None, :] ** (k - 1).clamp_min(0), 0.0)
+            others = torch.prod(torch.cat([powers[:, :p], powers[:, p + 1 :]], dim=1), dim=1)
+            out[name] = torch.einsum("sc,snc->nc", d * others, self.coefficients).reshape(self.resolution[1], self.resolution[0], 3)
         return out
 
     @property

@@ -22,6 +22,7 @@ from tqdm.auto import tqdm
 
 from invrender.errors import ImageError, ParameterError
 from invrender.inverse import params as P
+from invrender.inverse.least_squares import SOLVERS
 from invrender.inverse.losses import LOSSES, loss_and_gradient, loss_gradient
 from invrender.io.atomic import atomic_file
 from invrender.scene.camera import Camera
@@ -57,6 +58,11 @@ class FitSettings:
         decorrelate: take ``dl/dI`` from an independent render (unbiased gradient; losses.py).
         seed: seed of every render's random numbers.
         checkpoint_every: steps between checkpoints (when a checkpoint path is given).
+        solver: ``"adam"`` (gradient steps on re-traced renders, the default), ``"lm"``
+            (Levenberg-Marquardt) or ``"gauss_newton"`` on path records (least_squares.py).
+        rounds: least-squares solvers: at most this many outer rounds; round r records two
+            independent path sets at ``spp * 4^r`` at the current estimate and solves on them; the
+            rounds end early once no parameter moved by more than its standard error.
     """
 
     steps: int = 200
@@ -73,14 +79,20 @@ class FitSettings:
     decorrelate: bool = True
     seed: int = 0
     checkpoint_every: int = 20
+    solver: str = "adam"
+    rounds: int = 5
 
     def __post_init__(self):
-        for name in ("steps", "spp", "spp_final", "max_depth", "seed", "checkpoint_every"):
+        for name in ("steps", "spp", "spp_final", "max_depth", "seed", "checkpoint_every", "rounds"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int):
                 raise ParameterError(f"fit setting {name} must be an integer, got {value!r}")
-        if self.steps <= 0 or self.spp <= 0 or self.spp_final <= 0 or self.checkpoint_every <= 0:
-            raise ParameterError("fit settings steps, spp, spp_final and checkpoint_every must be positive")
+        if self.steps <= 0 or self.spp <= 0 or self.spp_final <= 0 or self.checkpoint_every <= 0 or self.rounds <= 0:
+            raise ParameterError("fit settings steps, spp, spp_final, checkpoint_every and rounds must be positive")
+        if self.solver not in SOLVERS:
+            raise ParameterError(f"unknown solver {self.solver!r} (known: {', '.join(SOLVERS)})")
+        if self.solver != "adam" and (self.max_depth < 1 or self.loss != "relative_l2"):
+            raise ParameterError(f"solver {self.solver!r} needs a finite max_depth >= 1 and the relative_l2 loss (got max_depth {self.max_depth}, loss {self.loss!r})")
         for name in ("lr", "lr_emission", "lr_final"):
             if not getattr(self, name) > 0:
                 raise ParameterError(f"fit setting {name} must be positive, got {getattr(self, name)!r}")
@@ -111,6 +123,7 @@ class FitResult:
         settings: the settings used.
         initial: name -> starting value.
         truth: name -> ground truth, when given.
+        std_error: name -> standard error of each recovered channel (least-squares solvers).
     """
 
     params: dict[str, torch.Tensor]
@@ -119,6 +132,7 @@ class FitResult:
     settings: FitSettings
     initial: dict[str, torch.Tensor]
     truth: dict[str, torch.Tensor] = field(default_factory=dict)
+    std_error: dict[str, torch.Tensor] = field(default_factory=dict)
 
     @property
     def errors(self) -> dict[str, float]:
@@ -159,6 +173,9 @@ def fit(
     names = P.check_names(scene.params, params)
     views = _views(scene, target, cameras)
     truth = {k: torch.as_tensor(v, dtype=torch.float32) for k, v in (truth or {}).items()}
+    checkpoint = Path(checkpoint) if checkpoint is not None else None
+    if cfg.solver != "adam":
+        return _fit_least_squares(scene, views, names, cfg, truth, checkpoint, resume, progress)
 
     raw = {n: P.to_raw(n, scene.params[n]).requires_grad_(True) for n in names}
     optimizer = torch.optim.Adam([{"params": [raw[n]], "lr": getattr(cfg, kind_of(n).lr_setting)} for n in names], betas=(0.9, cfg.beta2))
@@ -166,7 +183,6 @@ def fit(
     initial = {n: scene.params[n].detach().clone() for n in names}
     history: list[dict] = []
     start = 0
-    checkpoint = Path(checkpoint) if checkpoint is not None else None
     if resume:
         if checkpoint is None or not checkpoint.is_file():
             raise ParameterError(f"cannot resume: no checkpoint at {checkpoint}")
@@ -204,6 +220,71 @@ def fit(
     recovered = {n: P.from_raw(n, raw[n]).detach().clone() for n in names}
     out_scene = dataclasses.replace(scene, params={**{k: v.detach().clone() for k, v in scene.params.items()}, **recovered})
     return FitResult(recovered, history, out_scene, cfg, initial, {k: v for k, v in truth.items() if k in names})
+
+
+def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, checkpoint: Path | None, resume: bool, progress: bool) -> FitResult:
+    """Outer rounds of record-and-solve (least_squares.py): one history entry per round."""
+    from invrender.diff.records import record_paths
+    from invrender.inverse.least_squares import solve
+
+    for n in names:
+        if scene.params[n].ndim != 1:
+            raise ParameterError(f"solver {cfg.solver!r} fits constant parameters only; {n} is a texture")
+    initial = {n: scene.params[n].detach().clone() for n in names}
+    current = {n: scene.params[n].detach().double().clamp(1e-4, None) for n in names}
+    history: list[dict] = []
+    if resume:
+        current, history = _load_rounds(checkpoint, scene, names, cfg)
+    clock = time.perf_counter() - (history[-1]["seconds"] if history else 0.0)
+    std_error = {n: torch.tensor(v, dtype=torch.float64) for n, v in history[-1]["std_error"].items()} if history else {}
+    bar = tqdm(total=cfg.rounds, initial=len(history), unit="round", disable=not progress, desc=f"fit ({cfg.solver})", file=sys.stderr, dynamic_ncols=True)
+    with bar:
+        done = len(history) >= 2 and history[-1]["moved_in_std_errors"] < 1.0  # a resumed fit that had converged
+        for rnd in range(len(history), 0 if done else cfg.rounds):
+            spp = cfg.spp * 4**rnd
+            recs = {}
+            for half in (0, 1):  # two independent record sets: residual (A) and Jacobian (B)
+                recs[half] = [
+                    record_paths(
+                        dataclasses.replace(view_scene, params={**view_scene.params, **{n: current[n].float() for n in names}}),
+                        names, spp=spp, max_depth=cfg.max_depth, seed=cfg.seed * 1_000_003 + 2 * (rnd * len(views) + v) + half,
+                        integrator=cfg.integrator, progress=False,
+                    )  # fmt: skip
+                    for v, (view_scene, _) in enumerate(views)
+                ]
+            sol = solve(recs[0], recs[1], [t for _, t in views], current, solver=cfg.solver)
+            moved = max(float(((sol.values[n] - current[n]).abs() / sol.std_error[n].clamp_min(1e-12)).max()) for n in names)
+            current, std_error = sol.values, sol.std_error
+            record = {
+                "step": rnd + 1, "loss": sol.loss, "spp": spp, "seconds": time.perf_counter() - clock, "inner_steps": sol.steps,
+                "params": {n: current[n].tolist() for n in names}, "std_error": {n: std_error[n].tolist() for n in names},
+                "moved_in_std_errors": moved,
+            }  # fmt: skip
+            if truth:
+                record["errors"] = {n: P.relative_error(current[n].float(), truth[n]) for n in names if n in truth}
+            history.append(record)
+            bar.set_postfix(loss=f"{sol.loss:.4g}", lm_steps=sol.steps, moved=f"{moved:.2g} se", refresh=False)
+            bar.update(1)
+            if checkpoint is not None:
+                _save_rounds(checkpoint, scene, names, cfg, current, history)
+            if rnd >= 1 and moved < 1.0:
+                break
+    recovered = {n: current[n].float().clone() for n in names}
+    out_scene = dataclasses.replace(scene, params={**{k: v.detach().clone() for k, v in scene.params.items()}, **recovered})
+    return FitResult(recovered, history, out_scene, cfg, initial, {k: v for k, v in truth.items() if k in names}, {n: std_error[n].float() for n in names})
+
+
+def _save_rounds(path: Path, scene, names, cfg, current, history) -> None:
+    state = {"format": CHECKPOINT_FORMAT, "signature": _signature(scene, names), "settings": dataclasses.asdict(cfg), "step": len(history), "values": current, "history": history}
+    with atomic_file(path) as f:
+        torch.save(state, f)
+
+
+def _load_rounds(path: Path | None, scene, names, cfg) -> tuple[dict, list[dict]]:
+    if path is None or not path.is_file():
+        raise ParameterError(f"cannot resume: no checkpoint at {path}")
+    state = _read_checkpoint(path, scene, names, cfg)
+    return {n: v.double() for n, v in state["values"].items()}, list(state["history"])
 
 
 def _view_loss(view_scene: Scene, values, target, cfg: FitSettings, step: int, view: int, n_views: int) -> torch.Tensor:
@@ -287,6 +368,18 @@ def _save_checkpoint(path: Path, scene, names, cfg, raw, optimizer, step, histor
 
 
 def _load_checkpoint(path: Path, scene, names, cfg, raw, optimizer) -> tuple[int, list[dict]]:
+    state = _read_checkpoint(path, scene, names, cfg)
+    if "raw" not in state:
+        raise ParameterError(f"checkpoint {path} was written by another solver")
+    with torch.no_grad():
+        for n in names:
+            raw[n].copy_(state["raw"][n])
+    optimizer.load_state_dict(state["optimizer"])
+    return int(state["step"]), list(state["history"])
+
+
+def _read_checkpoint(path: Path, scene, names, cfg) -> dict:
+    """The checkpoint at ``path``, checked to come from this scene, these parameters and settings."""
     try:
         state = torch.load(path, weights_only=False)
     except Exception as e:
@@ -298,8 +391,4 @@ def _load_checkpoint(path: Path, scene, names, cfg, raw, optimizer) -> tuple[int
     if state["settings"] != dataclasses.asdict(cfg):
         changed = sorted(k for k, v in dataclasses.asdict(cfg).items() if state["settings"].get(k) != v)
         raise ParameterError(f"checkpoint {path} was written with other fit settings ({', '.join(changed)})")
-    with torch.no_grad():
-        for n in names:
-            raw[n].copy_(state["raw"][n])
-    optimizer.load_state_dict(state["optimizer"])
-    return int(state["step"]), list(state["history"])
+    return state

@@ -20,6 +20,8 @@ def report_dict(result: FitResult, **extra) -> dict:
         "initial": {k: v.tolist() for k, v in result.initial.items()},
         "recovered": {k: v.tolist() for k, v in result.params.items()},
     }
+    if result.std_error:
+        out["std_error"] = {k: v.tolist() for k, v in result.std_error.items()}
     if result.truth:
         out["truth"] = {k: v.tolist() for k, v in result.truth.items()}
         out["relative_error"] = result.errors
