@@ -69,6 +69,14 @@ def integrator_help() -> str:
     return "; ".join(f"{name}: {cls.summary}" for name, cls in INTEGRATORS.items()) + " (default: path)"
 
 
+def parse_bool(text: str) -> bool:
+    """``true``/``false`` (also yes/no, 1/0)."""
+    value = {"true": True, "yes": True, "1": True, "false": False, "no": False, "0": False}.get(text.strip().lower())
+    if value is None:
+        raise argparse.ArgumentTypeError(f"expected true or false, got {text!r}")
+    return value
+
+
 def parse_resolution(text: str) -> tuple[int, int]:
     """``"WxH"`` -> (width, height)."""
     try:
@@ -155,10 +163,10 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--params", help="comma-separated parameter names, e.g. red.reflectance,light.emission")
     f.add_argument("--init", action="append", default=[], metavar="KEY=VALUE", help="starting value: NAME=v or NAME=r,g,b; NAME may be a kind (reflectance, specular_reflectance, emission) for all fitted ones of it (repeatable)")
     f.add_argument("--resolution", type=parse_resolution, default=None, metavar="WxH", help="render size (default: the target's)")
-    f.add_argument("--out", required=True, help="output folder: report.json, loss.png, final.exr, checkpoint.pt")
-    f.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    f.add_argument("--out", required=True, help="output folder: report.json, loss.png, final.exr, final.png, checkpoint.pt")
+    f.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt with the settings stored in it, except those given anew")
     for name, kind, doc in FIT_OPTIONS:
-        f.add_argument(f"--{name.replace('_', '-')}", dest=name, type=kind, default=None, help=doc)
+        f.add_argument(f"--{name.replace('_', '-')}", dest=name, type=parse_bool if kind == "bool" else kind, default=None, metavar=name.upper() if kind != "bool" else "true|false", help=doc)
     f.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     f.set_defaults(run=run_fit)
 
@@ -249,10 +257,14 @@ FIT_OPTIONS = [
     ("max_depth", int, "Neumann terms kept (default: 8)"),
     ("lr", float, "Adam step size for reflectances, logit units (default: 0.15)"),
     ("lr_emission", float, "Adam step size for emissions, log units (default: 0.15)"),
+    ("lr_final", float, "the step sizes decay along a cosine to this fraction (default: 0.05)"),
+    ("beta2", float, "Adam's second-moment decay (default: 0.95)"),
     ("integrator", str, "the model fitted: path, random_walk, utah, whitted or distributed (default: path)"),
     ("loss", str, "relative_l2, l2, l1 or ssim (default: relative_l2)"),
     ("estimator", str, "replay or autodiff (default: replay)"),
     ("seed", int, "seed of every render (default: 0)"),
+    ("decorrelate", "bool", "true: dl/dI from an independent render (unbiased gradients, default); false: from the same one"),
+    ("checkpoint_every", int, "steps between checkpoints (default: 20)"),
     ("solver", str, "adam (gradient steps on re-traced renders, default), lm (Levenberg-Marquardt) or gauss_newton on path records"),
     ("rounds", int, "lm / gauss_newton: most record-and-solve rounds, round r at spp*4^r (default: 5)"),
 ]
@@ -379,9 +391,10 @@ def _fit_into(out: Path, args, scene, targets, cameras, truth, names, init, sett
     s = result.settings
     views = cameras or [result.scene.camera]
     for i, camera in enumerate(views):
-        name = "final.exr" if len(views) == 1 else f"final_{i:02d}.exr"
+        stem = "final" if len(views) == 1 else f"final_{i:02d}"
         image = ir.render(result.scene.with_camera(camera), s.integrator, spp=4 * s.spp_final, max_depth=s.max_depth, seed=s.seed + 1, progress=not args.quiet)
-        ir.write_image(out / name, image)
+        ir.write_image(out / f"{stem}.exr", image)
+        ir.write_image(out / f"{stem}.png", image)
     report = report_dict(result, **extra)
     write_json(out / "report.json", report)
     plot_history(result, out / "loss.png")
@@ -390,7 +403,7 @@ def _fit_into(out: Path, args, scene, targets, cameras, truth, names, init, sett
         for name, value in result.params.items():
             err = f"  (rel. error {result.errors[name]:.2%})" if name in result.errors else ""
             print(f"  {name}: {_fmt(value)}{err}", file=sys.stderr)
-        print(f"wrote {out}/report.json, loss.png, final EXR, checkpoint.pt", file=sys.stderr)
+        print(f"wrote {out}/report.json, loss.png, final EXR and PNG, checkpoint.pt", file=sys.stderr)
     return result
 
 

@@ -162,20 +162,32 @@ def fit(
         truth: name -> ground-truth value, to record errors in the history.
         checkpoint: path of a checkpoint file written every ``checkpoint_every`` steps, on Ctrl-C
             and at the end.
-        resume: continue from ``checkpoint`` (which must come from the same scene and parameters).
+        resume: continue from ``checkpoint`` (which must come from the same scene and parameters),
+            with the settings stored in it except those given anew in ``settings`` (e.g. more
+            ``steps``); with the stored settings unchanged, it ends exactly where the
+            uninterrupted fit does.
         progress: show a progress bar with step, loss and ETA.
         settings: any :class:`FitSettings` field, e.g. ``steps=300, loss="l1"``.
     """
-    unknown = set(settings) - {f.name for f in dataclasses.fields(FitSettings)}
+    known = {f.name for f in dataclasses.fields(FitSettings)}
+    unknown = set(settings) - known
     if unknown:
-        raise ParameterError(f"unknown fit setting {sorted(unknown)[0]!r} (known: {', '.join(f.name for f in dataclasses.fields(FitSettings))})")
-    cfg = FitSettings(**settings)
+        raise ParameterError(f"unknown fit setting {sorted(unknown)[0]!r} (known: {', '.join(sorted(known))})")
     names = P.check_names(scene.params, params)
+    checkpoint = Path(checkpoint) if checkpoint is not None else None
+    state = None
+    if resume:
+        if checkpoint is None or not checkpoint.is_file():
+            raise ParameterError(f"cannot resume: no checkpoint at {checkpoint}")
+        state = _read_checkpoint(checkpoint, scene, names)
+        settings = {**{k: v for k, v in state["settings"].items() if k in known}, **settings}  # stored, unless given anew
+    cfg = FitSettings(**settings)
     views = _views(scene, target, cameras)
     truth = {k: torch.as_tensor(v, dtype=torch.float32) for k, v in (truth or {}).items()}
-    checkpoint = Path(checkpoint) if checkpoint is not None else None
+    if state is not None and ("raw" in state) != (cfg.solver == "adam"):
+        raise ParameterError(f"checkpoint {checkpoint} was written by another solver than {cfg.solver!r}")
     if cfg.solver != "adam":
-        return _fit_least_squares(scene, views, names, cfg, truth, checkpoint, resume, progress)
+        return _fit_least_squares(scene, views, names, cfg, truth, checkpoint, state, progress)
 
     raw = {n: P.to_raw(n, scene.params[n]).requires_grad_(True) for n in names}
     optimizer = torch.optim.Adam([{"params": [raw[n]], "lr": getattr(cfg, kind_of(n).lr_setting)} for n in names], betas=(0.9, cfg.beta2))
@@ -183,10 +195,8 @@ def fit(
     initial = {n: scene.params[n].detach().clone() for n in names}
     history: list[dict] = []
     start = 0
-    if resume:
-        if checkpoint is None or not checkpoint.is_file():
-            raise ParameterError(f"cannot resume: no checkpoint at {checkpoint}")
-        start, history = _load_checkpoint(checkpoint, scene, names, cfg, raw, optimizer)
+    if state is not None:
+        start, history = _restore(state, names, raw, optimizer)
 
     clock = time.perf_counter() - (history[-1]["seconds"] if history else 0.0)
     bar = tqdm(total=cfg.steps, initial=start, unit="step", disable=not progress, desc="fit", file=sys.stderr, dynamic_ncols=True)
@@ -222,7 +232,7 @@ def fit(
     return FitResult(recovered, history, out_scene, cfg, initial, {k: v for k, v in truth.items() if k in names})
 
 
-def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, checkpoint: Path | None, resume: bool, progress: bool) -> FitResult:
+def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, checkpoint: Path | None, state: dict | None, progress: bool) -> FitResult:
     """Outer rounds of record-and-solve (least_squares.py): one history entry per round."""
     from invrender.diff.records import record_paths
     from invrender.inverse.least_squares import solve
@@ -233,8 +243,8 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
     initial = {n: scene.params[n].detach().clone() for n in names}
     current = {n: scene.params[n].detach().double().clamp(1e-4, None) for n in names}
     history: list[dict] = []
-    if resume:
-        current, history = _load_rounds(checkpoint, scene, names, cfg)
+    if state is not None:
+        current, history = {n: v.double() for n, v in state["values"].items()}, list(state["history"])
     clock = time.perf_counter() - (history[-1]["seconds"] if history else 0.0)
     std_error = {n: torch.tensor(v, dtype=torch.float64) for n, v in history[-1]["std_error"].items()} if history else {}
     bar = tqdm(total=cfg.rounds, initial=len(history), unit="round", disable=not progress, desc=f"fit ({cfg.solver})", file=sys.stderr, dynamic_ncols=True)
@@ -278,13 +288,6 @@ def _save_rounds(path: Path, scene, names, cfg, current, history) -> None:
     state = {"format": CHECKPOINT_FORMAT, "signature": _signature(scene, names), "settings": dataclasses.asdict(cfg), "step": len(history), "values": current, "history": history}
     with atomic_file(path) as f:
         torch.save(state, f)
-
-
-def _load_rounds(path: Path | None, scene, names, cfg) -> tuple[dict, list[dict]]:
-    if path is None or not path.is_file():
-        raise ParameterError(f"cannot resume: no checkpoint at {path}")
-    state = _read_checkpoint(path, scene, names, cfg)
-    return {n: v.double() for n, v in state["values"].items()}, list(state["history"])
 
 
 def _view_loss(view_scene: Scene, values, target, cfg: FitSettings, step: int, view: int, n_views: int) -> torch.Tensor:
@@ -367,10 +370,8 @@ def _save_checkpoint(path: Path, scene, names, cfg, raw, optimizer, step, histor
         torch.save(state, f)
 
 
-def _load_checkpoint(path: Path, scene, names, cfg, raw, optimizer) -> tuple[int, list[dict]]:
-    state = _read_checkpoint(path, scene, names, cfg)
-    if "raw" not in state:
-        raise ParameterError(f"checkpoint {path} was written by another solver")
+def _restore(state: dict, names, raw, optimizer) -> tuple[int, list[dict]]:
+    """Adam's state from a checkpoint: the leaves and moments; returns (steps done, history)."""
     with torch.no_grad():
         for n in names:
             raw[n].copy_(state["raw"][n])
@@ -378,8 +379,8 @@ def _load_checkpoint(path: Path, scene, names, cfg, raw, optimizer) -> tuple[int
     return int(state["step"]), list(state["history"])
 
 
-def _read_checkpoint(path: Path, scene, names, cfg) -> dict:
-    """The checkpoint at ``path``, checked to come from this scene, these parameters and settings."""
+def _read_checkpoint(path: Path, scene, names) -> dict:
+    """The checkpoint at ``path``, checked to come from this scene and these parameters."""
     try:
         state = torch.load(path, weights_only=False)
     except Exception as e:
@@ -388,7 +389,4 @@ def _read_checkpoint(path: Path, scene, names, cfg) -> dict:
         raise ParameterError(f"{path} is not an invrender fit checkpoint")
     if state["signature"] != _signature(scene, names):
         raise ParameterError(f"checkpoint {path} comes from another scene or parameter set ({state['signature']['scene']}: {', '.join(state['signature']['params'])})")
-    if state["settings"] != dataclasses.asdict(cfg):
-        changed = sorted(k for k, v in dataclasses.asdict(cfg).items() if state["settings"].get(k) != v)
-        raise ParameterError(f"checkpoint {path} was written with other fit settings ({', '.join(changed)})")
     return state

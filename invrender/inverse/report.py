@@ -91,6 +91,7 @@ def plot_history(result: FitResult, path) -> None:
     fig, axes = plt.subplots(1, panels, figsize=(5.5 * panels, 4), squeeze=False)
     ax = axes[0][0]
     ax.semilogy(steps, [h["loss"] for h in result.history], color="black", lw=1)
+    _mark_spp(axes[0], result.history)
     ax.set_xlabel("step")
     ax.set_ylabel(f"{result.settings.loss} loss")
     ax.set_title("loss")
@@ -107,6 +108,17 @@ def plot_history(result: FitResult, path) -> None:
         ax.legend(fontsize=8)
     fig.tight_layout()
     save_figure(fig, path)
+
+
+def _mark_spp(axes, history: list[dict]) -> None:
+    """A dotted vertical line and a label at every step where the samples per pixel change."""
+    previous = None
+    for h in history:
+        if h["spp"] != previous:
+            for ax in axes:
+                ax.axvline(h["step"], color="grey", ls=":", lw=0.8)
+            axes[0].annotate(f"{h['spp']} spp", (h["step"], 1), xycoords=("data", "axes fraction"), xytext=(2, -10), textcoords="offset points", fontsize=7, color="grey")
+            previous = h["spp"]
 
 
 def save_figure(fig, path) -> None:

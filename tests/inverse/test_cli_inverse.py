@@ -62,7 +62,7 @@ def test_fit_recipe_writes_report_plot_render_checkpoint_and_resumes(recipe, tmp
     report = json.loads((out / "report.json").read_text())
     assert report["steps"] == 6 and set(report) >= {"initial", "recovered", "truth", "relative_error", "settings"}
     assert report["initial"]["red.reflectance"] == pytest.approx([0.5] * 3)
-    for name in ("loss.png", "final_00.exr", "final_01.exr", "checkpoint.pt"):
+    for name in ("loss.png", "final_00.exr", "final_01.exr", "final_00.png", "final_01.png", "checkpoint.pt"):
         assert (out / name).exists(), name
 
     import invrender.inverse.fit as fit_module
@@ -147,6 +147,17 @@ def test_every_shipped_recipe_parses_and_names_real_parameters():
         names = recipe.params + [n for v in recipe.variants for n in v.params]
         apply_init(scene, names, recipe.init)
         assert set(recipe.params) <= set(scene.params), path
+
+
+def test_every_fit_setting_has_a_flag():
+    import dataclasses
+
+    from invrender.cli import FIT_OPTIONS, build_parser
+    from invrender.inverse.fit import FitSettings
+
+    assert {f.name for f in dataclasses.fields(FitSettings)} == {name for name, _, _ in FIT_OPTIONS}
+    args = build_parser().parse_args(["fit", "--out", "x", "--decorrelate", "false", "--lr-final", "0.1", "--checkpoint-every", "5", "--beta2", "0.9"])
+    assert (args.decorrelate, args.lr_final, args.checkpoint_every, args.beta2) == (False, 0.1, 5, 0.9)
 
 
 def test_gradcheck_command_with_another_integrator(capsys):

@@ -73,8 +73,19 @@ def test_checkpoint_from_another_scene_is_refused(small_target, tmp_path):
     with pytest.raises(ParameterError, match="another scene"):
         ir.fit(other, small_target, ["glow.emission"], checkpoint=tmp_path / "k.pt", resume=True, **kw)
     shutil.copy(tmp_path / "k.pt", tmp_path / "k2.pt")
-    with pytest.raises(ParameterError, match="other fit settings"):
-        ir.fit(start_scene(), small_target, ["light.emission"], checkpoint=tmp_path / "k2.pt", resume=True, **{**kw, "steps": 3})
+    with pytest.raises(ParameterError, match="another solver"):
+        ir.fit(start_scene(), small_target, ["light.emission"], checkpoint=tmp_path / "k2.pt", resume=True, solver="lm")
+
+
+def test_resume_reuses_the_stored_settings_unless_given_anew(small_target, tmp_path):
+    kw = dict(steps=2, spp=2, spp_final=2, max_depth=2, progress=False)
+    first = ir.fit(start_scene(), small_target, ["light.emission"], checkpoint=tmp_path / "k.pt", **kw)
+    # no settings: the stored ones (2 steps, all done): the same result
+    same = ir.fit(start_scene(), small_target, ["light.emission"], checkpoint=tmp_path / "k.pt", resume=True, progress=False)
+    assert same.settings == first.settings and torch.equal(same.params["light.emission"], first.params["light.emission"])
+    # a new setting wins (one more step), the rest stay stored
+    more = ir.fit(start_scene(), small_target, ["light.emission"], checkpoint=tmp_path / "k.pt", resume=True, steps=3, progress=False)
+    assert len(more.history) == 3 and more.settings.spp == 2 and more.settings.max_depth == 2
 
 
 @pytest.mark.parametrize(
