@@ -33,6 +33,9 @@ from invrender.transport.driver import RenderSettings
 from invrender.transport.integrators import make_integrator
 
 CHECKPOINT_FORMAT = 1
+#: least-squares rounds end when no parameter channel moved by more than this many standard errors
+#: of the difference between two rounds' estimates (not significantly, for 12 channels at ~95%)
+CONVERGED_MOVE = 2.5
 
 
 @dataclass(frozen=True)
@@ -62,7 +65,8 @@ class FitSettings:
             (Levenberg-Marquardt) or ``"gauss_newton"`` on path records (least_squares.py).
         rounds: least-squares solvers: at most this many outer rounds; round r records two
             independent path sets at ``spp * 4^r`` at the current estimate and solves on them; the
-            rounds end early once no parameter moved by more than its standard error.
+            rounds end early once no parameter channel moved significantly (by more than 2.5
+            standard errors of the difference of two rounds' estimates).
     """
 
     steps: int = 200
@@ -249,7 +253,7 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
     std_error = {n: torch.tensor(v, dtype=torch.float64) for n, v in history[-1]["std_error"].items()} if history else {}
     bar = tqdm(total=cfg.rounds, initial=len(history), unit="round", disable=not progress, desc=f"fit ({cfg.solver})", file=sys.stderr, dynamic_ncols=True)
     with bar:
-        done = len(history) >= 2 and history[-1]["moved_in_std_errors"] < 1.0  # a resumed fit that had converged
+        done = len(history) >= 2 and history[-1]["moved_in_std_errors"] < CONVERGED_MOVE  # a resumed fit that had converged
         for rnd in range(len(history), 0 if done else cfg.rounds):
             spp = cfg.spp * 4**rnd
             recs = {}
@@ -263,7 +267,11 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
                     for v, (view_scene, _) in enumerate(views)
                 ]
             sol = solve(recs[0], recs[1], [t for _, t in views], current, solver=cfg.solver)
-            moved = max(float(((sol.values[n] - current[n]).abs() / sol.std_error[n].clamp_min(1e-12)).max()) for n in names)
+            # how far each channel moved, in standard errors of the difference of two rounds
+            moved = max(
+                float(((sol.values[n] - current[n]).abs() / (sol.std_error[n] ** 2 + (std_error[n] ** 2 if std_error else 0.0)).sqrt().clamp_min(1e-12)).max())
+                for n in names
+            )
             current, std_error = sol.values, sol.std_error
             record = {
                 "step": rnd + 1, "loss": sol.loss, "spp": spp, "seconds": time.perf_counter() - clock, "inner_steps": sol.steps,
@@ -277,7 +285,7 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
             bar.update(1)
             if checkpoint is not None:
                 _save_rounds(checkpoint, scene, names, cfg, current, history)
-            if rnd >= 1 and moved < 1.0:
+            if rnd >= 1 and moved < CONVERGED_MOVE:
                 break
     recovered = {n: current[n].float().clone() for n in names}
     out_scene = dataclasses.replace(scene, params={**{k: v.detach().clone() for k, v in scene.params.items()}, **recovered})

@@ -36,7 +36,9 @@ def test_least_squares_fit_recovers_the_cornell_box(problem, solver, tmp_path):
             for n in NAMES:
                 scene.params[n].mul_(0.9)
     res = ir.fit(scene, target, NAMES, truth=truth, solver=solver, max_depth=5, spp=spp, rounds=4, progress=False, checkpoint=tmp_path / "ck.pt")
-    assert max(res.errors.values()) < 0.03, res.errors
+    assert max(res.errors.values()) < 0.05, res.errors
+    for n in NAMES:  # within the reported standard errors (the rounds stop once moves are noise)
+        assert bool(((res.params[n] - truth[n]).abs() < 4 * res.std_error[n]).all()), (n, res.params[n], truth[n], res.std_error[n])
     assert [h["spp"] for h in res.history] == [spp * 4**r for r in range(len(res.history))]
     assert set(res.std_error) == set(NAMES) and all(bool((v > 0).all()) for v in res.std_error.values())
     assert scene.params["light.emission"].tolist() != res.params["light.emission"].tolist()  # the input scene is left unchanged
@@ -54,3 +56,23 @@ def test_bad_solver_settings_are_refused(problem):
         ir.fit(scene, target, NAMES, solver="lm", max_depth=-1, progress=False)
     with pytest.raises(ParameterError, match="relative_l2"):
         ir.fit(scene, target, NAMES, solver="lm", loss="l1", progress=False)
+
+
+def test_standard_errors_are_calibrated():
+    """Over 20 independent seeds (target and records), the truth lies within 2 reported standard
+    errors in at least 85% of the parameter channels."""
+    from invrender.diff.records import record_paths
+    from invrender.inverse.least_squares import solve
+
+    scene = ir.load_scene("cornell_box", resolution=(12, 12))
+    truth = {n: scene.params[n].detach().double().clone() for n in NAMES}
+    inside = []
+    for seed in range(20):
+        target = ir.render(scene, spp=512, max_depth=4, seed=500 + seed, progress=False)
+        a = record_paths(scene, NAMES, spp=64, max_depth=4, seed=2 * seed + 1, progress=False)
+        b = record_paths(scene, NAMES, spp=64, max_depth=4, seed=2 * seed + 2, progress=False)
+        sol = solve([a], [b], [target], truth)
+        inside += [bool(x) for n in NAMES for x in ((sol.values[n] - truth[n]).abs() < 2 * sol.std_error[n])]
+    rate = sum(inside) / len(inside)
+    print(f"calibration: {rate:.1%} of {len(inside)} channels within 2 standard errors")
+    assert rate >= 0.85, rate
