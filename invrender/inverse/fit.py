@@ -351,6 +351,8 @@ def _load_target(t, label: str) -> torch.Tensor:
         raise ImageError(f"{label} must be an (H, W, 3) RGB image, got shape {tuple(image.shape)}")
     if not torch.isfinite(image).all():
         raise ImageError(f"{label} contains NaN or Inf values")
+    if bool((image < 0).any()):
+        raise ImageError(f"{label} has negative radiance (minimum {float(image.min()):.4g}); a target is linear radiance >= 0")
     return image
 
 

@@ -94,6 +94,7 @@ def test_resume_reuses_the_stored_settings_unless_given_anew(small_target, tmp_p
         (torch.zeros(8, 8, 3), ["light.emission"], ImageError, "8x8 but the scene renders 16x16"),
         (torch.zeros(16, 16, 4), ["light.emission"], ImageError, r"\(H, W, 3\)"),
         (torch.full((16, 16, 3), float("nan")), ["light.emission"], ImageError, "NaN"),
+        (torch.full((16, 16, 3), -0.5), ["light.emission"], ImageError, "negative radiance"),
         (torch.zeros(16, 16, 3), ["lamp.emission"], ParameterError, "unknown parameter 'lamp.emission'"),
     ],
 )
