@@ -13,7 +13,7 @@ Public API::
 """
 
 from invrender.errors import BaselineError, ImageError, InvRenderError, ParameterError, SceneError
-from invrender.inverse.fit import FitResult, fit
+from invrender.inverse.fit import FitResult, fit, identifiability
 from invrender.inverse.gradcheck import gradcheck
 from invrender.io import read_image, write_image
 from invrender.diff import render
@@ -37,6 +37,6 @@ def __getattr__(name):
 
 __all__ = [
     "load_scene", "render", "fit", "gradcheck", "read_image", "write_image", "FitResult", "Camera", "Material", "integrators",
-    "record_paths", "PathRecords",
+    "record_paths", "PathRecords", "identifiability",
     "InvRenderError", "SceneError", "ImageError", "ParameterError",
 ]  # fmt: skip

@@ -14,6 +14,7 @@ import math
 import os
 import sys
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -280,6 +281,8 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
             }  # fmt: skip
             if truth:
                 record["errors"] = {n: P.relative_error(current[n].float(), truth[n]) for n in names if n in truth}
+            if sol.identifiability.weak:
+                record["undetermined"] = sol.identifiability.describe()
             history.append(record)
             bar.set_postfix(loss=f"{sol.loss:.4g}", lm_steps=sol.steps, moved=f"{moved:.2g} se", refresh=False)
             bar.update(1)
@@ -287,9 +290,27 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
                 _save_rounds(checkpoint, scene, names, cfg, current, history)
             if rnd >= 1 and moved < CONVERGED_MOVE:
                 break
+    if history and history[-1].get("undetermined"):
+        warnings.warn(f"the targets do not determine these parameter combinations: {history[-1]['undetermined']}", stacklevel=3)
     recovered = {n: current[n].float().clone() for n in names}
     out_scene = dataclasses.replace(scene, params={**{k: v.detach().clone() for k, v in scene.params.items()}, **recovered})
     return FitResult(recovered, history, out_scene, cfg, initial, {k: v for k, v in truth.items() if k in names}, {n: std_error[n].float() for n in names})
+
+
+def identifiability(scene: Scene, target, params, *, cameras: list[Camera] | None = None, spp: int = 64, max_depth: int = 8, seed: int = 0, integrator: str = "path"):
+    """What ``target`` (one image or one per camera) determines about ``params`` at the scene's
+    current values, without fitting: standard errors, correlations and the parameter
+    combinations the targets cannot determine (a near-singular ``J^T J``; e.g. the scale between an
+    emitter's eps and every rho when the emitter is never seen directly), from two independent
+    path records of ``spp`` samples. Returns an :class:`~invrender.inverse.least_squares.Identifiability`."""
+    from invrender.diff.records import record_paths
+    from invrender.inverse.least_squares import analyse
+
+    names = P.check_names(scene.params, params)
+    views = _views(scene, target, cameras)
+    recs = [[record_paths(view_scene, names, spp=spp, max_depth=max_depth, seed=2 * (seed * len(views) + v) + half, integrator=integrator, progress=False) for v, (view_scene, _) in enumerate(views)] for half in (0, 1)]
+    values = {n: scene.params[n].detach().double() for n in names}
+    return analyse(recs[0], recs[1], [t for _, t in views], values)
 
 
 def _save_rounds(path: Path, scene, names, cfg, current, history) -> None:

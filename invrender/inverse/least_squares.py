@@ -49,17 +49,20 @@ class LeastSquaresSolution:
 
     Attributes:
         values: name -> (3,) float64 recovered values.
-        std_error: name -> (3,) float64 standard errors (Gauss-Newton sandwich).
-        correlation: (K, K) float64 correlation matrix of the K = 3 P parameter channels.
+        identifiability: standard errors, correlations and undetermined combinations there.
         loss: mean squared weighted residual of set A at the solution.
         steps: the solver's inner steps.
     """
 
     values: dict
-    std_error: dict
-    correlation: torch.Tensor
+    identifiability: "Identifiability"
     loss: float
     steps: int
+
+    @property
+    def std_error(self) -> dict:
+        """name -> (3,) float64 standard errors (the sandwich of the estimating equation)."""
+        return self.identifiability.std_error
 
 
 def _jax():
@@ -153,19 +156,9 @@ def solve(
         if float(step.abs().max()) < 1e-10:
             break
 
-    # uncertainty in value space: the sandwich of the estimating equation J_B^T r_A = 0, whose
-    # variance has the residual's noise seen through J (s^2 per residual, from the two sets) and
-    # the Jacobian's own noise times the residual (dJ^T diag(r_A^2) dJ, dJ = (J_A - J_B) / sqrt 2)
-    J, J_a, ra, rb = _jacobian_and_residuals(records_a, records_b, targets, weights, values)
-    JtJ = J.T @ J
-    s2 = (ra - rb) ** 2 / 2
-    dJ = (J_a - J) / 2**0.5
-    inv = torch.linalg.pinv(JtJ)
-    cov = inv @ ((J.T * s2) @ J + (dJ.T * ra**2) @ dJ) @ inv
-    se = cov.diagonal().clamp_min(0).sqrt()
-    corr = cov / (se[:, None] * se[None, :]).clamp_min(1e-300)
-    std = {n: se[3 * p : 3 * p + 3].clone() for p, n in enumerate(names)}
-    return LeastSquaresSolution(values, std, corr, float((ra**2).mean()), steps)
+    ident = analyse(records_a, records_b, targets, values)
+    ra = torch.cat([((rec.image(values).reshape(-1, 3) - t.double().reshape(-1, 3)) * w).reshape(-1) for rec, t, w in zip(records_a, targets, weights)])
+    return LeastSquaresSolution(values, ident, float((ra**2).mean()), steps)
 
 
 def _jacobian_and_residuals(records_a, records_b, targets, weights, values):
@@ -194,3 +187,58 @@ def _value_jacobian(rec: PathRecords, values: dict, w: torch.Tensor, names: list
             col[:, c] = d[:, c]
             cols.append(col.reshape(-1))
     return torch.stack(cols, dim=1)
+
+
+@dataclass(frozen=True)
+class Identifiability:
+    """What the targets determine about the parameters, from the Gauss-Newton matrix ``J^T J``.
+
+    Attributes:
+        std_error: name -> (3,) standard errors at the evaluated values.
+        correlation: (3P, 3P) correlation matrix of the parameter channels.
+        channels: the 3P channel labels (``"red.reflectance[G]"``).
+        weak: combinations the targets cannot determine: each a dict channel label -> weight (a unit
+            vector in relative units, largest weights only), for every direction along which the
+            column-scaled ``J^T J`` has an eigenvalue below ``threshold`` times its largest.
+    """
+
+    std_error: dict
+    correlation: torch.Tensor
+    channels: list[str]
+    weak: list[dict]
+
+    def describe(self) -> str:
+        """One line per undetermined combination (empty when everything is determined)."""
+        return "; ".join(" + ".join(f"{w:+.2f} {c}" for c, w in combo.items()) for combo in self.weak)
+
+
+def analyse(records_a: list[PathRecords], records_b: list[PathRecords], targets: list[torch.Tensor], values: dict, threshold: float = 1e-6) -> Identifiability:
+    """Standard errors, correlations and undetermined combinations at ``values``.
+
+    The standard errors are the sandwich of the estimating equation ``J_B^T r_A = 0``, whose
+    variance has the residual's noise seen through J (``s^2`` per residual, from the two sets) and
+    the Jacobian's own noise times the residual (``dJ^T diag(r_A^2) dJ``, ``dJ = (J_A - J_B)/sqrt 2``)."""
+    names = list(records_a[0].names)
+    weights = [1.0 / (t.double() ** 2 + 0.01).sqrt().reshape(-1, 3) for t in targets]
+    J, J_a, ra, rb = _jacobian_and_residuals(records_a, records_b, targets, weights, values)
+    # relative units: each column scaled by its parameter value, so eps and rho compare
+    scale = torch.cat([values[n].double() for n in names])
+    Js = J * scale[None, :]
+    JtJ = Js.T @ Js
+    norms = JtJ.diagonal().clamp_min(1e-300).sqrt()
+    normalized = JtJ / (norms[:, None] * norms[None, :])
+    eigenvalues, vectors = torch.linalg.eigh(normalized)
+    labels = [f"{n}[{c}]" for n in names for c in "RGB"]
+    weak = []
+    for lam, v in zip(eigenvalues.tolist(), vectors.T):
+        if lam < threshold * float(eigenvalues.max()):
+            order = torch.argsort(v.abs(), descending=True)
+            combo = {labels[i]: float(v[i]) for i in order.tolist() if abs(float(v[i])) > 0.2}
+            weak.append(combo)
+    s2 = (ra - rb) ** 2 / 2
+    dJ = (J_a - J) / 2**0.5
+    inv = torch.linalg.pinv(J.T @ J)
+    cov = inv @ ((J.T * s2) @ J + (dJ.T * ra**2) @ dJ) @ inv
+    se = cov.diagonal().clamp_min(0).sqrt()
+    corr = cov / (se[:, None] * se[None, :]).clamp_min(1e-300)
+    return Identifiability({n: se[3 * p : 3 * p + 3].clone() for p, n in enumerate(names)}, corr, labels, weak)

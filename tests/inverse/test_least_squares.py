@@ -76,3 +76,23 @@ def test_standard_errors_are_calibrated():
     rate = sum(inside) / len(inside)
     print(f"calibration: {rate:.1%} of {len(inside)} channels within 2 standard errors")
     assert rate >= 0.85, rate
+
+
+def test_identifiability_names_the_scale_ambiguity():
+    """Direct light only (max_depth 2) and the light out of view: every pixel is rho * eps * G, so
+    the targets fix the products rho_c eps_c and not the scale between them; with the light in
+    view (it shows eps itself) everything is determined."""
+    scene = ir.load_scene("cornell_box", resolution=(16, 16))
+    down = ir.Camera(origin=(0, 0.2, 1.5), target=(0, -1, 0), up=(0, 0, -1), fov=40)
+    looking_down = scene.with_camera(down)
+    target = ir.render(looking_down, spp=64, max_depth=2, seed=9, progress=False)
+    info = ir.identifiability(looking_down, target, ["white.reflectance", "light.emission"], spp=16, max_depth=2)
+    assert len(info.weak) == 3  # one scale per channel
+    for combo in info.weak:
+        assert {c.split("[")[0] for c in combo} == {"white.reflectance", "light.emission"}
+        assert len({c.split("[")[1] for c in combo}) == 1  # the same channel of both
+    assert "light.emission" in info.describe()
+    seen = ir.identifiability(scene, ir.render(scene, spp=64, max_depth=2, seed=9, progress=False), ["white.reflectance", "light.emission"], spp=16, max_depth=2)
+    assert seen.weak == [] and all(bool((v > 0).all()) for v in seen.std_error.values())
+    with pytest.warns(UserWarning, match="do not determine these parameter combinations"):
+        ir.fit(looking_down, target, ["white.reflectance", "light.emission"], solver="lm", max_depth=2, spp=16, rounds=2, progress=False)
