@@ -110,8 +110,8 @@ def test_decorrelation_removes_the_fixed_sample_bias_in_the_furnace():
     from invrender.inverse.least_squares import solve
 
     rho, eps = 0.5, 2.0
-    scene = furnace(rho=rho, eps=1.0, resolution=(48, 48))
-    target = torch.full((48, 48, 3), eps / (1 - rho))
+    scene = furnace(rho=rho, eps=1.0, resolution=(64, 64))
+    target = torch.full((64, 64, 3), eps / (1 - rho))
     kw = dict(spp=1, max_depth=40, integrator="random_walk", rr_depth=1, progress=False)
     a = record_paths(scene, ["glow.emission"], seed=1, **kw)
     b = record_paths(scene, ["glow.emission"], seed=2, **kw)
