@@ -267,6 +267,7 @@ FIT_OPTIONS = [
     ("checkpoint_every", int, "steps between checkpoints (default: 20)"),
     ("solver", str, "adam (gradient steps on re-traced renders, default), lm (Levenberg-Marquardt) or gauss_newton on path records"),
     ("rounds", int, "lm / gauss_newton: most record-and-solve rounds, round r at spp*4^r (default: 5)"),
+    ("precision", float, "lm / gauss_newton: the rounds also wait until every standard error is below this fraction of its value (default: no such requirement)"),
 ]
 
 

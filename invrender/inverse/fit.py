@@ -37,6 +37,9 @@ CHECKPOINT_FORMAT = 1
 #: least-squares rounds end when no parameter channel moved by more than this many standard errors
 #: of the difference between two rounds' estimates (not significantly, for 12 channels at ~95%)
 CONVERGED_MOVE = 2.5
+#: least-squares rounds before the rounds may end (the first rounds' standard errors are too wide
+#: for a move to be significant)
+MIN_ROUNDS = 3
 
 
 @dataclass(frozen=True)
@@ -66,8 +69,12 @@ class FitSettings:
             (Levenberg-Marquardt) or ``"gauss_newton"`` on path records (least_squares.py).
         rounds: least-squares solvers: at most this many outer rounds; round r records two
             independent path sets at ``spp * 4^r`` at the current estimate and solves on them; the
-            rounds end early once no parameter channel moved significantly (by more than 2.5
-            standard errors of the difference of two rounds' estimates).
+            rounds end early, after at least three, once no parameter channel moved significantly
+            (by more than 2.5 standard errors of the difference of two rounds' estimates) and,
+            when ``precision`` is set, every channel's standard error is below ``precision``
+            times its value.
+        precision: least-squares solvers: a relative standard error the rounds must reach
+            before they stop (None: no such requirement).
     """
 
     steps: int = 200
@@ -86,6 +93,7 @@ class FitSettings:
     checkpoint_every: int = 20
     solver: str = "adam"
     rounds: int = 5
+    precision: float | None = None
 
     def __post_init__(self):
         for name in ("steps", "spp", "spp_final", "max_depth", "seed", "checkpoint_every", "rounds"):
@@ -98,7 +106,9 @@ class FitSettings:
             raise ParameterError(f"unknown solver {self.solver!r} (known: {', '.join(SOLVERS)})")
         if self.solver != "adam" and (self.max_depth < 1 or self.loss != "relative_l2"):
             raise ParameterError(f"solver {self.solver!r} needs a finite max_depth >= 1 and the relative_l2 loss (got max_depth {self.max_depth}, loss {self.loss!r})")
-        for name in ("lr", "lr_emission", "lr_final"):
+        for name in ("lr", "lr_emission", "lr_final", "precision"):
+            if name == "precision" and self.precision is None:
+                continue
             if not getattr(self, name) > 0:
                 raise ParameterError(f"fit setting {name} must be positive, got {getattr(self, name)!r}")
         make_integrator(self.integrator, max_depth=self.max_depth)  # validates both
@@ -254,7 +264,7 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
     std_error = {n: torch.tensor(v, dtype=torch.float64) for n, v in history[-1]["std_error"].items()} if history else {}
     bar = tqdm(total=cfg.rounds, initial=len(history), unit="round", disable=not progress, desc=f"fit ({cfg.solver})", file=sys.stderr, dynamic_ncols=True)
     with bar:
-        done = len(history) >= 2 and history[-1]["moved_in_std_errors"] < CONVERGED_MOVE  # a resumed fit that had converged
+        done = bool(history) and history[-1].get("converged", False)  # a resumed fit that had converged
         for rnd in range(len(history), 0 if done else cfg.rounds):
             spp = cfg.spp * 4**rnd
             recs = {}
@@ -283,12 +293,15 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
                 record["errors"] = {n: P.relative_error(current[n].float(), truth[n]) for n in names if n in truth}
             if sol.identifiability.weak:
                 record["undetermined"] = sol.identifiability.describe()
+            record["converged"] = rnd >= MIN_ROUNDS - 1 and moved < CONVERGED_MOVE and (
+                cfg.precision is None or all(bool((std_error[n] <= cfg.precision * current[n].abs()).all()) for n in names)
+            )
             history.append(record)
             bar.set_postfix(loss=f"{sol.loss:.4g}", lm_steps=sol.steps, moved=f"{moved:.2g} se", refresh=False)
             bar.update(1)
             if checkpoint is not None:
                 _save_rounds(checkpoint, scene, names, cfg, current, history)
-            if rnd >= 1 and moved < CONVERGED_MOVE:
+            if record["converged"]:
                 break
     if history and history[-1].get("undetermined"):
         warnings.warn(f"the targets do not determine these parameter combinations: {history[-1]['undetermined']}", stacklevel=3)
