@@ -78,6 +78,40 @@ def _jax():
     return jax, jnp, optx
 
 
+_RESIDUAL = None
+
+
+def _decorrelated_residual():
+    """The weighted residual ``fn(x, args)`` optimistix solves, built once per process (so its jit
+    cache lives across calls): values of record set A, tangent map (Jacobian) of set B, through a
+    ``jax.custom_jvp``. ``x`` (P, 3) unconstrained; ``args["exp"]`` (P,) 1 where a parameter is
+    exp-reparametrized (emission), else sigmoid."""
+    global _RESIDUAL
+    if _RESIDUAL is not None:
+        return _RESIDUAL
+    jax, jnp, _ = _jax()
+
+    def residual_of(x, args, which):
+        V = jnp.where(args["exp"][:, None] > 0, jnp.exp(x), jax.nn.sigmoid(x))
+        parts = []
+        for (E, C), t, w in zip(args[which], args["T"], args["W"]):
+            mono = jnp.prod(V[None, :, :] ** E[:, :, None], axis=1)  # (S, 3)
+            parts.append(((jnp.einsum("sc,snc->nc", mono, C) - t) * w).reshape(-1))
+        return jnp.concatenate(parts)
+
+    @jax.custom_jvp
+    def residual(x, args):
+        return residual_of(x, args, "a")
+
+    @residual.defjvp
+    def _residual_jvp(primals, tangents):
+        (x, args), (dx, _) = primals, tangents
+        return residual_of(x, args, "a"), jax.jvp(lambda y: residual_of(y, args, "b"), (x,), (dx,))[1]  # A's values, B's Jacobian
+
+    _RESIDUAL = residual
+    return residual
+
+
 def _to_jax(t: torch.Tensor):
     jax, jnp, _ = _jax()
     return jnp.asarray(t.detach().to("cpu", torch.float64).contiguous().numpy())
@@ -102,45 +136,28 @@ def solve(
     kinds = [kind_of(n) for n in names]
     weights = [1.0 / (t.double() ** 2 + 0.01).sqrt().reshape(-1, 3) for t in targets]
 
+    # every set padded to a power-of-two count of monomials (zero coefficients): the jitted solver
+    # is traced once per shape, and rounds and calls with the same shapes reuse it
+    size = max(1 << max(int(r.exponents.shape[0]) - 1, 1).bit_length() for r in records_a + records_b)
+
     def polynomial(rec: PathRecords):
-        E = _to_jax(rec.exponents.double())  # (S, P)
-        C = _to_jax(rec.coefficients)  # (S, N, 3)
-        return E, C
+        S = int(rec.exponents.shape[0])
+        E = torch.zeros(size, len(names), dtype=torch.float64)
+        E[:S] = rec.exponents.double()
+        C = torch.zeros(size, *rec.coefficients.shape[1:], dtype=torch.float64)
+        C[:S] = rec.coefficients.cpu()
+        return _to_jax(E), _to_jax(C)
 
-    sets_a = [polynomial(r) for r in records_a]
-    sets_b = [polynomial(r) for r in records_b]
-    T = [_to_jax(t.reshape(-1, 3)) for t in targets]
-    W = [_to_jax(w) for w in weights]
-
-    def values_of(x):  # x: (P, 3) unconstrained -> (P, 3) values
-        rows = [jnp.exp(x[p]) if k.reparam == "exp" else jax.nn.sigmoid(x[p]) for p, k in enumerate(kinds)]
-        return jnp.stack(rows)
-
-    def residual_of(sets):
-        def r(x):
-            V = values_of(x)
-            parts = []
-            for (E, C), t, w in zip(sets, T, W):
-                mono = jnp.prod(V[None, :, :] ** E[:, :, None], axis=1)  # (S, 3)
-                parts.append(((jnp.einsum("sc,snc->nc", mono, C) - t) * w).reshape(-1))
-            return jnp.concatenate(parts)
-
-        return r
-
-    r_a, r_b = residual_of(sets_a), residual_of(sets_b)
-
-    @jax.custom_jvp
-    def residual(x):
-        return r_a(x)
-
-    @residual.defjvp
-    def _residual_jvp(primals, tangents):
-        (x,), (dx,) = primals, tangents
-        return r_a(x), jax.jvp(r_b, (x,), (dx,))[1]  # A's values, B's Jacobian
-
+    args = {
+        "a": [polynomial(r) for r in records_a],
+        "b": [polynomial(r) for r in records_b],
+        "T": [_to_jax(t.reshape(-1, 3)) for t in targets],
+        "W": [_to_jax(w) for w in weights],
+        "exp": _to_jax(torch.tensor([k.reparam == "exp" for k in kinds], dtype=torch.float64)),
+    }
     x0 = jnp.stack([_to_jax(k.to_raw(start[n].double())) for n, k in zip(names, kinds)])
     method = optx.LevenbergMarquardt(rtol=rtol, atol=atol) if solver == "lm" else optx.GaussNewton(rtol=rtol, atol=atol)
-    sol = optx.least_squares(lambda x, _: residual(x), method, x0, options={"jac": "fwd"}, max_steps=max_steps, throw=False)
+    sol = optx.least_squares(_decorrelated_residual(), method, x0, args=args, options={"jac": "fwd"}, max_steps=max_steps, throw=False)
     x = torch.from_numpy(jax.device_get(sol.value).copy()).double()
     if not bool(torch.isfinite(x).all()):
         raise ParameterError(f"solver {solver!r} diverged (non-finite parameters); start closer or use 'lm', whose damping bounds its steps")
