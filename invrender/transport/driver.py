@@ -115,6 +115,31 @@ def for_each_chunk(scene: Scene, settings: RenderSettings, device: torch.device,
                 raise
 
 
+def available_memory_bytes() -> int | None:
+    """Memory the OS can still give this process (``MemAvailable``), or None where unknown."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None
+
+
+def check_film_memory(width: int, height: int, device: torch.device, images: int = 1) -> None:
+    """A one-line :class:`ParameterError` before any work when the films of a ``width x height``
+    render (float64 RGB sums per CPU worker, ``images`` of them each, e.g. one per Neumann term)
+    cannot fit in the memory available."""
+    need = width * height * 3 * 8 * images * cpu_workers(device)
+    have = available_memory_bytes() if device.type == "cpu" else None
+    if have is not None and need > have:
+        raise ParameterError(
+            f"a {width}x{height} render needs {need / 2**30:.1f} GiB for its films ({images} image(s) of float64 RGB sums per worker), "
+            f"more than the {have / 2**30:.1f} GiB available: lower the resolution"
+        )
+
+
 def cpu_workers(device: torch.device) -> int:
     """Chunks traced at once: one per core on the CPU (each single-threaded), one on a GPU."""
     if device.type != "cpu":

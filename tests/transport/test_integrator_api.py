@@ -65,3 +65,17 @@ def test_a_new_integrator_registers_once_and_runs_its_pre_pass_once_per_render()
             assert float(scene.params["white.reflectance"].grad.min()) > 0
     finally:
         INTEGRATORS.pop("test_first_hit_albedo", None)
+
+
+def test_a_render_that_cannot_fit_in_memory_is_refused_before_work(monkeypatch, tmp_path, capsys):
+    from invrender.cli import main
+    from invrender.transport import driver
+
+    monkeypatch.setattr(driver, "available_memory_bytes", lambda: 10 * 2**20)  # 10 MiB left
+    scene = ir.load_scene("cornell_box", resolution=(4, 4))
+    ir.render(scene, spp=1, max_depth=1)  # small renders still run
+    with pytest.raises(ParameterError, match=r"a 2000x2000 render needs .* GiB for its films .* more than the 0.0 GiB available"):
+        ir.render(ir.load_scene("cornell_box", resolution=(2000, 2000)), spp=1)
+    out = tmp_path / "big.exr"
+    assert main(["render", "--resolution", "2000x2000", "--spp", "1", "--out", str(out)]) == 2
+    assert "lower the resolution" in capsys.readouterr().err and not out.exists()

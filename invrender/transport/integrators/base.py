@@ -20,7 +20,7 @@ import torch
 from invrender.errors import ParameterError
 from invrender.scene.scene import Scene
 from invrender.transport.context import PathState, TransportContext
-from invrender.transport.driver import RenderSettings, check_int, cpu_workers, for_each_chunk
+from invrender.transport.driver import RenderSettings, check_film_memory, check_int, cpu_workers, for_each_chunk
 from invrender.transport.film import Film
 
 #: integrator name -> class, filled by subclassing :class:`Integrator`
@@ -116,6 +116,7 @@ class Integrator(ABC):
     def render(self, scene: Scene, settings: RenderSettings, device: torch.device, params: dict | None = None) -> torch.Tensor:
         """The image: (H, W, 3), or (K, H, W, 3) per term with ``settings.terms``; records autograd
         where a parameter requires grad (``params`` overrides ``scene.params`` values)."""
+        check_film_memory(scene.width, scene.height, device, max(self.terms_kept, 1) if settings.terms else 1)
         ctx = self.context(scene, settings, device, params)
         films = [Film(scene.width, scene.height, settings.terms, device) for _ in range(cpu_workers(device))]
         for_each_chunk(scene, settings, device, lambda worker, state: self.trace(ctx, state, films[worker]))
