@@ -291,6 +291,7 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
             }  # fmt: skip
             if truth:
                 record["errors"] = {n: P.relative_error(current[n].float(), truth[n]) for n in names if n in truth}
+            record["correlation"] = {"channels": sol.identifiability.channels, "matrix": sol.identifiability.correlation.tolist()}
             if sol.identifiability.weak:
                 record["undetermined"] = sol.identifiability.describe()
             record["converged"] = rnd >= MIN_ROUNDS - 1 and moved < CONVERGED_MOVE and (

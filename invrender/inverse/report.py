@@ -22,6 +22,9 @@ def report_dict(result: FitResult, **extra) -> dict:
     }
     if result.std_error:
         out["std_error"] = {k: v.tolist() for k, v in result.std_error.items()}
+        for key in ("correlation", "undetermined"):  # least-squares fits: from the last round
+            if key in last:
+                out[key] = last[key]
     if result.truth:
         out["truth"] = {k: v.tolist() for k, v in result.truth.items()}
         out["relative_error"] = result.errors

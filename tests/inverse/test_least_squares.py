@@ -42,6 +42,12 @@ def test_least_squares_fit_recovers_the_cornell_box(problem, solver, tmp_path):
         assert bool(((res.params[n] - truth[n]).abs() < 4 * res.std_error[n]).all()), (n, res.params[n], truth[n], res.std_error[n])
     assert [h["spp"] for h in res.history] == [spp * 4**r for r in range(len(res.history))]
     assert set(res.std_error) == set(NAMES) and all(bool((v > 0).all()) for v in res.std_error.values())
+    corr = res.history[-1]["correlation"]
+    assert corr["channels"][0] == "white.reflectance[R]" and len(corr["matrix"]) == 3 * len(NAMES)
+    assert all(abs(corr["matrix"][i][i] - 1) < 1e-9 for i in range(3 * len(NAMES)))
+    from invrender.inverse.report import report_dict
+
+    assert report_dict(res)["correlation"] == corr
     assert scene.params["light.emission"].tolist() != res.params["light.emission"].tolist()  # the input scene is left unchanged
     # a resumed fit that has all its rounds ends where the fit ended
     again = ir.fit(scene, target, NAMES, truth=truth, solver=solver, max_depth=5, spp=spp, rounds=4, progress=False, checkpoint=tmp_path / "ck.pt", resume=True)
