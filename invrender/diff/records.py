@@ -118,7 +118,8 @@ class _RecordFilm(Film):
         super().__init__(width, height, False, device)
         self.radix, self.record = radix, record  # record: (P, 3) float64 values at the record point
         self.place = [math.prod(radix[:p]) for p in range(len(radix))]
-        self.sums: dict[int, torch.Tensor] = {}  # code -> (W * H * 3,) float64
+        self.rows: dict[int, int] = {}  # monomial code -> its row of ``buffer``
+        self.buffer = torch.zeros(8, width * height * 3, dtype=torch.float64, device=device)
 
     def add(self, term: int, pixel: torch.Tensor, radiance: torch.Tensor) -> None:
         primal, tangent = fwAD.unpack_dual(radiance)
@@ -140,11 +141,22 @@ class _RecordFilm(Film):
             k = (code // place) % radix
             mono = mono * self.record[p][channel] ** k
         w = c / mono
-        for value in torch.unique(code).tolist():
-            sel = code == value
-            if value not in self.sums:
-                self.sums[value] = torch.zeros(self.width * self.height * 3, dtype=torch.float64, device=self.device)
-            self.sums[value].index_add_(0, key[sel], w[sel])
+        # one index_add: each monomial has a row of the coefficient buffer (rows added as codes appear)
+        codes, inverse = torch.unique(code, return_inverse=True)
+        for value in codes.tolist():
+            if value not in self.rows:
+                self.rows[value] = len(self.rows)
+        if len(self.rows) > self.buffer.shape[0]:
+            grown = self.buffer.new_zeros(max(2 * self.buffer.shape[0], len(self.rows)), self.buffer.shape[1])
+            grown[: self.buffer.shape[0]] = self.buffer
+            self.buffer = grown
+        row = torch.tensor([self.rows[v] for v in codes.tolist()], device=key.device)[inverse]
+        self.buffer.view(-1).index_add_(0, row * self.buffer.shape[1] + key, w)
+
+    @property
+    def sums(self) -> dict[int, torch.Tensor]:
+        """code -> (W * H * 3,) float64 sum of the weights of that monomial's contributions."""
+        return {code: self.buffer[r] for code, r in self.rows.items()}
 
 
 def record_paths(

@@ -234,13 +234,13 @@ def fit(
                 bar.set_postfix(loss=f"{record['loss']:.4g}", refresh=False)
                 bar.update(1)
                 if checkpoint is not None and (step + 1) % cfg.checkpoint_every == 0:
-                    _save_checkpoint(checkpoint, scene, names, cfg, raw, optimizer, step + 1, history)
+                    _save_checkpoint(checkpoint, scene, names, cfg, step + 1, history, **_adam_state(raw, optimizer))
     except KeyboardInterrupt:
         if checkpoint is not None:
-            _save_checkpoint(checkpoint, scene, names, cfg, raw, optimizer, len(history), history)
+            _save_checkpoint(checkpoint, scene, names, cfg, len(history), history, **_adam_state(raw, optimizer))
         raise
     if checkpoint is not None:
-        _save_checkpoint(checkpoint, scene, names, cfg, raw, optimizer, len(history), history)
+        _save_checkpoint(checkpoint, scene, names, cfg, len(history), history, **_adam_state(raw, optimizer))
 
     recovered = {n: P.from_raw(n, raw[n]).detach().clone() for n in names}
     out_scene = dataclasses.replace(scene, params={**{k: v.detach().clone() for k, v in scene.params.items()}, **recovered})
@@ -301,7 +301,7 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
             bar.set_postfix(loss=f"{sol.loss:.4g}", lm_steps=sol.steps, moved=f"{moved:.2g} se", refresh=False)
             bar.update(1)
             if checkpoint is not None:
-                _save_rounds(checkpoint, scene, names, cfg, current, history)
+                _save_checkpoint(checkpoint, scene, names, cfg, len(history), history, values=current)
             if record["converged"]:
                 break
     if history and history[-1].get("undetermined"):
@@ -325,12 +325,6 @@ def identifiability(scene: Scene, target, params, *, cameras: list[Camera] | Non
     recs = [[record_paths(view_scene, names, spp=spp, max_depth=max_depth, seed=2 * (seed * len(views) + v) + half, integrator=integrator, progress=False) for v, (view_scene, _) in enumerate(views)] for half in (0, 1)]
     values = {n: scene.params[n].detach().double() for n in names}
     return analyse(recs[0], recs[1], [t for _, t in views], values)
-
-
-def _save_rounds(path: Path, scene, names, cfg, current, history) -> None:
-    state = {"format": CHECKPOINT_FORMAT, "signature": _signature(scene, names), "settings": dataclasses.asdict(cfg), "step": len(history), "values": current, "history": history}
-    with atomic_file(path) as f:
-        torch.save(state, f)
 
 
 def _view_loss(view_scene: Scene, values, target, cfg: FitSettings, step: int, view: int, n_views: int) -> torch.Tensor:
@@ -400,19 +394,17 @@ def _signature(scene: Scene, names: list[str]) -> dict:
     }
 
 
-def _save_checkpoint(path: Path, scene, names, cfg, raw, optimizer, step, history) -> None:
-    """Atomically write the fit state after ``step`` completed steps."""
-    state = {
-        "format": CHECKPOINT_FORMAT,
-        "signature": _signature(scene, names),
-        "settings": dataclasses.asdict(cfg),
-        "step": step,
-        "raw": {n: raw[n].detach().clone() for n in names},
-        "optimizer": optimizer.state_dict(),
-        "history": history,
-    }
+def _save_checkpoint(path: Path, scene, names, cfg, step: int, history: list[dict], **solver_state) -> None:
+    """Atomically write the fit state after ``step`` completed steps (or rounds); ``solver_state``
+    is the solver's own: Adam's ``raw`` leaves and ``optimizer`` state, or the least-squares
+    rounds' current ``values``."""
+    state = {"format": CHECKPOINT_FORMAT, "signature": _signature(scene, names), "settings": dataclasses.asdict(cfg), "step": step, "history": history, **solver_state}
     with atomic_file(path) as f:
         torch.save(state, f)
+
+
+def _adam_state(raw, optimizer) -> dict:
+    return {"raw": {n: v.detach().clone() for n, v in raw.items()}, "optimizer": optimizer.state_dict()}
 
 
 def _restore(state: dict, names, raw, optimizer) -> tuple[int, list[dict]]:

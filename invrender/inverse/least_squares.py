@@ -167,15 +167,28 @@ def solve(
     # exactly, so it stalls a little short of J_B^T r_A = 0: finish with undamped Gauss-Newton steps
     # on that equation (near the solution the problem is almost linear; a few steps suffice).
     for _ in range(REFINE_STEPS):
-        J, _, ra, _ = _jacobian_and_residuals(records_a, records_b, targets, weights, values)
+        J, ra = _jacobian_b_and_residual_a(records_a, records_b, targets, weights, values)
         step = torch.linalg.lstsq(J, -ra[:, None]).solution[:, 0]
         values = {n: _inside(k, values[n] + step[3 * p : 3 * p + 3]) for p, (n, k) in enumerate(zip(names, kinds))}
         if float(step.abs().max()) < 1e-10:
             break
 
     ident = analyse(records_a, records_b, targets, values)
-    ra = torch.cat([((rec.image(values).reshape(-1, 3) - t.double().reshape(-1, 3)) * w).reshape(-1) for rec, t, w in zip(records_a, targets, weights)])
-    return LeastSquaresSolution(values, ident, float((ra**2).mean()), steps)
+    return LeastSquaresSolution(values, ident, ident.loss, steps)
+
+
+def _jacobian_b_and_residual_a(records_a, records_b, targets, weights, values):
+    """Value-space Jacobian (R, 3P) of set B's weighted residual and set A's residual (R,): what a
+    Gauss-Newton step on ``J_B^T r_A = 0`` needs."""
+    names = list(records_a[0].names)
+    J = torch.cat([_value_jacobian(rec_b, values, w, names) for rec_b, w in zip(records_b, weights)])
+    ra = torch.cat([_residual(rec_a, values, t, w) for rec_a, t, w in zip(records_a, targets, weights)])
+    return J, ra
+
+
+def _residual(rec: PathRecords, values: dict, target: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+    """(N * 3,) one view's weighted residual ``(I - T) w``."""
+    return ((rec.image(values).reshape(-1, 3) - target.double().reshape(-1, 3)) * w).reshape(-1)
 
 
 def _jacobian_and_residuals(records_a, records_b, targets, weights, values):
@@ -184,9 +197,8 @@ def _jacobian_and_residuals(records_a, records_b, targets, weights, values):
     names = list(records_a[0].names)
     blocks, blocks_a, ra, rb = [], [], [], []
     for rec_a, rec_b, t, w in zip(records_a, records_b, targets, weights):
-        t = t.double().reshape(-1, 3)
-        ra.append(((rec_a.image(values).reshape(-1, 3) - t) * w).reshape(-1))
-        rb.append(((rec_b.image(values).reshape(-1, 3) - t) * w).reshape(-1))
+        ra.append(_residual(rec_a, values, t, w))
+        rb.append(_residual(rec_b, values, t, w))
         blocks.append(_value_jacobian(rec_b, values, w, names))
         blocks_a.append(_value_jacobian(rec_a, values, w, names))
     return torch.cat(blocks), torch.cat(blocks_a), torch.cat(ra), torch.cat(rb)
@@ -217,12 +229,14 @@ class Identifiability:
         weak: combinations the targets cannot determine: each a dict channel label -> weight (a unit
             vector in relative units, largest weights only), for every direction along which the
             column-scaled ``J^T J`` has an eigenvalue below ``threshold`` times its largest.
+        loss: mean squared weighted residual of record set A at the evaluated values.
     """
 
     std_error: dict
     correlation: torch.Tensor
     channels: list[str]
     weak: list[dict]
+    loss: float
 
     def describe(self) -> str:
         """One line per undetermined combination (empty when everything is determined)."""
@@ -258,4 +272,4 @@ def analyse(records_a: list[PathRecords], records_b: list[PathRecords], targets:
     cov = inv @ ((J.T * s2) @ J + (dJ.T * ra**2) @ dJ) @ inv
     se = cov.diagonal().clamp_min(0).sqrt()
     corr = cov / (se[:, None] * se[None, :]).clamp_min(1e-300)
-    return Identifiability({n: se[3 * p : 3 * p + 3].clone() for p, n in enumerate(names)}, corr, labels, weak)
+    return Identifiability({n: se[3 * p : 3 * p + 3].clone() for p, n in enumerate(names)}, corr, labels, weak, float((ra**2).mean()))

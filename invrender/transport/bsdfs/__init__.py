@@ -48,6 +48,8 @@ class Materials:
         self.slot_of = torch.tensor(slot_of, dtype=torch.int64, device=device)
         self.local_of = torch.tensor(local_of, dtype=torch.int64, device=device)
         self.single = len(self.bsdfs) == 1
+        #: lobe name -> (K,) bool, which BSDF slots have that lobe (for lobe_mask)
+        self._lobe_tables = {lobe: torch.tensor([b.lobe == lobe for b in self.bsdfs], device=device) for lobe in ("diffuse", "glossy", "specular")}
         self.any_delta = any(b.delta for b in self.bsdfs)
         self.all_diffuse = all(b.lobe == "diffuse" for b in self.bsdfs)
 
@@ -72,7 +74,9 @@ class Materials:
     def lobe_mask(self, sp: ShadingPoint, lobes: tuple[str, ...]) -> torch.Tensor:
         """(N,) bool: is each point's BSDF lobe one of ``lobes`` (``"diffuse"``, ``"glossy"``,
         ``"specular"``)?"""
-        table = torch.tensor([b.lobe in lobes for b in self.bsdfs], device=sp.wo.device)
+        table = self._lobe_tables[lobes[0]]
+        for lobe in lobes[1:]:
+            table = table | self._lobe_tables[lobe]
         return table[sp.slot]
 
     def _dispatch(self, sp: ShadingPoint, call):

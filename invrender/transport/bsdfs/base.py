@@ -103,6 +103,7 @@ class BSDF(ABC):
         self.values, self.constants = values, constants
         #: no shading normals in the scene: ``n`` is the geometric normal, ``wo`` always above it
         self.flat = flat
+        self._constant_tables: dict = {}  # (key, device) -> (M,) float32, built on first use
 
     @property
     def delta(self) -> bool:
@@ -118,8 +119,10 @@ class BSDF(ABC):
 
     def constant(self, key: str, sp: ShadingPoint) -> torch.Tensor:
         """Constant ``key`` at each point (N,)."""
-        table = torch.tensor([c[key] for c in self.constants], dtype=torch.float32, device=sp.wo.device)
-        return table[sp.material]
+        token = (key, sp.wo.device)
+        if token not in self._constant_tables:
+            self._constant_tables[token] = torch.tensor([c[key] for c in self.constants], dtype=torch.float32, device=sp.wo.device)
+        return self._constant_tables[token][sp.material]
 
     @abstractmethod
     def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
