@@ -38,5 +38,5 @@ def __getattr__(name):
 __all__ = [
     "load_scene", "render", "fit", "gradcheck", "read_image", "write_image", "FitResult", "Camera", "Material", "integrators",
     "record_paths", "PathRecords", "identifiability",
-    "InvRenderError", "SceneError", "ImageError", "ParameterError",
+    "InvRenderError", "SceneError", "ImageError", "ParameterError", "BaselineError",
 ]  # fmt: skip
