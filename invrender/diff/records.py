@@ -21,6 +21,18 @@ radices of the parameters before p, each radix one more than the parameter's lar
 degree). A monomial's tangent is then ``contribution * sum_p k_p R^(p)``: dividing by the
 contribution gives an integer code that spells out the exponents, digit by digit. No integrator
 knows it is being recorded.
+
+**Textured parameters.** A texture (h, w, 3) enters a vertex through its bilinear filter, a linear
+form ``sum_j b_j x_{t_j}`` of four texels, not as a monomial. Its digit in the code still counts its
+factors (the lookup is linear, so its tangent is its value times the digit's place), and the film is
+told where each path met the textured material (``Film.visit``): a contribution with k factors of the
+texture takes its path's first k textured vertices, which are all of them, or all but the vertex the
+contribution is added at (an emitter seen there carries no reflection factor of it). Expanding the
+product of the k linear forms gives up to 4^k monomials in single texels, each weighted
+``w prod_j b_j``; they are summed per pixel, code and multiset of texels, so a record's size
+saturates as spp grows instead of growing with it. Every texel is a variable of its own (three
+channels), and the record keeps these monomials in a sparse table per degree k (:class:`TexelTerms`),
+within a memory budget.
 """
 
 from __future__ import annotations
@@ -37,24 +49,61 @@ from invrender.scene.scene import Scene
 from invrender.transport.driver import RenderSettings, for_each_chunk
 from invrender.transport.film import Film
 from invrender.transport.integrators import make_integrator
+from invrender.transport.textures import bilinear
 
 #: largest exponent code the float32 trace resolves exactly (its relative rounding stays < 1e-6)
 MAX_CODES = 1 << 16
+#: texel monomials expanded at once (bounds the working memory of the expansion)
+EXPAND_ROWS = 1 << 21
+
+
+
+
+@dataclass(frozen=True)
+class TexelTerms:
+    """The recorded monomials with K texel factors (one table per K >= 1).
+
+    Attributes:
+        pixel: (U,) int64 flat pixel index (row * width + column).
+        term: (U,) int64 row of :attr:`PathRecords.texel_exponents`: the exponents of the constant
+            parameters in the monomial.
+        texels: (U, K) int64 variable rows (:meth:`PathRecords.variables`) of the K texel factors,
+            sorted (a texel met twice appears twice).
+        coefficients: (U, 3) float64 per channel, the sum over a pixel's paths of ``w prod_j b_j``,
+            divided by spp.
+    """
+
+    pixel: torch.Tensor
+    term: torch.Tensor
+    texels: torch.Tensor
+    coefficients: torch.Tensor
+
+    @property
+    def nbytes(self) -> int:
+        return sum(t.numel() * t.element_size() for t in (self.pixel, self.term, self.texels, self.coefficients))
 
 
 @dataclass(frozen=True)
 class PathRecords:
     """A traced estimate as a polynomial in the recorded parameters.
 
+    The parameters' values are *variables*, rows of three channels: a constant parameter is one
+    row, a texture (h, w, 3) is h * w rows (its texels in row-major order); see :meth:`variables`.
+
     Attributes:
-        names: the recorded parameters, each an RGB triple.
-        exponents: (S, P) int64, the exponent of each parameter in each of the S monomials.
+        names: the recorded parameters.
+        exponents: (S, P) int64, the exponent of each parameter in each of the S monomials that
+            have no texel factor (a textured parameter's column is 0 there).
         coefficients: (S, H * W, 3) float64, per monomial the sum over a pixel's paths of their
             fixed weights w, divided by spp.
         resolution: (width, height).
-        record_values: name -> (3,) the values the paths were traced at.
+        record_values: name -> (3,) or (h, w, 3) the values the paths were traced at.
         spp: samples per pixel traced.
         seed: the seed of the traced paths.
+        texel_exponents: (Q, P) int64 the constant parameters' exponents of the monomials with
+            texel factors (textured columns 0), indexed by ``TexelTerms.term``.
+        texel_terms: the monomials with texel factors, one table per degree K (empty without
+            textured parameters).
     """
 
     names: tuple[str, ...]
@@ -64,64 +113,200 @@ class PathRecords:
     record_values: dict
     spp: int
     seed: int
+    texel_exponents: torch.Tensor | None = None
+    texel_terms: tuple[TexelTerms, ...] = ()
 
-    def _values(self, values: dict | None) -> torch.Tensor:
-        """(P, 3) parameter values: ``values`` where given, else the record point's."""
+    @property
+    def textured(self) -> list[bool]:
+        """(P,) is each parameter a texture?"""
+        return [self.record_values[n].ndim == 3 for n in self.names]
+
+    @property
+    def offsets(self) -> list[int]:
+        """The first variable row of each parameter (P + 1 entries: the last is the row count)."""
+        out = [0]
+        for n in self.names:
+            out.append(out[-1] + self.record_values[n].numel() // 3)
+        return out
+
+    def variables(self, values: dict | None = None) -> torch.Tensor:
+        """(N_var, 3) float64 every parameter's value as variable rows: ``values`` where given
+        (name -> RGB, a scalar, or for a texture (h, w, 3)), else the record point's."""
         values = values or {}
         unknown = sorted(set(values) - set(self.names))
         if unknown:
             raise ParameterError(f"{unknown[0]!r} was not recorded (recorded: {', '.join(self.names)})")
         rows = []
         for n in self.names:
+            shape = self.record_values[n].shape
             v = torch.as_tensor(values[n] if n in values else self.record_values[n], dtype=torch.float64, device=self.coefficients.device)
-            rows.append(v.expand(3) if v.ndim == 0 else v)
-        return torch.stack(rows)
+            if len(shape) == 3:
+                if v.shape != shape:
+                    raise ParameterError(f"{n} was recorded as a {shape[0]}x{shape[1]} texture; got a value of shape {tuple(v.shape)}")
+                rows.append(v.reshape(-1, 3))
+            else:
+                rows.append((v.expand(3) if v.ndim == 0 else v)[None, :])
+        return torch.cat(rows)
+
+    def _per_parameter(self, V: torch.Tensor) -> torch.Tensor:
+        """(P, 3) each constant parameter's row of ``V``; 1 for textures (their factors are the
+        texel terms')."""
+        offsets = self.offsets
+        return torch.stack([torch.ones(3, dtype=V.dtype, device=V.device) if tex else V[offsets[p]] for p, tex in enumerate(self.textured)])
 
     def monomials(self, values: dict | None = None) -> torch.Tensor:
-        """(S, 3) each monomial ``prod_p v_{p,c}^k_p`` at ``values`` (differentiable)."""
-        V = self._values(values)  # (P, 3)
-        E = self.exponents.to(V.device, torch.float64)  # (S, P)
-        return torch.prod(V[None, :, :] ** E[:, :, None], dim=1)
+        """(S, 3) each texel-free monomial ``prod_p v_{p,c}^k_p`` at ``values`` (differentiable)."""
+        return _power_products(self._per_parameter(self.variables(values)), self.exponents)
 
     def image(self, values: dict | None = None) -> torch.Tensor:
-        """The image (H, W, 3) float64 at parameter ``values`` (name -> RGB; missing names keep
+        """The image (H, W, 3) float64 at parameter ``values`` (name -> value; missing names keep
         their record-point values), differentiable in them; no tracing."""
-        flat = torch.einsum("sc,snc->nc", self.monomials(values), self.coefficients)
+        V = self.variables(values)
+        Vp = self._per_parameter(V)
+        flat = torch.einsum("sc,snc->nc", _power_products(Vp, self.exponents), self.coefficients)
+        if self.texel_terms:
+            M = _power_products(Vp, self.texel_exponents)  # (Q, 3)
+            for g in self.texel_terms:
+                flat = flat.index_add(0, g.pixel, g.coefficients * M[g.term] * V[g.texels].prod(1))
         return flat.reshape(self.resolution[1], self.resolution[0], 3)
 
     def jacobian(self, values: dict | None = None) -> dict[str, torch.Tensor]:
-        """Exact derivatives of :meth:`image`: name -> (H, W, 3), the derivative of each pixel's
-        channel c with respect to the parameter's channel c (channels are independent: the
-        derivative across channels is zero)."""
-        V = self._values(values)  # (P, 3)
-        E = self.exponents.to(V.device, torch.float64)  # (S, P)
-        powers = V[None, :, :] ** E[:, :, None]  # (S, P, 3)
+        """Exact derivatives of :meth:`image`: name -> (H, W, 3) for a constant, the derivative of
+        each pixel's channel c with respect to the parameter's channel c, or (H, W, h, w, 3) for a
+        texture, with respect to each texel's channel c (channels are independent: derivatives
+        across channels are zero)."""
+        V = self.variables(values)
+        Vp = self._per_parameter(V)
+        W, H = self.resolution
+        offsets = self.offsets
+        M = _power_products(Vp, self.texel_exponents) if self.texel_terms else None
         out = {}
         for p, name in enumerate(self.names):
-            k = E[:, p : p + 1]
-            # d/dv_p of v_p^k = k v_p^(k - 1) (zero for k = 0, also where v_p = 0), times the other factors
-            d = torch.where(k > 0, k * V[p][None, :] ** (k - 1).clamp_min(0), 0.0)
-            others = torch.prod(torch.cat([powers[:, :p], powers[:, p + 1 :]], dim=1), dim=1)
-            out[name] = torch.einsum("sc,snc->nc", d * others, self.coefficients).reshape(self.resolution[1], self.resolution[0], 3)
+            if self.textured[p]:
+                h, w = self.record_values[name].shape[:2]
+                T = h * w
+                if H * W * T * 24 > 2**31:
+                    raise ParameterError(f"the Jacobian of {H}x{W} pixels by the {h}x{w} texels of {name} needs {H * W * T * 24 / 2**30:.1f} GiB; use fewer pixels or texels")
+                J = torch.zeros(H * W * T, 3, dtype=torch.float64, device=V.device)
+                for g in self.texel_terms:
+                    F = V[g.texels]  # (U, K, 3)
+                    m = g.coefficients * M[g.term]
+                    for k in range(F.shape[1]):
+                        t = g.texels[:, k] - offsets[p]
+                        on = ((t >= 0) & (t < T)).nonzero()[:, 0]
+                        others = F[on, :k].prod(1) * F[on, k + 1 :].prod(1)
+                        J.index_add_(0, g.pixel[on] * T + t[on], m[on] * others)
+                out[name] = J.reshape(H, W, h, w, 3)
+                continue
+            flat = torch.einsum("sc,snc->nc", _power_derivative(Vp, self.exponents, p), self.coefficients)
+            for g in self.texel_terms:
+                flat = flat.index_add(0, g.pixel, g.coefficients * _power_derivative(Vp, self.texel_exponents, p)[g.term] * V[g.texels].prod(1))
+            out[name] = flat.reshape(H, W, 3)
         return out
 
     @property
     def nbytes(self) -> int:
-        return self.coefficients.numel() * self.coefficients.element_size()
+        return self.coefficients.numel() * self.coefficients.element_size() + sum(g.nbytes for g in self.texel_terms)
+
+
+def _power_products(V: torch.Tensor, E: torch.Tensor) -> torch.Tensor:
+    """(S, 3) ``prod_p V[p]^E[s, p]`` for values ``V`` (P, 3) and exponents ``E`` (S, P)."""
+    E = E.to(V.device, torch.float64)
+    return torch.prod(V[None, :, :] ** E[:, :, None], dim=1)
+
+
+def _power_derivative(V: torch.Tensor, E: torch.Tensor, p: int) -> torch.Tensor:
+    """(S, 3) the derivative of :func:`_power_products` with respect to ``V[p]`` (per channel)."""
+    E = E.to(V.device, torch.float64)
+    powers = V[None, :, :] ** E[:, :, None]  # (S, P, 3)
+    k = E[:, p : p + 1]
+    # d/dv of v^k = k v^(k - 1) (zero for k = 0, also where v = 0), times the other factors
+    d = torch.where(k > 0, k * V[p][None, :] ** (k - 1).clamp_min(0), 0.0)
+    return d * torch.prod(torch.cat([powers[:, :p], powers[:, p + 1 :]], dim=1), dim=1)
+
+
+@dataclass(frozen=True)
+class _TextureSlot:
+    """A recorded textured parameter: its digit ``p`` of the code, the scene material it belongs to,
+    its texture size and its first variable row."""
+
+    p: int
+    name: str
+    material: int
+    h: int
+    w: int
+    offset: int
+
+
+class _History:
+    """Per path (film index), the vertices where it met one textured material, in order: their
+    texels' variable rows (n, D, 4), filter weights (n, D, 4), the path's vertex count at each
+    (n, D), and how many there are (n,)."""
+
+    def __init__(self, n: int, depth: int, device):
+        self.rows = torch.zeros(n, depth, 4, dtype=torch.int64, device=device)
+        self.weights = torch.zeros(n, depth, 4, dtype=torch.float64, device=device)
+        self.vertex = torch.full((n, depth), -1, dtype=torch.int64, device=device)
+        self.count = torch.zeros(n, dtype=torch.int64, device=device)
+
+    def extend(self, parents: torch.Tensor) -> None:
+        """Append copies of the paths ``parents`` (branches inherit their parent's history)."""
+        for f in ("rows", "weights", "vertex", "count"):
+            t = getattr(self, f)
+            setattr(self, f, torch.cat([t, t[parents]]))
 
 
 class _RecordFilm(Film):
     """A film that decodes each contribution's monomial from its forward-mode tangent and adds its
-    fixed weight to that monomial's coefficient image."""
+    fixed weight to that monomial's coefficient image; contributions with texel factors are
+    expanded into texel monomials and summed into sparse tables (:class:`TexelTerms`).
 
-    def __init__(self, width: int, height: int, device, radix: list[int], record: torch.Tensor):
+    Film indices are paths (one per path of the current chunk, :meth:`begin`; branches get new
+    ones), so the film can follow each path's textured vertices."""
+
+    def __init__(self, width: int, height: int, device, radix: list[int], record: torch.Tensor, slots: list[_TextureSlot], material_of: torch.Tensor, depth: int, budget: float):
         super().__init__(width, height, False, device)
-        self.radix, self.record = radix, record  # record: (P, 3) float64 values at the record point
+        self.radix, self.record = radix, record  # record: (N_var, 3) float64 variables at the record point
         self.place = [math.prod(radix[:p]) for p in range(len(radix))]
+        self.slots, self.material_of, self.depth, self.budget = slots, material_of, depth, budget
+        self.textured = {s.p for s in slots}
+        self.first_row = [int(r) for r in _first_rows(record, slots, len(radix))]
+        self.bound = max(width * height, math.prod(radix), record.shape[0])  # of every key entry
         self.rows: dict[int, int] = {}  # monomial code -> its row of ``buffer``
         self.buffer = torch.zeros(8, width * height * 3, dtype=torch.float64, device=device)
+        self.tables: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}  # K -> (keys (U, 2 + K), coefficients (U, 3))
+        self.pending: dict[int, list[tuple[torch.Tensor, torch.Tensor]]] = {}
 
-    def add(self, term: int, pixel: torch.Tensor, radiance: torch.Tensor) -> None:
+    def begin(self, pixel: torch.Tensor) -> torch.Tensor:
+        """Start a chunk whose paths write to ``pixel`` (N,); returns their film indices."""
+        self.pixel_of = pixel
+        n = pixel.shape[0]
+        self.visits = torch.zeros(n, dtype=torch.int64, device=pixel.device)
+        self.history = [_History(n, self.depth, pixel.device) for _ in self.slots]
+        return torch.arange(n, device=pixel.device)
+
+    def branch(self, path: torch.Tensor) -> torch.Tensor:
+        new = torch.arange(self.pixel_of.shape[0], self.pixel_of.shape[0] + path.numel(), device=path.device)
+        self.pixel_of = torch.cat([self.pixel_of, self.pixel_of[path]])
+        self.visits = torch.cat([self.visits, self.visits[path]])
+        for hist in self.history:
+            hist.extend(path)
+        return new
+
+    def visit(self, path: torch.Tensor, s) -> None:
+        for slot, hist in zip(self.slots, self.history):
+            on = (self.material_of[s.tri] == slot.material).nonzero()[:, 0]
+            if on.numel():
+                at = path[on]
+                rows, weights = bilinear(slot.h, slot.w, s.uv[on])
+                k = hist.count[at]
+                hist.rows[at, k] = rows + slot.offset
+                hist.weights[at, k] = weights.double()
+                hist.vertex[at, k] = self.visits[at]
+                hist.count[at] += 1
+        self.visits[path] += 1
+
+    def add(self, term: int, path: torch.Tensor, radiance: torch.Tensor) -> None:
         primal, tangent = fwAD.unpack_dual(radiance)
         c = primal.detach().double()
         if tangent is None:
@@ -131,16 +316,30 @@ class _RecordFilm(Film):
         live = c != 0
         if bool(((ratio - code).abs() > 0.25)[live].any()):
             raise ParameterError("a contribution is not a monomial in the recorded parameters (a recorded parameter enters non-linearly)")
-        code = code.long()
-        key = (pixel[:, None] * 3 + torch.arange(3, device=pixel.device))[live]
-        code, c = code[live], c[live]
-        channel = key % 3
-        # the monomial's value at the record point, to turn the contribution into its weight w
+        channel = torch.arange(3, device=path.device).expand_as(live)[live]
+        path = path[:, None].expand_as(live)[live]
+        code, c = code.long()[live], c[live]
+        # the constant parameters' monomial at the record point, to turn the contribution into its weight w
+        digits = [(code // place) % radix for place, radix in zip(self.place, self.radix)]
         mono = torch.ones_like(c)
-        for p, (place, radix) in enumerate(zip(self.place, self.radix)):
-            k = (code // place) % radix
-            mono = mono * self.record[p][channel] ** k
+        for p, k in enumerate(digits):
+            if p not in self.textured:
+                mono = mono * self.record[self.first_row[p], channel] ** k
         w = c / mono
+        if not self.slots:
+            self._add_dense(code, self.pixel_of[path] * 3 + channel, w)
+            return
+        degree = sum(digits[s.p] for s in self.slots)
+        plain = degree == 0
+        self._add_dense(code[plain], (self.pixel_of[path] * 3 + channel)[plain], w[plain])
+        textured = (~plain).nonzero()[:, 0]
+        if textured.numel():
+            self._add_textured(path[textured], channel[textured], code[textured], w[textured], torch.stack([digits[s.p][textured] for s in self.slots], dim=1))
+
+    def _add_dense(self, code: torch.Tensor, key: torch.Tensor, w: torch.Tensor) -> None:
+        """Add weights ``w`` (L,) to monomial ``code`` (L,) at film entries ``key`` (L,) (pixel * 3 + channel)."""
+        if not code.numel():
+            return
         # one index_add: each monomial has a row of the coefficient buffer (rows added as codes appear)
         codes, inverse = torch.unique(code, return_inverse=True)
         for value in codes.tolist():
@@ -153,10 +352,96 @@ class _RecordFilm(Film):
         row = torch.tensor([self.rows[v] for v in codes.tolist()], device=key.device)[inverse]
         self.buffer.view(-1).index_add_(0, row * self.buffer.shape[1] + key, w)
 
+    def _add_textured(self, path, channel, code, w, counts) -> None:
+        """Contributions with texel factors: ``counts`` (L, slots) how many factors of each texture.
+        Each takes its path's first ``count`` vertices on that texture's material."""
+        for slot, hist, k in zip(self.slots, self.history, counts.T):
+            n = hist.count[path]
+            last = hist.vertex[path, (n - 1).clamp_min(0)]
+            ok = (k == n) | ((k == n - 1) & (last == self.visits[path] - 1))
+            if not bool(ok.all()):
+                raise ParameterError(f"{slot.name} enters a contribution through a vertex the path records did not see (an integrator that evaluates a texture away from its path's vertices); record it as a constant or fit it with adam")
+        combined = torch.zeros_like(counts[:, 0])
+        for j in range(counts.shape[1]):
+            combined = combined * (self.depth + 1) + counts[:, j]  # each count <= depth
+        values, inverse = torch.unique(combined, return_inverse=True)
+        for g, value in enumerate(values.tolist()):
+            ks = [(value // (self.depth + 1) ** (counts.shape[1] - 1 - j)) % (self.depth + 1) for j in range(counts.shape[1])]
+            i = (inverse == g).nonzero()[:, 0]
+            rows = torch.cat([hist.rows[path[i], :k] for hist, k in zip(self.history, ks)], dim=1)  # (G, K, 4)
+            weights = torch.cat([hist.weights[path[i], :k] for hist, k in zip(self.history, ks)], dim=1)
+            # divide out the texel factors' values at the record point: w becomes the fixed weight
+            factor = (weights * self.record[rows, channel[i][:, None, None]]).sum(-1)  # (G, K)
+            self._expand(self.pixel_of[path[i]], code[i], channel[i], rows, weights, w[i] / factor.prod(1))
+
+    def _expand(self, pixel, code, channel, rows, weights, w) -> None:
+        """Multiply out the K linear forms of each contribution: 4^K texel monomials, each weighted
+        by its filter weights' product; summed per (pixel, code, sorted texels)."""
+        K = rows.shape[1]
+        corners = torch.cartesian_prod(*[torch.arange(4, device=rows.device)] * K).reshape(-1, K)  # (4^K, K)
+        factor = torch.arange(K, device=rows.device)
+        batch = max(1, EXPAND_ROWS // corners.shape[0])
+        for a in range(0, rows.shape[0], batch):
+            r, b, ww = rows[a : a + batch], weights[a : a + batch], w[a : a + batch]
+            texels = r[:, factor, corners].sort(dim=-1).values  # (G, 4^K, K)
+            value = ww[:, None] * b[:, factor, corners].prod(-1)  # (G, 4^K)
+            keep = value != 0
+            G = r.shape[0]
+            head = torch.stack([pixel[a : a + batch], code[a : a + batch]], dim=1)[:, None, :].expand(G, corners.shape[0], 2)
+            keys = torch.cat([head, texels], dim=-1)[keep]
+            ch = channel[a : a + batch, None].expand(G, corners.shape[0])[keep]
+            coef = torch.zeros(keys.shape[0], 3, dtype=torch.float64, device=keys.device)
+            coef[torch.arange(keys.shape[0], device=keys.device), ch] = value[keep]
+            self.pending.setdefault(K, []).append(_sum_rows(keys, coef, self.bound))
+            if sum(k.shape[0] for k, _ in self.pending[K]) > max(1 << 20, self.tables.get(K, (torch.empty(0),))[0].shape[0]):
+                self._merge(K)
+
+    def _merge(self, K: int) -> None:
+        parts = ([self.tables[K]] if K in self.tables else []) + self.pending.pop(K, [])
+        if parts:
+            self.tables[K] = _sum_rows(torch.cat([k for k, _ in parts]), torch.cat([c for _, c in parts]), self.bound)
+        nbytes = self.buffer[: len(self.rows)].numel() * 8 + sum(k.numel() * 8 + c.numel() * 8 for k, c in self.tables.values())
+        if nbytes > self.budget:
+            names = ", ".join(s.name for s in self.slots)
+            raise ParameterError(f"the path record of {names} outgrew max_record_mb={self.budget / 2**20:g} ({nbytes / 2**20:.0f} MiB so far); lower spp, max_depth or the texture's resolution, or raise max_record_mb")
+
+    def texel_tables(self) -> dict[int, tuple[torch.Tensor, torch.Tensor]]:
+        """K -> (keys (U, 2 + K): pixel, code, texel rows; coefficients (U, 3) sums of weights)."""
+        for K in list(self.pending):
+            self._merge(K)
+        return self.tables
+
     @property
     def sums(self) -> dict[int, torch.Tensor]:
         """code -> (W * H * 3,) float64 sum of the weights of that monomial's contributions."""
         return {code: self.buffer[r] for code, r in self.rows.items()}
+
+
+def _first_rows(record: torch.Tensor, slots: list[_TextureSlot], count: int) -> list[int]:
+    """Each parameter's first variable row (constants are one row each; textures many)."""
+    sizes = {s.p: s.h * s.w for s in slots}
+    rows, at = [], 0
+    for p in range(count):
+        rows.append(at)
+        at += sizes.get(p, 1)
+    return rows
+
+
+def _sum_rows(keys: torch.Tensor, coef: torch.Tensor, bound: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Rows of ``coef`` (M, 3) with equal ``keys`` (M, J) summed: (unique keys (U, J), sums (U, 3)).
+    Every key entry is < ``bound``; when ``bound^J`` fits in 62 bits the rows are compared as one
+    integer each (a 1-D sort: an order of magnitude faster than comparing rows)."""
+    J = keys.shape[1]
+    if J * math.log2(max(bound, 2)) < 62:
+        flat = torch.zeros(keys.shape[0], dtype=torch.int64, device=keys.device)
+        for j in range(J):
+            flat = flat * bound + keys[:, j]
+        _, inverse = torch.unique(flat, return_inverse=True)
+        unique = keys.new_empty(int(inverse.max()) + 1 if inverse.numel() else 0, J)
+        unique[inverse] = keys  # duplicates write equal rows
+    else:
+        unique, inverse = torch.unique(keys, dim=0, return_inverse=True)
+    return unique, coef.new_zeros(unique.shape[0], 3).index_add_(0, inverse, coef)
 
 
 def record_paths(
@@ -177,12 +462,14 @@ def record_paths(
 
     Args:
         scene: its parameter values are the record point (every recorded value must be > 0 in
-            every channel: a path's weight is recovered by dividing by its monomial there).
-        params: names of constant (RGB, not textured) parameters to record, list or comma-separated.
+            every channel and texel: a path's weight is recovered by dividing by its monomial there).
+        params: names of parameters to record (list or comma-separated): constants (RGB) and
+            textured reflectances (per texel); textured emission is not supported.
         spp, max_depth, seed: as :func:`invrender.render` (``max_depth`` finite: it bounds the
             degree of the polynomial).
         integrator: any integrator name; ``options`` are its further settings (e.g. ``rr_depth``).
-        max_record_mb: refuse records whose coefficient images would exceed this.
+        max_record_mb: refuse records that would exceed this (one-line error naming the
+            parameters; with textures it is checked while tracing).
     Returns:
         :class:`PathRecords`; ``records.image()`` equals ``render(scene, ...)`` for the same seed
         up to float rounding.
@@ -192,12 +479,17 @@ def record_paths(
     names = check_names(scene.params, params)
     if isinstance(max_depth, bool) or not isinstance(max_depth, int) or max_depth < 1:
         raise ParameterError(f"record_paths needs a finite max_depth >= 1 (it bounds the polynomial's degree), got {max_depth!r}")
-    for n in names:
+    slots, offset = [], 0
+    for p, n in enumerate(names):
         v = scene.params[n]
-        if v.ndim != 1:
-            raise ParameterError(f"{n} is a texture: path records of textured parameters are not supported yet (record constant parameters)")
+        if v.ndim == 3:
+            owner = n.rpartition(".")[0]
+            if kind_of(n).key == "emission" or owner not in scene.materials:
+                raise ParameterError(f"{n} is a textured emission: path records follow textures of materials only (record a constant emission, or fit it with adam)")
+            slots.append(_TextureSlot(p, n, scene.materials.index(owner), v.shape[0], v.shape[1], offset))
+        offset += v.numel() // 3
         if not bool((v.detach() > 0).all()):
-            raise ParameterError(f"{n} must be > 0 in every channel at the record point, got {v.detach().tolist()}")
+            raise ParameterError(f"{n} must be > 0 in every channel at the record point, got {v.detach().tolist() if v.ndim == 1 else 'a texture with a texel <= 0'}")
     # radix: one more than the largest degree (emission: one emitter or ambient term per contribution)
     radix = [2 if kind_of(n).key == "emission" else max_depth for n in names]
     if math.prod(radix) > MAX_CODES:
@@ -208,8 +500,9 @@ def record_paths(
     model = make_integrator(integrator, max_depth=max_depth, **options)
     settings = RenderSettings(spp=spp, seed=seed, memory_mb=memory_mb, progress=progress)
     device = torch.device(device) if device is not None else scene.device
-    record = torch.stack([scene.params[n].detach().to(device, torch.float64) for n in names])
+    record = torch.cat([scene.params[n].detach().to(device, torch.float64).reshape(-1, 3) for n in names])  # (N_var, 3)
     place = [math.prod(radix[:p]) for p in range(len(radix))]
+    material_of = scene.triangles.material.to(device)
     films: dict[int, _RecordFilm] = {}
 
     with fwAD.dual_level(), torch.no_grad():
@@ -218,8 +511,9 @@ def record_paths(
 
         def work(worker: int, state) -> None:
             if worker not in films:
-                films[worker] = _RecordFilm(w, h, device, radix, record)
-            model.trace(ctx, state, films[worker])
+                films[worker] = _RecordFilm(w, h, device, radix, record, slots, material_of, max_depth + 1, max_record_mb * 2**20)
+            film = films[worker]
+            model.trace(ctx, state.replace(pixel=film.begin(state.pixel)), film)
 
         for_each_chunk(scene, settings, device, work, grad=False)
 
@@ -230,6 +524,28 @@ def record_paths(
     codes = sorted(sums)
     if len(codes) * 8 * w * h * 3 > max_record_mb * 2**20:
         raise ParameterError(f"the record holds {len(codes)} monomials, {len(codes) * 8 * w * h * 3 / 2**20:.0f} MiB, over max_record_mb={max_record_mb:g}")
-    exponents = torch.tensor([[(c // pl) % r for pl, r in zip(place, radix)] for c in codes], dtype=torch.int64).reshape(len(codes), len(names))
+
+    def exponents_of(code_list) -> torch.Tensor:
+        return torch.tensor([[(c // pl) % r for pl, r in zip(place, radix)] for c in code_list], dtype=torch.int64).reshape(len(code_list), len(names))
+
+    exponents = exponents_of(codes)
     coefficients = (torch.stack([sums[c] for c in codes]) if codes else torch.zeros(0, w * h * 3, dtype=torch.float64)).reshape(len(codes), w * h, 3) / spp
-    return PathRecords(tuple(names), exponents, coefficients, (w, h), {n: record[p].clone() for p, n in enumerate(names)}, spp, seed)
+    texel_exponents, texel_terms = None, ()
+    if slots:
+        tables: dict[int, list] = {}
+        for film in films.values():
+            for K, part in film.texel_tables().items():
+                tables.setdefault(K, []).append(part)
+        bound = films[next(iter(films))].bound
+        merged = {K: _sum_rows(torch.cat([k for k, _ in parts]), torch.cat([c for _, c in parts]), bound) for K, parts in sorted(tables.items())}
+        all_codes = torch.cat([keys[:, 1] for keys, _ in merged.values()]) if merged else torch.zeros(0, dtype=torch.int64)
+        term_codes, term = torch.unique(all_codes, return_inverse=True)
+        texel_exponents = exponents_of(term_codes.tolist())
+        texel_exponents[:, [s.p for s in slots]] = 0
+        groups, at = [], 0
+        for K, (keys, coef) in merged.items():
+            groups.append(TexelTerms(keys[:, 0].clone(), term[at : at + keys.shape[0]].to(device), keys[:, 2:].clone(), coef / spp))
+            at += keys.shape[0]
+        texel_terms = tuple(groups)
+    record_values = {n: scene.params[n].detach().to(device, torch.float64).clone() for n in names}
+    return PathRecords(tuple(names), exponents, coefficients, (w, h), record_values, spp, seed, texel_exponents, texel_terms)

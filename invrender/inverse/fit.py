@@ -252,9 +252,6 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
     from invrender.diff.records import record_paths
     from invrender.inverse.least_squares import solve
 
-    for n in names:
-        if scene.params[n].ndim != 1:
-            raise ParameterError(f"solver {cfg.solver!r} fits constant parameters only; {n} is a texture")
     initial = {n: scene.params[n].detach().clone() for n in names}
     current = {n: scene.params[n].detach().double().clamp(1e-4, None) for n in names}
     history: list[dict] = []

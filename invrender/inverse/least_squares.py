@@ -3,8 +3,10 @@
 The recorded images are explicit polynomials in the parameters (:mod:`invrender.diff.records`), so
 the weighted residual ``r(theta) = (I(theta) - T) / sqrt(T^2 + 0.01)`` over all views (the
 ``relative_l2`` weighting of ``fit``) and its exact Jacobian cost milliseconds and no tracing. The
-polynomial is evaluated natively in JAX (in float64, which this module switches JAX to), so
-optimistix differentiates and jit-compiles it.
+polynomial and its Jacobian are evaluated by torch (:meth:`PathRecords.image` and
+:meth:`PathRecords.jacobian`, which uses the polynomial's structure: one pass over the sparse
+texel tables instead of one per variable); optimistix drives the solve in JAX (float64, which this
+module switches JAX to) and reads them through ``jax.pure_callback``, zero-copy on the CPU.
 
 **Decorrelation.** A least-squares solution on one fixed sample set is biased: the noise of the
 residual and of its Jacobian are the same noise, and the normal equations ``J^T r = 0`` average
@@ -25,6 +27,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from invrender.diff.records import PathRecords
@@ -48,7 +51,7 @@ class LeastSquaresSolution:
     """One inner solve.
 
     Attributes:
-        values: name -> (3,) float64 recovered values.
+        values: name -> float64 recovered values, shaped as recorded ((3,) or (h, w, 3)).
         identifiability: standard errors, correlations and undetermined combinations there.
         loss: mean squared weighted residual of set A at the solution.
         steps: the solver's inner steps.
@@ -78,43 +81,113 @@ def _jax():
     return jax, jnp, optx
 
 
+@dataclass(frozen=True)
+class _Layout:
+    """How the recorded parameters map to the solver's variable rows (a constant is one row of
+    three channels, a texture h * w rows), from the first record."""
+
+    names: list[str]
+    shapes: list[tuple[int, ...]]
+    offsets: list[int]
+
+    @staticmethod
+    def of(records: PathRecords) -> "_Layout":
+        return _Layout(list(records.names), [tuple(records.record_values[n].shape) for n in records.names], records.offsets)
+
+    def flatten(self, values: dict) -> torch.Tensor:
+        """(N_var, 3) float64 rows of ``values``."""
+        return torch.cat([values[n].double().reshape(-1, 3) for n in self.names])
+
+    def unflatten(self, rows: torch.Tensor) -> dict:
+        """name -> value shaped as recorded, from rows (N_var, 3)."""
+        return {n: rows[a:b].reshape(shape).clone() for n, shape, a, b in zip(self.names, self.shapes, self.offsets, self.offsets[1:])}
+
+    def _rows(self):
+        return zip(self.names, self.offsets, self.offsets[1:])
+
+    def to_raw(self, values: dict) -> torch.Tensor:
+        """(N_var, 3) unconstrained rows of ``values`` (the kinds' reparametrizations)."""
+        return torch.cat([kind_of(n).to_raw(values[n].double()).reshape(-1, 3) for n in self.names])
+
+    def from_raw(self, x: torch.Tensor) -> torch.Tensor:
+        """(N_var, 3) values of unconstrained rows ``x``, each kept strictly inside its range."""
+        return torch.cat([_inside(kind_of(n), kind_of(n).from_raw(x[a:b])) for n, a, b in self._rows()])
+
+    def inside(self, rows: torch.Tensor) -> torch.Tensor:
+        """Value rows (N_var, 3) kept strictly inside their kinds' ranges."""
+        return torch.cat([_inside(kind_of(n), rows[a:b]) for n, a, b in self._rows()])
+
+    def labels(self) -> list[str]:
+        """One label per variable channel: ``"red.reflectance[G]"``, ``"floor.reflectance[2,3][G]"``."""
+        out = []
+        for n, shape in zip(self.names, self.shapes):
+            texels = [""] if len(shape) == 1 else [f"[{i},{j}]" for i in range(shape[0]) for j in range(shape[1])]
+            out += [f"{n}{t}[{c}]" for t in texels for c in "RGB"]
+        return out
+
+
+@dataclass(frozen=True)
+class _Problem:
+    """One least-squares problem, evaluated by torch for the solver: set A's weighted residual and
+    set B's Jacobian in the unconstrained variables (the chain rule through the reparametrization
+    is applied here)."""
+
+    layout: _Layout
+    records_a: list
+    records_b: list
+    targets: list
+    weights: list
+
+    def residual(self, x) -> np.ndarray:
+        """(R,) set A's weighted residual at unconstrained ``x`` (N_var, 3)."""
+        values = self.layout.unflatten(self.layout.from_raw(torch.from_numpy(x)))
+        return torch.cat([_residual(r, values, t, w) for r, t, w in zip(self.records_a, self.targets, self.weights)]).numpy()
+
+    def jacobian(self, x) -> np.ndarray:
+        """(R, 3 N_var) set B's Jacobian with respect to ``x`` (variable-major, channel-minor)."""
+        raw = torch.from_numpy(x).requires_grad_(True)
+        with torch.enable_grad():
+            rows = torch.cat([kind_of(n).from_raw(raw[a:b]) for n, a, b in self.layout._rows()])
+            (dv_dx,) = torch.autograd.grad(rows.sum(), raw)  # elementwise reparametrizations
+        values = self.layout.unflatten(self.layout.inside(rows.detach()))
+        J = torch.cat([_value_jacobian(r, values, w) for r, w in zip(self.records_b, self.weights)])
+        return (J * dv_dx.reshape(1, -1)).numpy()
+
+
+#: problems being solved, by handle: the jitted residual reads them through ``jax.pure_callback``
+_PROBLEMS: dict[int, _Problem] = {}
 _RESIDUAL = None
 
 
 def _decorrelated_residual():
-    """The weighted residual ``fn(x, args)`` optimistix solves, built once per process (so its jit
-    cache lives across calls): values of record set A, tangent map (Jacobian) of set B, through a
-    ``jax.custom_jvp``. ``x`` (P, 3) unconstrained; ``args["exp"]`` (P,) 1 where a parameter is
-    exp-reparametrized (emission), else sigmoid."""
+    """The weighted residual ``fn(x, args)`` optimistix solves, built once per process (its jit
+    cache is reused by every solve of the same size): values of record set A, tangent map
+    (Jacobian) of set B, through a ``jax.custom_jvp`` whose primal and Jacobian are computed by
+    torch (``jax.pure_callback``). ``args["handle"]`` names the problem in ``_PROBLEMS``;
+    ``args["r"]`` is a zero array shaped like the residual."""
     global _RESIDUAL
     if _RESIDUAL is not None:
         return _RESIDUAL
     jax, jnp, _ = _jax()
 
-    def residual_of(x, args, which):
-        V = jnp.where(args["exp"][:, None] > 0, jnp.exp(x), jax.nn.sigmoid(x))
-        parts = []
-        for (E, C), t, w in zip(args[which], args["T"], args["W"]):
-            mono = jnp.prod(V[None, :, :] ** E[:, :, None], axis=1)  # (S, 3)
-            parts.append(((jnp.einsum("sc,snc->nc", mono, C) - t) * w).reshape(-1))
-        return jnp.concatenate(parts)
+    def call(method, shape, x, handle):
+        def host(x, handle):
+            return getattr(_PROBLEMS[int(handle)], method)(np.array(x, dtype=np.float64))
+
+        return jax.pure_callback(host, jax.ShapeDtypeStruct(shape, jnp.float64), x, handle, vmap_method="sequential")
 
     @jax.custom_jvp
     def residual(x, args):
-        return residual_of(x, args, "a")
+        return call("residual", args["r"].shape, x, args["handle"])
 
     @residual.defjvp
     def _residual_jvp(primals, tangents):
         (x, args), (dx, _) = primals, tangents
-        return residual_of(x, args, "a"), jax.jvp(lambda y: residual_of(y, args, "b"), (x,), (dx,))[1]  # A's values, B's Jacobian
+        J = call("jacobian", (args["r"].shape[0], x.size), x, args["handle"])  # depends on x only: once per linearization
+        return residual(x, args), J @ dx.reshape(-1)
 
     _RESIDUAL = residual
     return residual
-
-
-def _to_jax(t: torch.Tensor):
-    jax, jnp, _ = _jax()
-    return jnp.asarray(t.detach().to("cpu", torch.float64).contiguous().numpy())
 
 
 def solve(
@@ -130,58 +203,44 @@ def solve(
     """Fit the recorded parameters to ``targets`` (one per view) by Levenberg-Marquardt (``"lm"``)
     or Gauss-Newton, residual from ``records_a``, Jacobian from ``records_b`` (independent seeds).
 
-    ``start``: name -> (3,) starting values (inside each kind's range)."""
+    ``start``: name -> starting value shaped as recorded ((3,), or (h, w, 3) for a texture),
+    inside each kind's range."""
     jax, jnp, optx = _jax()
-    names = list(records_a[0].names)
-    kinds = [kind_of(n) for n in names]
+    layout = _Layout.of(records_a[0])
     weights = [1.0 / (t.double() ** 2 + 0.01).sqrt().reshape(-1, 3) for t in targets]
-
-    # every set padded to a power-of-two count of monomials (zero coefficients): the jitted solver
-    # is traced once per shape, and rounds and calls with the same shapes reuse it
-    size = max(1 << max(int(r.exponents.shape[0]) - 1, 1).bit_length() for r in records_a + records_b)
-
-    def polynomial(rec: PathRecords):
-        S = int(rec.exponents.shape[0])
-        E = torch.zeros(size, len(names), dtype=torch.float64)
-        E[:S] = rec.exponents.double()
-        C = torch.zeros(size, *rec.coefficients.shape[1:], dtype=torch.float64)
-        C[:S] = rec.coefficients.cpu()
-        return _to_jax(E), _to_jax(C)
-
-    args = {
-        "a": [polynomial(r) for r in records_a],
-        "b": [polynomial(r) for r in records_b],
-        "T": [_to_jax(t.reshape(-1, 3)) for t in targets],
-        "W": [_to_jax(w) for w in weights],
-        "exp": _to_jax(torch.tensor([k.reparam == "exp" for k in kinds], dtype=torch.float64)),
-    }
-    x0 = jnp.stack([_to_jax(k.to_raw(start[n].double())) for n, k in zip(names, kinds)])
-    method = optx.LevenbergMarquardt(rtol=rtol, atol=atol) if solver == "lm" else optx.GaussNewton(rtol=rtol, atol=atol)
-    sol = optx.least_squares(_decorrelated_residual(), method, x0, args=args, options={"jac": "fwd"}, max_steps=max_steps, throw=False)
-    x = torch.from_numpy(jax.device_get(sol.value).copy()).double()
+    problem = _Problem(layout, records_a, records_b, targets, weights)
+    handle = id(problem)
+    _PROBLEMS[handle] = problem
+    try:
+        args = {"handle": jnp.asarray(handle, dtype=jnp.int64), "r": jnp.zeros(sum(t.numel() for t in targets))}
+        method = optx.LevenbergMarquardt(rtol=rtol, atol=atol) if solver == "lm" else optx.GaussNewton(rtol=rtol, atol=atol)
+        x0 = jnp.asarray(layout.to_raw(start).numpy())
+        sol = optx.least_squares(_decorrelated_residual(), method, x0, args=args, options={"jac": "fwd"}, max_steps=max_steps, throw=False)
+        x = torch.from_numpy(jax.device_get(sol.value).copy()).double()
+    finally:
+        del _PROBLEMS[handle]
     if not bool(torch.isfinite(x).all()):
         raise ParameterError(f"solver {solver!r} diverged (non-finite parameters); start closer or use 'lm', whose damping bounds its steps")
-    values = {n: _inside(k, k.from_raw(x[p])) for p, (n, k) in enumerate(zip(names, kinds))}
+    flat = layout.from_raw(x)
     steps = int(sol.stats["num_steps"])
     # The trust region accepts steps by the decrease of |r_A|^2, which B's Jacobian does not model
     # exactly, so it stalls a little short of J_B^T r_A = 0: finish with undamped Gauss-Newton steps
     # on that equation (near the solution the problem is almost linear; a few steps suffice).
     for _ in range(REFINE_STEPS):
-        J, ra = _jacobian_b_and_residual_a(records_a, records_b, targets, weights, values)
+        J, ra = _jacobian_b_and_residual_a(records_a, records_b, targets, weights, layout.unflatten(flat))
         step = torch.linalg.lstsq(J, -ra[:, None]).solution[:, 0]
-        values = {n: _inside(k, values[n] + step[3 * p : 3 * p + 3]) for p, (n, k) in enumerate(zip(names, kinds))}
+        flat = layout.inside(flat + step.reshape(-1, 3))
         if float(step.abs().max()) < 1e-10:
             break
-
+    values = layout.unflatten(flat)
     ident = analyse(records_a, records_b, targets, values)
     return LeastSquaresSolution(values, ident, ident.loss, steps)
 
 
 def _jacobian_b_and_residual_a(records_a, records_b, targets, weights, values):
-    """Value-space Jacobian (R, 3P) of set B's weighted residual and set A's residual (R,): what a
-    Gauss-Newton step on ``J_B^T r_A = 0`` needs."""
-    names = list(records_a[0].names)
-    J = torch.cat([_value_jacobian(rec_b, values, w, names) for rec_b, w in zip(records_b, weights)])
+    """Value-space Jacobian (R, 3 N_var) of set B's weighted residual and set A's residual (R,):
+    what a Gauss-Newton step on ``J_B^T r_A = 0`` needs."""
+    J = torch.cat([_value_jacobian(rec_b, values, w) for rec_b, w in zip(records_b, weights)])
     ra = torch.cat([_residual(rec_a, values, t, w) for rec_a, t, w in zip(records_a, targets, weights)])
     return J, ra
 
@@ -192,30 +251,28 @@ def _residual(rec: PathRecords, values: dict, target: torch.Tensor, w: torch.Ten
 
 
 def _jacobian_and_residuals(records_a, records_b, targets, weights, values):
-    """Value-space Jacobians (R, 3P) of set B's and set A's weighted residuals, and both sets'
-    residuals (R,)."""
-    names = list(records_a[0].names)
+    """Value-space Jacobians (R, 3 N_var) of set B's and set A's weighted residuals, and both
+    sets' residuals (R,)."""
     blocks, blocks_a, ra, rb = [], [], [], []
     for rec_a, rec_b, t, w in zip(records_a, records_b, targets, weights):
         ra.append(_residual(rec_a, values, t, w))
         rb.append(_residual(rec_b, values, t, w))
-        blocks.append(_value_jacobian(rec_b, values, w, names))
-        blocks_a.append(_value_jacobian(rec_a, values, w, names))
+        blocks.append(_value_jacobian(rec_b, values, w))
+        blocks_a.append(_value_jacobian(rec_a, values, w))
     return torch.cat(blocks), torch.cat(blocks_a), torch.cat(ra), torch.cat(rb)
 
 
-def _value_jacobian(rec: PathRecords, values: dict, w: torch.Tensor, names: list[str]) -> torch.Tensor:
-    """(N * 3, 3P) derivatives of one view's weighted residual with respect to every parameter
-    channel (channel c of a pixel depends on channel c of a parameter only)."""
-    jac = rec.jacobian(values)
+def _value_jacobian(rec: PathRecords, values: dict, w: torch.Tensor) -> torch.Tensor:
+    """(N * 3, 3 N_var) derivatives of one view's weighted residual with respect to every variable
+    channel (channel c of a pixel depends on channel c of a variable only)."""
     cols = []
-    for n in names:
-        d = jac[n].reshape(-1, 3) * w
+    for name, jac in rec.jacobian(values).items():
+        d = jac.reshape(jac.shape[0] * jac.shape[1], -1, 3) * w[:, None, :]  # (N, rows of the parameter, 3)
+        block = torch.zeros(d.shape[0], 3, d.shape[1], 3, dtype=d.dtype)
         for c in range(3):
-            col = torch.zeros_like(d)
-            col[:, c] = d[:, c]
-            cols.append(col.reshape(-1))
-    return torch.stack(cols, dim=1)
+            block[:, c, :, c] = d[:, :, c]
+        cols.append(block.reshape(d.shape[0] * 3, -1))
+    return torch.cat(cols, dim=1)
 
 
 @dataclass(frozen=True)
@@ -223,9 +280,10 @@ class Identifiability:
     """What the targets determine about the parameters, from the Gauss-Newton matrix ``J^T J``.
 
     Attributes:
-        std_error: name -> (3,) standard errors at the evaluated values.
-        correlation: (3P, 3P) correlation matrix of the parameter channels.
-        channels: the 3P channel labels (``"red.reflectance[G]"``).
+        std_error: name -> standard errors at the evaluated values, shaped as the parameter.
+        correlation: (3 N_var, 3 N_var) correlation matrix of the variable channels (a texture
+            has one variable per texel).
+        channels: the 3 N_var channel labels (``"red.reflectance[G]"``, ``"floor.reflectance[2,3][G]"``).
         weak: combinations the targets cannot determine: each a dict channel label -> weight (a unit
             vector in relative units, largest weights only), for every direction along which the
             column-scaled ``J^T J`` has an eigenvalue below ``threshold`` times its largest.
@@ -249,17 +307,17 @@ def analyse(records_a: list[PathRecords], records_b: list[PathRecords], targets:
     The standard errors are the sandwich of the estimating equation ``J_B^T r_A = 0``, whose
     variance has the residual's noise seen through J (``s^2`` per residual, from the two sets) and
     the Jacobian's own noise times the residual (``dJ^T diag(r_A^2) dJ``, ``dJ = (J_A - J_B)/sqrt 2``)."""
-    names = list(records_a[0].names)
+    layout = _Layout.of(records_a[0])
     weights = [1.0 / (t.double() ** 2 + 0.01).sqrt().reshape(-1, 3) for t in targets]
     J, J_a, ra, rb = _jacobian_and_residuals(records_a, records_b, targets, weights, values)
     # relative units: each column scaled by its parameter value, so eps and rho compare
-    scale = torch.cat([values[n].double() for n in names])
+    scale = layout.flatten(values).reshape(-1)
     Js = J * scale[None, :]
     JtJ = Js.T @ Js
     norms = JtJ.diagonal().clamp_min(1e-300).sqrt()
     normalized = JtJ / (norms[:, None] * norms[None, :])
     eigenvalues, vectors = torch.linalg.eigh(normalized)
-    labels = [f"{n}[{c}]" for n in names for c in "RGB"]
+    labels = layout.labels()
     weak = []
     for lam, v in zip(eigenvalues.tolist(), vectors.T):
         if lam < threshold * float(eigenvalues.max()):
@@ -272,4 +330,4 @@ def analyse(records_a: list[PathRecords], records_b: list[PathRecords], targets:
     cov = inv @ ((J.T * s2) @ J + (dJ.T * ra**2) @ dJ) @ inv
     se = cov.diagonal().clamp_min(0).sqrt()
     corr = cov / (se[:, None] * se[None, :]).clamp_min(1e-300)
-    return Identifiability({n: se[3 * p : 3 * p + 3].clone() for p, n in enumerate(names)}, corr, labels, weak, float((ra**2).mean()))
+    return Identifiability(layout.unflatten(se.reshape(-1, 3)), corr, labels, weak, float((ra**2).mean()))

@@ -27,6 +27,11 @@ class Film:
             self._images[key] = torch.zeros(self.width * self.height, 3, dtype=torch.float64, device=self.device)
         self._images[key].index_add_(0, pixel, radiance.double())
 
+    def visit(self, pixel: torch.Tensor, s) -> None:
+        """Hook called when the paths writing to ``pixel`` (N,) reach new vertices ``s`` (a
+        :class:`~invrender.transport.surface.Surface` of N hits), before anything is added there.
+        The film ignores it; path records note where each path met a textured parameter."""
+
     def scatter(self, pixel: torch.Tensor, weight: torch.Tensor) -> None:
         """Hook called at each scattering vertex with the sample weight ``f cos / pdf`` (N, 3) the
         path's throughput is multiplied by, after every contribution that does not pass through it

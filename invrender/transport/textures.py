@@ -14,25 +14,27 @@ from collections.abc import Sequence
 import torch
 
 
+def bilinear(h: int, w: int, uv: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The bilinear filter of an h x w texture at ``uv`` (N, 2): texel indices (N, 4) int64 into
+    the flattened (h * w) texels and their weights (N, 4), which sum to 1 (never differentiable)."""
+    x = uv[:, 0].detach() * w - 0.5
+    y = (1.0 - uv[:, 1].detach()) * h - 0.5
+    x0, y0 = torch.floor(x), torch.floor(y)
+    fx, fy = x - x0, y - y0
+    i0, j0 = y0.long().remainder(h), x0.long().remainder(w)
+    i1, j1 = (i0 + 1).remainder(h), (j0 + 1).remainder(w)
+    index = torch.stack([i0 * w + j0, i0 * w + j1, i1 * w + j0, i1 * w + j1], dim=1)
+    weight = torch.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], dim=1)
+    return index, weight
+
+
 def lookup(value: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
     """Values at ``uv`` (N, 2) of a constant (3,) or a texture (h, w, 3): (N, 3)."""
     if value.ndim == 1:
         return value.expand(uv.shape[0], 3)
-    h, w = value.shape[0], value.shape[1]
-    x = uv[:, 0].detach() * w - 0.5
-    y = (1.0 - uv[:, 1].detach()) * h - 0.5
-    x0, y0 = torch.floor(x), torch.floor(y)
-    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-    i0 = y0.long().remainder(h)
-    j0 = x0.long().remainder(w)
-    i1, j1 = (i0 + 1).remainder(h), (j0 + 1).remainder(w)
-    flat = value.reshape(h * w, 3)
-    return (
-        flat[i0 * w + j0] * (1 - fx) * (1 - fy)
-        + flat[i0 * w + j1] * fx * (1 - fy)
-        + flat[i1 * w + j0] * (1 - fx) * fy
-        + flat[i1 * w + j1] * fx * fy
-    )
+    index, weight = bilinear(value.shape[0], value.shape[1], uv)
+    texels = value.reshape(-1, 3)[index]  # (N, 4, 3)
+    return (texels * weight[:, :, None].to(texels.dtype)).sum(1)
 
 
 def gather_rgb(values: Sequence[torch.Tensor], index: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:

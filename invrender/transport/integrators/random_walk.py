@@ -37,7 +37,7 @@ class RandomWalk(Integrator):
         cfg = self.settings
         depth = 0
         while state.count:
-            state, s = next_vertex(ctx, state)
+            state, s = next_vertex(ctx, state, film)
             if s is None:
                 break
             add_emitted(ctx, state, s, depth, film, mis=self.emitter_mis)  # term depth

@@ -22,14 +22,17 @@ def power_heuristic(pdf_a: torch.Tensor, pdf_b: torch.Tensor) -> torch.Tensor:
     return torch.where(a2 > 0, a2 / (a2 + b2).clamp_min(1e-30), 0.0)
 
 
-def next_vertex(ctx: TransportContext, state: PathState) -> tuple[PathState, Surface | None]:
-    """Intersect ``state``'s rays; paths whose ray leaves the scene end (no environment light)."""
+def next_vertex(ctx: TransportContext, state: PathState, film: Film) -> tuple[PathState, Surface | None]:
+    """Intersect ``state``'s rays; paths whose ray leaves the scene end (no environment light).
+    The film is told of the new vertices (``Film.visit``)."""
     hits = ctx.accel.intersect(state.o, state.d)
     hit = hits.valid
     state, hits = state.select(hit), hits.select(hit)
     if not state.count:
         return state, None
-    return state, surface_at(ctx.triangles, hits, state.d, ctx.textured)
+    s = surface_at(ctx.triangles, hits, state.d, ctx.textured)
+    film.visit(state.pixel, s)
+    return state, s
 
 
 def add_emitted(ctx: TransportContext, state: PathState, s: Surface, depth: int, film: Film, mis: bool) -> None:
