@@ -9,6 +9,7 @@ Public API::
     ir.write_image("out.exr", img)
     img = ir.render(scene, ir.integrators.Whitted(max_depth=6))   # an integrator object
     res = ir.fit(scene, target, params=["red.reflectance", "light.emission"])   # inverse rendering
+    study = ir.gradient_study(scene, ["red.reflectance", "light.emission"])   # gradient variance and bias
     base = ir.baseline.pyrender_render(scene)               # the rasterized Utah baseline
 """
 
@@ -21,6 +22,7 @@ from invrender.diff.records import PathRecords, record_paths
 from invrender.scene import load_scene
 from invrender.scene.camera import Camera
 from invrender.scene.materials import Material
+from invrender.study import GradientConfig, GradientStudy, gradient_study
 from invrender.transport import integrators
 
 __version__ = "0.1.0"
@@ -37,6 +39,6 @@ def __getattr__(name):
 
 __all__ = [
     "load_scene", "render", "fit", "gradcheck", "read_image", "write_image", "FitResult", "Camera", "Material", "integrators",
-    "record_paths", "PathRecords", "identifiability",
+    "record_paths", "PathRecords", "identifiability", "gradient_study", "GradientStudy", "GradientConfig",
     "InvRenderError", "SceneError", "ImageError", "ParameterError", "BaselineError",
 ]  # fmt: skip

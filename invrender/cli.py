@@ -35,6 +35,9 @@ commands:
   baseline   rasterize a scene with pyrender (the Utah approximation's independent baseline)
   compare    pyrender, utah, path at max_depth 2 and the full path side by side: what ignoring
              interreflection costs (a PNG figure and a table of channel means)
+  variance   gradient-variance study: variance, bias, cost and per-pixel noise of gradient
+             estimators over independent trials (CSV, JSON, PNG figures); 'variance furnace'
+             checks them against closed forms
 
 Run 'invrender COMMAND --help' for a command's options.
 """
@@ -209,7 +212,38 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--no-pyrender", action="store_true", help="leave out the pyrender image")
     c.add_argument("--quiet", action="store_true", help="no progress bars")
     c.set_defaults(run=run_compare)
+
+    v = sub.add_parser("variance", help="gradient-variance study of gradient estimators", description=VARIANCE_DOC, epilog=VARIANCE_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_scene_argument(v)
+    v.add_argument("--params", default=None, help="comma-separated parameter names (required, except for furnace: glow.emission,wall.reflectance)")
+    v.add_argument("--out", required=True, help="output folder: results.csv, results.json, samples.pt, variance.png, bias.png, pixel_variance.png")
+    v.add_argument("--configs", default=None, metavar="SPEC,SPEC", help="configurations INTEGRATOR/ESTIMATOR/PAIRING[/KEY=VALUE...], comma-separated (default: " + ",".join(_study_defaults()[0]) + "; furnace: the closed-form checks)")
+    v.add_argument("--spp", default=None, metavar="N,N", help="comma-separated samples per pixel (default: " + ",".join(map(str, _study_defaults()[1])) + "; furnace: 1,4,16)")
+    v.add_argument("--trials", type=int, default=200, help="independent gradients per configuration and spp, >= 2 (default: 200, ~10%% error on a variance)")
+    v.add_argument("--loss", default="l2", help="l2, relative_l2 or l1 (default: l2)")
+    v.add_argument("--resolution", type=parse_resolution, default=(16, 16), metavar="WxH", help="(default: 16x16)")
+    v.add_argument("--target", default=None, metavar="IMAGE", help="target image (default: the scene rendered at --target-spp with its own values)")
+    v.add_argument("--target-spp", type=int, default=1024, help="spp of the rendered target (default: 1024)")
+    v.add_argument("--at", type=float, default=None, metavar="FACTOR", help="take the gradient at the studied parameters' values times FACTOR (default: 0.5; 1 = at the target's values)")
+    v.add_argument("--init", action="append", default=[], metavar="KEY=VALUE", help="take the gradient at these values instead: NAME=v or NAME=r,g,b, NAME may be a kind (repeatable)")
+    v.add_argument("--reference-spp", type=int, default=128, help="spp of each reference gradient; 0 = no reference, no bias (default: 128)")
+    v.add_argument("--reference-repeats", type=int, default=16, help="decorrelated gradients averaged into the reference (default: 16)")
+    v.add_argument("--pixel-param", default=None, metavar="NAME", help="parameter of the per-pixel variance image (default: the first of --params)")
+    v.add_argument("--pixel-spp", type=int, default=None, help="spp of the per-pixel variance image (default: the smallest --spp)")
+    v.add_argument("--no-pixel-maps", action="store_true", help="skip the per-pixel variance image")
+    v.add_argument("--rho", type=float, default=0.5, help="furnace: grey albedo, 0 < rho < 1 (default: 0.5)")
+    v.add_argument("--eps", type=float, default=1.0, help="furnace: emission (default: 1)")
+    v.add_argument("--tolerance", type=float, default=None, metavar="Z", help="furnace: exit 1 if a measured bias or variance is more than Z standard errors from its closed form")
+    v.add_argument("--seed", type=int, default=0, help="the study's seed (default: 0)")
+    v.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    v.set_defaults(run=run_variance)
     return parser
+
+
+def _study_defaults() -> tuple:
+    from invrender.study import DEFAULT_CONFIGS, DEFAULT_SPP
+
+    return DEFAULT_CONFIGS, DEFAULT_SPP
 
 
 FIT_EPILOG = """\
@@ -248,6 +282,28 @@ Render a scene with pyrender, with the utah integrator, with path at max_depth 2
 path tracer; write one PNG with the images side by side over their differences to the full path,
 and print a table of channel means and relative differences, the share of energy the Utah
 approximation drops, and the ambient eps0 that best stands in for interreflection (least squares).
+"""
+
+VARIANCE_DOC = """\
+Measure gradient estimators: for each configuration (integrator, estimator autodiff|replay,
+correlated|decorrelated loss gradient, and render options such as rr_depth) and each spp, draw
+--trials gradients of the loss from independent seeds; report per parameter and component the mean,
+variance (with its standard error), bias against a high-spp reference (with both standard errors),
+seconds per gradient and efficiency 1/(variance x seconds); plot variance and bias against spp and
+the per-pixel variance of one parameter's gradient. With SCENE 'furnace', compare measured bias and
+variance with the closed forms (docs/closed_forms.md#gradient-statistics-in-the-furnace).
+"""
+
+VARIANCE_EPILOG = """\
+examples:
+  invrender variance cornell_box --params red.reflectance,light.emission --out runs/variance
+  invrender variance cornell_box --params white.reflectance --configs path/replay/correlated,random_walk/replay/correlated/rr_depth=1 --spp 4,16,64 --out runs/rw
+  invrender variance furnace --out runs/furnace --tolerance 4
+
+A configuration spec names its parts with '/', in any order: an integrator (path, random_walk, ...),
+an estimator (replay, autodiff), a pairing (correlated: dl/dI from the differentiated render itself;
+decorrelated: from an independent one, as fit does) and KEY=VALUE render options (rr_depth=1,
+max_depth=-1, ...). Left out: path, replay, decorrelated.
 """
 
 FIT_OPTIONS = [
@@ -380,7 +436,7 @@ def _fit_into(out: Path, args, scene, targets, cameras, truth, names, init, sett
     the FitResult, or None when interrupted (the checkpoint is saved)."""
     import invrender as ir
     from invrender.inverse.fit import fit
-    from invrender.inverse.report import plot_history, report_dict, write_json
+    from invrender.inverse.report import plot_correlation, plot_history, report_dict, write_json
     from invrender.recipes import apply_init
 
     apply_init(scene, names, init)
@@ -399,12 +455,13 @@ def _fit_into(out: Path, args, scene, targets, cameras, truth, names, init, sett
     report = report_dict(result, **extra)
     write_json(out / "report.json", report)
     plot_history(result, out / "loss.png")
+    figures = "loss.png, correlation.png" if plot_correlation(result, out / "correlation.png") else "loss.png"
     if not args.quiet:
         print(f"{report['steps']} steps in {report['seconds']:.1f} s, final loss {report['final_loss']:.4g}", file=sys.stderr)
         for name, value in result.params.items():
             err = f"  (rel. error {result.errors[name]:.2%})" if name in result.errors else ""
             print(f"  {name}: {_fmt(value)}{err}", file=sys.stderr)
-        print(f"wrote {out}/report.json, loss.png, final EXR and PNG, checkpoint.pt", file=sys.stderr)
+        print(f"wrote {out}/report.json, {figures}, final EXR and PNG, checkpoint.pt", file=sys.stderr)
     return result
 
 
@@ -490,6 +547,63 @@ def run_dataset(args) -> int:
     if not args.quiet:
         print(f"wrote {len(manifest['views'])} view(s), truth.json and manifest.json to {args.out}", file=sys.stderr)
     return 0
+
+
+def run_variance(args) -> int:
+    import invrender as ir
+    from invrender.inverse.report import write_json, write_text
+    from invrender.study.furnace import FURNACE_CONFIGS, FURNACE_PARAMS, FURNACE_SPP, furnace_check
+    from invrender.study.output import summary_text, write_study
+    from invrender.study.plots import plot_study
+
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ImageError(f"cannot write to {out}: it is a file")
+    spp = None if args.spp is None else _int_list(args.spp, "--spp")
+    if args.scene == "furnace":
+        given = [flag for flag, value in (("--target", args.target), ("--at", args.at), ("--init", args.init), ("--pixel-param", args.pixel_param), ("--pixel-spp", args.pixel_spp)) if value]
+        if given:
+            raise ParameterError(f"{given[0]} does not apply to the furnace check (its target is the exact radiance, its gradient taken at the scene's values)")
+        check = furnace_check(
+            FURNACE_CONFIGS if args.configs is None else args.configs, FURNACE_SPP if spp is None else spp, args.trials, rho=args.rho, eps=args.eps, resolution=args.resolution,
+            loss=args.loss, params=args.params.split(",") if args.params else FURNACE_PARAMS, seed=args.seed, progress=not args.quiet,
+        )  # fmt: skip
+        study = check.study
+        written = write_study(study, out) + plot_study(study, out, check.predictions())
+        write_text(out / "check.md", check.table())
+        write_json(out / "check.json", check.to_dict())
+        written += [out / "check.md", out / "check.json"]
+        print(check.table(), flush=True)
+    else:
+        if not args.params:
+            scene = ir.load_scene(args.scene, resolution=args.resolution)
+            raise ParameterError(f"variance needs --params NAME,NAME (the scene's: {', '.join(scene.params)})")
+        if args.at is not None and args.init:
+            raise ParameterError("give --at or --init, not both")
+        scene = ir.load_scene(args.scene, resolution=args.resolution)
+        study = ir.gradient_study(
+            scene, args.params, _study_defaults()[0] if args.configs is None else args.configs, _study_defaults()[1] if spp is None else spp, args.trials, loss=args.loss,
+            target=args.target, target_spp=args.target_spp, at=parse_init(args.init) if args.init else (0.5 if args.at is None else args.at),
+            reference_spp=args.reference_spp, reference_repeats=args.reference_repeats, pixel_maps=not args.no_pixel_maps,
+            pixel_param=args.pixel_param, pixel_spp=args.pixel_spp, seed=args.seed, progress=not args.quiet,
+        )  # fmt: skip
+        written = write_study(study, out) + plot_study(study, out)
+        check = None
+    if not args.quiet:
+        print(summary_text(study), flush=True)
+        print("wrote " + ", ".join(str(p) for p in written), file=sys.stderr)
+    if check is not None and args.tolerance is not None and check.worst_z() > args.tolerance:
+        print(f"invrender: a closed form is missed by {check.worst_z():.1f} standard errors (tolerance {args.tolerance:g})", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _int_list(text: str, flag: str) -> list[int]:
+    """``"1,4,16"`` -> [1, 4, 16]; an empty list is left to the study's own check."""
+    try:
+        return [int(p) for p in text.split(",") if p.strip()]
+    except ValueError:
+        raise ParameterError(f"{flag} expects comma-separated integers such as 4,8,16, got {text!r}") from None
 
 
 def _one_line_warning(message, category, filename, lineno, file=None, line=None):

@@ -1,0 +1,17 @@
+"""Gradient-variance studies: how noisy and how biased each way of differentiating a Monte Carlo
+image is, what it costs, and where in the image its noise comes from (``docs/gradient_variance.md``).
+
+- :func:`gradient_study` runs configurations (:class:`GradientConfig`, or spec strings such as
+  ``"path/replay/decorrelated"``) over independent trials and returns a :class:`GradientStudy`;
+- :func:`furnace_check` compares measured bias and variance with the furnace's closed forms;
+- :mod:`invrender.study.output` and :mod:`invrender.study.plots` write the tables and figures.
+"""
+
+from invrender.study.configs import GradientConfig, parse_config, parse_configs
+from invrender.study.gradients import DEFAULT_CONFIGS, DEFAULT_SPP, LOSSES, GradientStudy, gradient_study
+from invrender.study.loss_gradients import LOSS_GRADIENTS, LossGradient
+
+__all__ = [
+    "gradient_study", "GradientStudy", "GradientConfig", "parse_config", "parse_configs", "LOSS_GRADIENTS", "LossGradient",
+    "DEFAULT_CONFIGS", "DEFAULT_SPP", "LOSSES",
+]  # fmt: skip

@@ -1,0 +1,449 @@
+"""``gradient_study``: the variance, bias and cost of gradient estimators over independent trials.
+
+For every configuration (:mod:`invrender.study.configs`) and every spp in a list, a study draws
+``trials`` gradients of one loss from independent seeds and keeps them all; statistics
+(:mod:`invrender.study.statistics`) are computed from the kept samples. The bias of a configuration
+is measured against a reference gradient: the mean of ``reference_repeats`` decorrelated gradients
+at ``reference_spp`` each, one reference per *model* (configurations that differ only in the
+estimator, the pairing or Russian roulette have the same expected image and share it), with its own
+standard error from the spread of the repeats.
+
+Seeds: trial t renders with seed ``base + 2t`` in every configuration and at every spp (the
+decorrelated pairing's second render takes ``base + 2t + 1``), so configurations are compared on the
+same random numbers and ``replay`` and ``autodiff`` give the same samples; references and the target
+take seeds beyond the trials'.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+from dataclasses import dataclass
+
+import torch
+from tqdm.auto import tqdm
+
+from invrender.diff import render
+from invrender.errors import ParameterError
+from invrender.inverse.params import check_names
+from invrender.scene.scene import Scene
+from invrender.study.configs import GradientConfig, parse_configs
+from invrender.study.loss_gradients import Objective
+from invrender.study.statistics import Moments, log_slope, moments
+from invrender.study.trials import gradient_sample, pixel_contributions
+from invrender.transport.driver import check_int
+
+#: the configurations of a default study: the two pairings, and both estimators
+DEFAULT_CONFIGS = ("path/replay/correlated", "path/replay/decorrelated", "path/autodiff/decorrelated")
+#: samples per pixel of a default study
+DEFAULT_SPP = (4, 8, 16, 32)
+#: losses a study offers: those whose gradient is a sum of per-pixel terms
+LOSSES = ("l2", "relative_l2", "l1")
+
+
+@dataclass(frozen=True)
+class Seeds:
+    """Seeds of a study's renders; all even, so that ``seed + 1`` (a decorrelated pairing's second
+    render) is never another render's seed."""
+
+    base: int
+    trials: int
+    repeats: int
+
+    def trial(self, t: int) -> int:
+        return self.base + 2 * t
+
+    def reference(self, r: int) -> int:
+        return self.base + 2 * (self.trials + r)
+
+    @property
+    def target(self) -> int:
+        return self.base + 2 * (self.trials + self.repeats)
+
+    @property
+    def warm_up(self) -> int:
+        return self.target + 2
+
+
+@dataclass(frozen=True)
+class Reference:
+    """The expected gradient of one model: estimated at high spp, or known exactly.
+
+    Attributes:
+        config: the configuration it was drawn with (decorrelated, replay) or is exact for.
+        spp: samples per pixel of each repeat; None when exact.
+        samples: (R, C) float64, one decorrelated gradient per repeat; (1, C) the exact gradient
+            when ``spp`` is None.
+    """
+
+    config: GradientConfig
+    spp: int | None
+    samples: torch.Tensor
+
+    @property
+    def exact(self) -> bool:
+        return self.spp is None
+
+    def moments(self, reduce=lambda x: x) -> Moments:
+        """Mean and standard error of ``reduce(samples)`` (zero error when exact)."""
+        x = reduce(self.samples)
+        if not self.exact:
+            return moments(x)
+        zero = torch.zeros_like(x[0])
+        return Moments(x[0], zero, zero, zero, 1)
+
+
+@dataclass(frozen=True)
+class Trials:
+    """The gradients one configuration drew at one spp.
+
+    Attributes:
+        config: the configuration.
+        spp: samples per pixel.
+        samples: (T, C) float64, the gradient of each trial, components flattened over the
+            study's parameters in order.
+        seconds: (T,) float64 wall time of each gradient.
+        reference: the reference of the configuration's model, or None.
+    """
+
+    config: GradientConfig
+    spp: int
+    samples: torch.Tensor
+    seconds: torch.Tensor
+    reference: Reference | None
+
+
+@dataclass(frozen=True)
+class Summary:
+    """Statistics of one :class:`Trials` for K quantities: the gradient's components, or the sum of
+    each parameter's components (its derivative along all channels together).
+
+    Attributes:
+        config: configuration label.
+        spp: samples per pixel.
+        labels: K names, e.g. ``"red.reflectance.R"`` or ``"red.reflectance"`` (a sum).
+        moments: mean, variance and standard errors of the K quantities.
+        seconds: mean wall seconds per gradient.
+        reference: the reference's moments for the same K quantities, or None.
+    """
+
+    config: str
+    spp: int
+    labels: list[str]
+    moments: Moments
+    seconds: float
+    reference: Moments | None
+
+    @property
+    def bias(self) -> torch.Tensor | None:
+        """(K,) mean minus the reference's mean."""
+        return None if self.reference is None else self.moments.mean - self.reference.mean
+
+    @property
+    def bias_se(self) -> torch.Tensor | None:
+        """(K,) standard error of :attr:`bias` (the trials' and the reference's)."""
+        return None if self.reference is None else (self.moments.std_error**2 + self.reference.std_error**2).sqrt()
+
+    @property
+    def efficiency(self) -> torch.Tensor:
+        """(K,) ``1 / (variance x seconds per gradient)``."""
+        return 1.0 / (self.moments.variance * self.seconds)
+
+
+@dataclass(frozen=True)
+class PixelVariance:
+    """Where the noise of one parameter's gradient comes from, pixel by pixel.
+
+    Attributes:
+        configs: labels of the configurations it describes (they differ only in the estimator,
+            which does not change the estimate).
+        parameter: the parameter; the derivative is along all its components together.
+        spp: samples per pixel.
+        mean: (H, W) float64 mean contribution of each pixel (channels summed).
+        variance: (H, W) float64 variance of each pixel's contribution; pixels are independent, so
+            the sum is the variance of the derivative.
+        trials: T.
+    """
+
+    configs: tuple[str, ...]
+    parameter: str
+    spp: int
+    mean: torch.Tensor
+    variance: torch.Tensor
+    trials: int
+
+    @property
+    def total(self) -> float:
+        """Sum of the per-pixel variances: the variance of the parameter's derivative."""
+        return float(self.variance.sum())
+
+
+@dataclass(frozen=True)
+class GradientStudy:
+    """The result of :func:`gradient_study`.
+
+    Attributes:
+        scene: the scene's name.
+        resolution: (width, height).
+        params: the studied parameters, in the order their components are flattened.
+        shapes: name -> the parameter's shape.
+        loss: the loss.
+        spp: the samples-per-pixel list, ascending.
+        trials: trials per configuration and spp.
+        configs: the configurations.
+        at: name -> the values where the gradient was taken.
+        target: how the target was made: ``"given"`` or how it was rendered.
+        target_image: (H, W, 3) the target.
+        runs: one :class:`Trials` per configuration and spp.
+        references: configuration label -> its model's :class:`Reference` (empty without references).
+        pixel_maps: one :class:`PixelVariance` per group of configurations differing only in the
+            estimator.
+        seed: the study's seed.
+    """
+
+    scene: str
+    resolution: tuple[int, int]
+    params: tuple[str, ...]
+    shapes: dict
+    loss: str
+    spp: tuple[int, ...]
+    trials: int
+    configs: tuple[GradientConfig, ...]
+    at: dict
+    target: str
+    target_image: torch.Tensor
+    runs: tuple[Trials, ...]
+    references: dict
+    pixel_maps: tuple[PixelVariance, ...]
+    seed: int
+
+    @property
+    def component_labels(self) -> list[str]:
+        """One label per gradient component: ``name.R/G/B`` for RGB parameters, ``name[i]`` otherwise."""
+        labels = []
+        for name in self.params:
+            shape = tuple(self.shapes[name])
+            labels += [f"{name}.{c}" for c in "RGB"] if shape == (3,) else [f"{name}[{i}]" for i in range(math.prod(shape))]
+        return labels
+
+    def run(self, config, spp: int) -> Trials:
+        label = config.label if isinstance(config, GradientConfig) else config
+        for r in self.runs:
+            if r.config.label == label and r.spp == spp:
+                return r
+        raise ParameterError(f"the study has no configuration {label!r} at {spp} spp")
+
+    def _parameter_sums(self, samples: torch.Tensor) -> torch.Tensor:
+        """(T, C) -> (T, P): each parameter's components summed."""
+        sizes = [math.prod(self.shapes[n]) for n in self.params]
+        return torch.stack([part.sum(1) for part in samples.split(sizes, dim=1)], dim=1)
+
+    def summary(self, config, spp: int, per: str = "component") -> Summary:
+        """:class:`Summary` of one configuration at one spp, ``per`` ``"component"`` or ``"parameter"``."""
+        run = self.run(config, spp)
+        if per not in ("component", "parameter"):
+            raise ParameterError(f"per must be 'component' or 'parameter', got {per!r}")
+        reduce = (lambda x: x) if per == "component" else self._parameter_sums
+        labels = self.component_labels if per == "component" else list(self.params)
+        reference = run.reference.moments(reduce) if run.reference is not None else None
+        return Summary(run.config.label, spp, labels, moments(reduce(run.samples)), float(run.seconds.mean()), reference)
+
+    def slope(self, config, parameter: str) -> tuple[float, float]:
+        """Slope (and standard error) of log variance against log spp for the derivative along all
+        of ``parameter``'s components: -1 for an estimator whose variance falls as 1/N."""
+        k = list(self.params).index(parameter)
+        rows = [self.summary(config, n, "parameter") for n in self.spp]
+        return log_slope(list(self.spp), [float(r.moments.variance[k]) for r in rows], [float(r.moments.variance_se[k]) for r in rows])
+
+
+def gradient_study(
+    scene: Scene,
+    params,
+    configs=DEFAULT_CONFIGS,
+    spp=DEFAULT_SPP,
+    trials: int = 200,
+    *,
+    loss: str = "l2",
+    target=None,
+    target_spp: int = 1024,
+    at=0.5,
+    reference_spp: int = 128,
+    reference_repeats: int = 16,
+    reference=None,
+    pixel_maps: bool = True,
+    pixel_param: str | None = None,
+    pixel_spp: int | None = None,
+    seed: int = 0,
+    progress: bool = True,
+) -> GradientStudy:
+    """Measure the mean, variance, bias and cost of gradient estimators over independent trials.
+
+    Every argument is checked before any rendering; bad ones raise a one-line
+    :class:`~invrender.errors.ParameterError` (or ImageError for a target).
+
+    Args:
+        scene: from :func:`invrender.load_scene`; not modified.
+        params: the parameters differentiated (names, list or comma-separated).
+        configs: configurations, as :class:`GradientConfig` objects or spec strings such as
+            ``"path/replay/correlated"`` or ``"random_walk/autodiff/decorrelated/rr_depth=1"``
+            (:mod:`invrender.study.configs`).
+        spp: samples per pixel, one study per value.
+        trials: independent gradients per configuration and spp (>= 2); about 200 give the variance
+            to 10% (more when the gradient is heavy-tailed: see the variance's standard error).
+        loss: ``"l2"``, ``"relative_l2"`` or ``"l1"`` (as ``fit`` computes them).
+        target: an (H, W, 3) tensor or an image path; None = render the scene (at its own values,
+            before ``at`` is applied) at ``target_spp`` with a seed of its own.
+        at: where the gradient is taken: a factor for every studied parameter's values (default 0.5,
+            like a fit early on; 1 = at the target's own values, where a rendered target's loss is
+            minimal and the gradient is all noise, whose variance falls as ``1/N^2``), or a dict of
+            values (parameter name, or a kind such as ``"reflectance"`` for all studied of that kind).
+        reference_spp: spp of each reference repeat; 0 = no reference (no bias is reported).
+        reference_repeats: decorrelated gradients averaged into a reference (>= 2).
+        reference: the exact expected gradients where they are known: a function from a
+            :class:`GradientConfig` to its model's gradient, flattened as the samples, (C,);
+            replaces the estimated references (the furnace check passes its closed forms).
+        pixel_maps: also measure per-pixel gradient variances (:class:`PixelVariance`; forward-mode
+            renders, :mod:`invrender.study.trials`).
+        pixel_param: the parameter of the per-pixel maps (default: the first of ``params``).
+        pixel_spp: their spp (default: the smallest of ``spp``).
+        seed: the study's seed; every render's seed derives from it.
+        progress: a progress bar with rate and ETA.
+    Returns:
+        :class:`GradientStudy`.
+    """
+    names = check_names(scene.params, params)
+    configs = parse_configs(configs)
+    spp = _check_spp(spp)
+    check_int("", "trials", trials)
+    if trials < 2:
+        raise ParameterError(f"trials must be >= 2 (a variance needs two samples), got {trials}")
+    if loss not in LOSSES:
+        raise ParameterError(f"unknown loss {loss!r} for a gradient study (known: {', '.join(LOSSES)})")
+    check_int("", "reference_spp", reference_spp, 0)
+    check_int("", "reference_repeats", reference_repeats)
+    if reference_repeats < 2:
+        raise ParameterError(f"reference_repeats must be >= 2 (the reference's standard error needs two), got {reference_repeats}")
+    check_int("", "target_spp", target_spp, 1)
+    check_int("", "seed", seed, 0)
+    pixel_param = names[0] if pixel_param is None else pixel_param
+    if pixel_param not in names:
+        raise ParameterError(f"pixel_param {pixel_param!r} is not one of the studied parameters ({', '.join(names)})")
+    pixel_spp = spp[0] if pixel_spp is None else pixel_spp
+    check_int("", "pixel_spp", pixel_spp, 1)
+    seeds = Seeds(seed * 1_000_003, trials, reference_repeats)
+
+    work = _copy(scene)
+    _move_to(work, names, at)  # checks `at` before the target is rendered
+    target_image, target_label = _target(scene, target, target_spp, seeds.target, configs[0])
+    for n in names:
+        work.params[n].requires_grad_(True)
+    objective = Objective(work, target_image, loss)
+
+    model_refs = {}  # model key -> the reference configuration
+    for c in configs:
+        model_refs.setdefault(c.model_key, c.replace(estimator="replay", gradient="decorrelated").with_options(rr_depth=None))
+    references = {}
+    if reference is not None:
+        size = sum(work.params[n].numel() for n in names)
+        for key, ref_config in model_refs.items():
+            exact = torch.as_tensor(reference(ref_config), dtype=torch.float64).reshape(1, -1)
+            if exact.shape[1] != size:
+                raise ParameterError(f"the exact reference of {ref_config.label!r} has {exact.shape[1]} components, the gradient {size}")
+            references[key] = Reference(ref_config, None, exact)
+    map_groups: dict[GradientConfig, list[str]] = {}
+    for c in configs:
+        map_groups.setdefault(c.replace(estimator="replay"), []).append(c.label)
+    units = len(configs) * (1 + len(spp) * trials) + (len(model_refs) * reference_repeats if reference_spp and reference is None else 0) + (len(map_groups) * trials if pixel_maps else 0)
+    bar = tqdm(total=units, unit="grad", desc=f"gradients {scene.name}", file=sys.stderr, disable=not progress, dynamic_ncols=True)
+
+    def draw(config: GradientConfig, n: int, seed_of, count: int) -> tuple[torch.Tensor, torch.Tensor]:
+        bar.set_postfix_str(f"{config.label} {n} spp", refresh=False)
+        rows, times = [], []
+        for t in range(count):
+            g, s = gradient_sample(objective, names, config, n, seed_of(t))
+            rows.append(g)
+            times.append(s)
+            bar.update(1)
+        return torch.stack(rows), torch.tensor(times, dtype=torch.float64)
+
+    with bar:
+        for c in configs:  # first calls build caches; their time is not a gradient's
+            draw(c, spp[0], lambda t: seeds.warm_up, 1)
+        if reference is None and reference_spp:
+            for key, ref_config in model_refs.items():
+                samples, _ = draw(ref_config, reference_spp, seeds.reference, reference_repeats)
+                references[key] = Reference(ref_config, reference_spp, samples)
+        runs = []
+        for c in configs:
+            for n in spp:
+                samples, seconds = draw(c, n, seeds.trial, trials)
+                runs.append(Trials(c, n, samples, seconds, references.get(c.model_key)))
+        maps = []
+        if pixel_maps:
+            for c, labels in map_groups.items():
+                bar.set_postfix_str(f"per-pixel {c.replace(estimator='replay').label} {pixel_spp} spp", refresh=False)
+                maps.append(_pixel_variance(objective, pixel_param, c, labels, pixel_spp, seeds, trials, bar))
+
+    return GradientStudy(
+        scene=scene.name, resolution=tuple(scene.resolution), params=tuple(names), shapes={n: tuple(work.params[n].shape) for n in names},
+        loss=loss, spp=tuple(spp), trials=trials, configs=tuple(configs), at={n: work.params[n].detach().tolist() for n in names},
+        target=target_label, target_image=target_image, runs=tuple(runs), references={c.label: references[c.model_key] for c in configs if c.model_key in references},
+        pixel_maps=tuple(maps), seed=seed,
+    )  # fmt: skip
+
+
+def _pixel_variance(objective: Objective, name: str, config: GradientConfig, labels: list[str], spp: int, seeds: Seeds, trials: int, bar) -> PixelVariance:
+    """Per-pixel mean and variance of the contributions to ``name``'s derivative over the trials."""
+    total = square = None
+    for t in range(trials):
+        c = pixel_contributions(objective, name, config, spp, seeds.trial(t)).sum(-1)  # (H, W): channels together
+        total = c if total is None else total + c
+        square = c**2 if square is None else square + c**2
+        bar.update(1)
+    mean = total / trials
+    variance = ((square - trials * mean**2) / (trials - 1)).clamp_min(0)
+    return PixelVariance(tuple(labels), name, spp, mean, variance, trials)
+
+
+def _check_spp(spp) -> list[int]:
+    """The spp list: non-empty, positive integers, no repeats; sorted."""
+    values = [spp] if isinstance(spp, int) else list(spp)
+    if not values:
+        raise ParameterError("the spp list is empty: give at least one samples-per-pixel value")
+    for v in values:
+        check_int("", "spp", v, 1)
+    if len(set(values)) != len(values):
+        raise ParameterError(f"an spp value is given twice: {values}")
+    return sorted(values)
+
+
+def _target(scene: Scene, target, target_spp: int, seed: int, config: GradientConfig) -> tuple[torch.Tensor, str]:
+    """The target image (H, W, 3) and how it was made."""
+    if target is not None:
+        from invrender.inverse.fit import _views  # the checks fit applies to its targets
+
+        return _views(scene, target, None)[0][1], "given"
+    model = config.with_options(rr_depth=None)  # the configuration's model: its expected image
+    options = {k: v for k, v in model.render_kwargs().items() if k != "estimator"}
+    with torch.no_grad():
+        image = render(scene, spp=target_spp, seed=seed, progress=False, **options)
+    return image, f"rendered: {model.integrator}, {target_spp} spp" + "".join(f", {k}={v}" for k, v in model.options)
+
+
+def _copy(scene: Scene) -> Scene:
+    """``scene`` with parameters of its own (detached clones)."""
+    return dataclasses.replace(scene, params={k: v.detach().clone() for k, v in scene.params.items()})
+
+
+def _move_to(scene: Scene, names: list[str], at) -> None:
+    """Set the studied parameters of ``scene`` (in place) to where the gradient is taken."""
+    from invrender.recipes import apply_init, set_param
+
+    if isinstance(at, dict):
+        apply_init(scene, names, at)
+        return
+    if isinstance(at, bool) or not isinstance(at, (int, float)) or not math.isfinite(at) or at <= 0:
+        raise ParameterError(f"at must be a positive factor or a dict of parameter values, got {at!r}")
+    for n in names:
+        set_param(scene, n, scene.params[n].detach() * at)
