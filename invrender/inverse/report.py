@@ -113,6 +113,32 @@ def plot_history(result: FitResult, path) -> None:
     save_figure(fig, path)
 
 
+def plot_correlation(result: FitResult, path) -> bool:
+    """A PNG of the last round's correlation matrix of the parameter channels (least-squares
+    fits; a channel per parameter and colour, per texel for textures). Returns whether there was
+    one to plot (Adam fits have none)."""
+    last = result.history[-1] if result.history else {}
+    if "correlation" not in last:
+        return False
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels, matrix = last["correlation"]["channels"], last["correlation"]["matrix"]
+    size = min(4 + 0.22 * len(labels), 16)
+    fig, ax = plt.subplots(figsize=(size + 1.2, size))
+    image = ax.imshow(matrix, cmap="RdBu_r", vmin=-1, vmax=1, interpolation="nearest")
+    fig.colorbar(image, ax=ax, fraction=0.046, pad=0.04, label="correlation")
+    font = 7 if len(labels) <= 36 else 4
+    ax.set_xticks(range(len(labels)), labels, rotation=90, fontsize=font)
+    ax.set_yticks(range(len(labels)), labels, fontsize=font)
+    ax.set_title(f"parameter correlations at {last['spp']} spp (round {last['step']})")
+    fig.tight_layout()
+    save_figure(fig, path)
+    return True
+
+
 def _mark_spp(axes, history: list[dict]) -> None:
     """A dotted vertical line and a label at every step where the samples per pixel change."""
     previous = None

@@ -85,6 +85,21 @@ def test_fit_recipe_writes_report_plot_render_checkpoint_and_resumes(recipe, tmp
     assert resumed["recovered"] == report["recovered"]
 
 
+def test_lm_fit_of_a_texture_writes_the_correlation_figure(tmp_path, capsys):
+    """``--solver lm`` on a textured parameter: per-texel values and standard errors in the report,
+    one correlation matrix channel per texel and colour, and correlation.png beside loss.png."""
+    scene = ir.load_scene("forward/textured_floor.toml", resolution=(12, 12))
+    ir.write_image(tmp_path / "t.exr", ir.render(scene, spp=256, max_depth=3, progress=False))
+    out = tmp_path / "run"
+    argv = ["fit", "--scene", "forward/textured_floor.toml", "--target", str(tmp_path / "t.exr"), "--params", "floor.reflectance", "--solver", "lm"]
+    assert main([*argv, "--rounds", "1", "--spp", "16", "--max-depth", "3", "--out", str(out), "--quiet"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert torch.tensor(report["recovered"]["floor.reflectance"]).shape == (4, 4, 3)
+    assert torch.tensor(report["std_error"]["floor.reflectance"]).shape == (4, 4, 3)
+    assert len(report["correlation"]["channels"]) == 48 and report["correlation"]["channels"][5] == "floor.reflectance[0,1][B]"
+    assert (out / "correlation.png").stat().st_size > 1000 and (out / "loss.png").exists()
+
+
 def test_fit_from_scene_and_target(tmp_path, capsys):
     target = tmp_path / "t.exr"
     ir.write_image(target, ir.render(ir.load_scene("cornell_box", resolution=(8, 8)), spp=16, max_depth=2, progress=False))
