@@ -150,3 +150,13 @@ def test_textured_record_over_budget_names_the_parameter():
     scene = ir.load_scene("forward/textured_floor.toml", resolution=(16, 16))
     with pytest.raises(ParameterError, match=r"path record of floor.reflectance outgrew max_record_mb=0.05"):
         ir.record_paths(scene, ["floor.reflectance"], spp=64, max_depth=6, max_record_mb=0.05, progress=False)
+
+
+def test_textured_record_follows_whitted_splits_at_glass():
+    """The walls of the specular box textured: Whitted's split paths each keep their parent's
+    textured vertices (the record film's branch), so the record is still the render."""
+    scene = ir.load_scene("cornell_specular", resolution=(16, 16), subdivisions=2)
+    scene.params["white.reflectance"] = torch.rand(2, 2, 3, generator=torch.Generator().manual_seed(0)) * 0.8 + 0.1
+    names = ["white.reflectance", "light.emission", "mirror.specular_reflectance"]
+    rec = ir.record_paths(scene, names, spp=8, max_depth=5, seed=2, integrator="whitted", progress=False)
+    torch.testing.assert_close(rec.image().float(), ir.render(scene, "whitted", spp=8, max_depth=5, seed=2, progress=False), rtol=1e-5, atol=1e-6)
