@@ -119,6 +119,8 @@ def parse_config(spec) -> GradientConfig:
         if sep:
             if not key.strip() or not value.strip():
                 raise ParameterError(f"configuration {spec!r}: option {part!r} must read KEY=VALUE")
+            if key.strip() in options:
+                raise ParameterError(f"configuration {spec!r}: option {key.strip()!r} is given twice")
             options[key.strip()] = _value(value.strip())
             continue
         field = "integrator" if part in INTEGRATORS else "estimator" if part in ESTIMATORS else "gradient" if part in LOSS_GRADIENTS else None

@@ -296,8 +296,10 @@ def gradient_study(
             before ``at`` is applied) at ``target_spp`` with a seed of its own.
         at: where the gradient is taken: a factor for every studied parameter's values (default 0.5,
             like a fit early on; 1 = at the target's own values, where a rendered target's loss is
-            minimal and the gradient is all noise, whose variance falls as ``1/N^2``), or a dict of
-            values (parameter name, or a kind such as ``"reflectance"`` for all studied of that kind).
+            minimal and the gradient is all noise), or a dict of values (parameter name, or a kind
+            such as ``"reflectance"`` for all studied of that kind). Away from the target's values
+            the residual ``I - T`` has a mean and the variance reaches its ``1/N`` regime at lower
+            spp (docs/gradient_variance.md#reading-the-figures).
         reference_spp: spp of each reference repeat; 0 = no reference (no bias is reported).
         reference_repeats: decorrelated gradients averaged into a reference (>= 2).
         reference: the exact expected gradients where they are known: a function from a

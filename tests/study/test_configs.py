@@ -34,6 +34,7 @@ def test_roulette_does_not_change_the_model():
         ("path/replay/bogus", "unknown part 'bogus'"),
         ("path/random_walk", "two integrators"),
         ("path/rr_depth=", "KEY=VALUE"),
+        ("path/rr_depth=1/rr_depth=2", "given twice"),
         ("path/spp=4", "set by the study"),
         ("path/no_such_setting=1", "has no setting 'no_such_setting'"),
         ("random_walk/rr_depth=0", "rr_depth must be positive"),
