@@ -104,8 +104,7 @@ def furnace_walk(rho: float, eps: float, max_depth: int = -1, rr_depth: int = 1)
         # stop when what is left cannot matter to a fourth moment (X grows like k, dX/drho like k^2)
         if alive <= 0 or (max_depth == -1 and alive * (k + 1) ** 8 < 1e-17) or k > 100_000:
             break
-    t = lambda v: torch.tensor(v, dtype=torch.float64)  # noqa: E731
-    return FurnaceWalk(t(prob), t(x), t(d_eps), t(d_rho))
+    return FurnaceWalk(*(torch.tensor(v, dtype=torch.float64) for v in (prob, x, d_eps, d_rho)))
 
 
 @dataclass(frozen=True)
@@ -126,7 +125,7 @@ class GradientPrediction:
     def bias(self) -> float:
         return self.mean - self.truth
 
-    def scaled(self, k: float) -> "GradientPrediction":
+    def scaled(self, k: float) -> GradientPrediction:
         """The same for ``k`` times the component (e.g. the sum of 3 identical channels: k = 3)."""
         return GradientPrediction(k * self.mean, k * k * self.variance, k * self.truth)
 

@@ -39,8 +39,8 @@ from invrender.transport.integrators import INTEGRATORS, Integrator, make_integr
 STUDY_SETTINGS = ("spp", "seed", "terms", "progress")
 
 #: options that do not change the expected image, so configurations differing only in them share
-#: a reference gradient (Russian roulette is unbiased)
-UNBIASED_OPTIONS = ("rr_depth",)
+#: a reference gradient (Russian roulette and every pixel sampler are unbiased)
+UNBIASED_OPTIONS = ("rr_depth", "sampler")
 
 
 @dataclass(frozen=True)
@@ -91,19 +91,20 @@ class GradientConfig:
         settings = RenderSettings(spp=spp, seed=seed, progress=False, **{k: v for k, v in options.items() if k in render_fields})
         return make_integrator(self.integrator, **{k: v for k, v in options.items() if k not in render_fields}), settings
 
-    def replace(self, **changes) -> "GradientConfig":
+    def replace(self, **changes) -> GradientConfig:
         return dataclasses.replace(self, **changes)
 
-    def with_options(self, **changes) -> "GradientConfig":
+    def with_options(self, **changes) -> GradientConfig:
         """The same configuration with options added or changed (None removes one)."""
         options = {**dict(self.options), **changes}
         return self.replace(options=tuple((k, v) for k, v in options.items() if v is not None))
 
     @property
-    def model_key(self) -> tuple:
-        """What fixes the expected image (and so the true gradient): the integrator and the options
-        other than :data:`UNBIASED_OPTIONS`. Configurations with the same key share a reference."""
-        return (self.integrator, tuple((k, v) for k, v in self.options if k not in UNBIASED_OPTIONS))
+    def model(self) -> GradientConfig:
+        """The configuration's model: without :data:`UNBIASED_OPTIONS`, ``replay``, ``decorrelated``.
+        Configurations with the same model have the same expected image and so share a reference;
+        a rendered target and the reference are drawn with it."""
+        return self.replace(estimator="replay", gradient="decorrelated").with_options(**{k: None for k in UNBIASED_OPTIONS})
 
 
 def parse_config(spec) -> GradientConfig:

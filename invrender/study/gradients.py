@@ -342,21 +342,19 @@ def gradient_study(
         work.params[n].requires_grad_(True)
     objective = Objective(work, target_image, loss)
 
-    model_refs = {}  # model key -> the reference configuration
-    for c in configs:
-        model_refs.setdefault(c.model_key, c.replace(estimator="replay", gradient="decorrelated").with_options(rr_depth=None))
+    models = list(dict.fromkeys(c.model for c in configs))  # one reference each
     references = {}
     if reference is not None:
         size = sum(work.params[n].numel() for n in names)
-        for key, ref_config in model_refs.items():
-            exact = torch.as_tensor(reference(ref_config), dtype=torch.float64).reshape(1, -1)
+        for model in models:
+            exact = torch.as_tensor(reference(model), dtype=torch.float64).reshape(1, -1)
             if exact.shape[1] != size:
-                raise ParameterError(f"the exact reference of {ref_config.label!r} has {exact.shape[1]} components, the gradient {size}")
-            references[key] = Reference(ref_config, None, exact)
+                raise ParameterError(f"the exact reference of {model.label!r} has {exact.shape[1]} components, the gradient {size}")
+            references[model] = Reference(model, None, exact)
     map_groups: dict[GradientConfig, list[str]] = {}
     for c in configs:
         map_groups.setdefault(c.replace(estimator="replay"), []).append(c.label)
-    units = len(configs) * (1 + len(spp) * trials) + (len(model_refs) * reference_repeats if reference_spp and reference is None else 0) + (len(map_groups) * trials if pixel_maps else 0)
+    units = len(configs) * (1 + len(spp) * trials) + (len(models) * reference_repeats if reference_spp and reference is None else 0) + (len(map_groups) * trials if pixel_maps else 0)
     bar = tqdm(total=units, unit="grad", desc=f"gradients {scene.name}", file=sys.stderr, disable=not progress, dynamic_ncols=True)
 
     def draw(config: GradientConfig, n: int, seed_of, count: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -373,14 +371,14 @@ def gradient_study(
         for c in configs:  # first calls build caches; their time is not a gradient's
             draw(c, spp[0], lambda t: seeds.warm_up, 1)
         if reference is None and reference_spp:
-            for key, ref_config in model_refs.items():
-                samples, _ = draw(ref_config, reference_spp, seeds.reference, reference_repeats)
-                references[key] = Reference(ref_config, reference_spp, samples)
+            for model in models:
+                samples, _ = draw(model, reference_spp, seeds.reference, reference_repeats)
+                references[model] = Reference(model, reference_spp, samples)
         runs = []
         for c in configs:
             for n in spp:
                 samples, seconds = draw(c, n, seeds.trial, trials)
-                runs.append(Trials(c, n, samples, seconds, references.get(c.model_key)))
+                runs.append(Trials(c, n, samples, seconds, references.get(c.model)))
         maps = []
         if pixel_maps:
             for c, labels in map_groups.items():
@@ -390,7 +388,7 @@ def gradient_study(
     return GradientStudy(
         scene=scene.name, resolution=tuple(scene.resolution), params=tuple(names), shapes={n: tuple(work.params[n].shape) for n in names},
         loss=loss, spp=tuple(spp), trials=trials, configs=tuple(configs), at={n: work.params[n].detach().tolist() for n in names},
-        target=target_label, target_image=target_image, runs=tuple(runs), references={c.label: references[c.model_key] for c in configs if c.model_key in references},
+        target=target_label, target_image=target_image, runs=tuple(runs), references={c.label: references[c.model] for c in configs if c.model in references},
         pixel_maps=tuple(maps), seed=seed,
     )  # fmt: skip
 
@@ -426,7 +424,7 @@ def _target(scene: Scene, target, target_spp: int, seed: int, config: GradientCo
         from invrender.inverse.fit import _views  # the checks fit applies to its targets
 
         return _views(scene, target, None)[0][1], "given"
-    model = config.with_options(rr_depth=None)  # the configuration's model: its expected image
+    model = config.model  # the configuration's expected image
     options = {k: v for k, v in model.render_kwargs().items() if k != "estimator"}
     with torch.no_grad():
         image = render(scene, spp=target_spp, seed=seed, progress=False, **options)

@@ -34,7 +34,7 @@ if TYPE_CHECKING:
     from invrender.study.configs import GradientConfig
 
 #: pairing name -> class, filled by subclassing :class:`LossGradient`
-LOSS_GRADIENTS: dict[str, type["LossGradient"]] = {}
+LOSS_GRADIENTS: dict[str, type[LossGradient]] = {}
 
 
 @dataclass(frozen=True)
@@ -67,12 +67,12 @@ class LossGradient(ABC):
             LOSS_GRADIENTS[cls.name] = cls
 
     @abstractmethod
-    def backward(self, objective: Objective, config: "GradientConfig", spp: int, seed: int) -> None:
+    def backward(self, objective: Objective, config: GradientConfig, spp: int, seed: int) -> None:
         """Add one gradient sample of ``objective``'s loss to the ``.grad`` of every parameter of
         ``objective.scene`` that requires grad; ``seed`` is the differentiated image's seed."""
 
     @abstractmethod
-    def adjoint(self, objective: Objective, config: "GradientConfig", spp: int, seed: int, image: torch.Tensor) -> torch.Tensor:
+    def adjoint(self, objective: Objective, config: GradientConfig, spp: int, seed: int, image: torch.Tensor) -> torch.Tensor:
         """The (H, W, 3) ``dl/dI`` that :meth:`backward` weights the image of ``seed`` with, given
         that image (detached): ``G = sum(adjoint * dI/dtheta)``. Per-pixel studies use it."""
 

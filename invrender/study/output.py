@@ -69,7 +69,7 @@ def study_dict(study: GradientStudy) -> dict:
             {"configs": list(m.configs), "parameter": m.parameter, "spp": m.spp, "trials": m.trials, "total_variance": m.total,
              "variance": m.variance.tolist(), "mean": m.mean.tolist()}
             for m in study.pixel_maps
-        ],  # fmt: skip
+        ],
         "rows": study_rows(study),
     }
 
@@ -95,10 +95,11 @@ def write_study(study: GradientStudy, out) -> list[Path]:
 
 def summary_text(study: GradientStudy) -> str:
     """A plain-text table of each parameter's derivative per configuration and spp, and the slopes."""
-    lines = [
+    title = (
         f"{study.scene}: {study.resolution[0]}x{study.resolution[1]}, loss {study.loss}, {study.trials} trials; "
         f"target {study.target}; derivative along all components of each parameter"
-    ]
+    )
+    lines = [title]
     head = f"{'configuration':<44} {'spp':>5} {'parameter':<22} {'mean':>11} {'variance':>11} {'± se':>9} {'bias':>11} {'± se':>9} {'s/grad':>7} {'efficiency':>10}"
     lines.append(head)
     for run in study.runs:

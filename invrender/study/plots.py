@@ -55,7 +55,7 @@ def plot_variance(study: GradientStudy, path, predictions: dict | None = None) -
             rows = [study.summary(c, n, "parameter") for n in spp]
             v = [float(r.moments.variance[k]) for r in rows]
             se = [float(r.moments.variance_se[k]) for r in rows]
-            slope, slope_se = study.slope(c, name)
+            slope, _ = study.slope(c, name)
             label = f"{c.label} (slope {slope:+.2f})" if math.isfinite(slope) else c.label
             line = ax.errorbar(spp, v, yerr=se, capsize=2, lw=1, ms=4, color=f"C{i}", label=label, **_style(c))
             if predictions and (c.label, name) in predictions:

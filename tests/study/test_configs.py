@@ -23,9 +23,9 @@ def test_render_keywords_and_backpropagate_settings():
 
 def test_roulette_does_not_change_the_model():
     """Configurations that differ in the estimator, the pairing or rr_depth share a reference."""
-    keys = {parse_config(s).model_key for s in ("path/replay/correlated", "path/autodiff/decorrelated/rr_depth=1")}
-    assert len(keys) == 1
-    assert parse_config("path/max_depth=4").model_key not in keys
+    models = {parse_config(s).model for s in ("path/replay/correlated", "path/autodiff/decorrelated/rr_depth=1")}
+    assert models == {GradientConfig("path", "replay", "decorrelated")}
+    assert parse_config("path/max_depth=4").model not in models
 
 
 @pytest.mark.parametrize(
