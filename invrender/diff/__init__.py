@@ -37,6 +37,7 @@ def render(
     chunk_paths: int | None = None,
     memory_mb: float = 512.0,
     progress: bool = True,
+    sampler: str = "stratified",
     **options,
 ) -> torch.Tensor:
     """Render ``scene`` by Monte Carlo estimation of ``I = g eps + gMg eps + g(Mg)^2 eps + ...``.
@@ -59,6 +60,8 @@ def render(
         chunk_paths: paths per chunk; None = from ``memory_mb``.
         memory_mb: memory budget of a chunk's working set, MiB.
         progress: show a progress bar with rate and ETA when the render takes over a second.
+        sampler: how each pixel's samples are drawn: ``"stratified"`` (default), ``"independent"``
+            or ``"antithetic"`` (mirrored pairs; see :class:`~invrender.transport.driver.RenderSettings`).
         options: further settings of the integrator.
     Returns:
         float32 linear radiance, (H, W, 3) with row 0 at the top; (K, H, W, 3) with ``terms``.
@@ -68,7 +71,7 @@ def render(
         if value is not None:
             options[key] = value
     model = make_integrator(integrator, **options)
-    settings = RenderSettings(spp=spp, seed=seed, terms=terms, backend=backend, chunk_paths=chunk_paths, memory_mb=memory_mb, progress=progress)
+    settings = RenderSettings(spp=spp, seed=seed, terms=terms, backend=backend, chunk_paths=chunk_paths, memory_mb=memory_mb, progress=progress, sampler=sampler)
     if estimator is not None and estimator not in ESTIMATORS:
         raise ParameterError(f"unknown estimator {estimator!r} (known: {', '.join(ESTIMATORS)})")
     device = _device(scene, device)

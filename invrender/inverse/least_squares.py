@@ -316,14 +316,15 @@ def analyse(records_a: list[PathRecords], records_b: list[PathRecords], targets:
     JtJ = Js.T @ Js
     norms = JtJ.diagonal().clamp_min(1e-300).sqrt()
     normalized = JtJ / (norms[:, None] * norms[None, :])
-    eigenvalues, vectors = torch.linalg.eigh(normalized)
     labels = layout.labels()
     weak = []
-    for lam, v in zip(eigenvalues.tolist(), vectors.T):
-        if lam < threshold * float(eigenvalues.max()):
-            order = torch.argsort(v.abs(), descending=True)
-            combo = {labels[i]: float(v[i]) for i in order.tolist() if abs(float(v[i])) > 0.2}
-            weak.append(combo)
+    for c in range(3):  # channels never mix (J^T J is block diagonal): one eigenproblem per channel
+        cols = torch.arange(c, normalized.shape[0], 3)
+        eigenvalues, vectors = torch.linalg.eigh(normalized[cols][:, cols])
+        for lam, v in zip(eigenvalues.tolist(), vectors.T):
+            if lam < threshold * float(eigenvalues.max()):
+                order = torch.argsort(v.abs(), descending=True)
+                weak.append({labels[int(cols[i])]: float(v[i]) for i in order.tolist() if abs(float(v[i])) > 0.2})
     s2 = (ra - rb) ** 2 / 2
     dJ = (J_a - J) / 2**0.5
     inv = torch.linalg.pinv(J.T @ J)

@@ -27,7 +27,7 @@ from tqdm.auto import tqdm
 from invrender.errors import ParameterError
 from invrender.scene.scene import Scene
 from invrender.transport.context import PathState
-from invrender.transport.sampler import path_keys, uniform
+from invrender.transport.sampler import mirrored, path_keys, uniform
 
 #: working-set estimate per path in a chunk (state, hits, temporaries, backend copies), bytes
 BYTES_PER_PATH = 2048
@@ -39,6 +39,10 @@ def check_int(owner: str, name: str, value, low: int | None = None) -> None:
         raise ParameterError(f"{owner}{name} must be an integer, got {value!r}")
     if low is not None and value < low:
         raise ParameterError(f"{owner}{name} must be {'positive' if low == 1 else f'>= {low}'}, got {value}")
+
+
+#: how a pixel's samples are drawn (RenderSettings.sampler)
+SAMPLERS = ("stratified", "independent", "antithetic")
 
 
 @dataclass(frozen=True)
@@ -53,6 +57,11 @@ class RenderSettings:
         chunk_paths: paths traced per chunk; None = sized by ``memory_mb``.
         memory_mb: memory budget for one chunk's working set, MiB.
         progress: show a progress bar (rate, ETA) on renders that take longer than a second.
+        sampler: how a pixel's samples are drawn (:data:`SAMPLERS`): ``"stratified"`` (jittered
+            on a grid over the pixel, the default), ``"independent"`` (each uniform over the pixel)
+            or ``"antithetic"`` (pairs: the second path of each pair draws ``1 - u`` for every
+            number ``u`` of the first, pixel jitter, lens, light samples, BSDF samples and
+            roulette; the pairs are stratified).
     """
 
     spp: int = 64
@@ -62,9 +71,12 @@ class RenderSettings:
     chunk_paths: int | None = None
     memory_mb: float = 512.0
     progress: bool = True
+    sampler: str = "stratified"
 
     def __post_init__(self):
         check_int("", "spp", self.spp, 1)
+        if self.sampler not in SAMPLERS:
+            raise ParameterError(f"unknown sampler {self.sampler!r} (known: {', '.join(SAMPLERS)})")
         check_int("", "seed", self.seed, 0)
         if self.chunk_paths is not None:
             check_int("", "chunk_paths", self.chunk_paths, 1)
@@ -150,20 +162,27 @@ def cpu_workers(device: torch.device) -> int:
 def camera_paths(scene: Scene, settings: RenderSettings, ids: torch.Tensor) -> PathState:
     """Camera rays for flat path ids (N,) = ``pixel * spp + sample``.
 
-    Pixel samples are stratified: with n = floor(sqrt(spp)), samples 0 .. n^2 - 1 each jitter in
-    their own cell of an n x n grid over the pixel and the remaining ones are uniform, so every
-    sample's film position is uniform over the pixel on average (a box filter, unbiased). A thin
-    lens draws its lens point from dimensions 2 and 3 of the same counters.
+    ``settings.sampler`` ``"stratified"``: with n = floor(sqrt(spp)), samples 0 .. n^2 - 1 each
+    jitter in their own cell of an n x n grid over the pixel and the remaining ones are uniform, so
+    every sample's film position is uniform over the pixel on average (a box filter, unbiased);
+    ``"independent"``: every sample uniform over the pixel; ``"antithetic"``: samples 2k and 2k + 1
+    share their counters, the second mirrored (``sampler.mirrored``), and the pairs are stratified
+    as samples are. A thin lens draws its lens point from dimensions 2 and 3 of the same counters.
     """
     spp = settings.spp
     pixel, sample = ids // spp, ids % spp
-    keys = path_keys(settings.seed, pixel, sample)
+    cell, cells = sample, spp
+    if settings.sampler == "antithetic":
+        cell, cells = sample // 2, (spp + 1) // 2
+        keys = mirrored(path_keys(settings.seed, pixel, 2 * cell), sample % 2 == 1)
+    else:
+        keys = path_keys(settings.seed, pixel, sample)
     camera = scene.camera
     u = uniform(keys, 0, 2 if camera.is_pinhole else 4)
-    n = math.isqrt(spp)
-    grid = sample < n * n
-    fx = torch.where(grid, ((sample % n).float() + u[:, 0]) / n, u[:, 0])
-    fy = torch.where(grid, ((sample // n).float() + u[:, 1]) / n, u[:, 1])
+    n = math.isqrt(cells) if settings.sampler != "independent" else 0
+    grid = cell < n * n
+    fx = torch.where(grid, ((cell % max(n, 1)).float() + u[:, 0]) / max(n, 1), u[:, 0])
+    fy = torch.where(grid, ((cell // max(n, 1)).float() + u[:, 1]) / max(n, 1), u[:, 1])
     film_xy = torch.stack([(pixel % scene.width).float() + fx, (pixel // scene.width).float() + fy], dim=1)
     o, d = camera.generate_rays(film_xy, scene.width, scene.height, None if camera.is_pinhole else u[:, 2:4])
     n_paths = ids.shape[0]

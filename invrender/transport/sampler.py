@@ -5,6 +5,11 @@ integer hash (Wellons' ``lowbias32``, a strong avalanche mix) of those counters,
 Nothing is stored between calls, so an image does not depend on chunk size or device, and path
 replay can regenerate a path's numbers instead of keeping them.
 
+**Antithetic pairs.** The lowest bit of a path key is not hashed: it marks a *mirrored* path, whose
+every number is ``1 - u`` (exactly: the bit complement of the 24 bits, so still in [0, 1)) for the
+``u`` its partner (the same key with the bit clear) draws. :func:`path_keys` returns keys with the bit
+clear; :func:`mirrored` sets it.
+
 The hash runs on int32 tensors: products wrap modulo 2^32 (two's complement), and the logical right
 shifts of unsigned arithmetic are an arithmetic shift followed by a mask. (int32 is several times
 faster than int64 on the CPU, where 64-bit multiplies do not vectorize.)
@@ -60,10 +65,17 @@ def path_keys(seed: int, pixel: torch.Tensor, sample: torch.Tensor) -> torch.Ten
         pixel: (N,) int64 flat pixel index (row * width + column), < 2^32.
         sample: (N,) int64 sample index within the pixel, < 2^32.
     Returns:
-        (N,) int32 keys (bits read as unsigned).
+        (N,) int32 keys (bits read as unsigned), the lowest bit clear (not mirrored).
     """
     k = _mix(_low32(pixel) ^ _signed(_mix_int(seed ^ 0x9E3779B9)))
-    return _mix(k ^ _low32(sample))
+    return _mix(k ^ _low32(sample)) & -2
+
+
+def mirrored(keys: torch.Tensor, mirror: torch.Tensor | bool = True) -> torch.Tensor:
+    """``keys`` (N,) marked as mirrored where ``mirror`` (N,) bool (or everywhere): their paths draw
+    ``1 - u`` for every number ``u`` of the unmarked key."""
+    bit = mirror.to(keys.dtype) if isinstance(mirror, torch.Tensor) else int(bool(mirror))
+    return (keys & -2) | bit
 
 
 def uniform(keys: torch.Tensor, bounce: int, dims: int) -> torch.Tensor:
@@ -74,14 +86,16 @@ def uniform(keys: torch.Tensor, bounce: int, dims: int) -> torch.Tensor:
         bounce: vertex index (0 = the camera's sample).
         dims: how many numbers per path.
     Returns:
-        (N, dims) float32, each the hash of (key, bounce, dimension): its low 24 bits / 2^24.
+        (N, dims) float32, each the hash of (key, bounce, dimension): its low 24 bits / 2^24 (their
+        complement for mirrored keys).
     """
     salts = torch.tensor([_signed(_mix_int(bounce * 0x10000 + d + 0x632BE5AB)) for d in range(dims)], dtype=torch.int32, device=keys.device)
-    h = _mix(keys[:, None] ^ salts)
+    h = _mix((keys & -2)[:, None] ^ salts)
+    h = h ^ -(keys[:, None] & 1)  # mirrored: all bits flipped, so the low 24 give 1 - 2^-24 - u
     return (h & 0xFFFFFF).to(torch.float32) * (1.0 / 16777216.0)
 
 
 def branch_keys(keys: torch.Tensor, branch: int) -> torch.Tensor:
     """Keys (N,) for branch ``branch`` of paths that split (Whitted's reflection and refraction):
-    independent of the parent's and of the other branches' numbers."""
-    return _mix(keys ^ _signed(_mix_int(0xB5297A4D + branch)))
+    independent of the parent's and of the other branches' numbers (mirrored if the parent is)."""
+    return mirrored(_mix((keys & -2) ^ _signed(_mix_int(0xB5297A4D + branch))), (keys & 1) == 1)

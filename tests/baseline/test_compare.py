@@ -24,9 +24,11 @@ def test_comparison_on_the_cornell_box(cbox32):
     # the Utah approximation drops the interreflected light: about a third of red, an eighth of blue
     assert (rel["utah"] < -0.08).all() and (rel["utah"] > -0.5).all()
     assert (rel["utah, eps0 fitted"].abs() < 0.02).all()  # a constant ambient recovers the mean
-    # pyrender: the same model; away from the light's own pixels (whose edge coverage a 4x4 grid of
-    # sub-pixels estimates coarsely) it is 7-10% darker, mostly its diffuse factor 0.96 (1 - F) ~ 0.92
-    off_light = ir.render(cbox32, "path", max_depth=1, spp=4, progress=False).sum(-1) == 0
+    # pyrender: the same model; away from the light's own pixels and their neighbours (whose edge
+    # coverage a 4x4 grid of sub-pixels estimates coarsely, and one bright edge pixel sways a mean)
+    # it is 7-9% darker, mostly its diffuse factor 0.96 (1 - F) ~ 0.92
+    light = ir.render(cbox32, "path", max_depth=1, spp=4, progress=False).sum(-1) > 0
+    off_light = torch.nn.functional.max_pool2d(light[None, None].float(), 3, stride=1, padding=1)[0, 0] == 0
     ratio = c.images["pyrender"][off_light].mean(0) / c.images["utah"][off_light].mean(0)
     assert ((ratio > 0.85) & (ratio < 0.97)).all(), ratio
     assert (c.eps0_fit > 0).all() and (c.eps0 == 0).all()
