@@ -1,7 +1,7 @@
 """Every shipped fit recipe with each solver, side by side: is ``lm`` better than Adam everywhere?
 
     python bench/fit_recipes.py [--solvers adam,lm] [--recipes cornell_random,two_lights,...]
-                                [--out runs/fit_recipes]
+                                [--set KEY=VALUE ...] [--out runs/fit_recipes]
 
 For each recipe of ``optimize/`` (a model study's variants each count as a recipe of their own:
 ``utah_bias/utah``), its dataset is rendered once into ``OUT/<recipe>/dataset`` and fitted with each
@@ -10,7 +10,8 @@ solver at the recipe's own settings (only ``solver`` changes), exactly as ``invr
 within 2% and within 1% of the truth (from the fit's history: "never" if it does not get there),
 the final largest error over all channels, the median error, and the total time; then which solver
 is better on each recipe (smaller final largest error, ties within 10% of it going to the faster
-one). Each fit's report is written to ``OUT/<recipe>/<solver>/report.json``.
+one). Each fit's report is written to ``OUT/<recipe>/<solver>/report.json``. ``--set KEY=VALUE``
+overrides a fit setting in every fit (``--set sampler=antithetic``).
 
 Model-study variants whose model cannot match the target (``utah`` without eps0) have a large final
 error under every solver: there the comparison is between two estimates of the same biased optimum.
@@ -54,12 +55,25 @@ def first_within(history: list[dict], tol: float) -> float | None:
     return None
 
 
+def _setting(text: str) -> tuple[str, object]:
+    """``"KEY=VALUE"`` -> (KEY, VALUE as int, float, bool or str: the first that parses)."""
+    key, _, value = text.partition("=")
+    for kind in (int, float):
+        try:
+            return key, kind(value)
+        except ValueError:
+            pass
+    return key, {"true": True, "false": False}.get(value.lower(), value)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--solvers", default="adam,lm")
     parser.add_argument("--recipes", default=None, help="comma-separated recipe stems (default: every recipe in optimize/)")
     parser.add_argument("--out", default="runs/fit_recipes")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a fit setting for every fit")
     args = parser.parse_args()
+    overrides = dict(_setting(t) for t in args.set)
     solvers = [s.strip() for s in args.solvers.split(",") if s.strip()]
     paths = sorted((ROOT / "optimize").glob("*.toml"))
     if args.recipes:
@@ -78,7 +92,7 @@ def main() -> None:
                 scene = dataclasses.replace(scene0, params={k: v.detach().clone() for k, v in scene0.params.items()})
                 apply_init(scene, names, init)
                 start = time.perf_counter()
-                result = ir.fit(scene, targets, names, cameras=cameras, truth=truth, progress=False, **{**settings, "solver": solver})
+                result = ir.fit(scene, targets, names, cameras=cameras, truth=truth, progress=False, **{**settings, **overrides, "solver": solver})
                 seconds = time.perf_counter() - start
                 errors = [e for n in result.truth for e in (result.params[n] / result.truth[n] - 1).abs().reshape(-1).tolist()]
                 row = {

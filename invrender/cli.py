@@ -146,6 +146,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--ambient", type=parse_rgb, default=None, metavar="R,G,B", help="ambient radiance eps0 for --integrator utah, whitted or distributed (one number or R,G,B; default: the scene's, else 0)")
     r.add_argument("--seed", type=int, default=0, help="random seed; the image is a pure function of it (default: 0)")
     r.add_argument("--rr-depth", type=int, default=None, help="Russian roulette starts after this many terms (path, random_walk, distributed; default: 5)")
+    r.add_argument("--sampler", default="stratified", help="pixel samples: stratified (jittered on a grid, default), independent, or antithetic (pairs whose second path draws 1 - u for every number of the first)")
     r.add_argument("--terms", action="store_true", help="also write one image per Neumann term (OUT_STEM.termK.SUFFIX)")
     r.add_argument("--device", default="cpu", help="torch device: cpu or cuda (default: cpu)")
     r.add_argument("--backend", default=None, help="intersection backend: embree (CPU) or torch (any device); default by device")
@@ -324,6 +325,7 @@ FIT_OPTIONS = [
     ("solver", str, "adam (gradient steps on re-traced renders, default), lm (Levenberg-Marquardt) or gauss_newton on path records"),
     ("rounds", int, "lm / gauss_newton: most record-and-solve rounds, round r at spp*4^r (default: 5)"),
     ("precision", float, "lm / gauss_newton: the rounds also wait until every standard error is below this fraction of its value (default: no such requirement)"),
+    ("sampler", str, "pixel samples of every render or record: stratified (default), independent or antithetic (mirrored pairs)"),
 ]
 
 
@@ -361,7 +363,7 @@ def run_render(args) -> int:
     start = time.perf_counter()
     image = ir.render(
         scene, integrator=args.integrator, spp=spp, max_depth=max_depth, seed=args.seed, terms=args.terms,
-        rr_depth=rr_depth, backend=args.backend, device=args.device, memory_mb=args.memory_mb, progress=not args.quiet,
+        rr_depth=rr_depth, backend=args.backend, device=args.device, memory_mb=args.memory_mb, progress=not args.quiet, sampler=args.sampler,
     )  # fmt: skip
     seconds = time.perf_counter() - start
     full = image.sum(0) if args.terms else image

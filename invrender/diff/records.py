@@ -456,6 +456,7 @@ def record_paths(
     memory_mb: float = 512.0,
     max_record_mb: float = 1024.0,
     progress: bool = True,
+    sampler: str = "stratified",
     **options,
 ) -> PathRecords:
     """Trace ``scene`` once and keep the estimate as a polynomial in the parameters ``params``.
@@ -468,6 +469,7 @@ def record_paths(
         spp, max_depth, seed: as :func:`invrender.render` (``max_depth`` finite: it bounds the
             degree of the polynomial).
         integrator: any integrator name; ``options`` are its further settings (e.g. ``rr_depth``).
+        sampler: how pixel samples are drawn, as :func:`invrender.render`.
         max_record_mb: refuse records that would exceed this (one-line error naming the
             parameters; with textures it is checked while tracing).
     Returns:
@@ -498,7 +500,7 @@ def record_paths(
     if 8 * w * h * 3 > max_record_mb * 2**20:
         raise ParameterError(f"a {w}x{h} record needs {8 * w * h * 3 / 2**20:.0f} MiB per monomial, over max_record_mb={max_record_mb:g}")
     model = make_integrator(integrator, max_depth=max_depth, **options)
-    settings = RenderSettings(spp=spp, seed=seed, memory_mb=memory_mb, progress=progress)
+    settings = RenderSettings(spp=spp, seed=seed, memory_mb=memory_mb, progress=progress, sampler=sampler)
     device = torch.device(device) if device is not None else scene.device
     record = torch.cat([scene.params[n].detach().to(device, torch.float64).reshape(-1, 3) for n in names])  # (N_var, 3)
     place = [math.prod(radix[:p]) for p in range(len(radix))]

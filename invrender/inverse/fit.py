@@ -75,6 +75,8 @@ class FitSettings:
             times its value.
         precision: least-squares solvers: a relative standard error the rounds must reach
             before they stop (None: no such requirement).
+        sampler: how each render's or record's pixel samples are drawn: ``"stratified"``,
+            ``"independent"`` or ``"antithetic"`` (mirrored pairs; see ``invrender.render``).
     """
 
     steps: int = 200
@@ -94,6 +96,7 @@ class FitSettings:
     solver: str = "adam"
     rounds: int = 5
     precision: float | None = None
+    sampler: str = "stratified"
 
     def __post_init__(self):
         for name in ("steps", "spp", "spp_final", "max_depth", "seed", "checkpoint_every", "rounds"):
@@ -112,6 +115,7 @@ class FitSettings:
             if not getattr(self, name) > 0:
                 raise ParameterError(f"fit setting {name} must be positive, got {getattr(self, name)!r}")
         make_integrator(self.integrator, max_depth=self.max_depth)  # validates both
+        RenderSettings(sampler=self.sampler)  # validates the sampler
         if self.loss not in LOSSES:
             raise ParameterError(f"unknown loss {self.loss!r} (known: {', '.join(LOSSES)})")
         if self.estimator not in ESTIMATORS:
@@ -270,7 +274,7 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
                     record_paths(
                         dataclasses.replace(view_scene, params={**view_scene.params, **{n: current[n].float() for n in names}}),
                         names, spp=spp, max_depth=cfg.max_depth, seed=cfg.seed * 1_000_003 + 2 * (rnd * len(views) + v) + half,
-                        integrator=cfg.integrator, progress=False,
+                        integrator=cfg.integrator, progress=False, sampler=cfg.sampler,
                     )  # fmt: skip
                     for v, (view_scene, _) in enumerate(views)
                 ]
@@ -330,7 +334,7 @@ def _view_loss(view_scene: Scene, values, target, cfg: FitSettings, step: int, v
     spp = cfg.spp_at(step)
     seed = cfg.seed * 1_000_003 + 2 * (step * n_views + view)
     integrator = make_integrator(cfg.integrator, max_depth=cfg.max_depth)
-    kw = dict(spp=spp, progress=False)
+    kw = dict(spp=spp, progress=False, sampler=cfg.sampler)
     if not cfg.decorrelate:
         image = render(work, integrator, seed=seed, estimator=cfg.estimator, **kw)
         return loss_and_gradient(cfg.loss, target, image, image / n_views) / n_views
