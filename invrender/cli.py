@@ -326,6 +326,7 @@ FIT_OPTIONS = [
     ("rounds", int, "lm / gauss_newton: most record-and-solve rounds, round r at spp*4^r (default: 5)"),
     ("precision", float, "lm / gauss_newton: the rounds also wait until every standard error is below this fraction of its value (default: no such requirement)"),
     ("sampler", str, "pixel samples of every render or record: stratified (default), independent or antithetic (mirrored pairs)"),
+    ("control_variate", "bool", "adam with decorrelate: true = take dl/dI at a recursive control-variate image (one more render per step; default: false)"),
 ]
 
 

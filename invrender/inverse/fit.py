@@ -23,6 +23,7 @@ from tqdm.auto import tqdm
 
 from invrender.errors import ImageError, ParameterError
 from invrender.inverse import params as P
+from invrender.inverse.control_variates import RecursiveControlVariate
 from invrender.inverse.least_squares import SOLVERS
 from invrender.inverse.losses import LOSSES, loss_and_gradient, loss_gradient
 from invrender.io.atomic import atomic_file
@@ -77,6 +78,9 @@ class FitSettings:
             before they stop (None: no such requirement).
         sampler: how each render's or record's pixel samples are drawn: ``"stratified"``,
             ``"independent"`` or ``"antithetic"`` (mirrored pairs; see ``invrender.render``).
+        control_variate: Adam with ``decorrelate``: take ``dl/dI`` at the recursive control-variate
+            estimate of each view's image (control_variates.py: one more render per view and step,
+            at the previous parameters with the same numbers) instead of at a plain render.
     """
 
     steps: int = 200
@@ -97,6 +101,7 @@ class FitSettings:
     rounds: int = 5
     precision: float | None = None
     sampler: str = "stratified"
+    control_variate: bool = False
 
     def __post_init__(self):
         for name in ("steps", "spp", "spp_final", "max_depth", "seed", "checkpoint_every", "rounds"):
@@ -105,6 +110,8 @@ class FitSettings:
                 raise ParameterError(f"fit setting {name} must be an integer, got {value!r}")
         if self.steps <= 0 or self.spp <= 0 or self.spp_final <= 0 or self.checkpoint_every <= 0 or self.rounds <= 0:
             raise ParameterError("fit settings steps, spp, spp_final, checkpoint_every and rounds must be positive")
+        if self.control_variate and not (self.decorrelate and self.solver == "adam"):
+            raise ParameterError("control_variate needs solver 'adam' with decorrelate (it replaces the render dl/dI is taken at)")
         if self.solver not in SOLVERS:
             raise ParameterError(f"unknown solver {self.solver!r} (known: {', '.join(SOLVERS)})")
         if self.solver != "adam" and (self.max_depth < 1 or self.loss != "relative_l2"):
@@ -216,6 +223,9 @@ def fit(
     start = 0
     if state is not None:
         start, history = _restore(state, names, raw, optimizer)
+    variates = [_control_variate(view_scene, cfg) if cfg.control_variate else None for view_scene, _ in views]
+    for cv, cv_state in zip(variates, (state or {}).get("control_variates") or []):
+        cv.load(cv_state)
 
     clock = time.perf_counter() - (history[-1]["seconds"] if history else 0.0)
     bar = tqdm(total=cfg.steps, initial=start, unit="step", disable=not progress, desc="fit", file=sys.stderr, dynamic_ncols=True)
@@ -227,7 +237,7 @@ def fit(
                     group["lr"] = lr * cfg.lr_factor(step)
                 optimizer.zero_grad(set_to_none=True)
                 loss = sum(
-                    _view_loss(view_scene, {n: P.from_raw(n, raw[n]) for n in names}, view_target, cfg, step, v, len(views))  # a fresh graph per view
+                    _view_loss(view_scene, {n: P.from_raw(n, raw[n]) for n in names}, view_target, cfg, step, v, len(views), variates[v])  # a fresh graph per view
                     for v, (view_scene, view_target) in enumerate(views)
                 )
                 if step == 0:
@@ -238,13 +248,13 @@ def fit(
                 bar.set_postfix(loss=f"{record['loss']:.4g}", refresh=False)
                 bar.update(1)
                 if checkpoint is not None and (step + 1) % cfg.checkpoint_every == 0:
-                    _save_checkpoint(checkpoint, scene, names, cfg, step + 1, history, **_adam_state(raw, optimizer))
+                    _save_checkpoint(checkpoint, scene, names, cfg, step + 1, history, **_adam_state(raw, optimizer, variates))
     except KeyboardInterrupt:
         if checkpoint is not None:
-            _save_checkpoint(checkpoint, scene, names, cfg, len(history), history, **_adam_state(raw, optimizer))
+            _save_checkpoint(checkpoint, scene, names, cfg, len(history), history, **_adam_state(raw, optimizer, variates))
         raise
     if checkpoint is not None:
-        _save_checkpoint(checkpoint, scene, names, cfg, len(history), history, **_adam_state(raw, optimizer))
+        _save_checkpoint(checkpoint, scene, names, cfg, len(history), history, **_adam_state(raw, optimizer, variates))
 
     recovered = {n: P.from_raw(n, raw[n]).detach().clone() for n in names}
     out_scene = dataclasses.replace(scene, params={**{k: v.detach().clone() for k, v in scene.params.items()}, **recovered})
@@ -328,8 +338,21 @@ def identifiability(scene: Scene, target, params, *, cameras: list[Camera] | Non
     return analyse(recs[0], recs[1], [t for _, t in views], values)
 
 
-def _view_loss(view_scene: Scene, values, target, cfg: FitSettings, step: int, view: int, n_views: int) -> torch.Tensor:
-    """Render one view, back-propagate its share of the loss, return the loss value."""
+def _control_variate(view_scene: Scene, cfg: FitSettings) -> RecursiveControlVariate:
+    """One view's recursive control variate, rendering with the fit's integrator and sampler."""
+    integrator = make_integrator(cfg.integrator, max_depth=cfg.max_depth)
+
+    def render_at(values: dict, seed: int, spp: int) -> torch.Tensor:
+        with torch.no_grad():
+            work = dataclasses.replace(view_scene, params={**view_scene.params, **{k: v.detach() for k, v in values.items()}})
+            return render(work, integrator, spp=spp, seed=seed, progress=False, sampler=cfg.sampler)
+
+    return RecursiveControlVariate(render_at)
+
+
+def _view_loss(view_scene: Scene, values, target, cfg: FitSettings, step: int, view: int, n_views: int, cv: RecursiveControlVariate | None = None) -> torch.Tensor:
+    """Render one view, back-propagate its share of the loss, return the loss value (with ``cv``,
+    ``dl/dI`` is taken at its estimate of the image)."""
     work = dataclasses.replace(view_scene, params={**view_scene.params, **values})
     spp = cfg.spp_at(step)
     seed = cfg.seed * 1_000_003 + 2 * (step * n_views + view)
@@ -339,8 +362,11 @@ def _view_loss(view_scene: Scene, values, target, cfg: FitSettings, step: int, v
         image = render(work, integrator, seed=seed, estimator=cfg.estimator, **kw)
         return loss_and_gradient(cfg.loss, target, image, image / n_views) / n_views
     # dl/dI from one render, differentiated through another (independent seed): unbiased (losses.py)
-    with torch.no_grad():
-        residual = render(work, integrator, seed=seed + 1, **kw)
+    if cv is not None:
+        residual = cv(values, seed + 1, spp)
+    else:
+        with torch.no_grad():
+            residual = render(work, integrator, seed=seed + 1, **kw)
     dl_dI, value = loss_gradient(cfg.loss, target, residual)
     backpropagate(work, dl_dI / n_views, integrator, RenderSettings(seed=seed, **kw), cfg.estimator)
     return value / n_views
@@ -404,8 +430,11 @@ def _save_checkpoint(path: Path, scene, names, cfg, step: int, history: list[dic
         torch.save(state, f)
 
 
-def _adam_state(raw, optimizer) -> dict:
-    return {"raw": {n: v.detach().clone() for n, v in raw.items()}, "optimizer": optimizer.state_dict()}
+def _adam_state(raw, optimizer, variates) -> dict:
+    state = {"raw": {n: v.detach().clone() for n, v in raw.items()}, "optimizer": optimizer.state_dict()}
+    if any(cv is not None for cv in variates):
+        state["control_variates"] = [cv.state() for cv in variates]
+    return state
 
 
 def _restore(state: dict, names, raw, optimizer) -> tuple[int, list[dict]]:
