@@ -24,6 +24,7 @@ from invrender.scene.camera import Camera
 from invrender.scene.materials import Material
 from invrender.study import GradientConfig, GradientStudy, gradient_study
 from invrender.transport import integrators
+from invrender.transport.radiosity import RadiositySolution, radiosity
 
 __version__ = "0.1.0"
 
@@ -39,6 +40,6 @@ def __getattr__(name):
 
 __all__ = [
     "load_scene", "render", "fit", "gradcheck", "read_image", "write_image", "FitResult", "Camera", "Material", "integrators",
-    "record_paths", "PathRecords", "identifiability", "gradient_study", "GradientStudy", "GradientConfig",
+    "radiosity", "RadiositySolution", "record_paths", "PathRecords", "identifiability", "gradient_study", "GradientStudy", "GradientConfig",
     "InvRenderError", "SceneError", "ImageError", "ParameterError", "BaselineError",
 ]  # fmt: skip

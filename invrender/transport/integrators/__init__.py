@@ -15,11 +15,12 @@ Beside it, the older methods, each a truncation or approximation of the series:
 from invrender.transport.integrators.base import INTEGRATORS, DepthSettings, Integrator, RouletteSettings, make_integrator
 from invrender.transport.integrators.distributed import Distributed
 from invrender.transport.integrators.path import Path
+from invrender.transport.integrators.radiosity import Radiosity
 from invrender.transport.integrators.random_walk import RandomWalk
 from invrender.transport.integrators.utah import Utah
 from invrender.transport.integrators.whitted import Whitted
 
 __all__ = [
     "INTEGRATORS", "Integrator", "DepthSettings", "RouletteSettings", "make_integrator",
-    "RandomWalk", "Path", "Utah", "Whitted", "Distributed",
+    "RandomWalk", "Path", "Utah", "Whitted", "Distributed", "Radiosity",
 ]  # fmt: skip

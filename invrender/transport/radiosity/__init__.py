@@ -1,0 +1,24 @@
+"""Radiosity: diffuse scenes as patches, form factors by ray casting, the linear system
+``(I - diag(rho) F) B = E`` solved directly or iteratively with exact gradients, and Neumann-Ulam
+random walks as its Monte Carlo solvers (docs/radiosity.md).
+
+- :mod:`~invrender.transport.radiosity.patches`: meshing into patches, locating points, per-patch rho and eps;
+- :mod:`~invrender.transport.radiosity.form_factors`: stratified ray-cast form factors with standard errors;
+- :mod:`~invrender.transport.radiosity.system`: the solvers and the adjoint (implicit) gradient;
+- :mod:`~invrender.transport.radiosity.random_walks`: collision and absorption estimators, transition choices,
+  the variance condition;
+- :mod:`~invrender.transport.radiosity.solution`: the pipeline, :func:`radiosity` and its result.
+
+The ``radiosity`` integrator (:mod:`invrender.transport.integrators.radiosity`) renders a solution.
+"""
+
+from invrender.transport.radiosity.form_factors import FormFactors, FormFactorSettings, form_factors
+from invrender.transport.radiosity.patches import Patches, mesh_patches
+from invrender.transport.radiosity.random_walks import WalkEstimate, neumann_ulam, transition_matrix, variance_radius
+from invrender.transport.radiosity.solution import RadiositySettings, RadiositySolution, radiosity
+from invrender.transport.radiosity.system import SolverSettings, SolveReport, solve
+
+__all__ = [
+    "radiosity", "RadiositySettings", "RadiositySolution", "Patches", "mesh_patches", "FormFactors", "FormFactorSettings",
+    "form_factors", "SolverSettings", "SolveReport", "solve", "WalkEstimate", "neumann_ulam", "transition_matrix", "variance_radius",
+]  # fmt: skip
