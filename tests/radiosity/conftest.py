@@ -1,6 +1,5 @@
 """Scenes and closed forms for the radiosity tests."""
 
-import pytest
 import torch
 
 import invrender as ir
@@ -40,9 +39,16 @@ def sphere_closed_form(a: torch.Tensor, rho: torch.Tensor, E: torch.Tensor) -> t
     return E + rho * E_bar / (1 - rho_bar)
 
 
-@pytest.fixture(scope="session")
-def half_spheres():
-    return hemispheres()
+def sphere_system(n=24, seed=0):
+    """Exact sphere-interior form factors for n patches of random areas, random rho in [0.1, 0.9]
+    and E in [0, 2] per patch and channel (float64)."""
+    gen = torch.Generator().manual_seed(seed)
+    a = torch.rand(n, generator=gen, dtype=torch.float64) + 0.2
+    a = a / a.sum()
+    F = a[None, :].expand(n, n).clone()  # F_ij = a_j, F_ii included
+    rho = 0.1 + 0.8 * torch.rand(n, 3, generator=gen, dtype=torch.float64)
+    E = 2 * torch.rand(n, 3, generator=gen, dtype=torch.float64)
+    return a, F, rho, E
 
 
-__all__ = ["hemispheres", "area_fractions", "sphere_closed_form", "NORTH_RHO", "SOUTH_RHO", "NORTH_EPS", "SOUTH_EPS"]
+__all__ = ["sphere_system", "hemispheres", "area_fractions", "sphere_closed_form", "NORTH_RHO", "SOUTH_RHO", "NORTH_EPS", "SOUTH_EPS"]

@@ -14,21 +14,9 @@ import torch
 
 from invrender.errors import ParameterError
 from invrender.transport.radiosity.system import SolverSettings, neumann_terms, solve
-from tests.radiosity.conftest import sphere_closed_form
+from tests.radiosity.conftest import sphere_closed_form, sphere_system
 
 METHODS = ["direct", "jacobi", "gauss_seidel", "neumann"]
-
-
-def sphere_system(n=24, seed=0):
-    """Exact sphere-interior form factors for n patches of random areas, random rho in [0.1, 0.9]
-    and E in [0, 2] per patch and channel (float64)."""
-    gen = torch.Generator().manual_seed(seed)
-    a = torch.rand(n, generator=gen, dtype=torch.float64) + 0.2
-    a = a / a.sum()
-    F = a[None, :].expand(n, n).clone()  # F_ij = a_j, F_ii included
-    rho = 0.1 + 0.8 * torch.rand(n, 3, generator=gen, dtype=torch.float64)
-    E = 2 * torch.rand(n, 3, generator=gen, dtype=torch.float64)
-    return a, F, rho, E
 
 
 @pytest.mark.parametrize("method", METHODS)

@@ -81,10 +81,9 @@ def transition_matrix(M: torch.Tensor, transition="analog") -> torch.Tensor:
         survival = m.sum(2, keepdim=True)
         return torch.where(nonzero, survival / nonzero.sum(2, keepdim=True).clamp_min(1), 0.0)
     P = torch.as_tensor(transition, dtype=torch.float64, device=M.device)
-    if P.ndim == 2:
-        P = P.expand(C, n, n)
-    if P.shape != (C, n, n):
-        raise ParameterError(f"transition matrix must have shape ({n}, {n}) or ({C}, {n}, {n}), got {tuple(torch.as_tensor(transition).shape)}")
+    if P.shape not in ((n, n), (C, n, n)):
+        raise ParameterError(f"transition matrix must have shape ({n}, {n}) or ({C}, {n}, {n}), got {tuple(P.shape)}")
+    P = P.expand(C, n, n)
     if not bool(torch.isfinite(P).all()):
         raise ParameterError("transition matrix has non-finite entries")
     if bool((P < 0).any()):

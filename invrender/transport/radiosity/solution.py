@@ -53,7 +53,7 @@ class RadiositySettings(DepthSettings):
             in [1, 64]; or
         patches: a target patch count (patches of about equal area); default 1024 when neither is
             given; giving both is an error.
-        rays: form-factor rays cast from each patch side (rounded to ``batches`` x a square).
+        rays: form-factor rays cast from each patch side (rounded to ``batches`` x a power of 2).
         emitter_rays: rays cast from each emitter side, whose columns of F come from them by
             reciprocity; None = ``rays`` x (other sides per emitter side), at most 16 x ``rays``.
         batches: independent batches of those rays, for the form factors' standard errors.
