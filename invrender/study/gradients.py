@@ -34,8 +34,9 @@ from invrender.study.statistics import Moments, log_slope, moments
 from invrender.study.trials import gradient_sample, pixel_contributions
 from invrender.transport.driver import check_int
 
-#: the configurations of a default study: the two pairings, and both estimators
-DEFAULT_CONFIGS = ("path/replay/correlated", "path/replay/decorrelated", "path/autodiff/decorrelated")
+#: the configurations of a default study: both pairings with one estimator, both estimators with
+#: the pairing fit uses (autodiff is the cheaper one for a correlated gradient of a small image)
+DEFAULT_CONFIGS = ("path/autodiff/correlated", "path/autodiff/decorrelated", "path/replay/decorrelated")
 #: samples per pixel of a default study
 DEFAULT_SPP = (4, 8, 16, 32)
 #: losses a study offers: those whose gradient is a sum of per-pixel terms
@@ -382,7 +383,7 @@ def gradient_study(
         maps = []
         if pixel_maps:
             for c, labels in map_groups.items():
-                bar.set_postfix_str(f"per-pixel {c.replace(estimator='replay').label} {pixel_spp} spp", refresh=False)
+                bar.set_postfix_str(f"per-pixel {c.label} {pixel_spp} spp", refresh=False)
                 maps.append(_pixel_variance(objective, pixel_param, c, labels, pixel_spp, seeds, trials, bar))
 
     return GradientStudy(
