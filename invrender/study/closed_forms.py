@@ -77,11 +77,11 @@ def furnace_walk(rho: float, eps: float, max_depth: int = -1, rr_depth: int = 1)
     """Enumerate the furnace's ``random_walk`` paths under the renderer's rules: vertex k emits
     ``eps beta_k``; after it (if ``k + 1 < max_depth`` or unbounded) beta is multiplied by rho and,
     once ``k + 1 >= rr_depth``, the path survives with ``q = min(beta, 0.95)`` and beta is divided by q
-    (``invrender.transport.context.russian_roulette``)."""
+    (``invrender.transport.context.russian_roulette``); ``rr_depth = -1``: no roulette."""
     if not 0 < rho < 1:
         raise ParameterError(f"the furnace's closed forms need 0 < rho < 1, got {rho}")
-    if max_depth == -1 and rr_depth > 1000:
-        raise ParameterError("an unbounded walk needs Russian roulette (rr_depth <= 1000)")
+    if max_depth == -1 and (rr_depth == -1 or rr_depth > 1000):
+        raise ParameterError("an unbounded walk needs Russian roulette (1 <= rr_depth <= 1000)")
     prob, x, d_eps, d_rho = [], [], [], []
     alive, beta, total, total_rho = 1.0, 1.0, 0.0, 0.0
     k = 0
@@ -92,7 +92,7 @@ def furnace_walk(rho: float, eps: float, max_depth: int = -1, rr_depth: int = 1)
             end = alive  # the last term kept: every remaining path ends here
         else:
             beta *= rho  # cosine-sampled Lambertian weight
-            q = min(beta, 0.95) if k + 1 >= rr_depth else 1.0
+            q = min(beta, 0.95) if rr_depth != -1 and k + 1 >= rr_depth else 1.0
             end = alive * (1 - q)
             beta /= q
         prob.append(end)

@@ -39,8 +39,9 @@ from invrender.transport.integrators import INTEGRATORS, Integrator, make_integr
 STUDY_SETTINGS = ("spp", "seed", "terms", "progress")
 
 #: options that do not change the expected image, so configurations differing only in them share
-#: a reference gradient (Russian roulette and every pixel sampler are unbiased)
-UNBIASED_OPTIONS = ("rr_depth", "sampler")
+#: a reference gradient: Russian roulette, the pixel sampler, the hemisphere sampling of diffuse
+#: BSDFs and the path tracer's direct-light strategy are all unbiased choices
+UNBIASED_OPTIONS = ("rr_depth", "sampler", "hemisphere", "strategy")
 
 
 @dataclass(frozen=True)

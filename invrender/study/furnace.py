@@ -3,10 +3,11 @@ closed forms (:mod:`invrender.study.closed_forms`, docs/closed_forms.md#gradient
 
 The study runs on the built-in ``furnace`` (grey rho, eps) with the exact radiance ``eps / (1 - rho)``
 as the target and the gradient taken at the scene's own values, against exact references. Where the
-closed forms hold (``random_walk``, any ``max_depth`` and ``rr_depth``; losses ``l2`` and
-``relative_l2``) every row has a predicted mean and variance; for ``path`` only the true gradient is
-known (its expected image is the same truncated series), so a decorrelated ``path`` row has a
-predicted mean and a correlated one is measured only.
+closed forms hold (``random_walk`` with any ``max_depth`` and ``rr_depth``, cosine hemisphere
+samples and independent paths; losses ``l2`` and ``relative_l2``) every row has a predicted mean and
+variance; otherwise (``path``, or other sampling choices) only the true gradient is known (the
+expected image is the same truncated series), so a decorrelated row has a predicted mean and a
+correlated one is measured only.
 """
 
 from __future__ import annotations
@@ -34,6 +35,21 @@ FURNACE_SPP = (1, 4, 16)
 #: the furnace's parameters: its emitter and its wall
 FURNACE_PARAMS = ("glow.emission", "wall.reflectance")
 KIND = {"glow.emission": "emission", "wall.reflectance": "reflectance"}
+#: options under which a random_walk configuration keeps the closed forms: independent paths with
+#: cosine-sampled weights exactly rho (antithetic pairs are not independent, uniform hemisphere
+#: samples weigh 2 rho cos)
+CLOSED_FORM_OPTIONS = {"max_depth": None, "rr_depth": None, "backend": None, "chunk_paths": None, "memory_mb": None,
+                       "sampler": ("stratified", "independent"), "hemisphere": ("cosine",)}  # fmt: skip
+
+
+def has_closed_form(config: GradientConfig) -> bool:
+    """Do the closed forms give this configuration's mean and variance (not only its true gradient)?"""
+    if config.integrator != "random_walk":
+        return False
+    for key, value in config.options:
+        if key not in CLOSED_FORM_OPTIONS or (CLOSED_FORM_OPTIONS[key] is not None and value not in CLOSED_FORM_OPTIONS[key]):
+            return False
+    return True
 
 
 @dataclass(frozen=True)
@@ -97,7 +113,8 @@ class FurnaceCheck:
             f"Furnace check: rho = {self.rho:g}, eps = {self.eps:g}, {self.study.resolution[0]}x{self.study.resolution[1]} pixels, "
             f"{self.study.trials} trials, loss {self.study.loss}, target eps/(1-rho) = {furnace_radiance(self.rho, self.eps):g}, "
             "gradients summed over the three channels.\n"
-            "Closed forms hold for random_walk (any max_depth, rr_depth); for path only the true gradient is known.\n"
+            "Closed forms hold for random_walk (any max_depth, rr_depth; cosine hemisphere samples, independent paths); "
+            "elsewhere (path, other sampling) only the true gradient is known.\n"
             f"Textbook form 2 eps rho/((1-rho)^2 N) (analog walk: random_walk, max_depth -1, rr_depth 1): "
             + ", ".join(f"N={n}: {analog_eps_bias(self.rho, self.eps, n):.4g}" for n in self.study.spp) + "\n\n"
         )
@@ -168,8 +185,8 @@ def furnace_check(
 
     def walk(config: GradientConfig) -> FurnaceWalk:
         settings = config.integrator_and_settings(1, 0)[0].settings
-        # path's expected image is the same series as random_walk's at the same depth, whatever the roulette
-        return furnace_walk(rho, eps, settings.max_depth, settings.rr_depth)
+        # every configuration's expected image is the analog walk's series at its depth, whatever its sampling
+        return furnace_walk(rho, eps, settings.max_depth, getattr(settings, "rr_depth", 5))
 
     def truth(config: GradientConfig) -> torch.Tensor:
         w = walk(config)
@@ -183,11 +200,11 @@ def furnace_check(
             summary = study.summary(c, n, "parameter")
             for k, name in enumerate(study.params):
                 exact = predict_gradient(w, KIND[name], n, pixels, target[0, 0, 0].item(), loss, c.gradient == "correlated").scaled(3)
-                known_mean = c.integrator == "random_walk" or c.gradient == "decorrelated"
+                closed = has_closed_form(c)
                 rows.append(CheckRow(
                     c.label, n, name, exact.truth,
                     float(summary.moments.mean[k]), float(summary.moments.std_error[k]),
                     float(summary.moments.variance[k]), float(summary.moments.variance_se[k]),
-                    exact.mean if known_mean else None, exact.variance if c.integrator == "random_walk" else None,
+                    exact.mean if closed or c.gradient == "decorrelated" else None, exact.variance if closed else None,
                 ))  # fmt: skip
     return FurnaceCheck(study, tuple(rows), rho, eps)

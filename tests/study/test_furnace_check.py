@@ -5,7 +5,8 @@ import pytest
 
 from invrender.errors import ParameterError
 from invrender.study.closed_forms import analog_eps_bias
-from invrender.study.furnace import furnace_check
+from invrender.study import parse_config
+from invrender.study.furnace import furnace_check, has_closed_form
 
 ANALOG = "random_walk/autodiff/{}/max_depth=-1/rr_depth=1"
 
@@ -50,3 +51,10 @@ def test_integrators_without_an_exact_gradient_are_refused():
         furnace_check(["utah/replay/correlated"], trials=2, progress=False)
     with pytest.raises(ParameterError, match="closed form"):
         furnace_check(loss="l1", trials=2, progress=False)
+
+
+def test_which_configurations_have_closed_forms():
+    """Only the random walk with independent paths: antithetic pairs share their random numbers."""
+    assert has_closed_form(parse_config("random_walk/autodiff/correlated/max_depth=6/rr_depth=2/sampler=independent"))
+    assert not has_closed_form(parse_config("random_walk/replay/correlated/sampler=antithetic"))
+    assert not has_closed_form(parse_config("path/replay/decorrelated"))
