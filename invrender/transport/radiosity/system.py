@@ -190,6 +190,8 @@ def solve(F: torch.Tensor, rho: torch.Tensor, E: torch.Tensor, settings: SolverS
     if F.ndim != 2 or F.shape != (S, S) or rho.shape != (S, 3) or E.shape != (S, 3):
         raise ParameterError(f"radiosity system shapes must be F (S, S), rho (S, 3), E (S, 3), got {tuple(F.shape)}, {tuple(rho.shape)}, {tuple(E.shape)}")
     method = settings.resolved(S)
+    if S == 0:  # nothing can receive light
+        return E.double() * 0, SolveReport(method, 0, torch.zeros(3, dtype=torch.float64))
     F64, rho64, E64 = F.detach().double(), rho.detach().double(), E.detach().double()
     B, iterations, lu = _solve_detached(F64, rho64, E64, method, settings)
     if rho.requires_grad or E.requires_grad:
