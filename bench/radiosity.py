@@ -25,7 +25,16 @@ from invrender.transport.accel import make_intersector
 from invrender.transport.radiosity import FormFactorSettings, SolverSettings, form_factors, mesh_patches, neumann_ulam, solve
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root, for the tests' scenes
-from tests.radiosity.conftest import NORTH_EPS, NORTH_RHO, SOUTH_EPS, SOUTH_RHO, area_fractions, hemispheres, sphere_closed_form, sphere_system
+from tests.radiosity.conftest import (
+    NORTH_EPS,
+    NORTH_RHO,
+    SOUTH_EPS,
+    SOUTH_RHO,
+    area_fractions,
+    hemispheres,
+    sphere_closed_form,
+    sphere_system,
+)
 
 CORNELL_PARAMS = ["white.reflectance", "red.reflectance", "green.reflectance", "light.emission"]
 
@@ -164,6 +173,10 @@ def walks_part() -> None:
         est = sol.random_walk(estimator, walks=2000, seed=1)
         z = ((w * est.mean).sum(1) - (w * B).sum(1)) / ((w * est.stderr) ** 2).sum(1).sqrt()
         print(f"cornell ({B.shape[1]} unknowns) {estimator}: area-weighted mean z {' '.join(f'{v:+.2f}' for v in z.tolist())}")
+    try:
+        sol.random_walk(transition="uniform")
+    except ir.ParameterError as err:
+        print(f"cornell, uniform transitions refused: {err}")
     n = M.shape[1]
     P = torch.full((n, n), 0.9 / n, dtype=torch.float64)
     P[:, 0] = 1e-4

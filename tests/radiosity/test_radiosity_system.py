@@ -59,7 +59,7 @@ def test_adjoint_gradient_passes_gradcheck(method):
 
 
 def test_neumann_terms_sum_to_the_solution():
-    a, F, rho, E = sphere_system(n=8)
+    _, F, rho, E = sphere_system(n=8)
     terms = neumann_terms(F, rho, E, 200)
     assert torch.allclose(terms[1], rho * (F @ E))
     B, _ = solve(F, rho, E)
@@ -67,7 +67,7 @@ def test_neumann_terms_sum_to_the_solution():
 
 
 def test_solver_settings_are_checked():
-    a, F, rho, E = sphere_system(n=8)
+    _, F, rho, E = sphere_system(n=8)
     with pytest.raises(ParameterError, match="unknown radiosity solver method 'cg'"):
         SolverSettings(method="cg")
     with pytest.raises(ParameterError, match=r"tolerance must be a number in \(0, 1\)"):

@@ -40,7 +40,7 @@ def test_analog_walk_has_unit_weights_and_the_matrix_itself_as_variance_matrix()
 
 
 def test_a_transition_matrix_with_infinite_variance_is_refused_before_walking():
-    a, M, E, _ = walk_problem()
+    _, M, E, _ = walk_problem()
     n = M.shape[1]
     P = torch.full((n, n), 0.9 / n, dtype=torch.float64)
     P[:, 0] = 1e-4  # state 0 hardly ever visited: its weight m/p is huge
@@ -77,3 +77,6 @@ def test_radiosity_solution_walks_agree_with_its_solve():
     a = sol.area.double() / sol.area.double().sum()
     mean, se = (a * est.mean).sum(1), ((a * est.stderr) ** 2).sum(1).sqrt()
     assert ((mean - (a * B).sum(1)).abs() < 3 * se).all(), (mean, (a * B).sum(1), se)
+    # uniform transitions over a row's very unequal form factors: m_ij^2 / p_ij has radius 1.3 here
+    with pytest.raises(ParameterError, match=r"spectral radius of m_ij\^2/p_ij is 1\.[0-9]+ >= 1 in channel R"):
+        sol.random_walk(transition="uniform")

@@ -16,7 +16,7 @@ from invrender.transport.radiosity.form_factors import FormFactors, FormFactorSe
 from invrender.transport.radiosity.patches import Patches, mesh_patches
 from invrender.transport.radiosity.random_walks import WalkEstimate, neumann_ulam, transition_matrix, variance_radius
 from invrender.transport.radiosity.solution import RadiositySettings, RadiositySolution, radiosity
-from invrender.transport.radiosity.system import SolverSettings, SolveReport, solve
+from invrender.transport.radiosity.system import SolveReport, SolverSettings, solve
 
 __all__ = [
     "radiosity", "RadiositySettings", "RadiositySolution", "Patches", "mesh_patches", "FormFactors", "FormFactorSettings",

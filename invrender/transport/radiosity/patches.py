@@ -163,13 +163,8 @@ def side_reflectance(ctx, patches: Patches, m: int = 3) -> torch.Tensor:
     """Per-side diffuse reflectance rho (2P, 3): each patch's average over ``m^2`` points (exact for
     constant reflectances; textures filtered bilinearly as the renderer does), the same on both
     sides. Differentiable in the reflectance parameters. ``ctx``: a TransportContext."""
-    b = quadrature(m if ctx.textured else 1).to(patches.corners.device)
-    q = b.shape[0]
-    patch = torch.arange(patches.count, device=b.device).repeat_interleave(q)
-    _, uvw = patches.points(b.repeat(patches.count, 1), patch)
-    tri = patches.tri[patch]
-    uv = _texture_uv(ctx.triangles, tri, uvw)
-    n = patches.normal[patch]
+    tri, uv, q = _patch_samples(ctx, patches, m)
+    n = ctx.triangles.normal[tri]
     sp = ctx.materials.shading_point(ctx.triangles.material[tri], n, n, n, torch.ones_like(tri, dtype=torch.bool), uv)
     rho = ctx.materials.diffuse_reflectance(sp).reshape(patches.count, q, 3).mean(1)
     return rho.repeat_interleave(2, dim=0)
@@ -178,13 +173,21 @@ def side_reflectance(ctx, patches: Patches, m: int = 3) -> torch.Tensor:
 def side_emission(ctx, patches: Patches, m: int = 3) -> torch.Tensor:
     """Per-side emitted radiance eps (2P, 3): each emitting patch's average over ``m^2`` points on
     its front side, zero on back sides and elsewhere. Differentiable in the emission parameters."""
+    tri, uv, q = _patch_samples(ctx, patches, m)
+    eps = ctx.emission(ctx.triangles.emitter[tri], uv).reshape(patches.count, q, 3).mean(1)
+    return torch.stack([eps, torch.zeros_like(eps)], dim=1).reshape(-1, 3)
+
+
+def _patch_samples(ctx, patches: Patches, m: int) -> tuple[torch.Tensor, torch.Tensor, int]:
+    """The points parameters are averaged at: q = m^2 per patch (1 when nothing is textured, where
+    one point is exact), patch by patch: their scene triangles (P q,) and texture coordinates
+    (P q, 2), and q."""
     b = quadrature(m if ctx.textured else 1).to(patches.corners.device)
     q = b.shape[0]
     patch = torch.arange(patches.count, device=b.device).repeat_interleave(q)
     _, uvw = patches.points(b.repeat(patches.count, 1), patch)
     tri = patches.tri[patch]
-    eps = ctx.emission(ctx.triangles.emitter[tri], _texture_uv(ctx.triangles, tri, uvw)).reshape(patches.count, q, 3).mean(1)
-    return torch.stack([eps, torch.zeros_like(eps)], dim=1).reshape(-1, 3)
+    return tri, _texture_uv(ctx.triangles, tri, uvw), q
 
 
 def _texture_uv(triangles: Triangles, tri: torch.Tensor, uvw: torch.Tensor) -> torch.Tensor:

@@ -50,7 +50,8 @@ class WalkEstimate:
         start: (k,) int64 the start states.
         walks: walks per start state and system.
         estimator: ``"collision"`` or ``"absorption"``.
-        variance_radius: (C,) float64 spectral radius of ``m_ij^2 / p_ij`` (< 1: finite variance).
+        variance_radius: (C,) float64 spectral radius of ``m_ij^2 / p_ij`` (< 1: finite variance);
+            above 256 states an upper bound from power iteration (:func:`spectral_radius_bounds`).
         mean_length: mean number of moves per walk.
     """
 
@@ -98,15 +99,52 @@ def transition_matrix(M: torch.Tensor, transition="analog") -> torch.Tensor:
 
 def variance_radius(M: torch.Tensor, P: torch.Tensor) -> torch.Tensor:
     """(C,) spectral radius of ``M^_ij = m_ij^2 / p_ij`` (0 where ``m_ij = 0``): the walks' variance
-    is finite iff it is below 1. ``M``, ``P``: (C, n, n)."""
-    M, P = _systems(M), _systems(P)
-    hat = torch.where(M != 0, M * M / torch.where(P > 0, P, 1.0), 0.0)
-    return spectral_radius(hat)
+    is finite iff it is below 1. ``M``, ``P``: (C, n, n) (:func:`spectral_radius`)."""
+    return spectral_radius(_hat(_systems(M), _systems(P)))
+
+
+def _hat(M: torch.Tensor, P: torch.Tensor) -> torch.Tensor:
+    """``M^_ij = m_ij^2 / p_ij`` (0 where ``m_ij = 0``), (C, n, n)."""
+    return torch.where(M != 0, M * M / torch.where(P > 0, P, 1.0), 0.0)
+
+
+#: largest n whose spectral radii are computed from all eigenvalues (above: power iteration)
+EIGVALS_MAX = 256
 
 
 def spectral_radius(A: torch.Tensor) -> torch.Tensor:
-    """(C,) largest eigenvalue modulus of each of ``A`` (C, n, n)."""
-    return torch.linalg.eigvals(A).abs().amax(-1)
+    """(C,) spectral radius of each of the non-negative matrices ``A`` (C, n, n) (the midpoint of
+    :func:`spectral_radius_bounds`)."""
+    low, high = spectral_radius_bounds(A)
+    return 0.5 * (low + high)
+
+
+def spectral_radius_bounds(A: torch.Tensor, iterations: int = 1000, rtol: float = 1e-6, decide: float | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """Lower and upper bounds (C,), (C,) on the spectral radius of each non-negative ``A`` (C, n, n).
+
+    Up to :data:`EIGVALS_MAX` rows both are the exact value (``torch.linalg.eigvals``). Above, power
+    iteration on ``A + I`` (aperiodic, same Perron vector) with Collatz-Wielandt bounds: for any
+    positive x, ``min_i (A x)_i / x_i <= rho(A) <= max_i (A x)_i / x_i``. It stops when the bounds
+    agree to ``rtol``, or, with ``decide``, once (after 30 iterations) both lie on the same side of
+    it.
+    """
+    A = A.double()
+    if A.shape[-1] <= EIGVALS_MAX:
+        value = torch.linalg.eigvals(A).abs().amax(-1)
+        return value, value
+    x = torch.ones(A.shape[:2], dtype=torch.float64, device=A.device)
+    for it in range(iterations):
+        y = torch.stack([torch.mv(a, v) for a, v in zip(A, x)])
+        y = y + 1e-12 * y.amax(1, keepdim=True).clamp_min(1e-300)  # keeps x > 0 (moves rho by < 1e-12 n)
+        ratio = y / x
+        low, high = ratio.amin(1), ratio.amax(1)
+        x = (y + x) / (y + x).amax(1, keepdim=True)  # the shift by I: no oscillation between cyclic classes
+        done = high - low <= rtol * high
+        if decide is not None and it >= 30:
+            done |= (high < decide) | (low >= decide)
+        if bool(done.all()):
+            break
+    return low, high
 
 
 def check_walk(M: torch.Tensor, a: torch.Tensor, P: torch.Tensor, estimator: str) -> torch.Tensor:
@@ -123,15 +161,15 @@ def check_walk(M: torch.Tensor, a: torch.Tensor, P: torch.Tensor, estimator: str
     if bool(missing.any()):
         c, i, j = (int(x) for x in missing.nonzero()[0])
         raise ParameterError(f"transition probability p[{i}, {j}] is 0 where m[{i}, {j}] = {float(M[c, i, j]):.3g} is not: the walk would be biased")
-    series = spectral_radius(M.abs())
-    if bool((series >= 1).any()):
-        c = int(series.argmax())
-        raise ParameterError(f"the Neumann series diverges: spectral radius of |M| is {float(series[c]):.4g} >= 1 in {_channel(c, M.shape[0])}")
-    radius = variance_radius(M, P)
+    low, high = spectral_radius_bounds(M.abs(), decide=1.0)
+    if bool((high >= 1).any()):
+        c = int(high.argmax())
+        raise ParameterError(f"the Neumann series diverges: spectral radius of |M| {_radius(low[c], high[c])} in {_channel(c, M.shape[0])}")
+    low, radius = spectral_radius_bounds(_hat(M, P), decide=1.0)
     if bool((radius >= 1).any()):
         c = int(radius.argmax())
         raise ParameterError(
-            f"transition probabilities give the random walk infinite variance: spectral radius of m_ij^2/p_ij is {float(radius[c]):.4g} >= 1 "
+            f"transition probabilities give the random walk infinite variance: spectral radius of m_ij^2/p_ij {_radius(low[c], radius[c])} "
             f"in {_channel(c, M.shape[0])}"
         )
     if estimator == "absorption":
@@ -238,8 +276,20 @@ def _systems(M) -> torch.Tensor:
     return M
 
 
+def _radius(low: torch.Tensor, high: torch.Tensor) -> str:
+    """A spectral radius known to lie in [low, high], high >= 1, for a message."""
+    if float(low) == float(high):
+        return f"is {float(low):.4g} >= 1"
+    if float(low) >= 1:
+        return f"is at least {float(low):.4g} >= 1"
+    return f"lies in [{float(low):.4g}, {float(high):.4g}], not certainly below 1"
+
+
 def _channel(c: int, count: int) -> str:
     return f"channel {'RGB'[c]}" if count == 3 else f"system {c}"
 
 
-__all__ = ["WalkEstimate", "neumann_ulam", "transition_matrix", "variance_radius", "spectral_radius", "check_walk", "ESTIMATORS", "TRANSITIONS"]
+__all__ = [
+    "WalkEstimate", "neumann_ulam", "transition_matrix", "variance_radius", "spectral_radius", "spectral_radius_bounds", "check_walk",
+    "ESTIMATORS", "TRANSITIONS",
+]  # fmt: skip

@@ -30,11 +30,11 @@ import torch
 from torch.autograd import forward_ad
 
 from invrender.errors import ParameterError
+from invrender.transport.integrators.base import DepthSettings
 from invrender.transport.radiosity.form_factors import FormFactors, FormFactorSettings, form_factors
 from invrender.transport.radiosity.patches import MAX_PATCHES, Patches, mesh_patches, side_emission, side_reflectance
 from invrender.transport.radiosity.random_walks import WalkEstimate, neumann_ulam
-from invrender.transport.radiosity.system import SolverSettings, SolveReport, gather, neumann_terms, solve
-from invrender.transport.integrators.base import DepthSettings
+from invrender.transport.radiosity.system import SolveReport, SolverSettings, gather, neumann_terms, solve
 
 #: target patch count when neither ``subdivision`` nor ``patches`` is given
 DEFAULT_PATCHES = 1024
