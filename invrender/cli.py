@@ -38,6 +38,9 @@ commands:
   variance   gradient-variance study: variance, bias, cost and per-pixel noise of gradient
              estimators over independent trials (CSV, JSON, PNG figures); 'variance furnace'
              checks them against closed forms
+  ablation   sampling strategies (pixel samples, hemisphere sampling, MIS / BSDF / emitter
+             sampling, Russian roulette, adaptive sampling) compared by RMSE against a high-spp
+             reference at equal samples and equal time (a table, CSV and a log-log figure)
 
 Run 'invrender COMMAND --help' for a command's options.
 """
@@ -52,10 +55,19 @@ examples:
   invrender render cornell_specular --spp 256 --out spec.png            # mirror, glass, glossy
   invrender render cornell_specular --integrator whitted --ambient 0.02 --out whitted.png
   invrender render cornell_specular --integrator distributed --out cook.png
+  invrender render cornell_box --strategy emitter --hemisphere uniform --rr-depth -1 --out nee.png
+  invrender render forward/cornell_far.toml --spp 64 --adaptive --out far.png   # + far.spp.png
 
 max_depth counts Neumann terms as Mitsuba 3 does: 1 = emitters seen directly, 2 = + direct
 illumination, ...; -1 = unbounded (paths end by Russian roulette only). With --terms, term k
 (the light reflected k times, g(Mg)^k eps) is also written to OUT_STEM.termK.SUFFIX.
+
+Sampling strategies (docs/sampling.md): --sampler (pixel samples), --hemisphere (diffuse BSDF
+sampling), --strategy (direct light by MIS, BSDF samples or emitter samples), --rr-depth -1 (no
+Russian roulette); all estimate the same image. With --adaptive, --spp is the average number of
+samples per pixel: a pilot pass estimates each pixel's variance, then --rounds passes spend the
+samples where the estimated relative error is high (the image stays unbiased), and the samples
+each pixel got are written to OUT_STEM.spp.png (and OUT_STEM.spp.exr for an .exr output).
 """
 
 
@@ -145,8 +157,13 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--integrator", default="path", help=integrator_help())
     r.add_argument("--ambient", type=parse_rgb, default=None, metavar="R,G,B", help="ambient radiance eps0 for --integrator utah, whitted or distributed (one number or R,G,B; default: the scene's, else 0)")
     r.add_argument("--seed", type=int, default=0, help="random seed; the image is a pure function of it (default: 0)")
-    r.add_argument("--rr-depth", type=int, default=None, help="Russian roulette starts after this many terms (path, random_walk, distributed; default: 5)")
+    r.add_argument("--rr-depth", type=int, default=None, help="Russian roulette starts after this many terms; -1 = no roulette (path, random_walk, distributed; default: 5)")
     r.add_argument("--sampler", default="stratified", help="pixel samples: stratified (jittered on a grid, default), independent, or antithetic (pairs whose second path draws 1 - u for every number of the first)")
+    r.add_argument("--strategy", default=None, help="direct light of the path tracer: mis (emitter and BSDF samples by multiple importance sampling, default), bsdf (BSDF samples only) or emitter (emitter samples only)")
+    r.add_argument("--hemisphere", default=None, help="diffuse BSDF sampling: cosine (default) or uniform over the hemisphere (path, random_walk)")
+    r.add_argument("--adaptive", action="store_true", help="adaptive sampling: --spp samples per pixel on average, spent where the estimated error is high; writes OUT_STEM.spp.png")
+    for name, kind, doc in ADAPTIVE_OPTIONS:
+        r.add_argument(f"--{name.replace('_', '-')}", dest=name, type=kind, default=None, metavar=name.upper(), help=doc)
     r.add_argument("--terms", action="store_true", help="also write one image per Neumann term (OUT_STEM.termK.SUFFIX)")
     r.add_argument("--device", default="cpu", help="torch device: cpu or cuda (default: cpu)")
     r.add_argument("--backend", default=None, help="intersection backend: embree (CPU) or torch (any device); default by device")
@@ -238,7 +255,26 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--seed", type=int, default=0, help="the study's seed (default: 0)")
     v.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     v.set_defaults(run=run_variance)
+
+    a = sub.add_parser("ablation", help="compare sampling strategies at equal samples and equal time", description=ABLATION_DOC, epilog=ABLATION_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_scene_argument(a)
+    a.add_argument("--out", required=True, help="output folder: ablation.csv, ablation.md, ablation.png")
+    a.add_argument("--strategies", default=None, metavar="NAME,NAME", help="variants besides default (default: all): " + ", ".join(_ablation_names()))
+    a.add_argument("--spp", default="8,16,32,64", metavar="N,N", help="samples per pixel, ascending (default: 8,16,32,64)")
+    a.add_argument("--trials", type=int, default=2, help="seeds per strategy and spp (default: 2)")
+    a.add_argument("--reference-spp", type=int, default=4096, help="spp of the reference, the defaults with other seeds (default: 4096)")
+    a.add_argument("--resolution", type=parse_resolution, default=(32, 32), metavar="WxH", help="(default: 32x32)")
+    a.add_argument("--max-depth", type=int, default=8, help="Neumann terms kept (default: 8)")
+    a.add_argument("--seed", type=int, default=0, help="offsets every seed of the study (default: 0)")
+    a.add_argument("--quiet", action="store_true", help="no progress bar")
+    a.set_defaults(run=run_ablation)
     return parser
+
+
+def _ablation_names() -> list[str]:
+    from invrender.ablation.variants import VARIANTS
+
+    return [v.name for v in VARIANTS if v.name != "default"]
 
 
 def _study_defaults() -> tuple:
@@ -246,6 +282,26 @@ def _study_defaults() -> tuple:
 
     return DEFAULT_CONFIGS, DEFAULT_SPP
 
+
+ABLATION_DOC = """\
+Compare the path tracer's sampling strategies. Each variant changes one choice of the defaults
+(stratified pixel samples, cosine-weighted hemisphere sampling, MIS of emitter and BSDF samples,
+Russian roulette from rr_depth 5, every pixel the same spp): independent or antithetic pixel
+samples, uniform hemisphere sampling, BSDF samples only, emitter samples only, no roulette,
+adaptive sampling. Each renders the scene at every --spp for --trials seeds; the error is the RMSE
+against a --reference-spp render of the defaults, the cost the wall-clock time of one render. The
+table gives each variant's RMSE per spp, its RMSE at equal time (the defaults' time at the largest
+spp) and its efficiency 1/(MSE x time) relative to the defaults; the figure plots RMSE against
+samples and against time, log-log, one line per variant. All variants estimate the same image, so
+their differences are variance only.
+"""
+
+ABLATION_EPILOG = """\
+examples:
+  invrender ablation cornell_box --out runs/ablation                    # a few minutes on 2 cores
+  invrender ablation forward/cornell_far.toml --strategies adaptive --out runs/adaptive
+  invrender ablation cornell_specular --strategies bsdf_only,emitter_only --spp 16,64,256 --out runs/mis
+"""
 
 FIT_EPILOG = """\
 examples:
@@ -307,6 +363,15 @@ decorrelated: from an independent one, as fit does) and KEY=VALUE render options
 max_depth=-1, ...). Left out: path, replay, decorrelated.
 """
 
+#: AdaptiveSettings fields as render flags (only with --adaptive)
+ADAPTIVE_OPTIONS = [
+    ("pilot_spp", int, "with --adaptive: samples per pixel of the pilot pass, which only allocates (default: spp/8, from 4 to 16)"),
+    ("rounds", int, "with --adaptive: passes after the pilot, each allocated from the samples before it (default: 2)"),
+    ("target_error", float, "with --adaptive: relative standard error at which a pixel needs no more samples; --spp is then a cap (default: spend all of --spp)"),
+    ("max_spp", int, "with --adaptive: most samples one pixel gets (default: 16 x --spp)"),
+    ("floor", float, "with --adaptive: errors are relative to the pixel's mean + FLOOR x the image's mean (default: 1)"),
+]
+
 FIT_OPTIONS = [
     ("steps", int, "optimizer steps (default: 200)"),
     ("spp", int, "samples per pixel, first half of the steps (default: 16)"),
@@ -361,23 +426,63 @@ def run_render(args) -> int:
     same_integrator = args.integrator == defaults.get("integrator", "path")
     max_depth = args.max_depth if args.max_depth is not None else defaults.get("max_depth") if same_integrator else None
     rr_depth = args.rr_depth if args.rr_depth is not None else defaults.get("rr_depth") if same_integrator else None
+    adaptive = _adaptive_settings(args)
+    options = {k: v for k, v in (("strategy", args.strategy), ("hemisphere", args.hemisphere)) if v is not None}
     start = time.perf_counter()
-    image = ir.render(
+    result = ir.render(
         scene, integrator=args.integrator, spp=spp, max_depth=max_depth, seed=args.seed, terms=args.terms,
         rr_depth=rr_depth, backend=args.backend, device=args.device, memory_mb=args.memory_mb, progress=not args.quiet, sampler=args.sampler,
+        adaptive=adaptive, return_counts=adaptive is not None, **options,
     )  # fmt: skip
     seconds = time.perf_counter() - start
+    image = result.image if adaptive is not None else result
     full = image.sum(0) if args.terms else image
+    written = []
     for path in outputs:
         ir.write_image(path, full)
         if args.terms:
             for k in range(image.shape[0]):
                 ir.write_image(path.with_name(f"{path.stem}.term{k}{path.suffix}"), image[k])
+        if adaptive is not None:
+            written += [p for p in write_sample_counts(path, result.spp) if p not in written]
     if not args.quiet:
         paths = scene.width * scene.height * spp
         print(f"{scene.name}: {scene.width}x{scene.height}, {spp} spp, {seconds:.2f} s ({paths / seconds / 1e6:.3g} M paths/s); mean RGB {_mean_rgb(full)}", file=sys.stderr)
-        print("wrote " + ", ".join(str(p) for p in outputs) + (f" (+ {image.shape[0]} term images each)" if args.terms else ""), file=sys.stderr)
+        if adaptive is not None:
+            counts = result.spp.float()
+            print(f"adaptive: pilot {result.pilot_spp} spp + {len(result.passes)} rounds; samples per pixel {int(counts.min())} to {int(counts.max())} (mean {counts.mean():.4g}); "
+                  f"estimated relative error median {result.error.median():.3g}, max {result.error.max():.3g}", file=sys.stderr)  # fmt: skip
+        print("wrote " + ", ".join(str(p) for p in outputs + written) + (f" (+ {image.shape[0]} term images each)" if args.terms else ""), file=sys.stderr)
     return 0
+
+
+def _adaptive_settings(args):
+    """The AdaptiveSettings of ``render --adaptive`` (None without it; its options alone are an error)."""
+    from invrender.transport.adaptive import AdaptiveSettings
+
+    given = {name: getattr(args, name) for name, _, _ in ADAPTIVE_OPTIONS if getattr(args, name) is not None}
+    if not args.adaptive:
+        if given:
+            raise ParameterError(f"--{next(iter(given)).replace('_', '-')} needs --adaptive")
+        return None
+    return AdaptiveSettings(**given)
+
+
+def write_sample_counts(path: Path, counts) -> list[Path]:
+    """Write the samples per pixel ``counts`` (H, W) beside the image ``path``: OUT_STEM.spp.png
+    (a viridis map from 0 to the largest count) and, for an .exr ``path``, OUT_STEM.spp.exr (the
+    counts themselves). Returns the paths written."""
+    import invrender as ir
+    from invrender.io.maps import write_count_map
+
+    png = path.with_name(f"{path.stem}.spp.png")
+    write_count_map(png, counts)
+    out = [png]
+    if path.suffix.lower() == ".exr":
+        exr = path.with_name(f"{path.stem}.spp.exr")
+        ir.write_image(exr, counts.float()[..., None].expand(*counts.shape, 3))
+        out.append(exr)
+    return out
 
 
 def _mean_rgb(image) -> str:
@@ -598,6 +703,23 @@ def run_variance(args) -> int:
     if check is not None and args.tolerance is not None and check.worst_z() > args.tolerance:
         print(f"invrender: a closed form is missed by {check.worst_z():.1f} standard errors (tolerance {args.tolerance:g})", file=sys.stderr)
         return 1
+    return 0
+
+
+def run_ablation(args) -> int:
+    import invrender as ir
+    from invrender.ablation import ablation, format_table, write_ablation
+
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ImageError(f"cannot write to {out}: it is a file")
+    spp = tuple(_int_list(args.spp, "--spp"))
+    scene = ir.load_scene(args.scene, resolution=args.resolution)
+    result = ablation(scene, args.strategies, spp=spp, trials=args.trials, reference_spp=args.reference_spp, max_depth=args.max_depth, seed=args.seed, progress=not args.quiet)
+    written = write_ablation(result, out)
+    print(format_table(result), flush=True)
+    if not args.quiet:
+        print("wrote " + ", ".join(str(p) for p in written), file=sys.stderr)
     return 0
 
 

@@ -16,6 +16,7 @@ import torch
 
 from invrender.errors import ParameterError
 from invrender.scene.scene import Scene
+from invrender.transport.adaptive import AdaptiveSettings
 from invrender.transport.driver import RenderSettings
 from invrender.transport.integrators import Integrator, make_integrator
 
@@ -38,8 +39,10 @@ def render(
     memory_mb: float = 512.0,
     progress: bool = True,
     sampler: str = "stratified",
+    adaptive=None,
+    return_counts: bool = False,
     **options,
-) -> torch.Tensor:
+):
     """Render ``scene`` by Monte Carlo estimation of ``I = g eps + gMg eps + g(Mg)^2 eps + ...``.
 
     Args:
@@ -62,10 +65,19 @@ def render(
         progress: show a progress bar with rate and ETA when the render takes over a second.
         sampler: how each pixel's samples are drawn: ``"stratified"`` (default), ``"independent"``
             or ``"antithetic"`` (mirrored pairs; see :class:`~invrender.transport.driver.RenderSettings`).
-        options: further settings of the integrator.
+        adaptive: adaptive sampling (docs/sampling.md#adaptive-sampling): True, a dict of
+            :class:`~invrender.transport.adaptive.AdaptiveSettings` fields or such an object; then
+            ``spp`` is the average number of samples per pixel, spent where the estimated relative
+            error is high (the image stays unbiased). None/False: ``spp`` in every pixel.
+        return_counts: with ``adaptive``, return an
+            :class:`~invrender.transport.adaptive.AdaptiveResult` (image, samples per pixel,
+            estimated relative error) instead of the image alone.
+        options: further settings of the integrator, e.g. for ``path`` ``strategy`` (``"mis"``,
+            ``"bsdf"``, ``"emitter"``) and ``hemisphere`` (``"cosine"``, ``"uniform"``).
     Returns:
         float32 linear radiance, (H, W, 3) with row 0 at the top; (K, H, W, 3) with ``terms``.
-        Differentiable in any ``scene.params`` entry that requires grad.
+        Differentiable in any ``scene.params`` entry that requires grad. With ``return_counts``
+        an :class:`~invrender.transport.adaptive.AdaptiveResult`.
     """
     for key, value in (("max_depth", max_depth), ("rr_depth", rr_depth)):
         if value is not None:
@@ -76,6 +88,14 @@ def render(
         raise ParameterError(f"unknown estimator {estimator!r} (known: {', '.join(ESTIMATORS)})")
     device = _device(scene, device)
     differentiable = [k for k, v in scene.params.items() if v.requires_grad] if torch.is_grad_enabled() else []
+    adaptive = AdaptiveSettings.make(adaptive)
+    if return_counts and adaptive is None:
+        raise ParameterError("return_counts=True needs adaptive sampling (adaptive=True or its settings): without it every pixel has spp samples")
+    if adaptive is not None:
+        from invrender.diff.adaptive import render_adaptive
+
+        result = render_adaptive(scene, model, settings, adaptive, device, differentiable, estimator or "replay")
+        return result if return_counts else result.image
     if differentiable and (estimator or "replay") == "replay":
         if terms:
             raise ParameterError("terms=True is not available with estimator='replay'; use estimator='autodiff'")

@@ -10,7 +10,7 @@ import torch
 from invrender.scene.kinds import param_name
 from invrender.scene.scene import AMBIENT, Scene, Triangles, scene_extent
 from invrender.transport.accel import make_intersector
-from invrender.transport.bsdfs import Materials, ShadingPoint
+from invrender.transport.bsdfs import BSDFSampling, Materials, ShadingPoint
 from invrender.transport.lights import EmitterSampler
 from invrender.transport.surface import Surface
 from invrender.transport.textures import gather_rgb
@@ -46,12 +46,15 @@ class TransportContext:
     extra: object = None
 
     @staticmethod
-    def build(scene: Scene, device: torch.device, backend: str | None = None, embree_threads: int | None = None, params: dict | None = None) -> "TransportContext":
+    def build(
+        scene: Scene, device: torch.device, backend: str | None = None, embree_threads: int | None = None, params: dict | None = None, sampling: BSDFSampling | None = None,
+    ) -> "TransportContext":  # fmt: skip
         """The context for rendering ``scene`` on ``device`` (parameters moved differentiably).
 
         ``backend``: intersection backend name (None = the device's default).
         ``embree_threads``: threads each Embree query is split across (None = one per core).
         ``params``: values to use instead of ``scene.params`` (same names; all or some).
+        ``sampling``: how the BSDFs draw directions (None = cosine-weighted diffuse lobes).
         """
         tris = scene.triangles.to(device)
         values = {**scene.params, **(params or {})}
@@ -63,7 +66,7 @@ class TransportContext:
             triangles=tris,
             accel=make_intersector(tris, backend, embree_threads),
             lights=lights if lights.count else None,
-            materials=Materials([s.type for s in specs], material_values, [dict(s.constants) for s in specs], device, flat=not tris.any_smooth),
+            materials=Materials([s.type for s in specs], material_values, [dict(s.constants) for s in specs], device, flat=not tris.any_smooth, sampling=sampling),
             eps=eps,
             ambient=values[AMBIENT].to(device) if AMBIENT in values else None,
             ray_offset=1e-4 * max(scene_extent(tris), 1e-3),

@@ -62,6 +62,8 @@ class RenderSettings:
             or ``"antithetic"`` (pairs: the second path of each pair draws ``1 - u`` for every
             number ``u`` of the first, pixel jitter, lens, light samples, BSDF samples and
             roulette; the pairs are stratified).
+        plan: which samples each pixel traces (:class:`SamplePlan`, the passes of adaptive
+            sampling); None = samples ``0 .. spp - 1`` in every pixel.
     """
 
     spp: int = 64
@@ -72,6 +74,7 @@ class RenderSettings:
     memory_mb: float = 512.0
     progress: bool = True
     sampler: str = "stratified"
+    plan: "SamplePlan | None" = dataclasses.field(default=None, compare=False)
 
     def __post_init__(self):
         check_int("", "spp", self.spp, 1)
@@ -87,6 +90,36 @@ class RenderSettings:
         return dataclasses.replace(self, **changes)
 
 
+@dataclass(frozen=True)
+class SamplePlan:
+    """A pass of samples with a count of its own in every pixel (adaptive sampling's rounds).
+
+    Pixel p traces the samples with indices ``first[p] .. first[p] + count[p] - 1``: its random
+    numbers are those of these sample indices, so passes with disjoint index ranges are
+    independent. Within a pass the pixel's ``count[p]`` samples are stratified as ``count[p]``
+    samples of a uniform render are (``RenderSettings.sampler``).
+
+    Attributes:
+        count: (P,) int64 samples of each pixel in this pass, >= 0 (P = width * height).
+        first: (P,) int64 index of each pixel's first sample.
+    """
+
+    count: torch.Tensor
+    first: torch.Tensor
+
+    @property
+    def total(self) -> int:
+        """Paths in the pass."""
+        return int(self.count.sum())
+
+    def locate(self, ids: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Flat path ids (N,) in ``[0, total)`` -> (pixel (N,), index of the sample within the
+        pixel's pass (N,)); ids run through pixel 0's samples, then pixel 1's, ..."""
+        ends = torch.cumsum(self.count.to(ids.device), 0)
+        pixel = torch.searchsorted(ends, ids, right=True)
+        return pixel, ids - (ends[pixel] - self.count.to(ids.device)[pixel])
+
+
 def for_each_chunk(scene: Scene, settings: RenderSettings, device: torch.device, work, grad: bool | None = None) -> None:
     """Call ``work(worker, camera_paths)`` for every chunk of the (pixel, sample) paths.
 
@@ -95,7 +128,7 @@ def for_each_chunk(scene: Scene, settings: RenderSettings, device: torch.device,
     ``grad``: autograd on or off inside the workers (default: the caller's mode).
     """
     workers = cpu_workers(device)
-    total = scene.width * scene.height * settings.spp
+    total = scene.width * scene.height * settings.spp if settings.plan is None else settings.plan.total
     chunk = settings.chunk_paths or max(1024, min(int(settings.memory_mb * 2**20 // BYTES_PER_PATH) // workers, -(-total // workers)))
     starts = range(0, total, chunk)
     grad = torch.is_grad_enabled() if grad is None else grad
@@ -160,7 +193,8 @@ def cpu_workers(device: torch.device) -> int:
 
 
 def camera_paths(scene: Scene, settings: RenderSettings, ids: torch.Tensor) -> PathState:
-    """Camera rays for flat path ids (N,) = ``pixel * spp + sample``.
+    """Camera rays for flat path ids (N,) = ``pixel * spp + sample`` (or the ids of
+    ``settings.plan``, each pixel with its own count).
 
     ``settings.sampler`` ``"stratified"``: with n = floor(sqrt(spp)), samples 0 .. n^2 - 1 each
     jitter in their own cell of an n x n grid over the pixel and the remaining ones are uniform, so
@@ -168,21 +202,28 @@ def camera_paths(scene: Scene, settings: RenderSettings, ids: torch.Tensor) -> P
     ``"independent"``: every sample uniform over the pixel; ``"antithetic"``: samples 2k and 2k + 1
     share their counters, the second mirrored (``sampler.mirrored``), and the pairs are stratified
     as samples are. A thin lens draws its lens point from dimensions 2 and 3 of the same counters.
+    With a plan, spp is the pixel's count in the pass and sample k has the index ``first + k``.
     """
-    spp = settings.spp
-    pixel, sample = ids // spp, ids % spp
+    if settings.plan is None:
+        spp = settings.spp
+        pixel, sample = ids // spp, ids % spp
+        first = 0
+    else:
+        pixel, sample = settings.plan.locate(ids)
+        spp, first = settings.plan.count.to(ids.device)[pixel], settings.plan.first.to(ids.device)[pixel]
     cell, cells = sample, spp
     if settings.sampler == "antithetic":
         cell, cells = sample // 2, (spp + 1) // 2
-        keys = mirrored(path_keys(settings.seed, pixel, 2 * cell), sample % 2 == 1)
+        keys = mirrored(path_keys(settings.seed, pixel, first + 2 * cell), sample % 2 == 1)
     else:
-        keys = path_keys(settings.seed, pixel, sample)
+        keys = path_keys(settings.seed, pixel, first + sample)
     camera = scene.camera
     u = uniform(keys, 0, 2 if camera.is_pinhole else 4)
-    n = math.isqrt(cells) if settings.sampler != "independent" else 0
+    n = _grid_size(cells) if settings.sampler != "independent" else 0
     grid = cell < n * n
-    fx = torch.where(grid, ((cell % max(n, 1)).float() + u[:, 0]) / max(n, 1), u[:, 0])
-    fy = torch.where(grid, ((cell // max(n, 1)).float() + u[:, 1]) / max(n, 1), u[:, 1])
+    n = _at_least_one(n)
+    fx = torch.where(grid, ((cell % n).float() + u[:, 0]) / n, u[:, 0])
+    fy = torch.where(grid, ((cell // n).float() + u[:, 1]) / n, u[:, 1])
     film_xy = torch.stack([(pixel % scene.width).float() + fx, (pixel // scene.width).float() + fy], dim=1)
     o, d = camera.generate_rays(film_xy, scene.width, scene.height, None if camera.is_pinhole else u[:, 2:4])
     n_paths = ids.shape[0]
@@ -191,3 +232,15 @@ def camera_paths(scene: Scene, settings: RenderSettings, ids: torch.Tensor) -> P
         keys=keys, pixel=pixel, o=o.contiguous(), d=d, beta=beta,
         pdf_dir=torch.ones(n_paths, device=ids.device), delta=torch.ones(n_paths, dtype=torch.bool, device=ids.device),
     )  # fmt: skip
+
+
+def _grid_size(cells):
+    """floor(sqrt(cells)) of an int or an int64 tensor."""
+    if isinstance(cells, int):
+        return math.isqrt(cells)
+    n = cells.double().sqrt().floor().long()
+    return n - (n * n > cells).long() + ((n + 1) * (n + 1) <= cells).long()  # exact despite rounding
+
+
+def _at_least_one(n):
+    return max(n, 1) if isinstance(n, int) else n.clamp_min(1)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import torch
 
 from invrender.scene.materials import MATERIAL_TYPES
-from invrender.transport.bsdfs.base import BSDF, BSDFSample, ShadingPoint
+from invrender.transport.bsdfs.base import BSDF, HEMISPHERES, BSDFSample, BSDFSampling, ShadingPoint
 from invrender.transport.bsdfs.dielectric import Dielectric
 from invrender.transport.bsdfs.diffuse import Diffuse
 from invrender.transport.bsdfs.glossy import Glossy
@@ -31,15 +31,16 @@ class Materials:
         constants: per scene material, constant key -> float.
         device: where hits live.
         flat: the scene has no shading normals (BSDFs may skip checks that only they need).
+        sampling: how the BSDFs draw directions (default: cosine-weighted diffuse lobes).
     """
 
-    def __init__(self, types: list[str], values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], device, flat: bool = False):
+    def __init__(self, types: list[str], values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], device, flat: bool = False, sampling: BSDFSampling | None = None):
         present = list(dict.fromkeys(types))  # first-seen order
         self.bsdfs: list[BSDF] = []
         slot_of, local_of = [], []
         for t in present:
             members = [i for i, ti in enumerate(types) if ti == t]
-            self.bsdfs.append(BSDFS[t]([values[i] for i in members], [constants[i] for i in members], flat))
+            self.bsdfs.append(BSDFS[t]([values[i] for i in members], [constants[i] for i in members], flat, sampling))
         for t in types:
             k = present.index(t)
             slot_of.append(k)
@@ -124,4 +125,4 @@ def _scatter(out, index: torch.Tensor, part):
     return out.index_put((index,), part)
 
 
-__all__ = ["BSDF", "BSDFS", "BSDFSample", "Materials", "ShadingPoint"]
+__all__ = ["BSDF", "BSDFS", "BSDFSample", "BSDFSampling", "HEMISPHERES", "Materials", "ShadingPoint"]

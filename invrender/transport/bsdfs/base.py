@@ -25,7 +25,28 @@ from typing import ClassVar
 
 import torch
 
+from invrender.errors import ParameterError
 from invrender.transport.textures import gather_rgb
+
+#: how diffuse lobes draw directions (:attr:`BSDFSampling.hemisphere`)
+HEMISPHERES = ("cosine", "uniform")
+
+
+@dataclass(frozen=True)
+class BSDFSampling:
+    """How BSDFs draw directions, never what they evaluate: ``eval`` is the same whatever the choice,
+    and ``pdf`` always returns the density of the chosen ``sample`` (so MIS weights stay right).
+
+    Attributes:
+        hemisphere: diffuse lobes: ``"cosine"`` (pdf ``cos(theta)/pi``, weight rho; the default)
+            or ``"uniform"`` over the hemisphere (pdf ``1/(2 pi)``, weight ``2 rho cos(theta)``).
+    """
+
+    hemisphere: str = "cosine"
+
+    def __post_init__(self):
+        if self.hemisphere not in HEMISPHERES:
+            raise ParameterError(f"unknown hemisphere sampling {self.hemisphere!r} (known: {', '.join(HEMISPHERES)})")
 
 
 @dataclass(frozen=True)
@@ -92,6 +113,7 @@ class BSDF(ABC):
     Attributes:
         values: per material of this type, parameter key -> tensor (3,) or (h, w, 3).
         constants: per material, constant key -> float.
+        sampling: how :meth:`sample` draws directions (and so what :meth:`pdf` returns).
     """
 
     #: the material type it implements (a key of :data:`invrender.scene.materials.MATERIAL_TYPES`)
@@ -99,8 +121,9 @@ class BSDF(ABC):
     #: ``"diffuse"``, ``"glossy"`` or ``"specular"`` (delta): how the older integrators treat it
     lobe: ClassVar[str]
 
-    def __init__(self, values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], flat: bool = False):
+    def __init__(self, values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], flat: bool = False, sampling: BSDFSampling | None = None):
         self.values, self.constants = values, constants
+        self.sampling = sampling or BSDFSampling()
         #: no shading normals in the scene: ``n`` is the geometric normal, ``wo`` always above it
         self.flat = flat
         self._constant_tables: dict = {}  # (key, device) -> (M,) float32, built on first use

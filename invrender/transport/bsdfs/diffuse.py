@@ -1,8 +1,10 @@
 """The diffuse (Lambertian) BSDF, two-sided: ``f = rho / pi`` on ``wo``'s side of the surface.
 
-Sampling is cosine-weighted, so a sample's weight ``f cos / pdf`` is exactly rho
-(``docs/closed_forms.md``, hemisphere integrals). With a shading normal, light arriving below it
-(or a ``wo`` below it, at silhouettes) is not reflected, as in Mitsuba's ``diffuse``.
+Sampling is cosine-weighted by default, so a sample's weight ``f cos / pdf`` is exactly rho
+(``docs/closed_forms.md``, hemisphere integrals); with ``BSDFSampling(hemisphere="uniform")`` it is
+uniform over the hemisphere, pdf ``1/(2 pi)`` and weight ``2 rho cos(theta)`` (docs/sampling.md).
+With a shading normal, light arriving below it (or a ``wo`` below it, at silhouettes) is not
+reflected, as in Mitsuba's ``diffuse``.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ import math
 import torch
 
 from invrender.transport.bsdfs.base import BSDF, BSDFSample, ShadingPoint
+from invrender.transport.frame import Frame
 from invrender.transport.vec import dot, normalize
 
 
@@ -30,11 +33,22 @@ class Diffuse(BSDF):
         return self._rho(sp) * (cos_i * (1.0 / math.pi))[:, None]
 
     def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        """``cos(theta_i) / pi`` (N,)."""
-        return dot(sp.n, wi).clamp_min(0.0) * (1.0 / math.pi)
+        """(N,): ``cos(theta_i) / pi`` (cosine sampling) or ``1 / (2 pi)`` above the shading normal
+        (uniform sampling); 0 below it."""
+        cos_i = dot(sp.n, wi)
+        if self.sampling.hemisphere == "uniform":
+            return (cos_i > 0).to(cos_i.dtype) * (0.5 / math.pi)
+        return cos_i.clamp_min(0.0) * (1.0 / math.pi)
 
     def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
-        """Cosine-weighted directions about ``n``: weight rho.
+        """Directions about ``n`` from ``u_dir`` (N, 2), cosine-weighted (weight rho) or uniform
+        (weight ``2 rho cos(theta_i)``)."""
+        if self.sampling.hemisphere == "uniform":
+            return self._sample_uniform(sp, u_dir)
+        return self._sample_cosine(sp, u_dir)
+
+    def _sample_cosine(self, sp: ShadingPoint, u_dir: torch.Tensor) -> BSDFSample:
+        """Cosine-weighted directions: weight rho.
 
         ``normalize(n + s)`` with ``s`` uniform on the unit sphere is cosine-distributed about ``n``
         (the tangent-sphere construction), which needs no tangent frame.
@@ -45,6 +59,18 @@ class Diffuse(BSDF):
         s = torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], dim=1)
         wi = normalize(sp.n + s)
         return BSDFSample(wi, self._rho(sp), self.pdf(sp, wi), torch.zeros_like(z, dtype=torch.bool))
+
+    def _sample_uniform(self, sp: ShadingPoint, u_dir: torch.Tensor) -> BSDFSample:
+        """Directions uniform over the hemisphere of ``n``: ``cos(theta) = u_0`` (the solid angle is
+        uniform in cos theta), ``phi = 2 pi u_1``; weight ``(rho cos / pi) / (1 / (2 pi)) = 2 rho cos``."""
+        cos_t = u_dir[:, 0]
+        sin_t = (1.0 - cos_t * cos_t).clamp_min(0.0).sqrt()
+        phi = (2.0 * math.pi) * u_dir[:, 1]
+        local = torch.stack([sin_t * torch.cos(phi), sin_t * torch.sin(phi), cos_t], dim=1)
+        wi = Frame.from_normal(sp.n).to_world(local)
+        pdf = self.pdf(sp, wi)
+        weight = self._rho(sp) * torch.where(pdf > 0, 2.0 * cos_t, 0.0)[:, None]
+        return BSDFSample(wi, weight, pdf, torch.zeros_like(cos_t, dtype=torch.bool))
 
     def diffuse_reflectance(self, sp: ShadingPoint) -> torch.Tensor:
         return self.param("reflectance", sp)

@@ -19,6 +19,7 @@ import torch
 
 from invrender.errors import ParameterError
 from invrender.scene.scene import Scene
+from invrender.transport.bsdfs import BSDFSampling
 from invrender.transport.context import PathState, TransportContext
 from invrender.transport.driver import RenderSettings, check_film_memory, check_int, cpu_workers, for_each_chunk
 from invrender.transport.film import Film
@@ -54,14 +55,36 @@ class RouletteSettings(DepthSettings):
 
     Attributes:
         max_depth: as :class:`DepthSettings`.
-        rr_depth: Russian roulette starts after this many terms (Mitsuba's ``rr_depth``, default 5).
+        rr_depth: Russian roulette starts after this many terms (Mitsuba's ``rr_depth``, default 5);
+            -1 = never (no roulette: paths end at ``max_depth``, which must then be finite).
     """
 
     rr_depth: int = 5
 
     def __post_init__(self):
         super().__post_init__()
-        check_int("", "rr_depth", self.rr_depth, 1)
+        check_int("", "rr_depth", self.rr_depth)
+        if self.rr_depth == 0 or self.rr_depth < -1:
+            raise ParameterError(f"rr_depth must be >= 1, or -1 for no Russian roulette, got {self.rr_depth}")
+        if self.rr_depth == -1 and self.max_depth == -1:
+            raise ParameterError("max_depth -1 (unbounded) needs Russian roulette to end paths: give rr_depth >= 1 or a finite max_depth")
+
+
+@dataclass(frozen=True)
+class SamplingSettings(RouletteSettings):
+    """Settings of an integrator that follows BSDF samples, with Russian roulette.
+
+    Attributes:
+        max_depth, rr_depth: as :class:`RouletteSettings`.
+        hemisphere: how diffuse BSDFs draw directions: ``"cosine"`` (default) or ``"uniform"``
+            (:class:`~invrender.transport.bsdfs.BSDFSampling`; docs/sampling.md).
+    """
+
+    hemisphere: str = "cosine"
+
+    def __post_init__(self):
+        super().__post_init__()
+        BSDFSampling(self.hemisphere)  # validates
 
 
 class Integrator(ABC):
@@ -99,6 +122,12 @@ class Integrator(ABC):
         """Largest number of Neumann terms this integrator can produce (-1 = unbounded)."""
         return self.settings.max_depth
 
+    @property
+    def bsdf_sampling(self) -> BSDFSampling:
+        """How the BSDFs of this integrator's renders draw directions: the settings' ``hemisphere``
+        where they have one (:class:`SamplingSettings`), else the default (cosine-weighted)."""
+        return BSDFSampling(getattr(self.settings, "hemisphere", "cosine"))
+
     def prepare(self, ctx: TransportContext) -> TransportContext:
         """Pre-pass hook, run once per render before any chunk is traced: return the context the
         chunks are traced with (e.g. with ``extra`` holding a radiosity solution). Default: none."""
@@ -111,7 +140,7 @@ class Integrator(ABC):
     def context(self, scene: Scene, settings: RenderSettings, device: torch.device, params: dict | None = None) -> TransportContext:
         """The prepared :class:`TransportContext` of one render."""
         threads = 1 if cpu_workers(device) > 1 else None
-        return self.prepare(TransportContext.build(scene, device, settings.backend, threads, params))
+        return self.prepare(TransportContext.build(scene, device, settings.backend, threads, params, self.bsdf_sampling))
 
     def render(self, scene: Scene, settings: RenderSettings, device: torch.device, params: dict | None = None) -> torch.Tensor:
         """The image: (H, W, 3), or (K, H, W, 3) per term with ``settings.terms``; records autograd

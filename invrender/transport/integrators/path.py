@@ -5,19 +5,70 @@ estimates are blended with the power heuristic (Veach and Guibas 1995): once by 
 an emitter (next-event estimation, skipped at delta vertices) and once by following the BSDF sample
 and seeing whether it hits an emitter. Russian roulette ends paths from ``rr_depth`` on. Sampling
 never depends on rho or eps; gradients flow through the BSDF and emission factors only.
+
+``strategy`` keeps one of the two estimates instead of blending them (docs/sampling.md):
+``"bsdf"`` counts every emitter a BSDF sample hits and samples no emitters (the random walk);
+``"emitter"`` estimates direct light by emitter samples alone and counts emitters hit by BSDF
+samples only where no emitter sample was possible (camera rays, after mirrors and glass). All three
+estimate the same image.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
+from invrender.errors import ParameterError
+from invrender.transport.integrators.base import SamplingSettings
 from invrender.transport.integrators.random_walk import RandomWalk
 from invrender.transport.integrators.vertex import add_direct
+
+#: how the path tracer estimates direct light (PathSettings.strategy)
+STRATEGIES = ("mis", "bsdf", "emitter")
+
+
+@dataclass(frozen=True)
+class PathSettings(SamplingSettings):
+    """Settings of the path tracer.
+
+    Attributes:
+        max_depth, rr_depth, hemisphere: as :class:`~invrender.transport.integrators.base.SamplingSettings`.
+        strategy: direct light from ``"mis"`` (emitter samples and BSDF samples combined by the
+            power heuristic; default), ``"bsdf"`` (BSDF samples only) or ``"emitter"`` (emitter
+            samples only, wherever the BSDF is not a delta lobe).
+    """
+
+    strategy: str = "mis"
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.strategy not in STRATEGIES:
+            raise ParameterError(f"unknown strategy {self.strategy!r} (known: {', '.join(STRATEGIES)})")
 
 
 class Path(RandomWalk):
     name = "path"
+    Settings = PathSettings
     summary = "path tracer: BSDF sampling + next-event estimation with MIS, Russian roulette (default)"
-    emitter_mis = True
+
+    def __init__(self, **options):
+        super().__init__(**options)
+        if self.strategy != "mis" and type(self).at_vertex is not Path.at_vertex:
+            raise ParameterError(f"integrator {self.name!r} samples emitters its own way: its strategy must be 'mis', got {self.strategy!r}")
+
+    @property
+    def strategy(self) -> str:
+        """The settings' strategy (``"mis"`` for subclasses whose settings have none, e.g. utah)."""
+        return getattr(self.settings, "strategy", "mis")
+
+    @property
+    def emitter_mis(self) -> bool:
+        return self.strategy == "mis"
+
+    @property
+    def emitter_nee_only(self) -> bool:
+        return self.strategy == "emitter"
 
     def at_vertex(self, ctx, state, s, sp, u, depth, film):
-        add_direct(ctx, state, s, sp, u, depth + 1, film, mis=True)  # term depth + 1, light strategy
+        if self.strategy != "bsdf":
+            add_direct(ctx, state, s, sp, u, depth + 1, film, mis=self.strategy == "mis")  # term depth + 1, light strategy
         return None

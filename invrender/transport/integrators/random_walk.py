@@ -4,14 +4,17 @@ At every vertex the emitted radiance seen along the ray is added with the path t
 next direction is drawn from the BSDF, so the throughput gains the sample weight ``f cos / pdf``
 (rho for a Lambertian surface) per bounce. No light sampling: deliberately minimal, the reference
 the ``path`` integrator is checked against, and the bounce loop the richer integrators extend
-through two hooks (:meth:`RandomWalk.emitter_mis` and :meth:`RandomWalk.at_vertex`).
+through its hooks (:attr:`RandomWalk.emitter_mis`, :attr:`RandomWalk.emitter_nee_only` and
+:meth:`RandomWalk.at_vertex`).
 """
 
 from __future__ import annotations
 
+import math
+
 from invrender.transport.context import PathState, TransportContext, russian_roulette
 from invrender.transport.film import Film
-from invrender.transport.integrators.base import Integrator, RouletteSettings
+from invrender.transport.integrators.base import Integrator, SamplingSettings
 from invrender.transport.integrators.vertex import absorbed, add_emitted, next_vertex, scattered
 from invrender.transport.sampler import uniform
 
@@ -21,11 +24,14 @@ DIMS = 7
 
 class RandomWalk(Integrator):
     name = "random_walk"
-    Settings = RouletteSettings
+    Settings = SamplingSettings
     summary = "Kajiya's random walk: BSDF sampling only (the reference)"
 
     #: weight emitter hits against the previous vertex's emitter sample (path tracer: True)
     emitter_mis = False
+    #: emitter hits count only where no emitter sample was taken (camera rays, after delta lobes):
+    #: the previous vertex's emitter sample alone estimates direct light (path tracer, strategy "emitter")
+    emitter_nee_only = False
 
     def at_vertex(self, ctx: TransportContext, state: PathState, s, sp, u, depth: int, film: Film) -> PathState | None:
         """What a vertex adds before the path scatters on (nothing here; the path tracer adds direct
@@ -35,12 +41,13 @@ class RandomWalk(Integrator):
     def trace(self, ctx: TransportContext, state: PathState, film: Film) -> None:
         """Follow ``state``'s camera rays and add each term ``g(Mg)^k eps`` to ``film``."""
         cfg = self.settings
+        rr_start = math.inf if cfg.rr_depth == -1 else cfg.rr_depth  # -1: no roulette
         depth = 0
         while state.count:
             state, s = next_vertex(ctx, state, film)
             if s is None:
                 break
-            add_emitted(ctx, state, s, depth, film, mis=self.emitter_mis)  # term depth
+            add_emitted(ctx, state, s, depth, film, mis=self.emitter_mis, nee_only=self.emitter_nee_only)  # term depth
             if not cfg.continues_after(depth):
                 break
             u = uniform(state.keys, depth + 1, DIMS)
@@ -50,5 +57,5 @@ class RandomWalk(Integrator):
                 state, s, sp, u = state.select(keep), s.select(keep), sp.select(keep), u.index_select(0, keep)
             bs = ctx.materials.sample(sp, u[:, 6], u[:, 0:2])
             state = scattered(ctx, state, s, bs, film)
-            state = russian_roulette(state, u[:, 5], depth, cfg.rr_depth, absorbed(ctx, state))
+            state = russian_roulette(state, u[:, 5], depth, rr_start, absorbed(ctx, state))
             depth += 1

@@ -35,14 +35,19 @@ def next_vertex(ctx: TransportContext, state: PathState, film: Film) -> tuple[Pa
     return state, s
 
 
-def add_emitted(ctx: TransportContext, state: PathState, s: Surface, depth: int, film: Film, mis: bool) -> None:
+def add_emitted(ctx: TransportContext, state: PathState, s: Surface, depth: int, film: Film, mis: bool, nee_only: bool = False) -> None:
     """Term ``depth``: emission seen along the ray, ``beta w eps``.
 
     With ``mis`` the weight w balances this BSDF-sampled hit against the emitter sample taken at
-    the previous vertex (power heuristic); it is 1 for camera rays and after delta lobes, where no
-    emitter sample competes.
+    the previous vertex (power heuristic); with ``nee_only`` that emitter sample alone estimated
+    the term, so w = 0. Either way w is 1 for camera rays and after delta lobes, where no emitter
+    sample competes; without either w = 1 everywhere (no emitter sampling).
     """
+    if mis and nee_only:
+        raise ValueError("add_emitted: mis and nee_only exclude each other")
     emits = ctx.emits(s)
+    if nee_only:
+        emits = emits & state.delta  # camera rays (delta = True) and delta lobes only
     if not bool(emits.any()):
         return
     m = emits.nonzero()[:, 0]
