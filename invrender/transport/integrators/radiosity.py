@@ -25,11 +25,11 @@ import dataclasses
 import torch
 
 from invrender.errors import ParameterError
-from invrender.transport.radiosity.solution import RadiositySettings, check_diffuse, solve_scene
 from invrender.transport.context import PathState, TransportContext
 from invrender.transport.film import Film
 from invrender.transport.integrators.base import Integrator
 from invrender.transport.integrators.vertex import add_emitted, next_vertex, scattered
+from invrender.transport.radiosity.solution import RadiositySettings, check_diffuse, solve_scene
 from invrender.transport.sampler import uniform
 
 #: random numbers drawn per vertex (the random walk's layout): 0-1 BSDF direction, 6 BSDF lobe
