@@ -208,7 +208,7 @@ def fit(
         state = _read_checkpoint(checkpoint, scene, names)
         settings = {**{k: v for k, v in state["settings"].items() if k in known}, **settings}  # stored, unless given anew
     cfg = FitSettings(**settings)
-    views = _views(scene, target, cameras)
+    views = load_views(scene, target, cameras)
     truth = {k: torch.as_tensor(v, dtype=torch.float32) for k, v in (truth or {}).items()}
     if state is not None and ("raw" in state) != (cfg.solver == "adam"):
         raise ParameterError(f"checkpoint {checkpoint} was written by another solver than {cfg.solver!r}")
@@ -332,7 +332,7 @@ def identifiability(scene: Scene, target, params, *, cameras: list[Camera] | Non
     from invrender.inverse.least_squares import analyse
 
     names = P.check_names(scene.params, params)
-    views = _views(scene, target, cameras)
+    views = load_views(scene, target, cameras)
     recs = [[record_paths(view_scene, names, spp=spp, max_depth=max_depth, seed=2 * (seed * len(views) + v) + half, integrator=integrator, progress=False) for v, (view_scene, _) in enumerate(views)] for half in (0, 1)]
     values = {n: scene.params[n].detach().double() for n in names}
     return analyse(recs[0], recs[1], [t for _, t in views], values)
@@ -380,7 +380,9 @@ def _record(step, loss, spp, seconds, names, raw, truth) -> dict:
     return record
 
 
-def _views(scene: Scene, target, cameras) -> list[tuple[Scene, torch.Tensor]]:
+def load_views(scene: Scene, target, cameras) -> list[tuple[Scene, torch.Tensor]]:
+    """(scene seen by each camera, its target image (H, W, 3)) per view, every target checked as
+    ``fit`` checks them (file readable, finite, non-negative, the scene's size; one camera each)."""
     targets = list(target) if isinstance(target, (list, tuple)) else [target]
     if cameras is not None and len(cameras) != len(targets):
         raise ParameterError(f"{len(targets)} target(s) but {len(cameras)} camera(s): give one camera per target")

@@ -422,9 +422,9 @@ def _check_spp(spp) -> list[int]:
 def _target(scene: Scene, target, target_spp: int, seed: int, config: GradientConfig) -> tuple[torch.Tensor, str]:
     """The target image (H, W, 3) and how it was made."""
     if target is not None:
-        from invrender.inverse.fit import _views  # the checks fit applies to its targets
+        from invrender.inverse.fit import load_views  # the checks fit applies to its targets
 
-        return _views(scene, target, None)[0][1], "given"
+        return load_views(scene, target, None)[0][1], "given"
     model = config.model  # the configuration's expected image
     options = {k: v for k, v in model.render_kwargs().items() if k != "estimator"}
     with torch.no_grad():
