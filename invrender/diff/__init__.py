@@ -48,7 +48,7 @@ def render(
     Args:
         scene: from :func:`invrender.load_scene`; its ``params`` are read at this call.
         integrator: a name (``"path"``, ``"random_walk"``, ``"utah"``, ``"whitted"``,
-            ``"distributed"``) or an :class:`~invrender.transport.integrators.Integrator` object.
+            ``"distributed"``, ``"radiosity"``) or an :class:`~invrender.transport.integrators.Integrator` object.
         spp: samples per pixel.
         max_depth: Neumann terms kept (1 = emitters seen directly, 2 = + direct light, ...; -1 =
             unbounded, ended by Russian roulette); None = the integrator's default (8; utah 2).

@@ -500,6 +500,8 @@ def record_paths(
     if 8 * w * h * 3 > max_record_mb * 2**20:
         raise ParameterError(f"a {w}x{h} record needs {8 * w * h * 3 / 2**20:.0f} MiB per monomial, over max_record_mb={max_record_mb:g}")
     model = make_integrator(integrator, max_depth=max_depth, **options)
+    if model.not_recordable:
+        raise ParameterError(f"integrator {model.name!r} cannot be recorded as path records (solver 'lm', identifiability): {model.not_recordable}; fit it with solver 'adam'")
     settings = RenderSettings(spp=spp, seed=seed, memory_mb=memory_mb, progress=progress, sampler=sampler)
     device = torch.device(device) if device is not None else scene.device
     record = torch.cat([scene.params[n].detach().to(device, torch.float64).reshape(-1, 3) for n in names])  # (N_var, 3)

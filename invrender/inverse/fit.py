@@ -59,8 +59,8 @@ class FitSettings:
         spp: samples per pixel of each render in the first half of the steps.
         spp_final: samples per pixel in the second half (less noise where the steps are small).
         max_depth: Neumann terms kept by the renders (Mitsuba's count).
-        integrator: the model fitted: ``"path"``, ``"random_walk"``, ``"utah"``, ``"whitted"`` or
-            ``"distributed"``.
+        integrator: the model fitted: ``"path"``, ``"random_walk"``, ``"utah"``, ``"whitted"``,
+            ``"distributed"`` or ``"radiosity"`` (Adam only: not a polynomial, see records.py).
         loss: ``"l2"``, ``"l1"``, ``"relative_l2"`` or ``"ssim"``.
         estimator: ``"replay"`` or ``"autodiff"``.
         decorrelate: take ``dl/dI`` from an independent render (unbiased gradient; losses.py).

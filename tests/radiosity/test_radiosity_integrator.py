@@ -120,5 +120,5 @@ def test_textures_are_averaged_per_patch():
 
 
 def test_path_records_refuse_radiosity(cbox):
-    with pytest.raises(ParameterError, match="radiosity cannot be recorded as path records"):
+    with pytest.raises(ParameterError, match="integrator .radiosity. cannot be recorded as path records .solver .lm., identifiability.: its image is a rational function"):
         ir.record_paths(cbox, ["red.reflectance"], spp=1, max_depth=2, integrator="radiosity", progress=False)

@@ -100,6 +100,8 @@ class Integrator(ABC):
     Settings: ClassVar[type] = DepthSettings
     #: one line for ``--help`` and error messages
     summary: ClassVar[str] = ""
+    #: why the estimate is not a polynomial in the parameters (path records refuse it); None = it is
+    not_recordable: ClassVar[str | None] = None
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)

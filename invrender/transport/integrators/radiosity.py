@@ -40,6 +40,7 @@ class Radiosity(Integrator):
     name = "radiosity"
     Settings = RadiositySettings
     summary = "radiosity: diffuse patches, ray-cast form factors, (I - rho F) B = E solved, exact gradients"
+    not_recordable = "its image is a rational function of rho (the solved system), not a polynomial"
 
     def context(self, scene, settings, device, params=None) -> TransportContext:
         check_diffuse(scene)

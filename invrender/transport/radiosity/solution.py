@@ -27,7 +27,6 @@ from collections import OrderedDict
 from dataclasses import dataclass
 
 import torch
-from torch.autograd import forward_ad
 
 from invrender.errors import ParameterError
 from invrender.transport.integrators.base import DepthSettings
@@ -234,8 +233,6 @@ def solve_scene(ctx, settings: RadiositySettings) -> RadiositySolution:
     with torch.enable_grad():
         rho_side = side_reflectance(ctx, patches)
         E_side = side_emission(ctx, patches)
-        if forward_ad.unpack_dual(rho_side).tangent is not None or forward_ad.unpack_dual(E_side).tangent is not None:
-            raise ParameterError("radiosity cannot be recorded as path records (solver 'lm', identifiability): its image is a rational function of rho, not a polynomial; fit it with solver 'adam'")
         sides = factors.reachable(emitting).nonzero()[:, 0]
         S = int(sides.shape[0])
         if S > MAX_UNKNOWNS:
