@@ -26,6 +26,8 @@ import statistics
 import time
 from pathlib import Path
 
+from fit_cornell import setting  # bench/ is the script's directory
+
 import invrender as ir
 from invrender.inverse.report import report_dict, write_json
 from invrender.recipes import apply_init, load_dataset, load_fit_recipe, make_dataset
@@ -55,17 +57,6 @@ def first_within(history: list[dict], tol: float) -> float | None:
     return None
 
 
-def _setting(text: str) -> tuple[str, object]:
-    """``"KEY=VALUE"`` -> (KEY, VALUE as int, float, bool or str: the first that parses)."""
-    key, _, value = text.partition("=")
-    for kind in (int, float):
-        try:
-            return key, kind(value)
-        except ValueError:
-            pass
-    return key, {"true": True, "false": False}.get(value.lower(), value)
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--solvers", default="adam,lm")
@@ -73,7 +64,7 @@ def main() -> None:
     parser.add_argument("--out", default="runs/fit_recipes")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a fit setting for every fit")
     args = parser.parse_args()
-    overrides = dict(_setting(t) for t in args.set)
+    overrides = dict(setting(t) for t in args.set)
     solvers = [s.strip() for s in args.solvers.split(",") if s.strip()]
     paths = sorted((ROOT / "optimize").glob("*.toml"))
     if args.recipes:

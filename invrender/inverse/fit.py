@@ -21,6 +21,7 @@ from pathlib import Path
 import torch
 from tqdm.auto import tqdm
 
+from invrender.diff import ESTIMATORS, backpropagate, render
 from invrender.errors import ImageError, ParameterError
 from invrender.inverse import params as P
 from invrender.inverse.control_variates import RecursiveControlVariate
@@ -28,9 +29,8 @@ from invrender.inverse.least_squares import SOLVERS
 from invrender.inverse.losses import LOSSES, loss_and_gradient, loss_gradient
 from invrender.io.atomic import atomic_file
 from invrender.scene.camera import Camera
-from invrender.scene.scene import Scene
-from invrender.diff import ESTIMATORS, backpropagate, render
 from invrender.scene.kinds import kind_of
+from invrender.scene.scene import Scene
 from invrender.transport.driver import RenderSettings
 from invrender.transport.integrators import make_integrator
 

@@ -58,7 +58,7 @@ class LeastSquaresSolution:
     """
 
     values: dict
-    identifiability: "Identifiability"
+    identifiability: Identifiability
     loss: float
     steps: int
 
@@ -91,7 +91,7 @@ class _Layout:
     offsets: list[int]
 
     @staticmethod
-    def of(records: PathRecords) -> "_Layout":
+    def of(records: PathRecords) -> _Layout:
         return _Layout(list(records.names), [tuple(records.record_values[n].shape) for n in records.names], records.offsets)
 
     def flatten(self, values: dict) -> torch.Tensor:
@@ -266,7 +266,7 @@ def _value_jacobian(rec: PathRecords, values: dict, w: torch.Tensor) -> torch.Te
     """(N * 3, 3 N_var) derivatives of one view's weighted residual with respect to every variable
     channel (channel c of a pixel depends on channel c of a variable only)."""
     cols = []
-    for name, jac in rec.jacobian(values).items():
+    for jac in rec.jacobian(values).values():
         d = jac.reshape(jac.shape[0] * jac.shape[1], -1, 3) * w[:, None, :]  # (N, rows of the parameter, 3)
         block = torch.zeros(d.shape[0], 3, d.shape[1], 3, dtype=d.dtype)
         for c in range(3):

@@ -74,7 +74,7 @@ class RenderSettings:
     memory_mb: float = 512.0
     progress: bool = True
     sampler: str = "stratified"
-    plan: "SamplePlan | None" = dataclasses.field(default=None, compare=False)
+    plan: SamplePlan | None = dataclasses.field(default=None, compare=False)
 
     def __post_init__(self):
         check_int("", "spp", self.spp, 1)
@@ -86,7 +86,7 @@ class RenderSettings:
         if not self.memory_mb > 0:
             raise ParameterError(f"memory_mb must be positive, got {self.memory_mb}")
 
-    def replace(self, **changes) -> "RenderSettings":
+    def replace(self, **changes) -> RenderSettings:
         return dataclasses.replace(self, **changes)
 
 

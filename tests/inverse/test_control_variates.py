@@ -40,35 +40,9 @@ def test_small_steps_cut_the_error_and_stay_unbiased():
     assert 0.5 < cv.alpha <= 0.98 and cv.variance_ratio < 0.2
 
 
-def test_fit_with_the_control_variate_resumes_exactly(tmp_path, monkeypatch):
-    """Interrupted after 3 of 6 steps and resumed, the fit ends where the uninterrupted one does:
-    the checkpoint carries each view's control-variate state."""
-    import invrender.inverse.fit as fit_module
-
+def test_control_variate_needs_decorrelated_adam():
     scene = ir.load_scene("cornell_box", resolution=(8, 8))
-    target = ir.render(scene, spp=64, max_depth=2, progress=False)
-    kw = dict(steps=6, spp=2, spp_final=4, max_depth=2, checkpoint_every=1, control_variate=True, progress=False)
-
-    def start():
-        s = ir.load_scene("cornell_box", resolution=(8, 8))
-        with torch.no_grad():
-            s.params["red.reflectance"].fill_(0.5)
-        return s
-
-    full = ir.fit(start(), target, ["red.reflectance"], **kw)
-    original, calls = fit_module._view_loss, {"n": 0}
-
-    def interrupt_at_step_3(*args, **kwargs):
-        calls["n"] += 1
-        if calls["n"] == 4:
-            raise KeyboardInterrupt
-        return original(*args, **kwargs)
-
-    monkeypatch.setattr(fit_module, "_view_loss", interrupt_at_step_3)
-    with pytest.raises(KeyboardInterrupt):
-        ir.fit(start(), target, ["red.reflectance"], checkpoint=tmp_path / "c.pt", **kw)
-    monkeypatch.setattr(fit_module, "_view_loss", original)
-    resumed = ir.fit(start(), target, ["red.reflectance"], checkpoint=tmp_path / "c.pt", resume=True, **kw)
-    torch.testing.assert_close(resumed.params["red.reflectance"], full.params["red.reflectance"], rtol=1e-6, atol=1e-7)
-    with pytest.raises(ParameterError, match="control_variate needs solver 'adam' with decorrelate"):
-        ir.fit(start(), target, ["red.reflectance"], **{**kw, "decorrelate": False})
+    target = ir.render(scene, spp=16, max_depth=2, progress=False)
+    for bad in ({"decorrelate": False}, {"solver": "lm"}):
+        with pytest.raises(ParameterError, match="control_variate needs solver 'adam' with decorrelate"):
+            ir.fit(scene, target, ["red.reflectance"], control_variate=True, steps=2, max_depth=2, progress=False, **bad)

@@ -41,8 +41,10 @@ def test_fit_recovers_emission_and_white_albedo(small_target):
     assert torch.equal(scene.params["light.emission"], torch.full((3,), 5.0))  # the input scene is untouched
 
 
-def test_fit_is_deterministic_and_resume_gives_the_same_result(small_target, tmp_path, monkeypatch):
-    kw = dict(steps=8, spp=4, spp_final=4, max_depth=3, checkpoint_every=2, progress=False)
+@pytest.mark.parametrize("control_variate", [False, True])
+def test_fit_is_deterministic_and_resume_gives_the_same_result(small_target, tmp_path, monkeypatch, control_variate):
+    """Also with the recursive control variate: the checkpoint carries each view's state."""
+    kw = dict(steps=8, spp=4, spp_final=4, max_depth=3, checkpoint_every=2, progress=False, control_variate=control_variate)
     a = ir.fit(start_scene(), small_target, ["light.emission"], **kw)
     b = ir.fit(start_scene(), small_target, ["light.emission"], checkpoint=tmp_path / "a.pt", **kw)
     assert torch.equal(a.params["light.emission"], b.params["light.emission"])
