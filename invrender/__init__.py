@@ -8,6 +8,7 @@ Public API::
     img = ir.render(scene, spp=64, max_depth=8, seed=0)     # (H, W, 3) float32, linear
     ir.write_image("out.exr", img)
     img = ir.render(scene, ir.integrators.Whitted(max_depth=6))   # an integrator object
+    res = ir.render(scene, spp=64, adaptive=ir.AdaptiveSettings(rounds=2), return_counts=True)   # adaptive sampling
     res = ir.fit(scene, target, params=["red.reflectance", "light.emission"])   # inverse rendering
     study = ir.gradient_study(scene, ["red.reflectance", "light.emission"])   # gradient variance and bias
     base = ir.baseline.pyrender_render(scene)               # the rasterized Utah baseline
@@ -24,6 +25,7 @@ from invrender.scene.camera import Camera
 from invrender.scene.materials import Material
 from invrender.study import GradientConfig, GradientStudy, gradient_study
 from invrender.transport import integrators
+from invrender.transport.adaptive import AdaptiveResult, AdaptiveSettings
 from invrender.transport.radiosity import RadiositySolution, radiosity
 
 __version__ = "0.1.0"
@@ -40,6 +42,6 @@ def __getattr__(name):
 
 __all__ = [
     "load_scene", "render", "fit", "gradcheck", "read_image", "write_image", "FitResult", "Camera", "Material", "integrators",
-    "radiosity", "RadiositySolution", "record_paths", "PathRecords", "identifiability", "gradient_study", "GradientStudy", "GradientConfig",
+    "radiosity", "RadiositySolution", "AdaptiveSettings", "AdaptiveResult", "record_paths", "PathRecords", "identifiability", "gradient_study", "GradientStudy", "GradientConfig",
     "InvRenderError", "SceneError", "ImageError", "ParameterError", "BaselineError",
 ]  # fmt: skip

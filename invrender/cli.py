@@ -263,7 +263,7 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--spp", default="8,16,32,64", metavar="N,N", help="samples per pixel, ascending (default: 8,16,32,64)")
     a.add_argument("--trials", type=int, default=2, help="seeds per strategy and spp (default: 2)")
     a.add_argument("--reference-spp", type=int, default=4096, help="spp of the reference, the defaults with other seeds (default: 4096)")
-    a.add_argument("--resolution", type=parse_resolution, default=(32, 32), metavar="WxH", help="(default: 32x32)")
+    a.add_argument("--resolution", type=parse_resolution, default=(64, 64), metavar="WxH", help="(default: 64x64)")
     a.add_argument("--max-depth", type=int, default=8, help="Neumann terms kept (default: 8)")
     a.add_argument("--seed", type=int, default=0, help="offsets every seed of the study (default: 0)")
     a.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -289,16 +289,18 @@ Compare the path tracer's sampling strategies. Each variant changes one choice o
 Russian roulette from rr_depth 5, every pixel the same spp): independent or antithetic pixel
 samples, uniform hemisphere sampling, BSDF samples only, emitter samples only, no roulette,
 adaptive sampling. Each renders the scene at every --spp for --trials seeds; the error is the RMSE
-against a --reference-spp render of the defaults, the cost the wall-clock time of one render. The
-table gives each variant's RMSE per spp, its RMSE at equal time (the defaults' time at the largest
-spp) and its efficiency 1/(MSE x time) relative to the defaults; the figure plots RMSE against
+against a --reference-spp render of the defaults, the cost the CPU time of one render (all its
+threads: on a shared machine wall-clock time varies with the other processes' load). The table
+gives each variant's RMSE per spp, its RMSE at equal time (the CPU time of the defaults' largest
+spp) and its efficiency (the defaults' MSE over its MSE at that time: > 1 is better); the figure
+plots RMSE against
 samples and against time, log-log, one line per variant. All variants estimate the same image, so
 their differences are variance only.
 """
 
 ABLATION_EPILOG = """\
 examples:
-  invrender ablation cornell_box --out runs/ablation                    # a few minutes on 2 cores
+  invrender ablation cornell_box --out runs/ablation                    # 1-2 minutes on 2 cores
   invrender ablation forward/cornell_far.toml --strategies adaptive --out runs/adaptive
   invrender ablation cornell_specular --strategies bsdf_only,emitter_only --spp 16,64,256 --out runs/mis
 """

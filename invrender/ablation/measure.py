@@ -1,10 +1,14 @@
 """Measure sampling strategies: RMSE against a high-spp reference at equal samples and equal time.
 
 Every variant renders the scene at each spp for a few seeds; its error is the root of the mean
-squared difference to the reference over pixels, channels and seeds, and its cost the mean
-wall-clock time of one render. Equal time compares variants at the time the defaults take at the
-largest spp: a variant's RMSE there is read off its own measurement nearest in time, moved along
-the Monte Carlo rate ``RMSE ~ time^(-1/2)`` (``rmse_j sqrt(t_j / T)``).
+squared difference to the reference over pixels, channels and seeds, and its cost the CPU time of
+one render (all its threads; unlike wall-clock time it does not count what other processes take
+from the cores, which on a shared machine varies from render to render by 2x; the wall-clock time
+is kept too). The variants take turns and each keeps its fastest seed. Equal time compares
+variants at the CPU time T the defaults take at the largest spp: a variant's cost per sample (its
+CPU seconds over its samples, summed over its measurements) says how many samples T buys it,
+and its RMSE at the largest spp is moved there along the Monte Carlo rate ``RMSE ~ spp^(-1/2)``:
+the classic efficiency ``1 / (MSE x time)``.
 """
 
 from __future__ import annotations
@@ -38,7 +42,9 @@ class Measurement:
         rel_rmse: the same for errors relative to ``ref_p + mean(ref)`` (``ref_p`` the pixel's
             channel mean): noise in dark pixels counts as much as in bright ones, down to the
             image's mean.
-        seconds: mean wall-clock seconds of one render.
+        seconds: wall-clock seconds of one render, the fastest of the trials.
+        cpu_seconds: CPU seconds of one render (all threads), the fewest of the trials: the cost
+            the equal-time comparison uses.
         trials: renders (seeds) averaged.
     """
 
@@ -47,6 +53,7 @@ class Measurement:
     rmse: float
     rel_rmse: float
     seconds: float
+    cpu_seconds: float
     trials: int
 
 
@@ -75,22 +82,31 @@ class AblationResult:
         """The measurements of variant ``name``, by increasing spp."""
         return sorted((r for r in self.rows if r.variant == name), key=lambda r: r.spp)
 
+    def seconds_per_sample(self, name: str) -> float:
+        """Variant ``name``'s CPU seconds per sample per pixel: its CPU seconds over its samples,
+        summed over its measurements (so mostly those at the largest spp, where a render's fixed
+        overhead matters least)."""
+        rows = self.of(name)
+        return sum(r.cpu_seconds for r in rows) / sum(r.spp for r in rows)
+
     @property
     def time_budget(self) -> float:
-        """Seconds the defaults took at the largest spp: the equal-time comparison's budget."""
-        return self.of("default")[-1].seconds
+        """The equal-time comparison's budget, CPU seconds: what the defaults' largest spp costs."""
+        return self.seconds_per_sample("default") * self.of("default")[-1].spp
 
     def rmse_at_time(self, name: str, seconds: float | None = None) -> float:
-        """Variant ``name``'s RMSE at ``seconds`` (default: :attr:`time_budget`), from its
-        measurement nearest in time scaled by ``sqrt(t_j / seconds)``."""
+        """Variant ``name``'s RMSE in ``seconds`` of CPU time (default: :attr:`time_budget`): its
+        RMSE at its largest spp moved along the Monte Carlo rate ``RMSE ~ spp^(-1/2)`` to the spp
+        its cost per sample affords (the classic efficiency ``1 / (MSE x time)``; interpolating
+        between measured spp would follow the steps stratification makes at square spp)."""
         seconds = self.time_budget if seconds is None else seconds
-        nearest = min(self.of(name), key=lambda r: abs(math.log(r.seconds / seconds)))
-        return nearest.rmse * math.sqrt(nearest.seconds / seconds)
+        top = self.of(name)[-1]
+        return top.rmse * math.sqrt(top.spp * self.seconds_per_sample(name) / seconds)
 
     def efficiency(self, name: str) -> float:
-        """``1 / (MSE x seconds)`` at the largest spp, relative to the defaults' (> 1: better)."""
-        top, base = self.of(name)[-1], self.of("default")[-1]
-        return (base.rmse**2 * base.seconds) / (top.rmse**2 * top.seconds)
+        """The defaults' MSE over the variant's at equal time (:attr:`time_budget`): how many
+        times longer the defaults must run to match it (> 1: the variant is better)."""
+        return (self.rmse_at_time("default") / self.rmse_at_time(name)) ** 2
 
 
 def ablation(
@@ -138,20 +154,22 @@ def ablation(
         render(scene, spp=1, max_depth=max_depth, seed=seed, progress=False)  # warm-up: the timings start warm
         bar.update()
         denominator = (reference.mean(-1, keepdim=True) + reference.mean()).clamp_min(1e-30)
-        rows = []
-        for variant in variants:
-            for n in spp:
-                if variant.options.get("adaptive") and n < 6:
-                    bar.update(trials)
-                    continue  # adaptive sampling needs a pilot and a sample per round
-                squared, relative, seconds = 0.0, 0.0, 0.0
-                for t in range(trials):
-                    start = time.perf_counter()
-                    image = render(scene, spp=n, max_depth=max_depth, seed=seed + 1 + t, progress=False, **variant.options)
-                    seconds += time.perf_counter() - start
-                    error = image.double() - reference
-                    squared += float((error**2).mean())
-                    relative += float(((error / denominator) ** 2).mean())
-                    bar.update()
-                rows.append(Measurement(variant.name, n, math.sqrt(squared / trials), math.sqrt(relative / trials), seconds / trials, trials))
+        cells = [(v, n) for v in variants for n in spp if not (v.options.get("adaptive") and n < 6)]  # adaptive: a pilot and a sample per round
+        bar.update(trials * (len(variants) * len(spp) - len(cells)))
+        squared = {(v.name, n): 0.0 for v, n in cells}
+        relative = dict(squared)
+        seconds = {key: math.inf for key in squared}
+        cpu_seconds = dict(seconds)
+        for t in range(trials):  # variants interleaved, so that other processes' load slows them alike
+            for variant, n in cells:
+                start, cpu_start = time.perf_counter(), time.process_time()
+                image = render(scene, spp=n, max_depth=max_depth, seed=seed + 1 + t, progress=False, **variant.options)
+                key = (variant.name, n)
+                seconds[key] = min(seconds[key], time.perf_counter() - start)
+                cpu_seconds[key] = min(cpu_seconds[key], time.process_time() - cpu_start)
+                error = image.double() - reference
+                squared[key] += float((error**2).mean())
+                relative[key] += float(((error / denominator) ** 2).mean())
+                bar.update()
+        rows = [Measurement(name, n, math.sqrt(squared[key] / trials), math.sqrt(relative[key] / trials), seconds[key], cpu_seconds[key], trials) for key in squared for name, n in [key]]
     return AblationResult(scene.name, (scene.width, scene.height), max_depth, reference_spp, reference_rmse, variants, tuple(rows))

@@ -51,7 +51,7 @@ def test_ablation_writes_table_csv_and_figure(tmp_path, capsys):
     with open(out / "ablation.csv") as f:
         rows = list(csv.DictReader(f))
     assert {(r["variant"], r["spp"]) for r in rows} == {(v, s) for v in ("default", "independent", "adaptive") for s in ("6", "12")}
-    assert all(float(r["rmse"]) > 0 and float(r["seconds"]) > 0 for r in rows)
+    assert all(float(r["rmse"]) > 0 and float(r["seconds"]) > 0 and float(r["cpu_seconds"]) > 0 for r in rows)
     assert (out / "ablation.png").stat().st_size > 10_000 and (out / "ablation.md").is_file()
 
 
