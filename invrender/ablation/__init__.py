@@ -6,4 +6,4 @@ from invrender.ablation.measure import AblationResult, Measurement, ablation
 from invrender.ablation.report import format_table, plot, write_ablation, write_csv
 from invrender.ablation.variants import VARIANTS, Variant, select_variants
 
-__all__ = ["ablation", "AblationResult", "Measurement", "Variant", "VARIANTS", "select_variants", "format_table", "write_csv", "plot", "write_ablation"]
+__all__ = ["VARIANTS", "AblationResult", "Measurement", "Variant", "ablation", "format_table", "plot", "select_variants", "write_ablation", "write_csv"]

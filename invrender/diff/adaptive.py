@@ -52,6 +52,6 @@ class _AdaptiveReplay(torch.autograd.Function):
             # the adjoint scaled per pixel
             scale = (1.0 / (len(fctx.passes) * plan.count.to(grad_image.device, grad_image.dtype))).reshape(h, w, 1)
             grads = replay_gradient(fctx.scene, fctx.integrator, fctx.settings.replace(spp=1, plan=plan), fctx.device, values, grad_image * scale)
-            for n in totals:
-                totals[n] += grads[n].to(totals[n].device, totals[n].dtype)
+            for n, total in totals.items():
+                total += grads[n].to(total.device, total.dtype)
         return (None, None, None, None, None, None, None, *(totals[n] for n in fctx.names))

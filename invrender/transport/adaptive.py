@@ -65,7 +65,7 @@ class AdaptiveSettings:
             raise ParameterError(f"adaptive floor must be a number >= 0, got {self.floor!r}")
 
     @staticmethod
-    def make(value) -> "AdaptiveSettings | None":
+    def make(value) -> AdaptiveSettings | None:
         """From ``render``'s ``adaptive=``: None/False (off), True (defaults), a dict of fields, or
         an :class:`AdaptiveSettings`."""
         if value is None or value is False:
@@ -136,7 +136,7 @@ class PixelMoments:
     sum_y2: torch.Tensor
 
     @staticmethod
-    def zeros(pixels: int, device) -> "PixelMoments":
+    def zeros(pixels: int, device) -> PixelMoments:
         z = torch.zeros(pixels, dtype=torch.float64, device=device)
         return PixelMoments(z.clone(), z.clone(), z.clone())
 

@@ -42,7 +42,7 @@ def test_adaptive_image_is_unbiased_where_pooling_the_pilot_would_not_be():
         sums = sum(trace_pass(model, ctx, scene, settings.replace(plan=plan), CPU).radiance[:, 0] for plan in (pilot, *result.passes))
         pooled.append(sums / result.spp.reshape(-1))
     adaptive, pooled = torch.cat(adaptive), torch.cat(pooled)
-    se = lambda x: float(x.std()) / x.numel() ** 0.5  # noqa: E731
+    se = lambda x: float(x.std()) / x.numel() ** 0.5
     assert abs(float(adaptive.mean()) - 1) < 4 * se(adaptive)
     assert float(pooled.mean()) - 1 < -6 * se(pooled)
 

@@ -125,4 +125,4 @@ def _scatter(out, index: torch.Tensor, part):
     return out.index_put((index,), part)
 
 
-__all__ = ["BSDF", "BSDFS", "BSDFSample", "BSDFSampling", "HEMISPHERES", "Materials", "ShadingPoint"]
+__all__ = ["BSDF", "BSDFS", "HEMISPHERES", "BSDFSample", "BSDFSampling", "Materials", "ShadingPoint"]
