@@ -293,9 +293,8 @@ against a --reference-spp render of the defaults, the cost the CPU time of one r
 threads: on a shared machine wall-clock time varies with the other processes' load). The table
 gives each variant's RMSE per spp, its RMSE at equal time (the CPU time of the defaults' largest
 spp) and its efficiency (the defaults' MSE over its MSE at that time: > 1 is better); the figure
-plots RMSE against
-samples and against time, log-log, one line per variant. All variants estimate the same image, so
-their differences are variance only.
+plots RMSE against samples and against CPU time, log-log, one line per variant. All variants
+estimate the same image, so their differences are variance only.
 """
 
 ABLATION_EPILOG = """\
