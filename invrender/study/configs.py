@@ -10,14 +10,18 @@ scene, a loss and a target shared by the whole study:
 - ``gradient``: how the loss's adjoint ``dl/dI`` is paired with the differentiated image
   (``correlated``: from the same render; ``decorrelated``: from an independent one; the pairings
   are registered in :data:`invrender.study.loss_gradients.LOSS_GRADIENTS`);
-- ``options``: any further keyword of :func:`invrender.render`: ``rr_depth``, ``max_depth``, the
-  integrator's own settings, and whatever sampling choices ``render`` grows later. They are passed
-  through unchanged, so a new render option is a new configuration without any change here.
+- ``options``: any further keyword of :func:`invrender.render`: ``rr_depth``, ``max_depth``,
+  ``sampler``, the integrator's own settings, and whatever sampling choices ``render`` grows later.
+  They are passed through unchanged, so a new render option is a new configuration without any
+  change here. A pairing may declare options of its own (``control_variate``: ``cv_steps``,
+  ``cv_step``); those go to the pairing, not to the render.
 
 A spec string names one configuration in parts separated by ``/``, in any order::
 
     path/replay/decorrelated
     random_walk/replay/correlated/max_depth=-1/rr_depth=1
+    path/autodiff/decorrelated/sampler=antithetic
+    path/replay/control_variate/cv_steps=8/cv_step=0.01
 
 Each bare part must be an integrator, an estimator or a loss-gradient name; each ``KEY=VALUE`` part
 is an option (VALUE read as an int, a float, true/false, else a string). Parts left out take the
@@ -73,6 +77,12 @@ class GradientConfig:
         clash = [k for k, _ in self.options if k in STUDY_SETTINGS or k in ("integrator", "estimator")]
         if clash:
             raise ParameterError(f"configuration {self.label!r}: {clash[0]!r} is set by the study, not by a configuration")
+        own = LOSS_GRADIENTS[self.gradient].options
+        for key, _ in self.options:
+            other = next((name for name, cls in LOSS_GRADIENTS.items() if key in cls.options and key not in own), None)
+            if other:
+                raise ParameterError(f"configuration {self.label!r}: option {key!r} belongs to the {other} pairing, not to {self.gradient}")
+        LOSS_GRADIENTS[self.gradient].check_options(self.label, self.pairing_options)
         self.integrator_and_settings(spp=1, seed=0)  # unknown or out-of-range options fail here, before any work
 
     @property
@@ -80,15 +90,27 @@ class GradientConfig:
         """The canonical spec string, e.g. ``"random_walk/replay/correlated/max_depth=-1/rr_depth=1"``."""
         return "/".join([self.integrator, self.estimator, self.gradient] + [f"{k}={_format(v)}" for k, v in self.options])
 
+    @property
+    def render_options(self) -> dict:
+        """The options that go to the render (all but the pairing's own)."""
+        own = LOSS_GRADIENTS[self.gradient].options
+        return {k: v for k, v in self.options if k not in own}
+
+    @property
+    def pairing_options(self) -> dict:
+        """The pairing's own options, with its defaults for those not given."""
+        own = LOSS_GRADIENTS[self.gradient].options
+        return {**own, **{k: v for k, v in self.options if k in own}}
+
     def render_kwargs(self) -> dict:
         """Keywords of :func:`invrender.render` for this configuration (without spp and seed)."""
-        return {"integrator": self.integrator, "estimator": self.estimator, **dict(self.options)}
+        return {"integrator": self.integrator, "estimator": self.estimator, **self.render_options}
 
     def integrator_and_settings(self, spp: int, seed: int) -> tuple[Integrator, RenderSettings]:
         """What :func:`invrender.diff.backpropagate` takes: the options split into the integrator's
         settings and the render settings (:class:`RenderSettings` fields such as ``backend``)."""
         render_fields = {f.name for f in dataclasses.fields(RenderSettings)}
-        options = dict(self.options)
+        options = self.render_options
         settings = RenderSettings(spp=spp, seed=seed, progress=False, **{k: v for k, v in options.items() if k in render_fields})
         return make_integrator(self.integrator, **{k: v for k, v in options.items() if k not in render_fields}), settings
 
@@ -105,7 +127,8 @@ class GradientConfig:
         """The configuration's model: without :data:`UNBIASED_OPTIONS`, ``replay``, ``decorrelated``.
         Configurations with the same model have the same expected image and so share a reference;
         a rendered target and the reference are drawn with it."""
-        return self.replace(estimator="replay", gradient="decorrelated").with_options(**{k: None for k in UNBIASED_OPTIONS})
+        drop = {k: None for k in (*UNBIASED_OPTIONS, *LOSS_GRADIENTS[self.gradient].options)}
+        return self.with_options(**drop).replace(estimator="replay", gradient="decorrelated")
 
 
 def parse_config(spec) -> GradientConfig:

@@ -156,6 +156,7 @@ def furnace_check(
     loss: str = "l2",
     params=FURNACE_PARAMS,
     seed: int = 0,
+    workers: int | None = None,
     progress: bool = True,
 ) -> FurnaceCheck:
     """Run a gradient study in the furnace and compare it with the closed forms.
@@ -168,6 +169,7 @@ def furnace_check(
         resolution: (width, height).
         loss: ``"l2"`` or ``"relative_l2"``.
         params: any of ``glow.emission``, ``wall.reflectance``.
+        workers: trials drawn at once (as :func:`invrender.study.gradient_study` takes it).
     """
     if loss not in CLOSED_FORM_LOSSES:
         raise ParameterError(f"the furnace check needs a loss with a closed form ({', '.join(CLOSED_FORM_LOSSES)}), got {loss!r}")
@@ -192,7 +194,7 @@ def furnace_check(
         w = walk(config)
         return torch.cat([torch.full((3,), predict_gradient(w, KIND[n], 1, pixels, target[0, 0, 0].item(), loss, False).truth) for n in names])
 
-    study = gradient_study(scene, names, configs, spp, trials, loss=loss, target=target, at=1.0, reference=truth, pixel_maps=False, seed=seed, progress=progress)
+    study = gradient_study(scene, names, configs, spp, trials, loss=loss, target=target, at=1.0, reference=truth, pixel_maps=False, seed=seed, workers=workers, progress=progress)
     rows = []
     for c in configs:
         w = walk(c)

@@ -12,13 +12,28 @@ Seeds: trial t renders with seed ``base + 2t`` in every configuration and at eve
 decorrelated pairing's second render takes ``base + 2t + 1``), so configurations are compared on the
 same random numbers and ``replay`` and ``autodiff`` give the same samples; references and the target
 take seeds beyond the trials'.
+
+Workers: trials are drawn ``workers`` at a time (default: one per core), each in a thread of its
+own, pinned to a core of its own where the OS allows it, that traces single-threaded (torch and
+Embree) with an objective of its own. A gradient of a small image is a few thousand paths, one
+chunk of the driver, so one render cannot use two cores; two trials at once can, and without the
+driver's per-render thread pool each gradient also costs less CPU (about half on the 16x16 Cornell
+box). The samples do not depend on ``workers``.
+
+Cost: a gradient's ``seconds`` are the CPU seconds of the thread that traced it. All of its work
+runs in that thread, so they are its whole cost, and unlike wall time they hardly change when other
+jobs load the machine (wall seconds are kept beside them, ``wall``); efficiency uses them.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
+import os
+import queue
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import torch
@@ -35,10 +50,21 @@ from invrender.study.trials import gradient_sample, pixel_contributions
 from invrender.transport.driver import check_int
 
 #: the configurations of a default study: both pairings with one estimator, both estimators with
-#: the pairing fit uses (autodiff is the cheaper one for a correlated gradient of a small image)
-DEFAULT_CONFIGS = ("path/autodiff/correlated", "path/autodiff/decorrelated", "path/replay/decorrelated")
-#: samples per pixel of a default study
-DEFAULT_SPP = (4, 8, 16, 32)
+#: the pairing fit uses (autodiff is the cheaper one for a correlated gradient of a small image);
+#: independent pixel samples, so that the variance measures the estimator: stratified samples
+#: resolve the light's edge pixels faster than 1/N, and the slope would measure the stratification
+DEFAULT_CONFIGS = (
+    "path/autodiff/correlated/sampler=independent",
+    "path/autodiff/decorrelated/sampler=independent",
+    "path/replay/decorrelated/sampler=independent",
+)
+#: samples per pixel of a default study: from 8, where the Cornell box's variance is in its 1/N
+#: regime (below, the product of the residual's and the derivative's noises, a 1/N^2 term, still
+#: shows: docs/gradient_variance.md#reading-the-figures)
+DEFAULT_SPP = (8, 16, 32, 64)
+#: loss of a default study: fit's, which weighs every pixel relative to its brightness; under l2
+#: a few bright pixels on the light's edge carry a heavy-tailed share of every gradient's variance
+DEFAULT_LOSS = "relative_l2"
 #: losses a study offers: those whose gradient is a sum of per-pixel terms
 LOSSES = ("l2", "relative_l2", "l1")
 
@@ -104,8 +130,9 @@ class Trials:
         spp: samples per pixel.
         samples: (T, C) float64, the gradient of each trial, components flattened over the
             study's parameters in order.
-        seconds: (T,) float64 wall time of each gradient.
+        seconds: (T,) float64 CPU seconds of each gradient (its thread's; module docstring).
         reference: the reference of the configuration's model, or None.
+        wall: (T,) float64 wall seconds of each gradient.
     """
 
     config: GradientConfig
@@ -113,6 +140,7 @@ class Trials:
     samples: torch.Tensor
     seconds: torch.Tensor
     reference: Reference | None
+    wall: torch.Tensor | None = None
 
 
 @dataclass(frozen=True)
@@ -125,8 +153,9 @@ class Summary:
         spp: samples per pixel.
         labels: K names, e.g. ``"red.reflectance.R"`` or ``"red.reflectance"`` (a sum).
         moments: mean, variance and standard errors of the K quantities.
-        seconds: mean wall seconds per gradient.
+        seconds: mean CPU seconds per gradient.
         reference: the reference's moments for the same K quantities, or None.
+        wall: mean wall seconds per gradient (each on one core, beside the other workers).
     """
 
     config: str
@@ -135,6 +164,7 @@ class Summary:
     moments: Moments
     seconds: float
     reference: Moments | None
+    wall: float = math.nan
 
     @property
     def bias(self) -> torch.Tensor | None:
@@ -248,7 +278,8 @@ class GradientStudy:
         reduce = (lambda x: x) if per == "component" else self._parameter_sums
         labels = self.component_labels if per == "component" else list(self.params)
         reference = run.reference.moments(reduce) if run.reference is not None else None
-        return Summary(run.config.label, spp, labels, moments(reduce(run.samples)), float(run.seconds.mean()), reference)
+        wall = float(run.wall.mean()) if run.wall is not None else math.nan
+        return Summary(run.config.label, spp, labels, moments(reduce(run.samples)), float(run.seconds.mean()), reference, wall)
 
     def slope(self, config, parameter: str) -> tuple[float, float]:
         """Slope (and standard error) of log variance against log spp for the derivative along all
@@ -265,7 +296,7 @@ def gradient_study(
     spp=DEFAULT_SPP,
     trials: int = 200,
     *,
-    loss: str = "l2",
+    loss: str = DEFAULT_LOSS,
     target=None,
     target_spp: int = 1024,
     at=0.5,
@@ -276,6 +307,7 @@ def gradient_study(
     pixel_param: str | None = None,
     pixel_spp: int | None = None,
     seed: int = 0,
+    workers: int | None = None,
     progress: bool = True,
 ) -> GradientStudy:
     """Measure the mean, variance, bias and cost of gradient estimators over independent trials.
@@ -292,7 +324,7 @@ def gradient_study(
         spp: samples per pixel, one study per value.
         trials: independent gradients per configuration and spp (>= 2); about 200 give the variance
             to 10% (more when the gradient is heavy-tailed: see the variance's standard error).
-        loss: ``"l2"``, ``"relative_l2"`` or ``"l1"`` (as ``fit`` computes them).
+        loss: ``"relative_l2"`` (fit's default), ``"l2"`` or ``"l1"`` (as ``fit`` computes them).
         target: an (H, W, 3) tensor or an image path; None = render the scene (at its own values,
             before ``at`` is applied) at ``target_spp`` with a seed of its own.
         at: where the gradient is taken: a factor for every studied parameter's values (default 0.5,
@@ -311,6 +343,8 @@ def gradient_study(
         pixel_param: the parameter of the per-pixel maps (default: the first of ``params``).
         pixel_spp: their spp (default: the smallest of ``spp``).
         seed: the study's seed; every render's seed derives from it.
+        workers: trials drawn at once, each single-threaded in a thread of its own (default: one
+            per core); the samples do not depend on it, the seconds per gradient do (one core's).
         progress: a progress bar with rate and ETA.
     Returns:
         :class:`GradientStudy`.
@@ -329,6 +363,8 @@ def gradient_study(
         raise ParameterError(f"reference_repeats must be >= 2 (the reference's standard error needs two), got {reference_repeats}")
     check_int("", "target_spp", target_spp, 1)
     check_int("", "seed", seed, 0)
+    workers = len(os.sched_getaffinity(0)) if workers is None else workers
+    check_int("", "workers", workers, 1)
     pixel_param = names[0] if pixel_param is None else pixel_param
     if pixel_param not in names:
         raise ParameterError(f"pixel_param {pixel_param!r} is not one of the studied parameters ({', '.join(names)})")
@@ -355,36 +391,32 @@ def gradient_study(
     map_groups: dict[GradientConfig, list[str]] = {}
     for c in configs:
         map_groups.setdefault(c.replace(estimator="replay"), []).append(c.label)
-    units = len(configs) * (1 + len(spp) * trials) + (len(models) * reference_repeats if reference_spp and reference is None else 0) + (len(map_groups) * trials if pixel_maps else 0)
+    units = len(configs) * (workers + len(spp) * trials) + (len(models) * reference_repeats if reference_spp and reference is None else 0) + (len(map_groups) * trials if pixel_maps else 0)
     bar = tqdm(total=units, unit="grad", desc=f"gradients {scene.name}", file=sys.stderr, disable=not progress, dynamic_ncols=True)
+    pool = _Workers(objective, names, workers)
 
-    def draw(config: GradientConfig, n: int, seed_of, count: int) -> tuple[torch.Tensor, torch.Tensor]:
+    def draw(config: GradientConfig, n: int, seed_of, count: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         bar.set_postfix_str(f"{config.label} {n} spp", refresh=False)
-        rows, times = [], []
-        for t in range(count):
-            g, s = gradient_sample(objective, names, config, n, seed_of(t))
-            rows.append(g)
-            times.append(s)
-            bar.update(1)
-        return torch.stack(rows), torch.tensor(times, dtype=torch.float64)
+        drawn = pool.map(lambda own, t: gradient_sample(own, names, config, n, seed_of(t)), count, bar)
+        return torch.stack([d[0] for d in drawn]), torch.tensor([d[1] for d in drawn], dtype=torch.float64), torch.tensor([d[2] for d in drawn], dtype=torch.float64)
 
-    with bar:
+    with bar, pool:
         for c in configs:  # first calls build caches; their time is not a gradient's
-            draw(c, spp[0], lambda t: seeds.warm_up, 1)
+            draw(c, spp[0], lambda t: seeds.warm_up, workers)
         if reference is None and reference_spp:
             for model in models:
-                samples, _ = draw(model, reference_spp, seeds.reference, reference_repeats)
+                samples, _, _ = draw(model, reference_spp, seeds.reference, reference_repeats)
                 references[model] = Reference(model, reference_spp, samples)
         runs = []
         for c in configs:
             for n in spp:
-                samples, seconds = draw(c, n, seeds.trial, trials)
-                runs.append(Trials(c, n, samples, seconds, references.get(c.model)))
+                samples, seconds, wall = draw(c, n, seeds.trial, trials)
+                runs.append(Trials(c, n, samples, seconds, references.get(c.model), wall))
         maps = []
         if pixel_maps:
             for c, labels in map_groups.items():
                 bar.set_postfix_str(f"per-pixel {c.label} {pixel_spp} spp", refresh=False)
-                maps.append(_pixel_variance(objective, pixel_param, c, labels, pixel_spp, seeds, trials, bar))
+                maps.append(_pixel_variance(pool, pixel_param, c, labels, pixel_spp, seeds, trials, bar))
 
     return GradientStudy(
         scene=scene.name, resolution=tuple(scene.resolution), params=tuple(names), shapes={n: tuple(work.params[n].shape) for n in names},
@@ -394,14 +426,73 @@ def gradient_study(
     )  # fmt: skip
 
 
-def _pixel_variance(objective: Objective, name: str, config: GradientConfig, labels: list[str], spp: int, seeds: Seeds, trials: int, bar) -> PixelVariance:
+class _Workers:
+    """Trials drawn side by side: ``workers`` threads, each tracing single-threaded (the driver
+    then runs its chunks in the calling thread) with an :class:`Objective` of its own."""
+
+    def __init__(self, objective: Objective, names: list[str], workers: int):
+        self.free: queue.SimpleQueue = queue.SimpleQueue()
+        for w in range(workers):
+            self.free.put(objective if w == 0 else _own_objective(objective, names))
+        self.cores = sorted(os.sched_getaffinity(0))
+        self.started = itertools.count()
+        self.pool = ThreadPoolExecutor(workers, initializer=self._single_core, thread_name_prefix="trial")
+
+    def _single_core(self) -> None:
+        """A worker's setup: torch single-threaded, and the thread pinned to one core, so that
+        the driver and Embree see one core and trace in this thread (its CPU time is then the
+        whole cost of its gradients)."""
+        torch.set_num_threads(1)
+        w = next(self.started)
+        try:
+            os.sched_setaffinity(0, {self.cores[w % len(self.cores)]})  # 0: the calling thread (Linux)
+        except (AttributeError, OSError):
+            pass
+
+    def map(self, work, count: int, bar) -> list:
+        """``[work(objective, t) for t in range(count)]``, drawn on the workers."""
+
+        def task(t: int):
+            own = self.free.get()
+            try:
+                return work(own, t)
+            finally:
+                self.free.put(own)
+
+        futures = [self.pool.submit(task, t) for t in range(count)]
+        results = []
+        try:
+            for f in futures:
+                results.append(f.result())
+                bar.update(1)
+        except BaseException:
+            for f in futures:
+                f.cancel()
+            raise
+        return results
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _own_objective(objective: Objective, names: list[str]) -> Objective:
+    """The same objective with leaf tensors of its own (a worker's: gradients must not mix)."""
+    scene = _copy(objective.scene)
+    for n in names:
+        scene.params[n].requires_grad_(True)
+    return Objective(scene, objective.target, objective.loss)
+
+
+def _pixel_variance(pool: _Workers, name: str, config: GradientConfig, labels: list[str], spp: int, seeds: Seeds, trials: int, bar) -> PixelVariance:
     """Per-pixel mean and variance of the contributions to ``name``'s derivative over the trials."""
     total = square = None
-    for t in range(trials):
-        c = pixel_contributions(objective, name, config, spp, seeds.trial(t)).sum(-1)  # (H, W): channels together
+    contributions = pool.map(lambda own, t: pixel_contributions(own, name, config, spp, seeds.trial(t)).sum(-1), trials, bar)  # (H, W): channels together
+    for c in contributions:
         total = c if total is None else total + c
         square = c**2 if square is None else square + c**2
-        bar.update(1)
     mean = total / trials
     variance = ((square - trials * mean**2) / (trials - 1)).clamp_min(0)
     return PixelVariance(tuple(labels), name, spp, mean, variance, trials)

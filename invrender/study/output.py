@@ -21,7 +21,7 @@ from invrender.study.gradients import GradientStudy
 COLUMNS = (
     "config", "integrator", "estimator", "gradient", "options", "spp", "trials", "quantity", "kind",
     "mean", "std_error", "variance", "variance_se", "reference", "reference_se", "bias", "bias_se",
-    "seconds", "efficiency",
+    "seconds", "wall_seconds", "efficiency",
 )  # fmt: skip
 
 
@@ -41,7 +41,7 @@ def study_rows(study: GradientStudy) -> list[dict]:
                     "mean": float(m.mean[k]), "std_error": float(m.std_error[k]), "variance": float(m.variance[k]), "variance_se": float(m.variance_se[k]),
                     "reference": _item(s.reference.mean, k) if s.reference else None, "reference_se": _item(s.reference.std_error, k) if s.reference else None,
                     "bias": _item(s.bias, k), "bias_se": _item(s.bias_se, k),
-                    "seconds": s.seconds, "efficiency": float(s.efficiency[k]),
+                    "seconds": s.seconds, "wall_seconds": s.wall, "efficiency": float(s.efficiency[k]),
                 })  # fmt: skip
     return rows
 
@@ -86,7 +86,7 @@ def write_study(study: GradientStudy, out) -> list[Path]:
     write_json(out / "results.json", study_dict(study))
     samples = {
         "components": study.component_labels,
-        "runs": {f"{r.config.label} @ {r.spp}": {"samples": r.samples, "seconds": r.seconds} for r in study.runs},
+        "runs": {f"{r.config.label} @ {r.spp}": {"samples": r.samples, "seconds": r.seconds, "wall": r.wall} for r in study.runs},
     }
     with atomic_file(out / "samples.pt") as f:
         torch.save(samples, f)
@@ -100,7 +100,7 @@ def summary_text(study: GradientStudy) -> str:
         f"target {study.target}; derivative along all components of each parameter"
     )
     lines = [title]
-    head = f"{'configuration':<44} {'spp':>5} {'parameter':<22} {'mean':>11} {'variance':>11} {'± se':>9} {'bias':>11} {'± se':>9} {'s/grad':>7} {'efficiency':>10}"
+    head = f"{'configuration':<44} {'spp':>5} {'parameter':<22} {'mean':>11} {'variance':>11} {'± se':>9} {'bias':>11} {'± se':>9} {'cpu s':>7} {'efficiency':>10}"
     lines.append(head)
     for run in study.runs:
         s = study.summary(run.config, run.spp, "parameter")

@@ -4,7 +4,8 @@
   guide (Monte Carlo's rate; a steeper line means a term falling faster, e.g. the ``1/N^2`` of a
   product of two independent noises, or stratified pixel samples at an edge);
 - :func:`plot_bias`: bias against spp with error bars, correlated (filled) vs decorrelated (open);
-- :func:`plot_pixel_variance`: the per-pixel variance of one parameter's gradient, per pairing.
+- :func:`plot_pixel_variance`: the per-pixel variance of one parameter's gradient, per pairing;
+- :func:`plot_fits`: a fit study's largest parameter error against wall time and against steps.
 
 Each panel shows one parameter's derivative along all its components together (the sum of its
 components). Optional ``predictions`` (closed forms) are drawn as dotted lines in the line's colour.
@@ -131,6 +132,44 @@ def plot_pixel_variance(study: GradientStudy, path) -> None:
         ax.set_xticks([])
         ax.set_yticks([])
     fig.suptitle("where the gradient's variance comes from: variance of each pixel's contribution dl/dI * dI/dtheta", fontsize=9)
+    fig.tight_layout()
+    save_figure(fig, path)
+
+
+def plot_fits(study, path) -> None:
+    """A :class:`~invrender.study.fits.FitStudy`: the largest relative error of the fitted
+    parameters against wall seconds (left) and against steps (right), log scale, one line per
+    configuration (the median over repeats at each step, against the median seconds; single
+    repeats drawn thin), the thresholds dotted."""
+    from invrender.study.fits import THRESHOLDS
+
+    plt = _pyplot()
+    fig, (by_time, by_step) = plt.subplots(1, 2, figsize=(11, 4.4))
+    fig.suptitle(
+        f"fits of {', '.join(study.params)}: {study.scene} {study.resolution[0]}x{study.resolution[1]}, loss {study.loss}, "
+        f"{study.settings['steps']} steps, {study.repeats} repeat(s)",
+        fontsize=9,
+    )
+    for i, c in enumerate(study.configs):
+        runs = study.runs_of(c)
+        steps = min(len(r.seconds) for r in runs)
+        seconds = torch.stack([r.seconds[:steps] for r in runs]).median(0).values
+        error = torch.stack([r.error[:steps] for r in runs]).median(0).values
+        label = c.label + (f" (median of {len(runs)})" if len(runs) > 1 else "")
+        by_time.plot(seconds.numpy(), error.numpy(), color=f"C{i}", lw=1.4, label=label)
+        by_step.plot(range(1, steps + 1), error.numpy(), color=f"C{i}", lw=1.4, label=label)
+        if len(runs) > 1:
+            for r in runs:
+                by_time.plot(r.seconds.numpy(), r.error.numpy(), color=f"C{i}", lw=0.5, alpha=0.35)
+                by_step.plot(range(1, len(r.error) + 1), r.error.numpy(), color=f"C{i}", lw=0.5, alpha=0.35)
+    for ax, xlabel in ((by_time, "wall seconds"), (by_step, "step")):
+        for t in THRESHOLDS:
+            ax.axhline(t, color="grey", ls=":", lw=1)
+        ax.set_yscale("log")
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("largest relative error")
+        ax.grid(alpha=0.3, which="both")
+    by_time.legend(fontsize=7)
     fig.tight_layout()
     save_figure(fig, path)
 

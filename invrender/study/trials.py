@@ -11,11 +11,17 @@ the gradient's component c, and their sum over channels is its contribution to t
 all channels together. Different pixels trace independent paths (the counter-based sampler), so the
 ``c_p`` are independent and the per-pixel variances add up to the variance of that derivative: the
 map says which pixels the gradient's noise comes from.
+
+**Threads.** A study draws several trials at once, one per core (:mod:`invrender.study.gradients`),
+each thread with an :class:`Objective` of its own (its own leaf tensors, so that gradients do not
+mix). Forward mode's dual level is global to the process, so the forward-mode renders of
+:func:`pixel_contributions` take turns (a lock); everything else runs side by side.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import threading
 import time
 
 import torch
@@ -25,25 +31,34 @@ from invrender.diff import render
 from invrender.study.configs import GradientConfig
 from invrender.study.loss_gradients import LOSS_GRADIENTS, Objective
 
+#: one forward-mode dual level at a time in the process
+_FORWARD_AD = threading.Lock()
 
-def gradient_sample(objective: Objective, names: list[str], config: GradientConfig, spp: int, seed: int) -> tuple[torch.Tensor, float]:
+
+def gradient_sample(objective: Objective, names: list[str], config: GradientConfig, spp: int, seed: int) -> tuple[torch.Tensor, float, float]:
     """One gradient of the loss by ``config`` at ``spp`` samples per pixel from ``seed``.
 
     Args:
         names: the studied parameters (they require grad in ``objective.scene``).
     Returns:
-        (the gradient flattened over ``names`` in order, (C,) float64; wall seconds it took).
+        (the gradient flattened over ``names`` in order, (C,) float64; the CPU seconds of the
+        calling thread and the wall seconds it took, both without the pairing's untimed
+        preparation (:meth:`LossGradient.prepare`)). The CPU seconds are the gradient's whole cost
+        when it is traced in the calling thread alone, as a study's workers trace it
+        (single-threaded torch, one core: :mod:`invrender.study.gradients`).
     """
     params = [objective.scene.params[n] for n in names]
     for p in params:
         p.grad = None
-    start = time.perf_counter()
-    LOSS_GRADIENTS[config.gradient]().backward(objective, config, spp, seed)
-    seconds = time.perf_counter() - start
+    pairing = LOSS_GRADIENTS[config.gradient]()
+    prepared = pairing.prepare(objective, config, spp, seed)
+    cpu, wall = time.thread_time(), time.perf_counter()
+    pairing.backward(objective, config, spp, seed, prepared)
+    cpu, wall = time.thread_time() - cpu, time.perf_counter() - wall
     flat = torch.cat([(p.grad if p.grad is not None else torch.zeros_like(p)).detach().reshape(-1).double() for p in params])
     for p in params:
         p.grad = None
-    return flat, seconds
+    return flat, cpu, wall
 
 
 def pixel_contributions(objective: Objective, name: str, config: GradientConfig, spp: int, seed: int) -> torch.Tensor:
@@ -56,7 +71,7 @@ def pixel_contributions(objective: Objective, name: str, config: GradientConfig,
         constant RGB parameter channel c summed over pixels is the gradient's component c.
     """
     scene = objective.scene
-    with torch.no_grad(), fwAD.dual_level():
+    with _FORWARD_AD, torch.no_grad(), fwAD.dual_level():
         params = {k: v.detach() for k, v in scene.params.items()}
         params[name] = fwAD.make_dual(params[name], torch.ones_like(params[name]))
         options = {k: v for k, v in config.render_kwargs().items() if k != "estimator"}  # no tape: estimators do not apply

@@ -28,10 +28,21 @@ def test_roulette_does_not_change_the_model():
     assert parse_config("path/max_depth=4").model not in models
 
 
+def test_pairing_options_go_to_the_pairing_not_the_render():
+    c = parse_config("path/autodiff/control_variate/cv_steps=3/sampler=antithetic")
+    assert c.pairing_options == {"cv_steps": 3, "cv_step": 0.01}  # the default step filled in
+    assert c.render_kwargs() == {"integrator": "path", "estimator": "autodiff", "sampler": "antithetic"}
+    assert c.model == GradientConfig("path", "replay", "decorrelated")  # the sampler and the chain do not change the expected image
+
+
 @pytest.mark.parametrize(
     "spec, words",
     [
         ("path/replay/bogus", "unknown part 'bogus'"),
+        ("path/decorrelated/cv_steps=4", "belongs to the control_variate pairing"),
+        ("path/control_variate/cv_steps=0", "cv_steps must be an integer >= 1"),
+        ("path/control_variate/cv_step=-0.1", "cv_step must be a number >= 0"),
+        ("path/sampler=sobol", "unknown sampler 'sobol'"),
         ("path/random_walk", "two integrators"),
         ("path/rr_depth=", "KEY=VALUE"),
         ("path/rr_depth=1/rr_depth=2", "given twice"),

@@ -59,7 +59,7 @@ def test_pixel_contributions_add_up_to_the_gradient(cbox8):
     target = torch.full((8, 8, 3), 0.3)
     for spec in ("path/replay/correlated", "path/autodiff/decorrelated"):
         objective = Objective(scene, target, "relative_l2")
-        g, _ = gradient_sample(objective, PARAMS, parse_config(spec), 2, 6)
+        g, _, _ = gradient_sample(objective, PARAMS, parse_config(spec), 2, 6)
         for k, name in enumerate(PARAMS):
             c = pixel_contributions(objective, name, parse_config(spec), 2, 6)
             assert torch.allclose(c.sum((0, 1)), g[3 * k : 3 * k + 3], rtol=1e-4, atol=1e-10), (spec, name)
