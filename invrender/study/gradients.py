@@ -21,8 +21,10 @@ driver's per-render thread pool each gradient also costs less CPU (about half on
 box). The samples do not depend on ``workers``.
 
 Cost: a gradient's ``seconds`` are the CPU seconds of the thread that traced it. All of its work
-runs in that thread, so they are its whole cost, and unlike wall time they hardly change when other
-jobs load the machine (wall seconds are kept beside them, ``wall``); efficiency uses them.
+runs in that thread, so they are its whole cost, and they change less than wall time when other
+jobs load the machine (wall seconds are kept beside them, ``wall``); efficiency uses them. At each
+spp the configurations are interleaved trial by trial (trial 0 of each, then trial 1, ...), so
+what load there is falls on all of them alike.
 """
 
 from __future__ import annotations
@@ -407,10 +409,17 @@ def gradient_study(
             for model in models:
                 samples, _, _ = draw(model, reference_spp, seeds.reference, reference_repeats)
                 references[model] = Reference(model, reference_spp, samples)
+        drawn = {}
+        for n in spp:  # configurations interleaved trial by trial: a change of the machine's load falls on all alike
+            bar.set_postfix_str(f"{n} spp", refresh=False)
+            pairs = [(c, t) for t in range(trials) for c in configs]
+            for (c, _), d in zip(pairs, pool.map(lambda own, i: gradient_sample(own, names, pairs[i][0], n, seeds.trial(pairs[i][1])), len(pairs), bar)):
+                drawn.setdefault((c, n), []).append(d)
         runs = []
         for c in configs:
             for n in spp:
-                samples, seconds, wall = draw(c, n, seeds.trial, trials)
+                d = drawn[(c, n)]
+                samples, seconds, wall = torch.stack([x[0] for x in d]), torch.tensor([x[1] for x in d], dtype=torch.float64), torch.tensor([x[2] for x in d], dtype=torch.float64)
                 runs.append(Trials(c, n, samples, seconds, references.get(c.model), wall))
         maps = []
         if pixel_maps:
