@@ -350,7 +350,8 @@ approximation drops, and the ambient eps0 that best stands in for interreflectio
 
 VARIANCE_DOC = """\
 Measure gradient estimators: for each configuration (integrator, estimator autodiff|replay,
-correlated|decorrelated loss gradient, and render options such as rr_depth) and each spp, draw
+pairing of dl/dI correlated|decorrelated|control_variate, and render options such as
+sampler=antithetic or rr_depth) and each spp, draw
 --trials gradients of the loss from independent seeds; report per parameter and component the mean,
 variance (with its standard error), bias against a high-spp reference (with both standard errors),
 seconds per gradient and efficiency 1/(variance x seconds); plot variance and bias against spp and

@@ -17,8 +17,10 @@ over pixels and channels. Both factors are estimated; a *pairing* says where eac
   fit's sequence of steps, so the pairing builds one: ``cv_steps`` steps of ``cv_step`` (in the
   units fit steps in: logit of a reflectance, log of an emission, every channel) toward the point
   where the gradient is taken, each rendering the new and the previous values with the same numbers,
-  then the last step at the point itself (seed ``seed + 1``). The estimate stays unbiased (every
-  step's values are fixed before its numbers are drawn), so the gradient is. Only the last step is
+  then the last step at the point itself (seed ``seed + 1``). Every step's values are fixed before
+  its numbers are drawn; the weights alpha come from pixel means of the earlier steps' squared
+  differences, which share noise with the earlier estimate, a second-order effect of order
+  1/(pixels) (not measurable here: docs/gradient_variance.md). Only the last step is
   timed (its two renders and the differentiated one: what each step of such a fit costs); the
   earlier steps are the ones a fit would have taken anyway. How much it buys depends on the steps:
   small steps near the fit's end are where it pays, and a fit (``--fits``) measures that directly.
