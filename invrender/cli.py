@@ -166,7 +166,7 @@ def build_parser() -> argparse.ArgumentParser:
         r.add_argument(f"--{name.replace('_', '-')}", dest=name, type=kind, default=None, metavar=name.upper(), help=doc)
     r.add_argument("--terms", action="store_true", help="also write one image per Neumann term (OUT_STEM.termK.SUFFIX)")
     r.add_argument("--device", default="cpu", help="torch device: cpu or cuda (default: cpu)")
-    r.add_argument("--backend", default=None, help="intersection backend: embree (CPU) or torch (any device); default by device")
+    r.add_argument("--backend", default=None, help="intersection backend: embree (CPU only; its default), warp (NVIDIA Warp BVH, CUDA or CPU; the default on CUDA) or torch (brute force, any device: the reference)")
     r.add_argument("--memory-mb", type=float, default=512.0, help="memory budget of one chunk of paths, MiB (default: 512)")
     r.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     r.set_defaults(run=run_render)

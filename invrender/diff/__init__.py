@@ -58,7 +58,8 @@ def render(
         estimator: how the image is differentiated when a parameter requires grad:
             ``"replay"`` (default; path-replay backpropagation, memory flat in spp and depth) or
             ``"autodiff"`` (torch records the whole wavefront).
-        backend: ``"embree"`` (CPU) or ``"torch"`` (any device); None = the device's default.
+        backend: ``"embree"`` (CPU), ``"warp"`` (NVIDIA Warp's BVH: CUDA or CPU) or ``"torch"``
+            (brute force, any device); None = the device's default (embree on the CPU, warp on CUDA).
         device: where to render; None = the scene's device. Parameters are moved differentiably.
         chunk_paths: paths per chunk; None = from ``memory_mb``.
         memory_mb: memory budget of a chunk's working set, MiB.

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import threading
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -34,6 +35,8 @@ from invrender.scene.camera import Camera
 from invrender.scene.kinds import kind_of, param_name
 from invrender.scene.materials import Material
 from invrender.scene.shapes import Mesh
+
+_DERIVED_LOCK = threading.RLock()
 
 #: the parameter holding the ambient radiance eps0 of the Utah approximation ("ambient" is reserved)
 AMBIENT = "ambient.emission"
@@ -73,7 +76,24 @@ class Triangles:
         return int(self.p0.shape[0])
 
     def to(self, device) -> "Triangles":
-        return Triangles(*(getattr(self, f).to(device) for f in self.__dataclass_fields__))
+        """These triangles on ``device``: ``self`` where they already are, else a copy made once
+        and kept (geometry never changes, so a scene rendered on a GPU uploads it once)."""
+        device = torch.device(device)
+        if device.type == "cuda" and device.index is None:
+            device = torch.device("cuda", torch.cuda.current_device())
+        if self.p0.device == device:
+            return self
+        return self.derived(("to", str(device)), lambda: Triangles(*(getattr(self, f).to(device) for f in self.__dataclass_fields__)))
+
+    def derived(self, key, build):
+        """What ``build()`` computes from this geometry, computed once per ``key`` and kept with
+        it: copies on other devices, acceleration structures (thread-safe)."""
+        cache = self.__dict__.setdefault("_derived", {})  # not a field: frozen, never compared
+        if key not in cache:
+            with _DERIVED_LOCK:
+                if key not in cache:
+                    cache[key] = build()
+        return cache[key]
 
     @functools.cached_property
     def packed(self) -> torch.Tensor:
@@ -295,6 +315,10 @@ def build_scene(
 
 
 def scene_extent(triangles: Triangles) -> float:
-    """Largest side of the scene's bounding box (for ray offsets)."""
-    c = triangles.corners().reshape(-1, 3)
-    return float((c.max(0).values - c.min(0).values).max())
+    """Largest side of the scene's bounding box (for ray offsets; computed once per geometry)."""
+
+    def extent() -> float:
+        c = triangles.corners().reshape(-1, 3)
+        return float((c.max(0).values - c.min(0).values).max())
+
+    return triangles.derived("extent", extent)

@@ -3,14 +3,21 @@ docs/architecture.md#geometry-is-never-differentiated).
 
 A backend answers two queries for a batch of rays and returns plain, non-differentiable tensors:
 ``intersect`` (closest hit: distance, triangle id, barycentrics) and ``occluded`` (any hit before a
-given distance). Two backends give the same answers up to float rounding:
+given distance). The backends give the same answers up to float rounding:
 
 - ``embree``: Intel Embree through embreex, on the CPU (the fast default there), rays split across
   threads;
+- ``warp``: NVIDIA Warp's BVH (:mod:`invrender.transport.warp_bvh`), on CUDA (the default there)
+  and on the CPU, rays and results shared with torch without copies;
 - ``torch``: Moller-Trumbore against every triangle in blocks sized to a memory budget, on any
-  device (the default on CUDA; fine for scenes of up to a few thousand triangles).
+  device: the reference (fine for scenes of up to a few thousand triangles).
 
 Barycentrics follow Embree: the hit point is ``p0 + u e1 + v e2``.
+
+Geometry never changes once a scene is built, so :func:`intersector_for` builds each backend's
+acceleration structure once per geometry and keeps it with the triangles
+(:meth:`~invrender.scene.scene.Triangles.derived`): renders, fit steps and gradient trials of one
+scene share it.
 """
 
 from __future__ import annotations
@@ -102,6 +109,25 @@ class EmbreeIntersector:
         return torch.from_numpy(hit).to(o.device)
 
 
+class WarpIntersector:
+    """NVIDIA Warp's BVH on the triangles' device (CUDA or CPU); rays must be on that device."""
+
+    name = "warp"
+
+    def __init__(self, triangles: Triangles):
+        from invrender.transport.warp_bvh import WarpBVH
+
+        self._bvh = WarpBVH(triangles.corners())
+
+    def intersect(self, o: torch.Tensor, d: torch.Tensor) -> Hits:
+        """Closest hits of rays with origins ``o`` (N, 3) and unit directions ``d`` (N, 3)."""
+        return Hits(*self._bvh.closest(o, d))
+
+    def occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
+        """(N,) bool: does anything lie along each ray strictly before ``tmax`` (N,)?"""
+        return self._bvh.occluded(o, d, tmax)
+
+
 class TorchIntersector:
     """Brute-force Moller-Trumbore in torch, on any device, blocked to bound memory."""
 
@@ -154,25 +180,41 @@ class TorchIntersector:
         return self._closest(o, d, tmax).valid
 
 
-BACKENDS = {"embree": EmbreeIntersector, "torch": TorchIntersector}
+BACKENDS = {"embree": EmbreeIntersector, "warp": WarpIntersector, "torch": TorchIntersector}
 
 
 def default_backend(device: torch.device) -> str:
-    """``embree`` on the CPU, ``torch`` elsewhere."""
-    return "embree" if torch.device(device).type == "cpu" else "torch"
+    """``embree`` on the CPU, ``warp`` elsewhere (CUDA)."""
+    return "embree" if torch.device(device).type == "cpu" else "warp"
+
+
+def check_backend(backend: str | None, device: torch.device) -> str:
+    """The backend name to use on ``device`` (``None`` = the device's default); a one-line
+    :class:`ParameterError` for an unknown name or one that cannot run there (Embree: CPU only)."""
+    backend = backend or default_backend(device)
+    if backend not in BACKENDS:
+        raise ParameterError(f"unknown intersection backend {backend!r} (known: {', '.join(BACKENDS)})")
+    if backend == "embree" and torch.device(device).type != "cpu":
+        raise ParameterError(f"the embree backend runs on the CPU only, not on {device}: use backend 'warp' or 'torch'")
+    return backend
 
 
 def make_intersector(triangles: Triangles, backend: str | None = None, embree_threads: int | None = None):
-    """An intersector for ``triangles`` by backend name (``None`` = the device's default).
+    """A new intersector for ``triangles`` by backend name (``None`` = the device's default).
 
     ``embree_threads``: threads each Embree query is split across (None = one per core).
     """
-    backend = backend or default_backend(triangles.p0.device)
-    try:
-        cls = BACKENDS[backend]
-    except KeyError:
-        raise ParameterError(f"unknown intersection backend {backend!r} (known: {', '.join(BACKENDS)})") from None
+    backend = check_backend(backend, triangles.p0.device)
+    cls = BACKENDS[backend]
     return EmbreeIntersector(triangles, embree_threads) if cls is EmbreeIntersector else cls(triangles)
+
+
+def intersector_for(triangles: Triangles, backend: str | None = None, embree_threads: int | None = None):
+    """The intersector of ``triangles`` for a backend, built on first use and kept with the
+    geometry (:meth:`Triangles.derived`), so that renders of one scene share it."""
+    backend = check_backend(backend, triangles.p0.device)
+    threads = max(1, embree_threads or len(os.sched_getaffinity(0))) if backend == "embree" else None
+    return triangles.derived(("accel", backend, threads), lambda: make_intersector(triangles, backend, threads))
 
 
 def _numpy(x: torch.Tensor) -> np.ndarray:

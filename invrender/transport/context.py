@@ -9,7 +9,7 @@ import torch
 
 from invrender.scene.kinds import param_name
 from invrender.scene.scene import AMBIENT, Scene, Triangles, scene_extent
-from invrender.transport.accel import make_intersector
+from invrender.transport.accel import intersector_for
 from invrender.transport.bsdfs import BSDFSampling, Materials, ShadingPoint
 from invrender.transport.lights import EmitterSampler
 from invrender.transport.surface import Surface
@@ -51,7 +51,8 @@ class TransportContext:
     ) -> "TransportContext":  # fmt: skip
         """The context for rendering ``scene`` on ``device`` (parameters moved differentiably).
 
-        ``backend``: intersection backend name (None = the device's default).
+        ``backend``: intersection backend name (None = the device's default); its acceleration
+        structure is built once per geometry and reused.
         ``embree_threads``: threads each Embree query is split across (None = one per core).
         ``params``: values to use instead of ``scene.params`` (same names; all or some).
         ``sampling``: how the BSDFs draw directions (None = cosine-weighted diffuse lobes).
@@ -64,7 +65,7 @@ class TransportContext:
         lights = EmitterSampler(tris, eps)
         return TransportContext(
             triangles=tris,
-            accel=make_intersector(tris, backend, embree_threads),
+            accel=intersector_for(tris, backend, embree_threads),
             lights=lights if lights.count else None,
             materials=Materials([s.type for s in specs], material_values, [dict(s.constants) for s in specs], device, flat=not tris.any_smooth, sampling=sampling),
             eps=eps,

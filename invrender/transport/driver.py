@@ -53,7 +53,8 @@ class RenderSettings:
         spp: samples (paths) per pixel, > 0.
         seed: seed of the counter-based random numbers, >= 0.
         terms: return one image per Neumann term, shape (K, H, W, 3), summing to the full image.
-        backend: intersection backend ``"embree"`` or ``"torch"``; None = the device's default.
+        backend: intersection backend ``"embree"`` (CPU), ``"warp"`` (CUDA or CPU) or ``"torch"``
+            (any device, brute force); None = the device's default (embree on the CPU, warp on CUDA).
         chunk_paths: paths traced per chunk; None = sized by ``memory_mb``.
         memory_mb: memory budget for one chunk's working set, MiB.
         progress: show a progress bar (rate, ETA) on renders that take longer than a second.

@@ -1,0 +1,114 @@
+"""NVIDIA Warp's BVH (``wp.Mesh``) as an intersection backend: the fast path on CUDA, and on the CPU
+a check of the other backends (Warp compiles the same kernel for both).
+
+Rays and results are torch tensors shared with Warp without copies (``wp.from_torch``); on CUDA the
+kernels are launched on torch's current stream, so a query is ordered with the torch operations
+around it and nothing waits for the GPU between bounces. Imported only when the backend is asked
+for: ``warp-lang`` compiles its kernels on first use (a few seconds, then cached on disk).
+
+Warp reports barycentrics as the weights of a triangle's first and second vertex; the backends'
+convention (Embree's) is the weights of the second and third, so the kernels convert.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import torch
+
+from invrender.errors import ParameterError
+
+try:
+    import warp as wp
+except ImportError as error:  # pragma: no cover - warp-lang is a dependency; this guards broken installs
+    raise ParameterError(f"the warp intersection backend needs warp-lang ({error}): pip install warp-lang, or use backend 'embree' or 'torch'") from None
+
+
+
+def _init() -> None:
+    """``wp.init()`` without console output: no banner or compile timings, and on a machine without
+    a CUDA driver (where torch sees none either) not the native library's note that it found none."""
+    wp.config.log_level = wp.LOG_ERROR
+    if torch.cuda.is_available():
+        wp.init()
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)
+            wp.init()
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+_init()
+
+
+@wp.kernel
+def _closest_kernel(
+    mesh: wp.uint64,
+    o: wp.array(dtype=wp.vec3),
+    d: wp.array(dtype=wp.vec3),
+    t: wp.array(dtype=wp.float32),
+    prim: wp.array(dtype=wp.int64),
+    u: wp.array(dtype=wp.float32),
+    v: wp.array(dtype=wp.float32),
+):
+    i = wp.tid()
+    q = wp.mesh_query_ray(mesh, o[i], d[i], 3.0e38)
+    if q.result:
+        t[i] = q.t
+        prim[i] = wp.int64(q.face)
+        u[i] = q.v  # weight of the second vertex
+        v[i] = 1.0 - q.u - q.v  # weight of the third
+    else:
+        t[i] = wp.inf
+        prim[i] = wp.int64(-1)
+        u[i] = 0.0
+        v[i] = 0.0
+
+
+@wp.kernel
+def _occluded_kernel(mesh: wp.uint64, o: wp.array(dtype=wp.vec3), d: wp.array(dtype=wp.vec3), tmax: wp.array(dtype=wp.float32), hit: wp.array(dtype=wp.bool)):
+    i = wp.tid()
+    hit[i] = wp.mesh_query_ray_anyhit(mesh, o[i], d[i], tmax[i])
+
+
+class WarpBVH:
+    """A ``wp.Mesh`` over triangle corners (T, 3, 3) on their device, and the two ray queries."""
+
+    def __init__(self, corners: torch.Tensor):
+        points = corners.detach().reshape(-1, 3).to(torch.float32).contiguous()
+        self._points = points  # Warp does not own the buffers: keep them alive with the mesh
+        self._indices = torch.arange(points.shape[0], dtype=torch.int32, device=points.device)
+        self.device = points.device
+        self._mesh = wp.Mesh(points=wp.from_torch(points, dtype=wp.vec3), indices=wp.from_torch(self._indices))
+        wp.load_module(device=wp.device_from_torch(self.device))  # compile (or load) once here, not in each render worker
+
+    def _launch(self, kernel, n: int, inputs: list) -> None:
+        stream = wp.stream_from_torch(torch.cuda.current_stream(self.device)) if self.device.type == "cuda" else None
+        wp.launch(kernel, dim=n, inputs=[self._mesh.id, *inputs], device=wp.device_from_torch(self.device), stream=stream)
+
+    def closest(self, o: torch.Tensor, d: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(t, prim, u, v) of the closest hits of rays ``o``, ``d`` (N, 3) float32 contiguous."""
+        n = o.shape[0]
+        t, u, v = (torch.empty(n, dtype=torch.float32, device=self.device) for _ in range(3))
+        prim = torch.empty(n, dtype=torch.int64, device=self.device)
+        if n:
+            self._launch(_closest_kernel, n, [_vec3(o), _vec3(d), *(wp.from_torch(x) for x in (t, prim, u, v))])
+        return t, prim, u, v
+
+    def occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
+        """(N,) bool: any hit strictly before ``tmax`` (N,)?"""
+        n = o.shape[0]
+        hit = torch.empty(n, dtype=torch.bool, device=self.device)
+        if n:
+            self._launch(_occluded_kernel, n, [_vec3(o), _vec3(d), wp.from_torch(tmax.to(torch.float32).contiguous()), wp.from_torch(hit)])
+        return hit
+
+
+def _vec3(x: torch.Tensor):
+    return wp.from_torch(x.to(torch.float32).contiguous(), dtype=wp.vec3)
