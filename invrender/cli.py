@@ -520,6 +520,7 @@ def parse_init(items: list[str]) -> dict:
 def run_fit(args) -> int:
     import invrender as ir
     from invrender.recipes import load_dataset, load_fit_recipe, make_dataset
+    from invrender.transport.ranks import barrier
 
     out = Path(args.out)
     if out.exists() and not out.is_dir():
@@ -535,6 +536,7 @@ def run_fit(args) -> int:
             if not args.quiet:
                 print(f"rendering the dataset {recipe.dataset.path} into {data}", file=sys.stderr)
             make_dataset(recipe.dataset, data, progress=not args.quiet)
+        barrier()  # in a process group rank 0 writes the dataset; the others read it
         scene, targets, cameras, truth = load_dataset(data)
         names, init = recipe.params, {**recipe.init, **parse_init(args.init)}
         settings = {**recipe.settings, **settings}
@@ -803,14 +805,34 @@ def main(argv=None) -> int:
         parser.print_help()
         return EXIT_BAD_INPUT
     warnings.showwarning = _one_line_warning
+    prefix = "invrender: error: "
     try:
+        if args.command in ("render", "fit"):
+            prefix = _join_process_group(args) or prefix
         return args.run(args)
     except InvRenderError as e:
-        print(f"invrender: error: {e}", file=sys.stderr)
+        print(f"{prefix}{e}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print("invrender: interrupted; nothing was written", file=sys.stderr)
         return EXIT_INTERRUPTED
+
+
+def _join_process_group(args) -> str | None:
+    """Under ``torchrun`` (docs/scale.md): join the process group, put a CUDA render on this rank's
+    GPU, and leave the summaries and progress bars to rank 0 (its outputs are the only ones
+    written). Returns the error prefix of this rank (None outside a group)."""
+    from invrender.transport import ranks
+
+    device = ranks.init_from_environment(getattr(args, "device", None))
+    rank, world = ranks.world()
+    if world == 1:
+        return None
+    if device is not None:
+        args.device = str(device)
+    if rank != 0:
+        args.quiet = True
+    return f"invrender: error (rank {rank} of {world}): "
 
 
 def entry() -> None:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import torch
 
+from invrender.diff.autodiff import autodiff_render
 from invrender.errors import ParameterError
 from invrender.scene.scene import Scene
 from invrender.transport.adaptive import AdaptiveSettings
@@ -103,6 +104,8 @@ def render(
         from invrender.diff.replay import replay_render
 
         return replay_render(scene, model, settings, device, differentiable)
+    if differentiable:
+        return autodiff_render(scene, model, settings, device, differentiable)
     return model.render(scene, settings, device)
 
 
@@ -119,7 +122,7 @@ def backpropagate(scene: Scene, grad_image: torch.Tensor, integrator: Integrator
         raise ParameterError(f"unknown estimator {estimator!r} (known: {', '.join(ESTIMATORS)})")
     device = _device(scene, device)
     if estimator == "autodiff":
-        integrator.render(scene, settings, device).backward(grad_image)
+        autodiff_render(scene, integrator, settings, device, [k for k, v in scene.params.items() if v.requires_grad]).backward(grad_image)
         return
     from invrender.diff.replay import replay_gradient
 
@@ -135,4 +138,4 @@ def _device(scene: Scene, device) -> torch.device:
     return device
 
 
-__all__ = ["ESTIMATORS", "render", "backpropagate"]
+__all__ = ["ESTIMATORS", "backpropagate", "render"]

@@ -33,6 +33,7 @@ from invrender.transport.context import PathState
 from invrender.transport.driver import RenderSettings, cpu_workers, for_each_chunk
 from invrender.transport.film import Film
 from invrender.transport.integrators import Integrator
+from invrender.transport.ranks import sum_gradients
 
 #: chunks each worker replays between two releases of freed heap memory (see release_freed_memory)
 TRIM_EVERY = 2
@@ -170,8 +171,8 @@ def replay_gradient(scene: Scene, integrator: Integrator, settings: RenderSettin
         if chunks_done[worker] % TRIM_EVERY == 0:
             release_freed_memory(device)  # keeps peak memory flat in the number of chunks (spp)
 
-    for_each_chunk(scene, settings.replace(progress=False), device, chunk, grad=True)
-    return {k: sum(w[k] for w in per_worker) for k in leaves}
+    for_each_chunk(scene, settings.replace(progress=False), device, chunk, grad=True, across_ranks=True)
+    return sum_gradients({k: sum(w[k] for w in per_worker) for k in leaves})
 
 
 def release_freed_memory(device: torch.device) -> None:

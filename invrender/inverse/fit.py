@@ -33,6 +33,7 @@ from invrender.scene.kinds import kind_of
 from invrender.scene.scene import Scene
 from invrender.transport.driver import RenderSettings
 from invrender.transport.integrators import make_integrator
+from invrender.transport.ranks import is_main
 
 CHECKPOINT_FORMAT = 1
 #: least-squares rounds end when no parameter channel moved by more than this many standard errors
@@ -228,7 +229,7 @@ def fit(
         cv.load(cv_state)
 
     clock = time.perf_counter() - (history[-1]["seconds"] if history else 0.0)
-    bar = tqdm(total=cfg.steps, initial=start, unit="step", disable=not progress, desc="fit", file=sys.stderr, dynamic_ncols=True)
+    bar = tqdm(total=cfg.steps, initial=start, unit="step", disable=not progress or not is_main(), desc="fit", file=sys.stderr, dynamic_ncols=True)
     step = start
     try:
         with bar:
@@ -273,7 +274,7 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
         current, history = {n: v.double() for n, v in state["values"].items()}, list(state["history"])
     clock = time.perf_counter() - (history[-1]["seconds"] if history else 0.0)
     std_error = {n: torch.tensor(v, dtype=torch.float64) for n, v in history[-1]["std_error"].items()} if history else {}
-    bar = tqdm(total=cfg.rounds, initial=len(history), unit="round", disable=not progress, desc=f"fit ({cfg.solver})", file=sys.stderr, dynamic_ncols=True)
+    bar = tqdm(total=cfg.rounds, initial=len(history), unit="round", disable=not progress or not is_main(), desc=f"fit ({cfg.solver})", file=sys.stderr, dynamic_ncols=True)
     with bar:
         done = bool(history) and history[-1].get("converged", False)  # a resumed fit that had converged
         for rnd in range(len(history), 0 if done else cfg.rounds):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import io
 import os
 import secrets
 from collections.abc import Iterator
@@ -17,7 +18,15 @@ def atomic_file(path) -> Iterator[BinaryIO]:
 
     Missing parent directories are created. The file is made with ``open(..., "xb")`` rather than
     ``tempfile.mkstemp``, whose mode 0600 the output would keep: it honours the umask like any file.
+
+    Inside a torch.distributed group only rank 0 writes (every rank holds the same results): the
+    other ranks' writes go to a buffer that is dropped.
     """
+    from invrender.transport.ranks import is_main
+
+    if not is_main():
+        yield io.BytesIO()
+        return
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}.tmp"

@@ -50,6 +50,7 @@ from invrender.study.loss_gradients import Objective
 from invrender.study.statistics import Moments, log_slope, moments
 from invrender.study.trials import gradient_sample, pixel_contributions
 from invrender.transport.driver import check_int
+from invrender.transport.ranks import refuse
 
 #: the configurations of a default study: both pairings with one estimator, both estimators with
 #: the pairing fit uses (autodiff is the cheaper one for a correlated gradient of a small image);
@@ -351,6 +352,7 @@ def gradient_study(
     Returns:
         :class:`GradientStudy`.
     """
+    refuse("a gradient study")  # its trials run in threads: collectives from them would interleave
     names = check_names(scene.params, params)
     configs = parse_configs(configs)
     spp = _check_spp(spp)

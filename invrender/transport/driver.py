@@ -26,6 +26,7 @@ from tqdm.auto import tqdm
 
 from invrender.errors import ParameterError
 from invrender.scene.scene import Scene
+from invrender.transport import ranks
 from invrender.transport.context import PathState
 from invrender.transport.sampler import mirrored, path_keys, uniform
 
@@ -121,19 +122,24 @@ class SamplePlan:
         return pixel, ids - (ends[pixel] - self.count.to(ids.device)[pixel])
 
 
-def for_each_chunk(scene: Scene, settings: RenderSettings, device: torch.device, work, grad: bool | None = None) -> None:
+def for_each_chunk(scene: Scene, settings: RenderSettings, device: torch.device, work, grad: bool | None = None, across_ranks: bool = False) -> None:
     """Call ``work(worker, camera_paths)`` for every chunk of the (pixel, sample) paths.
 
     On the CPU, one worker thread per core takes chunks ``w, w + workers, ...`` (a fixed split, so
     results do not depend on timing) and runs single-threaded; a progress bar shows rate and ETA.
     ``grad``: autograd on or off inside the workers (default: the caller's mode).
+    ``across_ranks``: inside a torch.distributed group, trace only this rank's chunks (chunk c
+    belongs to rank ``c mod world``; :mod:`invrender.transport.ranks`): the caller sums the ranks'
+    results. Otherwise every chunk is traced here.
     """
     workers = cpu_workers(device)
+    rank, world = ranks.world() if across_ranks else (0, 1)
     total = scene.width * scene.height * settings.spp if settings.plan is None else settings.plan.total
-    chunk = settings.chunk_paths or max(1024, min(int(settings.memory_mb * 2**20 // BYTES_PER_PATH) // workers, -(-total // workers)))
-    starts = range(0, total, chunk)
+    chunk = settings.chunk_paths or max(1024, min(int(settings.memory_mb * 2**20 // BYTES_PER_PATH) // workers, -(-total // (workers * world))))
+    starts = range(0, total, chunk)[rank::world]
     grad = torch.is_grad_enabled() if grad is None else grad
-    bar = tqdm(total=total, unit="path", unit_scale=True, delay=1.0, disable=not settings.progress, desc=f"render {scene.name}", file=sys.stderr, leave=False)
+    mine = sum(min(total, s + chunk) - s for s in starts)
+    bar = tqdm(total=mine, unit="path", unit_scale=True, delay=1.0, disable=not settings.progress or not ranks.is_main(), desc=f"render {scene.name}", file=sys.stderr, leave=False)
     stop = threading.Event()
 
     def run(w: int) -> None:

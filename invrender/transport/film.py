@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import torch
 
+from invrender.transport.ranks import max_across_ranks, sum_across_ranks
+
 
 class Film:
     """Box-filtered accumulation of radiance samples.
@@ -52,13 +54,22 @@ class Film:
         return total
 
     @staticmethod
-    def merge(films: list["Film"]) -> "Film":
+    def merge(films: list[Film]) -> Film:
         """One film holding the sums of ``films`` (same size and ``terms``)."""
         out = films[0]
         for other in films[1:]:
             for k, img in other._images.items():
                 out._images[k] = out._images[k] + img if k in out._images else img
         return out
+
+    def summed_across_ranks(self) -> Film:
+        """This film holding every rank's contributions (all-reduced float64 sums, differentiable;
+        itself outside a torch.distributed group): for renders whose chunks were split across ranks."""
+        count = max_across_ranks(max(self._images, default=-1) + 1, self.device)
+        for k in range(count):
+            image = self._images.get(k)
+            self._images[k] = sum_across_ranks(image if image is not None else torch.zeros(self.width * self.height, 3, dtype=torch.float64, device=self.device))
+        return self
 
     def develop(self, spp: int) -> torch.Tensor:
         """The mean over ``spp`` samples: (H, W, 3), or (K, H, W, 3) per term with ``terms``."""

@@ -25,7 +25,7 @@ from invrender.transport.driver import RenderSettings, check_film_memory, check_
 from invrender.transport.film import Film
 
 #: integrator name -> class, filled by subclassing :class:`Integrator`
-INTEGRATORS: dict[str, type["Integrator"]] = {}
+INTEGRATORS: dict[str, type[Integrator]] = {}
 
 
 @dataclass(frozen=True)
@@ -150,8 +150,8 @@ class Integrator(ABC):
         check_film_memory(scene.width, scene.height, device, max(self.terms_kept, 1) if settings.terms else 1)
         ctx = self.context(scene, settings, device, params)
         films = [Film(scene.width, scene.height, settings.terms, device) for _ in range(cpu_workers(device))]
-        for_each_chunk(scene, settings, device, lambda worker, state: self.trace(ctx, state, films[worker]))
-        return Film.merge(films).develop(settings.spp)
+        for_each_chunk(scene, settings, device, lambda worker, state: self.trace(ctx, state, films[worker]), across_ranks=True)
+        return Film.merge(films).summed_across_ranks().develop(settings.spp)
 
 
 def make_integrator(integrator="path", **options) -> Integrator:
