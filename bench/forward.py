@@ -1,11 +1,14 @@
 """Forward-rendering throughput: path samples per second on the Cornell box, and memory at high spp.
 
     python bench/forward.py [--resolution 128] [--spp 64] [--max-depth 8] [--repeats 5]
+    python bench/forward.py --mesh                  # also an 82k-triangle scene
     python bench/forward.py --memory-spp 65536      # peak RSS of a 64x64 render at that spp
 
-invrender and (when installed) Mitsuba 3 ``llvm_ad_rgb`` ``path`` render the same scene at the same
-settings in the same process, alternating, after one warm-up each; the median time of each gives
-the throughput and the ratio. Figures are printed, never asserted.
+invrender with each intersection backend (``--backends``; default embree and warp on the CPU) and
+(when installed) Mitsuba 3 ``llvm_ad_rgb`` ``path`` render the same scene at the same settings in
+the same process, alternating, after one warm-up each; the median time of each gives the
+throughput and the ratio. With a GPU present the same follows on CUDA (invrender's warp and torch
+backends, Mitsuba's ``cuda_ad_rgb``). Figures are printed, never asserted.
 """
 
 from __future__ import annotations
@@ -16,6 +19,8 @@ import sys
 import time
 from pathlib import Path
 
+import torch
+
 sys.path.insert(0, str(Path(__file__).parent))
 
 import mitsuba_ref  # noqa: E402
@@ -24,35 +29,72 @@ from _measure import peak_rss_mib  # noqa: E402
 import invrender as ir  # noqa: E402
 
 
+def sphere_in_box(n: int):
+    """The Cornell box with an 81,920-triangle sphere in the middle (a mesh heavy enough that
+    brute force is out of the question and the BVHs differ)."""
+    import trimesh
+
+    from invrender.scene.scene import build_scene
+    from invrender.scene.shapes import Mesh
+
+    box = ir.load_scene("cornell_box", resolution=(n, n))
+    sphere = trimesh.creation.icosphere(subdivisions=6, radius=0.35)
+    t = box.triangles
+    corners = t.corners().numpy()
+    meshes = [Mesh(corners[i], [[0, 1, 2]], None, box.materials[int(t.material[i])], box.emitters[int(t.emitter[i])] if t.emitter[i] >= 0 else None) for i in range(t.count)]
+    meshes.append(Mesh(sphere.vertices + [0.0, -0.2, 0.2], sphere.faces, None, "white"))
+    materials = {m: box.params[f"{m}.reflectance"] for m in box.materials}
+    return build_scene(meshes, materials, {e: box.params[f"{e}.emission"] for e in box.emitters}, box.camera, (n, n), name="sphere_in_box")
+
+
 def throughput(args) -> None:
     n, spp, depth = args.resolution, args.spp, args.max_depth
     samples = n * n * spp
-    scene = ir.load_scene("cornell_box", resolution=(n, n))
-    with_mitsuba = mitsuba_ref.available() and not args.no_mitsuba
-    mi_scene = mitsuba_ref.cornell_scene(n, n, spp, depth) if with_mitsuba else None
-
-    def ours(seed):
-        start = time.perf_counter()
-        ir.render(scene, spp=spp, max_depth=depth, seed=seed, progress=False)
-        return time.perf_counter() - start
-
-    ours(0)  # warm-up
-    if with_mitsuba:
-        mitsuba_ref.time_render(mi_scene, spp)  # warm-up: compiles the kernels
-    times, mi_times = [], []
-    for i in range(args.repeats):
-        times.append(ours(i + 1))
+    device = torch.device(args.device)
+    backends = args.backends.split(",") if args.backends else (["embree", "warp"] if device.type == "cpu" else ["warp", "torch"])
+    with_mitsuba = mitsuba_ref.available() and not args.no_mitsuba and device.type == "cpu"
+    scenes = [ir.load_scene("cornell_box", resolution=(n, n))]
+    if args.mesh:
+        scenes.append(sphere_in_box(n))
+    for scene in scenes:
+        mi_scene = None
         if with_mitsuba:
-            mi_times.append(mitsuba_ref.time_render(mi_scene, spp, seed=i + 1))
-    t = statistics.median(times)
-    print(f"Cornell box {n}x{n}, {spp} spp, max_depth {depth}, {args.repeats} repeats (median)")
-    print(f"  invrender path (embree):             {t:.3f} s  {samples / t / 1e6:.3f} M path samples/s")
-    if with_mitsuba:
-        tm = statistics.median(mi_times)
-        print(f"  {mitsuba_ref.label()} path:     {tm:.3f} s  {samples / tm / 1e6:.3f} M path samples/s")
-        print(f"  ratio invrender / Mitsuba throughput: {tm / t:.3f}x")
-    else:
-        print("  (Mitsuba 3 not installed: no ratio; see bench/README.md)")
+            mi_scene = mitsuba_ref.cornell_scene(n, n, spp, depth) if scene.name == "cornell_box" else mitsuba_ref.load_scene(scene, spp, depth)
+
+        def ours(seed, backend):
+            if device.type == "cuda":
+                torch.cuda.synchronize()
+            start = time.perf_counter()
+            ir.render(scene, spp=spp, max_depth=depth, seed=seed, progress=False, backend=backend, device=device)
+            if device.type == "cuda":
+                torch.cuda.synchronize()
+            return time.perf_counter() - start
+
+        for b in backends:
+            ours(0, b)  # warm-up: builds the BVH, compiles Warp's kernels once
+        if mi_scene is not None:
+            mitsuba_ref.time_render(mi_scene, spp)  # warm-up: compiles the kernels
+        times, mi_times = {b: [] for b in backends}, []
+        for i in range(args.repeats):  # alternating, so that a change of load falls on all alike
+            for b in backends:
+                times[b].append(ours(i + 1, b))
+            if mi_scene is not None:
+                mi_times.append(mitsuba_ref.time_render(mi_scene, spp, seed=i + 1))
+        print(f"{scene.name} ({scene.triangles.count} triangles) {n}x{n}, {spp} spp, max_depth {depth}, {device}, {args.repeats} repeats (median)")
+        for b in backends:
+            t = statistics.median(times[b])
+            ratio = f"  {statistics.median(mi_times) / t:.3f}x Mitsuba" if mi_times else ""
+            print(f"  invrender path ({b:6s}):          {t:7.3f} s  {samples / t / 1e6:.3f} M path samples/s{ratio}")
+        if mi_times:
+            tm = statistics.median(mi_times)
+            print(f"  {mitsuba_ref.label()} path:     {tm:7.3f} s  {samples / tm / 1e6:.3f} M path samples/s")
+        elif device.type == "cpu":
+            print("  (Mitsuba 3 not installed: no ratio; see bench/README.md)")
+    if device.type == "cpu" and torch.cuda.is_available() and not args.no_cuda:
+        cuda = argparse.Namespace(**{**vars(args), "device": "cuda", "backends": "warp,torch" if not args.backends else args.backends})
+        throughput(cuda)
+        if mitsuba_ref.available() and not args.no_mitsuba:
+            print(mitsuba_ref.cuda_forward(n, spp, depth, args.repeats))
 
 
 def memory(args) -> None:
@@ -70,6 +112,10 @@ def main() -> int:
     parser.add_argument("--max-depth", type=int, default=8)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--no-mitsuba", action="store_true", help="skip Mitsuba even when installed")
+    parser.add_argument("--backends", default=None, help="comma-separated intersection backends (default: embree,warp on the CPU; warp,torch on CUDA)")
+    parser.add_argument("--mesh", action="store_true", help="also the Cornell box with an 81,920-triangle sphere")
+    parser.add_argument("--device", default="cpu", help="cpu or cuda (default: cpu; with a GPU present the CUDA figures follow the CPU ones)")
+    parser.add_argument("--no-cuda", action="store_true", help="skip the CUDA figures even when a GPU is present")
     parser.add_argument("--memory-spp", type=int, default=0, help="instead: peak memory of a 64x64 render at this spp")
     args = parser.parse_args()
     memory(args) if args.memory_spp else throughput(args)

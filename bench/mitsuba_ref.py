@@ -385,6 +385,23 @@ def time_forward(width: int, height: int, spp: int, max_depth: int, repeats: int
     return [time_render(scene, spp, seed=i + 1) for i in range(repeats)]
 
 
+def cuda_forward(n: int, spp: int, max_depth: int, repeats: int) -> str:
+    """One line: Mitsuba's own Cornell box on ``cuda_ad_rgb`` (median of ``repeats`` after a
+    warm-up), or why it could not run. Switches this process's variant to ``cuda_ad_rgb`` and back."""
+    mi, dr = _require()
+    try:
+        mi.set_variant("cuda_ad_rgb")
+    except BaseException as e:  # no CUDA driver, a build without the variant
+        return f"  Mitsuba cuda_ad_rgb unavailable: {e}"
+    try:
+        scene = cornell_scene(n, n, spp, max_depth)
+        time_render(scene, spp, seed=0)
+        t = sorted(time_render(scene, spp, seed=i + 1) for i in range(repeats))[repeats // 2]
+        return f"  Mitsuba {version()} cuda_ad_rgb path:   {t:7.3f} s  {n * n * spp / t / 1e6:.3f} M path samples/s"
+    finally:
+        mi.set_variant(VARIANT)
+
+
 def gradient_in_process(width, height, spp, max_depth, integrator, params, repeats, seed, perturb) -> dict:
     """Gradient of mean((render - target)^2) w.r.t. the named parameters, timed in this process.
 

@@ -90,23 +90,22 @@ class EmbreeIntersector:
 
     def intersect(self, o: torch.Tensor, d: torch.Tensor) -> Hits:
         """Closest hits of rays with origins ``o`` (N, 3) and unit directions ``d`` (N, 3)."""
-        on, dn = _numpy(o), _numpy(d)
-        parts = self._run(on, dn, output=1)
-        prim = np.concatenate([p["primID"] for p in parts]).astype(np.int64)
-        geom = np.concatenate([p["geomID"] for p in parts])
-        prim[geom < 0] = -1
-        t = np.concatenate([p["tfar"] for p in parts]).astype(np.float32)
-        t[prim < 0] = np.inf
-        u = np.concatenate([p["u"] for p in parts]).astype(np.float32)
-        v = np.concatenate([p["v"] for p in parts]).astype(np.float32)
+        parts = self._run(_numpy(o), _numpy(d), output=1)
+
+        def joined(key: str) -> torch.Tensor:  # Embree's arrays, shared (no copy for one part)
+            return torch.from_numpy(parts[0][key] if len(parts) == 1 else np.concatenate([p[key] for p in parts]))
+
+        miss = joined("geomID") < 0
+        prim = joined("primID").long().masked_fill_(miss, -1)
+        t = joined("tfar").masked_fill_(miss, math.inf)
         dev = o.device
-        return Hits(*(torch.from_numpy(a).to(dev) for a in (t, prim, u, v)))
+        return Hits(*(a.to(dev) for a in (t, prim, joined("u"), joined("v"))))
 
     def occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
         """(N,) bool: does anything lie along each ray strictly before ``tmax`` (N,)?"""
-        parts = self._run(_numpy(o), _numpy(d), dists=_numpy(tmax), query="OCCLUDED")
-        hit = np.concatenate(parts) != -1
-        return torch.from_numpy(hit).to(o.device)
+        parts = self._run(_numpy(o), _numpy(d), dists=_numpy(tmax).copy(), query="OCCLUDED")
+        hit = torch.from_numpy(parts[0] if len(parts) == 1 else np.concatenate(parts)) != -1
+        return hit.to(o.device)
 
 
 class WarpIntersector:

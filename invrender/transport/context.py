@@ -76,7 +76,7 @@ class TransportContext:
 
     def material(self, s: Surface) -> torch.Tensor:
         """(N,) int64 scene material of each hit."""
-        return self.triangles.material[s.tri]
+        return self.triangles.material.index_select(0, s.tri)
 
     def shading_point(self, s: Surface, wo: torch.Tensor) -> ShadingPoint:
         """The hits as their BSDFs see them, for outgoing directions ``wo`` (N, 3)."""
@@ -88,11 +88,11 @@ class TransportContext:
 
     def emitted(self, s: Surface) -> torch.Tensor:
         """eps leaving the hits back along the rays (N, 3): zero on back sides and non-emitters."""
-        return self.emission(torch.where(s.front, self.triangles.emitter[s.tri], -1), s.uv)
+        return self.emission(torch.where(s.front, self.triangles.emitter.index_select(0, s.tri), -1), s.uv)
 
     def emits(self, s: Surface) -> torch.Tensor:
         """(N,) bool: is the hit on the emitting side of an emitter?"""
-        return s.front & (self.triangles.emitter[s.tri] >= 0)
+        return s.front & (self.triangles.emitter.index_select(0, s.tri) >= 0)
 
     def spawn(self, s: Surface, wi: torch.Tensor) -> torch.Tensor:
         """Origins (N, 3) of new rays leaving ``s`` in directions ``wi``, offset off the surface on

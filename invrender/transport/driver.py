@@ -28,6 +28,7 @@ from invrender.errors import ParameterError
 from invrender.scene.scene import Scene
 from invrender.transport import ranks
 from invrender.transport.context import PathState
+from invrender.transport.memory import keep_freed_blocks
 from invrender.transport.sampler import mirrored, path_keys, uniform
 
 #: working-set estimate per path in a chunk (state, hits, temporaries, backend copies), bytes
@@ -132,6 +133,8 @@ def for_each_chunk(scene: Scene, settings: RenderSettings, device: torch.device,
     belongs to rank ``c mod world``; :mod:`invrender.transport.ranks`): the caller sums the ranks'
     results. Otherwise every chunk is traced here.
     """
+    if device.type == "cpu":
+        keep_freed_blocks()  # chunk-sized temporaries reused, not page-faulted in anew
     workers = cpu_workers(device)
     rank, world = ranks.world() if across_ranks else (0, 1)
     total = scene.width * scene.height * settings.spp if settings.plan is None else settings.plan.total

@@ -33,12 +33,18 @@ _M2 = _signed(0x846CA68B)
 
 
 def _mix(x: torch.Tensor) -> torch.Tensor:
-    """lowbias32 on an int32 tensor (bits read as unsigned); same shape."""
+    """lowbias32 on an int32 tensor (bits read as unsigned); a new tensor of the same shape.
+
+    After the first step everything is done in place on the new tensor: each temporary of a
+    wavefront is megabytes, and fresh ones cost their page faults (the hash is ~10% of a render).
+    """
     x = x ^ ((x >> 16) & 0xFFFF)
-    x = x * _M1
-    x = x ^ ((x >> 15) & 0x1FFFF)
-    x = x * _M2
-    return x ^ ((x >> 16) & 0xFFFF)
+    x.mul_(_M1)
+    t = x >> 15
+    x ^= t.bitwise_and_(0x1FFFF)
+    x.mul_(_M2)
+    t = x >> 16
+    return x.bitwise_xor_(t.bitwise_and_(0xFFFF))
 
 
 def _mix_int(x: int) -> int:
@@ -91,8 +97,8 @@ def uniform(keys: torch.Tensor, bounce: int, dims: int) -> torch.Tensor:
     """
     salts = torch.tensor([_signed(_mix_int(bounce * 0x10000 + d + 0x632BE5AB)) for d in range(dims)], dtype=torch.int32, device=keys.device)
     h = _mix((keys & -2)[:, None] ^ salts)
-    h = h ^ -(keys[:, None] & 1)  # mirrored: all bits flipped, so the low 24 give 1 - 2^-24 - u
-    return (h & 0xFFFFFF).to(torch.float32) * (1.0 / 16777216.0)
+    h ^= -(keys & 1)[:, None]  # mirrored: all bits flipped, so the low 24 give 1 - 2^-24 - u
+    return h.bitwise_and_(0xFFFFFF).to(torch.float32).mul_(1.0 / 16777216.0)
 
 
 def branch_keys(keys: torch.Tensor, branch: int) -> torch.Tensor:

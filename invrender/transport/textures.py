@@ -50,7 +50,7 @@ def gather_rgb(values: Sequence[torch.Tensor], index: torch.Tensor, uv: torch.Te
     n = index.shape[0]
     zero = torch.zeros(3, device=index.device)
     table = torch.stack([v if v.ndim == 1 else zero for v in values] + [zero])  # (K + 1, 3); row K = "none"
-    out = table[torch.where(index >= 0, index, len(values))]
+    out = table.index_select(0, torch.where(index >= 0, index, len(values)))
     for k, v in enumerate(values):
         if v.ndim == 3:
             mask = index == k

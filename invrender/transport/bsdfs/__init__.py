@@ -78,7 +78,7 @@ class Materials:
         table = self._lobe_tables[lobes[0]]
         for lobe in lobes[1:]:
             table = table | self._lobe_tables[lobe]
-        return table[sp.slot]
+        return table.index_select(0, sp.slot)
 
     def _dispatch(self, sp: ShadingPoint, call):
         groups = self.groups(sp)

@@ -145,7 +145,7 @@ class BSDF(ABC):
         token = (key, sp.wo.device)
         if token not in self._constant_tables:
             self._constant_tables[token] = torch.tensor([c[key] for c in self.constants], dtype=torch.float32, device=sp.wo.device)
-        return self._constant_tables[token][sp.material]
+        return self._constant_tables[token].index_select(0, sp.material)
 
     @abstractmethod
     def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:

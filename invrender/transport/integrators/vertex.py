@@ -54,7 +54,7 @@ def add_emitted(ctx: TransportContext, state: PathState, s: Surface, depth: int,
     se = s.select(m)
     Le = ctx.emitted(se)
     if mis and depth > 0:
-        pdf_light = ctx.lights.pdf_area[se.tri] * se.t * se.t / se.cos_o.clamp_min(1e-12)  # area -> solid angle
+        pdf_light = ctx.lights.pdf_area.index_select(0, se.tri) * se.t * se.t / se.cos_o.clamp_min(1e-12)  # area -> solid angle
         w = torch.where(state.delta[m], 1.0, power_heuristic(state.pdf_dir[m], pdf_light))[:, None]
         Le = w * Le
     film.add(depth, state.pixel[m], state.beta[m] * Le)
@@ -90,7 +90,7 @@ def add_direct(ctx: TransportContext, state: PathState, s: Surface, sp: ShadingP
         weight = torch.where(ok, w / pdf_light, 0.0)
     else:
         weight = torch.where(ok, 1.0 / pdf_light, 0.0)
-    Le = ctx.emission(ctx.triangles.emitter[ls.tri], ls.uv)
+    Le = ctx.emission(ctx.triangles.emitter.index_select(0, ls.tri), ls.uv)
     film.add(term, state.pixel, state.beta * f_cos * Le * weight[:, None])
 
 
