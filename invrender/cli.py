@@ -816,6 +816,10 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("invrender: interrupted; nothing was written", file=sys.stderr)
         return EXIT_INTERRUPTED
+    finally:
+        from invrender.transport.ranks import leave_process_group
+
+        leave_process_group()  # a group left alive at exit aborts the process (gloo's threads)
 
 
 def _join_process_group(args) -> str | None:

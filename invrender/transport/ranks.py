@@ -97,6 +97,17 @@ def refuse(what: str) -> None:
         raise ParameterError(f"{what} runs in one process; it is not available inside a torch.distributed group of {world()[1]} ranks")
 
 
+_joined = False
+
+
+def leave_process_group() -> None:
+    """Destroy the group :func:`init_from_environment` created (nothing otherwise)."""
+    global _joined
+    if _joined and torch.distributed.is_initialized():
+        torch.distributed.destroy_process_group()
+    _joined = False
+
+
 def init_from_environment(device: str | None) -> torch.device | None:
     """Join the process group ``torchrun`` describes in the environment (``RANK``, ``WORLD_SIZE``,
     ``MASTER_ADDR``, ...), once: gloo for CPU renders, NCCL for CUDA ones. Returns the device of
@@ -107,8 +118,10 @@ def init_from_environment(device: str | None) -> torch.device | None:
     cuda = device is not None and torch.device(device).type == "cuda"
     if cuda and not torch.cuda.is_available():
         raise ParameterError("device 'cuda' requested but torch has no CUDA device here")
+    global _joined
     if not torch.distributed.is_initialized():
         torch.distributed.init_process_group(backend="nccl" if cuda else "gloo")
+        _joined = True
     if cuda:
         local = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
         torch.cuda.set_device(local)
