@@ -3,7 +3,11 @@
 The forward pass renders without recording anything. The backward pass receives ``dl/dI`` and, chunk
 by chunk, regenerates the very same paths from the counter-based sampler twice:
 
-1. primal: each path's total radiance ``L`` (no autograd);
+1. primal: each path's total radiance ``L`` (no autograd). The forward pass keeps these per-path
+   totals when they fit in :data:`KEEP_SHARE` of the memory budget (24 bytes a path), and the
+   backward pass then skips this step: a ``loss(render(...)).backward()`` costs two traces, not
+   three. A gradient taken without a forward render of the same seed (:func:`replay_gradient`, the
+   decorrelated gradient of a fit) traces it;
 2. adjoint: the path is followed again with the throughput ``beta`` detached. Every contribution
    (``beta w eps(x_k)``, ``beta f(x_i) eps(y) / pdf``, ``beta k_d eps0``) is differentiated locally
    in its own factors; at each scattering vertex x_i whose sample weight is ``w_i = f cos / pdf``,
@@ -31,45 +35,15 @@ import torch
 from invrender.scene.scene import Scene
 from invrender.transport.context import PathState
 from invrender.transport.driver import RenderSettings, cpu_workers, for_each_chunk
-from invrender.transport.film import Film
+from invrender.transport.film import Film, PathFilm
 from invrender.transport.integrators import Integrator
 from invrender.transport.ranks import sum_gradients
 
 #: chunks each worker replays between two releases of freed heap memory (see release_freed_memory)
 TRIM_EVERY = 2
-
-
-class PathFilm(Film):
-    """The primal pass's film: one entry per path (the film index is the path), growing when paths
-    split; :meth:`totals` folds every branch's radiance into its parent's."""
-
-    def __init__(self, n: int, device):
-        super().__init__(n, 1, False, device)
-        self.size = n
-        self._branches: list[tuple[torch.Tensor, torch.Tensor]] = []  # (new indices, parent indices)
-
-    def add(self, term: int, pixel: torch.Tensor, radiance: torch.Tensor) -> None:
-        if 0 not in self._images or self._images[0].shape[0] < self.size:
-            grown = torch.zeros(self.size, 3, dtype=torch.float64, device=self.device)
-            if 0 in self._images:
-                grown[: self._images[0].shape[0]] = self._images[0]
-            self._images[0] = grown
-        self._images[0].index_add_(0, pixel, radiance.double())
-
-    def branch(self, pixel: torch.Tensor) -> torch.Tensor:
-        new = torch.arange(self.size, self.size + pixel.numel(), device=pixel.device)
-        self._branches.append((new, pixel))
-        self.size += pixel.numel()
-        return new
-
-    def totals(self) -> torch.Tensor:
-        """(size, 3) float64: each path's radiance, including all its branches'."""
-        total = torch.zeros(self.size, 3, dtype=torch.float64, device=self.device)
-        if 0 in self._images:
-            total[: self._images[0].shape[0]] = self._images[0]
-        for new, parent in reversed(self._branches):  # children are created after their parents
-            total.index_add_(0, parent, total[new])
-        return total
+#: the forward pass keeps every path's radiance for the backward pass (which then skips its primal
+#: pass: two traces per gradient instead of three) when they fit in this share of ``memory_mb``
+KEEP_SHARE = 0.25
 
 
 class AdjointFilm(Film):
@@ -125,13 +99,22 @@ class _ReplayRender(torch.autograd.Function):
     def forward(fctx, scene: Scene, integrator: Integrator, settings: RenderSettings, device, names: list[str], *values):
         fctx.scene, fctx.integrator, fctx.settings, fctx.device, fctx.names = scene, integrator, settings, device, names
         fctx.save_for_backward(*values)
-        return integrator.render(scene, settings, device, params=dict(zip(names, values)))
+        fctx.kept = {} if _can_keep(scene, settings) else None
+        return integrator.render(scene, settings, device, params=dict(zip(names, values)), keep=fctx.kept)
 
     @staticmethod
     def backward(fctx, grad_image):
         values = dict(zip(fctx.names, fctx.saved_tensors))
-        grads = replay_gradient(fctx.scene, fctx.integrator, fctx.settings, fctx.device, values, grad_image)
+        grads = replay_gradient(fctx.scene, fctx.integrator, fctx.settings, fctx.device, values, grad_image, kept=fctx.kept)
+        fctx.kept = None
         return (None, None, None, None, None, *(grads[n].to(v.device, v.dtype) for n, v in values.items()))
+
+
+def _can_keep(scene: Scene, settings: RenderSettings) -> bool:
+    """Do the per-path radiances of this render fit in :data:`KEEP_SHARE` of its memory budget
+    (float64 RGB per path; paths that split, Whitted's, need more and are counted as they come)?"""
+    paths = scene.width * scene.height * settings.spp if settings.plan is None else settings.plan.total
+    return paths * 24 <= settings.memory_mb * 2**20 * KEEP_SHARE
 
 
 def replay_render(scene: Scene, integrator: Integrator, settings: RenderSettings, device, names: list[str]) -> torch.Tensor:
@@ -139,12 +122,16 @@ def replay_render(scene: Scene, integrator: Integrator, settings: RenderSettings
     return _ReplayRender.apply(scene, integrator, settings, device, names, *(scene.params[n] for n in names))
 
 
-def replay_gradient(scene: Scene, integrator: Integrator, settings: RenderSettings, device, values: dict[str, torch.Tensor], grad_image: torch.Tensor) -> dict[str, torch.Tensor]:
+def replay_gradient(
+    scene: Scene, integrator: Integrator, settings: RenderSettings, device, values: dict[str, torch.Tensor], grad_image: torch.Tensor, kept: dict | None = None,
+) -> dict[str, torch.Tensor]:  # fmt: skip
     """``sum_pixels <grad_image, dI/dtheta>`` for each parameter in ``values``, by re-tracing paths.
 
     Args:
         values: name -> current parameter value (the ones to differentiate).
         grad_image: (H, W, 3) ``dl/dI``.
+        kept: each chunk's per-path radiance from a render with the same settings and values
+            (``Integrator.render(..., keep=...)``): those chunks skip the primal pass.
     Returns:
         name -> gradient, shaped like the value.
     """
@@ -155,23 +142,27 @@ def replay_gradient(scene: Scene, integrator: Integrator, settings: RenderSettin
     per_worker = [{k: torch.zeros_like(v) for k, v in leaves.items()} for _ in range(workers)]
     chunks_done = [0] * workers
 
-    def chunk(worker: int, state: PathState) -> None:
+    def chunk(worker: int, state: PathState, start: int) -> None:
         n = state.count
         local = state.replace(pixel=torch.arange(n, device=device))  # film index = path
-        primal = PathFilm(n, device)
-        with torch.no_grad():
-            integrator.trace(ctx, local, primal)
-        adjoint = AdjointFilm(g_image[state.pixel], primal.totals(), leaves)
+        totals = kept.pop(start, None) if kept is not None else None
+        if totals is None:
+            primal = PathFilm(n, device)
+            with torch.no_grad():
+                integrator.trace(ctx, local, primal)
+            totals = primal.totals()
+            del primal
+        adjoint = AdjointFilm(g_image[state.pixel], totals, leaves)
         with torch.enable_grad():
             integrator.trace(ctx, local, adjoint)
         for k, v in adjoint.grads.items():
             per_worker[worker][k] += v
-        del primal, adjoint
+        del totals, adjoint
         chunks_done[worker] += 1
         if chunks_done[worker] % TRIM_EVERY == 0:
             release_freed_memory(device)  # keeps peak memory flat in the number of chunks (spp)
 
-    for_each_chunk(scene, settings.replace(progress=False), device, chunk, grad=True, across_ranks=True)
+    for_each_chunk(scene, settings.replace(progress=False), device, chunk, grad=True, across_ranks=True, with_start=True)
     return sum_gradients({k: sum(w[k] for w in per_worker) for k in leaves})
 
 

@@ -123,8 +123,10 @@ class SamplePlan:
         return pixel, ids - (ends[pixel] - self.count.to(ids.device)[pixel])
 
 
-def for_each_chunk(scene: Scene, settings: RenderSettings, device: torch.device, work, grad: bool | None = None, across_ranks: bool = False) -> None:
-    """Call ``work(worker, camera_paths)`` for every chunk of the (pixel, sample) paths.
+def for_each_chunk(scene: Scene, settings: RenderSettings, device: torch.device, work, grad: bool | None = None, across_ranks: bool = False, with_start: bool = False) -> None:
+    """Call ``work(worker, camera_paths)`` for every chunk of the (pixel, sample) paths
+    (``work(worker, camera_paths, start)`` with ``with_start``: ``start`` the chunk's first path id,
+    the same for the same settings whatever the workers and ranks).
 
     On the CPU, one worker thread per core takes chunks ``w, w + workers, ...`` (a fixed split, so
     results do not depend on timing) and runs single-threaded; a progress bar shows rate and ETA.
@@ -153,7 +155,8 @@ def for_each_chunk(scene: Scene, settings: RenderSettings, device: torch.device,
                 if stop.is_set():
                     return
                 ids = torch.arange(start, min(total, start + chunk), dtype=torch.int64, device=device)
-                work(w, camera_paths(scene, settings, ids))
+                state = camera_paths(scene, settings, ids)
+                work(w, state, start) if with_start else work(w, state)
                 bar.update(ids.numel())
 
     with bar:

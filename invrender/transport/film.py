@@ -80,3 +80,37 @@ class Film:
         count = max(self._images, default=-1) + 1
         zero = torch.zeros(self.width * self.height, 3, dtype=torch.float64, device=self.device)
         return torch.stack([(self._images.get(k, zero) / spp).float().reshape(shape) for k in range(count)])
+
+
+class PathFilm(Film):
+    """A film with one entry per path (the film index is the path), growing when paths split;
+    :meth:`totals` folds every branch's radiance into its parent's. Path replay's primal pass traces
+    into one (each path's radiance is what its adjoint pass strikes off vertex by vertex)."""
+
+    def __init__(self, n: int, device):
+        super().__init__(n, 1, False, device)
+        self.size = n
+        self._branches: list[tuple[torch.Tensor, torch.Tensor]] = []  # (new indices, parent indices)
+
+    def add(self, term: int, pixel: torch.Tensor, radiance: torch.Tensor) -> None:
+        if 0 not in self._images or self._images[0].shape[0] < self.size:
+            grown = torch.zeros(self.size, 3, dtype=torch.float64, device=self.device)
+            if 0 in self._images:
+                grown[: self._images[0].shape[0]] = self._images[0]
+            self._images[0] = grown
+        self._images[0].index_add_(0, pixel, radiance.double())
+
+    def branch(self, pixel: torch.Tensor) -> torch.Tensor:
+        new = torch.arange(self.size, self.size + pixel.numel(), device=pixel.device)
+        self._branches.append((new, pixel))
+        self.size += pixel.numel()
+        return new
+
+    def totals(self) -> torch.Tensor:
+        """(size, 3) float64: each path's radiance, including all its branches'."""
+        total = torch.zeros(self.size, 3, dtype=torch.float64, device=self.device)
+        if 0 in self._images:
+            total[: self._images[0].shape[0]] = self._images[0]
+        for new, parent in reversed(self._branches):  # children are created after their parents
+            total.index_add_(0, parent, total[new])
+        return total

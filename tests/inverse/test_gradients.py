@@ -102,3 +102,34 @@ def test_textured_reflectance_gradient_matches_autodiff():
         ir.render(scene, spp=8, max_depth=3, estimator=estimator, progress=False).sum().backward()
         grads.append(tex.grad.clone())
     assert grads[0].abs().sum() > 0 and torch.allclose(grads[0], grads[1], rtol=1e-4, atol=1e-6)
+
+
+@pytest.mark.parametrize("scene_name, integrator", [("cornell_box", "path"), ("cornell_specular", "whitted")])
+def test_replay_reuses_the_forward_pass_radiance(monkeypatch, scene_name, integrator):
+    """``loss(render(...)).backward()`` with replay skips the primal pass when the forward pass kept
+    each path's radiance: the same gradient as tracing it again (paths that split included), and
+    fewer traces."""
+    from invrender.diff import replay
+    from invrender.transport.integrators import INTEGRATORS
+
+    scene = ir.load_scene(scene_name, resolution=(16, 16))
+    weights = torch.rand(16, 16, 3, generator=torch.Generator().manual_seed(2))
+    name = scene.materials[0] + ".reflectance"
+    traces = []
+    cls = INTEGRATORS[integrator]
+    original = cls.trace
+    monkeypatch.setattr(cls, "trace", lambda self, ctx, state, film: (traces.append(type(film).__name__), original(self, ctx, state, film))[1])
+    grads = {}
+    for share in (replay.KEEP_SHARE, 0.0):
+        monkeypatch.setattr(replay, "KEEP_SHARE", share)
+        traces.clear()
+        p = scene.params[name].requires_grad_(True)
+        p.grad = None
+        (ir.render(scene, integrator, spp=8, seed=3, estimator="replay", progress=False, chunk_paths=700) * weights).sum().backward()
+        grads[share] = (p.grad.clone(), list(traces))
+        p.requires_grad_(False).grad = None
+    kept, retraced = grads[replay.KEEP_SHARE], grads[0.0]
+    assert torch.equal(kept[0], retraced[0]) and kept[0].abs().max() > 0
+    chunks = -(-16 * 16 * 8 // 700)
+    assert kept[1].count("PathFilm") == chunks and kept[1].count("AdjointFilm") == chunks  # forward + adjoint
+    assert retraced[1].count("PathFilm") == chunks and retraced[1].count("Film") == chunks  # + the plain forward

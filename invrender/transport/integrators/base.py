@@ -22,7 +22,7 @@ from invrender.scene.scene import Scene
 from invrender.transport.bsdfs import BSDFSampling
 from invrender.transport.context import PathState, TransportContext
 from invrender.transport.driver import RenderSettings, check_film_memory, check_int, cpu_workers, for_each_chunk
-from invrender.transport.film import Film
+from invrender.transport.film import Film, PathFilm
 
 #: integrator name -> class, filled by subclassing :class:`Integrator`
 INTEGRATORS: dict[str, type[Integrator]] = {}
@@ -144,13 +144,30 @@ class Integrator(ABC):
         threads = 1 if cpu_workers(device) > 1 else None
         return self.prepare(TransportContext.build(scene, device, settings.backend, threads, params, self.bsdf_sampling))
 
-    def render(self, scene: Scene, settings: RenderSettings, device: torch.device, params: dict | None = None) -> torch.Tensor:
+    def render(self, scene: Scene, settings: RenderSettings, device: torch.device, params: dict | None = None, keep: dict | None = None) -> torch.Tensor:
         """The image: (H, W, 3), or (K, H, W, 3) per term with ``settings.terms``; records autograd
-        where a parameter requires grad (``params`` overrides ``scene.params`` values)."""
+        where a parameter requires grad (``params`` overrides ``scene.params`` values).
+
+        ``keep``: a dict that receives each chunk's per-path radiance, ``{first path id: (paths +
+        branches, 3) float64}`` (:meth:`PathFilm.totals`), for path replay to reuse instead of
+        tracing the paths again; the image is the same (not with ``terms``).
+        """
         check_film_memory(scene.width, scene.height, device, max(self.terms_kept, 1) if settings.terms else 1)
         ctx = self.context(scene, settings, device, params)
         films = [Film(scene.width, scene.height, settings.terms, device) for _ in range(cpu_workers(device))]
-        for_each_chunk(scene, settings, device, lambda worker, state: self.trace(ctx, state, films[worker]), across_ranks=True)
+
+        def chunk(worker: int, state: PathState, start: int) -> None:
+            if keep is None:
+                self.trace(ctx, state, films[worker])
+                return
+            paths = PathFilm(state.count, device)
+            self.trace(ctx, state.replace(pixel=torch.arange(state.count, device=device)), paths)
+            keep[start] = paths.totals()
+            films[worker].add(0, state.pixel, keep[start][: state.count])  # a root path's total holds its branches'
+
+        if keep is not None and settings.terms:
+            raise ValueError("keep: per-path radiance is kept for full images only, not per term")
+        for_each_chunk(scene, settings, device, chunk, across_ranks=True, with_start=True)
         return Film.merge(films).summed_across_ranks().develop(settings.spp)
 
 

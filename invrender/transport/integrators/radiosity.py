@@ -51,10 +51,10 @@ class Radiosity(Integrator):
         :class:`~invrender.transport.radiosity.solution.RadiositySolution`."""
         return dataclasses.replace(ctx, extra=solve_scene(ctx, self.settings))
 
-    def render(self, scene, settings, device, params=None) -> torch.Tensor:
+    def render(self, scene, settings, device, params=None, keep=None) -> torch.Tensor:
         if settings.terms and self.settings.max_depth == -1:
             raise ParameterError("radiosity's exact solution is not split into Neumann terms: give a finite max_depth with terms=True")
-        return super().render(scene, settings, device, params)
+        return super().render(scene, settings, device, params, keep)
 
     def trace(self, ctx: TransportContext, state: PathState, film: Film) -> None:
         """Add each camera path's radiosity estimate (per Neumann term when the film keeps terms)."""
