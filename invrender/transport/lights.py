@@ -23,7 +23,7 @@ class LightSample:
         tri: (N,) int64 triangle index.
         p: (N, 3) position.
         n: (N, 3) unit normal of the emitting (front) side.
-        uv: (N, 2) texture coordinates.
+        uv: (N, 2) texture coordinates (zeros when no emission is textured).
         pdf_area: (N,) density per unit area of having sampled ``p``.
     """
 
@@ -40,6 +40,8 @@ class EmitterSampler:
     def __init__(self, triangles: Triangles, emissions: list[torch.Tensor]):
         """``emissions``: one (3,) or (h, w, 3) eps per emitter, indexed by ``triangles.emitter``."""
         self.triangles = triangles
+        #: does any emission vary over UVs (else samples skip their texture coordinates)?
+        self.textured = any(e.ndim == 3 for e in emissions)
         power = torch.tensor([float(e.detach().mean()) for e in emissions] + [0.0], device=triangles.area.device)
         weight = triangles.area * power[triangles.emitter]  # emitter -1 -> the appended 0
         self.tri = torch.nonzero(weight > 0)[:, 0]
@@ -58,5 +60,5 @@ class EmitterSampler:
         su = u[:, 0].sqrt()
         b1, b2 = (su * (1.0 - u[:, 1]))[:, None], (su * u[:, 1])[:, None]  # uniform barycentrics (weights of p1, p2)
         p = g[:, 0:3] + b1 * g[:, 3:6] + b2 * g[:, 6:9]
-        uv = (1 - b1 - b2) * g[:, 12:14] + b1 * g[:, 14:16] + b2 * g[:, 16:18]
+        uv = (1 - b1 - b2) * g[:, 12:14] + b1 * g[:, 14:16] + b2 * g[:, 16:18] if self.textured else p.new_zeros(()).expand(len(tri), 2)
         return LightSample(tri, p, g[:, 9:12], uv, self.pdf_area.index_select(0, tri))
