@@ -57,6 +57,9 @@ examples:
   invrender render cornell_specular --integrator distributed --out cook.png
   invrender render cornell_box --strategy emitter --hemisphere uniform --rr-depth -1 --out nee.png
   invrender render forward/cornell_far.toml --spp 64 --adaptive --out far.png   # + far.spp.png
+  invrender render cornell_box --device cuda --backend warp --spp 4096 --out gpu.exr
+  torchrun --standalone --nproc-per-node 4 -m invrender render cornell_box --spp 4096 --out big.exr
+                                                # split across 4 processes; rank 0 writes (docs/scale.md)
 
 max_depth counts Neumann terms as Mitsuba 3 does: 1 = emitters seen directly, 2 = + direct
 illumination, ...; -1 = unbounded (paths end by Russian roulette only). With --terms, term k
@@ -318,6 +321,8 @@ examples:
   invrender fit optimize/cornell_random.toml --out runs/cornell_random
   invrender fit optimize/cornell_random.toml --out runs/cornell_random --resume     # after Ctrl-C
   invrender fit optimize/utah_bias.toml --out runs/utah_bias    # a model study: path vs utah
+  torchrun --standalone --nproc-per-node 2 -m invrender fit optimize/cornell_views.toml --out runs/views
+                                                # renders and gradients split across 2 processes
 
 Defaults: 200 Adam steps on rho = sigmoid(x), eps = exp(x) (step 0.15, cosine decay), 16 then 64
 spp, max_depth 8, relative L2 loss, path-replay gradients decorrelated from the loss's image.
