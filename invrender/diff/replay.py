@@ -112,7 +112,8 @@ class _ReplayRender(torch.autograd.Function):
 
 def _can_keep(scene: Scene, settings: RenderSettings) -> bool:
     """Do the per-path radiances of this render fit in :data:`KEEP_SHARE` of its memory budget
-    (float64 RGB per path; paths that split, Whitted's, need more and are counted as they come)?"""
+    (float64 RGB per camera path; paths that split, Whitted's, keep their branches' entries too,
+    beyond this estimate)?"""
     paths = scene.width * scene.height * settings.spp if settings.plan is None else settings.plan.total
     return paths * 24 <= settings.memory_mb * 2**20 * KEEP_SHARE
 
