@@ -10,14 +10,14 @@ import pytest
 
 SNIPPET = """
 import resource, torch
-import invrender as ir
 from invrender.transport import memory
-torch.set_num_threads(1)
-scene = ir.load_scene("cornell_box", resolution=(128, 128))  # one chunk of 131k paths
-ir.render(scene, spp=8, progress=False)  # warm: the heap grows to a chunk's working set
+ok = memory.keep_freed_blocks()
+x = torch.ones(16 << 20)  # 64 MiB: above the largest mmap threshold glibc sets itself (32 MiB)
+x.add_(1)
+del x
 before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-ir.render(scene, spp=8, seed=1, progress=False)
-print(memory.keep_freed_blocks(), memory.keep_freed_blocks(), resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+x = torch.ones(16 << 20)  # the next chunk's tensor of that size
+print(ok, memory.keep_freed_blocks(), resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
 """
 
 
@@ -31,10 +31,13 @@ def run(env_value: str | None) -> tuple[bool, bool, int]:
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
 def test_freed_blocks_are_reused_instead_of_faulted_in_anew():
+    """The thresholds are in effect: a freed chunk-sized block stays in the heap for the next one.
+    (In a render the pattern is subtler, and its page faults vary from run to run: 650-10700 per
+    warm 128x128 render by default against 70-1200 with the thresholds set, measured.)"""
     ok, again, faults = run(None)
     assert ok and again  # set once, idempotent
     default_ok, _, default_faults = run("default")
     assert not default_ok
-    # a render's chunk-sized temporaries: by default many come back as fresh pages (mmap'ed or
-    # trimmed off the heap and grown again); kept, a warm render faults in next to nothing
-    assert default_faults > 1000 and faults < default_faults / 3, (faults, default_faults)  # measured: 2000-8800 against 280-450
+    # by default a freed 64 MiB block is unmapped and the next one faults in all its 16384 pages
+    # anew; kept in the heap, it is reused without a fault
+    assert default_faults > 16000 and faults < 1000, (faults, default_faults)
