@@ -30,7 +30,7 @@ class _AutodiffAcrossRanks(torch.autograd.Function):
         leaves = [v.detach().requires_grad_(True) for v in values]
         with torch.enable_grad():
             image = integrator.render(scene, settings, device, params=dict(zip(names, leaves)))
-        fctx.image, fctx.leaves = image, leaves
+        fctx.image, fctx.leaves, fctx.names = image, leaves, names
         return image.detach()
 
     @staticmethod
@@ -39,7 +39,6 @@ class _AutodiffAcrossRanks(torch.autograd.Function):
         # chunks than ranks) recorded nothing, and its part is zero
         recorded = fctx.image.requires_grad
         parts = torch.autograd.grad(fctx.image, fctx.leaves, grad_image, allow_unused=True) if recorded else [None] * len(fctx.leaves)
-        grads = {str(i): g if g is not None else torch.zeros_like(v) for i, (g, v) in enumerate(zip(parts, fctx.leaves))}
-        sum_gradients(grads)
+        grads = sum_gradients({n: g if g is not None else torch.zeros_like(v) for n, g, v in zip(fctx.names, parts, fctx.leaves)})
         del fctx.image, fctx.leaves
-        return (None, None, None, None, None, *(grads[str(i)] for i in range(len(parts))))
+        return (None, None, None, None, None, *grads.values())

@@ -34,7 +34,7 @@ import torch
 
 from invrender.scene.scene import Scene
 from invrender.transport.context import PathState
-from invrender.transport.driver import RenderSettings, cpu_workers, for_each_chunk
+from invrender.transport.driver import RenderSettings, cpu_workers, for_each_chunk, total_paths
 from invrender.transport.film import Film, PathFilm
 from invrender.transport.integrators import Integrator
 from invrender.transport.ranks import sum_gradients
@@ -114,8 +114,7 @@ def _can_keep(scene: Scene, settings: RenderSettings) -> bool:
     """Do the per-path radiances of this render fit in :data:`KEEP_SHARE` of its memory budget
     (float64 RGB per camera path; paths that split, Whitted's, keep their branches' entries too,
     beyond this estimate)?"""
-    paths = scene.width * scene.height * settings.spp if settings.plan is None else settings.plan.total
-    return paths * 24 <= settings.memory_mb * 2**20 * KEEP_SHARE
+    return total_paths(scene, settings) * 24 <= settings.memory_mb * 2**20 * KEEP_SHARE
 
 
 def replay_render(scene: Scene, integrator: Integrator, settings: RenderSettings, device, names: list[str]) -> torch.Tensor:

@@ -73,7 +73,7 @@ class EmbreeIntersector:
         self._scene = rtcore_scene.EmbreeScene()
         corners = triangles.corners().detach().cpu().numpy().astype(np.float32)
         self._mesh = TriangleMesh(self._scene, corners)  # keep a reference: Embree does not own the buffer
-        self._threads = max(1, threads or len(os.sched_getaffinity(0)))
+        self._threads = embree_threads(threads)
         self._pool = ThreadPoolExecutor(self._threads) if self._threads > 1 else None
 
     def _run(self, o: np.ndarray, d: np.ndarray, **kwargs):
@@ -103,7 +103,7 @@ class EmbreeIntersector:
 
     def occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
         """(N,) bool: does anything lie along each ray strictly before ``tmax`` (N,)?"""
-        parts = self._run(_numpy(o), _numpy(d), dists=_numpy(tmax).copy(), query="OCCLUDED")
+        parts = self._run(_numpy(o), _numpy(d), dists=_numpy(tmax), query="OCCLUDED")
         hit = torch.from_numpy(parts[0] if len(parts) == 1 else np.concatenate(parts)) != -1
         return hit.to(o.device)
 
@@ -198,21 +198,26 @@ def check_backend(backend: str | None, device: torch.device) -> str:
     return backend
 
 
-def make_intersector(triangles: Triangles, backend: str | None = None, embree_threads: int | None = None):
+def make_intersector(triangles: Triangles, backend: str | None = None, threads: int | None = None):
     """A new intersector for ``triangles`` by backend name (``None`` = the device's default).
 
-    ``embree_threads``: threads each Embree query is split across (None = one per core).
+    ``threads``: threads each Embree query is split across (None = one per core).
     """
     backend = check_backend(backend, triangles.p0.device)
     cls = BACKENDS[backend]
-    return EmbreeIntersector(triangles, embree_threads) if cls is EmbreeIntersector else cls(triangles)
+    return EmbreeIntersector(triangles, threads) if cls is EmbreeIntersector else cls(triangles)
 
 
-def intersector_for(triangles: Triangles, backend: str | None = None, embree_threads: int | None = None):
+def embree_threads(threads: int | None) -> int:
+    """Threads an Embree query is split across: ``threads``, or one per core when None."""
+    return max(1, threads or len(os.sched_getaffinity(0)))
+
+
+def intersector_for(triangles: Triangles, backend: str | None = None, threads: int | None = None):
     """The intersector of ``triangles`` for a backend, built on first use and kept with the
     geometry (:meth:`Triangles.derived`), so that renders of one scene share it."""
     backend = check_backend(backend, triangles.p0.device)
-    threads = max(1, embree_threads or len(os.sched_getaffinity(0))) if backend == "embree" else None
+    threads = embree_threads(threads) if backend == "embree" else None
     return triangles.derived(("accel", backend, threads), lambda: make_intersector(triangles, backend, threads))
 
 

@@ -139,7 +139,7 @@ def for_each_chunk(scene: Scene, settings: RenderSettings, device: torch.device,
         keep_freed_blocks()  # chunk-sized temporaries reused, not page-faulted in anew
     workers = cpu_workers(device)
     rank, world = ranks.world() if across_ranks else (0, 1)
-    total = scene.width * scene.height * settings.spp if settings.plan is None else settings.plan.total
+    total = total_paths(scene, settings)
     chunk = settings.chunk_paths or max(1024, min(int(settings.memory_mb * 2**20 // BYTES_PER_PATH) // workers, -(-total // (workers * world))))
     starts = range(0, total, chunk)[rank::world]
     grad = torch.is_grad_enabled() if grad is None else grad
@@ -171,6 +171,11 @@ def for_each_chunk(scene: Scene, settings: RenderSettings, device: torch.device,
             except BaseException:
                 stop.set()
                 raise
+
+
+def total_paths(scene: Scene, settings: RenderSettings) -> int:
+    """Camera paths a render traces: every pixel's spp, or the paths of ``settings.plan``."""
+    return scene.width * scene.height * settings.spp if settings.plan is None else settings.plan.total
 
 
 def available_memory_bytes() -> int | None:

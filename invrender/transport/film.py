@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from invrender.transport.ranks import max_across_ranks, sum_across_ranks
+from invrender.transport.ranks import max_across_ranks, sum_across_ranks, world
 
 
 class Film:
@@ -65,6 +65,8 @@ class Film:
     def summed_across_ranks(self) -> Film:
         """This film holding every rank's contributions (all-reduced float64 sums, differentiable;
         itself outside a torch.distributed group): for renders whose chunks were split across ranks."""
+        if world()[1] == 1:
+            return self
         count = max_across_ranks(max(self._images, default=-1) + 1, self.device)
         for k in range(count):
             image = self._images.get(k)

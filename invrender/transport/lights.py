@@ -12,7 +12,6 @@ from dataclasses import dataclass
 import torch
 
 from invrender.scene.scene import Triangles
-from invrender.transport.vec import rows
 
 
 @dataclass(frozen=True)
@@ -56,7 +55,7 @@ class EmitterSampler:
         """Points from uniforms ``u_pick`` (N,) and ``u`` (N, 2)."""
         k = torch.searchsorted(self.cdf, u_pick.contiguous(), right=True).clamp_max(self.count - 1)
         tri = self.tri.index_select(0, k)
-        g = rows(self.triangles.packed, tri)
+        g = self.triangles.packed.index_select(0, tri)
         su = u[:, 0].sqrt()
         b1, b2 = (su * (1.0 - u[:, 1]))[:, None], (su * u[:, 1])[:, None]  # uniform barycentrics (weights of p1, p2)
         p = g[:, 0:3] + b1 * g[:, 3:6] + b2 * g[:, 6:9]

@@ -8,7 +8,7 @@ import torch
 
 from invrender.scene.scene import Triangles
 from invrender.transport.accel import Hits
-from invrender.transport.vec import dot, normalize, rows
+from invrender.transport.vec import dot, normalize
 
 
 @dataclass(frozen=True)
@@ -48,7 +48,7 @@ def surface_at(triangles: Triangles, hits: Hits, d: torch.Tensor, with_uv: bool 
     Shading normals are interpolated only when some triangle has vertex normals.
     """
     tri = hits.prim
-    g = rows(triangles.packed, tri)
+    g = triangles.packed.index_select(0, tri)
     u, v = hits.u[:, None], hits.v[:, None]
     p = g[:, 0:3] + u * g[:, 3:6] + v * g[:, 6:9]
     ng = g[:, 9:12]

@@ -2,21 +2,13 @@
 
 ``(a * b).sum(-1)`` and ``norm(dim=-1)`` reduce over a length-3 innermost axis, which torch's CPU
 kernels handle several times slower than three multiplies and two adds; these helpers are the hot
-path of every bounce. Likewise for gathers: 1-D tables are read with ``index_select`` (about 4x
-faster than ``table[index]``), 2-D ones with :func:`rows`.
+path of every bounce. Likewise for gathers: tables are read with ``index_select`` (for 1-D tables
+about 4x faster than ``table[index]``).
 """
 
 from __future__ import annotations
 
 import torch
-
-
-def rows(table: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
-    """Rows ``table[index]`` of a (T, C) table for (N,) int64 ``index``: (N, C). For the narrow
-    tables of the hot path (triangle records, RGB tables) torch's embedding lookup is 1.5-2.5x
-    faster on the CPU than ``index_select`` or advanced indexing (which also allocates an index
-    copy); never differentiable here (tables of constants)."""
-    return torch.nn.functional.embedding(index, table)
 
 
 def dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:

@@ -152,6 +152,8 @@ class Integrator(ABC):
         branches, 3) float64}`` (:meth:`PathFilm.totals`), for path replay to reuse instead of
         tracing the paths again; the image is the same (not with ``terms``).
         """
+        if keep is not None and settings.terms:
+            raise ValueError("keep: per-path radiance is kept for full images only, not per term")
         check_film_memory(scene.width, scene.height, device, max(self.terms_kept, 1) if settings.terms else 1)
         ctx = self.context(scene, settings, device, params)
         films = [Film(scene.width, scene.height, settings.terms, device) for _ in range(cpu_workers(device))]
@@ -165,8 +167,6 @@ class Integrator(ABC):
             keep[start] = paths.totals()
             films[worker].add(0, state.pixel, keep[start][: state.count])  # a root path's total holds its branches'
 
-        if keep is not None and settings.terms:
-            raise ValueError("keep: per-path radiance is kept for full images only, not per term")
         for_each_chunk(scene, settings, device, chunk, across_ranks=True, with_start=True)
         return Film.merge(films).summed_across_ranks().develop(settings.spp)
 
