@@ -9,6 +9,7 @@ import torch
 
 from invrender.scene.kinds import param_name
 from invrender.scene.scene import AMBIENT, Scene, Triangles, scene_extent
+from invrender.transport import kernels
 from invrender.transport.accel import intersector_for
 from invrender.transport.bsdfs import BSDFSampling, Materials, ShadingPoint
 from invrender.transport.lights import EmitterSampler
@@ -58,6 +59,7 @@ class TransportContext:
         ``sampling``: how the BSDFs draw directions (None = cosine-weighted diffuse lobes).
         """
         tris = scene.triangles.to(device)
+        kernels.load(device)  # compiled or loaded here, before any render thread launches them
         values = {**scene.params, **(params or {})}
         specs = [scene.material_spec(i) for i in range(len(scene.materials))]
         material_values = [{key: values[param_name(m, key)].to(device) for key in spec.spec.params} for m, spec in zip(scene.materials, specs)]

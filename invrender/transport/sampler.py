@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import torch
 
+from invrender.transport import kernels
+
 _MASK = 0xFFFFFFFF
 
 
@@ -96,6 +98,8 @@ def uniform(keys: torch.Tensor, bounce: int, dims: int) -> torch.Tensor:
         complement for mirrored keys).
     """
     salts = torch.tensor([_signed(_mix_int(bounce * 0x10000 + d + 0x632BE5AB)) for d in range(dims)], dtype=torch.int32, device=keys.device)
+    if kernels.enabled(keys.device):
+        return kernels.hash_uniforms(keys, salts)
     h = _mix((keys & -2)[:, None] ^ salts)
     h ^= -(keys & 1)[:, None]  # mirrored: all bits flipped, so the low 24 give 1 - 2^-24 - u
     return h.bitwise_and_(0xFFFFFF).to(torch.float32).mul_(1.0 / 16777216.0)

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import torch
 
 from invrender.scene.scene import Triangles
+from invrender.transport import kernels
 from invrender.transport.accel import Hits
 from invrender.transport.vec import dot, normalize
 
@@ -45,21 +46,27 @@ def surface_at(triangles: Triangles, hits: Hits, d: torch.Tensor, with_uv: bool 
     """The :class:`Surface` of valid ``hits`` of rays with directions ``d`` (N, 3).
 
     ``with_uv=False`` skips interpolating texture coordinates (for scenes without textures).
-    Shading normals are interpolated only when some triangle has vertex normals.
+    Shading normals are interpolated only when some triangle has vertex normals. The geometry is
+    one fused kernel where :mod:`~invrender.transport.kernels` runs, else torch (the reference).
     """
     tri = hits.prim
-    g = triangles.packed.index_select(0, tri)
     u, v = hits.u[:, None], hits.v[:, None]
-    p = g[:, 0:3] + u * g[:, 3:6] + v * g[:, 6:9]
-    ng = g[:, 9:12]
-    cos = -dot(ng, d)
-    front = cos > 0
-    side = torch.where(front, 1.0, -1.0)[:, None]
-    n = ng * side
+    if kernels.enabled(d.device):
+        p, n, front, cos_o, uv = kernels.hit_geometry(triangles.packed, tri, hits.u, hits.v, d, with_uv)
+        side = None
+    else:
+        g = triangles.packed.index_select(0, tri)
+        p = g[:, 0:3] + u * g[:, 3:6] + v * g[:, 6:9]
+        ng = g[:, 9:12]
+        cos = -dot(ng, d)
+        front = cos > 0
+        side = torch.where(front, 1.0, -1.0)[:, None]
+        n, cos_o = ng * side, cos.abs()
+        uv = (1 - u - v) * g[:, 12:14] + u * g[:, 14:16] + v * g[:, 16:18] if with_uv else g[:, 12:14].new_zeros(()).expand(len(tri), 2)
     if triangles.any_smooth:
+        side = torch.where(front, 1.0, -1.0)[:, None] if side is None else side
         vn = triangles.vertex_normal.index_select(0, tri)
         ns = normalize((1 - u - v) * vn[:, 0] + u * vn[:, 1] + v * vn[:, 2]) * side
     else:
         ns = n
-    uv = (1 - u - v) * g[:, 12:14] + u * g[:, 14:16] + v * g[:, 16:18] if with_uv else g[:, 12:14].new_zeros(()).expand(len(tri), 2)
-    return Surface(p, n, ns, front, cos.abs(), uv, tri, hits.t)
+    return Surface(p, n, ns, front, cos_o, uv, tri, hits.t)

@@ -12,39 +12,15 @@ convention (Embree's) is the weights of the second and third, so the kernels con
 
 from __future__ import annotations
 
-import os
-import sys
-
 import torch
 
 from invrender.errors import ParameterError
+from invrender.transport import kernels
+from invrender.transport.kernels import launch, vec3
 
-try:
-    import warp as wp
-except ImportError as error:  # pragma: no cover - warp-lang is a dependency; this guards broken installs
-    raise ParameterError(f"the warp intersection backend needs warp-lang ({error}): pip install warp-lang, or use backend 'embree' or 'torch'") from None
-
-
-
-def _init() -> None:
-    """``wp.init()`` without console output: no banner or compile timings, and on a machine without
-    a CUDA driver (where torch sees none either) not the native library's note that it found none."""
-    wp.config.log_level = wp.LOG_ERROR
-    if torch.cuda.is_available():
-        wp.init()
-        return
-    sys.stderr.flush()
-    saved = os.dup(2)
-    try:
-        with open(os.devnull, "w") as null:
-            os.dup2(null.fileno(), 2)
-            wp.init()
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
-
-
-_init()
+wp = kernels.wp
+if wp is None:  # pragma: no cover - warp-lang is a dependency; this guards broken installs
+    raise ParameterError("the warp intersection backend needs warp-lang: pip install warp-lang, or use backend 'embree' or 'torch'")
 
 
 @wp.kernel
@@ -89,8 +65,7 @@ class WarpBVH:
         wp.load_module(device=wp.device_from_torch(self.device))  # compile (or load) once here, not in each render worker
 
     def _launch(self, kernel, n: int, inputs: list) -> None:
-        stream = wp.stream_from_torch(torch.cuda.current_stream(self.device)) if self.device.type == "cuda" else None
-        wp.launch(kernel, dim=n, inputs=[self._mesh.id, *inputs], device=wp.device_from_torch(self.device), stream=stream)
+        launch(kernel, n, [self._mesh.id, *inputs], self.device)
 
     def closest(self, o: torch.Tensor, d: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """(t, prim, u, v) of the closest hits of rays ``o``, ``d`` (N, 3) float32 contiguous."""
@@ -98,7 +73,7 @@ class WarpBVH:
         t, u, v = (torch.empty(n, dtype=torch.float32, device=self.device) for _ in range(3))
         prim = torch.empty(n, dtype=torch.int64, device=self.device)
         if n:
-            self._launch(_closest_kernel, n, [_vec3(o), _vec3(d), *(wp.from_torch(x) for x in (t, prim, u, v))])
+            self._launch(_closest_kernel, n, [vec3(o), vec3(d), *(wp.from_torch(x) for x in (t, prim, u, v))])
         return t, prim, u, v
 
     def occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
@@ -106,9 +81,5 @@ class WarpBVH:
         n = o.shape[0]
         hit = torch.empty(n, dtype=torch.bool, device=self.device)
         if n:
-            self._launch(_occluded_kernel, n, [_vec3(o), _vec3(d), wp.from_torch(tmax.to(torch.float32).contiguous()), wp.from_torch(hit)])
+            self._launch(_occluded_kernel, n, [vec3(o), vec3(d), wp.from_torch(tmax.to(torch.float32).contiguous()), wp.from_torch(hit)])
         return hit
-
-
-def _vec3(x: torch.Tensor):
-    return wp.from_torch(x.to(torch.float32).contiguous(), dtype=wp.vec3)

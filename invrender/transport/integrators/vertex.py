@@ -13,7 +13,6 @@ from invrender.transport.bsdfs import BSDFSample, ShadingPoint
 from invrender.transport.context import PathState, TransportContext
 from invrender.transport.film import Film
 from invrender.transport.surface import Surface, surface_at
-from invrender.transport.vec import dot, norm
 
 
 def power_heuristic(pdf_a: torch.Tensor, pdf_b: torch.Tensor) -> torch.Tensor:
@@ -74,22 +73,14 @@ def add_direct(ctx: TransportContext, state: PathState, s: Surface, sp: ShadingP
     if ctx.materials.any_delta:
         keep = (~ctx.materials.lobe_mask(sp, ("specular",))).nonzero()[:, 0]
         state, s, sp, u = state.select(keep), s.select(keep), sp.select(keep), u.index_select(0, keep)
-    ls = ctx.lights.sample(u[:, 2], u[:, 3:5])
-    o = s.p + ctx.ray_offset * s.n
-    to_light = ls.p - o
-    dist = norm(to_light).clamp_min(1e-12)
-    wl = to_light / dist[:, None]
-    cos_g = dot(s.n, wl)  # geometric side: light from behind the surface does not reach it
-    cos_l = -dot(ls.n, wl)  # at the light: only its front side emits
-    ok = (cos_g > 0) & (cos_l > 0)
-    ok &= ~ctx.accel.occluded(o, wl, dist - ctx.ray_offset)
-    pdf_light = ls.pdf_area * dist * dist / cos_l.clamp_min(1e-12)  # area -> solid angle
-    f_cos = ctx.materials.eval(sp, wl)
+    ls = ctx.lights.sample_from(u[:, 2:5], s.p, s.n, ctx.ray_offset)
+    ok = ls.facing & ~ctx.accel.occluded(ls.o, ls.wl, ls.tmax)
+    f_cos = ctx.materials.eval(sp, ls.wl)
     if mis:
-        w = power_heuristic(pdf_light, ctx.materials.pdf(sp, wl).detach())
-        weight = torch.where(ok, w / pdf_light, 0.0)
+        w = power_heuristic(ls.pdf, ctx.materials.pdf(sp, ls.wl).detach())
+        weight = torch.where(ok, w / ls.pdf, 0.0)
     else:
-        weight = torch.where(ok, 1.0 / pdf_light, 0.0)
+        weight = torch.where(ok, 1.0 / ls.pdf, 0.0)
     Le = ctx.emission(ctx.triangles.emitter.index_select(0, ls.tri), ls.uv)
     film.add(term, state.pixel, state.beta * f_cos * Le * weight[:, None])
 

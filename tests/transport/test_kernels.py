@@ -1,0 +1,124 @@
+"""The fused Warp kernels against the torch expressions they replace (kept as the reference): the
+random numbers bit for bit, hit and emitter-sample geometry to float rounding, and the same images
+and gradients with either."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+import torch
+
+import invrender as ir
+from invrender.transport import kernels
+from invrender.transport.accel import make_intersector
+from invrender.transport.lights import EmitterSampler
+from invrender.transport.sampler import mirrored, path_keys, uniform
+from invrender.transport.surface import surface_at
+
+FORWARD = Path(__file__).resolve().parents[2] / "forward"
+CPU = torch.device("cpu")
+
+
+@pytest.fixture
+def reference(monkeypatch):
+    """A context manager-free switch: call it to run the torch reference expressions."""
+
+    def use_torch(on: bool = True) -> None:
+        monkeypatch.setenv(kernels.ENV, "torch" if on else "warp")
+
+    return use_torch
+
+
+def test_kernels_run_on_cpu_and_switch_off(reference):
+    assert kernels.enabled(CPU)
+    reference()
+    assert not kernels.enabled(CPU)
+    assert not kernels.enabled(torch.device("meta"))  # no Warp backend there: torch runs
+
+
+def test_uniforms_equal_bit_for_bit(reference):
+    pixel = torch.arange(50_000)
+    keys = path_keys(7, pixel, pixel % 13)
+    keys = mirrored(keys, pixel % 3 == 0)  # mirrored keys flip every bit of the hash
+    for bounce, dims in ((0, 2), (3, 7), (40, 5)):
+        fused = uniform(keys, bounce, dims)
+        reference()
+        expected = uniform(keys, bounce, dims)
+        reference(False)
+        assert fused.dtype == torch.float32 and fused.shape == (50_000, dims)
+        assert torch.equal(fused, expected)
+    assert 0.0 <= float(fused.min()) and float(fused.max()) < 1.0
+    assert uniform(keys[:0], 1, 3).shape == (0, 3)
+
+
+def _hits(scene, n=20_000, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    c = scene.triangles.corners().reshape(-1, 3)
+    lo, hi = c.min(0).values, c.max(0).values
+    o = (lo + (hi - lo) * (0.05 + 0.9 * torch.rand(n, 3, generator=g))).contiguous()
+    d = torch.nn.functional.normalize(torch.randn(n, 3, generator=g), dim=1).contiguous()
+    hits = make_intersector(scene.triangles, "embree", 1).intersect(o, d)
+    keep = hits.valid
+    return hits.select(keep), d[keep]
+
+
+@pytest.mark.parametrize("name", ["cornell_box", str(FORWARD / "textured_floor.toml"), str(FORWARD / "mesh_in_box.toml")])
+def test_hit_geometry_matches_the_reference(name, reference):
+    scene = ir.load_scene(name, resolution=(8, 8))
+    hits, d = _hits(scene)
+    assert len(d) > 5_000
+    fused = surface_at(scene.triangles, hits, d, with_uv=True)
+    reference()
+    expected = surface_at(scene.triangles, hits, d, with_uv=True)
+    for field in ("p", "n", "ns", "cos_o", "uv"):
+        a, b = getattr(fused, field), getattr(expected, field)
+        assert a.shape == b.shape and a.dtype == b.dtype
+        assert (a - b).abs().max() < 2e-6 * max(1.0, float(b.abs().max())), field
+    assert torch.equal(fused.front, expected.front) and torch.equal(fused.tri, expected.tri)
+    assert 0.02 < fused.front.float().mean() < 0.98  # both sides seen: the normal flip is exercised
+    untextured = surface_at(scene.triangles, hits, d, with_uv=False)
+    assert untextured.uv.shape == (len(d), 2) and not untextured.uv.any()
+
+
+@pytest.mark.parametrize("name", ["cornell_box", str(FORWARD / "two_lights.toml")])
+def test_emitter_samples_match_the_reference(name, reference):
+    scene = ir.load_scene(name, resolution=(8, 8))
+    hits, d = _hits(scene, seed=1)
+    s = surface_at(scene.triangles, hits, d)
+    eps = [scene.params[f"{e}.emission"] for e in scene.emitters]
+    lights = EmitterSampler(scene.triangles, eps)
+    lights.textured = True  # uv at the points too
+    u = torch.rand(len(d), 3, generator=torch.Generator().manual_seed(2))
+    fused = lights.sample_from(u, s.p, s.n, 1e-3)
+    reference()
+    expected = lights.sample_from(u, s.p, s.n, 1e-3)
+    assert torch.equal(fused.tri, expected.tri)  # the same emitter picked (the cdf search)
+    assert len(set(fused.tri.tolist())) == lights.count  # every emissive triangle picked
+    assert (fused.facing != expected.facing).float().mean() < 1e-3  # only rounding at cos = 0
+    for field in ("uv", "o", "wl", "tmax"):
+        a, b = getattr(fused, field), getattr(expected, field)
+        assert (a - b).abs().max() < 2e-5 * max(1.0, float(b.abs().max())), field
+    rel = (fused.pdf - expected.pdf).abs() / expected.pdf
+    assert torch.quantile(rel[fused.facing], 0.999) < 1e-4  # grazing samples are ill-conditioned
+
+
+@pytest.mark.parametrize("name", ["cornell_box", str(FORWARD / "textured_floor.toml")])
+def test_images_and_gradients_agree(name, reference):
+    scene = ir.load_scene(name, resolution=(16, 16))
+    names = [n for n in scene.params if n.endswith(("reflectance", "emission"))][:3]
+
+    def run():
+        params = {n: scene.params[n].clone().requires_grad_(True) for n in names}
+        work = dataclasses.replace(scene, params={**scene.params, **params})
+        img = ir.render(work, spp=16, seed=3, progress=False, estimator="replay")
+        (img**2).sum().backward()
+        return img.detach(), [params[n].grad for n in names]
+
+    img, grads = run()
+    reference()
+    img_ref, grads_ref = run()
+    assert (img - img_ref).abs().max() < 1e-4 * float(img_ref.mean())
+    for g, g_ref in zip(grads, grads_ref):
+        assert (g - g_ref).abs().max() < 1e-3 * float(g_ref.abs().max())
