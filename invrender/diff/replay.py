@@ -4,7 +4,8 @@ The forward pass renders without recording anything. The backward pass receives 
 by chunk, regenerates the very same paths from the counter-based sampler twice:
 
 1. primal: each path's total radiance ``L`` (no autograd). The forward pass keeps these per-path
-   totals when they fit in :data:`KEEP_SHARE` of the memory budget (24 bytes a path), and the
+   totals when they fit in :data:`KEEP_SHARE` of the memory budget (12 bytes a path, float32
+   until the backward pass takes them up in float64), and the
    backward pass then skips this step: a ``loss(render(...)).backward()`` costs two traces, not
    three. A gradient taken without a forward render of the same seed (:func:`replay_gradient`, the
    decorrelated gradient of a fit) traces it;
@@ -34,7 +35,7 @@ import torch
 
 from invrender.scene.scene import Scene
 from invrender.transport.context import PathState
-from invrender.transport.driver import RenderSettings, cpu_workers, for_each_chunk, total_paths
+from invrender.transport.driver import BYTES_PER_REPLAYED_PATH, RenderSettings, cpu_workers, for_each_chunk, total_paths
 from invrender.transport.film import Film, PathFilm
 from invrender.transport.integrators import Integrator
 from invrender.transport.ranks import sum_gradients
@@ -50,17 +51,24 @@ class AdjointFilm(Film):
     """The adjoint pass's "film": turns contributions into parameter gradients.
 
     Attributes:
-        g: (size, 3) float64 ``dl/dI`` at each path's pixel, divided by spp (a path is 1/spp of it).
-        L_rem: (size, 3) float64 radiance each path (branch) has yet to gather.
+        g: (size, 3) float32 ``dl/dI`` at each path's pixel, divided by spp (a path is 1/spp of it).
+        L_rem: (size, 3) float64 radiance each path (branch) has yet to gather (float64: it is what
+            is left after subtracting every contribution from the path's total).
         grads: name -> accumulated gradient for each differentiable leaf in ``leaves``.
+
+    The local objectives are float32, as the factors they differentiate are: the gradient of
+    ``sum(a * f)`` with respect to ``f`` is ``a`` itself, so nothing is lost to their sums.
     """
 
     detach_throughput = True
 
     def __init__(self, g: torch.Tensor, totals: torch.Tensor, leaves: dict[str, torch.Tensor]):
-        self.L_rem = totals.clone()
-        self.g = g.new_zeros(totals.shape)
-        self.g[: g.shape[0]] = g
+        """``g`` (paths, 3) ``dl/dI`` of each camera path's pixel; ``totals`` (size, 3): each path's
+        and branch's radiance (:meth:`PathFilm.totals`), taken over as ``L_rem`` (float64 totals
+        are not copied)."""
+        self.L_rem = totals.to(torch.float64)
+        g = g.to(torch.float32)
+        self.g = g if g.shape[0] == totals.shape[0] else torch.cat([g, g.new_zeros(totals.shape[0] - g.shape[0], 3)])
         self.size = g.shape[0]
         self.names, self.leaves = list(leaves), list(leaves.values())
         self.grads = {k: torch.zeros_like(v) for k, v in leaves.items()}
@@ -75,17 +83,18 @@ class AdjointFilm(Film):
 
     def add(self, term: int, path: torch.Tensor, radiance: torch.Tensor) -> None:
         """A contribution of paths ``path`` (N,): differentiate its local factors, then strike it off."""
-        self._backprop((self.g[path] * radiance.double()).sum())
-        self.L_rem.index_add_(0, path, -radiance.detach().double())
+        self._backprop((self.g.index_select(0, path) * radiance).sum())
+        self.L_rem.index_add_(0, path, radiance.detach().double(), alpha=-1)
 
     def scatter(self, path: torch.Tensor, weight: torch.Tensor) -> None:
         """The vertex adjoint: everything still to come carries the weight once,
         ``d <g, L_rem> = <g, L_rem / w> d w``."""
         if not weight.requires_grad:
             return
-        w = weight.detach().double()
-        a = torch.where(w != 0, self.g[path] * self.L_rem[path] / torch.where(w != 0, w, 1.0), 0.0)
-        self._backprop((a * weight.double()).sum())
+        w = weight.detach()
+        zero = w == 0
+        a = self.g.index_select(0, path) * self.L_rem.index_select(0, path).float() / w.masked_fill(zero, 1.0)
+        self._backprop((a.masked_fill_(zero, 0.0) * weight).sum())
 
     def branch(self, pixel: torch.Tensor) -> torch.Tensor:
         new = torch.arange(self.size, self.size + pixel.numel(), device=pixel.device)
@@ -100,7 +109,10 @@ class _ReplayRender(torch.autograd.Function):
         fctx.scene, fctx.integrator, fctx.settings, fctx.device, fctx.names = scene, integrator, settings, device, names
         fctx.save_for_backward(*values)
         fctx.kept = {} if _can_keep(scene, settings) else None
-        return integrator.render(scene, settings, device, params=dict(zip(names, values)), keep=fctx.kept)
+        image = integrator.render(scene, settings, device, params=dict(zip(names, values)), keep=fctx.kept)
+        if fctx.kept is not None:
+            release_freed_memory(device)  # the forward chunks' heap, before the backward pass's
+        return image
 
     @staticmethod
     def backward(fctx, grad_image):
@@ -112,9 +124,9 @@ class _ReplayRender(torch.autograd.Function):
 
 def _can_keep(scene: Scene, settings: RenderSettings) -> bool:
     """Do the per-path radiances of this render fit in :data:`KEEP_SHARE` of its memory budget
-    (float64 RGB per camera path; paths that split, Whitted's, keep their branches' entries too,
+    (float32 RGB per camera path; paths that split, Whitted's, keep their branches' entries too,
     beyond this estimate)?"""
-    return total_paths(scene, settings) * 24 <= settings.memory_mb * 2**20 * KEEP_SHARE
+    return total_paths(scene, settings) * 12 <= settings.memory_mb * 2**20 * KEEP_SHARE
 
 
 def replay_render(scene: Scene, integrator: Integrator, settings: RenderSettings, device, names: list[str]) -> torch.Tensor:
@@ -138,7 +150,7 @@ def replay_gradient(
     leaves = {k: v.detach().to(device).requires_grad_(True) for k, v in values.items()}
     workers = cpu_workers(device)
     ctx = integrator.context(scene, settings, device, params=leaves)
-    g_image = grad_image.detach().reshape(-1, 3).to(device, torch.float64) / settings.spp
+    g_image = grad_image.detach().reshape(-1, 3).to(device, torch.float32) / settings.spp
     per_worker = [{k: torch.zeros_like(v) for k, v in leaves.items()} for _ in range(workers)]
     chunks_done = [0] * workers
 
@@ -162,7 +174,7 @@ def replay_gradient(
         if chunks_done[worker] % TRIM_EVERY == 0:
             release_freed_memory(device)  # keeps peak memory flat in the number of chunks (spp)
 
-    for_each_chunk(scene, settings.replace(progress=False), device, chunk, grad=True, across_ranks=True, with_start=True)
+    for_each_chunk(scene, settings.replace(progress=False), device, chunk, grad=True, across_ranks=True, with_start=True, bytes_per_path=BYTES_PER_REPLAYED_PATH)
     return sum_gradients({k: sum(w[k] for w in per_worker) for k in leaves})
 
 

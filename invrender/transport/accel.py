@@ -56,8 +56,8 @@ class Hits:
         return self.prim >= 0
 
     def select(self, mask: torch.Tensor) -> "Hits":
-        """The hits where ``mask`` (N,) is True."""
-        index = mask.nonzero()[:, 0]
+        """The hits where ``mask`` (N,) bool is True, or at ``mask`` (M,) int64."""
+        index = mask.nonzero()[:, 0] if mask.dtype == torch.bool else mask
         return Hits(*(x.index_select(0, index) for x in (self.t, self.prim, self.u, self.v)))
 
 

@@ -33,6 +33,9 @@ from invrender.transport.sampler import mirrored, path_keys, uniform
 
 #: working-set estimate per path in a chunk (state, hits, temporaries, backend copies), bytes
 BYTES_PER_PATH = 2048
+#: the same for path replay's passes (and the forward pass that keeps radiance for them): on top of
+#: a path's state, its float64 adjoints and the factors autograd saves at each vertex
+BYTES_PER_REPLAYED_PATH = 4096
 
 
 def check_int(owner: str, name: str, value, low: int | None = None) -> None:
@@ -123,7 +126,10 @@ class SamplePlan:
         return pixel, ids - (ends[pixel] - self.count.to(ids.device)[pixel])
 
 
-def for_each_chunk(scene: Scene, settings: RenderSettings, device: torch.device, work, grad: bool | None = None, across_ranks: bool = False, with_start: bool = False) -> None:
+def for_each_chunk(
+    scene: Scene, settings: RenderSettings, device: torch.device, work, grad: bool | None = None, across_ranks: bool = False, with_start: bool = False,
+    bytes_per_path: int = BYTES_PER_PATH,
+) -> None:  # fmt: skip
     """Call ``work(worker, camera_paths)`` for every chunk of the (pixel, sample) paths
     (``work(worker, camera_paths, start)`` with ``with_start``: ``start`` the chunk's first path id,
     the same for the same settings whatever the workers and ranks).
@@ -134,13 +140,15 @@ def for_each_chunk(scene: Scene, settings: RenderSettings, device: torch.device,
     ``across_ranks``: inside a torch.distributed group, trace only this rank's chunks (chunk c
     belongs to rank ``c mod world``; :mod:`invrender.transport.ranks`): the caller sums the ranks'
     results. Otherwise every chunk is traced here.
+    ``bytes_per_path``: the working set of a path, which sizes the chunks from ``settings.memory_mb``
+    (unless ``settings.chunk_paths`` is given).
     """
     if device.type == "cpu":
         keep_freed_blocks()  # chunk-sized temporaries reused, not page-faulted in anew
     workers = cpu_workers(device)
     rank, world = ranks.world() if across_ranks else (0, 1)
     total = total_paths(scene, settings)
-    chunk = settings.chunk_paths or max(1024, min(int(settings.memory_mb * 2**20 // BYTES_PER_PATH) // workers, -(-total // (workers * world))))
+    chunk = settings.chunk_paths or max(1024, min(int(settings.memory_mb * 2**20 // bytes_per_path) // workers, -(-total // (workers * world))))
     starts = range(0, total, chunk)[rank::world]
     grad = torch.is_grad_enabled() if grad is None else grad
     mine = sum(min(total, s + chunk) - s for s in starts)

@@ -13,7 +13,7 @@ rounding).
 - :func:`hit_geometry`: position, facing normal, side, cosine and texture coordinates of hits
   (:func:`invrender.transport.surface.surface_at`);
 - :func:`emitter_geometry`: points sampled on emitters as seen from surface points, the shadow ray
-  towards each and its solid-angle pdf (:meth:`invrender.transport.lights.EmitterSampler.towards`).
+  towards each and its solid-angle pdf (:meth:`invrender.transport.lights.EmitterSampler.sample_from`);
 
 Tensors are shared with Warp without copies (``wp.from_torch``); on CUDA the kernels run on torch's
 current stream. Warp's CPU launches run in the calling thread without the GIL, so the render's
@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
 
 import torch
 
@@ -66,6 +67,7 @@ def enabled(device: torch.device) -> bool:
 
 
 _loaded: set[str] = set()
+_loading = threading.Lock()  # one thread at a time redirects stderr and compiles
 
 
 def load(device: torch.device) -> None:
@@ -74,33 +76,53 @@ def load(device: torch.device) -> None:
     key = str(device)
     if key in _loaded or not enabled(device):
         return
-    sys.stderr.flush()
-    saved = os.dup(2)
-    try:
-        with open(os.devnull, "w") as null:
-            os.dup2(null.fileno(), 2)
-            wp.load_module(sys.modules[__name__], device=wp.device_from_torch(device))
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
-    _loaded.add(key)
+    with _loading:
+        if key in _loaded:
+            return
+        sys.stderr.flush()
+        saved = os.dup(2)
+        try:
+            with open(os.devnull, "w") as null:
+                os.dup2(null.fileno(), 2)
+                wp.load_module(sys.modules[__name__], device=wp.device_from_torch(device))
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        _loaded.add(key)
 
 
 def launch(kernel, n: int, inputs: list, device: torch.device) -> None:
-    """Run ``kernel`` over ``n`` threads on ``device`` (on torch's current stream on CUDA)."""
+    """Run ``kernel`` over ``n`` threads on ``device`` (on torch's current stream on CUDA).
+
+    ``inputs``: torch tensors (passed as Warp arrays of their dtype and shape, made contiguous),
+    :func:`vec3` tensors, and scalars. Tensors go to Warp as launch descriptors, not ``wp.array``
+    objects (which cost tens of microseconds each to build); the tensors they point to are held
+    here until the launch returns (on CUDA, torch's allocator orders their reuse after the kernel).
+    """
     if not n:
         return
+    held, args = [], []
+    for x in inputs:
+        if isinstance(x, Vec3):
+            x = x.tensor.to(torch.float32).contiguous()
+            args.append(wp.from_torch(x, dtype=wp.vec3, return_ctype=True))
+        elif isinstance(x, torch.Tensor):
+            x = x.contiguous()
+            args.append(wp.from_torch(x, return_ctype=True))
+        else:
+            args.append(x)
+        held.append(x)
     stream = wp.stream_from_torch(torch.cuda.current_stream(device)) if device.type == "cuda" else None
-    wp.launch(kernel, dim=n, inputs=inputs, device=wp.device_from_torch(device), stream=stream)
+    wp.launch(kernel, dim=n, inputs=args, device=wp.device_from_torch(device), stream=stream)
 
 
-def vec3(x: torch.Tensor):
-    """A (N, 3) tensor as a Warp array of vec3 (float32, contiguous: copied only if it is not)."""
-    return wp.from_torch(x.to(torch.float32).contiguous(), dtype=wp.vec3)
+class Vec3:
+    """A (N, 3) tensor to be passed to a kernel as an array of ``wp.vec3`` (see :func:`launch`)."""
 
+    __slots__ = ("tensor",)
 
-def _array(x: torch.Tensor):
-    return wp.from_torch(x.contiguous())
+    def __init__(self, tensor: torch.Tensor):
+        self.tensor = tensor
 
 
 if wp is not None:
@@ -200,7 +222,7 @@ def hash_uniforms(keys: torch.Tensor, salts: torch.Tensor) -> torch.Tensor:
     """(N, D) float32 uniforms: lowbias32 of ``(keys & ~1) ^ salt_j`` (N,) x (D,) int32, all bits
     flipped for odd (mirrored) keys, low 24 bits / 2^24 (the kernel of ``sampler.uniform``)."""
     out = torch.empty(keys.shape[0], salts.shape[0], dtype=torch.float32, device=keys.device)
-    launch(_uniform_kernel, keys.shape[0], [_array(keys), _array(salts), wp.from_torch(out)], keys.device)
+    launch(_uniform_kernel, keys.shape[0], [keys, salts, out], keys.device)
     return out
 
 
@@ -217,10 +239,7 @@ def hit_geometry(packed: torch.Tensor, tri: torch.Tensor, u: torch.Tensor, v: to
     front = torch.empty(count, dtype=torch.bool, device=dev)
     cos_o = torch.empty(count, device=dev)
     uv = torch.empty(count, 2, device=dev) if with_uv else torch.zeros(1, 2, device=dev)
-    inputs = [
-        _array(packed), _array(tri), _array(u), _array(v), vec3(d), int(with_uv),
-        wp.from_torch(p, dtype=wp.vec3), wp.from_torch(n, dtype=wp.vec3), wp.from_torch(front), wp.from_torch(cos_o), wp.from_torch(uv),
-    ]  # fmt: skip
+    inputs = [packed, tri, u, v, Vec3(d), int(with_uv), Vec3(p), Vec3(n), front, cos_o, uv]
     launch(_hit_kernel, count, inputs, dev)
     return p, n, front, cos_o, uv if with_uv else uv.expand(count, 2)
 
@@ -243,8 +262,22 @@ def emitter_geometry(packed, light_tri, cdf, pdf_area, u: torch.Tensor, x: torch
     facing = torch.empty(count, dtype=torch.bool, device=dev)
     uv = torch.empty(count, 2, device=dev) if with_uv else torch.zeros(1, 2, device=dev)
     inputs = [
-        _array(packed), _array(light_tri), _array(cdf), _array(pdf_area), _array(u), vec3(x), vec3(nx), float(offset), int(with_uv),
-        wp.from_torch(tri), wp.from_torch(o, dtype=wp.vec3), wp.from_torch(wl, dtype=wp.vec3), wp.from_torch(tmax), wp.from_torch(facing), wp.from_torch(pdf), wp.from_torch(uv),
-    ]  # fmt: skip
+        packed,
+        light_tri,
+        cdf,
+        pdf_area,
+        u,
+        Vec3(x),
+        Vec3(nx),
+        float(offset),
+        int(with_uv),
+        tri,
+        Vec3(o),
+        Vec3(wl),
+        tmax,
+        facing,
+        pdf,
+        uv,
+    ]
     launch(_emitter_kernel, count, inputs, dev)
     return tri, o, wl, tmax, facing, pdf, uv if with_uv else uv.expand(count, 2)

@@ -16,7 +16,7 @@ import torch
 
 from invrender.errors import ParameterError
 from invrender.transport import kernels
-from invrender.transport.kernels import launch, vec3
+from invrender.transport.kernels import Vec3, launch
 
 wp = kernels.wp
 if wp is None:  # pragma: no cover - warp-lang is a dependency; this guards broken installs
@@ -73,7 +73,7 @@ class WarpBVH:
         t, u, v = (torch.empty(n, dtype=torch.float32, device=self.device) for _ in range(3))
         prim = torch.empty(n, dtype=torch.int64, device=self.device)
         if n:
-            self._launch(_closest_kernel, n, [vec3(o), vec3(d), *(wp.from_torch(x) for x in (t, prim, u, v))])
+            self._launch(_closest_kernel, n, [Vec3(o), Vec3(d), t, prim, u, v])
         return t, prim, u, v
 
     def occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
@@ -81,5 +81,5 @@ class WarpBVH:
         n = o.shape[0]
         hit = torch.empty(n, dtype=torch.bool, device=self.device)
         if n:
-            self._launch(_occluded_kernel, n, [vec3(o), vec3(d), wp.from_torch(tmax.to(torch.float32).contiguous()), wp.from_torch(hit)])
+            self._launch(_occluded_kernel, n, [Vec3(o), Vec3(d), tmax.to(torch.float32), hit])
         return hit

@@ -129,7 +129,8 @@ def test_replay_reuses_the_forward_pass_radiance(monkeypatch, scene_name, integr
         grads[share] = (p.grad.clone(), list(traces))
         p.requires_grad_(False).grad = None
     kept, retraced = grads[replay.KEEP_SHARE], grads[0.0]
-    assert torch.equal(kept[0], retraced[0]) and kept[0].abs().max() > 0
+    assert kept[0].abs().max() > 0  # the same gradient, up to the float32 rounding of the kept radiances
+    assert (kept[0] - retraced[0]).abs().max() <= 1e-5 * retraced[0].abs().max()
     chunks = -(-16 * 16 * 8 // 700)
     assert kept[1].count("PathFilm") == chunks and kept[1].count("AdjointFilm") == chunks  # forward + adjoint
     assert retraced[1].count("PathFilm") == chunks and retraced[1].count("Film") == chunks  # + the plain forward

@@ -21,7 +21,15 @@ from invrender.errors import ParameterError
 from invrender.scene.scene import Scene
 from invrender.transport.bsdfs import BSDFSampling
 from invrender.transport.context import PathState, TransportContext
-from invrender.transport.driver import RenderSettings, check_film_memory, check_int, cpu_workers, for_each_chunk
+from invrender.transport.driver import (
+    BYTES_PER_PATH,
+    BYTES_PER_REPLAYED_PATH,
+    RenderSettings,
+    check_film_memory,
+    check_int,
+    cpu_workers,
+    for_each_chunk,
+)
 from invrender.transport.film import Film, PathFilm
 
 #: integrator name -> class, filled by subclassing :class:`Integrator`
@@ -149,8 +157,9 @@ class Integrator(ABC):
         where a parameter requires grad (``params`` overrides ``scene.params`` values).
 
         ``keep``: a dict that receives each chunk's per-path radiance, ``{first path id: (paths +
-        branches, 3) float64}`` (:meth:`PathFilm.totals`), for path replay to reuse instead of
-        tracing the paths again; the image is the same (not with ``terms``).
+        branches, 3) float32}`` (:meth:`PathFilm.totals`, rounded), for path replay to reuse instead of
+        tracing the paths again, chunked as replay chunks them; the image is the same (not with
+        ``terms``).
         """
         if keep is not None and settings.terms:
             raise ValueError("keep: per-path radiance is kept for full images only, not per term")
@@ -164,10 +173,12 @@ class Integrator(ABC):
                 return
             paths = PathFilm(state.count, device)
             self.trace(ctx, state.replace(pixel=torch.arange(state.count, device=device)), paths)
-            keep[start] = paths.totals()
-            films[worker].add(0, state.pixel, keep[start][: state.count])  # a root path's total holds its branches'
+            totals = paths.totals()
+            films[worker].add(0, state.pixel, totals[: state.count])  # a root path's total holds its branches'
+            keep[start] = totals.float()  # float32 until replay takes it up
 
-        for_each_chunk(scene, settings, device, chunk, across_ranks=True, with_start=True)
+        size = BYTES_PER_PATH if keep is None else BYTES_PER_REPLAYED_PATH  # kept chunks are replay's chunks
+        for_each_chunk(scene, settings, device, chunk, across_ranks=True, with_start=True, bytes_per_path=size)
         return Film.merge(films).summed_across_ranks().develop(settings.spp)
 
 

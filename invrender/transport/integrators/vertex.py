@@ -25,7 +25,7 @@ def next_vertex(ctx: TransportContext, state: PathState, film: Film) -> tuple[Pa
     """Intersect ``state``'s rays; paths whose ray leaves the scene end (no environment light).
     The film is told of the new vertices (``Film.visit``)."""
     hits = ctx.accel.intersect(state.o, state.d)
-    hit = hits.valid
+    hit = hits.valid.nonzero()[:, 0]
     state, hits = state.select(hit), hits.select(hit)
     if not state.count:
         return state, None
