@@ -9,7 +9,8 @@ by chunk, regenerates the very same paths from the counter-based sampler twice:
    backward pass then skips this step: a ``loss(render(...)).backward()`` costs two traces, not
    three. A gradient taken without a forward render of the same seed (:func:`replay_gradient`, the
    decorrelated gradient of a fit) traces it;
-2. adjoint: the path is followed again with the throughput ``beta`` detached. Every contribution
+2. adjoint: the path is followed again with the throughput ``beta`` detached (after a primal pass
+   of its own, the chunk's ray queries are answered from that pass: :class:`RepeatedQueries`). Every contribution
    (``beta w eps(x_k)``, ``beta f(x_i) eps(y) / pdf``, ``beta k_d eps0``) is differentiated locally
    in its own factors; at each scattering vertex x_i whose sample weight is ``w_i = f cos / pdf``,
    the radiance the path still gathers beyond it, ``L_rem`` (= L minus what was added so far),
@@ -29,11 +30,13 @@ the same seed up to float rounding, except in a colour channel where a weight is
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 
 import torch
 
 from invrender.scene.scene import Scene
+from invrender.transport.accel import RepeatedQueries
 from invrender.transport.context import PathState
 from invrender.transport.driver import BYTES_PER_REPLAYED_PATH, RenderSettings, cpu_workers, for_each_chunk, total_paths
 from invrender.transport.film import Film, PathFilm
@@ -84,7 +87,7 @@ class AdjointFilm(Film):
     def add(self, term: int, path: torch.Tensor, radiance: torch.Tensor) -> None:
         """A contribution of paths ``path`` (N,): differentiate its local factors, then strike it off."""
         self._backprop((self.g.index_select(0, path) * radiance).sum())
-        self.L_rem.index_add_(0, path, radiance.detach().double(), alpha=-1)
+        self.L_rem.index_add_(0, path, radiance.detach().double().neg_())  # (alpha=-1 takes a per-row path: 8x slower)
 
     def scatter(self, path: torch.Tensor, weight: torch.Tensor) -> None:
         """The vertex adjoint: everything still to come carries the weight once,
@@ -158,15 +161,19 @@ def replay_gradient(
         n = state.count
         local = state.replace(pixel=torch.arange(n, device=device))  # film index = path
         totals = kept.pop(start, None) if kept is not None else None
+        chunk_ctx = ctx
         if totals is None:
+            queries = RepeatedQueries(ctx.accel)  # the adjoint pass casts the primal pass's rays again
+            chunk_ctx = dataclasses.replace(ctx, accel=queries)
             primal = PathFilm(n, device)
             with torch.no_grad():
-                integrator.trace(ctx, local, primal)
+                integrator.trace(chunk_ctx, local, primal)
             totals = primal.totals()
+            queries.repeat()
             del primal
         adjoint = AdjointFilm(g_image[state.pixel], totals, leaves)
         with torch.enable_grad():
-            integrator.trace(ctx, local, adjoint)
+            integrator.trace(chunk_ctx, local, adjoint)
         for k, v in adjoint.grads.items():
             per_worker[worker][k] += v
         del totals, adjoint
@@ -174,7 +181,16 @@ def replay_gradient(
         if chunks_done[worker] % TRIM_EVERY == 0:
             release_freed_memory(device)  # keeps peak memory flat in the number of chunks (spp)
 
-    for_each_chunk(scene, settings.replace(progress=False), device, chunk, grad=True, across_ranks=True, with_start=True, bytes_per_path=BYTES_PER_REPLAYED_PATH)
+    for_each_chunk(
+        scene,
+        settings.replace(progress=False),
+        device,
+        chunk,
+        grad=True,
+        across_ranks=True,
+        with_start=True,
+        bytes_per_path=BYTES_PER_REPLAYED_PATH,
+    )
     return sum_gradients({k: sum(w[k] for w in per_worker) for k in leaves})
 
 

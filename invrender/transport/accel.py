@@ -223,3 +223,42 @@ def intersector_for(triangles: Triangles, backend: str | None = None, threads: i
 
 def _numpy(x: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(x.detach().to("cpu", torch.float32).numpy())
+
+
+class RepeatedQueries:
+    """An intersector that answers one trace's queries and then the same trace's again, from memory.
+
+    Path replay's adjoint pass casts exactly the rays its primal pass cast, in the same order (same
+    random numbers, the throughput detached but equal): the primal pass asks the backend and keeps
+    each answer (about 20 bytes per ray), :meth:`repeat` switches to handing them back, so the
+    adjoint pass costs no ray queries. A query whose batch size differs from the one recorded at
+    that point is an error (the passes diverged).
+    """
+
+    def __init__(self, backend):
+        self.name = backend.name
+        self._backend, self._answers, self._next = backend, [], None
+
+    def repeat(self) -> None:
+        """From now on, answer the recorded queries in order."""
+        self._next = 0
+
+    def _answer(self, kind: str, n: int, ask):
+        if self._next is None:
+            self._answers.append((kind, ask()))
+            return self._answers[-1][1]
+        recorded_kind, answer = self._answers[self._next]
+        size = answer.t.shape[0] if kind == "intersect" else answer.shape[0]
+        if recorded_kind != kind or size != n:
+            raise RuntimeError(
+                f"path replay: the adjoint pass's query {self._next} ({kind} of {n} rays) differs from its primal pass's ({recorded_kind} of {size})"
+            )
+        self._answers[self._next] = None  # each answer is handed back once
+        self._next += 1
+        return answer
+
+    def intersect(self, o: torch.Tensor, d: torch.Tensor) -> Hits:
+        return self._answer("intersect", o.shape[0], lambda: self._backend.intersect(o, d))
+
+    def occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
+        return self._answer("occluded", o.shape[0], lambda: self._backend.occluded(o, d, tmax))

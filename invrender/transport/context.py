@@ -99,6 +99,8 @@ class TransportContext:
     def spawn(self, s: Surface, wi: torch.Tensor) -> torch.Tensor:
         """Origins (N, 3) of new rays leaving ``s`` in directions ``wi``, offset off the surface on
         the geometric side ``wi`` points to (so refracted rays start inside)."""
+        if kernels.enabled(wi.device):
+            return kernels.offset_origins(s.p, s.n, wi, self.ray_offset)
         side = torch.where(dot(s.n, wi) >= 0, self.ray_offset, -self.ray_offset)
         return s.p + side[:, None] * s.n
 

@@ -217,6 +217,29 @@ if wp is not None:
             for j in range(2):
                 uv[i, j] = b0 * packed[k, 12 + j] + b1 * packed[k, 14 + j] + b2 * packed[k, 16 + j]
 
+    @wp.kernel
+    def _cosine_kernel(
+        n: wp.array(dtype=wp.vec3), u: wp.array2d(dtype=wp.float32), wi: wp.array(dtype=wp.vec3), pdf: wp.array(dtype=wp.float32)
+    ):
+        i = wp.tid()
+        z = 1.0 - 2.0 * u[i, 0]
+        r = wp.sqrt(wp.max(1.0 - z * z, 0.0))
+        phi = (2.0 * wp.pi) * u[i, 1]
+        a = n[i] + wp.vec3(r * wp.cos(phi), r * wp.sin(phi), z)
+        w = a / wp.max(wp.length(a), 1.0e-30)
+        wi[i] = w
+        pdf[i] = wp.max(wp.dot(n[i], w), 0.0) * (1.0 / wp.pi)
+
+    @wp.kernel
+    def _spawn_kernel(
+        p: wp.array(dtype=wp.vec3), n: wp.array(dtype=wp.vec3), wi: wp.array(dtype=wp.vec3), offset: wp.float32, o: wp.array(dtype=wp.vec3)
+    ):
+        i = wp.tid()
+        if wp.dot(n[i], wi[i]) >= 0.0:
+            o[i] = p[i] + offset * n[i]
+        else:
+            o[i] = p[i] - offset * n[i]
+
 
 def hash_uniforms(keys: torch.Tensor, salts: torch.Tensor) -> torch.Tensor:
     """(N, D) float32 uniforms: lowbias32 of ``(keys & ~1) ^ salt_j`` (N,) x (D,) int32, all bits
@@ -281,3 +304,20 @@ def emitter_geometry(packed, light_tri, cdf, pdf_area, u: torch.Tensor, x: torch
     ]
     launch(_emitter_kernel, count, inputs, dev)
     return tri, o, wl, tmax, facing, pdf, uv if with_uv else uv.expand(count, 2)
+
+
+def cosine_directions(n: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Cosine-weighted directions about unit normals ``n`` (N, 3) from uniforms ``u`` (N, 2), as
+    ``normalize(n + s)`` with ``s`` uniform on the sphere (``z = 1 - 2 u_0``, ``phi = 2 pi u_1``):
+    (wi (N, 3), their pdf ``max(cos, 0) / pi`` (N,))."""
+    count = n.shape[0]
+    wi, pdf = torch.empty(count, 3, device=n.device), torch.empty(count, device=n.device)
+    launch(_cosine_kernel, count, [Vec3(n), u, Vec3(wi), pdf], n.device)
+    return wi, pdf
+
+
+def offset_origins(p: torch.Tensor, n: torch.Tensor, wi: torch.Tensor, offset: float) -> torch.Tensor:
+    """Ray origins (N, 3) ``p +- offset n``, on the side of ``n`` (N, 3) that ``wi`` (N, 3) points to."""
+    o = torch.empty(p.shape[0], 3, device=p.device)
+    launch(_spawn_kernel, p.shape[0], [Vec3(p), Vec3(n), Vec3(wi), float(offset), Vec3(o)], p.device)
+    return o

@@ -135,3 +135,39 @@ def test_backend_errors():
         check_backend("embree", torch.device("cuda"))
     assert check_backend(None, torch.device("cpu")) == "embree"
     assert check_backend(None, torch.device("cuda")) == "warp"
+
+
+def test_repeated_queries_answer_the_adjoint_pass_from_the_primal_pass(monkeypatch):
+    """Path replay without kept radiance traces a chunk twice; the second trace (adjoint) casts the
+    first's rays again and gets the recorded answers: the backend is asked once per ray."""
+    from invrender.diff.replay import replay_gradient
+    from invrender.transport import accel
+    from invrender.transport.driver import RenderSettings
+    from invrender.transport.integrators import make_integrator
+
+    scene = ir.load_scene("cornell_box", resolution=(16, 16))
+    calls = {"intersect": 0, "occluded": 0}
+    for kind in calls:
+        original = getattr(accel.EmbreeIntersector, kind)
+
+        def counted(self, *args, _kind=kind, _original=original):
+            calls[_kind] += 1
+            return _original(self, *args)
+
+        monkeypatch.setattr(accel.EmbreeIntersector, kind, counted)
+    integrator, settings = make_integrator("path", max_depth=4), RenderSettings(spp=4, seed=1, progress=False, chunk_paths=512)
+    with torch.no_grad():
+        integrator.render(scene, settings, torch.device("cpu"))
+    forward = dict(calls)
+    calls.update(intersect=0, occluded=0)
+    name = "red.reflectance"
+    grads = replay_gradient(scene, integrator, settings, torch.device("cpu"), {name: scene.params[name]}, torch.ones(16, 16, 3))
+    assert calls == forward and forward["intersect"] >= 4 * 2  # per chunk, per bounce: one query, not two
+    assert grads[name].abs().sum() > 0
+
+    queries = accel.RepeatedQueries(make_intersector(scene.triangles, "embree", 1))
+    o, d = random_rays(scene, 100, seed=0)
+    queries.intersect(o, d)
+    queries.repeat()
+    with pytest.raises(RuntimeError, match="differs from its primal pass"):
+        queries.intersect(o[:50], d[:50])

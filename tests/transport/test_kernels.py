@@ -122,3 +122,26 @@ def test_images_and_gradients_agree(name, reference):
     assert (img - img_ref).abs().max() < 1e-4 * float(img_ref.mean())
     for g, g_ref in zip(grads, grads_ref):
         assert (g - g_ref).abs().max() < 1e-3 * float(g_ref.abs().max())
+
+
+def test_cosine_directions_and_ray_origins_match_the_reference(reference):
+    from invrender.transport.bsdfs.diffuse import Diffuse
+    from invrender.transport.context import TransportContext
+
+    scene = ir.load_scene("cornell_box", resolution=(8, 8))
+    hits, d = _hits(scene, seed=3)
+    s = surface_at(scene.triangles, hits, d)
+    ctx = TransportContext.build(scene, CPU)
+    sp = ctx.shading_point(s, -d)
+    u = torch.rand(len(d), 2, generator=torch.Generator().manual_seed(4))
+    bsdf = next(b for b in ctx.materials.bsdfs if isinstance(b, Diffuse))
+    fused, o_fused, o_through = bsdf._sample_cosine(sp, u), ctx.spawn(s, -d), ctx.spawn(s, d)
+    reference()
+    expected, o_expected, o_through_expected = bsdf._sample_cosine(sp, u), ctx.spawn(s, -d), ctx.spawn(s, d)
+    err = (fused.wi - expected.wi).abs().amax(1)  # normalize(n + s) is ill-conditioned where s ~ -n
+    assert torch.quantile(err, 0.999) < 1e-6 and err.max() < 1e-4 and (fused.pdf - expected.pdf).abs().max() < 1e-4
+    assert (fused.wi * sp.n).sum(1).min() > -1e-6  # about the normal, on its side
+    assert torch.equal(fused.weight, expected.weight) and not fused.delta.any()
+    assert (o_fused - o_expected).abs().max() < 1e-6 and (o_through - o_through_expected).abs().max() < 1e-6
+    # n faces the rays' origins: back along -d the new ray starts in front, onward along d behind
+    assert (((o_fused - s.p) * s.n).sum(1) > 0).all() and (((o_through - s.p) * s.n).sum(1) < 0).all()

@@ -13,6 +13,7 @@ import math
 
 import torch
 
+from invrender.transport import kernels
 from invrender.transport.bsdfs.base import BSDF, BSDFSample, ShadingPoint
 from invrender.transport.frame import Frame
 from invrender.transport.vec import dot, normalize
@@ -51,14 +52,18 @@ class Diffuse(BSDF):
         """Cosine-weighted directions: weight rho.
 
         ``normalize(n + s)`` with ``s`` uniform on the unit sphere is cosine-distributed about ``n``
-        (the tangent-sphere construction), which needs no tangent frame.
+        (the tangent-sphere construction), which needs no tangent frame; one fused kernel where
+        :mod:`~invrender.transport.kernels` runs.
         """
-        z = 1.0 - 2.0 * u_dir[:, 0]
-        r = (1.0 - z * z).clamp_min(0.0).sqrt()
-        phi = (2.0 * math.pi) * u_dir[:, 1]
-        s = torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], dim=1)
-        wi = normalize(sp.n + s)
-        return BSDFSample(wi, self._rho(sp), self.pdf(sp, wi), torch.zeros_like(z, dtype=torch.bool))
+        if kernels.enabled(sp.n.device):
+            wi, pdf = kernels.cosine_directions(sp.n, u_dir)
+        else:
+            z = 1.0 - 2.0 * u_dir[:, 0]
+            r = (1.0 - z * z).clamp_min(0.0).sqrt()
+            phi = (2.0 * math.pi) * u_dir[:, 1]
+            wi = normalize(sp.n + torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], dim=1))
+            pdf = self.pdf(sp, wi)
+        return BSDFSample(wi, self._rho(sp), pdf, torch.zeros(wi.shape[0], dtype=torch.bool, device=wi.device))
 
     def _sample_uniform(self, sp: ShadingPoint, u_dir: torch.Tensor) -> BSDFSample:
         """Directions uniform over the hemisphere of ``n``: ``cos(theta) = u_0`` (the solid angle is
