@@ -7,13 +7,15 @@
 invrender with each intersection backend (``--backends``; default embree and warp on the CPU) and
 (when installed) Mitsuba 3 ``llvm_ad_rgb`` ``path`` render the same scene at the same settings in
 the same process, alternating, after one warm-up each; the median time of each gives the
-throughput and the ratio. With a GPU present the same follows on CUDA (invrender's warp and torch
+throughput and the ratio. One more row renders with the first backend and the bounce's fused Warp
+kernels off (their torch reference expressions, ``INVRENDER_KERNELS=torch``): what they gain. With a GPU present the same follows on CUDA (invrender's warp and torch
 backends, Mitsuba's ``cuda_ad_rgb``). Figures are printed, never asserted.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import sys
 import time
@@ -27,6 +29,7 @@ import mitsuba_ref  # noqa: E402
 from _measure import peak_rss_mib  # noqa: E402
 
 import invrender as ir  # noqa: E402
+from invrender.transport.kernels import ENV as KERNELS_ENV  # noqa: E402
 
 
 def sphere_in_box(n: int):
@@ -52,6 +55,8 @@ def throughput(args) -> None:
     samples = n * n * spp
     device = torch.device(args.device)
     backends = args.backends.split(",") if args.backends else (["embree", "warp"] if device.type == "cpu" else ["warp", "torch"])
+    if not args.no_torch_steps:
+        backends.append(f"{backends[0]}/torch")  # the same, with the bounce's fused kernels off (their torch reference)
     with_mitsuba = mitsuba_ref.available() and not args.no_mitsuba and device.type == "cpu"
     scenes = [ir.load_scene("cornell_box", resolution=(n, n))]
     if args.mesh:
@@ -61,7 +66,9 @@ def throughput(args) -> None:
         if with_mitsuba:
             mi_scene = mitsuba_ref.cornell_scene(n, n, spp, depth) if scene.name == "cornell_box" else mitsuba_ref.load_scene(scene, spp, depth)
 
-        def ours(seed, backend):
+        def ours(seed, variant):
+            backend, kernels = variant.split("/") if "/" in variant else (variant, "warp")
+            os.environ[KERNELS_ENV] = kernels
             if device.type == "cuda":
                 torch.cuda.synchronize()
             start = time.perf_counter()
@@ -84,14 +91,16 @@ def throughput(args) -> None:
         for b in backends:
             t = statistics.median(times[b])
             ratio = f"  {statistics.median(mi_times) / t:.3f}x Mitsuba" if mi_times else ""
-            print(f"  invrender path ({b:6s}):          {t:7.3f} s  {samples / t / 1e6:.3f} M path samples/s{ratio}")
+            label = f"{b.split('/')[0]}, torch steps" if "/" in b else b
+            print(f"  {'invrender path (' + label + '):':36s} {t:7.3f} s  {samples / t / 1e6:.3f} M path samples/s{ratio}")
         if mi_times:
             tm = statistics.median(mi_times)
-            print(f"  {mitsuba_ref.label()} path:     {tm:7.3f} s  {samples / tm / 1e6:.3f} M path samples/s")
+            print(f"  {mitsuba_ref.label() + ' path:':36s} {tm:7.3f} s  {samples / tm / 1e6:.3f} M path samples/s")
         elif device.type == "cpu":
             print("  (Mitsuba 3 not installed: no ratio; see bench/README.md)")
     if device.type == "cpu" and torch.cuda.is_available() and not args.no_cuda:
         cuda = argparse.Namespace(**{**vars(args), "device": "cuda", "backends": "warp,torch" if not args.backends else args.backends})
+        os.environ[KERNELS_ENV] = "warp"
         throughput(cuda)
         if mitsuba_ref.available() and not args.no_mitsuba:
             print(mitsuba_ref.cuda_forward(n, spp, depth, args.repeats))
@@ -114,6 +123,7 @@ def main() -> int:
     parser.add_argument("--no-mitsuba", action="store_true", help="skip Mitsuba even when installed")
     parser.add_argument("--backends", default=None, help="comma-separated intersection backends (default: embree,warp on the CPU; warp,torch on CUDA)")
     parser.add_argument("--mesh", action="store_true", help="also the Cornell box with an 81,920-triangle sphere")
+    parser.add_argument("--no-torch-steps", action="store_true", help="skip the row with the fused Warp kernels of a bounce off (INVRENDER_KERNELS=torch)")
     parser.add_argument("--device", default="cpu", help="cpu or cuda (default: cpu; with a GPU present the CUDA figures follow the CPU ones)")
     parser.add_argument("--no-cuda", action="store_true", help="skip the CUDA figures even when a GPU is present")
     parser.add_argument("--memory-spp", type=int, default=0, help="instead: peak memory of a 64x64 render at this spp")

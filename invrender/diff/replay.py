@@ -172,11 +172,12 @@ def replay_gradient(
             queries.repeat()
             del primal
         adjoint = AdjointFilm(g_image[state.pixel], totals, leaves)
+        del totals  # the film holds them now (as L_rem)
         with torch.enable_grad():
             integrator.trace(chunk_ctx, local, adjoint)
         for k, v in adjoint.grads.items():
             per_worker[worker][k] += v
-        del totals, adjoint
+        del adjoint
         chunks_done[worker] += 1
         if chunks_done[worker] % TRIM_EVERY == 0:
             release_freed_memory(device)  # keeps peak memory flat in the number of chunks (spp)

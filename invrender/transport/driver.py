@@ -35,7 +35,7 @@ from invrender.transport.sampler import mirrored, path_keys, uniform
 BYTES_PER_PATH = 2048
 #: the same for path replay's passes (and the forward pass that keeps radiance for them): on top of
 #: a path's state, its float64 adjoints and the factors autograd saves at each vertex
-BYTES_PER_REPLAYED_PATH = 4096
+BYTES_PER_REPLAYED_PATH = 5120
 
 
 def check_int(owner: str, name: str, value, low: int | None = None) -> None:

@@ -82,7 +82,7 @@ def add_direct(ctx: TransportContext, state: PathState, s: Surface, sp: ShadingP
     else:
         weight = torch.where(ok, 1.0 / ls.pdf, 0.0)
     Le = ctx.emission(ctx.triangles.emitter.index_select(0, ls.tri), ls.uv)
-    film.add(term, state.pixel, state.beta * f_cos * Le * weight[:, None])
+    film.add(term, state.pixel, (state.beta * weight[:, None]) * f_cos * Le)  # the constant factors first: autograd saves less
 
 
 def add_ambient(ctx: TransportContext, state: PathState, sp: ShadingPoint, term: int, film: Film) -> None:
