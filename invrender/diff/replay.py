@@ -5,7 +5,8 @@ by chunk, regenerates the very same paths from the counter-based sampler twice:
 
 1. primal: each path's total radiance ``L`` (no autograd). The forward pass keeps these per-path
    totals when they fit in :data:`KEEP_SHARE` of the memory budget (12 bytes a path, float32
-   until the backward pass takes them up in float64), and the
+   until the backward pass takes them up in float64; with the answers of their shadow rays, a bit
+   a ray), and the
    backward pass then skips this step: a ``loss(render(...)).backward()`` costs two traces, not
    three. A gradient taken without a forward render of the same seed (:func:`replay_gradient`, the
    decorrelated gradient of a fit) traces it;
@@ -145,8 +146,9 @@ def replay_gradient(
     Args:
         values: name -> current parameter value (the ones to differentiate).
         grad_image: (H, W, 3) ``dl/dI``.
-        kept: each chunk's per-path radiance from a render with the same settings and values
-            (``Integrator.render(..., keep=...)``): those chunks skip the primal pass.
+        kept: each chunk's per-path radiance and shadow-ray answers from a render with the same
+            settings and values (``Integrator.render(..., keep=...)``): those chunks skip the
+            primal pass and their shadow rays.
     Returns:
         name -> gradient, shaped like the value.
     """
@@ -160,17 +162,15 @@ def replay_gradient(
     def chunk(worker: int, state: PathState, start: int) -> None:
         n = state.count
         local = state.replace(pixel=torch.arange(n, device=device))  # film index = path
-        totals = kept.pop(start, None) if kept is not None else None
-        chunk_ctx = ctx
+        totals, queries = kept.pop(start) if kept is not None and start in kept else (None, None)
         if totals is None:
             queries = RepeatedQueries(ctx.accel)  # the adjoint pass casts the primal pass's rays again
-            chunk_ctx = dataclasses.replace(ctx, accel=queries)
             primal = PathFilm(n, device)
             with torch.no_grad():
-                integrator.trace(chunk_ctx, local, primal)
+                integrator.trace(dataclasses.replace(ctx, accel=queries), local, primal)
             totals = primal.totals()
-            queries.repeat()
             del primal
+        chunk_ctx = dataclasses.replace(ctx, accel=queries.repeat(ctx.accel))
         adjoint = AdjointFilm(g_image[state.pixel], totals, leaves)
         del totals  # the film holds them now (as L_rem)
         with torch.enable_grad():

@@ -229,36 +229,60 @@ class RepeatedQueries:
     """An intersector that answers one trace's queries and then the same trace's again, from memory.
 
     Path replay's adjoint pass casts exactly the rays its primal pass cast, in the same order (same
-    random numbers, the throughput detached but equal): the primal pass asks the backend and keeps
-    each answer (about 20 bytes per ray), :meth:`repeat` switches to handing them back, so the
-    adjoint pass costs no ray queries. A query whose batch size differs from the one recorded at
-    that point is an error (the passes diverged).
+    random numbers, the throughput detached but equal): the first trace asks the backend and keeps
+    each answer of the ``kinds`` it records, :meth:`repeat` switches to handing them back, so the
+    second trace asks the backend only for the kinds not recorded. Closest hits cost about 20 bytes
+    a ray; shadow-ray answers are kept as bits (the forward pass that keeps per-path radiance for
+    replay keeps these for the whole image). A recorded query whose batch size differs from the
+    one at that point in the first trace is an error (the passes diverged).
     """
 
-    def __init__(self, backend):
+    def __init__(self, backend, kinds: tuple[str, ...] = ("intersect", "occluded")):
         self.name = backend.name
-        self._backend, self._answers, self._next = backend, [], None
+        self._backend, self._kinds, self._answers, self._next = backend, kinds, [], None
 
-    def repeat(self) -> None:
-        """From now on, answer the recorded queries in order."""
+    def repeat(self, backend=None) -> RepeatedQueries:
+        """From now on, answer the recorded queries in order (the others from ``backend``, default
+        the first trace's); returns self."""
+        self._backend = backend or self._backend
         self._next = 0
+        return self
 
     def _answer(self, kind: str, n: int, ask):
+        if kind not in self._kinds:
+            return ask()
         if self._next is None:
-            self._answers.append((kind, ask()))
-            return self._answers[-1][1]
-        recorded_kind, answer = self._answers[self._next]
-        size = answer.t.shape[0] if kind == "intersect" else answer.shape[0]
+            answer = ask()
+            self._answers.append((kind, n, _pack_bits(answer) if kind == "occluded" else answer))
+            return answer
+        recorded_kind, size, answer = self._answers[self._next]
         if recorded_kind != kind or size != n:
             raise RuntimeError(
                 f"path replay: the adjoint pass's query {self._next} ({kind} of {n} rays) differs from its primal pass's ({recorded_kind} of {size})"
             )
         self._answers[self._next] = None  # each answer is handed back once
         self._next += 1
-        return answer
+        return _unpack_bits(answer, n) if kind == "occluded" else answer
 
     def intersect(self, o: torch.Tensor, d: torch.Tensor) -> Hits:
         return self._answer("intersect", o.shape[0], lambda: self._backend.intersect(o, d))
 
     def occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
         return self._answer("occluded", o.shape[0], lambda: self._backend.occluded(o, d, tmax))
+
+
+def _bit_weights(device) -> torch.Tensor:
+    return torch.tensor([1, 2, 4, 8, 16, 32, 64, 128], dtype=torch.uint8, device=device)
+
+
+def _pack_bits(mask: torch.Tensor) -> torch.Tensor:
+    """(n,) bool -> (ceil(n / 8),) uint8, bit j of byte i = mask[8 i + j]."""
+    n = mask.shape[0]
+    padded = torch.zeros(-(-n // 8) * 8, dtype=torch.uint8, device=mask.device)
+    padded[:n] = mask
+    return (padded.view(-1, 8) * _bit_weights(mask.device)).sum(1, dtype=torch.uint8)  # disjoint bits: no carries
+
+
+def _unpack_bits(packed: torch.Tensor, n: int) -> torch.Tensor:
+    """The (n,) bool mask of :func:`_pack_bits`."""
+    return (packed[:, None] & _bit_weights(packed.device)).ne(0).view(-1)[:n]

@@ -3,6 +3,7 @@ where both run), the same images from either, acceleration structures built once
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import pytest
@@ -164,6 +165,19 @@ def test_repeated_queries_answer_the_adjoint_pass_from_the_primal_pass(monkeypat
     grads = replay_gradient(scene, integrator, settings, torch.device("cpu"), {name: scene.params[name]}, torch.ones(16, 16, 3))
     assert calls == forward and forward["intersect"] >= 4 * 2  # per chunk, per bounce: one query, not two
     assert grads[name].abs().sum() > 0
+
+    # with a forward render of the same seed: it kept the radiances and the shadow rays' answers,
+    # so the backward pass asks only for closest hits
+    p = scene.params[name].clone().requires_grad_(True)
+    work = dataclasses.replace(scene, params={**scene.params, name: p})
+    image = ir.render(work, max_depth=4, spp=4, seed=1, progress=False, chunk_paths=512, estimator="replay")
+    calls.update(intersect=0, occluded=0)
+    image.sum().backward()
+    assert calls == {"intersect": forward["intersect"], "occluded": 0}
+    assert torch.allclose(p.grad, grads[name], rtol=1e-5)
+
+    mask = torch.rand(1001, generator=torch.Generator().manual_seed(5)) < 0.3
+    assert torch.equal(accel._unpack_bits(accel._pack_bits(mask), 1001), mask) and accel._pack_bits(mask).numel() == 126
 
     queries = accel.RepeatedQueries(make_intersector(scene.triangles, "embree", 1))
     o, d = random_rays(scene, 100, seed=0)

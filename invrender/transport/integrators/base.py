@@ -19,6 +19,7 @@ import torch
 
 from invrender.errors import ParameterError
 from invrender.scene.scene import Scene
+from invrender.transport.accel import RepeatedQueries
 from invrender.transport.bsdfs import BSDFSampling
 from invrender.transport.context import PathState, TransportContext
 from invrender.transport.driver import (
@@ -156,10 +157,11 @@ class Integrator(ABC):
         """The image: (H, W, 3), or (K, H, W, 3) per term with ``settings.terms``; records autograd
         where a parameter requires grad (``params`` overrides ``scene.params`` values).
 
-        ``keep``: a dict that receives each chunk's per-path radiance, ``{first path id: (paths +
-        branches, 3) float32}`` (:meth:`PathFilm.totals`, rounded), for path replay to reuse instead of
-        tracing the paths again, chunked as replay chunks them; the image is the same (not with
-        ``terms``).
+        ``keep``: a dict that receives each chunk's per-path radiance and its shadow rays' answers,
+        ``{first path id: ((paths + branches, 3) float32, RepeatedQueries)}`` (:meth:`PathFilm.totals`,
+        rounded; the answers as bits), for path replay to reuse instead of tracing the paths again
+        and casting their shadow rays, chunked as replay chunks them; the image is the same (not
+        with ``terms``).
         """
         if keep is not None and settings.terms:
             raise ValueError("keep: per-path radiance is kept for full images only, not per term")
@@ -171,11 +173,11 @@ class Integrator(ABC):
             if keep is None:
                 self.trace(ctx, state, films[worker])
                 return
-            paths = PathFilm(state.count, device)
-            self.trace(ctx, state.replace(pixel=torch.arange(state.count, device=device)), paths)
+            paths, shadows = PathFilm(state.count, device), RepeatedQueries(ctx.accel, kinds=("occluded",))
+            self.trace(dataclasses.replace(ctx, accel=shadows), state.replace(pixel=torch.arange(state.count, device=device)), paths)
             totals = paths.totals()
             films[worker].add(0, state.pixel, totals[: state.count])  # a root path's total holds its branches'
-            keep[start] = totals.float()  # float32 until replay takes it up
+            keep[start] = (totals.float(), shadows)  # float32 until replay takes it up
 
         size = BYTES_PER_PATH if keep is None else BYTES_PER_REPLAYED_PATH  # kept chunks are replay's chunks
         for_each_chunk(scene, settings, device, chunk, across_ranks=True, with_start=True, bytes_per_path=size)
