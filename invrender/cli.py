@@ -404,7 +404,7 @@ FIT_OPTIONS = [
     ("beta2", float, "Adam's second-moment decay (default: 0.95)"),
     ("integrator", str, "the model fitted: path, random_walk, utah, whitted or distributed (default: path)"),
     ("loss", str, "relative_l2, l2, l1 or ssim (default: relative_l2)"),
-    ("estimator", str, "replay or autodiff (default: replay)"),
+    ("estimator", str, "auto (default: autodiff where the recorded render fits in 512 MiB, else replay), replay or autodiff"),
     ("seed", int, "seed of every render (default: 0)"),
     ("decorrelate", "bool", "true: dl/dI from an independent render (unbiased gradients, default); false: from the same one"),
     ("checkpoint_every", int, "steps between checkpoints (default: 20)"),

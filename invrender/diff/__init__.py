@@ -18,10 +18,31 @@ from invrender.diff.autodiff import autodiff_render
 from invrender.errors import ParameterError
 from invrender.scene.scene import Scene
 from invrender.transport.adaptive import AdaptiveSettings
-from invrender.transport.driver import RenderSettings
+from invrender.transport.driver import RenderSettings, total_paths
 from invrender.transport.integrators import Integrator, make_integrator
 
 ESTIMATORS = ("autodiff", "replay")
+#: what fits accept: the estimators, or ``"auto"`` (:func:`resolve_estimator`)
+ESTIMATOR_CHOICES = ("auto", *ESTIMATORS)
+#: bytes autograd keeps for each camera path and Neumann term of a recorded render (measured on the
+#: Cornell box: 530-780 bytes a path at max_depth 8; rounded up)
+AUTODIFF_BYTES_PER_PATH_TERM = 128
+
+
+def resolve_estimator(estimator: str, scene: Scene, integrator: Integrator, settings: RenderSettings) -> str:
+    """The estimator ``"auto"`` stands for: ``"autodiff"`` when the recorded render of ``settings``
+    (about :data:`AUTODIFF_BYTES_PER_PATH_TERM` bytes a camera path and term) fits in
+    ``settings.memory_mb``, else ``"replay"`` (memory flat in spp and depth; also for unbounded
+    depth). The two give the same gradient to float rounding; autodiff traces once, replay twice
+    (three times for a decorrelated gradient, whose forward render has another seed), so small
+    renders are faster recorded. Other names are returned as they are."""
+    if estimator != "auto":
+        return estimator
+    terms = integrator.terms_kept
+    if terms == -1:
+        return "replay"
+    need = total_paths(scene, settings) * AUTODIFF_BYTES_PER_PATH_TERM * terms
+    return "autodiff" if need <= settings.memory_mb * 2**20 else "replay"
 
 
 def render(

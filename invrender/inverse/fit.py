@@ -1,7 +1,8 @@
 """fit(): recover emission eps and reflectance rho from target images by gradient descent.
 
-Each step renders every view, back-propagates the loss through the Monte Carlo estimate (path
-replay by default, decorrelated by default: see losses.py) and takes an Adam step on reparametrized
+Each step renders every view, back-propagates the loss through the Monte Carlo estimate (autodiff
+where the recorded render fits in memory, else path replay: ``resolve_estimator``; decorrelated by
+default: see losses.py) and takes an Adam step on reparametrized
 values: rho = sigmoid(x), eps = exp(x) (params.py). Every random number is a
 pure function of (seed, step, view), so a fit is deterministic, and a fit resumed from a checkpoint
 ends exactly where the uninterrupted one does.
@@ -21,7 +22,7 @@ from pathlib import Path
 import torch
 from tqdm.auto import tqdm
 
-from invrender.diff import ESTIMATORS, backpropagate, render
+from invrender.diff import ESTIMATOR_CHOICES, backpropagate, render, resolve_estimator
 from invrender.errors import ImageError, ParameterError
 from invrender.inverse import params as P
 from invrender.inverse.control_variates import RecursiveControlVariate
@@ -63,7 +64,9 @@ class FitSettings:
         integrator: the model fitted: ``"path"``, ``"random_walk"``, ``"utah"``, ``"whitted"``,
             ``"distributed"`` or ``"radiosity"`` (Adam only: not a polynomial, see records.py).
         loss: ``"l2"``, ``"l1"``, ``"relative_l2"`` or ``"ssim"``.
-        estimator: ``"replay"`` or ``"autodiff"``.
+        estimator: ``"auto"`` (default: ``"autodiff"`` where the recorded render fits in the
+            memory budget, 512 MiB, about 128 bytes a path and term; else ``"replay"``; the same
+            gradient either way, to float rounding), ``"replay"`` or ``"autodiff"``.
         decorrelate: take ``dl/dI`` from an independent render (unbiased gradient; losses.py).
         seed: seed of every render's random numbers.
         checkpoint_every: steps between checkpoints (when a checkpoint path is given).
@@ -94,7 +97,7 @@ class FitSettings:
     max_depth: int = 8
     integrator: str = "path"
     loss: str = "relative_l2"
-    estimator: str = "replay"
+    estimator: str = "auto"
     decorrelate: bool = True
     seed: int = 0
     checkpoint_every: int = 20
@@ -126,8 +129,8 @@ class FitSettings:
         RenderSettings(sampler=self.sampler)  # validates the sampler
         if self.loss not in LOSSES:
             raise ParameterError(f"unknown loss {self.loss!r} (known: {', '.join(LOSSES)})")
-        if self.estimator not in ESTIMATORS:
-            raise ParameterError(f"unknown estimator {self.estimator!r} (known: {', '.join(ESTIMATORS)})")
+        if self.estimator not in ESTIMATOR_CHOICES:
+            raise ParameterError(f"unknown estimator {self.estimator!r} (known: {', '.join(ESTIMATOR_CHOICES)})")
 
     def spp_at(self, step: int) -> int:
         return self.spp if step < self.steps // 2 else self.spp_final
@@ -359,8 +362,9 @@ def _view_loss(view_scene: Scene, values, target, cfg: FitSettings, step: int, v
     seed = cfg.seed * 1_000_003 + 2 * (step * n_views + view)
     integrator = make_integrator(cfg.integrator, max_depth=cfg.max_depth)
     kw = dict(spp=spp, progress=False, sampler=cfg.sampler)
+    estimator = resolve_estimator(cfg.estimator, work, integrator, RenderSettings(**kw))
     if not cfg.decorrelate:
-        image = render(work, integrator, seed=seed, estimator=cfg.estimator, **kw)
+        image = render(work, integrator, seed=seed, estimator=estimator, **kw)
         return loss_and_gradient(cfg.loss, target, image, image / n_views) / n_views
     # dl/dI from one render, differentiated through another (independent seed): unbiased (losses.py)
     if cv is not None:
@@ -369,7 +373,7 @@ def _view_loss(view_scene: Scene, values, target, cfg: FitSettings, step: int, v
         with torch.no_grad():
             residual = render(work, integrator, seed=seed + 1, **kw)
     dl_dI, value = loss_gradient(cfg.loss, target, residual)
-    backpropagate(work, dl_dI / n_views, integrator, RenderSettings(seed=seed, **kw), cfg.estimator)
+    backpropagate(work, dl_dI / n_views, integrator, RenderSettings(seed=seed, **kw), estimator)
     return value / n_views
 
 

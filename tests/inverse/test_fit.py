@@ -159,3 +159,30 @@ def test_other_losses_descend(small_target, loss):
     res = ir.fit(start_scene(), small_target, ["light.emission"], steps=15, spp=4, spp_final=4, max_depth=2, loss=loss, progress=False)
     truth = ir.load_scene("cornell_box").params["light.emission"]
     assert (res.params["light.emission"] - truth).abs().sum() < (torch.full((3,), 5.0) - truth).abs().sum() * 0.8
+
+
+def test_auto_estimator_records_small_renders_and_replays_large_ones(small_target, monkeypatch):
+    """``estimator="auto"`` (the fit default): autodiff where the recorded render fits in the memory
+    budget, replay where it does not or the depth is unbounded; a fit takes the same steps either
+    way (the two give the same gradient to float rounding)."""
+    from invrender.diff import resolve_estimator
+    from invrender.transport.driver import RenderSettings
+    from invrender.transport.integrators import make_integrator
+
+    scene = ir.load_scene("cornell_box", resolution=(64, 64))
+    path = make_integrator("path", max_depth=8)
+    assert resolve_estimator("auto", scene, path, RenderSettings(spp=64)) == "autodiff"  # 262k paths x 8 terms x 128 B = 256 MiB
+    assert resolve_estimator("auto", scene, path, RenderSettings(spp=256)) == "replay"  # 1 GiB
+    assert resolve_estimator("auto", scene, path, RenderSettings(spp=256, memory_mb=2048)) == "autodiff"
+    assert resolve_estimator("auto", scene, make_integrator("path", max_depth=-1), RenderSettings(spp=1)) == "replay"
+    assert resolve_estimator("replay", scene, path, RenderSettings(spp=1)) == "replay"
+    with pytest.raises(ParameterError, match="unknown estimator 'fast'"):
+        fit_module.FitSettings(estimator="fast")
+
+    used = []
+    original = fit_module.backpropagate
+    monkeypatch.setattr(fit_module, "backpropagate", lambda *a: (used.append(a[4]), original(*a))[1])
+    runs = {e: ir.fit(start_scene(), small_target, ["white.reflectance"], steps=3, spp=4, spp_final=4, max_depth=3, progress=False, estimator=e) for e in ("auto", "replay")}
+    assert used == ["autodiff"] * 3 + ["replay"] * 3
+    a, b = (runs[e].params["white.reflectance"] for e in ("auto", "replay"))
+    assert torch.allclose(a, b, rtol=1e-4)
