@@ -92,10 +92,10 @@ def throughput(args) -> None:
             t = statistics.median(times[b])
             ratio = f"  {statistics.median(mi_times) / t:.3f}x Mitsuba" if mi_times else ""
             label = f"{b.split('/')[0]}, torch steps" if "/" in b else b
-            print(f"  {'invrender path (' + label + '):':36s} {t:7.3f} s  {samples / t / 1e6:.3f} M path samples/s{ratio}")
+            print(f"  {'invrender path (' + label + '):':38s} {t:7.3f} s  {samples / t / 1e6:.3f} M path samples/s{ratio}")
         if mi_times:
             tm = statistics.median(mi_times)
-            print(f"  {mitsuba_ref.label() + ' path:':36s} {tm:7.3f} s  {samples / tm / 1e6:.3f} M path samples/s")
+            print(f"  {mitsuba_ref.label() + ' path:':38s} {tm:7.3f} s  {samples / tm / 1e6:.3f} M path samples/s")
         elif device.type == "cpu":
             print("  (Mitsuba 3 not installed: no ratio; see bench/README.md)")
     if device.type == "cpu" and torch.cuda.is_available() and not args.no_cuda:
