@@ -53,18 +53,16 @@ def surface_at(triangles: Triangles, hits: Hits, d: torch.Tensor, with_uv: bool 
     u, v = hits.u[:, None], hits.v[:, None]
     if kernels.enabled(d.device):
         p, n, front, cos_o, uv = kernels.hit_geometry(triangles.packed, tri, hits.u, hits.v, d, with_uv)
-        side = None
     else:
         g = triangles.packed.index_select(0, tri)
         p = g[:, 0:3] + u * g[:, 3:6] + v * g[:, 6:9]
         ng = g[:, 9:12]
         cos = -dot(ng, d)
         front = cos > 0
-        side = torch.where(front, 1.0, -1.0)[:, None]
-        n, cos_o = ng * side, cos.abs()
+        n, cos_o = ng * torch.where(front, 1.0, -1.0)[:, None], cos.abs()
         uv = (1 - u - v) * g[:, 12:14] + u * g[:, 14:16] + v * g[:, 16:18] if with_uv else g[:, 12:14].new_zeros(()).expand(len(tri), 2)
     if triangles.any_smooth:
-        side = torch.where(front, 1.0, -1.0)[:, None] if side is None else side
+        side = torch.where(front, 1.0, -1.0)[:, None]  # the geometric side, for the shading normal too
         vn = triangles.vertex_normal.index_select(0, tri)
         ns = normalize((1 - u - v) * vn[:, 0] + u * vn[:, 1] + v * vn[:, 2]) * side
     else:
