@@ -14,6 +14,8 @@ rounding).
   (:func:`invrender.transport.surface.surface_at`);
 - :func:`emitter_geometry`: points sampled on emitters as seen from surface points, the shadow ray
   towards each and its solid-angle pdf (:meth:`invrender.transport.lights.EmitterSampler.sample_from`);
+- :func:`cosine_directions`: the diffuse BSDF's cosine-weighted directions and their pdf;
+- :func:`offset_origins`: the origins of rays leaving surfaces (``TransportContext.spawn``).
 
 Tensors are shared with Warp without copies (``wp.from_torch``); on CUDA the kernels run on torch's
 current stream. Warp's CPU launches run in the calling thread without the GIL, so the render's
@@ -22,6 +24,7 @@ worker threads run theirs side by side.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import threading
@@ -37,6 +40,21 @@ except ImportError:  # pragma: no cover - warp-lang is a dependency; this guards
     wp = None
 
 
+@contextlib.contextmanager
+def _quiet_stderr():
+    """File descriptor 2 on /dev/null meanwhile: Warp's native library and its compiler write there
+    directly, not through Python."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)
+            yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
 def _init() -> None:
     """``wp.init()`` without console output: no banner or compile timings, and on a machine without
     a CUDA driver (where torch sees none either) not the native library's note that it found none."""
@@ -45,15 +63,8 @@ def _init() -> None:
     if torch.cuda.is_available():
         wp.init()
         return
-    sys.stderr.flush()
-    saved = os.dup(2)
-    try:
-        with open(os.devnull, "w") as null:
-            os.dup2(null.fileno(), 2)
-            wp.init()
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
+    with _quiet_stderr():
+        wp.init()
 
 
 if wp is not None:
@@ -79,23 +90,17 @@ def load(device: torch.device) -> None:
     with _loading:
         if key in _loaded:
             return
-        sys.stderr.flush()
-        saved = os.dup(2)
-        try:
-            with open(os.devnull, "w") as null:
-                os.dup2(null.fileno(), 2)
-                wp.load_module(sys.modules[__name__], device=wp.device_from_torch(device))
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
+        with _quiet_stderr():
+            wp.load_module(sys.modules[__name__], device=wp.device_from_torch(device))
         _loaded.add(key)
 
 
 def launch(kernel, n: int, inputs: list, device: torch.device) -> None:
     """Run ``kernel`` over ``n`` threads on ``device`` (on torch's current stream on CUDA).
 
-    ``inputs``: torch tensors (passed as Warp arrays of their dtype and shape, made contiguous),
-    :func:`vec3` tensors, and scalars. Tensors go to Warp as launch descriptors, not ``wp.array``
+    ``inputs``: torch tensors (passed as Warp arrays of their dtype and shape, made contiguous:
+    outputs must be contiguous already, or the kernel writes into a copy), :class:`Vec3` tensors,
+    and scalars. Tensors go to Warp as launch descriptors, not ``wp.array``
     objects (which cost tens of microseconds each to build); the tensors they point to are held
     here until the launch returns (on CUDA, torch's allocator orders their reuse after the kernel).
     """
