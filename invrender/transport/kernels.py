@@ -152,6 +152,28 @@ if wp is not None:
             h = _lowbias32(base ^ wp.uint32(salts[j])) ^ flip
             u[i, j] = wp.float32(h & wp.uint32(0xFFFFFF)) * (1.0 / 16777216.0)
 
+    @wp.func
+    def _point(packed: wp.array2d(dtype=wp.float32), k: wp.int64, b1: wp.float32, b2: wp.float32) -> wp.vec3:
+        """The point of triangle k at barycentrics (b1, b2): ``p0 + b1 e1 + b2 e2`` (Triangles.packed)."""
+        p0 = wp.vec3(packed[k, 0], packed[k, 1], packed[k, 2])
+        e1 = wp.vec3(packed[k, 3], packed[k, 4], packed[k, 5])
+        e2 = wp.vec3(packed[k, 6], packed[k, 7], packed[k, 8])
+        return p0 + b1 * e1 + b2 * e2
+
+    @wp.func
+    def _normal(packed: wp.array2d(dtype=wp.float32), k: wp.int64) -> wp.vec3:
+        """Triangle k's unit geometric normal (its front side)."""
+        return wp.vec3(packed[k, 9], packed[k, 10], packed[k, 11])
+
+    @wp.func
+    def _write_uv(
+        packed: wp.array2d(dtype=wp.float32), k: wp.int64, b1: wp.float32, b2: wp.float32, uv: wp.array2d(dtype=wp.float32), i: int
+    ):
+        """uv[i] = the texture coordinates of triangle k at barycentrics (b1, b2)."""
+        b0 = 1.0 - b1 - b2
+        for j in range(2):
+            uv[i, j] = b0 * packed[k, 12 + j] + b1 * packed[k, 14 + j] + b2 * packed[k, 16 + j]
+
     @wp.kernel
     def _hit_kernel(
         packed: wp.array2d(dtype=wp.float32), tri: wp.array(dtype=wp.int64), bu: wp.array(dtype=wp.float32), bv: wp.array(dtype=wp.float32),
@@ -162,11 +184,8 @@ if wp is not None:
         k = tri[i]
         b1 = bu[i]
         b2 = bv[i]
-        p0 = wp.vec3(packed[k, 0], packed[k, 1], packed[k, 2])
-        e1 = wp.vec3(packed[k, 3], packed[k, 4], packed[k, 5])
-        e2 = wp.vec3(packed[k, 6], packed[k, 7], packed[k, 8])
-        ng = wp.vec3(packed[k, 9], packed[k, 10], packed[k, 11])
-        p[i] = p0 + b1 * e1 + b2 * e2
+        ng = _normal(packed, k)
+        p[i] = _point(packed, k, b1, b2)
         c = -wp.dot(ng, d[i])
         front[i] = c > 0.0
         if c > 0.0:
@@ -175,9 +194,7 @@ if wp is not None:
             n[i] = -ng
         cos_o[i] = wp.abs(c)
         if with_uv != 0:
-            b0 = 1.0 - b1 - b2
-            for j in range(2):
-                uv[i, j] = b0 * packed[k, 12 + j] + b1 * packed[k, 14 + j] + b2 * packed[k, 16 + j]
+            _write_uv(packed, k, b1, b2, uv, i)
 
     @wp.kernel
     def _emitter_kernel(
@@ -202,11 +219,7 @@ if wp is not None:
         su = wp.sqrt(u[i, 1])
         b1 = su * (1.0 - u[i, 2])
         b2 = su * u[i, 2]
-        p0 = wp.vec3(packed[k, 0], packed[k, 1], packed[k, 2])
-        e1 = wp.vec3(packed[k, 3], packed[k, 4], packed[k, 5])
-        e2 = wp.vec3(packed[k, 6], packed[k, 7], packed[k, 8])
-        nl = wp.vec3(packed[k, 9], packed[k, 10], packed[k, 11])
-        y = p0 + b1 * e1 + b2 * e2
+        y = _point(packed, k, b1, b2)
         start = x[i] + offset * nx[i]
         o[i] = start
         to_light = y - start
@@ -214,13 +227,11 @@ if wp is not None:
         w = to_light / dist
         wl[i] = w
         tmax[i] = dist - offset
-        cos_l = -wp.dot(nl, w)
+        cos_l = -wp.dot(_normal(packed, k), w)
         facing[i] = wp.dot(nx[i], w) > 0.0 and cos_l > 0.0
         pdf[i] = pdf_area[k] * dist * dist / wp.max(cos_l, 1.0e-12)
         if with_uv != 0:
-            b0 = 1.0 - b1 - b2
-            for j in range(2):
-                uv[i, j] = b0 * packed[k, 12 + j] + b1 * packed[k, 14 + j] + b2 * packed[k, 16 + j]
+            _write_uv(packed, k, b1, b2, uv, i)
 
     @wp.kernel
     def _cosine_kernel(
