@@ -2,6 +2,8 @@
 
 - ``autodiff``: torch records the whole wavefront (memory grows with spp x depth);
 - ``replay``: path-replay backpropagation (:mod:`invrender.diff.replay`; memory flat in spp and depth);
+- ``auto``: autodiff where the recorded render fits in the memory budget, else replay
+  (:func:`resolve_estimator`; fits use it by default);
 - decorrelated loss gradients: :func:`backpropagate` takes ``dl/dI`` from any image (an independent
   render) and differentiates the render of ``settings`` with it.
 
@@ -22,11 +24,17 @@ from invrender.transport.driver import RenderSettings, total_paths
 from invrender.transport.integrators import Integrator, make_integrator
 
 ESTIMATORS = ("autodiff", "replay")
-#: what fits accept: the estimators, or ``"auto"`` (:func:`resolve_estimator`)
+#: what ``render``, ``backpropagate`` and fits accept: the estimators, or ``"auto"`` (:func:`resolve_estimator`)
 ESTIMATOR_CHOICES = ("auto", *ESTIMATORS)
 #: bytes autograd keeps for each camera path and Neumann term of a recorded render (measured on the
 #: Cornell box: 530-780 bytes a path at max_depth 8; rounded up)
 AUTODIFF_BYTES_PER_PATH_TERM = 128
+
+
+def _check_estimator(estimator: str) -> str:
+    if estimator not in ESTIMATOR_CHOICES:
+        raise ParameterError(f"unknown estimator {estimator!r} (known: {', '.join(ESTIMATOR_CHOICES)})")
+    return estimator
 
 
 def resolve_estimator(estimator: str, scene: Scene, integrator: Integrator, settings: RenderSettings) -> str:
@@ -78,8 +86,9 @@ def render(
         terms: return one image per Neumann term instead of their sum.
         rr_depth: Russian roulette starts after this many terms (None = the integrator's default, 5).
         estimator: how the image is differentiated when a parameter requires grad:
-            ``"replay"`` (default; path-replay backpropagation, memory flat in spp and depth) or
-            ``"autodiff"`` (torch records the whole wavefront).
+            ``"replay"`` (default; path-replay backpropagation, memory flat in spp and depth),
+            ``"autodiff"`` (torch records the whole wavefront) or ``"auto"`` (autodiff where the
+            recorded render fits in ``memory_mb``, else replay: :func:`resolve_estimator`).
         backend: ``"embree"`` (CPU), ``"warp"`` (NVIDIA Warp's BVH: CUDA or CPU) or ``"torch"``
             (brute force, any device); None = the device's default (embree on the CPU, warp on CUDA).
         device: where to render; None = the scene's device. Parameters are moved differentiably.
@@ -107,8 +116,7 @@ def render(
             options[key] = value
     model = make_integrator(integrator, **options)
     settings = RenderSettings(spp=spp, seed=seed, terms=terms, backend=backend, chunk_paths=chunk_paths, memory_mb=memory_mb, progress=progress, sampler=sampler)
-    if estimator is not None and estimator not in ESTIMATORS:
-        raise ParameterError(f"unknown estimator {estimator!r} (known: {', '.join(ESTIMATORS)})")
+    estimator = resolve_estimator(_check_estimator(estimator or "replay"), scene, model, settings)
     device = _device(scene, device)
     differentiable = [k for k, v in scene.params.items() if v.requires_grad] if torch.is_grad_enabled() else []
     adaptive = AdaptiveSettings.make(adaptive)
@@ -117,9 +125,9 @@ def render(
     if adaptive is not None:
         from invrender.diff.adaptive import render_adaptive
 
-        result = render_adaptive(scene, model, settings, adaptive, device, differentiable, estimator or "replay")
+        result = render_adaptive(scene, model, settings, adaptive, device, differentiable, estimator)
         return result if return_counts else result.image
-    if differentiable and (estimator or "replay") == "replay":
+    if differentiable and estimator == "replay":
         if terms:
             raise ParameterError("terms=True is not available with estimator='replay'; use estimator='autodiff'")
         from invrender.diff.replay import replay_render
@@ -136,11 +144,10 @@ def backpropagate(scene: Scene, grad_image: torch.Tensor, integrator: Integrator
 
     What ``render(...).backward(grad_image)`` does, without the image: ``replay`` re-traces the
     paths in its backward pass only, so no forward render is spent (a decorrelated loss gradient
-    takes ``grad_image = dl/dI`` from another render); ``autodiff`` has to record a forward render.
-    ``grad_image``: (H, W, 3).
+    takes ``grad_image = dl/dI`` from another render); ``autodiff`` has to record a forward render;
+    ``auto`` picks one by memory (:func:`resolve_estimator`). ``grad_image``: (H, W, 3).
     """
-    if estimator not in ESTIMATORS:
-        raise ParameterError(f"unknown estimator {estimator!r} (known: {', '.join(ESTIMATORS)})")
+    estimator = resolve_estimator(_check_estimator(estimator), scene, integrator, settings)
     device = _device(scene, device)
     if estimator == "autodiff":
         autodiff_render(scene, integrator, settings, device, [k for k, v in scene.params.items() if v.requires_grad]).backward(grad_image)
@@ -159,4 +166,4 @@ def _device(scene: Scene, device) -> torch.device:
     return device
 
 
-__all__ = ["ESTIMATORS", "backpropagate", "render"]
+__all__ = ["ESTIMATORS", "ESTIMATOR_CHOICES", "backpropagate", "render", "resolve_estimator"]

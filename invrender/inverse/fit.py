@@ -1,8 +1,8 @@
 """fit(): recover emission eps and reflectance rho from target images by gradient descent.
 
-Each step renders every view, back-propagates the loss through the Monte Carlo estimate (autodiff
-where the recorded render fits in memory, else path replay: ``resolve_estimator``; decorrelated by
-default: see losses.py) and takes an Adam step on reparametrized
+Each step renders every view, back-propagates the loss through the Monte Carlo estimate (estimator
+``auto`` by default: autodiff where the recorded render fits in memory, else path replay,
+``diff.resolve_estimator``; decorrelated by default: see losses.py) and takes an Adam step on reparametrized
 values: rho = sigmoid(x), eps = exp(x) (params.py). Every random number is a
 pure function of (seed, step, view), so a fit is deterministic, and a fit resumed from a checkpoint
 ends exactly where the uninterrupted one does.
@@ -22,7 +22,7 @@ from pathlib import Path
 import torch
 from tqdm.auto import tqdm
 
-from invrender.diff import ESTIMATOR_CHOICES, backpropagate, render, resolve_estimator
+from invrender.diff import ESTIMATOR_CHOICES, backpropagate, render
 from invrender.errors import ImageError, ParameterError
 from invrender.inverse import params as P
 from invrender.inverse.control_variates import RecursiveControlVariate
@@ -362,9 +362,8 @@ def _view_loss(view_scene: Scene, values, target, cfg: FitSettings, step: int, v
     seed = cfg.seed * 1_000_003 + 2 * (step * n_views + view)
     integrator = make_integrator(cfg.integrator, max_depth=cfg.max_depth)
     kw = dict(spp=spp, progress=False, sampler=cfg.sampler)
-    estimator = resolve_estimator(cfg.estimator, work, integrator, RenderSettings(**kw))
     if not cfg.decorrelate:
-        image = render(work, integrator, seed=seed, estimator=estimator, **kw)
+        image = render(work, integrator, seed=seed, estimator=cfg.estimator, **kw)
         return loss_and_gradient(cfg.loss, target, image, image / n_views) / n_views
     # dl/dI from one render, differentiated through another (independent seed): unbiased (losses.py)
     if cv is not None:
@@ -373,7 +372,7 @@ def _view_loss(view_scene: Scene, values, target, cfg: FitSettings, step: int, v
         with torch.no_grad():
             residual = render(work, integrator, seed=seed + 1, **kw)
     dl_dI, value = loss_gradient(cfg.loss, target, residual)
-    backpropagate(work, dl_dI / n_views, integrator, RenderSettings(seed=seed, **kw), estimator)
+    backpropagate(work, dl_dI / n_views, integrator, RenderSettings(seed=seed, **kw), cfg.estimator)
     return value / n_views
 
 

@@ -77,21 +77,22 @@ def enabled(device: torch.device) -> bool:
     return wp is not None and device.type in ("cpu", "cuda") and os.environ.get(ENV, "warp") != "torch"
 
 
-_loaded: set[str] = set()
+_loaded: set[tuple[str, str]] = set()
 _loading = threading.Lock()  # one thread at a time redirects stderr and compiles
 
 
-def load(device: torch.device) -> None:
-    """Compile (or load from Warp's cache) this module's kernels for ``device``, once per process,
-    before render threads launch them. Nothing is printed, compiler warnings included."""
-    key = str(device)
-    if key in _loaded or not enabled(device):
+def load(device: torch.device, module: str = __name__) -> None:
+    """Compile (or load from Warp's cache) the kernels of ``module`` (default: this module's, when
+    they are :func:`enabled`) for ``device``, once per process, before render threads launch them.
+    Nothing is printed, compiler warnings included."""
+    key = (module, str(device))
+    if key in _loaded or (module == __name__ and not enabled(device)):
         return
     with _loading:
         if key in _loaded:
             return
         with _quiet_stderr():
-            wp.load_module(sys.modules[__name__], device=wp.device_from_torch(device))
+            wp.load_module(sys.modules[module], device=wp.device_from_torch(device))
         _loaded.add(key)
 
 

@@ -62,7 +62,7 @@ class WarpBVH:
         self._indices = torch.arange(points.shape[0], dtype=torch.int32, device=points.device)
         self.device = points.device
         self._mesh = wp.Mesh(points=wp.from_torch(points, dtype=wp.vec3), indices=wp.from_torch(self._indices))
-        wp.load_module(device=wp.device_from_torch(self.device))  # compile (or load) once here, not in each render worker
+        kernels.load(self.device, __name__)  # compiled (or loaded) here, not in each render worker
 
     def _launch(self, kernel, n: int, inputs: list) -> None:
         launch(kernel, n, [self._mesh.id, *inputs], self.device)

@@ -1,5 +1,6 @@
 """ir.fit: recovery on a small scene, determinism and exact resume, decorrelation, bad input."""
 
+import dataclasses
 import shutil
 
 import pytest
@@ -177,11 +178,21 @@ def test_auto_estimator_records_small_renders_and_replays_large_ones(small_targe
     assert resolve_estimator("auto", scene, make_integrator("path", max_depth=-1), RenderSettings(spp=1)) == "replay"
     assert resolve_estimator("replay", scene, path, RenderSettings(spp=1)) == "replay"
     with pytest.raises(ParameterError, match="unknown estimator 'fast'"):
+        ir.render(scene, spp=1, estimator="fast", progress=False)
+    small = ir.load_scene("cornell_box", resolution=(8, 8))
+    rho = small.params["red.reflectance"].clone().requires_grad_(True)
+    ir.render(dataclasses.replace(small, params={**small.params, "red.reflectance": rho}), spp=2, estimator="auto", progress=False).sum().backward()
+    assert rho.grad is not None and rho.grad.abs().sum() > 0
+    with pytest.raises(ParameterError, match="unknown estimator 'fast'"):
         fit_module.FitSettings(estimator="fast")
 
-    used = []
-    original = fit_module.backpropagate
-    monkeypatch.setattr(fit_module, "backpropagate", lambda *a: (used.append(a[4]), original(*a))[1])
+    import invrender.diff as diff
+    import invrender.diff.replay as replay
+
+    used = []  # the estimator each gradient of the fits ran
+    autodiff_render, replay_gradient = diff.autodiff_render, replay.replay_gradient
+    monkeypatch.setattr(diff, "autodiff_render", lambda *a: (used.append("autodiff"), autodiff_render(*a))[1])
+    monkeypatch.setattr(replay, "replay_gradient", lambda *a, **k: (used.append("replay"), replay_gradient(*a, **k))[1])
     runs = {e: ir.fit(start_scene(), small_target, ["white.reflectance"], steps=3, spp=4, spp_final=4, max_depth=3, progress=False, estimator=e) for e in ("auto", "replay")}
     assert used == ["autodiff"] * 3 + ["replay"] * 3
     a, b = (runs[e].params["white.reflectance"] for e in ("auto", "replay"))
