@@ -31,6 +31,8 @@ import threading
 
 import torch
 
+from invrender.errors import ParameterError
+
 #: set INVRENDER_KERNELS=torch to run the torch reference expressions instead of the Warp kernels
 ENV = "INVRENDER_KERNELS"
 
@@ -73,8 +75,13 @@ if wp is not None:
 
 def enabled(device: torch.device) -> bool:
     """Do renders on ``device`` use the Warp kernels (CPU or CUDA, warp-lang importable, not
-    switched off by ``INVRENDER_KERNELS=torch``)?"""
-    return wp is not None and device.type in ("cpu", "cuda") and os.environ.get(ENV, "warp") != "torch"
+    switched off by ``INVRENDER_KERNELS=torch``)? Another value of the variable than ``warp`` or
+    ``torch`` is a one-line :class:`~invrender.errors.ParameterError` (first met when a render's
+    context is built, before any work)."""
+    choice = os.environ.get(ENV, "warp")
+    if choice not in ("warp", "torch"):
+        raise ParameterError(f"{ENV} must be 'warp' or 'torch', got {choice!r}")
+    return wp is not None and device.type in ("cpu", "cuda") and choice == "warp"
 
 
 _loaded: set[tuple[str, str]] = set()

@@ -11,6 +11,7 @@ import pytest
 import torch
 
 import invrender as ir
+from invrender.errors import ParameterError
 from invrender.transport import kernels
 from invrender.transport.accel import make_intersector
 from invrender.transport.lights import EmitterSampler
@@ -31,11 +32,14 @@ def reference(monkeypatch):
     return use_torch
 
 
-def test_kernels_run_on_cpu_and_switch_off(reference):
+def test_kernels_run_on_cpu_and_switch_off(reference, monkeypatch):
     assert kernels.enabled(CPU)
     reference()
     assert not kernels.enabled(CPU)
     assert not kernels.enabled(torch.device("meta"))  # no Warp backend there: torch runs
+    monkeypatch.setenv(kernels.ENV, "wrap")
+    with pytest.raises(ParameterError, match="INVRENDER_KERNELS must be 'warp' or 'torch', got 'wrap'"):
+        ir.render(ir.load_scene("cornell_box", resolution=(4, 4)), spp=1, progress=False)
 
 
 def test_uniforms_equal_bit_for_bit(reference):
