@@ -62,7 +62,7 @@ from invrender.errors import BaselineError, ParameterError
 from invrender.io.images import to_srgb
 from invrender.scene.scene import AMBIENT, Scene, scene_extent
 from invrender.transport.textures import lookup
-from invrender.transport.vec import dot, normalize
+from invrender.vec import dot, normalize
 
 #: Debian (bookworm) packages for headless rendering through EGL with Mesa's llvmpipe
 DEBIAN_PACKAGES_EGL = "libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri"

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import torch
 
 from invrender.errors import SceneError
-from invrender.transport.vec import normalize
+from invrender.vec import normalize
 
 FOV_AXES = ("x", "y", "smaller", "larger")
 

@@ -15,7 +15,7 @@ from invrender.transport.bsdfs import BSDFSampling, Materials, ShadingPoint
 from invrender.transport.lights import EmitterSampler
 from invrender.transport.surface import Surface
 from invrender.transport.textures import gather_rgb
-from invrender.transport.vec import dot
+from invrender.vec import dot
 
 
 @dataclass(frozen=True)

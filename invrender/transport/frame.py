@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import torch
 
-from invrender.transport.vec import dot
+from invrender.vec import dot
 
 
 @dataclass(frozen=True)

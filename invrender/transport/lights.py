@@ -13,7 +13,7 @@ import torch
 
 from invrender.scene.scene import Triangles
 from invrender.transport import kernels
-from invrender.transport.vec import dot, norm
+from invrender.vec import dot, norm
 
 
 @dataclass(frozen=True)

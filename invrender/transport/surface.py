@@ -9,7 +9,7 @@ import torch
 from invrender.scene.scene import Triangles
 from invrender.transport import kernels
 from invrender.transport.accel import Hits
-from invrender.transport.vec import dot, normalize
+from invrender.vec import dot, normalize
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ import torch
 
 from invrender.transport.bsdfs.base import BSDFSample, DeltaBSDF, ShadingPoint
 from invrender.transport.bsdfs.mirror import reflect
-from invrender.transport.vec import dot
+from invrender.vec import dot
 
 
 def fresnel_dielectric(cos_i: torch.Tensor, eta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -16,7 +16,7 @@ import torch
 from invrender.transport import kernels
 from invrender.transport.bsdfs.base import BSDF, BSDFSample, ShadingPoint
 from invrender.transport.frame import Frame
-from invrender.transport.vec import dot, normalize
+from invrender.vec import dot, normalize
 
 
 class Diffuse(BSDF):

@@ -21,7 +21,7 @@ import torch
 
 from invrender.transport.bsdfs.base import BSDF, BSDFSample, ShadingPoint
 from invrender.transport.frame import Frame
-from invrender.transport.vec import dot, normalize
+from invrender.vec import dot, normalize
 
 
 def ggx_D(cos_h: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:

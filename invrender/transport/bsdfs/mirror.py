@@ -9,7 +9,7 @@ from __future__ import annotations
 import torch
 
 from invrender.transport.bsdfs.base import BSDFSample, DeltaBSDF, ShadingPoint
-from invrender.transport.vec import dot
+from invrender.vec import dot
 
 
 def reflect(wo: torch.Tensor, n: torch.Tensor) -> torch.Tensor:

@@ -17,6 +17,7 @@ from typing import ClassVar
 
 import torch
 
+from invrender import registry
 from invrender.errors import ParameterError
 from invrender.scene.scene import Scene
 from invrender.transport.accel import RepeatedQueries
@@ -33,8 +34,8 @@ from invrender.transport.driver import (
 )
 from invrender.transport.film import Film, PathFilm
 
-#: integrator name -> class, filled by subclassing :class:`Integrator`
-INTEGRATORS: dict[str, type[Integrator]] = {}
+#: integrator name -> class, filled by subclassing :class:`Integrator` (the package's registry)
+INTEGRATORS = registry.INTEGRATORS
 
 
 @dataclass(frozen=True)
@@ -115,7 +116,7 @@ class Integrator(ABC):
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
         if "name" in cls.__dict__:
-            INTEGRATORS[cls.name] = cls
+            INTEGRATORS.register(cls)
 
     def __init__(self, **options):
         known = {f.name for f in dataclasses.fields(self.Settings)}
@@ -185,11 +186,11 @@ class Integrator(ABC):
 
 
 def make_integrator(integrator="path", **options) -> Integrator:
-    """An :class:`Integrator` from a name and its settings, or an instance (then no options)."""
+    """An :class:`Integrator` from a spec (a name, a ``{"type": name, ...}`` mapping or an instance;
+    :func:`invrender.registry.integrator_spec`) and settings given beside it (none beside an instance)."""
     if isinstance(integrator, Integrator):
         if options:
             raise ParameterError(f"settings {', '.join(sorted(options))} given beside an integrator object: set them on the object")
         return integrator
-    if not isinstance(integrator, str) or integrator not in INTEGRATORS:
-        raise ParameterError(f"unknown integrator {integrator!r} (known: {', '.join(INTEGRATORS)})")
-    return INTEGRATORS[integrator](**options)
+    name, settings = registry.integrator_spec(integrator)
+    return INTEGRATORS[name](**{**settings, **options})

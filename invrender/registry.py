@@ -1,0 +1,110 @@
+"""Plugin registries: where materials, emitters and integrators are found by name.
+
+A plugin is one module that describes itself completely (its type name, parameters, settings,
+aliases in the scene formats) and registers its class here with one decorator or by subclassing.
+Everything that needs to know the plugins (loaders, format mappings, the CLI's help, error
+messages, the docs' tables) reads these registries instead of keeping a list of its own, so adding
+a plugin is one new file plus its registration.
+
+This module sits at the bottom of the package's layers: it stores classes and never imports one.
+The plugins register when their modules are imported (``import invrender`` imports every built-in
+one; a user's plugin registers when the user's module is imported).
+
+The configuration spec of an integrator has three spellings, accepted everywhere a render is
+configured (``render``, ``fit``, studies, ablations, recipes, the CLI)::
+
+    "path"                                             # a name: its default settings
+    {"type": "path", "max_depth": 8, "rr_depth": 3}    # a name and settings
+    Path(max_depth=8)                                  # an instance
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from typing import Generic, TypeVar
+
+from invrender.errors import InvRenderError, ParameterError, SceneError
+
+T = TypeVar("T")
+
+
+class Registry(Generic[T]):
+    """Classes by name, for one kind of plugin.
+
+    Args:
+        what: what a name names, for messages (``"material type"``).
+        error: the :class:`~invrender.errors.InvRenderError` subclass an unknown name raises.
+        attribute: the class attribute holding a plugin's name (``"type_name"``, ``"name"``).
+    """
+
+    def __init__(self, what: str, error: type[InvRenderError], attribute: str):
+        self.what, self.error, self.attribute = what, error, attribute
+        self._classes: dict[str, type[T]] = {}
+
+    def register(self, cls: type[T]) -> type[T]:
+        """Register ``cls`` under its name (usable as a class decorator); registering another
+        class under a taken name replaces it (a user's plugin may shadow a built-in one)."""
+        name = getattr(cls, self.attribute, None)
+        if not isinstance(name, str) or not name:
+            raise TypeError(f"{cls.__name__} needs a non-empty string {self.attribute!r} to be registered as a {self.what}")
+        self._classes[name] = cls
+        return cls
+
+    def unregister(self, name: str) -> None:
+        """Forget ``name`` (tests that register a plugin of their own clean up with this)."""
+        self._classes.pop(name, None)
+
+    def get(self, name, where: str = "") -> type[T]:
+        """The class called ``name``; a one-line error naming ``where`` and the known names otherwise."""
+        if not isinstance(name, str) or name not in self._classes:
+            prefix = f"{where}: " if where else ""
+            raise self.error(f"{prefix}unknown {self.what} {name!r} (known: {', '.join(self._classes)})")
+        return self._classes[name]
+
+    def __getitem__(self, name: str) -> type[T]:
+        return self.get(name)
+
+    def __contains__(self, name) -> bool:
+        return name in self._classes
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._classes)
+
+    def __len__(self) -> int:
+        return len(self._classes)
+
+    def items(self):
+        return self._classes.items()
+
+    def values(self):
+        return self._classes.values()
+
+    def names(self) -> list[str]:
+        return list(self._classes)
+
+    def pop(self, name: str, default=None):
+        return self._classes.pop(name, default)
+
+
+#: material type name -> its plugin class (:mod:`invrender.materials`)
+MATERIALS: Registry = Registry("material type", SceneError, "type_name")
+#: emitter type name -> its plugin class (:mod:`invrender.emitters`)
+EMITTERS: Registry = Registry("emitter type", SceneError, "type_name")
+#: integrator name -> its class (:mod:`invrender.transport.integrators`; registered by subclassing)
+INTEGRATORS: Registry = Registry("integrator", ParameterError, "name")
+
+
+def integrator_spec(spec, where: str = "integrator") -> tuple[str, dict]:
+    """``(name, settings)`` of an integrator spec given as a name or a ``{"type": name, ...}``
+    mapping (an instance is handled by the caller); a one-line :class:`ParameterError` otherwise."""
+    if isinstance(spec, str):
+        INTEGRATORS.get(spec, where)
+        return spec, {}
+    if isinstance(spec, Mapping):
+        options = dict(spec)
+        if "type" not in options:
+            raise ParameterError(f"{where}: a mapping spec needs a 'type' key naming the integrator (known: {', '.join(INTEGRATORS)}), got keys {sorted(options)}")
+        name = options.pop("type")
+        INTEGRATORS.get(name, where)
+        return name, options
+    raise ParameterError(f"{where}: expected an integrator name, a {{'type': name, ...}} mapping or an integrator object, got {spec!r}")
