@@ -19,10 +19,10 @@ import pytest
 import torch
 
 from invrender.transport.bsdfs import ShadingPoint
-from invrender.transport.bsdfs.dielectric import Dielectric, fresnel_dielectric
-from invrender.transport.bsdfs.diffuse import Diffuse
-from invrender.transport.bsdfs.glossy import Glossy
-from invrender.transport.bsdfs.mirror import Mirror
+from invrender.materials.dielectric import Dielectric, fresnel_dielectric
+from invrender.materials.diffuse import Diffuse
+from invrender.materials.glossy import Glossy
+from invrender.materials.mirror import Mirror
 
 KS = torch.tensor([0.9, 0.7, 0.5])
 
