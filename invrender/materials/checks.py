@@ -54,7 +54,7 @@ def chi_square_p(bsdf, theta_o: float, samples: int = 200_000, bins=(20, 40), su
     sp = shading_point(theta_o, samples)
     bs = bsdf.sample(sp, torch.rand(samples, generator=g), torch.rand(samples, 2, generator=g))
     wi = bs.wi.double()
-    valid = bs.weight.amax(1) > 0
+    valid = (bs.weight.amax(1) > 0) & ~bs.delta  # delta samples fall in the pdf's missing mass
     nt, nphi = bins
     st, sph = sub
     it = (torch.acos(wi[:, 2].clamp(-1, 1)) / math.pi * nt).long().clamp(0, nt - 1)

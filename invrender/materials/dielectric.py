@@ -21,7 +21,7 @@ import torch
 
 from invrender import registry
 from invrender.materials.mirror import reflect
-from invrender.scene.materials import Constant
+from invrender.scene.plugins import Constant
 from invrender.transport.bsdfs.base import BSDFSample, DeltaBSDF, Lobe, ShadingPoint
 from invrender.vec import dot
 

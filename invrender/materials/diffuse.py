@@ -15,7 +15,7 @@ import torch
 
 from invrender import registry
 from invrender.scene.kinds import REFLECTANCE
-from invrender.scene.materials import Param
+from invrender.scene.plugins import Param
 from invrender.transport import kernels
 from invrender.transport.bsdfs.base import BSDF, BSDFSample, Lobe, ShadingPoint
 from invrender.vec import dot, normalize

@@ -20,7 +20,7 @@ import torch
 from invrender import registry
 from invrender.materials.microfacet import ggx_D, sample_visible_normal, smith_G1
 from invrender.scene.kinds import SPECULAR_REFLECTANCE
-from invrender.scene.materials import Constant, Param
+from invrender.scene.plugins import Constant, Param
 from invrender.transport.bsdfs.base import BSDF, BSDFSample, Lobe, ShadingPoint
 from invrender.vec import dot, normalize
 

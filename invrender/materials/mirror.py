@@ -10,7 +10,7 @@ import torch
 
 from invrender import registry
 from invrender.scene.kinds import SPECULAR_REFLECTANCE
-from invrender.scene.materials import Param
+from invrender.scene.plugins import Param
 from invrender.transport.bsdfs.base import BSDFSample, DeltaBSDF, Lobe, ShadingPoint
 from invrender.vec import dot
 

@@ -33,6 +33,7 @@ import torch
 from invrender.errors import ParameterError, SceneError
 from invrender.scene.camera import Camera
 from invrender.scene.kinds import kind_of, param_name
+from invrender.scene.emitters import Emitter
 from invrender.scene.materials import Material
 from invrender.scene.shapes import Mesh
 
@@ -126,6 +127,8 @@ class Scene:
             constants; its values live in ``params``); empty = every material diffuse.
         defaults: render settings the scene file suggests, e.g. ``{"spp": 64, "max_depth": 8}``
             (a Mitsuba XML file's ``sample_count``, ``max_depth``, ``rr_depth``); empty = none.
+        emitter_specs: one :class:`~invrender.scene.emitters.Emitter` per emitter (type and
+            constants; its values live in ``params``); empty = every emitter an area light.
     """
 
     triangles: Triangles
@@ -137,6 +140,7 @@ class Scene:
     name: str = "scene"
     material_specs: tuple[Material, ...] = ()
     defaults: dict = field(default_factory=dict)
+    emitter_specs: tuple[Emitter, ...] = ()
 
     @property
     def device(self) -> torch.device:
@@ -176,6 +180,10 @@ class Scene:
     def material_spec(self, material: int) -> Material:
         """Type and constants of material ``material`` (an index into ``materials``)."""
         return self.material_specs[material] if self.material_specs else Material()
+
+    def emitter_spec(self, emitter: int) -> Emitter:
+        """Type and constants of emitter ``emitter`` (an index into ``emitters``)."""
+        return self.emitter_specs[emitter] if self.emitter_specs else Emitter()
 
     def reflectance_of(self, material: int) -> torch.Tensor:
         """The diffuse reflectance rho of material ``material``; zero for materials without one."""
@@ -229,7 +237,8 @@ def build_scene(
             ``emission``.
         materials: material name -> a :class:`~invrender.scene.materials.Material`, or just a
             diffuse reflectance rho (an RGB triple, one number or an (h, w, 3) texture).
-        emission: emitter name -> eps, an RGB triple or an (h, w, 3) texture.
+        emission: emitter name -> an :class:`~invrender.scene.emitters.Emitter`, or just the eps
+            of an area light (an RGB triple or an (h, w, 3) texture).
     Raises:
         SceneError: unknown material or emitter names, bad indices, no triangles.
         ParameterError: a value outside its kind's range.
@@ -244,7 +253,8 @@ def build_scene(
     material_names = tuple(materials)
     emitters = tuple(emission)
     params = {param_name(k, key): check_param_value(param_name(k, key), v) for k, m in specs.items() for key, v in m.values.items()}
-    params.update({f"{k}.emission": check_param_value(f"{k}.emission", v) for k, v in emission.items()})
+    emitter_specs = {k: v if isinstance(v, Emitter) else Emitter(values={"emission": v}) for k, v in emission.items()}
+    params.update({param_name(k, key): check_param_value(param_name(k, key), v) for k, e in emitter_specs.items() for key, v in e.values.items()})
 
     tris, uvs, mats, emits, normals, smooth = [], [], [], [], [], []
     for mesh in meshes:
@@ -252,6 +262,8 @@ def build_scene(
             raise SceneError(f"shape uses unknown material {mesh.material!r} (known: {', '.join(material_names) or 'none'})")
         if mesh.emitter is not None and mesh.emitter not in emission:
             raise SceneError(f"shape uses unknown emitter {mesh.emitter!r} (known: {', '.join(emitters) or 'none'})")
+        if mesh.emitter is not None and not emitter_specs[mesh.emitter].spec.surface:
+            raise SceneError(f"shape names emitter {mesh.emitter!r} of type {emitter_specs[mesh.emitter].type!r}, which emits from outside the scene, not from shapes")
         v = np.asarray(mesh.vertices, dtype=np.float64)
         f = np.asarray(mesh.faces)
         if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
@@ -311,7 +323,10 @@ def build_scene(
         smooth=t(np.concatenate(smooth), torch.bool),
     )
     specs_only = tuple(Material(m.type, {}, m.constants) for m in specs.values())
-    return Scene(triangles, material_names, emitters, camera, resolution, params, name, specs_only)
+    emitters_only = tuple(Emitter(e.type, {}, e.constants) for e in emitter_specs.values())
+    if all(e.type == Emitter.default_type and not e.constants for e in emitters_only):
+        emitters_only = ()  # every emitter an area light: the default
+    return Scene(triangles, material_names, emitters, camera, resolution, params, name, specs_only, emitter_specs=emitters_only)
 
 
 def scene_extent(triangles: Triangles) -> float:

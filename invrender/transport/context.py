@@ -12,7 +12,7 @@ from invrender.scene.scene import AMBIENT, Scene, Triangles, scene_extent
 from invrender.transport import kernels
 from invrender.transport.accel import intersector_for
 from invrender.transport.bsdfs import BSDFSampling, Materials, ShadingPoint
-from invrender.transport.lights import EmitterSampler
+from invrender.transport.lights import Lights
 from invrender.transport.surface import Surface
 from invrender.transport.textures import gather_rgb
 from invrender.vec import dot
@@ -25,10 +25,12 @@ class TransportContext:
     Attributes:
         triangles: scene geometry on the render device.
         accel: the intersection backend.
-        lights: the emitter sampler (None when nothing emits).
+        lights: the scene's emitters (:class:`~invrender.transport.lights.Lights`; differentiable
+            in their parameters); ``lights.count`` is 0 when nothing can be sampled.
         materials: the scene's BSDFs (differentiable in their parameters), indexed by
             ``triangles.material``.
-        eps: per-emitter emission parameters (differentiable), indexed by ``triangles.emitter``.
+        eps: per scene emitter, its ``emission`` parameter (differentiable; zero for emitter types
+            without one), indexed by ``triangles.emitter``.
         ambient: (3,) the ambient radiance eps0 of the Utah, Whitted and distributed models
             (differentiable), or None.
         ray_offset: distance new rays start off a surface, to avoid self-intersection.
@@ -38,7 +40,7 @@ class TransportContext:
 
     triangles: Triangles
     accel: object
-    lights: EmitterSampler | None
+    lights: Lights
     materials: Materials
     eps: list[torch.Tensor]
     ambient: torch.Tensor | None
@@ -63,17 +65,18 @@ class TransportContext:
         values = {**scene.params, **(params or {})}
         specs = [scene.material_spec(i) for i in range(len(scene.materials))]
         material_values = [{key: values[param_name(m, key)].to(device) for key in spec.spec.params} for m, spec in zip(scene.materials, specs)]
-        eps = [values[f"{e}.emission"].to(device) for e in scene.emitters]
-        lights = EmitterSampler(tris, eps)
+        emitters = [scene.emitter_spec(i) for i in range(len(scene.emitters))]
+        light_values = [{key: values[param_name(e, key)].to(device) for key in spec.spec.params} for e, spec in zip(scene.emitters, emitters)]
+        eps = [v.get("emission", torch.zeros(3, device=device)) for v in light_values]
         return TransportContext(
             triangles=tris,
             accel=intersector_for(tris, backend, embree_threads),
-            lights=lights if lights.count else None,
+            lights=Lights([e.type for e in emitters], light_values, [dict(e.constants) for e in emitters], tris),
             materials=Materials([s.type for s in specs], material_values, [dict(s.constants) for s in specs], device, flat=not tris.any_smooth, sampling=sampling),
             eps=eps,
             ambient=values[AMBIENT].to(device) if AMBIENT in values else None,
             ray_offset=1e-4 * max(scene_extent(tris), 1e-3),
-            textured=any(p.ndim == 3 for p in eps + [v for m in material_values for v in m.values()]),
+            textured=any(p.ndim == 3 for p in [v for m in light_values + material_values for v in m.values()]),
         )
 
     def material(self, s: Surface) -> torch.Tensor:
@@ -85,16 +88,9 @@ class TransportContext:
         return self.materials.shading_point(self.material(s), wo, s.ns, s.n, s.front, s.uv)
 
     def emission(self, emitter: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
-        """eps (N, 3) of emitters ``emitter`` (N,) int64 (-1 = none) at ``uv`` (N, 2)."""
+        """Surface emission eps (N, 3) of scene emitters ``emitter`` (N,) int64 (-1 = none) at
+        ``uv`` (N, 2) (for methods that read emission off the triangles, e.g. radiosity's patches)."""
         return gather_rgb(self.eps, emitter, uv)
-
-    def emitted(self, s: Surface) -> torch.Tensor:
-        """eps leaving the hits back along the rays (N, 3): zero on back sides and non-emitters."""
-        return self.emission(torch.where(s.front, self.triangles.emitter.index_select(0, s.tri), -1), s.uv)
-
-    def emits(self, s: Surface) -> torch.Tensor:
-        """(N,) bool: is the hit on the emitting side of an emitter?"""
-        return s.front & (self.triangles.emitter.index_select(0, s.tri) >= 0)
 
     def spawn(self, s: Surface, wi: torch.Tensor) -> torch.Tensor:
         """Origins (N, 3) of new rays leaving ``s`` in directions ``wi``, offset off the surface on

@@ -13,7 +13,7 @@ rounding).
 - :func:`hit_geometry`: position, facing normal, side, cosine and texture coordinates of hits
   (:func:`invrender.transport.surface.surface_at`);
 - :func:`emitter_geometry`: points sampled on emitters as seen from surface points, the shadow ray
-  towards each and its solid-angle pdf (:meth:`invrender.transport.lights.EmitterSampler.sample_from`);
+  towards each and its solid-angle pdf (:meth:`invrender.emitters.area.Area.geometry`);
 - :func:`cosine_directions`: the diffuse BSDF's cosine-weighted directions and their pdf;
 - :func:`offset_origins`: the origins of rays leaving surfaces (``TransportContext.spawn``).
 
@@ -293,7 +293,7 @@ def hit_geometry(packed: torch.Tensor, tri: torch.Tensor, u: torch.Tensor, v: to
 
 def emitter_geometry(packed, light_tri, cdf, pdf_area, u: torch.Tensor, x: torch.Tensor, nx: torch.Tensor, offset: float, with_uv: bool):
     """Emitter samples seen from points ``x`` (N, 3) with normals ``nx`` (N, 3), from uniforms ``u``
-    (N, 3) (pick, then the point), the sampler's tables (``EmitterSampler``) and the (T, 18) packed
+    (N, 3) (pick, then the point), the area lights' tables (:class:`~invrender.emitters.area.Area`) and the (T, 18) packed
     triangles.
 
     Returns:

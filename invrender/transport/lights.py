@@ -1,106 +1,340 @@
-"""Sampling points on emissive triangles for next-event estimation.
+"""The light interface and the dispatch of emitter queries to the scene's emitters.
 
-Lights are sampled by detached power (docs/architecture.md#detached-sampling-differentiable-evaluation): an emissive triangle is picked with
-probability proportional to ``area x mean(eps)`` (eps read without gradient when the sampler is
-built), then a point uniformly on it. No pdf depends on the differentiable ``eps``.
+An emitter type is a plugin (:mod:`invrender.emitters`): a subclass of :class:`Light` that declares
+its type name, parameters and constants, and answers the queries of the integrators:
+
+- from a shading point, sample a direction towards it (next-event estimation): the shadow ray, the
+  solid-angle pdf and the radiance arriving (:meth:`Light.sample_from`);
+- for a ray that hit a surface it emits from (:attr:`Light.surface` types, e.g. ``area``): the
+  radiance leaving back along the ray and the pdf with which :meth:`Light.sample_from` would have
+  chosen that point (for multiple importance sampling);
+- for a ray that leaves the scene (types that emit from infinitely far, e.g. a sky): the radiance
+  arriving along it and the pdf of having sampled its direction.
+
+Sampling is detached (docs/architecture.md#detached-sampling-differentiable-evaluation): whatever a
+light picks by (power, luminance) is read without gradient when the render starts; only the
+radiance it returns is differentiable in its parameters. One instance holds every emitter of its
+type in a scene; :class:`Lights` picks among the instances by their detached power and sends hits to
+the instance their emitter belongs to.
 """
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
+from typing import ClassVar
 
 import torch
 
+from invrender.registry import EMITTERS
+from invrender.scene.plugins import Declared
 from invrender.scene.scene import Triangles
-from invrender.transport import kernels
-from invrender.vec import dot, norm
+from invrender.transport.surface import Surface
 
 
 @dataclass(frozen=True)
 class LightSample:
-    """N points sampled on emitters.
+    """N emitter samples as seen from N surface points x: the shadow rays towards them.
 
     Attributes:
-        tri: (N,) int64 triangle index.
-        p: (N, 3) position.
-        n: (N, 3) unit normal of the emitting (front) side.
-        uv: (N, 2) texture coordinates (zeros when no emission is textured).
-        pdf_area: (N,) density per unit area of having sampled ``p``.
-    """
-
-    tri: torch.Tensor
-    p: torch.Tensor
-    n: torch.Tensor
-    uv: torch.Tensor
-    pdf_area: torch.Tensor
-
-
-@dataclass(frozen=True)
-class EmitterSampleFrom:
-    """N points sampled on emitters as seen from N surface points x: the shadow rays towards them.
-
-    Attributes:
-        tri: (N,) int64 emitter triangle of each point.
-        uv: (N, 2) texture coordinates at the points (zeros when no emission is textured).
         o: (N, 3) shadow-ray origins, x offset off its surface along its geometric normal.
-        wl: (N, 3) unit directions from ``o`` to the points.
-        tmax: (N,) distance from ``o`` to the point minus the offset (where the shadow ray stops).
-        facing: (N,) bool: the point lies in front of x's geometric normal and x in front of the
-            emitter (its emitting side); only then can it light x.
-        pdf: (N,) solid-angle density at ``o`` of having sampled the point.
+        wl: (N, 3) unit directions from ``o`` towards the sampled emitter points or directions.
+        tmax: (N,) where the shadow ray stops: the distance to the point minus the offset
+            (``inf`` for emitters infinitely far away).
+        facing: (N,) bool: the sample lies in front of x's geometric normal and x on the emitting
+            side of the emitter; only then can it light x.
+        pdf: (N,) solid-angle density at ``o`` of having sampled ``wl`` (including the choice of
+            the emitter).
+        Le: (N, 3) radiance arriving at x along ``-wl`` from the sample if unoccluded
+            (differentiable in the emitter's parameters).
     """
 
-    tri: torch.Tensor
-    uv: torch.Tensor
     o: torch.Tensor
     wl: torch.Tensor
     tmax: torch.Tensor
     facing: torch.Tensor
     pdf: torch.Tensor
+    Le: torch.Tensor
+
+    def scaled_pdf(self, p: float) -> "LightSample":
+        """The same samples with their pdf multiplied by ``p`` (the probability of having chosen
+        this emitter type)."""
+        return LightSample(self.o, self.wl, self.tmax, self.facing, self.pdf * p, self.Le)
 
 
-class EmitterSampler:
-    """Picks emissive triangles by detached power, then uniform points on them."""
+class Light(Declared, ABC):
+    """Base class of the emitter types: one instance holds every emitter of one type in a scene.
 
-    def __init__(self, triangles: Triangles, emissions: list[torch.Tensor]):
-        """``emissions``: one (3,) or (h, w, 3) eps per emitter, indexed by ``triangles.emitter``."""
+    A subclass is the whole description of an emitter type: it declares ``type_name``, ``params``
+    (at least the ones its radiance reads), ``constants``, ``doc`` and :attr:`surface`, implements
+    the queries below, and is registered with ``@EMITTERS.register``
+    (:data:`invrender.registry.EMITTERS`).
+
+    Args:
+        emitters: (E,) the scene emitter indices this instance holds (``triangles.emitter`` values).
+        values: per emitter, parameter key -> tensor (differentiable).
+        constants: per emitter, constant key -> float.
+        triangles: the scene geometry on the render device.
+    """
+
+    #: does it emit from scene surfaces (the shapes naming it) rather than from infinitely far?
+    surface: ClassVar[bool] = True
+
+    def __init__(self, emitters: list[int], values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], triangles: Triangles):
+        self.emitters, self.values, self.constants, self.triangles = emitters, values, constants, triangles
+
+    @property
+    @abstractmethod
+    def power(self) -> float:
+        """A detached measure of the power it sends into the scene (W, up to a common factor),
+        by which :class:`Lights` chooses among emitter types; 0 = never sampled."""
+
+    @abstractmethod
+    def sample_from(self, u: torch.Tensor, x: torch.Tensor, nx: torch.Tensor, offset: float) -> LightSample:
+        """Samples from uniforms ``u`` (N, 3) as seen from points ``x`` (N, 3) with geometric
+        normals ``nx`` (N, 3); shadow rays start ``offset`` off x's surface."""
+
+    def emits(self, s: Surface) -> torch.Tensor:
+        """(N,) bool: is each hit on an emitting side (surface types only)?"""
+        return torch.zeros(s.tri.shape[0], dtype=torch.bool, device=s.tri.device)
+
+    def emitted(self, s: Surface) -> torch.Tensor:
+        """Radiance (N, 3) leaving hits ``s`` back along their rays (surface types only)."""
+        return s.p.new_zeros(s.p.shape[0], 3)
+
+    def pdf_hit(self, s: Surface) -> torch.Tensor:
+        """Solid-angle density (N,) with which :meth:`sample_from`, from the ray's origin, would
+        have sampled the hit points ``s`` (surface types only)."""
+        return s.t.new_zeros(s.t.shape[0])
+
+    def escaped(self, d: torch.Tensor) -> torch.Tensor:
+        """Radiance (N, 3) arriving along rays with directions ``d`` (N, 3) that leave the scene
+        (types that emit from infinitely far only)."""
+        return d.new_zeros(d.shape[0], 3)
+
+    def pdf_escaped(self, d: torch.Tensor) -> torch.Tensor:
+        """Solid-angle density (N,) with which :meth:`sample_from` would have sampled directions
+        ``d`` (N, 3) (types that emit from infinitely far only)."""
+        return d.new_zeros(d.shape[0])
+
+
+class Lights:
+    """The scene's emitters on one device, and the dispatch of queries to them.
+
+    Args:
+        types: per scene emitter, its type name.
+        values: per scene emitter, parameter key -> tensor (differentiable).
+        constants: per scene emitter, constant key -> float.
+        triangles: the scene geometry on the render device.
+    """
+
+    def __init__(self, types: list[str], values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], triangles: Triangles):
+        device = triangles.p0.device
         self.triangles = triangles
-        #: does any emission vary over UVs (else samples skip their texture coordinates)?
-        self.textured = any(e.ndim == 3 for e in emissions)
-        power = torch.tensor([float(e.detach().mean()) for e in emissions] + [0.0], device=triangles.area.device)
-        weight = triangles.area * power[triangles.emitter]  # emitter -1 -> the appended 0
-        self.tri = torch.nonzero(weight > 0)[:, 0]
-        total = weight.sum()
-        self.count = int(self.tri.numel())
-        #: (T,) pdf per unit area of the point sampler on each triangle (0 where it never samples)
-        self.pdf_area = torch.where(weight > 0, weight / total.clamp_min(1e-30) / triangles.area, 0.0)
-        cdf = torch.cumsum(weight[self.tri].double(), 0)
-        self.cdf = (cdf / cdf[-1]).float() if self.count else cdf.float()
+        present = list(dict.fromkeys(types))  # first-seen order
+        self.lights: list[Light] = []
+        for t in present:
+            members = [i for i, ti in enumerate(types) if ti == t]
+            self.lights.append(EMITTERS[t](members, [values[i] for i in members], [constants[i] for i in members], triangles))
+        power = [max(light.power, 0.0) for light in self.lights]
+        total = sum(power)
+        #: per instance, the probability of being chosen for an emitter sample
+        self.choice = [p / total if total > 0 else 0.0 for p in power]
+        self.sampled = [light for light, p in zip(self.lights, self.choice) if p > 0]
+        #: cumulative choice probabilities of ``sampled``
+        self._cdf = torch.tensor([p for p in self.choice if p > 0], dtype=torch.float64).cumsum(0).float().to(device)
+        self.surfaces = [light for light in self.lights if light.surface]
+        self.infinite = [light for light in self.lights if not light.surface]
+        #: (E + 1,) int64, which of ``surfaces`` each scene emitter belongs to (last: no emitter)
+        slot = [-1] * (len(types) + 1)
+        for k, light in enumerate(self.surfaces):
+            for e in light.emitters:
+                slot[e] = k
+        self._surface_slot = torch.tensor(slot, dtype=torch.int64, device=device)
 
-    def sample(self, u_pick: torch.Tensor, u: torch.Tensor) -> LightSample:
-        """Points from uniforms ``u_pick`` (N,) and ``u`` (N, 2)."""
-        k = torch.searchsorted(self.cdf, u_pick.contiguous(), right=True).clamp_max(self.count - 1)
-        tri = self.tri.index_select(0, k)
-        g = self.triangles.packed.index_select(0, tri)
-        su = u[:, 0].sqrt()
-        b1, b2 = (su * (1.0 - u[:, 1]))[:, None], (su * u[:, 1])[:, None]  # uniform barycentrics (weights of p1, p2)
-        p = g[:, 0:3] + b1 * g[:, 3:6] + b2 * g[:, 6:9]
-        uv = (1 - b1 - b2) * g[:, 12:14] + b1 * g[:, 14:16] + b2 * g[:, 16:18] if self.textured else p.new_zeros(()).expand(len(tri), 2)
-        return LightSample(tri, p, g[:, 9:12], uv, self.pdf_area.index_select(0, tri))
+    @property
+    def count(self) -> int:
+        """How many emitter types can be sampled (0: next-event estimation finds nothing)."""
+        return len(self.sampled)
 
-    def sample_from(self, u: torch.Tensor, x: torch.Tensor, nx: torch.Tensor, offset: float) -> EmitterSampleFrom:
-        """Points from uniforms ``u`` (N, 3) (pick, then the point) as seen from points ``x`` (N, 3)
-        with geometric normals ``nx`` (N, 3): the shadow rays of next-event estimation, starting
-        ``offset`` off x's surface (one fused kernel where :mod:`~invrender.transport.kernels` runs)."""
-        if kernels.enabled(x.device):
-            tri, o, wl, tmax, facing, pdf, uv = kernels.emitter_geometry(self.triangles.packed, self.tri, self.cdf, self.pdf_area, u, x, nx, offset, self.textured)
-            return EmitterSampleFrom(tri, uv, o, wl, tmax, facing, pdf)
-        ls = self.sample(u[:, 0], u[:, 1:3])
-        o = x + offset * nx
-        to_light = ls.p - o
-        dist = norm(to_light).clamp_min(1e-12)
-        wl = to_light / dist[:, None]
-        cos_l = -dot(ls.n, wl)  # at the light: only its front side emits
-        facing = (dot(nx, wl) > 0) & (cos_l > 0)  # light from behind x's surface does not reach it
-        pdf = ls.pdf_area * dist * dist / cos_l.clamp_min(1e-12)  # area -> solid angle
-        return EmitterSampleFrom(ls.tri, ls.uv, o, wl, dist - offset, facing, pdf)
+    def sample_from(self, u: torch.Tensor, x: torch.Tensor, nx: torch.Tensor, offset: float) -> LightSample:
+        """One emitter sample per point ``x`` (N, 3) with geometric normal ``nx`` (N, 3), from
+        uniforms ``u`` (N, 3): ``u[:, 0]`` chooses the emitter type by power (and is stretched back
+        to [0, 1) for the type's own choice), the rest is the type's."""
+        if len(self.sampled) == 1:
+            return self.sampled[0].sample_from(u, x, nx, offset)  # one type: its own pdf, u as is
+        k = torch.searchsorted(self._cdf, u[:, 0].contiguous(), right=True).clamp_max(len(self.sampled) - 1)
+        out = None
+        for i, light in enumerate(self.sampled):
+            index = (k == i).nonzero()[:, 0]
+            if not index.numel():
+                continue
+            lo = float(self._cdf[i - 1]) if i else 0.0
+            p = float(self._cdf[i]) - lo
+            ui = u.index_select(0, index).clone()
+            ui[:, 0] = ((ui[:, 0] - lo) / p).clamp(0.0, 1.0 - 2**-24)
+            part = light.sample_from(ui, x.index_select(0, index), nx.index_select(0, index), offset).scaled_pdf(p)
+            if out is None:
+                out = {f: getattr(part, f).new_zeros((x.shape[0], *getattr(part, f).shape[1:])) for f in part.__dataclass_fields__}
+            out = {f: out[f].index_put((index,), getattr(part, f)) for f in out}
+        return LightSample(**out)
+
+    def _probability(self, light: Light) -> float:
+        return self.choice[self.lights.index(light)]
+
+    def emits(self, s: Surface) -> torch.Tensor:
+        """(N,) bool: is each hit on an emitting side of an emitter?"""
+        if len(self.surfaces) == 1:
+            return self.surfaces[0].emits(s)
+        out = torch.zeros(s.tri.shape[0], dtype=torch.bool, device=s.tri.device)
+        for light in self.surfaces:
+            out = out | light.emits(s)
+        return out
+
+    def emitted(self, s: Surface) -> torch.Tensor:
+        """Radiance (N, 3) leaving emitting hits ``s`` back along their rays."""
+        return self._per_surface(s, lambda light, t: light.emitted(t))
+
+    def pdf_hit(self, s: Surface) -> torch.Tensor:
+        """Solid-angle density (N,) of next-event estimation having sampled the emitting hits ``s``."""
+        return self._per_surface(s, lambda light, t: light.pdf_hit(t) * self._probability(light))
+
+    def _per_surface(self, s: Surface, call):
+        if len(self.surfaces) == 1:
+            return call(self.surfaces[0], s)
+        e = self.triangles.emitter.index_select(0, s.tri)
+        slot = self._surface_slot.index_select(0, torch.where(e >= 0, e, len(self._surface_slot) - 1))
+        out = None
+        for k, light in enumerate(self.surfaces):
+            index = (slot == k).nonzero()[:, 0]
+            part = call(light, s.select(index))
+            if out is None:
+                out = part.new_zeros((s.tri.shape[0], *part.shape[1:]))
+            out = out.index_put((index,), part)
+        return out
+
+    def escaped(self, d: torch.Tensor) -> torch.Tensor:
+        """Radiance (N, 3) arriving along rays with directions ``d`` (N, 3) that leave the scene
+        (types that emit from infinitely far only)."""
+        return d.new_zeros(d.shape[0], 3)
+
+    def pdf_escaped(self, d: torch.Tensor) -> torch.Tensor:
+        """Solid-angle density (N,) with which :meth:`sample_from` would have sampled directions
+        ``d`` (N, 3) (types that emit from infinitely far only)."""
+        return d.new_zeros(d.shape[0])
+
+
+class Lights:
+    """The scene's emitters on one device, and the dispatch of queries to them.
+
+    Args:
+        types: per scene emitter, its type name.
+        values: per scene emitter, parameter key -> tensor (differentiable).
+        constants: per scene emitter, constant key -> float.
+        triangles: the scene geometry on the render device.
+    """
+
+    def __init__(self, types: list[str], values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], triangles: Triangles):
+        device = triangles.p0.device
+        self.triangles = triangles
+        present = list(dict.fromkeys(types))  # first-seen order
+        self.lights: list[Light] = []
+        for t in present:
+            members = [i for i, ti in enumerate(types) if ti == t]
+            self.lights.append(EMITTERS[t](members, [values[i] for i in members], [constants[i] for i in members], triangles))
+        power = [max(light.power, 0.0) for light in self.lights]
+        total = sum(power)
+        #: per instance, the probability of being chosen for an emitter sample
+        self.choice = [p / total if total > 0 else 0.0 for p in power]
+        self.sampled = [light for light, p in zip(self.lights, self.choice) if p > 0]
+        #: cumulative choice probabilities of ``sampled``
+        self._cdf = torch.tensor([p for p in self.choice if p > 0], dtype=torch.float64).cumsum(0).float().to(device)
+        self.surfaces = [light for light in self.lights if light.surface]
+        self.infinite = [light for light in self.lights if not light.surface]
+        #: (E + 1,) int64, which of ``surfaces`` each scene emitter belongs to (last: no emitter)
+        slot = [-1] * (len(types) + 1)
+        for k, light in enumerate(self.surfaces):
+            for e in light.emitters:
+                slot[e] = k
+        self._surface_slot = torch.tensor(slot, dtype=torch.int64, device=device)
+
+    @property
+    def count(self) -> int:
+        """How many emitter types can be sampled (0: next-event estimation finds nothing)."""
+        return len(self.sampled)
+
+    def sample_from(self, u: torch.Tensor, x: torch.Tensor, nx: torch.Tensor, offset: float) -> LightSample:
+        """One emitter sample per point ``x`` (N, 3) with geometric normal ``nx`` (N, 3), from
+        uniforms ``u`` (N, 3): ``u[:, 0]`` chooses the emitter type by power (and is stretched back
+        to [0, 1) for the type's own choice), the rest is the type's."""
+        if len(self.sampled) == 1:
+            return self.sampled[0].sample_from(u, x, nx, offset)  # one type: its own pdf, u as is
+        k = torch.searchsorted(self._cdf, u[:, 0].contiguous(), right=True).clamp_max(len(self.sampled) - 1)
+        out = None
+        for i, light in enumerate(self.sampled):
+            index = (k == i).nonzero()[:, 0]
+            if not index.numel():
+                continue
+            lo = float(self._cdf[i - 1]) if i else 0.0
+            p = float(self._cdf[i]) - lo
+            ui = u.index_select(0, index).clone()
+            ui[:, 0] = ((ui[:, 0] - lo) / p).clamp(0.0, 1.0 - 2**-24)
+            part = light.sample_from(ui, x.index_select(0, index), nx.index_select(0, index), offset).scaled_pdf(p)
+            if out is None:
+                out = {f: getattr(part, f).new_zeros((x.shape[0], *getattr(part, f).shape[1:])) for f in part.__dataclass_fields__}
+            out = {f: out[f].index_put((index,), getattr(part, f)) for f in out}
+        return LightSample(**out)
+
+    def _probability(self, light: Light) -> float:
+        return self.choice[self.lights.index(light)]
+
+    def emits(self, s: Surface) -> torch.Tensor:
+        """(N,) bool: is each hit on an emitting side of an emitter?"""
+        if len(self.surfaces) == 1:
+            return self.surfaces[0].emits(s)
+        out = torch.zeros(s.tri.shape[0], dtype=torch.bool, device=s.tri.device)
+        for light in self.surfaces:
+            out = out | light.emits(s)
+        return out
+
+    def emitted(self, s: Surface) -> torch.Tensor:
+        """Radiance (N, 3) leaving emitting hits ``s`` back along their rays."""
+        return self._per_surface(s, lambda light, t: light.emitted(t))
+
+    def pdf_hit(self, s: Surface) -> torch.Tensor:
+        """Solid-angle density (N,) of next-event estimation having sampled the emitting hits ``s``."""
+        return self._per_surface(s, lambda light, t: light.pdf_hit(t) * self._probability(light))
+
+    def _per_surface(self, s: Surface, call):
+        if len(self.surfaces) == 1:
+            return call(self.surfaces[0], s)
+        e = self.triangles.emitter.index_select(0, s.tri)
+        slot = self._surface_slot.index_select(0, torch.where(e >= 0, e, len(self._surface_slot) - 1))
+        out = None
+        for k, light in enumerate(self.surfaces):
+            index = (slot == k).nonzero()[:, 0]
+            part = call(light, s.select(index))
+            if out is None:
+                out = part.new_zeros((s.tri.shape[0], *part.shape[1:]))
+            out = out.index_put((index,), part)
+        return out
+
+    def triangles_emitter(self, s: Surface) -> torch.Tensor:
+        """(N,) int64 scene emitter of each hit's triangle (-1 -> the last slot: none)."""
+        e = self.surfaces[0].triangles.emitter.index_select(0, s.tri)
+        return torch.where(e >= 0, e, len(self._surface_slot) - 1)
+
+    def escaped(self, d: torch.Tensor) -> torch.Tensor:
+        """Radiance (N, 3) arriving along rays ``d`` (N, 3) that leave the scene (summed over the
+        emitters infinitely far away)."""
+        out = self.infinite[0].escaped(d)
+        for light in self.infinite[1:]:
+            out = out + light.escaped(d)
+        return out
+
+    def pdf_escaped(self, d: torch.Tensor) -> torch.Tensor:
+        """Solid-angle density (N,) of next-event estimation having sampled directions ``d``."""
+        out = self.infinite[0].pdf_escaped(d) * self._probability(self.infinite[0])
+        for light in self.infinite[1:]:
+            out = out + light.pdf_escaped(d) * self._probability(light)
+        return out

@@ -43,7 +43,7 @@ def test_a_new_integrator_registers_once_and_runs_its_pre_pass_once_per_render()
             return dataclasses.replace(ctx, extra=torch.tensor(2.0))
 
         def trace(self, ctx, state, film):
-            state, s = next_vertex(ctx, state, film)
+            state, s = next_vertex(ctx, state, film, 0)
             if s is not None:
                 sp = ctx.shading_point(s, -state.d)
                 film.add(0, state.pixel, ctx.extra * ctx.materials.diffuse_reflectance(sp))

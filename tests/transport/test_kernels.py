@@ -14,7 +14,7 @@ import invrender as ir
 from invrender.errors import ParameterError
 from invrender.transport import kernels
 from invrender.transport.accel import make_intersector
-from invrender.transport.lights import EmitterSampler
+from invrender.emitters.area import Area
 from invrender.transport.sampler import mirrored, path_keys, uniform
 from invrender.transport.surface import surface_at
 
@@ -92,12 +92,12 @@ def test_emitter_samples_match_the_reference(name, reference):
     hits, d = _hits(scene, seed=1)
     s = surface_at(scene.triangles, hits, d)
     eps = [scene.params[f"{e}.emission"] for e in scene.emitters]
-    lights = EmitterSampler(scene.triangles, eps)
+    lights = Area(list(range(len(eps))), [{"emission": e} for e in eps], [{} for _ in eps], scene.triangles)
     lights.textured = True  # uv at the points too
     u = torch.rand(len(d), 3, generator=torch.Generator().manual_seed(2))
-    fused = lights.sample_from(u, s.p, s.n, 1e-3)
+    fused = lights.geometry(u, s.p, s.n, 1e-3)
     reference()
-    expected = lights.sample_from(u, s.p, s.n, 1e-3)
+    expected = lights.geometry(u, s.p, s.n, 1e-3)
     assert torch.equal(fused.tri, expected.tri)  # the same emitter picked (the cdf search)
     assert len(set(fused.tri.tolist())) == lights.count  # every emissive triangle picked
     assert (fused.facing != expected.facing).float().mean() < 1e-3  # only rounding at cos = 0

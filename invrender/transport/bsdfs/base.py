@@ -37,7 +37,7 @@ from typing import ClassVar
 import torch
 
 from invrender.errors import ParameterError
-from invrender.scene.materials import Constant, Param
+from invrender.scene.plugins import Declared
 from invrender.transport.frame import Frame
 from invrender.transport.textures import gather_rgb
 
@@ -151,7 +151,7 @@ class BSDFSample:
     delta: torch.Tensor
 
 
-class BSDF(ABC):
+class BSDF(Declared, ABC):
     """Base class of the materials: one instance holds every material of one type in a scene.
 
     A subclass is the whole description of a material type: it declares the class attributes
@@ -166,25 +166,8 @@ class BSDF(ABC):
         sampling: how :meth:`sample` draws directions (and so what :meth:`pdf` returns).
     """
 
-    #: the ``type`` scene files name it by
-    type_name: ClassVar[str]
     #: the kinds of lobe it has (several for layered materials)
     lobes: ClassVar[Lobe]
-    #: differentiable parameters: key -> :class:`~invrender.scene.materials.Param` (kind, default)
-    params: ClassVar[dict[str, Param]] = {}
-    #: scalar constants of the scene: key -> :class:`~invrender.scene.materials.Constant`
-    constants: ClassVar[dict[str, Constant]] = {}
-    #: one line for messages and the docs' tables
-    doc: ClassVar[str] = ""
-
-    #: keys a material table of this type may hold besides ``type`` (parameters, their
-    #: ``_texture`` forms where the kind allows one, constants); set for each subclass
-    keys: ClassVar[frozenset[str]] = frozenset()
-
-    def __init_subclass__(cls, **kwargs):
-        super().__init_subclass__(**kwargs)
-        texture_keys = {f"{k}_texture" for k, p in cls.params.items() if p.kind.texture}
-        cls.keys = frozenset(cls.params) | texture_keys | frozenset(cls.constants)
 
     def __init__(self, values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], flat: bool = False, sampling: BSDFSampling | None = None):
         self.values, self.constants = values, constants

@@ -62,7 +62,7 @@ class Radiosity(Integrator):
         per_term = bool(getattr(film, "terms", False))
         depth = 0
         while state.count:
-            state, s = next_vertex(ctx, state, film)
+            state, s = next_vertex(ctx, state, film, depth)
             if s is None:
                 return
             add_emitted(ctx, state, s, depth, film, mis=False)  # term depth: eps(x)

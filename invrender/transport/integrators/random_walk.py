@@ -44,7 +44,7 @@ class RandomWalk(Integrator):
         rr_start = math.inf if cfg.rr_depth == -1 else cfg.rr_depth  # -1: no roulette
         depth = 0
         while state.count:
-            state, s = next_vertex(ctx, state, film)
+            state, s = next_vertex(ctx, state, film, depth, mis=self.emitter_mis, nee_only=self.emitter_nee_only)
             if s is None:
                 break
             add_emitted(ctx, state, s, depth, film, mis=self.emitter_mis, nee_only=self.emitter_nee_only)  # term depth

@@ -21,10 +21,20 @@ def power_heuristic(pdf_a: torch.Tensor, pdf_b: torch.Tensor) -> torch.Tensor:
     return torch.where(a2 > 0, a2 / (a2 + b2).clamp_min(1e-30), 0.0)
 
 
-def next_vertex(ctx: TransportContext, state: PathState, film: Film) -> tuple[PathState, Surface | None]:
-    """Intersect ``state``'s rays; paths whose ray leaves the scene end (no environment light).
-    The film is told of the new vertices (``Film.visit``)."""
+def next_vertex(ctx: TransportContext, state: PathState, film: Film, depth: int, mis: bool = False, nee_only: bool = False) -> tuple[PathState, Surface | None]:
+    """Intersect ``state``'s rays (the vertex of index ``depth``): the paths that hit, and their
+    surfaces (None when none did). The film is told of the new vertices (``Film.visit``).
+
+    Paths whose ray leaves the scene end here; where the scene has emitters infinitely far away
+    (a sky), they first add term ``depth``, the radiance arriving along the ray, weighted as
+    :func:`add_emitted` weighs emission seen (``mis``, ``nee_only``).
+    """
     hits = ctx.accel.intersect(state.o, state.d)
+    if ctx.lights.infinite:
+        missed = (~hits.valid).nonzero()[:, 0]
+        if missed.numel():
+            gone = state.select(missed)
+            add_emitted(ctx, gone, None, depth, film, mis, nee_only)
     hit = hits.valid.nonzero()[:, 0]
     state, hits = state.select(hit), hits.select(hit)
     if not state.count:
@@ -34,26 +44,31 @@ def next_vertex(ctx: TransportContext, state: PathState, film: Film) -> tuple[Pa
     return state, s
 
 
-def add_emitted(ctx: TransportContext, state: PathState, s: Surface, depth: int, film: Film, mis: bool, nee_only: bool = False) -> None:
-    """Term ``depth``: emission seen along the ray, ``beta w eps``.
+def add_emitted(ctx: TransportContext, state: PathState, s: Surface | None, depth: int, film: Film, mis: bool, nee_only: bool = False) -> None:
+    """Term ``depth``: radiance seen along the rays, ``beta w Le``: emission of the surfaces ``s``
+    they hit, or (``s`` None) of the emitters infinitely far away, for rays leaving the scene.
 
-    With ``mis`` the weight w balances this BSDF-sampled hit against the emitter sample taken at
+    With ``mis`` the weight w balances this BSDF-sampled ray against the emitter sample taken at
     the previous vertex (power heuristic); with ``nee_only`` that emitter sample alone estimated
     the term, so w = 0. Either way w is 1 for camera rays and after delta lobes, where no emitter
     sample competes; without either w = 1 everywhere (no emitter sampling).
     """
     if mis and nee_only:
         raise ValueError("add_emitted: mis and nee_only exclude each other")
-    emits = ctx.emits(s)
+    emits = ctx.lights.emits(s) if s is not None else torch.ones_like(state.delta)
     if nee_only:
         emits = emits & state.delta  # camera rays (delta = True) and delta lobes only
     if not bool(emits.any()):
         return
     m = emits.nonzero()[:, 0]
-    se = s.select(m)
-    Le = ctx.emitted(se)
+    if s is not None:
+        se = s.select(m)
+        Le = ctx.lights.emitted(se)
+    else:
+        d = state.d.index_select(0, m)
+        Le = ctx.lights.escaped(d)
     if mis and depth > 0:
-        pdf_light = ctx.lights.pdf_area.index_select(0, se.tri) * se.t * se.t / se.cos_o.clamp_min(1e-12)  # area -> solid angle
+        pdf_light = ctx.lights.pdf_hit(se) if s is not None else ctx.lights.pdf_escaped(d)  # the emitter sample's density, as a solid angle
         w = torch.where(state.delta[m], 1.0, power_heuristic(state.pdf_dir[m], pdf_light))[:, None]
         Le = w * Le
     film.add(depth, state.pixel[m], state.beta[m] * Le)
@@ -69,12 +84,12 @@ def add_direct(ctx: TransportContext, state: PathState, s: Surface, sp: ShadingP
     Vertices whose BSDF has delta lobes only (mirror, glass) are skipped: no emitter sample can
     hit a delta lobe (a BSDF with a smooth lobe beside its delta ones gathers through the smooth one).
     """
-    if ctx.lights is None:
+    if not ctx.lights.count:
         return
     if ctx.materials.any_delta_only:
         keep = ctx.materials.has(sp, Lobe.SMOOTH).nonzero()[:, 0]
         state, s, sp, u = state.select(keep), s.select(keep), sp.select(keep), u.index_select(0, keep)
-    ls = ctx.lights.sample_from(u[:, 2:5], s.p, s.n, ctx.ray_offset)
+    ls = ctx.lights.sample_from(u[:, 2:5], s.p, s.n, ctx.ray_offset)  # detached: the direction, pdf and shadow ray
     ok = ls.facing & ~ctx.accel.occluded(ls.o, ls.wl, ls.tmax)
     f_cos = ctx.materials.eval(sp, ls.wl)
     if mis:
@@ -82,8 +97,7 @@ def add_direct(ctx: TransportContext, state: PathState, s: Surface, sp: ShadingP
         weight = torch.where(ok, w / ls.pdf, 0.0)
     else:
         weight = torch.where(ok, 1.0 / ls.pdf, 0.0)
-    Le = ctx.emission(ctx.triangles.emitter.index_select(0, ls.tri), ls.uv)
-    film.add(term, state.pixel, (state.beta * weight[:, None]) * f_cos * Le)  # the constant factors first: autograd saves less
+    film.add(term, state.pixel, (state.beta * weight[:, None]) * f_cos * ls.Le)  # the constant factors first: autograd saves less
 
 
 def add_ambient(ctx: TransportContext, state: PathState, sp: ShadingPoint, term: int, film: Film) -> None:

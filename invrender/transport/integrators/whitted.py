@@ -51,7 +51,7 @@ class Whitted(Integrator):
         cfg = self.settings
         depth = 0
         while state.count:
-            state, s = next_vertex(ctx, state, film)
+            state, s = next_vertex(ctx, state, film, depth)
             if s is None:
                 break
             add_emitted(ctx, state, s, depth, film, mis=False)  # term depth: emitters seen (through delta chains)

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import torch
 
 from invrender.errors import ParameterError
+from invrender.transport.bsdfs import Lobe
 from invrender.transport.integrators.base import DepthSettings
 from invrender.transport.radiosity.form_factors import FormFactors, FormFactorSettings, form_factors
 from invrender.transport.radiosity.patches import MAX_PATCHES, Patches, mesh_patches, side_emission, side_reflectance
@@ -218,11 +219,16 @@ class RadiositySolution:
 
 
 def check_diffuse(scene) -> None:
-    """A :class:`ParameterError` naming the first material radiosity cannot model (not ``diffuse``)."""
+    """A :class:`ParameterError` naming the first material radiosity cannot model (one whose BSDF
+    is not purely diffuse) or the first emitter (one that does not emit from the patches)."""
     for i, name in enumerate(scene.materials):
-        kind = scene.material_spec(i).type
-        if kind != "diffuse":
-            raise ParameterError(f"radiosity models diffuse surfaces only: material {name!r} is {kind}")
+        spec = scene.material_spec(i)
+        if spec.spec.lobes != Lobe.DIFFUSE:
+            raise ParameterError(f"radiosity models diffuse surfaces only: material {name!r} is {spec.type}")
+    for i, name in enumerate(scene.emitters):
+        spec = scene.emitter_spec(i)
+        if not spec.spec.surface:
+            raise ParameterError(f"radiosity models emission from the scene's surfaces only: emitter {name!r} is {spec.type}")
 
 
 def solve_scene(ctx, settings: RadiositySettings) -> RadiositySolution:

@@ -1,0 +1,19 @@
+"""The built-in emitters, one module each; importing this package registers them in
+:data:`invrender.registry.EMITTERS`.
+
+Each module is the only place its emitter type is described: type name, differentiable parameters
+with their kinds, constants, whether it emits from surfaces or from infinitely far, and its
+queries (:class:`~invrender.transport.lights.Light`). A new emitter type is one more module like
+these plus its import here (or, outside the package, a module of the user's that registers its
+class).
+
+========  ============================================  ==========================================
+type      differentiable parameters                     emits from
+========  ============================================  ==========================================
+``area``  ``emission`` eps (RGB or texture), default 1  the front side of the shapes naming it
+========  ============================================  ==========================================
+"""
+
+from invrender.emitters.area import Area
+
+__all__ = ["Area"]

@@ -1,0 +1,142 @@
+"""Area lights: emissive triangles, Mitsuba's ``area`` emitter.
+
+The shapes that name an area emitter emit radiance eps (an RGB triple or an (h, w, 3) texture over
+their UVs) from their front side (counter-clockwise winding), uniformly in direction. Next-event
+estimation picks an emissive triangle with probability proportional to ``area x mean(eps)`` (eps read
+without gradient when the render starts), then a point uniformly on it, so no pdf depends on the
+differentiable eps (docs/architecture.md#detached-sampling-differentiable-evaluation). The points'
+shadow rays and solid-angle pdfs come from one fused kernel where
+:mod:`~invrender.transport.kernels` runs.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from dataclasses import dataclass
+
+from invrender import registry
+from invrender.scene.kinds import EMISSION
+from invrender.scene.plugins import Param
+from invrender.scene.scene import Triangles
+from invrender.transport import kernels
+from invrender.transport.lights import Light, LightSample
+from invrender.transport.surface import Surface
+from invrender.transport.textures import gather_rgb
+from invrender.vec import dot, norm
+
+
+@dataclass(frozen=True)
+class AreaSample:
+    """N points sampled on emissive triangles as seen from N surface points x.
+
+    Attributes:
+        tri: (N,) int64 emitter triangle of each point.
+        uv: (N, 2) texture coordinates at the points (zeros when no emission is textured).
+        o: (N, 3) shadow-ray origins, x offset off its surface along its geometric normal.
+        wl: (N, 3) unit directions from ``o`` to the points.
+        tmax: (N,) distance from ``o`` to the point minus the offset (where the shadow ray stops).
+        facing: (N,) bool: the point lies in front of x's geometric normal and x in front of the
+            emitter (its emitting side).
+        pdf: (N,) solid-angle density at ``o`` of having sampled the point.
+    """
+
+    tri: torch.Tensor
+    uv: torch.Tensor
+    o: torch.Tensor
+    wl: torch.Tensor
+    tmax: torch.Tensor
+    facing: torch.Tensor
+    pdf: torch.Tensor
+
+
+@registry.EMITTERS.register
+class Area(Light):
+    type_name = "area"
+    params = {"emission": Param(EMISSION, 1.0)}
+    doc = "emissive shapes: radiance eps from their front side (RGB or texture)"
+    surface = True
+
+    def __init__(self, emitters: list[int], values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], triangles: Triangles):
+        super().__init__(emitters, values, constants, triangles)
+        device = triangles.area.device
+        eps = [v["emission"] for v in values]
+        #: does any emission vary over UVs (else samples skip their texture coordinates)?
+        self.textured = any(e.ndim == 3 for e in eps)
+        #: per scene emitter, its eps (zero for emitters of other types), indexed by triangles.emitter
+        count = max(emitters) + 1
+        self.eps: list[torch.Tensor] = [torch.zeros(3, device=device)] * count
+        for e, value in zip(emitters, eps):
+            self.eps[e] = value
+        power = torch.zeros(count + 1, device=device)  # the last entry: emitter -1 (and other types) -> 0
+        power[torch.tensor(emitters, device=device)] = torch.tensor([float(e.detach().mean()) for e in eps], device=device)
+        emitter = torch.where(triangles.emitter < count, triangles.emitter, -1)
+        weight = triangles.area * power[emitter]
+        self.tri = torch.nonzero(weight > 0)[:, 0]
+        self.total = float(weight.sum())
+        self.count = int(self.tri.numel())
+        #: (T,) pdf per unit area of the point sampler on each triangle (0 where it never samples)
+        self.pdf_area = torch.where(weight > 0, weight / max(self.total, 1e-30) / triangles.area, 0.0)
+        cdf = torch.cumsum(weight[self.tri].double(), 0)
+        self.cdf = (cdf / cdf[-1]).float() if self.count else cdf.float()
+        #: (T,) bool: the triangles that emit (of this type)
+        self._emitting = torch.zeros(triangles.count + 1, dtype=torch.bool, device=device)
+        self._emitting[:-1] = torch.isin(triangles.emitter, torch.tensor(emitters, device=device))
+
+    @property
+    def power(self) -> float:
+        return self.total  # sum of area x mean(eps): proportional to the power emitted
+
+    def radiance(self, emitter: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
+        """eps (N, 3) of scene emitters ``emitter`` (N,) int64 (-1 = none) at ``uv`` (N, 2)."""
+        return gather_rgb(self.eps, emitter, uv)
+
+    def sample_from(self, u: torch.Tensor, x: torch.Tensor, nx: torch.Tensor, offset: float) -> LightSample:
+        """Points from uniforms ``u`` (N, 3) (pick, then the point) as seen from points ``x``."""
+        g = self.geometry(u, x, nx, offset)
+        Le = self.radiance(self.triangles.emitter.index_select(0, g.tri), g.uv)
+        return LightSample(g.o, g.wl, g.tmax, g.facing, g.pdf, Le)
+
+    def geometry(self, u: torch.Tensor, x: torch.Tensor, nx: torch.Tensor, offset: float) -> AreaSample:
+        """The detached part of :meth:`sample_from`: the points picked and their shadow rays (one
+        fused kernel where :mod:`~invrender.transport.kernels` runs, else the torch reference)."""
+        if kernels.enabled(x.device):
+            tri, o, wl, tmax, facing, pdf, uv = kernels.emitter_geometry(self.triangles.packed, self.tri, self.cdf, self.pdf_area, u, x, nx, offset, self.textured)
+        else:
+            tri, p, n, uv = self._points(u[:, 0], u[:, 1:3])
+            o = x + offset * nx
+            to_light = p - o
+            dist = norm(to_light).clamp_min(1e-12)
+            wl = to_light / dist[:, None]
+            cos_l = -dot(n, wl)  # at the light: only its front side emits
+            facing = (dot(nx, wl) > 0) & (cos_l > 0)  # light from behind x's surface does not reach it
+            pdf = self.pdf_area.index_select(0, tri) * dist * dist / cos_l.clamp_min(1e-12)  # area -> solid angle
+            tmax = dist - offset
+        return AreaSample(tri, uv, o, wl, tmax, facing, pdf)
+
+    def _points(self, u_pick: torch.Tensor, u: torch.Tensor):
+        """(tri (N,) int64, p (N, 3), front normal n (N, 3), uv (N, 2)) of points picked by
+        ``u_pick`` (N,) and placed by ``u`` (N, 2): the torch reference of the fused kernel."""
+        k = torch.searchsorted(self.cdf, u_pick.contiguous(), right=True).clamp_max(self.count - 1)
+        tri = self.tri.index_select(0, k)
+        g = self.triangles.packed.index_select(0, tri)
+        su = u[:, 0].sqrt()
+        b1, b2 = (su * (1.0 - u[:, 1]))[:, None], (su * u[:, 1])[:, None]  # uniform barycentrics (weights of p1, p2)
+        p = g[:, 0:3] + b1 * g[:, 3:6] + b2 * g[:, 6:9]
+        uv = (1 - b1 - b2) * g[:, 12:14] + b1 * g[:, 14:16] + b2 * g[:, 16:18] if self.textured else p.new_zeros(()).expand(len(tri), 2)
+        return tri, p, g[:, 9:12], uv
+
+    def _emitter(self, s: Surface) -> torch.Tensor:
+        return self.triangles.emitter.index_select(0, s.tri)
+
+    def emits(self, s: Surface) -> torch.Tensor:
+        """(N,) bool: the hit is on the front side of an emitting triangle."""
+        return s.front & self._emitting.index_select(0, s.tri)
+
+    def emitted(self, s: Surface) -> torch.Tensor:
+        """eps (N, 3) leaving the hits back along the rays: zero on back sides."""
+        return self.radiance(torch.where(s.front, self._emitter(s), -1), s.uv)
+
+    def pdf_hit(self, s: Surface) -> torch.Tensor:
+        """``pdf_area t^2 / cos_o`` (N,): the point's area density as a solid angle at the ray's origin."""
+        return self.pdf_area.index_select(0, s.tri) * s.t * s.t / s.cos_o.clamp_min(1e-12)

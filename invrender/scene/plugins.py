@@ -1,0 +1,119 @@
+"""What a plugin declares about itself, and a plugin instance as a scene declares it.
+
+Materials (:mod:`invrender.materials`) and emitters (:mod:`invrender.emitters`) are plugins: each
+type is a class that declares, in its own module, its type name, its differentiable parameters
+(:class:`Param`: a kind of :mod:`invrender.scene.kinds` and a default) and its scalar constants
+(:class:`Constant`: a default and a range), through :class:`Declared`. A scene holds one
+:class:`PluginSpec` per material or emitter (its type, values and constants), checked against that
+declaration when it is made (:meth:`PluginSpec.of`). This module reads the declarations from
+:mod:`invrender.registry` and never lists a type itself.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import ClassVar, NamedTuple
+
+from invrender.errors import SceneError
+from invrender.registry import Registry
+from invrender.scene.kinds import ParamKind
+
+
+class Param(NamedTuple):
+    """A differentiable parameter of a material type: its kind and default value (an RGB triple or
+    one number)."""
+
+    kind: ParamKind
+    default: object
+
+
+@dataclass(frozen=True)
+class Constant:
+    """A scalar constant of a material type: default and the open/closed interval it must lie in."""
+
+    default: float
+    low: float
+    high: float
+    low_open: bool = True
+    high_open: bool = False
+
+    def check(self, where: str, key: str, value) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(float(value)):
+            raise SceneError(f"{where}: '{key}' must be a finite number, got {value!r}")
+        v = float(value)
+        below = v <= self.low if self.low_open else v < self.low
+        above = v >= self.high if self.high_open else v > self.high
+        if below or above:
+            lo = "(" if self.low_open else "["
+            hi = ")" if self.high_open else "]"
+            high = "inf" if math.isinf(self.high) else f"{self.high:g}"
+            raise SceneError(f"{where}: '{key}' must lie in {lo}{self.low:g}, {high}{hi}, got {v:g}")
+        return v
+
+
+class Declared:
+    """Mixin of plugin classes: the declarations every plugin type makes (class attributes)."""
+
+    #: the ``type`` scene files name it by
+    type_name: ClassVar[str]
+    #: differentiable parameters: key -> :class:`Param` (kind, default)
+    params: ClassVar[dict[str, Param]] = {}
+    #: scalar constants of the scene: key -> :class:`Constant`
+    constants: ClassVar[dict[str, Constant]] = {}
+    #: one line for messages and the docs' tables
+    doc: ClassVar[str] = ""
+    #: keys a scene-file table of this type may hold besides ``type`` (parameters, their
+    #: ``_texture`` forms where the kind allows one, constants); set for each subclass
+    keys: ClassVar[frozenset[str]] = frozenset()
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        texture_keys = {f"{k}_texture" for k, p in cls.params.items() if p.kind.texture}
+        cls.keys = frozenset(cls.params) | texture_keys | frozenset(cls.constants)
+
+
+@dataclass(frozen=True)
+class PluginSpec:
+    """One plugin instance of a scene being built: its type, parameter values and constants.
+
+    Attributes:
+        type: a registered type name.
+        values: parameter key -> value (an RGB triple, one number, or an (h, w, 3) texture where
+            the kind allows); missing keys take the type's defaults.
+        constants: constant key -> value; missing keys take the type's defaults.
+    """
+
+    #: the registry its types are found in, and what one is called in messages (subclasses set them)
+    registry: ClassVar[Registry]
+    noun: ClassVar[str]
+    default_type: ClassVar[str]
+
+    type: str = ""
+    values: dict = field(default_factory=dict)
+    constants: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        if not self.type:
+            object.__setattr__(self, "type", self.default_type)
+
+    @classmethod
+    def of(cls, type: str | None = None, where: str | None = None, **entries):
+        """A checked instance from keyword entries, e.g. ``Material.of("glossy", roughness=0.2,
+        specular_reflectance=[0.9, 0.8, 0.7])``; a :class:`SceneError` naming ``where`` and the key
+        for an unknown type or key, or a constant out of range."""
+        type = cls.default_type if type is None else type
+        where = cls.noun if where is None else where
+        spec = cls.registry.get(type, where)
+        unknown = sorted(set(entries) - set(spec.params) - set(spec.constants))
+        if unknown:
+            allowed = ", ".join(sorted({"type", *spec.params, *spec.constants}))
+            raise SceneError(f"{where}: unknown key {unknown[0]!r} for a {type} {cls.noun} (allowed: {allowed})")
+        values = {k: entries.get(k, p.default) for k, p in spec.params.items()}
+        constants = {k: c.check(where, k, entries.get(k, c.default)) for k, c in spec.constants.items()}
+        return cls(type, values, constants)
+
+    @property
+    def spec(self):
+        """The type's plugin class (its ``params``, ``constants``, ...)."""
+        return self.registry[self.type]
