@@ -214,6 +214,24 @@ def check_param_value(name: str, value) -> torch.Tensor:
     return t
 
 
+def check_names(params, names) -> list[str]:
+    """Validate parameter names against ``params`` (a scene's dict): a list or a comma-separated
+    string of names, each known, none twice, at least one. Returns the names as a list."""
+    if isinstance(names, str):
+        names = [n.strip() for n in names.split(",") if n.strip()]
+    names = list(names)
+    if not names:
+        raise ParameterError("no parameters to fit were given")
+    unknown = [n for n in names if n not in params]
+    if AMBIENT in unknown:
+        raise ParameterError(f"the scene has no {AMBIENT} to fit: give it a starting value (--init {AMBIENT}=0.05, a recipe's [init], or load_scene(..., ambient=0.05))")
+    if unknown:
+        raise ParameterError(f"unknown parameter {unknown[0]!r} (known: {', '.join(params)})")
+    if len(set(names)) != len(names):
+        raise ParameterError("a parameter is named twice")
+    return names
+
+
 def build_scene(
     meshes: Sequence[Mesh],
     materials: dict[str, object],
