@@ -27,7 +27,8 @@ from invrender.scene.materials import Material
 from invrender.study import GradientConfig, GradientStudy, gradient_study
 from invrender.transport import integrators
 from invrender.transport.adaptive import AdaptiveResult, AdaptiveSettings
-from invrender.transport.radiosity import RadiositySolution, radiosity
+from invrender.transport.integrators.radiosity import radiosity
+from invrender.transport.radiosity import RadiositySolution
 
 __version__ = "0.1.0"
 

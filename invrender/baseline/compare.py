@@ -136,7 +136,7 @@ def plot_comparison(c: Comparison, path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from invrender.inverse.report import save_figure
+    from invrender.io.reports import save_figure
     from invrender.io.images import to_srgb
 
     labels = list(c.images)

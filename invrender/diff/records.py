@@ -45,7 +45,7 @@ import torch.autograd.forward_ad as fwAD
 
 from invrender.errors import ParameterError
 from invrender.scene.kinds import kind_of
-from invrender.scene.scene import Scene
+from invrender.scene.scene import Scene, check_names
 from invrender.transport.driver import RenderSettings, for_each_chunk
 from invrender.transport.film import Film
 from invrender.transport.integrators import make_integrator
@@ -476,8 +476,6 @@ def record_paths(
         :class:`PathRecords`; ``records.image()`` equals ``render(scene, ...)`` for the same seed
         up to float rounding.
     """
-    from invrender.inverse.params import check_names
-
     names = check_names(scene.params, params)
     if isinstance(max_depth, bool) or not isinstance(max_depth, int) or max_depth < 1:
         raise ParameterError(f"record_paths needs a finite max_depth >= 1 (it bounds the polynomial's degree), got {max_depth!r}")

@@ -261,7 +261,7 @@ def fit(
         _save_checkpoint(checkpoint, scene, names, cfg, len(history), history, **_adam_state(raw, optimizer, variates))
 
     recovered = {n: P.from_raw(n, raw[n]).detach().clone() for n in names}
-    out_scene = dataclasses.replace(scene, params={**{k: v.detach().clone() for k, v in scene.params.items()}, **recovered})
+    out_scene = scene.with_params(recovered, detach=True)
     return FitResult(recovered, history, out_scene, cfg, initial, {k: v for k, v in truth.items() if k in names})
 
 
@@ -286,7 +286,7 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
             for half in (0, 1):  # two independent record sets: residual (A) and Jacobian (B)
                 recs[half] = [
                     record_paths(
-                        dataclasses.replace(view_scene, params={**view_scene.params, **{n: current[n].float() for n in names}}),
+                        view_scene.with_params({n: current[n].float() for n in names}),
                         names, spp=spp, max_depth=cfg.max_depth, seed=cfg.seed * 1_000_003 + 2 * (rnd * len(views) + v) + half,
                         integrator=cfg.integrator, progress=False, sampler=cfg.sampler,
                     )  # fmt: skip
@@ -322,7 +322,7 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
     if history and history[-1].get("undetermined"):
         warnings.warn(f"the targets do not determine these parameter combinations: {history[-1]['undetermined']}", stacklevel=3)
     recovered = {n: current[n].float().clone() for n in names}
-    out_scene = dataclasses.replace(scene, params={**{k: v.detach().clone() for k, v in scene.params.items()}, **recovered})
+    out_scene = scene.with_params(recovered, detach=True)
     return FitResult(recovered, history, out_scene, cfg, initial, {k: v for k, v in truth.items() if k in names}, {n: std_error[n].float() for n in names})
 
 
@@ -348,7 +348,7 @@ def _control_variate(view_scene: Scene, cfg: FitSettings) -> RecursiveControlVar
 
     def render_at(values: dict, seed: int, spp: int) -> torch.Tensor:
         with torch.no_grad():
-            work = dataclasses.replace(view_scene, params={**view_scene.params, **{k: v.detach() for k, v in values.items()}})
+            work = view_scene.with_params({k: v.detach() for k, v in values.items()})
             return render(work, integrator, spp=spp, seed=seed, progress=False, sampler=cfg.sampler)
 
     return RecursiveControlVariate(render_at)
@@ -357,7 +357,7 @@ def _control_variate(view_scene: Scene, cfg: FitSettings) -> RecursiveControlVar
 def _view_loss(view_scene: Scene, values, target, cfg: FitSettings, step: int, view: int, n_views: int, cv: RecursiveControlVariate | None = None) -> torch.Tensor:
     """Render one view, back-propagate its share of the loss, return the loss value (with ``cv``,
     ``dl/dI`` is taken at its estimate of the image)."""
-    work = dataclasses.replace(view_scene, params={**view_scene.params, **values})
+    work = view_scene.with_params(values)
     spp = cfg.spp_at(step)
     seed = cfg.seed * 1_000_003 + 2 * (step * n_views + view)
     integrator = make_integrator(cfg.integrator, max_depth=cfg.max_depth)

@@ -18,27 +18,8 @@ import warnings
 
 import torch
 
-from invrender.errors import ParameterError
 from invrender.scene.kinds import kind_of
-from invrender.scene.scene import AMBIENT
-
-
-
-def check_names(params, names) -> list[str]:
-    """Validate parameter names against ``params`` (a dict); accepts a list or a comma-separated string."""
-    if isinstance(names, str):
-        names = [n.strip() for n in names.split(",") if n.strip()]
-    names = list(names)
-    if not names:
-        raise ParameterError("no parameters to fit were given")
-    unknown = [n for n in names if n not in params]
-    if AMBIENT in unknown:
-        raise ParameterError(f"the scene has no {AMBIENT} to fit: give it a starting value (--init {AMBIENT}=0.05, a recipe's [init], or load_scene(..., ambient=0.05))")
-    if unknown:
-        raise ParameterError(f"unknown parameter {unknown[0]!r} (known: {', '.join(params)})")
-    if len(set(names)) != len(names):
-        raise ParameterError("a parameter is named twice")
-    return names
+from invrender.scene.scene import check_names  # noqa: F401  (the names a fit changes are checked as the scene checks them)
 
 
 def to_raw(name: str, value: torch.Tensor) -> torch.Tensor:

@@ -1,12 +1,12 @@
-"""What a fit leaves behind for people: a JSON report and a PNG of loss and parameter error."""
+"""What a fit leaves behind for people: a JSON report, a study table and PNGs of loss, parameter
+error and correlations (written by :mod:`invrender.io.reports`)."""
 
 from __future__ import annotations
 
 import dataclasses
-import json
 
 from invrender.inverse.fit import FitResult
-from invrender.io.atomic import atomic_file
+from invrender.io.reports import save_figure, write_json, write_text  # noqa: F401  (also imported from here by older callers)
 
 
 def report_dict(result: FitResult, **extra) -> dict:
@@ -31,17 +31,6 @@ def report_dict(result: FitResult, **extra) -> dict:
         out["max_relative_error"] = max(result.errors.values())
     out.update(extra)
     return out
-
-
-def write_json(path, data: dict) -> None:
-    """Atomically write ``data`` as indented JSON."""
-    write_text(path, json.dumps(data, indent=2) + "\n")
-
-
-def write_text(path, text: str) -> None:
-    """Atomically write ``text`` (temp file + rename: never a half-written file)."""
-    with atomic_file(path) as f:
-        f.write(text.encode("utf-8"))
 
 
 def study_table(results: dict[str, FitResult], truth: dict) -> tuple[str, dict]:
@@ -148,14 +137,3 @@ def _mark_spp(axes, history: list[dict]) -> None:
                 ax.axvline(h["step"], color="grey", ls=":", lw=0.8)
             axes[0].annotate(f"{h['spp']} spp", (h["step"], 1), xycoords=("data", "axes fraction"), xytext=(2, -10), textcoords="offset points", fontsize=7, color="grey")
             previous = h["spp"]
-
-
-def save_figure(fig, path) -> None:
-    """Write a matplotlib figure to the PNG ``path`` atomically, then close it."""
-    import matplotlib.pyplot as plt
-
-    try:
-        with atomic_file(path) as f:
-            fig.savefig(f, format="png", dpi=110)
-    finally:
-        plt.close(fig)

@@ -10,6 +10,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import BinaryIO
 
+from invrender.io.ranks import is_main
+
 
 @contextlib.contextmanager
 def atomic_file(path) -> Iterator[BinaryIO]:
@@ -22,8 +24,6 @@ def atomic_file(path) -> Iterator[BinaryIO]:
     Inside a torch.distributed group only rank 0 writes (every rank holds the same results): the
     other ranks' writes go to a buffer that is dropped.
     """
-    from invrender.transport.ranks import is_main
-
     if not is_main():
         yield io.BytesIO()
         return

@@ -24,7 +24,7 @@ import dataclasses
 import functools
 import threading
 import warnings
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -177,6 +177,34 @@ class Scene:
                 raise ParameterError(f"{AMBIENT} must be an RGB triple or one number, not a texture")
         return dataclasses.replace(self, params=params)
 
+    def with_params(self, values: Mapping[str, object] | None = None, *, detach: bool = False) -> "Scene":
+        """The same scene (sharing geometry, camera and materials) with some parameters replaced.
+
+        Args:
+            values: parameter name -> new value; each name one of ``params`` (the parameters come
+                from the scene's materials and emitters; the ambient radiance from
+                :meth:`with_ambient`). A floating-point tensor is used as it is, keeping its
+                autograd graph, dtype and device (a fit renders at the values it differentiates);
+                anything else (an RGB triple, one number, an (h, w, 3) nested list) becomes a float32
+                tensor. Either way it is checked as :func:`build_scene` checks a value: shape (3,)
+                or (h, w, 3) (one number stands for three), finite, in its kind's range.
+            detach: give the new scene parameters of its own: every value, replaced or not, is a
+                detached copy (a new leaf that does not require grad), so changing or fitting one
+                scene's parameters leaves the other's alone. Without it the parameters not replaced
+                are this scene's tensors.
+        Raises:
+            ParameterError: an unknown name, or a value of the wrong shape, not finite or out of
+                its range (one line, naming the parameter).
+        """
+        values = dict(values or {})
+        if values:
+            check_names(self.params, list(values))
+        replaced = {k: _checked_value(k, v) for k, v in values.items()}
+        params = {**self.params, **replaced}
+        if detach:
+            params = {k: v.detach().clone() for k, v in params.items()}
+        return dataclasses.replace(self, params=params)
+
     def material_spec(self, material: int) -> Material:
         """Type and constants of material ``material`` (an index into ``materials``)."""
         return self.material_specs[material] if self.material_specs else Material()
@@ -207,19 +235,59 @@ def check_resolution(resolution) -> tuple[int, int]:
 
 
 def check_param_value(name: str, value) -> torch.Tensor:
-    """Validate one parameter value: shape (3,) or (h, w, 3), finite, in its kind's range."""
+    """Validate one parameter value: shape (3,) or (h, w, 3), finite, in its kind's range. Returns
+    it as a new float32 tensor (one number becomes an RGB triple)."""
     try:
         t = torch.as_tensor(value, dtype=torch.float32).detach().clone()
     except (TypeError, ValueError, RuntimeError):
-        raise ParameterError(f"{name}: expected an RGB triple or an (h, w, 3) texture, got {value!r}") from None
+        raise ParameterError(f"{name}: expected an RGB triple or an (h, w, 3) texture, got {_short(value)}") from None
     if t.ndim == 0:
         t = t.expand(3).clone()
+    _check_tensor(name, t)
+    return t
+
+
+def _checked_value(name: str, value) -> torch.Tensor:
+    """``value`` checked as :func:`check_param_value` checks it; a floating-point tensor is kept as
+    it is (its graph, dtype and device; one number is expanded to three), anything else converted."""
+    if not (isinstance(value, torch.Tensor) and value.is_floating_point()):
+        return check_param_value(name, value)
+    t = value.expand(3) if value.ndim == 0 else value
+    _check_tensor(name, t.detach())
+    return t
+
+
+def _check_tensor(name: str, t: torch.Tensor) -> None:
+    """A :class:`ParameterError` naming ``name`` unless ``t`` is (3,) or (h, w, 3), finite, in range."""
     if not (t.shape == (3,) or (t.ndim == 3 and t.shape[2] == 3 and t.shape[0] > 0 and t.shape[1] > 0)):
         raise ParameterError(f"{name}: expected shape (3,) or (h, w, 3), got {tuple(t.shape)}")
     if not torch.isfinite(t).all():
         raise ParameterError(f"{name}: values must be finite")
     kind_of(name).check(name, t)
-    return t
+
+
+def _short(value) -> str:
+    """``repr(value)`` cut to one short line for a message."""
+    text = " ".join(repr(value).split())
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def check_names(params, names) -> list[str]:
+    """Validate parameter names against ``params`` (a scene's dict): a list or a comma-separated
+    string of names, each known, none twice, at least one. Returns the names as a list."""
+    if isinstance(names, str):
+        names = [n.strip() for n in names.split(",") if n.strip()]
+    names = list(names)
+    if not names:
+        raise ParameterError("no parameters to fit were given")
+    unknown = [n for n in names if n not in params]
+    if AMBIENT in unknown:
+        raise ParameterError(f"the scene has no {AMBIENT} to fit: give it a starting value (--init {AMBIENT}=0.05, a recipe's [init], or load_scene(..., ambient=0.05))")
+    if unknown:
+        raise ParameterError(f"unknown parameter {unknown[0]!r} (known: {', '.join(params)})")
+    if len(set(names)) != len(names):
+        raise ParameterError("a parameter is named twice")
+    return names
 
 
 def build_scene(

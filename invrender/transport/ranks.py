@@ -7,7 +7,8 @@ counter-based sampler makes each path's numbers a function of its ids alone, so 
 invisible in the result. The film sums (float64) are then all-reduced, so every rank holds the
 whole image; a gradient's per-rank parts are all-reduced the same way, so every rank holds the whole
 gradient and a fit takes the same steps on every rank. Only rank 0 writes files
-(:func:`invrender.io.atomic.atomic_file`) and shows progress. Outside a process group, or in a group
+(:func:`invrender.io.atomic.atomic_file`) and shows progress (:func:`is_main`, from
+:mod:`invrender.io.ranks`, the layer that writes). Outside a process group, or in a group
 of one, nothing here does anything.
 
 Collectives: gloo for tensors on the CPU, NCCL for CUDA tensors (the group's backend must suit the
@@ -21,24 +22,7 @@ import os
 import torch
 
 from invrender.errors import ParameterError
-
-
-def _dist():
-    """``torch.distributed`` when a process group of more than one rank is initialized, else None."""
-    if not torch.distributed.is_available() or not torch.distributed.is_initialized():
-        return None
-    return torch.distributed if torch.distributed.get_world_size() > 1 else None
-
-
-def world() -> tuple[int, int]:
-    """(rank, world size) of this process: (0, 1) outside a process group."""
-    dist = _dist()
-    return (dist.get_rank(), dist.get_world_size()) if dist is not None else (0, 1)
-
-
-def is_main() -> bool:
-    """Is this the process that writes files and shows progress (rank 0, or the only one)?"""
-    return world()[0] == 0
+from invrender.io.ranks import distributed, is_main, world
 
 
 class _SumAcrossRanks(torch.autograd.Function):
@@ -61,12 +45,12 @@ class _SumAcrossRanks(torch.autograd.Function):
 def sum_across_ranks(x: torch.Tensor) -> torch.Tensor:
     """The sum of ``x`` over the ranks (``x`` itself in one process); differentiable, with the
     per-rank derivative of :class:`_SumAcrossRanks`."""
-    return x if _dist() is None else _SumAcrossRanks.apply(x)
+    return x if distributed() is None else _SumAcrossRanks.apply(x)
 
 
 def sum_gradients(grads: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
     """Each rank's part of a gradient summed over the ranks, in place (name -> tensor)."""
-    dist = _dist()
+    dist = distributed()
     if dist is not None:
         for g in grads.values():
             dist.all_reduce(g)
@@ -75,7 +59,7 @@ def sum_gradients(grads: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
 
 def max_across_ranks(n: int, device) -> int:
     """The largest of each rank's ``n``."""
-    dist = _dist()
+    dist = distributed()
     if dist is None:
         return n
     t = torch.tensor([n], dtype=torch.int64, device=device)
@@ -85,7 +69,7 @@ def max_across_ranks(n: int, device) -> int:
 
 def barrier() -> None:
     """Wait until every rank gets here (after rank 0 wrote files the others read)."""
-    dist = _dist()
+    dist = distributed()
     if dist is not None:
         dist.barrier()
 
@@ -93,7 +77,7 @@ def barrier() -> None:
 def refuse(what: str) -> None:
     """A one-line :class:`ParameterError` when called inside a process group of several ranks, for
     work that does not split across them (``what`` names it)."""
-    if _dist() is not None:
+    if distributed() is not None:
         raise ParameterError(f"{what} runs in one process; it is not available inside a torch.distributed group of {world()[1]} ranks")
 
 
@@ -127,3 +111,9 @@ def init_from_environment(device: str | None) -> torch.device | None:
         torch.cuda.set_device(local)
         return local
     return None
+
+
+__all__ = [
+    "world", "is_main", "sum_across_ranks", "sum_gradients", "max_across_ranks", "barrier", "refuse",
+    "leave_process_group", "init_from_environment",
+]  # fmt: skip

@@ -122,3 +122,11 @@ def test_textures_are_averaged_per_patch():
 def test_path_records_refuse_radiosity(cbox):
     with pytest.raises(ParameterError, match="integrator .radiosity. cannot be recorded as path records .solver .lm., identifiability.: its image is a rational function"):
         ir.record_paths(cbox, ["red.reflectance"], spp=1, max_depth=2, integrator="radiosity", progress=False)
+
+
+def test_solution_renders_as_the_integrator_does(cbox):
+    sol = ir.radiosity(cbox, patches=128, rays=64)
+    kw = dict(spp=2, seed=3, progress=False)
+    assert torch.equal(sol.render(**kw), ir.render(cbox, "radiosity", patches=128, rays=64, **kw))
+    with pytest.raises(ParameterError, match=r"^unknown render setting 'max_depth' of a radiosity solution \(known: spp, seed, device, "):
+        sol.render(spp=1, max_depth=3)

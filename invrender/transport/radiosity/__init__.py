@@ -7,18 +7,19 @@ random walks as its Monte Carlo solvers (docs/radiosity.md).
 - :mod:`~invrender.transport.radiosity.system`: the solvers and the adjoint (implicit) gradient;
 - :mod:`~invrender.transport.radiosity.random_walks`: collision and absorption estimators, transition choices,
   the variance condition;
-- :mod:`~invrender.transport.radiosity.solution`: the pipeline, :func:`radiosity` and its result.
+- :mod:`~invrender.transport.radiosity.solution`: the pipeline and its result.
 
-The ``radiosity`` integrator (:mod:`invrender.transport.integrators.radiosity`) renders a solution.
+The ``radiosity`` integrator (:mod:`invrender.transport.integrators.radiosity`: its settings and
+``ir.radiosity``) computes and renders a solution; this package is below it and knows no integrator.
 """
 
 from invrender.transport.radiosity.form_factors import FormFactors, FormFactorSettings, form_factors
 from invrender.transport.radiosity.patches import Patches, mesh_patches
 from invrender.transport.radiosity.random_walks import WalkEstimate, neumann_ulam, transition_matrix, variance_radius
-from invrender.transport.radiosity.solution import RadiositySettings, RadiositySolution, radiosity
+from invrender.transport.radiosity.solution import RadiositySolution
 from invrender.transport.radiosity.system import SolveReport, SolverSettings, solve
 
 __all__ = [
-    "radiosity", "RadiositySettings", "RadiositySolution", "Patches", "mesh_patches", "FormFactors", "FormFactorSettings",
+    "RadiositySolution", "Patches", "mesh_patches", "FormFactors", "FormFactorSettings",
     "form_factors", "SolverSettings", "SolveReport", "solve", "WalkEstimate", "neumann_ulam", "transition_matrix", "variance_radius",
 ]  # fmt: skip

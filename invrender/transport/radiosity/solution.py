@@ -1,8 +1,8 @@
-"""Radiosity of a scene: settings, the pipeline (patches -> form factors -> system -> solution) and
-the solution object that renders, looks up and re-solves it by random walks.
+"""Radiosity of a scene: the pipeline (patches -> form factors -> system -> solution) and the
+solution object that looks it up, renders it again and re-solves it by random walks.
 
-The pipeline, run once per render by the ``radiosity`` integrator's pre-pass and by
-:func:`radiosity`:
+The pipeline, run once per render by the ``radiosity`` integrator's pre-pass
+(:mod:`invrender.transport.integrators.radiosity`, which holds its settings and ``ir.radiosity``):
 
 1. mesh the scene into patches (:mod:`~invrender.transport.radiosity.patches`), two sides each;
 2. estimate the form factors between all sides by ray casting
@@ -30,80 +30,14 @@ import torch
 
 from invrender.errors import ParameterError
 from invrender.transport.bsdfs import Lobe
-from invrender.transport.integrators.base import DepthSettings
-from invrender.transport.radiosity.form_factors import FormFactors, FormFactorSettings, form_factors
-from invrender.transport.radiosity.patches import MAX_PATCHES, Patches, mesh_patches, side_emission, side_reflectance
+from invrender.transport.driver import RenderSettings
+from invrender.transport.radiosity.form_factors import FormFactors, form_factors
+from invrender.transport.radiosity.patches import Patches, mesh_patches, side_emission, side_reflectance
 from invrender.transport.radiosity.random_walks import WalkEstimate, neumann_ulam
-from invrender.transport.radiosity.system import SolveReport, SolverSettings, gather, neumann_terms, solve
+from invrender.transport.radiosity.system import SolveReport, gather, neumann_terms, solve
 
-#: target patch count when neither ``subdivision`` nor ``patches`` is given
-DEFAULT_PATCHES = 1024
 #: largest system (unknowns) accepted: its dense matrices take S^2 x 8 bytes each
 MAX_UNKNOWNS = 8192
-
-
-@dataclass(frozen=True)
-class RadiositySettings(DepthSettings):
-    """Settings of radiosity (the ``radiosity`` integrator and :func:`radiosity`).
-
-    Attributes:
-        max_depth: Neumann terms kept, counted as the path tracer counts them (1 = emitters seen,
-            2 = + direct light, ...); -1 (default) = the exact solution of the system.
-        subdivision: segments per scene-triangle edge (each triangle gives subdivision^2 patches),
-            in [1, 64]; or
-        patches: a target patch count (patches of about equal area); default 1024 when neither is
-            given; giving both is an error.
-        rays: form-factor rays cast from each patch side (rounded to ``batches`` x a power of 2).
-        emitter_rays: rays cast from each emitter side, whose columns of F come from them by
-            reciprocity; None = ``rays`` x (other sides per emitter side), at most 16 x ``rays``.
-        batches: independent batches of those rays, for the form factors' standard errors.
-        form_factor_seed: seed of the form-factor rays.
-        method: solver: ``"auto"`` (direct up to 1024 unknowns, else Gauss-Seidel), ``"direct"``,
-            ``"jacobi"``, ``"gauss_seidel"``, ``"neumann"``.
-        tolerance: relative residual at which the iterative solvers stop.
-        max_iterations: iterative solves that need more are an error.
-        final_gather: at each camera hit, gather the patch radiosities along one cosine-sampled
-            ray (one bounce of path tracing) instead of reading the hit patch's own.
-    """
-
-    max_depth: int = -1
-    subdivision: int | None = None
-    patches: int | None = None
-    rays: int = 256
-    emitter_rays: int | None = None
-    batches: int = 4
-    form_factor_seed: int = 0
-    method: str = "auto"
-    tolerance: float = 1e-10
-    max_iterations: int = 10000
-    final_gather: bool = False
-
-    def __post_init__(self):
-        super().__post_init__()
-        if self.subdivision is not None and self.patches is not None:
-            raise ParameterError("give radiosity either subdivision (segments per triangle edge) or patches (a target patch count), not both")
-        for name, value, high in (("subdivision", self.subdivision, 64), ("patches", self.patches, MAX_PATCHES)):
-            if value is not None and (isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= high):
-                raise ParameterError(f"radiosity {name} must be an integer in [1, {high}], got {value!r}")
-        if not isinstance(self.final_gather, bool):
-            raise ParameterError(f"final_gather must be true or false, got {self.final_gather!r}")
-        self.form_factor_settings  # noqa: B018  (validates)
-        self.solver_settings  # noqa: B018
-
-    @property
-    def form_factor_settings(self) -> FormFactorSettings:
-        return FormFactorSettings(rays=self.rays, batches=self.batches, seed=self.form_factor_seed, emitter_rays=self.emitter_rays)
-
-    @property
-    def solver_settings(self) -> SolverSettings:
-        return SolverSettings(method=self.method, tolerance=self.tolerance, max_iterations=self.max_iterations)
-
-    @property
-    def mesh(self) -> tuple[int | None, int | None]:
-        """(subdivision, patches) as :func:`~invrender.transport.radiosity.patches.mesh_patches` takes them."""
-        if self.subdivision is None and self.patches is None:
-            return None, DEFAULT_PATCHES
-        return self.subdivision, self.patches
 
 
 @dataclass(frozen=True)
@@ -129,8 +63,11 @@ class RadiositySolution:
             all terms together in ``H[0]`` for the exact solution (K = 1); row S is zero.
         max_depth: Neumann terms kept (-1: exact).
         report: how the system was solved (None for a truncated series).
-        settings: the settings it was computed with.
-        scene: the scene (set by :func:`radiosity`; for :meth:`render`).
+        settings: the settings it was computed with (a
+            :class:`~invrender.transport.integrators.radiosity.RadiositySettings`).
+        scene: the scene (set by ``ir.radiosity``; for :meth:`render`).
+        integrator: the radiosity integrator that computed it (set by ``ir.radiosity``; for
+            :meth:`render`).
     """
 
     patches: Patches
@@ -144,8 +81,9 @@ class RadiositySolution:
     H: torch.Tensor
     max_depth: int
     report: SolveReport | None
-    settings: RadiositySettings
+    settings: object
     scene: object = None
+    integrator: object = None
 
     @property
     def area(self) -> torch.Tensor:
@@ -185,16 +123,27 @@ class RadiositySolution:
         patch = self.patches.locate(triangles, tri, p)
         return self.unknown[2 * patch + (~front).long()]
 
-    def render(self, **options) -> torch.Tensor:
-        """The scene rendered from this solution's settings by ``ir.render(scene, "radiosity", ...)``
-        (``options``: ``spp``, ``seed``, ``resolution`` is the scene's; patches and form factors
-        are reused from the cache). Returns (H, W, 3)."""
-        if self.scene is None:
-            raise ParameterError("this radiosity solution has no scene: compute it with ir.radiosity(scene, ...)")
-        from invrender.diff import render
-        from invrender.transport.integrators.radiosity import Radiosity
+    def render(self, spp: int = 64, seed: int = 0, *, device=None, **options) -> torch.Tensor:
+        """The scene rendered again by the integrator that computed this solution (patches and form
+        factors are reused from the cache; the resolution is the scene's).
 
-        return render(self.scene, Radiosity(**dataclasses.asdict(self.settings)), **options)
+        Args:
+            spp, seed: as ``ir.render``.
+            device: where to render; None = the scene's device.
+            options: further :class:`~invrender.transport.driver.RenderSettings` fields
+                (``progress``, ``backend``, ``sampler``, ``terms``, ``chunk_paths``, ``memory_mb``).
+        Returns:
+            (H, W, 3) float32 linear radiance; autograd records it where a parameter requires grad
+            (for path replay, render with ``ir.render(scene, "radiosity", estimator="replay")``).
+        """
+        if self.scene is None or self.integrator is None:
+            raise ParameterError("this radiosity solution has no scene: compute it with ir.radiosity(scene, ...)")
+        known = {f.name for f in dataclasses.fields(RenderSettings)} - {"spp", "seed", "plan"}
+        unknown = sorted(set(options) - known)
+        if unknown:
+            raise ParameterError(f"unknown render setting {unknown[0]!r} of a radiosity solution (known: spp, seed, device, {', '.join(sorted(known))})")
+        device = torch.device(device) if device is not None else self.scene.device
+        return self.integrator.render(self.scene, RenderSettings(spp=spp, seed=seed, **options), device)
 
     def random_walk(self, estimator: str = "collision", transition="analog", walks: int = 1000, seed: int = 0, start=None, max_steps: int = 100000) -> WalkEstimate:
         """Estimate the exact solution B by Neumann-Ulam random walks on ``x = E + diag(rho) F x``
@@ -231,8 +180,10 @@ def check_diffuse(scene) -> None:
             raise ParameterError(f"radiosity models emission from the scene's surfaces only: emitter {name!r} is {spec.type}")
 
 
-def solve_scene(ctx, settings: RadiositySettings) -> RadiositySolution:
-    """The radiosity solution of the scene in ``ctx`` (a TransportContext), differentiable in its
+def solve_scene(ctx, settings) -> RadiositySolution:
+    """The radiosity solution of the scene in ``ctx`` (a TransportContext) with ``settings`` (a
+    :class:`~invrender.transport.integrators.radiosity.RadiositySettings`: its ``mesh``,
+    ``form_factor_settings``, ``solver_settings`` and ``max_depth``), differentiable in the scene's
     reflectance and emission parameters whatever the caller's grad mode (path replay re-solves
     inside a backward pass)."""
     patches, factors, emitting = _geometry(ctx, settings)
@@ -266,7 +217,7 @@ _CACHE: OrderedDict = OrderedDict()
 _CACHE_SIZE = 4
 
 
-def _geometry(ctx, settings: RadiositySettings) -> tuple[Patches, FormFactors, torch.Tensor]:
+def _geometry(ctx, settings) -> tuple[Patches, FormFactors, torch.Tensor]:
     """Patches, form factors and the (2P,) bool emitter sides of ``ctx``'s geometry, computed once
     per geometry and settings."""
     p0 = ctx.triangles.p0
@@ -286,31 +237,4 @@ def _geometry(ctx, settings: RadiositySettings) -> tuple[Patches, FormFactors, t
     return value
 
 
-def radiosity(scene, *, backend: str | None = None, device=None, params: dict | None = None, **options) -> RadiositySolution:
-    """Solve the radiosity of a diffuse scene.
-
-    Args:
-        scene: a scene whose materials are all ``diffuse``.
-        backend: intersection backend for the form factors (``"embree"``, ``"torch"``; None = the
-            device's default).
-        device: where to compute (None = the scene's device).
-        params: parameter values to use instead of ``scene.params``.
-        options: :class:`RadiositySettings` fields: ``subdivision`` or ``patches``, ``rays``,
-            ``batches``, ``form_factor_seed``, ``method``, ``tolerance``, ``max_iterations``,
-            ``max_depth``, ``final_gather`` (for :meth:`RadiositySolution.render`).
-    Returns:
-        a :class:`RadiositySolution`; its ``B`` is differentiable in every ``scene.params`` entry
-        that requires grad.
-    Raises:
-        ParameterError: a non-diffuse material (named), settings out of range.
-    """
-    from invrender.transport.driver import RenderSettings
-    from invrender.transport.integrators.radiosity import Radiosity
-
-    integrator = Radiosity(**options)
-    device = torch.device(device) if device is not None else scene.device
-    ctx = integrator.context(scene, RenderSettings(backend=backend), device, params)
-    return dataclasses.replace(ctx.extra, scene=scene)
-
-
-__all__ = ["RadiositySettings", "RadiositySolution", "radiosity", "solve_scene", "check_diffuse", "DEFAULT_PATCHES"]
+__all__ = ["RadiositySolution", "solve_scene", "check_diffuse", "MAX_UNKNOWNS"]
