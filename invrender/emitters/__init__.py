@@ -7,11 +7,8 @@ queries (:class:`~invrender.transport.lights.Light`). A new emitter type is one 
 these plus its import here (or, outside the package, a module of the user's that registers its
 class).
 
-========  ============================================  ==========================================
-type      differentiable parameters                     emits from
-========  ============================================  ==========================================
-``area``  ``emission`` eps (RGB or texture), default 1  the front side of the shapes naming it
-========  ============================================  ==========================================
+The table of types (docs/plugins.md) is generated from these declarations
+(:func:`invrender.scene.plugins.plugin_table`).
 """
 
 from invrender.emitters.area import Area

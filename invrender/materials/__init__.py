@@ -6,20 +6,8 @@ with their kinds, constants with their ranges, lobe flags, the formats' aliases,
 ``eval`` / ``pdf`` / ``sample``. A new material is one more module like these plus its import here
 (or, outside the package, a module of the user's that registers its class).
 
-=============  =========================================  ==========================================
-type           differentiable parameters                  constants
-=============  =========================================  ==========================================
-``diffuse``    ``reflectance`` rho (RGB or texture),      --
-               default 0.5
-``mirror``     ``specular_reflectance`` (RGB), default 1  --
-``dielectric`` --                                         ``ior`` > 0, interior over exterior
-                                                          (exterior 1.0), default 1.5
-``glossy``     ``specular_reflectance`` (RGB), default 1  ``roughness`` GGX alpha in (0, 1],
-                                                          default 0.1
-=============  =========================================  ==========================================
-
-They correspond to Mitsuba 3's ``diffuse``, ``conductor`` and ``roughconductor`` with
-``material = "none"`` (Fresnel 1), and smooth ``dielectric``.
+The table of types (docs/plugins.md) is generated from these declarations
+(:func:`invrender.scene.plugins.plugin_table`).
 """
 
 from invrender.materials import diffuse, mirror, dielectric, glossy  # noqa: F401  (registration order)

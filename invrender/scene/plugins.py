@@ -117,3 +117,35 @@ class PluginSpec:
     def spec(self):
         """The type's plugin class (its ``params``, ``constants``, ...)."""
         return self.registry[self.type]
+
+
+def _number(x) -> str:
+    return "inf" if isinstance(x, float) and math.isinf(x) else f"{x:g}" if isinstance(x, (int, float)) else str(x)
+
+
+def _default(value) -> str:
+    if isinstance(value, (list, tuple)):
+        return "(" + ", ".join(_number(v) for v in value) + ")"
+    return _number(value)
+
+
+def _interval(c: Constant) -> str:
+    return f"{'(' if c.low_open else '['}{_number(c.low)}, {_number(c.high)}{')' if c.high_open else ']'}"
+
+
+def plugin_table(plugins: Registry, flags=None) -> str:
+    """A Markdown table of the registered types of ``plugins`` (materials or emitters): type,
+    what it is, its parameters (kind, symbol, default; textures where the kind allows them), its
+    constants (default and range) and, when ``flags(cls)`` is given, what that returns (the lobes).
+    The docs' tables are this function's output, so they cannot drift from the plugins."""
+    head = "| type | what it is | parameters | constants |" + (" lobes |" if flags else "")
+    rule = "|---|---|---|---|" + ("---|" if flags else "")
+    rows = [head, rule]
+    for name, cls in plugins.items():
+        params = "<br>".join(
+            f"`{k}` {p.kind.symbol}, default {_default(p.default)}" + (" (RGB or texture)" if p.kind.texture else " (RGB)") for k, p in cls.params.items()
+        )
+        constants = "<br>".join(f"`{k}` in {_interval(c)}, default {_number(c.default)}" for k, c in cls.constants.items())
+        row = f"| `{name}` | {cls.doc} | {params or '--'} | {constants or '--'} |"
+        rows.append(row + (f" {flags(cls)} |" if flags else ""))
+    return "\n".join(rows) + "\n"

@@ -61,6 +61,11 @@ class Lobe(enum.IntFlag):
     DELTA = DELTA_REFLECTION | DELTA_TRANSMISSION
     ALL = SMOOTH | DELTA
 
+    def describe(self) -> str:
+        """The lobes in words (``"diffuse, delta reflection"``)."""
+        single = (Lobe.DIFFUSE, Lobe.GLOSSY, Lobe.DELTA_REFLECTION, Lobe.DELTA_TRANSMISSION)
+        return ", ".join(f.name.lower().replace("_", " ") for f in single if f & self)
+
 #: how diffuse lobes draw directions (:attr:`BSDFSampling.hemisphere`)
 HEMISPHERES = ("cosine", "uniform")
 
