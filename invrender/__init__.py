@@ -14,6 +14,7 @@ Public API::
     base = ir.baseline.pyrender_render(scene)               # the rasterized Utah baseline
 """
 
+from invrender import materials  # noqa: F401  (registers the built-in materials)
 from invrender.errors import BaselineError, ImageError, InvRenderError, ParameterError, SceneError
 from invrender.inverse.fit import FitResult, fit, identifiability
 from invrender.inverse.gradcheck import gradcheck

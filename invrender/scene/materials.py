@@ -1,34 +1,32 @@
-"""Material types as a scene declares them: which parameters and constants each type has.
+"""Materials as a scene declares them: a type name, parameter values and constants.
 
-A material is one of the types below, named in scene files by ``type =`` (TOML) or by the Mitsuba
-plugin it stands for (XML). Its differentiable values (reflectance-like factors) become entries of
-``scene.params`` (``"<material>.<kind>"``, kinds in :mod:`invrender.scene.kinds`); its constants
-(index of refraction, roughness) are fixed properties of the scene. How each type scatters light is
-its BSDF in :mod:`invrender.transport.bsdfs`.
-
-=============  =========================================  ==========================================
-type           differentiable parameters                  constants
-=============  =========================================  ==========================================
-``diffuse``    ``reflectance`` rho (RGB or texture),      --
-               default 0.5
-``mirror``     ``specular_reflectance`` (RGB), default 1  --
-``dielectric`` --                                         ``ior`` > 0, interior over exterior
-                                                          (exterior 1.0), default 1.5
-``glossy``     ``specular_reflectance`` (RGB), default 1  ``roughness`` GGX alpha in (0, 1],
-                                                          default 0.1
-=============  =========================================  ==========================================
-
-They correspond to Mitsuba 3's ``diffuse``, ``conductor`` and ``roughconductor`` with
-``material = "none"`` (Fresnel 1), and smooth ``dielectric``.
+A material is one of the registered material types (:data:`invrender.registry.MATERIALS`; the
+built-in ones are in :mod:`invrender.materials`, one module each), named in scene files by
+``type =`` (TOML) or by the Mitsuba plugin it stands for (XML). Its differentiable values
+(reflectance-like factors) become entries of ``scene.params`` (``"<material>.<kind>"``, kinds in
+:mod:`invrender.scene.kinds`); its constants (index of refraction, roughness) are fixed properties
+of the scene. Each type declares both in its own module (:class:`Param`, :class:`Constant`); this
+module reads them from the registry and never lists the types itself. ``invrender materials``
+(and docs/scene_formats.md) print the table of types.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
+from invrender import registry
 from invrender.errors import SceneError
-from invrender.scene.kinds import REFLECTANCE, SPECULAR_REFLECTANCE, ParamKind
+from invrender.scene.kinds import ParamKind
+
+
+class Param(NamedTuple):
+    """A differentiable parameter of a material type: its kind and default value (an RGB triple or
+    one number)."""
+
+    kind: ParamKind
+    default: object
 
 
 @dataclass(frozen=True)
@@ -55,46 +53,8 @@ class Constant:
         return v
 
 
-@dataclass(frozen=True)
-class MaterialType:
-    """One material type.
-
-    Attributes:
-        name: the ``type`` name.
-        params: differentiable parameters: key -> (kind, default value).
-        constants: scalar constants: key -> :class:`Constant`.
-        delta: scatters only into discrete directions (no emitter sampling at its vertices).
-        doc: one line.
-    """
-
-    name: str
-    params: dict[str, tuple[ParamKind, float]]
-    constants: dict[str, Constant]
-    delta: bool
-    doc: str
-
-    @property
-    def keys(self) -> set[str]:
-        """Keys a material table of this type may hold (besides ``type``)."""
-        texture_keys = {f"{k}_texture" for k, (kind, _) in self.params.items() if kind.texture}
-        return set(self.params) | texture_keys | set(self.constants)
-
-
-MATERIAL_TYPES: dict[str, MaterialType] = {
-    t.name: t
-    for t in (
-        MaterialType("diffuse", {"reflectance": (REFLECTANCE, 0.5)}, {}, False, "Lambertian, two-sided: f = rho / pi"),
-        MaterialType("mirror", {"specular_reflectance": (SPECULAR_REFLECTANCE, 1.0)}, {}, True, "perfect specular reflector, two-sided"),
-        MaterialType("dielectric", {}, {"ior": Constant(1.5, 0.0, math.inf, True, True)}, True, "smooth glass: Fresnel reflection and refraction"),
-        MaterialType(
-            "glossy",
-            {"specular_reflectance": (SPECULAR_REFLECTANCE, 1.0)},
-            {"roughness": Constant(0.1, 0.0, 1.0, True, False)},
-            False,
-            "GGX rough conductor, Fresnel 1, two-sided",
-        ),
-    )
-}
+#: material type name -> its plugin class (the registry, read by name)
+MATERIAL_TYPES = registry.MATERIALS
 
 DEFAULT_TYPE = "diffuse"
 
@@ -104,7 +64,7 @@ class Material:
     """A material of a scene being built: its type, parameter values and constants.
 
     Attributes:
-        type: a key of :data:`MATERIAL_TYPES`.
+        type: a registered material type (:data:`invrender.registry.MATERIALS`).
         values: parameter key -> value (an RGB triple, one number, or an (h, w, 3) texture where
             the kind allows); missing keys take the type's defaults.
         constants: constant key -> value; missing keys take the type's defaults.
@@ -129,12 +89,12 @@ class Material:
         return Material(type, values, constants)
 
     @property
-    def spec(self) -> MaterialType:
+    def spec(self):
+        """The material type's plugin class (its ``params``, ``constants``, ``lobes``, ...)."""
         return MATERIAL_TYPES[self.type]
 
 
-def material_type(name, where: str = "material") -> MaterialType:
-    """The :class:`MaterialType` called ``name``; a one-line :class:`SceneError` naming ``where`` otherwise."""
-    if not isinstance(name, str) or name not in MATERIAL_TYPES:
-        raise SceneError(f"{where}: unknown material type {name!r} (known: {', '.join(MATERIAL_TYPES)})")
-    return MATERIAL_TYPES[name]
+def material_type(name, where: str = "material"):
+    """The plugin class of material type ``name``; a one-line :class:`SceneError` naming ``where``
+    and the known types otherwise."""
+    return MATERIAL_TYPES.get(name, where)

@@ -12,7 +12,7 @@ import math
 import torch
 
 from invrender.transport.bsdfs import BSDFSampling, ShadingPoint
-from invrender.transport.bsdfs.diffuse import Diffuse
+from invrender.materials.diffuse import Diffuse
 from invrender.transport.frame import Frame
 
 RHO = torch.tensor([0.8, 0.5, 0.2])

@@ -18,26 +18,13 @@ import math
 import pytest
 import torch
 
-from invrender.transport.bsdfs import ShadingPoint
-from invrender.transport.bsdfs.dielectric import Dielectric, fresnel_dielectric
-from invrender.transport.bsdfs.diffuse import Diffuse
-from invrender.transport.bsdfs.glossy import Glossy
-from invrender.transport.bsdfs.mirror import Mirror
+from invrender.materials.checks import chi_square_p, local_directions, shading_point
+from invrender.materials.dielectric import Dielectric, fresnel_dielectric
+from invrender.materials.diffuse import Diffuse
+from invrender.materials.glossy import Glossy
+from invrender.materials.mirror import Mirror
 
 KS = torch.tensor([0.9, 0.7, 0.5])
-
-
-def shading_point(theta_o: float, n: int, normal=(0.0, 0.0, 1.0), front: bool = True) -> ShadingPoint:
-    """``n`` identical points with normal ``normal`` and wo at ``theta_o`` from it (in the xz plane)."""
-    nrm = torch.tensor(normal, dtype=torch.float32)
-    nrm = nrm / nrm.norm()
-    # a tangent orthogonal to the normal, to tilt wo by theta_o
-    t = torch.linalg.cross(nrm, torch.tensor([0.0, 1.0, 0.0]) if abs(float(nrm[1])) < 0.9 else torch.tensor([1.0, 0.0, 0.0]))
-    t = t / t.norm()
-    wo = math.cos(theta_o) * nrm + math.sin(theta_o) * t
-    rows = lambda v: v.expand(n, 3).clone()  # noqa: E731
-    zeros = torch.zeros(n, dtype=torch.int64)
-    return ShadingPoint(rows(wo), rows(nrm), rows(nrm), torch.full((n,), front), torch.zeros(n, 2), zeros, zeros)
 
 
 def diffuse():
@@ -46,47 +33,6 @@ def diffuse():
 
 def glossy(alpha: float):
     return Glossy([{"specular_reflectance": KS}], [{"roughness": alpha}])
-
-
-def local_directions(cos_t: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
-    s = (1 - cos_t * cos_t).clamp_min(0).sqrt()
-    return torch.stack([s * torch.cos(phi), s * torch.sin(phi), cos_t], dim=-1)
-
-
-def chi_square_p(bsdf, theta_o: float, samples: int = 200_000, bins=(20, 40), sub=(48, 32), seed: int = 0) -> float:
-    """p-value of the chi-square test of ``bsdf.sample`` against ``bsdf.pdf`` (normal +z); bins
-    uniform in (theta, phi), expected counts from the pdf by the midpoint rule on sub-cells
-    (``dw = sin theta dtheta dphi``)."""
-    g = torch.Generator().manual_seed(seed)
-    sp = shading_point(theta_o, samples)
-    bs = bsdf.sample(sp, torch.rand(samples, generator=g), torch.rand(samples, 2, generator=g))
-    wi = bs.wi.double()
-    valid = bs.weight.amax(1) > 0
-    nt, nphi = bins
-    st, sph = sub
-    it = (torch.acos(wi[:, 2].clamp(-1, 1)) / math.pi * nt).long().clamp(0, nt - 1)
-    ip = ((torch.atan2(wi[:, 1], wi[:, 0]) % (2 * math.pi)) / (2 * math.pi) * nphi).long().clamp(0, nphi - 1)
-    observed = torch.zeros(nt * nphi + 1, dtype=torch.float64)
-    observed.index_add_(0, torch.where(valid, it * nphi + ip, nt * nphi), torch.ones(samples, dtype=torch.float64))
-    # expected counts: pdf integrated over each bin by the midpoint rule on st x sph sub-cells
-    dt, dp = math.pi / (nt * st), 2 * math.pi / (nphi * sph)
-    t = (torch.arange(nt * st, dtype=torch.float64) + 0.5) * dt
-    p = (torch.arange(nphi * sph, dtype=torch.float64) + 0.5) * dp
-    T, P = torch.meshgrid(t, p, indexing="ij")
-    d = local_directions(torch.cos(T), P).reshape(-1, 3).float()
-    spg = shading_point(theta_o, d.shape[0])
-    cell = (torch.sin(T) * dt * dp).reshape(-1)
-    density = (bsdf.pdf(spg, d).double() * cell).reshape(nt, st, nphi, sph).sum((1, 3))
-    expected = torch.cat([density.reshape(-1), (1 - density.sum()).clamp_min(0).reshape(1)]) * samples
-    # pool bins expected to hold fewer than 5 samples (the test's usual rule)
-    low = expected < 5
-    obs = torch.cat([observed[~low], observed[low].sum().reshape(1)])
-    exp = torch.cat([expected[~low], expected[low].sum().reshape(1)])
-    keep = exp > 0
-    assert obs[~keep].sum() == 0, "samples fell where the pdf is zero"
-    chi2 = float(((obs[keep] - exp[keep]) ** 2 / exp[keep]).sum())
-    dof = int(keep.sum()) - 1
-    return float(torch.special.gammaincc(torch.tensor(dof / 2, dtype=torch.float64), torch.tensor(chi2 / 2, dtype=torch.float64)))
 
 
 @pytest.mark.parametrize("theta_o", [0.0, 0.7, 1.4])

@@ -129,7 +129,7 @@ def test_images_and_gradients_agree(name, reference):
 
 
 def test_cosine_directions_and_ray_origins_match_the_reference(reference):
-    from invrender.transport.bsdfs.diffuse import Diffuse
+    from invrender.materials.diffuse import Diffuse
     from invrender.transport.context import TransportContext
 
     scene = ir.load_scene("cornell_box", resolution=(8, 8))

@@ -1,25 +1,19 @@
-"""Materials as BSDF objects, registered in one place, and the dispatch of a batch of hits to them.
+"""The BSDF interface and the dispatch of a batch of hits to the scene's materials.
 
-Each material type of :mod:`invrender.scene.materials` has one :class:`~.base.BSDF` class here. A
-render builds one instance per type present in the scene (holding all materials of that type), and
+Each material type is a :class:`~.base.BSDF` subclass registered in
+:data:`invrender.registry.MATERIALS` (the built-in ones in :mod:`invrender.materials`). A render
+builds one instance per type present in the scene (holding all materials of that type), and
 :class:`Materials` sends each hit to its type's instance: one batched call per type and bounce,
-so a scene with one material type pays no dispatch at all.
+so a scene with one material type pays no dispatch at all. Integrators ask :meth:`Materials.has`
+which kinds of lobe (:class:`~.base.Lobe`) a hit's BSDF has, never which type it is.
 """
 
 from __future__ import annotations
 
 import torch
 
-from invrender.scene.materials import MATERIAL_TYPES
-from invrender.transport.bsdfs.base import BSDF, HEMISPHERES, BSDFSample, BSDFSampling, ShadingPoint
-from invrender.transport.bsdfs.dielectric import Dielectric
-from invrender.transport.bsdfs.diffuse import Diffuse
-from invrender.transport.bsdfs.glossy import Glossy
-from invrender.transport.bsdfs.mirror import Mirror
-
-#: material type name -> its BSDF class
-BSDFS: dict[str, type[BSDF]] = {cls.type_name: cls for cls in (Diffuse, Mirror, Dielectric, Glossy)}
-assert set(BSDFS) == set(MATERIAL_TYPES), "every material type needs a BSDF"
+from invrender.registry import MATERIALS
+from invrender.transport.bsdfs.base import BSDF, HEMISPHERES, BSDFSample, BSDFSampling, DeltaBSDF, Lobe, ShadingPoint
 
 
 class Materials:
@@ -40,7 +34,7 @@ class Materials:
         slot_of, local_of = [], []
         for t in present:
             members = [i for i, ti in enumerate(types) if ti == t]
-            self.bsdfs.append(BSDFS[t]([values[i] for i in members], [constants[i] for i in members], flat, sampling))
+            self.bsdfs.append(MATERIALS[t]([values[i] for i in members], [constants[i] for i in members], flat, sampling))
         for t in types:
             k = present.index(t)
             slot_of.append(k)
@@ -49,10 +43,16 @@ class Materials:
         self.slot_of = torch.tensor(slot_of, dtype=torch.int64, device=device)
         self.local_of = torch.tensor(local_of, dtype=torch.int64, device=device)
         self.single = len(self.bsdfs) == 1
-        #: lobe name -> (K,) bool, which BSDF slots have that lobe (for lobe_mask)
-        self._lobe_tables = {lobe: torch.tensor([b.lobe == lobe for b in self.bsdfs], device=device) for lobe in ("diffuse", "glossy", "specular")}
-        self.any_delta = any(b.delta for b in self.bsdfs)
-        self.all_diffuse = all(b.lobe == "diffuse" for b in self.bsdfs)
+        #: (K,) int64 each BSDF slot's lobe flags (for :meth:`has`)
+        self._lobe_table = torch.tensor([int(b.lobes) for b in self.bsdfs], dtype=torch.int64, device=device)
+        #: the union of every present BSDF's lobes, and whether every BSDF has a smooth lobe
+        self.lobes = Lobe(0)
+        for b in self.bsdfs:
+            self.lobes |= b.lobes
+        #: some BSDF has no smooth lobe (delta only): next-event estimation skips its hits
+        self.any_delta_only = any(not b.has(Lobe.SMOOTH) for b in self.bsdfs)
+        #: every BSDF is purely Lambertian (its sample weight is rho, never zero on a flat scene)
+        self.all_diffuse = all(b.lobes == Lobe.DIFFUSE for b in self.bsdfs)
 
     def shading_point(self, material: torch.Tensor, wo, n, ng, front, uv) -> ShadingPoint:
         """The :class:`ShadingPoint` of hits on scene materials ``material`` (N,) int64."""
@@ -72,13 +72,9 @@ class Materials:
                 out.append((bsdf, index))
         return out
 
-    def lobe_mask(self, sp: ShadingPoint, lobes: tuple[str, ...]) -> torch.Tensor:
-        """(N,) bool: is each point's BSDF lobe one of ``lobes`` (``"diffuse"``, ``"glossy"``,
-        ``"specular"``)?"""
-        table = self._lobe_tables[lobes[0]]
-        for lobe in lobes[1:]:
-            table = table | self._lobe_tables[lobe]
-        return table.index_select(0, sp.slot)
+    def has(self, sp: ShadingPoint, lobes: Lobe) -> torch.Tensor:
+        """(N,) bool: does each point's BSDF have any of ``lobes``?"""
+        return (self._lobe_table.index_select(0, sp.slot) & int(lobes)) != 0
 
     def _dispatch(self, sp: ShadingPoint, call):
         groups = self.groups(sp)
@@ -125,4 +121,4 @@ def _scatter(out, index: torch.Tensor, part):
     return out.index_put((index,), part)
 
 
-__all__ = ["BSDF", "BSDFS", "HEMISPHERES", "BSDFSample", "BSDFSampling", "Materials", "ShadingPoint"]
+__all__ = ["BSDF", "DeltaBSDF", "HEMISPHERES", "BSDFSample", "BSDFSampling", "Lobe", "Materials", "ShadingPoint"]

@@ -14,11 +14,22 @@ Conventions, shared by every material:
   so the derivative of a weight is the derivative of its ``f`` alone. Weights are differentiable in
   the material's parameters; that is what path replay's vertex adjoint differentiates.
 - ``n`` is the shading normal turned to ``wo``'s geometric side; ``front`` says whether that side
-  is the triangle's front (for glass: outside).
+  is the triangle's front (for glass: outside). :attr:`ShadingPoint.frame` is the shading frame,
+  built once per vertex and shared by every BSDF call there; BSDFs that are not rotationally
+  trivial (microfacets, refraction) work in it, where ``cos(theta) = z``.
+- A BSDF says what kinds of lobe it has with :class:`Lobe` flags (several per material: a plastic
+  is a diffuse base under a delta or glossy coating). Integrators branch on these flags, never on a
+  material's type, so a new material needs no integrator change.
+
+A material is a plugin (:mod:`invrender.materials`): one module holding a subclass of :class:`BSDF`
+that declares its type name, parameters, constants, lobes and format aliases beside ``eval`` /
+``pdf`` / ``sample``, registered in :data:`invrender.registry.MATERIALS`.
 """
 
 from __future__ import annotations
 
+import enum
+import functools
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import ClassVar
@@ -26,7 +37,29 @@ from typing import ClassVar
 import torch
 
 from invrender.errors import ParameterError
+from invrender.scene.materials import Constant, Param
+from invrender.transport.frame import Frame
 from invrender.transport.textures import gather_rgb
+
+
+class Lobe(enum.IntFlag):
+    """Kinds of lobe a BSDF has (a bitset, as pbrt-v4's ``BxDFFlags``).
+
+    ``DIFFUSE`` and ``GLOSSY`` lobes have a density: emitters can be sampled towards them and
+    ``eval`` / ``pdf`` see them. ``DELTA_REFLECTION`` and ``DELTA_TRANSMISSION`` scatter into
+    discrete directions only: ``eval`` and ``pdf`` are zero for them, ``sample`` flags them and
+    :meth:`BSDF.specular_lobes` lists them.
+    """
+
+    DIFFUSE = 1
+    GLOSSY = 2
+    DELTA_REFLECTION = 4
+    DELTA_TRANSMISSION = 8
+    #: lobes with a density (next-event estimation and MIS apply)
+    SMOOTH = DIFFUSE | GLOSSY
+    #: lobes without one
+    DELTA = DELTA_REFLECTION | DELTA_TRANSMISSION
+    ALL = SMOOTH | DELTA
 
 #: how diffuse lobes draw directions (:attr:`BSDFSampling.hemisphere`)
 HEMISPHERES = ("cosine", "uniform")
@@ -75,12 +108,26 @@ class ShadingPoint:
     cache: dict = field(default_factory=dict, compare=False, repr=False)
 
     def select(self, index: torch.Tensor) -> "ShadingPoint":
-        """The points at ``index`` (M,) int64."""
-        return ShadingPoint(*(getattr(self, f).index_select(0, index) for f in _POINT_FIELDS))
+        """The points at ``index`` (M,) int64 (with their frames, where already built)."""
+        out = ShadingPoint(*(getattr(self, f).index_select(0, index) for f in _POINT_FIELDS))
+        if "frame" in self.__dict__:
+            out.__dict__["frame"] = Frame(*(v.index_select(0, index) for v in (self.frame.s, self.frame.t, self.frame.n)))
+        return out
 
     @property
     def count(self) -> int:
         return int(self.wo.shape[0])
+
+    @functools.cached_property
+    def frame(self) -> Frame:
+        """The shading frames (z = ``n``), built on first use and shared by every BSDF call at
+        these points."""
+        return Frame.from_normal(self.n)
+
+    @functools.cached_property
+    def wo_local(self) -> torch.Tensor:
+        """``wo`` in :attr:`frame` (N, 3)."""
+        return self.frame.to_local(self.wo)
 
 
 _POINT_FIELDS = ("wo", "n", "ng", "front", "uv", "material", "slot")
@@ -107,8 +154,11 @@ class BSDFSample:
 class BSDF(ABC):
     """Base class of the materials: one instance holds every material of one type in a scene.
 
-    Subclasses set ``type_name`` (the scene files' ``type``), ``lobe`` and implement
-    :meth:`eval`, :meth:`pdf` and :meth:`sample`; delta materials also :meth:`specular_lobes`.
+    A subclass is the whole description of a material type: it declares the class attributes
+    below and implements :meth:`eval`, :meth:`pdf` and :meth:`sample` (materials with delta lobes
+    also :meth:`specular_lobes`); registered with ``@MATERIALS.register``
+    (:data:`invrender.registry.MATERIALS`), it is known to the scene formats, the renderer, error
+    messages and the docs.
 
     Attributes:
         values: per material of this type, parameter key -> tensor (3,) or (h, w, 3).
@@ -116,10 +166,25 @@ class BSDF(ABC):
         sampling: how :meth:`sample` draws directions (and so what :meth:`pdf` returns).
     """
 
-    #: the material type it implements (a key of :data:`invrender.scene.materials.MATERIAL_TYPES`)
+    #: the ``type`` scene files name it by
     type_name: ClassVar[str]
-    #: ``"diffuse"``, ``"glossy"`` or ``"specular"`` (delta): how the older integrators treat it
-    lobe: ClassVar[str]
+    #: the kinds of lobe it has (several for layered materials)
+    lobes: ClassVar[Lobe]
+    #: differentiable parameters: key -> :class:`~invrender.scene.materials.Param` (kind, default)
+    params: ClassVar[dict[str, Param]] = {}
+    #: scalar constants of the scene: key -> :class:`~invrender.scene.materials.Constant`
+    constants: ClassVar[dict[str, Constant]] = {}
+    #: one line for messages and the docs' tables
+    doc: ClassVar[str] = ""
+
+    #: keys a material table of this type may hold besides ``type`` (parameters, their
+    #: ``_texture`` forms where the kind allows one, constants); set for each subclass
+    keys: ClassVar[frozenset[str]] = frozenset()
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        texture_keys = {f"{k}_texture" for k, p in cls.params.items() if p.kind.texture}
+        cls.keys = frozenset(cls.params) | texture_keys | frozenset(cls.constants)
 
     def __init__(self, values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], flat: bool = False, sampling: BSDFSampling | None = None):
         self.values, self.constants = values, constants
@@ -128,9 +193,10 @@ class BSDF(ABC):
         self.flat = flat
         self._constant_tables: dict = {}  # (key, device) -> (M,) float32, built on first use
 
-    @property
-    def delta(self) -> bool:
-        return self.lobe == "specular"
+    @classmethod
+    def has(cls, lobes: Lobe) -> bool:
+        """Does this material have any of ``lobes``?"""
+        return bool(cls.lobes & lobes)
 
     def param(self, key: str, sp: ShadingPoint) -> torch.Tensor:
         """Parameter ``key`` at each point (N, 3), differentiable (textures filtered at ``sp.uv``);
@@ -157,7 +223,10 @@ class BSDF(ABC):
 
     @abstractmethod
     def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
-        """One direction per point from uniforms ``u_lobe`` (N,) and ``u_dir`` (N, 2)."""
+        """One direction per point from uniforms ``u_lobe`` (N,) (which lobe, for materials with
+        several) and ``u_dir`` (N, 2) (the direction within it); the weight is ``f |cos| / pdf``
+        of the whole BSDF's sampling density (for a delta lobe: its weight over its choice
+        probability)."""
 
     def specular_lobes(self, sp: ShadingPoint) -> list[tuple[torch.Tensor, torch.Tensor]]:
         """Every delta lobe as ``(wi (N, 3), weight (N, 3))``, weights not divided by any choice
@@ -175,7 +244,7 @@ class DeltaBSDF(BSDF):
     """A BSDF with delta lobes only (mirror, smooth glass): no density to evaluate or sample
     towards, so ``eval`` and ``pdf`` are zero and integrators follow :meth:`specular_lobes`."""
 
-    lobe = "specular"
+    lobes = Lobe.DELTA_REFLECTION
 
     def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
         return sp.wo.new_zeros(sp.count, 3)

@@ -11,11 +11,14 @@
 
 Antialiasing (jittered pixel samples) and depth of field (the thin-lens camera) come from the
 driver's camera rays. It is the path tracer with diffuse vertices ending after their direct light;
-Russian roulette as in the path tracer. Differentiable in rho, k_s, eps and eps0.
+Russian roulette as in the path tracer. Differentiable in rho, k_s, eps and eps0. Which vertices
+count as diffuse is asked of the BSDF's lobe flags: any BSDF with a diffuse lobe ends the path there
+(a layered material's coating then reflects direct light but is not followed).
 """
 
 from __future__ import annotations
 
+from invrender.transport.bsdfs import Lobe
 from invrender.transport.integrators.path import Path
 from invrender.transport.integrators.vertex import add_ambient, add_direct
 
@@ -25,7 +28,7 @@ class Distributed(Path):
     summary = "Cook's distribution ray tracing: glossy lobes followed, soft shadows, ambient k_a*eps0"
 
     def at_vertex(self, ctx, state, s, sp, u, depth, film):
-        diffuse = ctx.materials.lobe_mask(sp, ("diffuse",))
+        diffuse = ctx.materials.has(sp, Lobe.DIFFUSE)
         d = diffuse.nonzero()[:, 0]
         if d.numel():
             # k_d int cos cos L_e / r^2 dA + k_a L_a, into term depth + 1; the path ends here

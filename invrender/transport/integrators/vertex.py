@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import torch
 
-from invrender.transport.bsdfs import BSDFSample, ShadingPoint
+from invrender.transport.bsdfs import BSDFSample, Lobe, ShadingPoint
 from invrender.transport.context import PathState, TransportContext
 from invrender.transport.film import Film
 from invrender.transport.surface import Surface, surface_at
@@ -66,12 +66,13 @@ def add_direct(ctx: TransportContext, state: PathState, s: Surface, sp: ShadingP
 
     ``u`` (N, >= 5): dims 2 (emitter pick) and 3-4 (point). Every path casts its shadow ray and adds
     its (possibly zero) contribution: cheaper than compacting a dozen tensors to the ones that count.
-    Vertices on delta lobes (mirror, glass) are skipped: no emitter sample can hit a delta lobe.
+    Vertices whose BSDF has delta lobes only (mirror, glass) are skipped: no emitter sample can
+    hit a delta lobe (a BSDF with a smooth lobe beside its delta ones gathers through the smooth one).
     """
     if ctx.lights is None:
         return
-    if ctx.materials.any_delta:
-        keep = (~ctx.materials.lobe_mask(sp, ("specular",))).nonzero()[:, 0]
+    if ctx.materials.any_delta_only:
+        keep = ctx.materials.has(sp, Lobe.SMOOTH).nonzero()[:, 0]
         state, s, sp, u = state.select(keep), s.select(keep), sp.select(keep), u.index_select(0, keep)
     ls = ctx.lights.sample_from(u[:, 2:5], s.p, s.n, ctx.ray_offset)
     ok = ls.facing & ~ctx.accel.occluded(ls.o, ls.wl, ls.tmax)

@@ -1,10 +1,12 @@
 """Whitted's recursive ray tracing (Whitted 1980), as a truncation of the Neumann series.
 
-At a diffuse or glossy vertex the local model ends the path: direct light from the emitters (a
-shadow ray to a point sampled on an area emitter) plus the ambient term ``k_d eps0``. At a mirror
-the reflected ray is followed; at glass the path splits, as Whitted's did, into the reflected ray
-weighted by the Fresnel reflectance F and the refracted ray weighted by ``(1 - F) / eta^2``, both
-followed recursively up to ``max_depth`` terms. No roulette and no random choice between lobes, so
+At a vertex whose BSDF has a smooth (diffuse or glossy) lobe the local model ends that part of the
+path: direct light from the emitters (a shadow ray to a point sampled on an area emitter) plus the
+ambient term ``k_d eps0``. Every delta lobe is followed: at a mirror the reflected ray; at glass the
+path splits, as Whitted's did, into the reflected ray weighted by the Fresnel reflectance F and the
+refracted ray weighted by ``(1 - F) / eta^2``, both followed recursively up to ``max_depth`` terms.
+A BSDF with both kinds (a diffuse base under a smooth coating) gets both. The lobes are asked of
+the BSDF's flags, never of its type. No roulette and no random choice between lobes, so
 with emitters seen only through delta chains the image has no noise at all. Differentiable in rho,
 k_s, eps and eps0; path replay gives each branch a film index of its own (``film.branch``).
 """
@@ -16,7 +18,7 @@ from dataclasses import dataclass
 import torch
 
 from invrender.errors import ParameterError
-from invrender.transport.bsdfs import BSDFSample
+from invrender.transport.bsdfs import BSDFSample, Lobe
 from invrender.transport.context import PathState, TransportContext
 from invrender.transport.film import Film
 from invrender.transport.integrators.base import DepthSettings, Integrator
@@ -56,14 +58,14 @@ class Whitted(Integrator):
             if not cfg.continues_after(depth):
                 break
             sp = ctx.shading_point(s, -state.d)
-            local = ~ctx.materials.lobe_mask(sp, ("specular",))
+            local = ctx.materials.has(sp, Lobe.SMOOTH)
             if bool(local.any()):
-                # the local model: direct light and ambient into term depth + 1; the path ends here
+                # the local model: direct light and ambient into term depth + 1; the smooth lobes end here
                 i = local.nonzero()[:, 0]
                 ls, lsp = state.select(i), sp.select(i)
                 add_direct(ctx, ls, s.select(i), lsp, uniform(ls.keys, depth + 1, DIMS), depth + 1, film, mis=False)
                 add_ambient(ctx, ls, lsp, depth + 1, film)
-            i = (~local).nonzero()[:, 0]
+            i = ctx.materials.has(sp, Lobe.DELTA).nonzero()[:, 0]  # the delta lobes are followed
             state, s, sp = state.select(i), s.select(i), sp.select(i)
             children = []
             for bsdf, index in ctx.materials.groups(sp):
@@ -71,7 +73,7 @@ class Whitted(Integrator):
                     sub, sub_s, sub_sp = state.select(index), s.select(index), sp.select(index)
                 else:
                     sub, sub_s, sub_sp = state, s, sp
-                if not bsdf.delta or not sub.count:
+                if not bsdf.has(Lobe.DELTA) or not sub.count:
                     continue
                 lobes = bsdf.specular_lobes(sub_sp)
                 for k, (wi, weight) in enumerate(lobes):

@@ -8,7 +8,10 @@ from __future__ import annotations
 
 import torch
 
-from invrender.transport.bsdfs.base import BSDFSample, DeltaBSDF, ShadingPoint
+from invrender import registry
+from invrender.scene.kinds import SPECULAR_REFLECTANCE
+from invrender.scene.materials import Param
+from invrender.transport.bsdfs.base import BSDFSample, DeltaBSDF, Lobe, ShadingPoint
 from invrender.vec import dot
 
 
@@ -17,8 +20,12 @@ def reflect(wo: torch.Tensor, n: torch.Tensor) -> torch.Tensor:
     return 2.0 * dot(wo, n)[:, None] * n - wo
 
 
+@registry.MATERIALS.register
 class Mirror(DeltaBSDF):
     type_name = "mirror"
+    lobes = Lobe.DELTA_REFLECTION
+    params = {"specular_reflectance": Param(SPECULAR_REFLECTANCE, 1.0)}
+    doc = "perfect specular reflector, two-sided"
 
     def specular_lobes(self, sp: ShadingPoint) -> list[tuple[torch.Tensor, torch.Tensor]]:
         """The reflection, weight k_s (zero where ``wo`` lies below the shading normal)."""

@@ -15,10 +15,14 @@ leaving a closed object cancel. No parameter is differentiable (``ior`` is a sce
 
 from __future__ import annotations
 
+import math
+
 import torch
 
-from invrender.transport.bsdfs.base import BSDFSample, DeltaBSDF, ShadingPoint
-from invrender.transport.bsdfs.mirror import reflect
+from invrender import registry
+from invrender.materials.mirror import reflect
+from invrender.scene.materials import Constant
+from invrender.transport.bsdfs.base import BSDFSample, DeltaBSDF, Lobe, ShadingPoint
 from invrender.vec import dot
 
 
@@ -34,8 +38,12 @@ def fresnel_dielectric(cos_i: torch.Tensor, eta: torch.Tensor) -> tuple[torch.Te
     return F, cos_t
 
 
+@registry.MATERIALS.register
 class Dielectric(DeltaBSDF):
     type_name = "dielectric"
+    lobes = Lobe.DELTA_REFLECTION | Lobe.DELTA_TRANSMISSION
+    constants = {"ior": Constant(1.5, 0.0, math.inf, True, True)}
+    doc = "smooth glass: Fresnel reflection and refraction"
 
     def _interface(self, sp: ShadingPoint):
         """(F, reflected wi, refracted wi, eta) at each point."""

@@ -13,15 +13,23 @@ import math
 
 import torch
 
+from invrender import registry
+from invrender.scene.kinds import REFLECTANCE
+from invrender.scene.materials import Param
 from invrender.transport import kernels
-from invrender.transport.bsdfs.base import BSDF, BSDFSample, ShadingPoint
-from invrender.transport.frame import Frame
+from invrender.transport.bsdfs.base import BSDF, BSDFSample, Lobe, ShadingPoint
 from invrender.vec import dot, normalize
 
 
+@registry.MATERIALS.register
 class Diffuse(BSDF):
+    """Frame-free: every quantity is a cosine with ``n``, so it never builds the shading frame
+    (except for uniform hemisphere sampling)."""
+
     type_name = "diffuse"
-    lobe = "diffuse"
+    lobes = Lobe.DIFFUSE
+    params = {"reflectance": Param(REFLECTANCE, 0.5)}
+    doc = "Lambertian, two-sided: f = rho / pi"
 
     def _rho(self, sp: ShadingPoint) -> torch.Tensor:
         """rho (N, 3), zero where ``wo`` lies below the shading normal (never without shading normals)."""
@@ -72,7 +80,7 @@ class Diffuse(BSDF):
         sin_t = (1.0 - cos_t * cos_t).clamp_min(0.0).sqrt()
         phi = (2.0 * math.pi) * u_dir[:, 1]
         local = torch.stack([sin_t * torch.cos(phi), sin_t * torch.sin(phi), cos_t], dim=1)
-        wi = Frame.from_normal(sp.n).to_world(local)
+        wi = sp.frame.to_world(local)
         pdf = self.pdf(sp, wi)
         weight = self._rho(sp) * torch.where(pdf > 0, 2.0 * cos_t, 0.0)[:, None]
         return BSDFSample(wi, weight, pdf, torch.zeros_like(cos_t, dtype=torch.bool))

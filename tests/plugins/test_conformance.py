@@ -1,0 +1,65 @@
+"""Every registered material passes the BSDF conformance checks (invrender.materials.checks), so a
+new material gets them without writing a test: its sampling against its pdf (chi-square), its sample
+weights against eval / pdf, its delta samples against its listed delta lobes, and its albedo below 1."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+import invrender  # noqa: F401  (registers the built-in materials)
+from invrender.materials import checks
+from invrender.registry import MATERIALS
+from invrender.transport.bsdfs import Lobe
+
+TYPES = MATERIALS.names()
+ANGLES = [0.0, 0.8, 1.35]
+
+
+def test_the_registry_holds_the_built_in_materials():
+    assert TYPES[:4] == ["diffuse", "mirror", "dielectric", "glossy"]
+    for name in TYPES:
+        cls = MATERIALS[name]
+        assert cls.type_name == name and cls.lobes and cls.doc, name
+
+
+@pytest.mark.parametrize("theta_o", ANGLES)
+@pytest.mark.parametrize("name", TYPES)
+def test_sampling_matches_pdf(name, theta_o):
+    cls = MATERIALS[name]
+    if not cls.has(Lobe.SMOOTH):
+        pytest.skip(f"{name} has delta lobes only: no density to test")
+    assert checks.chi_square_p(checks.instance(cls), theta_o, seed=int(theta_o * 10)) > 1e-3
+
+
+@pytest.mark.parametrize("theta_o", [0.2, 1.0])
+@pytest.mark.parametrize("name", TYPES)
+def test_sample_weight_is_eval_over_pdf(name, theta_o):
+    cls = MATERIALS[name]
+    pdf_err, weight_err, smooth = checks.weight_errors(checks.instance(cls), theta_o)
+    assert pdf_err < 2e-3 and weight_err < 2e-3
+    assert (smooth > 0.3) == cls.has(Lobe.SMOOTH)  # smooth lobes are sampled, delta-only ones never
+
+
+@pytest.mark.parametrize("theta_o", [0.3, 1.2])
+@pytest.mark.parametrize("name", TYPES)
+def test_delta_samples_carry_the_delta_lobes_weights(name, theta_o):
+    cls = MATERIALS[name]
+    bsdf = checks.instance(cls)
+    sp = checks.shading_point(theta_o, 8)
+    lobes = bsdf.specular_lobes(sp)
+    assert bool(lobes) == cls.has(Lobe.DELTA)
+    if lobes:
+        assert checks.delta_weight_gap(bsdf, theta_o) < 5e-3
+        assert float(bsdf.eval(sp, lobes[0][0]).abs().max()) == 0 or cls.has(Lobe.SMOOTH)
+
+
+@pytest.mark.parametrize("name", TYPES)
+def test_albedo_at_most_one(name):
+    """The mean sample weight (the directional albedo) of a material at its defaults is <= 1."""
+    bsdf = checks.instance(MATERIALS[name])
+    n = 100_000
+    g = torch.Generator().manual_seed(11)
+    for theta_o in ANGLES:
+        bs = bsdf.sample(checks.shading_point(theta_o, n), torch.rand(n, generator=g), torch.rand(n, 2, generator=g))
+        assert float(bs.weight.double().mean(0).max()) <= 1.0 + 5e-3
