@@ -4,15 +4,12 @@
 geometry is moved to world space by its scene-graph transform, and triangles are ordered by
 geometry in file order (trimesh's node order is not). Each distinct material becomes a material
 named as in the file (unnamed: ``material``), made unique with ``_2``, ``_3``, ... suffixes when
-two different materials share a name. A glTF material's type (:mod:`invrender.scene.materials`)
-is the first of these that applies:
-
-1. ``KHR_materials_transmission.transmissionFactor`` > 0: ``dielectric``, ``ior`` =
-   ``KHR_materials_ior.ior`` (default 1.5);
-2. ``metallicFactor`` >= 0.5: a conductor with ``specular_reflectance`` = the base colour and GGX
-   alpha = ``roughnessFactor`` ^ 2: ``mirror`` when alpha < 1e-3, else ``glossy`` with
-   ``roughness`` = min(alpha, 1);
-3. otherwise ``diffuse`` with ``reflectance`` rho = the base colour.
+two different materials share a name. A material's type is that of the first registered
+material type (:data:`invrender.registry.MATERIALS`, in order of their ``gltf_priority``) whose
+``from_gltf`` takes it; each says in its module (:mod:`invrender.materials`) which materials it
+takes and what it reads of them. They read a :class:`GltfMaterial`, which puts glTF's and MTL's
+values in glTF's metallic-roughness terms (transmission, ior, metal, GGX alpha, base colour, metal
+colour), read as follows.
 
 - glTF factors follow the spec's defaults: ``metallicFactor`` and ``roughnessFactor`` are 1 when
   ``pbrMetallicRoughness`` omits them, so a material that does not say ``metallicFactor`` is a
@@ -33,10 +30,10 @@ is the first of these that applies:
   to linear). eps = ``emissiveFactor`` x ``KHR_materials_emissive_strength.emissiveStrength`` (read
   from the JSON, trimesh ignores this extension) x ``emissiveTexture`` (sRGB-decoded); when eps is
   non-zero the material also becomes the emitter ``<material>_emission``, whatever its type.
-- OBJ/MTL: ``diffuse``, rho = ``Kd`` (read as *linear* RGB, exactly as written in the .mtl) x
-  ``map_Kd`` (sRGB-decoded; the texture alone when ``Kd`` is absent); except ``illum 3``
-  (reflection on) with a non-zero ``Ks``: a ``mirror`` with ``specular_reflectance`` = ``Ks``.
-  ``Ns``, ``Ni``, ``d`` and the other illumination models are ignored. eps = ``Ke`` (linear;
+- OBJ/MTL: base colour = ``Kd`` (read as *linear* RGB, exactly as written in the .mtl) x
+  ``map_Kd`` (sRGB-decoded; the texture alone when ``Kd`` is absent), not a metal and opaque;
+  except ``illum 3`` (reflection on) with a non-zero ``Ks``: a metal with GGX alpha 0 (a mirror)
+  and metal colour ``Ks``. ``Ns``, ``Ni``, ``d`` and the other illumination models are ignored. eps = ``Ke`` (linear;
   ``map_Ke`` is ignored). Faces without a material (or an OBJ without .mtl) get rho = 0.8 grey
   (trimesh's placeholder material, with its grey 2 x 2 image, is ignored).
 - Shading normals: a part whose file gives vertex normals (OBJ ``vn``, glTF ``NORMAL``, PLY
@@ -64,10 +61,12 @@ import hashlib
 import json
 import math
 import struct
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 
+from invrender import registry
 from invrender.errors import SceneError
 from invrender.scene.camera import Camera
 from invrender.scene.formats.values import is_number, one_line, show
@@ -78,7 +77,6 @@ from invrender.scene.shapes import Mesh
 DEFAULT_RESOLUTION = (256, 256)
 DEFAULT_RHO = 0.8  # reflectance of glTF primitives / OBJ faces without a material
 FRAMING_FOV = 45.0
-MIRROR_ALPHA = 1e-3  # glTF conductors with a GGX alpha below this become mirrors
 
 
 def load_mesh_file(path, resolution=None) -> Scene:
@@ -210,65 +208,165 @@ def _material_values(material, json_materials: list, is_gltf: bool, path: Path):
     name = getattr(material, "name", None) or "material"
     where = f"{path}: material {name!r}"
     if isinstance(material, PBRMaterial):
-        entry = _json_material(material, json_materials) if is_gltf else {}
-        pbr = entry.get("pbrMetallicRoughness", {}) if isinstance(entry.get("pbrMetallicRoughness"), dict) else {}
-        extensions = entry.get("extensions", {}) if isinstance(entry.get("extensions"), dict) else {}
-        if "baseColorFactor" in pbr:
-            base = _factor(pbr["baseColorFactor"], "baseColorFactor", path)
+        view = _PbrMaterial(material, _json_material(material, json_materials) if is_gltf else {}, where, path)
+    elif isinstance(material, SimpleMaterial):
+        if getattr(material, "_name", None) is None and "kd" not in (material.kwargs or {}):  # its .name is then "material_0"
+            # trimesh's placeholder for faces without a material
+            name, view = "material", GltfMaterial(where)
+        else:
+            view = _MtlMaterial(material, name, where, path)
+    else:
+        view = GltfMaterial(where)  # no material (e.g. vertex colours only)
+    spec = _registered_material(view)
+    return name, spec, view.emission
+
+
+def _registered_material(view: GltfMaterial) -> Material:
+    """The :class:`Material` of the first registered type (by ``gltf_priority``, then in order of
+    registration) whose ``from_gltf`` takes ``view``: types that declare ``from_gltf`` in their
+    own class body (a subclass does not inherit its parent's aliases)."""
+    readers = sorted((c for c in registry.MATERIALS.values() if "from_gltf" in vars(c)), key=lambda c: c.gltf_priority)
+    for cls in readers:
+        entries = cls.from_gltf(view)
+        if entries is not None:
+            return Material.of(cls.type_name, view.where, **entries)
+    raise SceneError(f"{view.where}: no registered material type reads it (known: {', '.join(registry.MATERIALS)})")
+
+
+class GltfMaterial:
+    """A file's material as the material types' ``from_gltf`` read it, in glTF's
+    metallic-roughness terms (this module's docstring says how each file format's values are read).
+
+    This base class is a material a file does not give (a primitive or face without one): grey
+    diffuse (rho 0.8), no emission. Every value is read when first asked for, so a value no
+    material type asks for is never checked.
+
+    Attributes:
+        where: the file and the material's name, for messages.
+        transmission: ``transmissionFactor`` in [0, 1] (0: opaque).
+        ior: the index of refraction ``ior`` > 0 (1.5 by default).
+        metal: a conductor (glTF ``metallicFactor`` >= 0.5: invrender has no partial metals;
+            MTL ``illum 3`` with a non-zero ``Ks``).
+        alpha: GGX alpha in [0, 1] (glTF ``roughnessFactor`` squared; 0 for an MTL mirror).
+        base_colour: linear RGB (3,) or texture (h, w, 3): what a diffuse surface reflects.
+        metal_colour: linear RGB (3,): what a metal reflects (a texture by its linear mean).
+        emission: eps (3,) or (h, w, 3) linear, or None when it does not emit.
+    """
+
+    transmission = 0.0
+    ior = 1.5
+    metal = False
+    alpha = 1.0
+    emission = None
+
+    def __init__(self, where: str):
+        self.where = where
+
+    @property
+    def base_colour(self) -> np.ndarray:
+        return np.full(3, DEFAULT_RHO)
+
+    @property
+    def metal_colour(self) -> np.ndarray:
+        return self.base_colour
+
+
+class _PbrMaterial(GltfMaterial):
+    """A glTF material (trimesh's PBRMaterial and the file's JSON entry for it)."""
+
+    def __init__(self, material, entry: dict, where: str, path: Path):
+        super().__init__(where)
+        self._material, self._entry, self._path = material, entry, path
+        self._pbr = entry.get("pbrMetallicRoughness", {}) if isinstance(entry.get("pbrMetallicRoughness"), dict) else {}
+        self._extensions = entry.get("extensions", {}) if isinstance(entry.get("extensions"), dict) else {}
+        if "baseColorFactor" in self._pbr:  # checked whatever the type
+            self._base = _factor(self._pbr["baseColorFactor"], "baseColorFactor", path)
         elif material.baseColorFactor is not None:
-            base = np.asarray(material.baseColorFactor, dtype=np.float64)[:3] / 255.0
+            self._base = np.asarray(material.baseColorFactor, dtype=np.float64)[:3] / 255.0
         else:
-            base = np.ones(3)
+            self._base = np.ones(3)
 
-        transmission = extensions.get("KHR_materials_transmission", {})
-        transmission = transmission if isinstance(transmission, dict) else {}
-        ior = extensions.get("KHR_materials_ior", {})
-        ior = ior if isinstance(ior, dict) else {}
-        if _gltf_number(transmission, "transmissionFactor", None, 0.0, where, high=1.0) > 0:
-            spec = Material.of("dielectric", where, ior=_gltf_number(ior, "ior", None, 1.5, where, high=math.inf))
-        elif _gltf_number(pbr, "metallicFactor", material.metallicFactor, 1.0, where) >= 0.5:
-            colour = base  # specular_reflectance is RGB only: a texture counts by its (linear) mean
-            if material.baseColorTexture is not None:
-                colour = base * _times_texture(np.ones(3), material.baseColorTexture).reshape(-1, 3).mean(0)
-            alpha = _gltf_number(pbr, "roughnessFactor", material.roughnessFactor, 1.0, where) ** 2  # perceptual roughness squared
-            if alpha < MIRROR_ALPHA:
-                spec = Material.of("mirror", where, specular_reflectance=colour)
-            else:
-                spec = Material.of("glossy", where, specular_reflectance=colour, roughness=min(alpha, 1.0))
-        else:
-            spec = Material.of("diffuse", where, reflectance=_times_texture(base, material.baseColorTexture))
+    def _extension(self, name: str) -> dict:
+        value = self._extensions.get(name, {})
+        return value if isinstance(value, dict) else {}
 
-        extension = extensions.get("KHR_materials_emissive_strength", {})
+    @cached_property
+    def transmission(self) -> float:
+        return _gltf_number(self._extension("KHR_materials_transmission"), "transmissionFactor", None, 0.0, self.where, high=1.0)
+
+    @cached_property
+    def ior(self) -> float:
+        return _gltf_number(self._extension("KHR_materials_ior"), "ior", None, 1.5, self.where, high=math.inf)
+
+    @cached_property
+    def metal(self) -> bool:
+        return _gltf_number(self._pbr, "metallicFactor", self._material.metallicFactor, 1.0, self.where) >= 0.5
+
+    @cached_property
+    def alpha(self) -> float:
+        return _gltf_number(self._pbr, "roughnessFactor", self._material.roughnessFactor, 1.0, self.where) ** 2  # perceptual roughness squared
+
+    @cached_property
+    def base_colour(self) -> np.ndarray:
+        return _times_texture(self._base, self._material.baseColorTexture)
+
+    @cached_property
+    def metal_colour(self) -> np.ndarray:
+        if self._material.baseColorTexture is None:
+            return self._base
+        return self._base * _times_texture(np.ones(3), self._material.baseColorTexture).reshape(-1, 3).mean(0)
+
+    @cached_property
+    def emission(self) -> np.ndarray | None:
+        material, entry = self._material, self._entry
+        extension = self._extensions.get("KHR_materials_emissive_strength", {})
         strength = extension.get("emissiveStrength", 1.0) if isinstance(extension, dict) else 1.0
         if not is_number(strength):
-            raise SceneError(f"{where}: emissiveStrength must be a number, got {show(strength)}")
+            raise SceneError(f"{self.where}: emissiveStrength must be a number, got {show(strength)}")
         if "emissiveFactor" in entry:
-            factor = _factor(entry["emissiveFactor"], "emissiveFactor", path)
+            factor = _factor(entry["emissiveFactor"], "emissiveFactor", self._path)
         elif material.emissiveFactor is not None:
             factor = np.asarray(material.emissiveFactor, dtype=np.float64).reshape(-1)[:3]
         else:
             factor = np.zeros(3)
         eps = factor * float(strength)
-        eps = _times_texture(eps, material.emissiveTexture) if np.any(eps != 0) else None
-        return name, spec, eps
+        return _times_texture(eps, material.emissiveTexture) if np.any(eps != 0) else None
 
-    if isinstance(material, SimpleMaterial):
-        kwargs = material.kwargs or {}
-        if getattr(material, "_name", None) is None and "kd" not in kwargs:  # its .name is then "material_0"
-            # trimesh's placeholder for faces without a material
-            return "material", Material.of("diffuse", where, reflectance=np.full(3, DEFAULT_RHO)), None
-        ke = _mtl_colour(kwargs.get("ke"), "Ke", name, path)
-        eps = ke if ke is not None and np.any(ke != 0) else None
-        ks = _mtl_colour(kwargs.get("ks"), "Ks", name, path) if _mtl_illum(kwargs.get("illum"), name, path) == 3 else None
-        if ks is not None and np.any(ks != 0):  # illum 3: reflection on
-            return name, Material.of("mirror", where, specular_reflectance=ks), eps
-        kd = _mtl_colour(kwargs.get("kd"), "Kd", name, path)
+
+class _MtlMaterial(GltfMaterial):
+    """An OBJ's MTL material (trimesh's SimpleMaterial): a mirror with illum 3 and a non-zero Ks,
+    else diffuse; Ke is read first, as the file states it."""
+
+    alpha = 0.0
+
+    def __init__(self, material, name: str, where: str, path: Path):
+        super().__init__(where)
+        self._material, self._name, self._path = material, name, path
+        self._kwargs = material.kwargs or {}
+        ke = _mtl_colour(self._kwargs.get("ke"), "Ke", name, path)
+        self.emission = ke if ke is not None and np.any(ke != 0) else None
+
+    @cached_property
+    def _ks(self) -> np.ndarray | None:
+        """Ks when illum is 3 (reflection on), else None."""
+        if _mtl_illum(self._kwargs.get("illum"), self._name, self._path) != 3:
+            return None
+        return _mtl_colour(self._kwargs.get("ks"), "Ks", self._name, self._path)
+
+    @property
+    def metal(self) -> bool:
+        return self._ks is not None and bool(np.any(self._ks != 0))
+
+    @property
+    def metal_colour(self) -> np.ndarray:
+        return self._ks if self.metal else super().metal_colour
+
+    @cached_property
+    def base_colour(self) -> np.ndarray:
+        kd = _mtl_colour(self._kwargs.get("kd"), "Kd", self._name, self._path)
         if kd is None:
-            kd = np.ones(3) if material.image is not None else np.full(3, DEFAULT_RHO)
-        rho = _times_texture(kd, material.image)
-        return name, Material.of("diffuse", where, reflectance=rho), eps
-
-    return name, Material.of("diffuse", where, reflectance=np.full(3, DEFAULT_RHO)), None  # no material (e.g. vertex colours only)
+            kd = np.ones(3) if self._material.image is not None else np.full(3, DEFAULT_RHO)
+        return _times_texture(kd, self._material.image)
 
 
 def _gltf_number(table: dict, key: str, fallback, default: float, where: str, high: float = 1.0) -> float:

@@ -1,21 +1,24 @@
-"""Mitsuba BSDFs onto invrender's materials.
+"""Mitsuba BSDFs onto invrender's materials, through the material registry.
 
-BSDFs (``<bsdf type=...>``), mapped to invrender's materials (:mod:`invrender.scene.materials`)
-    - ``diffuse`` -> ``diffuse``: ``reflectance`` (rgb, float, constant spectrum, or
-      ``<texture type="bitmap">``; default 0.5).
-    - ``conductor`` -> ``mirror`` and ``roughconductor`` -> ``glossy`` (GGX): only Fresnel 1,
-      i.e. ``<string name="material" value="none"/>``, which is Mitsuba 3's default when
-      ``material`` is absent; any other material and ``eta``/``k`` are errors.
-      ``specular_reflectance`` (rgb, float or constant spectrum; default 1). roughconductor:
-      ``distribution`` must be given as ``ggx`` (Mitsuba's default is ``beckmann``, which invrender
-      does not have), ``alpha`` a float in (0, 1] (default 0.1) is invrender's ``roughness``;
-      ``alpha_u``/``alpha_v`` (anisotropy) are errors; ``sample_visible`` is accepted and ignored.
-    - ``dielectric`` -> ``dielectric``: ``int_ior`` and ``ext_ior`` as positive numbers or
-      Mitsuba's named media (:data:`NAMED_IOR`; defaults ``bk7`` and ``air``). invrender's
-      dielectric has one relative index ``ior = int_ior / ext_ior`` (its exterior is 1.0), which
-      is exactly what a smooth dielectric interface depends on.
-    - ``twosided`` wrapping one BSDF (or two references to the same one): accepted, the material
-      is the nested one (a dielectric cannot be nested).
+BSDFs (``<bsdf type=...>``)
+    Each registered material type (:data:`invrender.registry.MATERIALS`) names the Mitsuba
+    plugins it stands for in ``mitsuba_plugins`` and reads them in its ``from_mitsuba`` (whose
+    docstring, in the material's module of :mod:`invrender.materials`, says which properties it
+    takes); ``invrender.registry.MATERIALS`` is also what the message for an unsupported type
+    lists. A material reads its ``<bsdf>`` through a :class:`BsdfReader`, whose getters are the
+    vocabulary below, so every material's messages say the same things the same way:
+
+    - colours: ``<rgb>``, ``<float>``, a constant ``<spectrum>``, or a bitmap texture where the
+      parameter may be one (:mod:`.textures`);
+    - indices of refraction: positive numbers or Mitsuba's named media (:data:`NAMED_IOR`);
+    - conductors: only Fresnel 1, i.e. ``<string name="material" value="none"/>``, which is
+      Mitsuba 3's default when ``material`` is absent; any other material and ``eta``/``k`` are
+      errors;
+    - any property the material does not list is an error (as in Mitsuba).
+
+    ``twosided`` wrapping one BSDF (or two references to the same one) is accepted, the material
+    is the nested one; like Mitsuba, it cannot wrap a BSDF that transmits (a dielectric) or
+    another ``twosided``.
 
 Deviations from Mitsuba
     - invrender's diffuse, mirror and glossy materials are two-sided: one-sided Mitsuba materials
@@ -25,11 +28,15 @@ Deviations from Mitsuba
 
 from __future__ import annotations
 
+import numpy as np
+
+from invrender import registry
+from invrender.errors import SceneError
 from invrender.scene.formats.mitsuba.context import Context
 from invrender.scene.formats.mitsuba.parser import Obj
 from invrender.scene.formats.mitsuba.textures import colour
-from invrender.scene.kinds import REFLECTANCE, SPECULAR_REFLECTANCE
-from invrender.scene.materials import Material
+from invrender.scene.kinds import ParamKind
+from invrender.scene.materials import Constant, Material
 
 #: Mitsuba 3's named indices of refraction (include/mitsuba/render/ior.h; Hecht, Optics, ~589 nm)
 NAMED_IOR = {
@@ -58,7 +65,15 @@ NAMED_IOR = {
     "diamond": 2.419,
 }
 
-BSDF_TYPES = ("diffuse", "conductor", "roughconductor", "dielectric", "twosided")
+#: the wrapper plugin, read here: every other BSDF plugin is a material type's (``mitsuba_plugins``)
+TWOSIDED = "twosided"
+
+
+def plugins() -> dict:
+    """Mitsuba BSDF plugin name -> the registered material class that reads it: the names in its
+    ``mitsuba_plugins``, declared in its own class body (a subclass does not inherit its parent's
+    aliases); a class registered later takes a name over."""
+    return {name: cls for cls in registry.MATERIALS.values() for name in vars(cls).get("mitsuba_plugins", ())}
 
 
 def material(ctx: Context, bsdf: Obj, owner: str | None) -> int:
@@ -70,64 +85,111 @@ def material(ctx: Context, bsdf: Obj, owner: str | None) -> int:
 
 
 def convert_bsdf(ctx: Context, bsdf: Obj) -> Material:
-    where = f"{ctx.where}:{bsdf.node.line}: {bsdf.describe()}"
-    t = bsdf.type
-    if t == "twosided":
+    """The :class:`Material` of a ``<bsdf>``: ``twosided`` unwrapped, any other plugin read by the
+    material class that names it in ``mitsuba_plugins`` (its ``from_mitsuba``)."""
+    known = plugins()
+    if bsdf.type == TWOSIDED:
         inner = ctx.nested(bsdf, "bsdf")
         if not inner or len(inner) > 2 or (len(inner) == 2 and inner[0] is not inner[1]):
             raise ctx.error(bsdf.node, "twosided must wrap one BSDF (two different sides are not supported: invrender's materials are two-sided)", bsdf)
-        if inner[0].type in ("dielectric", "twosided"):
+        if inner[0].type == TWOSIDED or (inner[0].type in known and _transmits(known[inner[0].type])):
+            # as Mitsuba's twosided, which rejects BSDFs with a transmission component
             raise ctx.error(inner[0].node, f"twosided cannot wrap a {inner[0].type} BSDF", bsdf)
         ctx.finish(bsdf, (), ("bsdf",))
         return convert_bsdf(ctx, inner[0])
-    if t == "diffuse":
-        rho = colour(ctx, bsdf, "reflectance", REFLECTANCE, 0.5)
-        ctx.finish(bsdf, ("reflectance",))
-        return Material.of("diffuse", where, reflectance=rho)
-    if t in ("conductor", "roughconductor"):
-        material = ctx.take(bsdf, "material", ("string",), "a <string>")
-        if material is not None and material.value != "none":
-            raise ctx.error(material.node, f"conductor material {material.value!r} is not supported: only 'none' (Fresnel 1, a perfect reflector) is", bsdf)
+    if bsdf.type not in known:
+        raise ctx.error(bsdf.node, f"unsupported bsdf type {bsdf.type!r} (supported: {', '.join([*known, TWOSIDED])})", bsdf)
+    cls = known[bsdf.type]
+    entries = cls.from_mitsuba(BsdfReader(ctx, bsdf))
+    return Material.of(cls.type_name, f"{ctx.where}:{bsdf.node.line}: {bsdf.describe()}", **entries)
+
+
+def _transmits(cls) -> bool:
+    """Does material class ``cls`` have a transmission lobe? (Read from its own lobe flags.)"""
+    lobes = cls.lobes
+    return bool(lobes & type(lobes).DELTA_TRANSMISSION)
+
+
+class BsdfReader:
+    """One ``<bsdf>`` as a material class's ``from_mitsuba`` reads it: typed getters whose errors
+    name the file, the line, the element and the property, and :meth:`finish`, which rejects the
+    properties nothing read. Each getter marks its property as read.
+
+    Attributes:
+        type: the plugin name (``"roughconductor"``).
+    """
+
+    def __init__(self, ctx: Context, obj: Obj):
+        self._ctx, self._obj = ctx, obj
+        self.type = obj.type
+
+    def has(self, name: str) -> bool:
+        """Does the element give property ``name``?"""
+        return name in self._obj.props
+
+    def error(self, name: str | None, message: str) -> SceneError:
+        """A one-line error at property ``name``'s line (the ``<bsdf>``'s for None), to raise."""
+        node = self._obj.node if name is None else self._obj.props[name].node
+        return self._ctx.error(node, message, self._obj)
+
+    def colour(self, name: str, kind: ParamKind, default: float, texture: bool = True) -> np.ndarray:
+        """An RGB triple (3,) or, where ``texture`` and ``kind`` allow, a bitmap texture
+        (h, w, 3), linear, checked against ``kind``'s range (:mod:`.textures`); ``default``
+        (grey) when absent."""
+        return colour(self._ctx, self._obj, name, kind, default, texture)
+
+    def string(self, name: str, default: str | None = None, allowed: tuple = ()) -> str | None:
+        """A ``<string>``, ``default`` when absent; with ``allowed``, one of those (compared
+        case-insensitively)."""
+        prop = self._ctx.take(self._obj, name, ("string",), "a <string>")
+        if prop is None:
+            return default
+        if allowed and prop.value.lower() not in allowed:
+            raise self.error(name, f"{name} {prop.value!r} is not supported (supported: {', '.join(allowed)})")
+        return prop.value
+
+    def boolean(self, name: str, default: bool | None = None) -> bool | None:
+        """A ``<boolean>``, ``default`` when absent."""
+        return self._ctx.get(self._obj, name, "boolean", default)
+
+    def number(self, name: str, constant: Constant, label: str, what: str = "a <float>") -> float:
+        """A ``<float>`` (or ``<integer>``) in the interval of the material's ``constant``, its
+        default when absent; out of range, an error naming the property with ``label`` (what the
+        number is); ``what`` says what the property must be."""
+        prop = self._ctx.take(self._obj, name, ("float", "integer"), what)
+        value = constant.default if prop is None else float(prop.value)
+        try:
+            return constant.check(self._ctx.where, name, value)
+        except SceneError as e:  # the constant's range ("... 'alpha' must lie in (0, 1], got 0"), said of this property
+            requirement = str(e).split(f"'{name}' ", 1)[1]
+            raise self.error(name, f"'{name}' ({label}) {requirement}") from None
+
+    def ior(self, name: str, default: str) -> float:
+        """An index of refraction: a positive number or one of Mitsuba's named media
+        (:data:`NAMED_IOR`); the medium ``default`` when absent."""
+        prop = self._ctx.take(self._obj, name, ("float", "integer", "string"), "a <float> or a <string> naming a medium")
+        if prop is None:
+            return NAMED_IOR[default]
+        if prop.tag == "string":
+            key = prop.value.strip().lower()
+            if key not in NAMED_IOR:
+                raise self.error(name, f"unknown {name} {prop.value!r} (known: {', '.join(NAMED_IOR)})")
+            return NAMED_IOR[key]
+        value = float(prop.value)
+        if value <= 0:
+            raise self.error(name, f"'{name}' must be positive, got {value:g}")
+        return value
+
+    def fresnel_one(self) -> None:
+        """A conductor's Fresnel term must be 1: ``material`` absent or ``"none"`` (Mitsuba 3's
+        default), no ``eta`` or ``k`` (the complex index of refraction of a real metal)."""
+        prop = self._ctx.take(self._obj, "material", ("string",), "a <string>")
+        if prop is not None and prop.value != "none":
+            raise self.error("material", f"conductor material {prop.value!r} is not supported: only 'none' (Fresnel 1, a perfect reflector) is")
         for key in ("eta", "k"):
-            if key in bsdf.props:
-                raise ctx.error(bsdf.props[key].node, f"'{key}' is not supported: only material 'none' (Fresnel 1) is", bsdf)
-        ks = colour(ctx, bsdf, "specular_reflectance", SPECULAR_REFLECTANCE, 1.0, texture=False)
-        if t == "conductor":
-            ctx.finish(bsdf, ("material", "specular_reflectance"))
-            return Material.of("mirror", where, specular_reflectance=ks)
-        distribution = ctx.take(bsdf, "distribution", ("string",), "a <string>")
-        if distribution is None:
-            raise ctx.error(bsdf.node, "give <string name=\"distribution\" value=\"ggx\"/>: Mitsuba's default distribution is beckmann, and invrender has GGX only", bsdf)
-        if distribution.value.lower() != "ggx":
-            raise ctx.error(distribution.node, f"distribution {distribution.value!r} is not supported (supported: ggx)", bsdf)
-        for key in ("alpha_u", "alpha_v"):
-            if key in bsdf.props:
-                raise ctx.error(bsdf.props[key].node, f"'{key}' (anisotropic roughness) is not supported: give one 'alpha'", bsdf)
-        alpha = ctx.take(bsdf, "alpha", ("float", "integer"), "a <float> (textured roughness is not supported)")
-        value = 0.1 if alpha is None else float(alpha.value)
-        if not 0.0 < value <= 1.0:
-            raise ctx.error(alpha.node, f"'alpha' (GGX roughness) must lie in (0, 1], got {value:g}", bsdf)
-        ctx.get(bsdf, "sample_visible", "boolean")
-        ctx.finish(bsdf, ("material", "specular_reflectance", "distribution", "alpha", "sample_visible"))
-        return Material.of("glossy", where, specular_reflectance=ks, roughness=value)
-    if t == "dielectric":
-        int_ior = ior(ctx, bsdf, "int_ior", "bk7")
-        ext_ior = ior(ctx, bsdf, "ext_ior", "air")
-        ctx.finish(bsdf, ("int_ior", "ext_ior"))
-        return Material.of("dielectric", where, ior=int_ior / ext_ior)
-    raise ctx.error(bsdf.node, f"unsupported bsdf type {t!r} (supported: {', '.join(BSDF_TYPES)})", bsdf)
+            if self.has(key):
+                raise self.error(key, f"'{key}' is not supported: only material 'none' (Fresnel 1) is")
 
-
-def ior(ctx: Context, bsdf: Obj, name: str, default: str) -> float:
-    prop = ctx.take(bsdf, name, ("float", "integer", "string"), "a <float> or a <string> naming a medium")
-    if prop is None:
-        return NAMED_IOR[default]
-    if prop.tag == "string":
-        key = prop.value.strip().lower()
-        if key not in NAMED_IOR:
-            raise ctx.error(prop.node, f"unknown {name} {prop.value!r} (known: {', '.join(NAMED_IOR)})", bsdf)
-        return NAMED_IOR[key]
-    value = float(prop.value)
-    if value <= 0:
-        raise ctx.error(prop.node, f"'{name}' must be positive, got {value:g}", bsdf)
-    return value
+    def finish(self, supported: tuple) -> None:
+        """Errors for the properties nothing read (listing ``supported``) and for nested objects."""
+        self._ctx.finish(self._obj, supported)

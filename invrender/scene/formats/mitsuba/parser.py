@@ -14,7 +14,7 @@ File structure
     ``<scene version="x.y.z">`` root (version 2.0.0 or later; Mitsuba 0.x files with camelCase names
     are not upgraded). ``<default name="x" value="..."/>`` declares a parameter and ``$x`` in any
     attribute value is replaced by it (as Mitsuba does: in document order, longer names first; a
-    ``$`` left over is an error); values passed to :func:`load_mitsuba_xml` as ``parameters``
+    ``$`` left over is an error); values passed to :func:`~invrender.scene.formats.mitsuba.load_mitsuba_xml` as ``parameters``
     override the defaults (Mitsuba's ``-D x=...``). Objects may carry an ``id`` (unique in the
     file) and be referenced with ``<ref id="..."/>`` (before or after their definition): BSDFs
     defined at the top level and used by shapes, and bitmap textures. Comments are ignored; text
