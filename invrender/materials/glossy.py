@@ -90,7 +90,7 @@ class Glossy(BSDF):
 
     @classmethod
     def from_gltf(cls, material) -> dict | None:
-        """A metal: k_s = its colour, roughness = GGX alpha (glTF ``roughnessFactor`` squared)."""
+        """A metal (the smoothest are mirrors first): k_s = its colour, roughness = GGX alpha (``roughnessFactor``^2)."""
         return {"specular_reflectance": material.metal_colour, "roughness": min(material.alpha, 1.0)} if material.metal else None
 
     @classmethod

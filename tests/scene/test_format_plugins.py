@@ -1,5 +1,6 @@
 """A material defined outside the package loads from the scene formats through the registry: its
-``type`` in TOML, its ``mitsuba_plugins`` in XML; error messages list it while it is registered."""
+``type`` in TOML, its ``mitsuba_plugins`` in XML, its ``from_gltf`` for OBJ/glTF materials; error
+messages list it while it is registered, and nothing knows it once it is unregistered."""
 
 import pytest
 import torch
@@ -32,6 +33,12 @@ class TintedMirror(Mirror):
         tint = bsdf.number("tint", cls.constants["tint"], "the tint factor")
         bsdf.finish(("specular_reflectance", "tint"))
         return {"specular_reflectance": ks, "tint": tint}
+
+    gltf_priority = 0  # before the built-in ones
+
+    @classmethod
+    def from_gltf(cls, material) -> dict | None:
+        return {"specular_reflectance": material.metal_colour, "tint": 0.75} if material.metal else None
 
 
 @pytest.fixture
@@ -74,6 +81,17 @@ def test_xml_plugin(tmp_path, tinted):
         ir.load_scene(xml_scene(tmp_path, '<bsdf type="test_tinted"><float name="alpha" value="1"/></bsdf>'))
     with pytest.raises(SceneError, match=r"unsupported bsdf type 'plastic' \(supported: diffuse, conductor, dielectric, roughconductor, test_tinted, twosided\)"):
         ir.load_scene(xml_scene(tmp_path, '<bsdf type="plastic"/>'))
+
+
+def test_obj_mtl_through_from_gltf(tmp_path, tinted):
+    (tmp_path / "m.mtl").write_text("newmtl shiny\nillum 3\nKs 0.5 0.25 1\nnewmtl matte\nKd 0.2 0.3 0.4\n")
+    faces = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nusemtl shiny\nf 1 2 3\nusemtl matte\nf 2 4 3\n"
+    (tmp_path / "m.obj").write_text("mtllib m.mtl\n" + faces)
+    scene = ir.load_scene(tmp_path / "m.obj", resolution=(4, 4))
+    types = {name: spec.type for name, spec in zip(scene.materials, scene.material_specs)}
+    assert types == {"shiny": "test_tinted", "matte": "diffuse"}
+    assert scene.material_specs[scene.materials.index("shiny")].constants == {"tint": 0.75}
+    assert torch.allclose(scene.params["shiny.specular_reflectance"], torch.tensor([0.5, 0.25, 1.0]))
 
 
 def test_unregistered_is_unknown(tmp_path, tinted):

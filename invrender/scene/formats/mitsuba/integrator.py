@@ -12,6 +12,7 @@ from invrender.scene.formats.mitsuba.parser import Obj
 
 
 def integrator(ctx: Context, obj: Obj) -> dict:
+    """The render settings an ``<integrator>`` states (for ``scene.defaults``)."""
     if obj.type != "path":
         raise ctx.error(obj.node, f"unsupported integrator type {obj.type!r} (supported: path)", obj)
     defaults = {"integrator": "path"}

@@ -23,6 +23,7 @@ from pathlib import Path
 from invrender.errors import InvRenderError, SceneError
 from invrender.scene.formats.mitsuba.bsdfs import material
 from invrender.scene.formats.mitsuba.context import Context
+from invrender.scene.formats.mitsuba.emitters import top_level_emitter
 from invrender.scene.formats.mitsuba.integrator import integrator
 from invrender.scene.formats.mitsuba.parser import Obj
 from invrender.scene.formats.mitsuba.sensor import DEFAULT_FILM, sensor
@@ -34,7 +35,7 @@ from invrender.scene.shapes import Mesh
 
 
 def load_mitsuba_xml(path, resolution=None, parameters: dict | None = None, sphere_subdivisions: int = SPHERE_SUBDIVISIONS) -> Scene:
-    """A scene from a Mitsuba 3 XML file (the subset in this module's docstring).
+    """A scene from a Mitsuba 3 XML file (the subset in :mod:`invrender.scene.formats.mitsuba`'s modules).
 
     Args:
         path: the .xml file; file names inside it are relative to its folder.
@@ -80,9 +81,7 @@ def build(ctx: Context, resolution) -> Scene:
         elif obj.tag == "integrator":
             defaults.update(integrator(ctx, obj))
         elif obj.tag == "emitter":
-            if obj.type == "area":
-                raise ctx.error(obj.node, "an area emitter must be nested in the <shape> that emits", obj)
-            raise ctx.error(obj.node, f"unsupported emitter type {obj.type!r} (supported: area, nested in a shape)", obj)
+            top_level_emitter(ctx, obj)
         else:
             home = {"film": " (it belongs inside a <sensor>)", "sampler": " (it belongs inside a <sensor>)", "rfilter": " (it belongs inside a <film>)"}
             raise ctx.error(obj.node, f"<{obj.tag}> cannot be a child of <scene>{home.get(obj.tag, '')}", obj)

@@ -85,6 +85,8 @@ class Node:
 
 @dataclass
 class Ref:
+    """A ``<ref id=...>``: the id it names, resolved when read (:meth:`Document.resolve`)."""
+
     id: str
     node: Node
 

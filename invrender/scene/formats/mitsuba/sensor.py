@@ -41,6 +41,7 @@ SAMPLER_TYPES = ("independent", "stratified", "multijitter", "orthogonal", "ldsa
 
 
 def sensor(ctx: Context, obj: Obj) -> tuple[Camera, tuple[int, int], dict]:
+    """The camera of a ``<sensor>``, its film's (width, height) and the render settings its sampler states."""
     if obj.type not in SENSOR_TYPES:
         raise ctx.error(obj.node, f"unsupported sensor type {obj.type!r} (supported: {', '.join(SENSOR_TYPES)})", obj)
     if "focal_length" in obj.props:
@@ -111,6 +112,7 @@ def sensor(ctx: Context, obj: Obj) -> tuple[Camera, tuple[int, int], dict]:
 
 
 def film_size(ctx: Context, film: Obj) -> tuple[int, int]:
+    """(width, height) of a ``<film>``; its ``<rfilter>`` checked (invrender's filter is a box)."""
     if film.type != "hdrfilm":
         raise ctx.error(film.node, f"unsupported film type {film.type!r} (supported: hdrfilm)", film)
     size = []

@@ -56,12 +56,14 @@ def colour(ctx: Context, obj: Obj, name: str, kind: ParamKind, default: float, t
 
 
 def bitmap(ctx: Context, tex: Obj) -> np.ndarray:
+    """The linear RGB (h, w, 3) float64 of a ``<texture>`` (read once; references share it)."""
     if id(tex) not in ctx.textures:
         ctx.textures[id(tex)] = read_bitmap(ctx, tex)
     return ctx.textures[id(tex)]
 
 
 def read_bitmap(ctx: Context, tex: Obj) -> np.ndarray:
+    """Read a ``<texture type="bitmap">``'s file (see this module's docstring)."""
     if tex.type != "bitmap":
         raise ctx.error(tex.node, f"unsupported texture type {tex.type!r} (supported: bitmap)", tex)
     filename = ctx.get(tex, "filename", "string")
