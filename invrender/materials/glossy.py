@@ -79,7 +79,8 @@ class Glossy(BSDF):
         bsdf.fresnel_one()
         ks = bsdf.colour("specular_reflectance", SPECULAR_REFLECTANCE, 1.0, texture=False)
         if bsdf.string("distribution", allowed=("ggx",)) is None:
-            raise bsdf.error(None, "give <string name=\"distribution\" value=\"ggx\"/>: Mitsuba's default distribution is beckmann, and invrender has GGX only")
+            message = "give <string name=\"distribution\" value=\"ggx\"/>: Mitsuba's default distribution is beckmann, and invrender has GGX only"
+            raise bsdf.error(None, message)
         for key in ("alpha_u", "alpha_v"):
             if bsdf.has(key):
                 raise bsdf.error(key, f"'{key}' (anisotropic roughness) is not supported: give one 'alpha'")
@@ -95,5 +96,5 @@ class Glossy(BSDF):
 
     @classmethod
     def to_mitsuba(cls, values: dict, constants: dict) -> dict:
-        inner = {"type": "roughconductor", "material": "none", "distribution": "ggx", "alpha": float(constants["roughness"]), "sample_visible": True}
-        return {"type": "twosided", "bsdf": {**inner, "specular_reflectance": values["specular_reflectance"]}}
+        inner = {"type": "roughconductor", "material": "none", "distribution": "ggx", "alpha": float(constants["roughness"])}
+        return {"type": "twosided", "bsdf": {**inner, "sample_visible": True, "specular_reflectance": values["specular_reflectance"]}}

@@ -58,4 +58,5 @@ class Mirror(DeltaBSDF):
 
     @classmethod
     def to_mitsuba(cls, values: dict, constants: dict) -> dict:
-        return {"type": "twosided", "bsdf": {"type": "conductor", "material": "none", "specular_reflectance": values["specular_reflectance"]}}
+        inner = {"type": "conductor", "material": "none", "specular_reflectance": values["specular_reflectance"]}
+        return {"type": "twosided", "bsdf": inner}
