@@ -22,7 +22,7 @@ API (all renders use the ``llvm_ad_rgb`` variant, independent sampler, box pixel
     scene_dict(scene, spp, max_depth, filter="box", integrator="path") -> dict for mi.load_dict
         any invrender Scene (meshes, materials, area lights, pinhole or thin-lens camera)
     load_scene(scene, spp, max_depth, filter="box", integrator="path") -> mi.Scene
-    bsdf_dict(material_type, values, constants) -> dict;  sensor_dict(camera, width, height, spp) -> dict
+    bsdf_dict(material_class, values, constants) -> dict;  sensor_dict(camera, width, height, spp) -> dict
     render(scene, spp, seed=0) -> np.ndarray float32 (H, W, 3), linear RGB
     render_cornell(width, height, spp, max_depth, seed=0) -> np.ndarray float32 (H, W, 3)
     time_render(scene, spp, seed=0) -> seconds of one render
@@ -38,14 +38,10 @@ Command line (from the repository root)::
     python bench/mitsuba_ref.py means [--resolution 64 --spp 4096 --max-depth 8 2 1 --write PATH]
     python bench/mitsuba_ref.py grad [--integrator prb|path --resolution 128 --spp 64 --max-depth 8]
 
-The converter (``scene_dict``) maps invrender's materials to Mitsuba plugins as follows, two-sided
-ones wrapped in ``twosided``:
+The converter (``scene_dict``) maps each invrender material by its type's ``to_mitsuba`` (in the
+material's module of ``invrender/materials/``: the two-sided ones wrapped in ``twosided``, colours
+as ``rgb``, textures as linear ``bitmap`` (raw, bilinear, repeat)), and the rest as follows:
 
-    diffuse     -> twosided(diffuse, reflectance = rgb or bitmap (raw, bilinear, repeat))
-    mirror      -> twosided(conductor, material = "none", specular_reflectance)
-    glossy      -> twosided(roughconductor, distribution = "ggx", alpha = roughness,
-                            material = "none", sample_visible, specular_reflectance)
-    dielectric  -> dielectric(int_ior = ior, ext_ior = 1)
     emitter     -> area(radiance = rgb) on the mesh (one-sided, the front = counter-clockwise side)
     camera      -> perspective or thinlens (aperture_radius, focus_distance), fov and fov_axis,
                    to_world = look_at(origin, target, up); hdrfilm with the scene's resolution
@@ -199,30 +195,22 @@ def _rgb_or_bitmap(value, what: str):
     raise ValueError(f"{what}: expected an RGB triple or an (h, w, 3) texture, got shape {v.shape}")
 
 
-def bsdf_dict(material_type: str, values: dict, constants: dict, name: str = "material") -> dict:
+def bsdf_dict(material, values: dict, constants: dict, name: str = "material") -> dict:
     """The Mitsuba BSDF dict of one invrender material.
 
-    ``values``: parameter key -> tensor ((3,) or, for ``reflectance``, (h, w, 3));
-    ``constants``: constant key -> float. Two-sided types are wrapped in ``twosided``.
+    ``material``: the material type's class (``scene.material_spec(i).spec``), whose
+    ``to_mitsuba(values, constants)`` gives the dict with invrender's values in it; ``values``:
+    parameter key -> tensor ((3,) or, for ``reflectance``, (h, w, 3)); ``constants``: constant key
+    -> float. Each tensor in the dict becomes an ``rgb`` or ``bitmap`` texture.
     """
-    if material_type == "diffuse":
-        inner = {"type": "diffuse", "reflectance": _rgb_or_bitmap(values["reflectance"], f"{name}.reflectance")}
-    elif material_type == "mirror":
-        inner = {"type": "conductor", "material": "none", "specular_reflectance": _rgb_or_bitmap(values["specular_reflectance"], name)}
-    elif material_type == "glossy":
-        inner = {
-            "type": "roughconductor",
-            "material": "none",
-            "distribution": "ggx",
-            "alpha": float(constants["roughness"]),
-            "sample_visible": True,
-            "specular_reflectance": _rgb_or_bitmap(values["specular_reflectance"], name),
-        }
-    elif material_type == "dielectric":
-        return {"type": "dielectric", "int_ior": float(constants["ior"]), "ext_ior": 1.0}
-    else:
-        raise ValueError(f"material {name!r}: no Mitsuba counterpart for type {material_type!r}")
-    return {"type": "twosided", "bsdf": inner}
+    to_mitsuba = getattr(material, "to_mitsuba", None)
+    if to_mitsuba is None:
+        raise ValueError(f"material {name!r}: no Mitsuba counterpart for type {getattr(material, 'type_name', material)!r}")
+
+    def textures(d: dict) -> dict:
+        return {k: textures(v) if isinstance(v, dict) else _rgb_or_bitmap(v, f"{name}.{k}") if hasattr(v, "shape") else v for k, v in d.items()}
+
+    return textures(to_mitsuba(values, constants))
 
 
 def sensor_dict(camera, width: int, height: int, spp: int, filter: str = "box", extent: float = 10.0) -> dict:
@@ -315,7 +303,7 @@ def scene_dict(scene, spp: int, max_depth: int, filter: str = "box", integrator:
     for i, name in enumerate(scene.materials):
         spec = scene.material_spec(i)
         values = {key: params[f"{name}.{key}"] for key in spec.spec.params}
-        bsdfs.append(bsdf_dict(spec.type, values, dict(spec.constants), name))
+        bsdfs.append(bsdf_dict(spec.spec, values, dict(spec.constants), name))
         textured.append(any(_np(v).ndim == 3 for v in values.values()))
     emitters = []
     for name in scene.emitters:

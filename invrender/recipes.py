@@ -56,8 +56,7 @@ from invrender.scene import load_scene
 from invrender.scene.camera import Camera
 from invrender.scene.kinds import KINDS as PARAM_KINDS
 from invrender.scene.kinds import kind_of
-from invrender.scene.loaders import camera_from_table
-from invrender.scene.toml_values import check_keys, integer, read_toml, table, vector
+from invrender.scene.formats.toml import camera_from_table, check_keys, integer, read_toml, table, vector
 from invrender.scene.scene import AMBIENT, Scene, check_param_value
 
 DATASET_KEYS = {"scene", "resolution", "spp", "max_depth", "seed", "randomize", "set", "views"}

@@ -67,3 +67,24 @@ class Dielectric(DeltaBSDF):
         wi = torch.where(reflected[:, None], wr, wt)
         weight = torch.where(reflected, 1.0, 1.0 / (eta * eta))[:, None].expand(-1, 3)
         return self.delta_sample(wi, weight)
+
+    # ---- its aliases in the scene formats (read through the registry)
+
+    mitsuba_plugins = ("dielectric",)
+    gltf_priority = 10
+
+    @classmethod
+    def from_mitsuba(cls, bsdf) -> dict:
+        """Mitsuba's ``dielectric``: ``ior = int_ior / ext_ior`` (numbers or named media, default bk7 / air)."""
+        ior = bsdf.ior("int_ior", "bk7") / bsdf.ior("ext_ior", "air")
+        bsdf.finish(("int_ior", "ext_ior"))
+        return {"ior": ior}
+
+    @classmethod
+    def from_gltf(cls, material) -> dict | None:
+        """Any transmission (``transmissionFactor`` > 0): clear glass of the material's ``ior``."""
+        return {"ior": material.ior} if material.transmission > 0 else None
+
+    @classmethod
+    def to_mitsuba(cls, values: dict, constants: dict) -> dict:
+        return {"type": "dielectric", "int_ior": float(constants["ior"]), "ext_ior": 1.0}

@@ -87,3 +87,24 @@ class Diffuse(BSDF):
 
     def diffuse_reflectance(self, sp: ShadingPoint) -> torch.Tensor:
         return self.param("reflectance", sp)
+
+    # ---- its aliases in the scene formats (read through the registry)
+
+    mitsuba_plugins = ("diffuse",)
+    gltf_priority = 100  # the fallback: every other glTF/OBJ material
+
+    @classmethod
+    def from_mitsuba(cls, bsdf) -> dict:
+        """Mitsuba's ``diffuse``: ``reflectance`` (colour or bitmap texture, default 0.5)."""
+        rho = bsdf.colour("reflectance", REFLECTANCE, 0.5)
+        bsdf.finish(("reflectance",))
+        return {"reflectance": rho}
+
+    @classmethod
+    def from_gltf(cls, material) -> dict:
+        """Any glTF/OBJ material the others do not take: rho = its base colour (or Kd x map_Kd)."""
+        return {"reflectance": material.base_colour}
+
+    @classmethod
+    def to_mitsuba(cls, values: dict, constants: dict) -> dict:
+        return {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": values["reflectance"]}}

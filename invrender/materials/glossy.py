@@ -66,3 +66,35 @@ class Glossy(BSDF):
         pdf = torch.where(ok, smith_G1(wo_up[:, 2], alpha) * ggx_D(h[:, 2], alpha) / (4.0 * wo_up[:, 2].clamp_min(1e-12)), 0.0)
         weight = self.param("specular_reflectance", sp) * torch.where(ok, smith_G1(cos_i, alpha), 0.0)[:, None]
         return BSDFSample(frame.to_world(wl), weight, pdf, torch.zeros_like(ok))
+
+    # ---- its aliases in the scene formats (read through the registry)
+
+    mitsuba_plugins = ("roughconductor",)
+    gltf_priority = 30
+
+    @classmethod
+    def from_mitsuba(cls, bsdf) -> dict:
+        """Mitsuba's ``roughconductor``, material none (Fresnel 1), ``distribution`` ggx (required:
+        Mitsuba's default is beckmann), isotropic ``alpha`` (the roughness), ``specular_reflectance``."""
+        bsdf.fresnel_one()
+        ks = bsdf.colour("specular_reflectance", SPECULAR_REFLECTANCE, 1.0, texture=False)
+        if bsdf.string("distribution", allowed=("ggx",)) is None:
+            message = "give <string name=\"distribution\" value=\"ggx\"/>: Mitsuba's default distribution is beckmann, and invrender has GGX only"
+            raise bsdf.error(None, message)
+        for key in ("alpha_u", "alpha_v"):
+            if bsdf.has(key):
+                raise bsdf.error(key, f"'{key}' (anisotropic roughness) is not supported: give one 'alpha'")
+        alpha = bsdf.number("alpha", cls.constants["roughness"], "GGX roughness", "a <float> (textured roughness is not supported)")
+        bsdf.boolean("sample_visible")
+        bsdf.finish(("material", "specular_reflectance", "distribution", "alpha", "sample_visible"))
+        return {"specular_reflectance": ks, "roughness": alpha}
+
+    @classmethod
+    def from_gltf(cls, material) -> dict | None:
+        """A metal (the smoothest are mirrors first): k_s = its colour, roughness = GGX alpha (``roughnessFactor``^2)."""
+        return {"specular_reflectance": material.metal_colour, "roughness": min(material.alpha, 1.0)} if material.metal else None
+
+    @classmethod
+    def to_mitsuba(cls, values: dict, constants: dict) -> dict:
+        inner = {"type": "roughconductor", "material": "none", "distribution": "ggx", "alpha": float(constants["roughness"])}
+        return {"type": "twosided", "bsdf": {**inner, "sample_visible": True, "specular_reflectance": values["specular_reflectance"]}}

@@ -35,3 +35,28 @@ class Mirror(DeltaBSDF):
     def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
         ((wi, weight),) = self.specular_lobes(sp)
         return self.delta_sample(wi, weight)
+
+    # ---- its aliases in the scene formats (read through the registry)
+
+    mitsuba_plugins = ("conductor",)
+    gltf_priority = 20
+
+    @classmethod
+    def from_mitsuba(cls, bsdf) -> dict:
+        """Mitsuba's ``conductor`` with material none (Fresnel 1): ``specular_reflectance`` (default 1)."""
+        bsdf.fresnel_one()
+        ks = bsdf.colour("specular_reflectance", SPECULAR_REFLECTANCE, 1.0, texture=False)
+        bsdf.finish(("material", "specular_reflectance"))
+        return {"specular_reflectance": ks}
+
+    @classmethod
+    def from_gltf(cls, material) -> dict | None:
+        """A metal with GGX alpha below 1e-3 (an MTL ``illum 3`` with Ks): k_s = its colour."""
+        if material.metal and material.alpha < 1e-3:
+            return {"specular_reflectance": material.metal_colour}
+        return None
+
+    @classmethod
+    def to_mitsuba(cls, values: dict, constants: dict) -> dict:
+        inner = {"type": "conductor", "material": "none", "specular_reflectance": values["specular_reflectance"]}
+        return {"type": "twosided", "bsdf": inner}

@@ -1,16 +1,15 @@
-"""Scenes: geometry as tensors, named materials/emitters, camera; built-ins and loaders."""
+"""Scenes: geometry as tensors, named materials/emitters, camera; built-ins and the file formats (:mod:`.formats`)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 from invrender.errors import SceneError
+from invrender.scene import formats
 from invrender.scene.builtin import BUILTIN_SCENES, builtin_scene
 from invrender.scene.camera import Camera
 from invrender.scene.scene import Scene, build_scene
 from invrender.scene.shapes import Mesh
-
-MESH_SUFFIXES = (".gltf", ".glb", ".obj")
 
 
 def load_scene(source, resolution=None, device=None, ambient=None, **kwargs) -> Scene:
@@ -18,8 +17,8 @@ def load_scene(source, resolution=None, device=None, ambient=None, **kwargs) -> 
 
     Args:
         source: a built-in name (``"cornell_box"``, ``"furnace"``) or a path to a ``.toml`` scene
-            file, a Mitsuba 3 ``.xml`` scene file (the subset in :mod:`invrender.scene.mitsuba_xml`)
-            or a ``.gltf``/``.glb``/``.obj`` file.
+            file, a Mitsuba 3 ``.xml`` scene file (the subset in :mod:`invrender.scene.formats.mitsuba`)
+            or a ``.gltf``/``.glb``/``.obj`` file (:mod:`invrender.scene.formats`).
         resolution: (width, height) in pixels; None = the scene's own.
         device: move the scene there (None = CPU).
         ambient: the Utah approximation's ambient radiance eps0 (RGB or one number, >= 0) stored in
@@ -33,23 +32,13 @@ def load_scene(source, resolution=None, device=None, ambient=None, **kwargs) -> 
         scene = builtin_scene(source_str, **kwargs)
     else:
         path = Path(source_str)
-        suffix = path.suffix.lower()
-        if suffix not in (".toml", ".xml", *MESH_SUFFIXES):
-            raise SceneError(f"unknown scene {source_str!r}: not a built-in ({', '.join(BUILTIN_SCENES)}) nor a .toml/.xml/.gltf/.glb/.obj file")
+        if path.suffix.lower() not in formats.SUFFIXES:
+            raise SceneError(f"unknown scene {source_str!r}: not a built-in ({', '.join(BUILTIN_SCENES)}) nor a {'/'.join(formats.SUFFIXES)} file")
         if kwargs:
             raise SceneError(f"scene options {', '.join(kwargs)} apply to built-in scenes only")
         if not path.is_file():
             raise SceneError(f"scene file not found: {source_str}")
-        from invrender.scene import loaders
-
-        if suffix == ".xml":
-            from invrender.scene.mitsuba_xml import load_mitsuba_xml
-
-            scene = load_mitsuba_xml(path, resolution)
-        elif suffix == ".toml":
-            scene = loaders.load_toml(path, resolution)
-        else:
-            scene = loaders.load_mesh_file(path, resolution)
+        scene = formats.load_file(path, resolution)
     if ambient is not None:
         scene = scene.with_ambient(ambient)
     return scene.to(device) if device is not None else scene

@@ -13,7 +13,8 @@ import invrender as ir
 from invrender.errors import ParameterError, SceneError
 from invrender.scene.builtin import cornell_box
 from invrender.scene.camera import Camera
-from invrender.scene.loaders import load_mesh_file, load_toml
+from invrender.scene.formats.toml import load_toml
+from invrender.scene.formats.trimesh import load_mesh_file
 
 FORWARD = Path(__file__).parents[2] / "forward"
 

@@ -13,7 +13,7 @@ import invrender as ir
 from invrender.cli import main
 from invrender.errors import SceneError
 from invrender.scene.builtin import cornell_box
-from invrender.scene.mitsuba_xml import NAMED_IOR, load_mitsuba_xml
+from invrender.scene.formats.mitsuba import NAMED_IOR, load_mitsuba_xml
 
 FORWARD = Path(__file__).parents[2] / "forward"
 

@@ -1,0 +1,29 @@
+"""Mitsuba 3 XML scene files: a documented subset of Mitsuba's scene format, read into invrender's
+own scene objects (``load_scene("scene.xml")``, ``invrender render scene.xml``,
+:func:`load_mitsuba_xml`).
+
+Anything outside the subset is a :class:`~invrender.errors.SceneError` whose one-line message
+names the file, the line, the element (tag and type) and what is supported, e.g.
+``scene.xml:12: <emitter type="point">: unsupported emitter type 'point' (supported: area)``.
+Out-of-range values (a reflectance of 1.5, a roughness of 0, a negative index of refraction) are
+SceneErrors naming the line and the value too.
+
+The subset, one module per part (each module's docstring is its reference):
+
+- :mod:`.parser`: the file structure (``<scene>``, ``<default>`` and ``$name`` parameters, ids and
+  ``<ref>``), the property elements and the transforms; a generic XML scene parser that knows no
+  plugin.
+- :mod:`.shapes`: ``rectangle``, ``cube``, ``sphere``, ``obj``, ``ply``.
+- :mod:`.bsdfs`: BSDFs onto invrender's materials (and ``twosided``).
+- :mod:`.textures`: colours and bitmap textures.
+- :mod:`.emitters`: ``area`` emitters.
+- :mod:`.sensor`: ``perspective`` and ``thinlens`` sensors, the film, filter and sampler.
+- :mod:`.integrator`: ``path``.
+- :mod:`.loader`: the render settings a file suggests (``scene.defaults``), how materials and
+  emitters are named, and the assembled scene.
+"""
+
+from invrender.scene.formats.mitsuba.bsdfs import NAMED_IOR
+from invrender.scene.formats.mitsuba.loader import load_mitsuba_xml
+
+__all__ = ["NAMED_IOR", "load_mitsuba_xml"]

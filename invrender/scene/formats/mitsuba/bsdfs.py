@@ -1,0 +1,195 @@
+"""Mitsuba BSDFs onto invrender's materials, through the material registry.
+
+BSDFs (``<bsdf type=...>``)
+    Each registered material type (:data:`invrender.registry.MATERIALS`) names the Mitsuba
+    plugins it stands for in ``mitsuba_plugins`` and reads them in its ``from_mitsuba`` (whose
+    docstring, in the material's module of :mod:`invrender.materials`, says which properties it
+    takes); ``invrender.registry.MATERIALS`` is also what the message for an unsupported type
+    lists. A material reads its ``<bsdf>`` through a :class:`BsdfReader`, whose getters are the
+    vocabulary below, so every material's messages say the same things the same way:
+
+    - colours: ``<rgb>``, ``<float>``, a constant ``<spectrum>``, or a bitmap texture where the
+      parameter may be one (:mod:`.textures`);
+    - indices of refraction: positive numbers or Mitsuba's named media (:data:`NAMED_IOR`);
+    - conductors: only Fresnel 1, i.e. ``<string name="material" value="none"/>``, which is
+      Mitsuba 3's default when ``material`` is absent; any other material and ``eta``/``k`` are
+      errors;
+    - any property the material does not list is an error (as in Mitsuba).
+
+    ``twosided`` wrapping one BSDF (or two references to the same one) is accepted, the material
+    is the nested one; like Mitsuba, it cannot wrap a BSDF that transmits (a dielectric) or
+    another ``twosided``.
+
+Deviations from Mitsuba
+    - invrender's diffuse, mirror and glossy materials are two-sided: one-sided Mitsuba materials
+      (diffuse, conductor, roughconductor without ``twosided``) are rendered two-sided (Mitsuba
+      renders their back side black).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from invrender import registry
+from invrender.errors import SceneError
+from invrender.scene.formats.mitsuba.context import Context
+from invrender.scene.formats.mitsuba.parser import Obj
+from invrender.scene.formats.mitsuba.textures import colour
+from invrender.scene.kinds import ParamKind
+from invrender.scene.materials import Constant, Material
+
+#: Mitsuba 3's named indices of refraction (include/mitsuba/render/ior.h; Hecht, Optics, ~589 nm)
+NAMED_IOR = {
+    "vacuum": 1.0,
+    "helium": 1.000036,
+    "hydrogen": 1.000132,
+    "air": 1.000277,
+    "carbon dioxide": 1.00045,
+    "water": 1.3330,
+    "acetone": 1.36,
+    "ethanol": 1.361,
+    "carbon tetrachloride": 1.461,
+    "glycerol": 1.4729,
+    "benzene": 1.501,
+    "silicone oil": 1.52045,
+    "bromine": 1.661,
+    "water ice": 1.31,
+    "fused quartz": 1.458,
+    "pyrex": 1.470,
+    "acrylic glass": 1.49,
+    "polypropylene": 1.49,
+    "bk7": 1.5046,
+    "sodium chloride": 1.544,
+    "amber": 1.55,
+    "pet": 1.5750,
+    "diamond": 2.419,
+}
+
+#: the wrapper plugin, read here: every other BSDF plugin is a material type's (``mitsuba_plugins``)
+TWOSIDED = "twosided"
+
+
+def plugins() -> dict:
+    """Mitsuba BSDF plugin name -> the registered material class that reads it: the names in its
+    ``mitsuba_plugins``, declared in its own class body (a subclass does not inherit its parent's
+    aliases); a class registered later takes a name over."""
+    return {name: cls for cls in registry.MATERIALS.values() for name in vars(cls).get("mitsuba_plugins", ())}
+
+
+def material(ctx: Context, bsdf: Obj, owner: str | None) -> int:
+    """The key of ``bsdf``'s material (converting it once; references share it)."""
+    key = id(bsdf)
+    if key not in ctx.materials:
+        ctx.materials[key] = (bsdf, convert_bsdf(ctx, bsdf), owner)
+    return key
+
+
+def convert_bsdf(ctx: Context, bsdf: Obj) -> Material:
+    """The :class:`Material` of a ``<bsdf>``: ``twosided`` unwrapped, any other plugin read by the
+    material class that names it in ``mitsuba_plugins`` (its ``from_mitsuba``)."""
+    known = plugins()
+    if bsdf.type == TWOSIDED:
+        inner = ctx.nested(bsdf, "bsdf")
+        if not inner or len(inner) > 2 or (len(inner) == 2 and inner[0] is not inner[1]):
+            raise ctx.error(bsdf.node, "twosided must wrap one BSDF (two different sides are not supported: invrender's materials are two-sided)", bsdf)
+        if inner[0].type == TWOSIDED or (inner[0].type in known and _transmits(known[inner[0].type])):
+            # as Mitsuba's twosided, which rejects BSDFs with a transmission component
+            raise ctx.error(inner[0].node, f"twosided cannot wrap a {inner[0].type} BSDF", bsdf)
+        ctx.finish(bsdf, (), ("bsdf",))
+        return convert_bsdf(ctx, inner[0])
+    if bsdf.type not in known:
+        raise ctx.error(bsdf.node, f"unsupported bsdf type {bsdf.type!r} (supported: {', '.join([*known, TWOSIDED])})", bsdf)
+    cls = known[bsdf.type]
+    entries = cls.from_mitsuba(BsdfReader(ctx, bsdf))
+    return Material.of(cls.type_name, f"{ctx.where}:{bsdf.node.line}: {bsdf.describe()}", **entries)
+
+
+def _transmits(cls) -> bool:
+    """Does material class ``cls`` have a transmission lobe? (Read from its own lobe flags.)"""
+    lobes = cls.lobes
+    return bool(lobes & type(lobes).DELTA_TRANSMISSION)
+
+
+class BsdfReader:
+    """One ``<bsdf>`` as a material class's ``from_mitsuba`` reads it: typed getters whose errors
+    name the file, the line, the element and the property, and :meth:`finish`, which rejects the
+    properties nothing read. Each getter marks its property as read.
+
+    Attributes:
+        type: the plugin name (``"roughconductor"``).
+    """
+
+    def __init__(self, ctx: Context, obj: Obj):
+        self._ctx, self._obj = ctx, obj
+        self.type = obj.type
+
+    def has(self, name: str) -> bool:
+        """Does the element give property ``name``?"""
+        return name in self._obj.props
+
+    def error(self, name: str | None, message: str) -> SceneError:
+        """A one-line error at property ``name``'s line (the ``<bsdf>``'s for None), to raise."""
+        node = self._obj.node if name is None else self._obj.props[name].node
+        return self._ctx.error(node, message, self._obj)
+
+    def colour(self, name: str, kind: ParamKind, default: float, texture: bool = True) -> np.ndarray:
+        """An RGB triple (3,) or, where ``texture`` and ``kind`` allow, a bitmap texture
+        (h, w, 3), linear, checked against ``kind``'s range (:mod:`.textures`); ``default``
+        (grey) when absent."""
+        return colour(self._ctx, self._obj, name, kind, default, texture)
+
+    def string(self, name: str, default: str | None = None, allowed: tuple = ()) -> str | None:
+        """A ``<string>``, ``default`` when absent; with ``allowed``, one of those (compared
+        case-insensitively)."""
+        prop = self._ctx.take(self._obj, name, ("string",), "a <string>")
+        if prop is None:
+            return default
+        if allowed and prop.value.lower() not in allowed:
+            raise self.error(name, f"{name} {prop.value!r} is not supported (supported: {', '.join(allowed)})")
+        return prop.value
+
+    def boolean(self, name: str, default: bool | None = None) -> bool | None:
+        """A ``<boolean>``, ``default`` when absent."""
+        return self._ctx.get(self._obj, name, "boolean", default)
+
+    def number(self, name: str, constant: Constant, label: str, what: str = "a <float>") -> float:
+        """A ``<float>`` (or ``<integer>``) in the interval of the material's ``constant``, its
+        default when absent; out of range, an error naming the property with ``label`` (what the
+        number is); ``what`` says what the property must be."""
+        prop = self._ctx.take(self._obj, name, ("float", "integer"), what)
+        value = constant.default if prop is None else float(prop.value)
+        try:
+            return constant.check(self._ctx.where, name, value)
+        except SceneError as e:  # the constant's range ("... 'alpha' must lie in (0, 1], got 0"), said of this property
+            requirement = str(e).split(f"'{name}' ", 1)[1]
+            raise self.error(name, f"'{name}' ({label}) {requirement}") from None
+
+    def ior(self, name: str, default: str) -> float:
+        """An index of refraction: a positive number or one of Mitsuba's named media
+        (:data:`NAMED_IOR`); the medium ``default`` when absent."""
+        prop = self._ctx.take(self._obj, name, ("float", "integer", "string"), "a <float> or a <string> naming a medium")
+        if prop is None:
+            return NAMED_IOR[default]
+        if prop.tag == "string":
+            key = prop.value.strip().lower()
+            if key not in NAMED_IOR:
+                raise self.error(name, f"unknown {name} {prop.value!r} (known: {', '.join(NAMED_IOR)})")
+            return NAMED_IOR[key]
+        value = float(prop.value)
+        if value <= 0:
+            raise self.error(name, f"'{name}' must be positive, got {value:g}")
+        return value
+
+    def fresnel_one(self) -> None:
+        """A conductor's Fresnel term must be 1: ``material`` absent or ``"none"`` (Mitsuba 3's
+        default), no ``eta`` or ``k`` (the complex index of refraction of a real metal)."""
+        prop = self._ctx.take(self._obj, "material", ("string",), "a <string>")
+        if prop is not None and prop.value != "none":
+            raise self.error("material", f"conductor material {prop.value!r} is not supported: only 'none' (Fresnel 1, a perfect reflector) is")
+        for key in ("eta", "k"):
+            if self.has(key):
+                raise self.error(key, f"'{key}' is not supported: only material 'none' (Fresnel 1) is")
+
+    def finish(self, supported: tuple) -> None:
+        """Errors for the properties nothing read (listing ``supported``) and for nested objects."""
+        self._ctx.finish(self._obj, supported)

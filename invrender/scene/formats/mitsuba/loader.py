@@ -1,0 +1,133 @@
+"""A Mitsuba XML file into a :class:`~invrender.scene.scene.Scene`: the ``<scene>``'s children
+mapped by the plugin modules, named, and assembled.
+
+Render settings the file suggests go to ``scene.defaults`` (only those the file states):
+``{"spp": sample_count, "integrator": "path", "max_depth": ..., "rr_depth": ...}``; ``invrender
+render`` uses them when ``--spp`` / ``--max-depth`` / ``--rr-depth`` are not given (max_depth and
+rr_depth only for ``--integrator path``). Mitsuba's own defaults when the file is silent (4 spp,
+max_depth -1) are not assumed: invrender's (64 spp, max_depth 8) apply.
+
+Names
+    A material is named by its BSDF's ``id`` (for ``twosided``, the outer one's), else by its
+    shape's id + ``_bsdf``, else ``material_N``; an emitter by its shape's ``id``, else
+    ``emitter``, ``emitter_2``, ... Names are made unique (``_2``, ``_3``, ... suffixes) and never
+    ``ambient``. Materials are ordered by where their BSDF appears in the file; BSDFs no shape uses
+    are checked but left out of the scene.
+
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from invrender.errors import InvRenderError, SceneError
+from invrender.scene.formats.mitsuba.bsdfs import material
+from invrender.scene.formats.mitsuba.context import Context
+from invrender.scene.formats.mitsuba.emitters import top_level_emitter
+from invrender.scene.formats.mitsuba.integrator import integrator
+from invrender.scene.formats.mitsuba.parser import Obj
+from invrender.scene.formats.mitsuba.sensor import DEFAULT_FILM, sensor
+from invrender.scene.formats.mitsuba.shapes import SPHERE_SUBDIVISIONS, shape
+from invrender.scene.formats.mitsuba.textures import bitmap
+from invrender.scene.formats.values import one_line
+from invrender.scene.scene import Scene, build_scene
+from invrender.scene.shapes import Mesh
+
+
+def load_mitsuba_xml(path, resolution=None, parameters: dict | None = None, sphere_subdivisions: int = SPHERE_SUBDIVISIONS) -> Scene:
+    """A scene from a Mitsuba 3 XML file (the subset in :mod:`invrender.scene.formats.mitsuba`'s modules).
+
+    Args:
+        path: the .xml file; file names inside it are relative to its folder.
+        resolution: (width, height), overriding the film's; None = the film's (768 x 576 without one).
+        parameters: values of ``$name`` parameters, overriding the file's ``<default>`` ones.
+        sphere_subdivisions: icosphere subdivisions of ``sphere`` shapes (20 * 4^n triangles).
+    Raises:
+        SceneError: a missing, unreadable or malformed file, anything outside the subset, a value
+            out of range; the message names the file and line.
+    """
+    return build(Context(Path(path), parameters, sphere_subdivisions), resolution)
+
+
+def build(ctx: Context, resolution) -> Scene:
+    """The scene of a parsed file: every child of its ``<scene>`` mapped, materials and emitters named."""
+    scene = ctx.scene
+    used_names = {"ambient"}
+    emission: dict[str, object] = {}
+    meshes: list[tuple[Mesh, int]] = []
+
+    def emitter_name(shape: Obj, eps) -> str:
+        # a shape's id is its own; the fallback avoids every id (BSDF ids become material names)
+        name = shape.id if shape.id and shape.id not in used_names else _unique(shape.id or "emitter", used_names | set(ctx.ids))
+        used_names.add(name)
+        emission[name] = eps
+        return name
+
+    camera, film, defaults, seen = None, DEFAULT_FILM, {}, {}
+    for item in scene.children:
+        obj = ctx.resolve(item)
+        if obj.tag in seen and obj.tag in ("sensor", "integrator"):
+            raise ctx.error(obj.node, f"only one <{obj.tag}> is supported (the first is at line {seen[obj.tag]})", obj)
+        seen.setdefault(obj.tag, obj.node.line)
+        if obj.tag == "shape":
+            meshes.append(shape(ctx, obj, emitter_name))
+        elif obj.tag == "bsdf":
+            material(ctx, obj, None)  # checked even when no shape uses it
+        elif obj.tag == "texture":
+            bitmap(ctx, obj)
+        elif obj.tag == "sensor":
+            camera, film, sensor_defaults = sensor(ctx, obj)
+            defaults.update(sensor_defaults)
+        elif obj.tag == "integrator":
+            defaults.update(integrator(ctx, obj))
+        elif obj.tag == "emitter":
+            top_level_emitter(ctx, obj)
+        else:
+            home = {"film": " (it belongs inside a <sensor>)", "sampler": " (it belongs inside a <sensor>)", "rfilter": " (it belongs inside a <film>)"}
+            raise ctx.error(obj.node, f"<{obj.tag}> cannot be a child of <scene>{home.get(obj.tag, '')}", obj)
+    if scene.props:
+        prop = next(iter(scene.props.values()))
+        raise ctx.error(prop.node, "unexpected property of <scene>")
+    if not meshes:
+        raise SceneError(f"{ctx.where}: the scene has no shapes")
+
+    # materials, in the order their BSDFs appear: named by the BSDF's id (ids are unique and no
+    # emitter took one), then the others by shape id + _bsdf or material_N, avoiding every id
+    used_keys = {k for _, k in meshes}
+    ordered = sorted((bsdf.order, key) for key, (bsdf, _, _) in ctx.materials.items() if key in used_keys)
+    names: dict[int, str] = {}
+    for _, key in ordered:
+        bsdf = ctx.materials[key][0]
+        if bsdf.id:
+            names[key] = _unique(bsdf.id, used_names)
+            used_names.add(names[key])
+    anonymous = 0
+    for _, key in ordered:
+        bsdf, _, owner = ctx.materials[key]
+        if key not in names:
+            if owner:
+                base = f"{owner}_bsdf"
+            else:
+                anonymous += 1
+                base = f"material_{anonymous}"
+            names[key] = _unique(base, used_names | set(ctx.ids))
+            used_names.add(names[key])
+    materials = {names[key]: ctx.materials[key][1] for _, key in ordered}
+    shapes = [Mesh(m.vertices, m.faces, m.uvs, names[k], m.emitter, m.normals) for m, k in meshes]
+
+    if camera is None:  # Mitsuba 3 cannot render such a scene either ("No sensor specified")
+        raise SceneError(f"{ctx.where}:{scene.node.line}: <scene>: no <sensor>: add a <sensor type=\"perspective\"> with a fov and a to_world")
+    try:
+        built = build_scene(shapes, materials, emission, camera, film if resolution is None else resolution, name=ctx.path.stem)
+    except InvRenderError as e:
+        raise SceneError(f"{ctx.where}: {one_line(e)}") from None
+    built.defaults = defaults
+    return built
+
+
+def _unique(base: str, used: set) -> str:
+    name, i = base, 1
+    while name in used:
+        i += 1
+        name = f"{base}_{i}"
+    return name

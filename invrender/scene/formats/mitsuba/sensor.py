@@ -1,0 +1,137 @@
+"""The Mitsuba sensor, its film, reconstruction filter and sampler onto invrender's camera.
+
+Sensor (at most one ``<sensor>``)
+    ``perspective`` and ``thinlens``: ``fov`` (degrees; required, ``focal_length`` is not
+    supported), ``fov_axis`` (x, y, smaller, larger; default x; ``diagonal`` is an error),
+    ``to_world`` (lookat or any rotation and translation, optionally a uniform scale; the camera
+    looks along local +z with local +y up and the image's x axis along local -x, as in Mitsuba; a
+    mirrored (det < 0), non-uniformly scaled or sheared to_world is an error), ``near_clip`` /
+    ``far_clip`` (accepted, checked, ignored), ``focus_distance`` (thinlens; default ``far_clip``;
+    > 0), ``aperture_radius`` (thinlens, required, >= 0). Inside the sensor: ``<film
+    type="hdrfilm">`` with ``width``/``height`` (default 768 x 576 as Mitsuba; the ``resolution``
+    argument overrides them; ``file_format``, ``pixel_format``, ``component_format``, ``banner``,
+    ``compensate`` accepted and ignored) and an optional ``<rfilter>`` (invrender always uses a box
+    filter: ``box`` is accepted silently, Mitsuba's other filters with a warning); ``<sampler>`` of
+    any Mitsuba type with ``sample_count`` (the default spp; ``seed`` and ``jitter`` are ignored;
+    invrender draws its own samples). A scene without a sensor is an error (Mitsuba 3 cannot
+    render one either).
+
+Deviations from Mitsuba
+    - The film's reconstruction filter is always a box; sampling patterns are invrender's own.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from invrender.errors import SceneError
+from invrender.scene.camera import Camera
+from invrender.scene.formats.mitsuba.context import Context
+from invrender.scene.formats.mitsuba.parser import Obj
+
+#: Mitsuba's default film size
+DEFAULT_FILM = (768, 576)
+
+SENSOR_TYPES = ("perspective", "thinlens")
+FOV_AXES = ("x", "y", "smaller", "larger")
+RFILTER_TYPES = ("box", "tent", "gaussian", "mitchell", "catmullrom", "lanczos")
+SAMPLER_TYPES = ("independent", "stratified", "multijitter", "orthogonal", "ldsampler")
+
+
+def sensor(ctx: Context, obj: Obj) -> tuple[Camera, tuple[int, int], dict]:
+    """The camera of a ``<sensor>``, its film's (width, height) and the render settings its sampler states."""
+    if obj.type not in SENSOR_TYPES:
+        raise ctx.error(obj.node, f"unsupported sensor type {obj.type!r} (supported: {', '.join(SENSOR_TYPES)})", obj)
+    if "focal_length" in obj.props:
+        raise ctx.error(obj.props["focal_length"].node, "'focal_length' is not supported: give 'fov'", obj)
+    fov = ctx.get(obj, "fov", "float")
+    if fov is None:
+        raise ctx.error(obj.node, "missing <float name=\"fov\"> (the field of view in degrees)", obj)
+    if not 0 < fov < 180:
+        raise ctx.error(obj.props["fov"].node, f"'fov' must lie in (0, 180) degrees, got {fov:g}", obj)
+    axis = ctx.get(obj, "fov_axis", "string", "x").lower()
+    if axis not in FOV_AXES:
+        raise ctx.error(obj.props["fov_axis"].node, f"fov_axis {axis!r} is not supported (supported: {', '.join(FOV_AXES)})", obj)
+    near = ctx.get(obj, "near_clip", "float", 1e-2)
+    far = ctx.get(obj, "far_clip", "float", 1e4)
+    if not 0 < near < far:
+        raise ctx.error(obj.node, f"need 0 < near_clip < far_clip, got near_clip {near:g}, far_clip {far:g}", obj)
+    to_world = ctx.take(obj, "to_world", ("transform",), "a <transform>")
+    matrix = np.eye(4) if to_world is None else to_world.value
+    supported = ["fov", "fov_axis", "near_clip", "far_clip", "to_world", "focus_distance"]
+    aperture, focus = 0.0, ctx.get(obj, "focus_distance", "float", far)
+    if obj.type == "thinlens":
+        supported.append("aperture_radius")
+        aperture = ctx.get(obj, "aperture_radius", "float")
+        if aperture is None:
+            raise ctx.error(obj.node, "missing <float name=\"aperture_radius\">", obj)
+        if aperture < 0:
+            raise ctx.error(obj.props["aperture_radius"].node, f"'aperture_radius' must be >= 0, got {aperture:g}", obj)
+        if focus <= 0:
+            raise ctx.error(obj.props["focus_distance"].node, f"'focus_distance' must be positive, got {focus:g}", obj)
+    ctx.finish(obj, tuple(supported), ("film", "sampler"))
+
+    node = obj.node if to_world is None else to_world.node
+    linear = matrix[:3, :3]
+    det = np.linalg.det(linear)
+    if det <= 0:
+        raise ctx.error(node, f"the sensor's to_world is mirrored or singular (determinant {det:.4g}); it must be a rotation (lookat) and translation", obj)
+    s = det ** (1.0 / 3.0)
+    if not np.allclose(linear.T @ linear, s * s * np.eye(3), rtol=0, atol=1e-5 * s * s):
+        raise ctx.error(node, "the sensor's to_world must be a rotation and translation (a uniform scale at most): it scales non-uniformly or shears", obj)
+    origin = matrix[:3, 3]
+    forward, up = linear[:, 2] / s, linear[:, 1] / s
+    try:
+        if obj.type == "thinlens":
+            camera = Camera(tuple(origin), tuple(origin + forward), tuple(up), fov, axis, aperture * s, focus * s)
+        else:
+            camera = Camera(tuple(origin), tuple(origin + forward), tuple(up), fov, axis)
+    except SceneError as e:
+        raise ctx.error(obj.node, str(e), obj) from None
+
+    resolution = DEFAULT_FILM
+    film = ctx.one_nested(obj, "film")
+    if film is not None:
+        resolution = film_size(ctx, film)
+    defaults = {}
+    sampler = ctx.one_nested(obj, "sampler")
+    if sampler is not None:
+        if sampler.type not in SAMPLER_TYPES:
+            raise ctx.error(sampler.node, f"unsupported sampler type {sampler.type!r} (supported: {', '.join(SAMPLER_TYPES)})", sampler)
+        spp = ctx.get(sampler, "sample_count", "integer")
+        if spp is not None:
+            if spp <= 0:
+                raise ctx.error(sampler.props["sample_count"].node, f"'sample_count' must be positive, got {spp}", sampler)
+            defaults["spp"] = spp
+        ctx.get(sampler, "seed", "integer")
+        ctx.get(sampler, "jitter", "boolean")
+        ctx.finish(sampler, ("sample_count", "seed", "jitter"))
+    return camera, resolution, defaults
+
+
+def film_size(ctx: Context, film: Obj) -> tuple[int, int]:
+    """(width, height) of a ``<film>``; its ``<rfilter>`` checked (invrender's filter is a box)."""
+    if film.type != "hdrfilm":
+        raise ctx.error(film.node, f"unsupported film type {film.type!r} (supported: hdrfilm)", film)
+    size = []
+    for key, default in zip(("width", "height"), DEFAULT_FILM):
+        value = ctx.get(film, key, "integer", default)
+        if value <= 0:
+            raise ctx.error(film.props[key].node, f"'{key}' must be positive, got {value}", film)
+        size.append(value)
+    for key in ("file_format", "pixel_format", "component_format"):
+        ctx.get(film, key, "string")
+    for key in ("banner", "compensate"):
+        ctx.get(film, key, "boolean")
+    ctx.finish(film, ("width", "height", "file_format", "pixel_format", "component_format", "banner", "compensate"), ("rfilter",))
+    rfilter = ctx.one_nested(film, "rfilter")
+    if rfilter is not None:
+        if rfilter.type not in RFILTER_TYPES:
+            raise ctx.error(rfilter.node, f"unsupported rfilter type {rfilter.type!r} (Mitsuba's are {', '.join(RFILTER_TYPES)})", rfilter)
+        rfilter.used.update(rfilter.props)  # its radius, stddev, B, C, lobes are irrelevant to a box
+        ctx.finish(rfilter, ())
+        if rfilter.type != "box":
+            warnings.warn(f"{ctx.where}:{rfilter.node.line}: {rfilter.describe()}: invrender always uses a box filter; the {rfilter.type} filter is ignored", stacklevel=4)
+    return tuple(size)

@@ -1,0 +1,196 @@
+"""Mitsuba shapes onto invrender meshes: the primitives, and OBJ/PLY files through trimesh.
+
+Shapes (``<shape type=...>``)
+    ``rectangle`` ([-1, 1]^2 at z = 0 facing +z), ``cube`` ([-1, 1]^3 facing outwards), ``sphere``
+    (``center`` point, default 0 0 0; ``radius`` float > 0, default 1: Mitsuba's analytic sphere
+    becomes an icosphere of 20 * 4^5 = 20480 triangles (``sphere_subdivisions``, default 5) shaded
+    with its exact normals), ``obj`` and ``ply`` (``filename`` relative to the XML file, read with
+    trimesh, every part merged; vertex normals are the file's when it has them, else computed as
+    Mitsuba computes them (angle-weighted, from the world-space triangles), and
+    ``face_normals=true`` drops them for flat shading;
+    ``flip_tex_coords``, default true for obj and false for ply as in Mitsuba). Every shape takes
+    ``to_world`` and ``flip_normals``; one BSDF (an inline ``<bsdf>`` or a ``<ref>``), else
+    Mitsuba's default, diffuse with reflectance 0.5 (:mod:`.bsdfs`); and optionally an
+    ``<emitter type="area">`` (:mod:`.emitters`). Texture coordinates follow Mitsuba's
+    parametrizations (:mod:`.textures`).
+
+Deviations from Mitsuba
+    - Spheres are tessellated (see above); rectangles and cubes are exact.
+    - Textures on spheres show a seam where ``u`` wraps around (the tessellation interpolates
+      across it).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+from invrender.errors import SceneError
+from invrender.scene.formats.mitsuba.bsdfs import material
+from invrender.scene.formats.mitsuba.context import Context
+from invrender.scene.formats.mitsuba.emitters import area_emitter
+from invrender.scene.formats.mitsuba.parser import Node, Obj
+from invrender.scene.formats.values import one_line
+from invrender.scene.shapes import Mesh, primitive, scale, translate
+
+#: icosphere subdivisions of a Mitsuba sphere: 20 * 4**5 = 20480 triangles
+SPHERE_SUBDIVISIONS = 5
+
+SHAPE_TYPES = ("rectangle", "cube", "sphere", "obj", "ply")
+
+# Mitsuba's cube (src/shapes/cube.cpp): positions, face normals and texture coordinates of its 24 vertices
+_MITSUBA_CUBE = (
+    [(1, -1, -1), (1, -1, 1), (-1, -1, 1), (-1, -1, -1), (1, 1, -1), (-1, 1, -1), (-1, 1, 1), (1, 1, 1),
+     (1, -1, -1), (1, 1, -1), (1, 1, 1), (1, -1, 1), (1, -1, 1), (1, 1, 1), (-1, 1, 1), (-1, -1, 1),
+     (-1, -1, 1), (-1, 1, 1), (-1, 1, -1), (-1, -1, -1), (1, 1, -1), (1, -1, -1), (-1, -1, -1), (-1, 1, -1)],
+    [(0, -1, 0)] * 4 + [(0, 1, 0)] * 4 + [(1, 0, 0)] * 4 + [(0, 0, 1)] * 4 + [(-1, 0, 0)] * 4 + [(0, 0, -1)] * 4,
+    [(0, 1), (1, 1), (1, 0), (0, 0)] * 6,
+)  # fmt: skip
+
+
+def shape(ctx: Context, obj: Obj, emitter_name) -> tuple[Mesh, int]:
+    """The mesh of a shape (material and emitter names filled in later) and its material key."""
+    t = obj.type
+    if t not in SHAPE_TYPES:
+        raise ctx.error(obj.node, f"unsupported shape type {t!r} (supported: {', '.join(SHAPE_TYPES)})", obj)
+    to_world = ctx.take(obj, "to_world", ("transform",), "a <transform>")
+    matrix = np.eye(4) if to_world is None else to_world.value
+    flip = ctx.get(obj, "flip_normals", "boolean", False)
+    supported = ["to_world", "flip_normals"]
+    compute_normals = False
+    if t in ("rectangle", "cube", "sphere"):
+        mesh = primitive(t, "", None, ctx.subdivisions) if t == "sphere" else primitive(t, "", None)
+        mitsuba_uv = _primitive_uv(t, mesh)
+        if t == "sphere":
+            supported += ["center", "radius"]
+            center = ctx.get(obj, "center", "point", (0.0, 0.0, 0.0))
+            radius = ctx.get(obj, "radius", "float", 1.0)
+            if radius <= 0:
+                raise ctx.error(obj.props["radius"].node, f"'radius' must be positive, got {radius:g}", obj)
+            matrix = matrix @ translate(center) @ scale(radius)
+    else:
+        supported += ["filename", "face_normals", "flip_tex_coords"]
+        mesh, mitsuba_uv, compute_normals = mesh_file(ctx, obj)
+    mesh = Mesh(mesh.vertices, mesh.faces, np.stack([mitsuba_uv[:, 0], 1.0 - mitsuba_uv[:, 1]], axis=1), "", None, mesh.normals)
+    if flip:
+        mesh = mesh.flipped()
+    if np.linalg.det(matrix[:3, :3]) == 0:
+        raise ctx.error(to_world.node, "to_world is singular", obj)
+    mesh = mesh.transformed(matrix)
+    if compute_normals:  # as Mitsuba does: angle-weighted, from the world-space triangles
+        mesh = Mesh(mesh.vertices, mesh.faces, mesh.uvs, "", None, _vertex_normals(mesh.vertices, mesh.faces))
+    ctx.finish(obj, tuple(supported), ("bsdf", "emitter"))
+
+    bsdf = ctx.one_nested(obj, "bsdf")
+    if bsdf is None:  # Mitsuba's default BSDF
+        bsdf = Obj(Node("bsdf", {"type": "diffuse"}, obj.node.line), "diffuse", obj.order)
+    key = material(ctx, bsdf, obj.id)
+    emitter = ctx.one_nested(obj, "emitter")
+    if emitter is not None:
+        emission = area_emitter(ctx, emitter)
+        mesh = Mesh(mesh.vertices, mesh.faces, mesh.uvs, "", emitter_name(obj, emission), mesh.normals)
+    return mesh, key
+
+
+def mesh_file(ctx: Context, obj: Obj) -> tuple[Mesh, np.ndarray, bool]:
+    """The mesh of an obj/ply shape, its texture coordinates as Mitsuba reads them, and whether
+    its vertex normals are to be computed (the file has none, and face_normals is false)."""
+    import trimesh
+
+    prop = ctx.take(obj, "filename", ("string",), "a <string>")
+    if prop is None:
+        raise ctx.error(obj.node, "missing <string name=\"filename\">", obj)
+    path = ctx.base / prop.value
+    if not path.is_file():
+        raise ctx.error(prop.node, f"mesh file not found: {path}", obj)
+    face_normals = ctx.get(obj, "face_normals", "boolean", False)
+    flip_uv = ctx.get(obj, "flip_tex_coords", "boolean", obj.type == "obj")
+    try:
+        loaded = trimesh.load(str(path), file_type=obj.type, process=False)
+        parts = []
+        if isinstance(loaded, trimesh.Scene):
+            order = {name: i for i, name in enumerate(loaded.geometry)}
+            nodes = sorted(((order.get(g, len(order)), n, t, g) for n in loaded.graph.nodes_geometry for t, g in [loaded.graph[n]]), key=lambda x: (x[0], str(x[1])))
+            parts = [(loaded.geometry[g], t) for _, _, t, g in nodes if isinstance(loaded.geometry.get(g), trimesh.Trimesh)]
+        elif isinstance(loaded, trimesh.Trimesh):
+            parts = [(loaded, np.eye(4))]
+        # trimesh returns a file's vertex normals as they are (it computes its own only without)
+        has_normals = not face_normals and _file_has_normals(path, obj.type)
+        vs, fs, uvs, ns, offset = [], [], [], [], 0
+        for m, t in parts:
+            if len(m.faces) == 0:
+                continue
+            v = np.asarray(m.vertices, dtype=np.float64)
+            vs.append(v @ t[:3, :3].T + t[:3, 3])
+            fs.append(np.asarray(m.faces, dtype=np.int64) + offset)
+            uv = getattr(m.visual, "uv", None)
+            uvs.append(np.asarray(uv, dtype=np.float64) if uv is not None and len(uv) == len(v) else np.zeros((len(v), 2)))
+            if has_normals:
+                ns.append(np.asarray(m.vertex_normals, dtype=np.float64) @ np.linalg.inv(t[:3, :3]))
+            offset += len(v)
+    except SceneError:
+        raise
+    except Exception as e:  # trimesh raises anything from ValueError to KeyError on bad files
+        raise ctx.error(prop.node, f"cannot read mesh file {path}: {one_line(e) or type(e).__name__}", obj) from None
+    if not fs:
+        raise ctx.error(prop.node, f"mesh file {path} has no faces", obj)
+    uv = np.concatenate(uvs)
+    if flip_uv:  # Mitsuba's v = 1 - v_file
+        uv = np.stack([uv[:, 0], 1.0 - uv[:, 1]], axis=1)
+    normals = np.concatenate(ns) if has_normals else None
+    return Mesh(np.concatenate(vs), np.concatenate(fs), None, "", None, normals), uv, not face_normals and not has_normals
+
+
+# ---------------------------------------------------------------- helpers
+
+
+def _file_has_normals(path: Path, kind: str) -> bool:
+    """Does an OBJ file have ``vn`` lines, a PLY file's vertices an ``nx`` property?"""
+    with open(path, "rb") as f:
+        if kind == "obj":
+            return any(line.lstrip().startswith(b"vn ") for line in f)
+        header = f.read(1 << 16).split(b"end_header")[0]
+    return re.search(rb"property\s+\w+\s+nx\b", header) is not None
+
+
+def _vertex_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Mitsuba's computed vertex normals: each face's unit normal weighted by its angle at the
+    vertex (Thuermer and Wuethrich 1998), summed and normalized; (1, 0, 0) where that sum is zero."""
+    p = v[f]  # (F, 3, 3)
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    ok = length[:, 0] > 0
+    n = np.where(ok[:, None], n / np.where(length > 0, length, 1.0), 0.0)
+    out = np.zeros_like(v)
+    for j in range(3):
+        a = p[:, (j + 1) % 3] - p[:, j]
+        b = p[:, (j + 2) % 3] - p[:, j]
+        cos = np.einsum("ij,ij->i", a, b) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-300)
+        np.add.at(out, f[:, j], n * np.arccos(np.clip(cos, -1.0, 1.0))[:, None])
+    length = np.linalg.norm(out, axis=1, keepdims=True)
+    return np.where(length > 0, out / np.where(length > 0, length, 1.0), np.array([1.0, 0.0, 0.0]))
+
+
+def _primitive_uv(kind: str, mesh: Mesh) -> np.ndarray:
+    """Mitsuba's texture coordinates of a primitive's vertices (``v = 0`` at the image's top)."""
+    v = mesh.vertices
+    if kind == "rectangle":
+        return (v[:, :2] + 1.0) / 2.0
+    if kind == "sphere":  # (phi / 2 pi, theta / pi) about local z
+        phi = np.mod(np.arctan2(v[:, 1], v[:, 0]), 2 * math.pi)
+        theta = np.arccos(np.clip(v[:, 2] / np.linalg.norm(v, axis=1), -1.0, 1.0))
+        return np.stack([phi / (2 * math.pi), theta / math.pi], axis=1)
+    # cube: look each vertex up by position and face normal in Mitsuba's table
+    positions, normals, uvs = (np.asarray(a, dtype=np.float64) for a in _MITSUBA_CUBE)
+    tri = v[mesh.faces]
+    face_n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    vertex_n = np.zeros_like(v)
+    vertex_n[mesh.faces.reshape(-1)] = np.repeat(np.round(face_n / np.linalg.norm(face_n, axis=1, keepdims=True)), 3, axis=0)
+    out = np.zeros((len(v), 2))
+    for i in range(len(v)):
+        match = np.all(np.isclose(positions, v[i], atol=1e-6), axis=1) & np.all(np.isclose(normals, vertex_n[i], atol=1e-6), axis=1)
+        out[i] = uvs[np.argmax(match)]
+    return out

@@ -1,0 +1,86 @@
+"""Colours and bitmap textures of Mitsuba properties, checked against the parameter kinds.
+
+Colours
+    ``<rgb>``, ``<float>`` (grey) or a constant ``<spectrum>`` (grey), or a ``<texture
+    type="bitmap">`` (inline or a ``<ref>``) where the parameter may be a texture; each value is
+    checked against its kind's range (:mod:`invrender.scene.kinds`). Colours are linear RGB (RGB
+    variants of Mitsuba); spectra other than constants are errors.
+
+Bitmap textures (``<texture type="bitmap">``)
+    ``filename`` (relative to the XML file; EXR linear, PNG/JPEG sRGB-decoded, like Mitsuba's
+    ``raw=false``; ``raw=true`` only for EXR), ``filter_type`` bilinear, ``wrap_mode`` repeat (the
+    only ones invrender has, and Mitsuba's defaults). ``to_uv`` is an error. Texture coordinates
+    follow Mitsuba's parametrizations (rectangle ``uv = ((x + 1) / 2, (y + 1) / 2)``, the sphere's
+    ``(phi / 2 pi, theta / pi)`` about local z, the cube's per-face layout, OBJ/PLY as Mitsuba
+    reads them) and Mitsuba's image convention (``v = 0`` is the image's top row), so an image
+    lands where Mitsuba puts it; they are stored in invrender's convention (``v`` flipped).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from invrender.errors import InvRenderError
+from invrender.scene.formats.mitsuba.context import Context
+from invrender.scene.formats.mitsuba.parser import Obj, Ref
+from invrender.scene.formats.values import one_line
+from invrender.scene.kinds import ParamKind
+
+
+def colour(ctx: Context, obj: Obj, name: str, kind: ParamKind, default: float, texture: bool = True):
+    """An RGB triple (3,) or a linear texture (h, w, 3) from a property of ``obj``, checked
+    against ``kind``'s range."""
+    prop = obj.props.get(name)
+    if prop is None:
+        return np.full(3, default)
+    obj.used.add(name)
+    value = ctx.resolve(prop.value) if isinstance(prop.value, (Ref, Obj)) else prop.value
+    if isinstance(value, Obj):
+        if value.tag != "texture":
+            raise ctx.error(prop.node, f"'{name}' must be a colour or a texture, got {value.describe()}", obj)
+        if not texture or not kind.texture:
+            raise ctx.error(prop.node, f"'{name}' must be a constant (<rgb>, <float> or <spectrum>): textures are not supported here", obj)
+        rgb = bitmap(ctx, value)
+    elif prop.tag in ("rgb", "spectrum", "float"):
+        rgb = np.broadcast_to(np.asarray(value, dtype=np.float64), (3,)).copy()
+    else:
+        raise ctx.error(prop.node, f"'{name}' must be <rgb>, <float>, <spectrum> or a texture, got <{prop.tag}>", obj)
+    lo, hi = float(np.min(rgb)), float(np.max(rgb))
+    if lo < 0 or hi > kind.upper:
+        expected = f"lie in [0, {kind.upper:g}]" if math.isfinite(kind.upper) else "be >= 0"
+        shown = ", ".join(f"{v:g}" for v in rgb) if rgb.ndim == 1 else f"values in [{lo:.4g}, {hi:.4g}]"
+        raise ctx.error(prop.node, f"'{name}' ({kind.doc.split(',')[0]}) must {expected}, got {shown}", obj)
+    return rgb
+
+
+def bitmap(ctx: Context, tex: Obj) -> np.ndarray:
+    """The linear RGB (h, w, 3) float64 of a ``<texture>`` (read once; references share it)."""
+    if id(tex) not in ctx.textures:
+        ctx.textures[id(tex)] = read_bitmap(ctx, tex)
+    return ctx.textures[id(tex)]
+
+
+def read_bitmap(ctx: Context, tex: Obj) -> np.ndarray:
+    """Read a ``<texture type="bitmap">``'s file (see this module's docstring)."""
+    if tex.type != "bitmap":
+        raise ctx.error(tex.node, f"unsupported texture type {tex.type!r} (supported: bitmap)", tex)
+    filename = ctx.get(tex, "filename", "string")
+    if filename is None:
+        raise ctx.error(tex.node, "missing <string name=\"filename\">", tex)
+    for key, allowed in (("filter_type", "bilinear"), ("wrap_mode", "repeat")):
+        value = ctx.get(tex, key, "string", allowed)
+        if value != allowed:
+            raise ctx.error(tex.props[key].node, f"{key} {value!r} is not supported (supported: {allowed})", tex)
+    path = ctx.base / filename
+    raw = ctx.get(tex, "raw", "boolean", False)
+    if raw and path.suffix.lower() != ".exr":
+        raise ctx.error(tex.props["raw"].node, "raw=true is supported for EXR files only (PNG/JPEG are always sRGB-decoded)", tex)
+    ctx.finish(tex, ("filename", "filter_type", "wrap_mode", "raw"))
+    from invrender.io.images import read_image  # lazily: images need kornia/OpenEXR
+
+    try:
+        return read_image(path).numpy().astype(np.float64)
+    except InvRenderError as e:
+        raise ctx.error(tex.props["filename"].node, one_line(e), tex) from None

@@ -1,0 +1,319 @@
+"""The TOML scene format (``.toml``): invrender's own scene files.
+
+Every key is optional unless marked *required*. An unknown key anywhere, a value of the wrong type
+(a string where a number is expected, a list of the wrong length, ``true`` where a number is
+expected), a missing or unreadable file is a :class:`~invrender.errors.SceneError` whose one-line
+message names the file, the table and the key, and what was expected (for unknown keys: the
+allowed keys). Out-of-range colours (rho outside [0, 1], eps < 0) are
+:class:`~invrender.errors.ParameterError` from :func:`~invrender.scene.scene.build_scene`::
+
+    name = "cornell box"               # default: the file name without .toml
+    resolution = [64, 64]              # width, height in pixels (default 256 x 256);
+                                       # the ``resolution`` argument (CLI --resolution) overrides it
+    ambient = [0.1, 0.1, 0.1]          # the Utah approximation's ambient radiance eps0 (RGB >= 0 or one
+                                       # number), read by the utah integrator and the pyrender baseline only
+
+    [camera]                           # every key optional; defaults are Camera()'s (the Cornell box view)
+    origin = [0, 0, 3.9]               # eye position
+    target = [0, 0, 0]                 # point looked at
+    up = [0, 1, 0]                     # approximate up direction
+    fov = 39.3077                      # full field of view in degrees, along fov_axis
+    fov_axis = "smaller"               # x | y | smaller | larger
+    aperture_radius = 0.0              # thin lens radius, >= 0 (0 = pinhole, the default)
+    focus_distance = 3.9               # distance of the plane in focus along the view axis, > 0
+
+    [materials.white]                  # one table per material; type = "diffuse" (the default when type is absent):
+    reflectance = [0.8, 0.8, 0.8]      # Lambertian, two-sided; rho in linear RGB [0, 1] or one number (default 0.5); or
+    # reflectance_texture = "albedo.png"   # relative to this file; PNG/JPEG are sRGB-decoded to linear, EXR read as linear
+
+    [materials.chrome]
+    type = "mirror"                    # a perfect mirror, two-sided (Mitsuba's conductor, material "none")
+    specular_reflectance = [0.9, 0.9, 0.9]   # k_s, RGB in [0, 1] (default 1), differentiable
+
+    [materials.glass]
+    type = "dielectric"                # smooth glass: Fresnel reflection and refraction (Mitsuba's dielectric)
+    ior = 1.5                          # interior index over the exterior's (1.0), > 0 (default 1.5); a constant
+
+    [materials.brushed]
+    type = "glossy"                    # GGX rough conductor, Fresnel 1, two-sided (Mitsuba's roughconductor, material "none")
+    roughness = 0.2                    # GGX alpha in (0, 1] (default 0.1); a constant
+    specular_reflectance = [0.95, 0.8, 0.5]   # k_s in [0, 1] (default 1), differentiable
+
+    [emitters.light]                   # one table per emitter: emitted radiance eps, from the front side only
+    emission = [17, 12, 4]             # linear RGB >= 0, or one number; or instead emission_texture = "glow.exr"
+
+    [[shapes]]                         # one table per shape, in order (triangles keep this order)
+    type = "rectangle"                 # required: rectangle | cube | sphere | mesh
+    material = "white"                 # required: the name of a [materials.NAME] table
+    emitter = "light"                  # the name of an [emitters.NAME] table: the shape also emits
+    flip_normals = false               # exchange front and back (applied before the transform)
+    subdivisions = 3                   # sphere only: an icosphere of 20 * 4^n triangles (0..7, default 3)
+    file = "bunny.obj"                 # mesh only, required there: relative to this file, any format trimesh
+                                       # reads (OBJ, glTF, GLB, PLY, STL); all its parts merged, in world space
+    transform = [{ scale = [0.23, 0.19, 0.19] }, { rotate = { axis = [1, 0, 0], angle = 90 } }, { translate = [0, 0.99, 0.01] }]
+
+``transform`` is a list of steps applied in the order listed (above: scale, then rotate, then
+translate): ``{ translate = [x, y, z] }``, ``{ scale = s }`` or ``{ scale = [x, y, z] }`` (non-zero),
+``{ rotate = { axis = [x, y, z], angle = degrees } }`` (right-handed). The primitives are Mitsuba 3's
+(:mod:`invrender.scene.shapes`): ``rectangle`` is [-1, 1]^2 at z = 0 facing +z, ``cube`` [-1, 1]^3
+facing outwards, ``sphere`` the unit sphere facing outwards,
+shaded with its exact normals (smooth although tessellated).
+
+Typed readers
+-------------
+
+The checked readers below (:func:`read_toml`, :func:`check_keys`, :func:`table`, :func:`number`,
+:func:`string`, :func:`integer`, :func:`vector`) serve this format and the recipes'
+TOML files alike. Every check raises a :class:`~invrender.errors.SceneError` whose message names
+``where`` (the file and table) and the key, and says what was expected; callers that report
+another error class (recipes raise ParameterError) convert it.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+from invrender.errors import InvRenderError, SceneError
+from invrender.scene.camera import FOV_AXES, Camera
+from invrender.scene.formats.trimesh import mesh_arrays
+from invrender.scene.formats.values import is_number, one_line, show
+from invrender.scene.materials import DEFAULT_TYPE, Material, material_type
+from invrender.scene.scene import Scene, build_scene
+from invrender.scene.shapes import PRIMITIVES, Mesh, primitive, rotate, scale, translate
+
+TOP_KEYS = {"name", "resolution", "ambient", "camera", "materials", "emitters", "shapes"}
+CAMERA_KEYS = {"origin", "target", "up", "fov", "fov_axis", "aperture_radius", "focus_distance"}
+SHAPE_KEYS = {"type", "material", "emitter", "file", "subdivisions", "flip_normals", "transform"}
+SHAPE_TYPES = (*PRIMITIVES, "mesh")
+TRANSFORM_STEPS = ("translate", "rotate", "scale")
+DEFAULT_RESOLUTION = (256, 256)
+
+
+# ---------------------------------------------------------------- the scene format
+
+
+def load_toml(path, resolution=None) -> Scene:
+    """A scene from a TOML scene file (format in this module's docstring).
+
+    Args:
+        path: the .toml file; relative paths inside it are relative to its folder.
+        resolution: (width, height), overriding the file's ``resolution``; None = the file's.
+    Raises:
+        SceneError: missing/unreadable/invalid file, unknown keys, wrong types, missing mesh or
+            texture files, meshes without faces.
+        ParameterError: colours out of range.
+    """
+    path = Path(path)
+    where = str(path)
+    doc = read_toml(path, "scene file")
+    check_keys(doc, TOP_KEYS, where)
+    name = string(doc, "name", where) if "name" in doc else path.stem
+    file_resolution = tuple(vector(doc, "resolution", where, length=2)) if "resolution" in doc else DEFAULT_RESOLUTION
+    camera = camera_from_table(table(doc, "camera", where), f"{where} [camera]")
+    materials = {k: _material(v, f"{where} [materials.{k}]", path.parent) for k, v in table(doc, "materials", where).items()}
+    emission = {
+        k: _colour_or_texture(v, "emission", f"{where} [emitters.{k}]", path.parent, others=set())
+        for k, v in table(doc, "emitters", where).items()
+    }
+    shapes_doc = doc.get("shapes", [])
+    if not isinstance(shapes_doc, list) or not all(isinstance(s, dict) for s in shapes_doc):
+        raise SceneError(f"{where}: 'shapes' must be an array of tables ([[shapes]]), got {show(shapes_doc)}")
+    meshes = [_shape(s, f"{where} shapes[{i}]", path.parent) for i, s in enumerate(shapes_doc)]
+
+    try:
+        scene = build_scene(meshes, materials, emission, camera, file_resolution if resolution is None else resolution, name=name)
+    except SceneError as e:
+        raise SceneError(f"{where}: {e}") from None
+    if "ambient" in doc:
+        scene = scene.with_ambient(vector(doc, "ambient", where, scalar_ok=True))
+    return scene
+
+
+def camera_from_table(doc, where: str) -> Camera:
+    """A :class:`Camera` from a table of the scene format's ``[camera]`` keys (each optional,
+    defaults Camera()'s); a :class:`SceneError` naming ``where`` and the key when it is invalid."""
+    if not isinstance(doc, dict):
+        raise SceneError(f"{where}: must be a table of camera keys, got {show(doc)}")
+    check_keys(doc, CAMERA_KEYS, where)
+    args = {k: vector(doc, k, where) for k in ("origin", "target", "up") if k in doc}
+    for key in ("fov", "aperture_radius", "focus_distance"):
+        if key in doc:
+            args[key] = number(doc, key, where)
+    if "fov_axis" in doc:
+        args["fov_axis"] = string(doc, "fov_axis", where)
+        if args["fov_axis"] not in FOV_AXES:
+            raise SceneError(f"{where}: 'fov_axis' must be one of {', '.join(FOV_AXES)}, got {args['fov_axis']!r}")
+    try:
+        return Camera(**args)
+    except SceneError as e:  # the camera's own checks (fov range, degenerate view)
+        raise SceneError(f"{where}: {e}") from None
+
+
+def _shape(doc: dict, where: str, base: Path) -> Mesh:
+    check_keys(doc, SHAPE_KEYS, where)
+    kind = string(doc, "type", where, required=True)
+    if kind not in SHAPE_TYPES:
+        raise SceneError(f"{where}: unknown shape type {kind!r} (known: {', '.join(SHAPE_TYPES)})")
+    material = string(doc, "material", where, required=True)
+    emitter = string(doc, "emitter", where) if "emitter" in doc else None
+    if kind != "sphere" and "subdivisions" in doc:
+        raise SceneError(f"{where}: 'subdivisions' applies to type = \"sphere\" only")
+    if kind != "mesh" and "file" in doc:
+        raise SceneError(f"{where}: 'file' applies to type = \"mesh\" only")
+    try:
+        if kind == "mesh":
+            v, f, uv, vn = mesh_arrays(base / string(doc, "file", where, required=True))
+            mesh = Mesh(v, f, uv, material, emitter, vn)
+        else:
+            mesh = primitive(kind, material, emitter, *((integer(doc, "subdivisions", where),) if "subdivisions" in doc else ()))
+    except SceneError as e:  # a bad mesh file, subdivisions out of range
+        raise SceneError(f"{where}: {e}") from None
+    flip = doc.get("flip_normals", False)
+    if not isinstance(flip, bool):
+        raise SceneError(f"{where}: 'flip_normals' must be true or false, got {show(flip)}")
+    if flip:
+        mesh = mesh.flipped()
+    return mesh.transformed(_transform(doc.get("transform", []), where))
+
+
+def _transform(ops, where: str) -> np.ndarray:
+    """4x4 matrix of a list of {translate|rotate|scale} steps applied in the order listed."""
+    usage = "{ translate = [x, y, z] }, { rotate = { axis = [x, y, z], angle = degrees } } or { scale = s or [x, y, z] }"
+    if not isinstance(ops, list):
+        raise SceneError(f"{where}: 'transform' must be a list of steps {usage}, got {show(ops)}")
+    matrix = np.eye(4)
+    for i, op in enumerate(ops):
+        w = f"{where} transform[{i}]"
+        if not isinstance(op, dict) or len(op) != 1:
+            raise SceneError(f"{w}: each step must be a table with one key, one of {usage}; got {show(op)}")
+        ((kind, value),) = op.items()
+        if kind == "translate":
+            make, args = translate, (vector(op, kind, w),)
+        elif kind == "scale":
+            make, args = scale, (vector(op, kind, w, scalar_ok=True),)
+        elif kind == "rotate":
+            if not isinstance(value, dict):
+                raise SceneError(f"{w}: 'rotate' must be a table {{ axis = [x, y, z], angle = degrees }}, got {show(value)}")
+            check_keys(value, {"axis", "angle"}, f"{w} rotate")
+            make, args = rotate, (vector(value, "axis", f"{w} rotate", required=True), number(value, "angle", f"{w} rotate", required=True))
+        else:
+            raise SceneError(f"{w}: unknown transform step {kind!r} (allowed: {', '.join(TRANSFORM_STEPS)})")
+        try:
+            matrix = make(*args) @ matrix
+        except SceneError as e:  # e.g. a zero scale factor
+            raise SceneError(f"{w}: {e}") from None
+    return matrix
+
+
+def _material(doc, where: str, base: Path) -> Material:
+    """A :class:`Material` from a ``[materials.NAME]`` table: ``type`` (default diffuse), the type's
+    parameters (RGB, one number, or ``KEY_texture`` where the kind allows) and constants."""
+    if not isinstance(doc, dict):
+        raise SceneError(f"{where}: must be a table of material keys, got {show(doc)}")
+    kind = string(doc, "type", where) if "type" in doc else DEFAULT_TYPE
+    spec = material_type(kind, where)
+    check_keys(doc, spec.keys | {"type"}, where)
+    entries = {}
+    for key, (param_kind, _) in spec.params.items():
+        if key in doc or f"{key}_texture" in doc:
+            entries[key] = _colour_or_texture(doc, key, where, base)
+    for key in spec.constants:
+        if key in doc:
+            entries[key] = doc[key]
+    return Material.of(kind, where, **entries)
+
+
+def _colour_or_texture(doc, kind: str, where: str, base: Path, others: set | None = None):
+    """An RGB list or a linear (h, w, 3) texture tensor from a material/emitter table.
+
+    ``others``: further keys the table may hold (None: the table is checked by its caller)."""
+    key_tex = f"{kind}_texture"
+    if not isinstance(doc, dict):
+        raise SceneError(f"{where}: must be a table with '{kind}' or '{key_tex}', got {show(doc)}")
+    if others is not None:
+        check_keys(doc, {kind, key_tex} | others, where)
+    if (kind in doc) == (key_tex in doc):
+        raise SceneError(f"{where}: give exactly one of '{kind}' or '{key_tex}'")
+    if kind in doc:
+        return vector(doc, kind, where, scalar_ok=True)  # one number: grey
+    from invrender.io import read_image  # lazily: images need kornia/OpenEXR
+
+    texture_path = base / string(doc, key_tex, where)
+    if not texture_path.is_file():
+        raise SceneError(f"{where}: texture file not found: {texture_path}")
+    try:
+        return read_image(texture_path)
+    except InvRenderError as e:
+        raise SceneError(f"{where}: {one_line(e)}") from None
+
+
+# ---------------------------------------------------------------- typed readers
+
+
+def read_toml(path: Path, what: str) -> dict:
+    """The document of the TOML file ``path``; a one-line :class:`SceneError` naming it as ``what``
+    (e.g. ``"scene file"``) when it is missing, unreadable, not UTF-8 or not valid TOML."""
+    try:
+        return tomllib.loads(path.read_bytes().decode("utf-8"))
+    except FileNotFoundError:
+        raise SceneError(f"{what} not found: {path}") from None
+    except OSError as e:
+        raise SceneError(f"cannot read {what} {path}: {one_line(e.strerror or e)}") from None
+    except UnicodeDecodeError as e:
+        raise SceneError(f"{path}: invalid TOML: not UTF-8 text ({one_line(e)})") from None
+    except tomllib.TOMLDecodeError as e:
+        raise SceneError(f"{path}: invalid TOML: {one_line(e)}") from None
+
+
+def check_keys(doc: dict, allowed: set, where: str) -> None:
+    unknown = sorted(str(k) for k in set(doc) - allowed)
+    if unknown:
+        raise SceneError(f"{where}: unknown key {unknown[0]!r} (allowed: {', '.join(sorted(allowed))})")
+
+
+def table(doc: dict, key: str, where: str) -> dict:
+    value = doc.get(key, {})
+    if not isinstance(value, dict):
+        raise SceneError(f"{where}: '{key}' must be a table, got {show(value)}")
+    return value
+
+
+def number(doc: dict, key: str, where: str, required: bool = False) -> float:
+    if key not in doc and required:
+        raise SceneError(f"{where}: missing required key '{key}' (a number)")
+    value = doc.get(key)
+    if not is_number(value):
+        raise SceneError(f"{where}: '{key}' must be a number, got {show(value)}")
+    return float(value)
+
+
+def string(doc: dict, key: str, where: str, required: bool = False) -> str:
+    if key not in doc and required:
+        raise SceneError(f"{where}: missing required key '{key}' (a string)")
+    value = doc.get(key)
+    if not isinstance(value, str):
+        raise SceneError(f"{where}: '{key}' must be a string, got {show(value)}")
+    return value
+
+
+def integer(doc: dict, key: str, where: str) -> int:
+    value = doc.get(key)
+    if not isinstance(value, int) or isinstance(value, bool):
+        raise SceneError(f"{where}: '{key}' must be an integer, got {show(value)}")
+    return value
+
+
+def vector(doc: dict, key: str, where: str, length: int = 3, required: bool = False, scalar_ok: bool = False) -> list[float] | float:
+    """``doc[key]`` as ``length`` floats; with ``scalar_ok`` one number is also accepted (returned as a float)."""
+    expected = f"a number or a list of {length} numbers" if scalar_ok else f"a list of {length} numbers"
+    if key not in doc and required:
+        raise SceneError(f"{where}: missing required key '{key}' ({expected})")
+    value = doc.get(key)
+    if scalar_ok and is_number(value):
+        return float(value)
+    if not isinstance(value, list) or len(value) != length or not all(is_number(x) for x in value):
+        raise SceneError(f"{where}: '{key}' must be {expected}, got {show(value)}")
+    return [float(x) for x in value]
