@@ -22,7 +22,7 @@ API (all renders use the ``llvm_ad_rgb`` variant, independent sampler, box pixel
     scene_dict(scene, spp, max_depth, filter="box", integrator="path") -> dict for mi.load_dict
         any invrender Scene (meshes, materials, area lights, pinhole or thin-lens camera)
     load_scene(scene, spp, max_depth, filter="box", integrator="path") -> mi.Scene
-    bsdf_dict(material_class, values, constants) -> dict;  sensor_dict(camera, width, height, spp) -> dict
+    plugin_dict(plugin_class, values, constants) -> dict;  sensor_dict(camera, width, height, spp) -> dict
     render(scene, spp, seed=0) -> np.ndarray float32 (H, W, 3), linear RGB
     render_cornell(width, height, spp, max_depth, seed=0) -> np.ndarray float32 (H, W, 3)
     time_render(scene, spp, seed=0) -> seconds of one render
@@ -195,17 +195,17 @@ def _rgb_or_bitmap(value, what: str):
     raise ValueError(f"{what}: expected an RGB triple or an (h, w, 3) texture, got shape {v.shape}")
 
 
-def bsdf_dict(material, values: dict, constants: dict, name: str = "material") -> dict:
-    """The Mitsuba BSDF dict of one invrender material.
+def plugin_dict(plugin, values: dict, constants: dict, name: str = "material") -> dict:
+    """The Mitsuba dict of one invrender material or emitter.
 
-    ``material``: the material type's class (``scene.material_spec(i).spec``), whose
-    ``to_mitsuba(values, constants)`` gives the dict with invrender's values in it; ``values``:
-    parameter key -> tensor ((3,) or, for ``reflectance``, (h, w, 3)); ``constants``: constant key
-    -> float. Each tensor in the dict becomes an ``rgb`` or ``bitmap`` texture.
+    ``plugin``: the type's class (``scene.material_spec(i).spec``, ``scene.emitter_spec(i).spec``),
+    whose ``to_mitsuba(values, constants)`` gives the dict with invrender's values in it;
+    ``values``: parameter key -> tensor ((3,) or (h, w, 3)); ``constants``: constant key -> float.
+    Each tensor in the dict becomes an ``rgb`` or ``bitmap`` texture.
     """
-    to_mitsuba = getattr(material, "to_mitsuba", None)
+    to_mitsuba = getattr(plugin, "to_mitsuba", None)
     if to_mitsuba is None:
-        raise ValueError(f"material {name!r}: no Mitsuba counterpart for type {getattr(material, 'type_name', material)!r}")
+        raise ValueError(f"{name!r}: no Mitsuba counterpart for type {getattr(plugin, 'type_name', plugin)!r}")
 
     def textures(d: dict) -> dict:
         return {k: textures(v) if isinstance(v, dict) else _rgb_or_bitmap(v, f"{name}.{k}") if hasattr(v, "shape") else v for k, v in d.items()}
@@ -280,7 +280,7 @@ def scene_dict(scene, spp: int, max_depth: int, filter: str = "box", integrator:
     vertices ``p0, p0 + e1, p0 + e2`` (the winding, hence the front side, kept); smooth triangles
     carry their per-corner ``vertex_normal`` and flat ones none (Mitsuba meshes have per-vertex
     normals or none, so the two kinds go in different meshes); UVs only where the material has a
-    texture. Materials map as ``bsdf_dict`` says, emitters to one-sided ``area`` lights with an RGB
+    texture. Materials and emitters map as ``plugin_dict`` says (area lights one-sided, with an RGB
     ``radiance`` (emission textures are not converted: ``ValueError``), the camera as
     ``sensor_dict`` says, with an ``hdrfilm`` of the scene's resolution and a ``filter`` pixel
     filter, an ``independent`` sampler at ``spp`` and ``{'type': integrator, 'max_depth': ...}``.
@@ -303,14 +303,15 @@ def scene_dict(scene, spp: int, max_depth: int, filter: str = "box", integrator:
     for i, name in enumerate(scene.materials):
         spec = scene.material_spec(i)
         values = {key: params[f"{name}.{key}"] for key in spec.spec.params}
-        bsdfs.append(bsdf_dict(spec.spec, values, dict(spec.constants), name))
+        bsdfs.append(plugin_dict(spec.spec, values, dict(spec.constants), name))
         textured.append(any(_np(v).ndim == 3 for v in values.values()))
-    emitters = []
-    for name in scene.emitters:
-        eps = _np(params[f"{name}.emission"])
-        if eps.ndim != 1:
+    emitters = []  # per scene emitter (indexed by triangles.emitter)
+    for i, name in enumerate(scene.emitters):
+        spec = scene.emitter_spec(i)
+        values = {key: params[f"{name}.{key}"] for key in spec.spec.params}
+        if any(_np(v).ndim != 1 for v in values.values()):
             raise ValueError(f"emitter {name!r}: emission textures are not converted to Mitsuba (give an RGB emission)")
-        emitters.append({"type": "area", "radiance": {"type": "rgb", "value": [float(x) for x in eps]}})
+        emitters.append(plugin_dict(spec.spec, values, dict(spec.constants), name))
 
     extent = float(np.ptp(corners.reshape(-1, 3), axis=0).max())
     d = {
@@ -318,6 +319,9 @@ def scene_dict(scene, spp: int, max_depth: int, filter: str = "box", integrator:
         "integrator": {"type": integrator, "max_depth": int(max_depth)},
         "sensor": sensor_dict(scene.camera, scene.width, scene.height, spp, filter, extent),
     }
+    for i, name in enumerate(scene.emitters):
+        if not scene.emitter_spec(i).spec.surface:  # emitters of the scene itself (skies), not of a mesh
+            d[name] = emitters[i]
     groups = sorted({(int(m), int(e), bool(s)) for m, e, s in zip(material, emitter, smooth)})
     for m, e, s in groups:
         sel = (material == m) & (emitter == e) & (smooth == s)

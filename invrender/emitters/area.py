@@ -126,6 +126,22 @@ class Area(Light):
         uv = (1 - b1 - b2) * g[:, 12:14] + b1 * g[:, 14:16] + b2 * g[:, 16:18] if self.textured else p.new_zeros(()).expand(len(tri), 2)
         return tri, p, g[:, 9:12], uv
 
+    # ---- the formats' aliases
+
+    #: the Mitsuba emitter plugins it reads (nested in the shape that emits)
+    mitsuba_plugins = ("area",)
+
+    @classmethod
+    def from_mitsuba(cls, emitter) -> dict:
+        """Mitsuba's ``area``: ``radiance`` (colour or bitmap texture, default 1)."""
+        eps = emitter.colour("radiance", EMISSION, 1.0)
+        emitter.finish(("radiance",))
+        return {"emission": eps}
+
+    @classmethod
+    def to_mitsuba(cls, values: dict, constants: dict) -> dict:
+        return {"type": "area", "radiance": values["emission"]}
+
     def _emitter(self, s: Surface) -> torch.Tensor:
         return self.triangles.emitter.index_select(0, s.tri)
 

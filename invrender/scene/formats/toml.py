@@ -39,7 +39,8 @@ allowed keys). Out-of-range colours (rho outside [0, 1], eps < 0) are
     roughness = 0.2                    # GGX alpha in (0, 1] (default 0.1); a constant
     specular_reflectance = [0.95, 0.8, 0.5]   # k_s in [0, 1] (default 1), differentiable
 
-    [emitters.light]                   # one table per emitter: emitted radiance eps, from the front side only
+    [emitters.light]                   # one table per emitter: type (default "area": emits from the shapes naming it,
+                                       # from their front side only), then the type's keys
     emission = [17, 12, 4]             # linear RGB >= 0, or one number; or instead emission_texture = "glow.exr"
 
     [[shapes]]                         # one table per shape, in order (triangles keep this order)
@@ -80,7 +81,9 @@ from invrender.errors import InvRenderError, SceneError
 from invrender.scene.camera import FOV_AXES, Camera
 from invrender.scene.formats.trimesh import mesh_arrays
 from invrender.scene.formats.values import is_number, one_line, show
-from invrender.scene.materials import DEFAULT_TYPE, Material, material_type
+from invrender.scene.emitters import Emitter
+from invrender.scene.materials import Material
+from invrender.scene.plugins import PluginSpec
 from invrender.scene.scene import Scene, build_scene
 from invrender.scene.shapes import PRIMITIVES, Mesh, primitive, rotate, scale, translate
 
@@ -113,11 +116,8 @@ def load_toml(path, resolution=None) -> Scene:
     name = string(doc, "name", where) if "name" in doc else path.stem
     file_resolution = tuple(vector(doc, "resolution", where, length=2)) if "resolution" in doc else DEFAULT_RESOLUTION
     camera = camera_from_table(table(doc, "camera", where), f"{where} [camera]")
-    materials = {k: _material(v, f"{where} [materials.{k}]", path.parent) for k, v in table(doc, "materials", where).items()}
-    emission = {
-        k: _colour_or_texture(v, "emission", f"{where} [emitters.{k}]", path.parent, others=set())
-        for k, v in table(doc, "emitters", where).items()
-    }
+    materials = {k: _plugin(v, Material, f"{where} [materials.{k}]", path.parent) for k, v in table(doc, "materials", where).items()}
+    emission = {k: _plugin(v, Emitter, f"{where} [emitters.{k}]", path.parent) for k, v in table(doc, "emitters", where).items()}
     shapes_doc = doc.get("shapes", [])
     if not isinstance(shapes_doc, list) or not all(isinstance(s, dict) for s in shapes_doc):
         raise SceneError(f"{where}: 'shapes' must be an array of tables ([[shapes]]), got {show(shapes_doc)}")
@@ -208,13 +208,14 @@ def _transform(ops, where: str) -> np.ndarray:
     return matrix
 
 
-def _material(doc, where: str, base: Path) -> Material:
-    """A :class:`Material` from a ``[materials.NAME]`` table: ``type`` (default diffuse), the type's
-    parameters (RGB, one number, or ``KEY_texture`` where the kind allows) and constants."""
+def _plugin(doc, cls: type[PluginSpec], where: str, base: Path) -> PluginSpec:
+    """A :class:`Material` or :class:`Emitter` (``cls``) from a ``[materials.NAME]`` or
+    ``[emitters.NAME]`` table: ``type`` (default diffuse / area), the type's parameters (RGB, one
+    number, or ``KEY_texture`` where the kind allows) and constants, as the type declares them."""
     if not isinstance(doc, dict):
-        raise SceneError(f"{where}: must be a table of material keys, got {show(doc)}")
-    kind = string(doc, "type", where) if "type" in doc else DEFAULT_TYPE
-    spec = material_type(kind, where)
+        raise SceneError(f"{where}: must be a table of {cls.noun} keys, got {show(doc)}")
+    kind = string(doc, "type", where) if "type" in doc else cls.default_type
+    spec = cls.registry.get(kind, where)
     check_keys(doc, spec.keys | {"type"}, where)
     entries = {}
     for key, (param_kind, _) in spec.params.items():
@@ -223,7 +224,7 @@ def _material(doc, where: str, base: Path) -> Material:
     for key in spec.constants:
         if key in doc:
             entries[key] = doc[key]
-    return Material.of(kind, where, **entries)
+    return cls.of(kind, where, **entries)
 
 
 def _colour_or_texture(doc, kind: str, where: str, base: Path, others: set | None = None):

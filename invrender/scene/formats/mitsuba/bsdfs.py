@@ -28,15 +28,12 @@ Deviations from Mitsuba
 
 from __future__ import annotations
 
-import numpy as np
 
 from invrender import registry
-from invrender.errors import SceneError
 from invrender.scene.formats.mitsuba.context import Context
 from invrender.scene.formats.mitsuba.parser import Obj
-from invrender.scene.formats.mitsuba.textures import colour
-from invrender.scene.kinds import ParamKind
-from invrender.scene.materials import Constant, Material
+from invrender.scene.formats.mitsuba.reader import PluginReader
+from invrender.scene.materials import Material
 
 #: Mitsuba 3's named indices of refraction (include/mitsuba/render/ior.h; Hecht, Optics, ~589 nm)
 NAMED_IOR = {
@@ -110,59 +107,10 @@ def _transmits(cls) -> bool:
     return bool(lobes & type(lobes).DELTA_TRANSMISSION)
 
 
-class BsdfReader:
-    """One ``<bsdf>`` as a material class's ``from_mitsuba`` reads it: typed getters whose errors
-    name the file, the line, the element and the property, and :meth:`finish`, which rejects the
-    properties nothing read. Each getter marks its property as read.
-
-    Attributes:
-        type: the plugin name (``"roughconductor"``).
-    """
-
-    def __init__(self, ctx: Context, obj: Obj):
-        self._ctx, self._obj = ctx, obj
-        self.type = obj.type
-
-    def has(self, name: str) -> bool:
-        """Does the element give property ``name``?"""
-        return name in self._obj.props
-
-    def error(self, name: str | None, message: str) -> SceneError:
-        """A one-line error at property ``name``'s line (the ``<bsdf>``'s for None), to raise."""
-        node = self._obj.node if name is None else self._obj.props[name].node
-        return self._ctx.error(node, message, self._obj)
-
-    def colour(self, name: str, kind: ParamKind, default: float, texture: bool = True) -> np.ndarray:
-        """An RGB triple (3,) or, where ``texture`` and ``kind`` allow, a bitmap texture
-        (h, w, 3), linear, checked against ``kind``'s range (:mod:`.textures`); ``default``
-        (grey) when absent."""
-        return colour(self._ctx, self._obj, name, kind, default, texture)
-
-    def string(self, name: str, default: str | None = None, allowed: tuple = ()) -> str | None:
-        """A ``<string>``, ``default`` when absent; with ``allowed``, one of those (compared
-        case-insensitively)."""
-        prop = self._ctx.take(self._obj, name, ("string",), "a <string>")
-        if prop is None:
-            return default
-        if allowed and prop.value.lower() not in allowed:
-            raise self.error(name, f"{name} {prop.value!r} is not supported (supported: {', '.join(allowed)})")
-        return prop.value
-
-    def boolean(self, name: str, default: bool | None = None) -> bool | None:
-        """A ``<boolean>``, ``default`` when absent."""
-        return self._ctx.get(self._obj, name, "boolean", default)
-
-    def number(self, name: str, constant: Constant, label: str, what: str = "a <float>") -> float:
-        """A ``<float>`` (or ``<integer>``) in the interval of the material's ``constant``, its
-        default when absent; out of range, an error naming the property with ``label`` (what the
-        number is); ``what`` says what the property must be."""
-        prop = self._ctx.take(self._obj, name, ("float", "integer"), what)
-        value = constant.default if prop is None else float(prop.value)
-        try:
-            return constant.check(self._ctx.where, name, value)
-        except SceneError as e:  # the constant's range ("... 'alpha' must lie in (0, 1], got 0"), said of this property
-            requirement = str(e).split(f"'{name}' ", 1)[1]
-            raise self.error(name, f"'{name}' ({label}) {requirement}") from None
+class BsdfReader(PluginReader):
+    """One ``<bsdf>`` as a material class's ``from_mitsuba`` reads it: the getters of
+    :class:`~.reader.PluginReader` and those only BSDFs need (indices of refraction, the Fresnel
+    term of conductors)."""
 
     def ior(self, name: str, default: str) -> float:
         """An index of refraction: a positive number or one of Mitsuba's named media
@@ -189,7 +137,3 @@ class BsdfReader:
         for key in ("eta", "k"):
             if self.has(key):
                 raise self.error(key, f"'{key}' is not supported: only material 'none' (Fresnel 1) is")
-
-    def finish(self, supported: tuple) -> None:
-        """Errors for the properties nothing read (listing ``supported``) and for nested objects."""
-        self._ctx.finish(self._obj, supported)

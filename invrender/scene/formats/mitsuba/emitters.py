@@ -1,29 +1,38 @@
-"""Mitsuba emitters onto invrender's emitters.
+"""Mitsuba emitters onto invrender's emitters, through the emitter registry.
 
-Emitters (``<emitter type=...>``, nested in the ``<shape>`` that emits)
-    ``area`` with ``radiance`` (rgb, spectrum, float or a bitmap texture; default 1), emitted from
-    the front side. Other emitter types (and area emitters outside a shape) are errors.
+Emitters (``<emitter type=...>``)
+    Each registered emitter type (:data:`invrender.registry.EMITTERS`) names the Mitsuba plugins
+    it stands for in ``mitsuba_plugins`` and reads them in its ``from_mitsuba`` (whose docstring,
+    in the emitter's module of :mod:`invrender.emitters`, says which properties it takes), through
+    a :class:`~.reader.PluginReader`. Types that emit from surfaces (``area``: radiance from the
+    front side) are nested in the ``<shape>`` that emits; types that emit from outside the scene
+    are children of ``<scene>``. The message for an unsupported type lists the registry's.
 """
 
 from __future__ import annotations
 
+from invrender import registry
+from invrender.scene.emitters import Emitter
 from invrender.scene.formats.mitsuba.context import Context
 from invrender.scene.formats.mitsuba.parser import Obj
-from invrender.scene.formats.mitsuba.textures import colour
-from invrender.scene.kinds import EMISSION
+from invrender.scene.formats.mitsuba.reader import PluginReader
 
 
-def area_emitter(ctx: Context, emitter: Obj):
-    """The radiance eps, (3,) or a texture (h, w, 3), linear, of an ``<emitter>`` nested in a shape."""
-    if emitter.type != "area":
-        raise ctx.error(emitter.node, f"unsupported emitter type {emitter.type!r} (supported: area)", emitter)
-    eps = colour(ctx, emitter, "radiance", EMISSION, 1.0)
-    ctx.finish(emitter, ("radiance",))
-    return eps
+def plugins() -> dict:
+    """Mitsuba emitter plugin name -> the registered emitter class that reads it (the names in its
+    own ``mitsuba_plugins``; a class registered later takes a name over)."""
+    return {name: cls for cls in registry.EMITTERS.values() for name in vars(cls).get("mitsuba_plugins", ())}
 
 
-def top_level_emitter(ctx: Context, emitter: Obj) -> None:
-    """An ``<emitter>`` directly in ``<scene>``: an error (invrender's emitters are area lights on shapes)."""
-    if emitter.type == "area":
-        raise ctx.error(emitter.node, "an area emitter must be nested in the <shape> that emits", emitter)
-    raise ctx.error(emitter.node, f"unsupported emitter type {emitter.type!r} (supported: area, nested in a shape)", emitter)
+def emitter(ctx: Context, obj: Obj, in_shape: bool) -> Emitter:
+    """The :class:`Emitter` of an ``<emitter>`` nested in a shape (``in_shape``) or in the scene."""
+    known = plugins()
+    if obj.type not in known:
+        raise ctx.error(obj.node, f"unsupported emitter type {obj.type!r} (supported: {', '.join(known)})", obj)
+    cls = known[obj.type]
+    if cls.surface and not in_shape:
+        raise ctx.error(obj.node, f"an emitter of type {obj.type!r} must be nested in the <shape> that emits", obj)
+    if not cls.surface and in_shape:
+        raise ctx.error(obj.node, f"an emitter of type {obj.type!r} emits from outside the scene: it is a child of <scene>, not of a <shape>", obj)
+    entries = cls.from_mitsuba(PluginReader(ctx, obj))
+    return Emitter.of(cls.type_name, f"{ctx.where}:{obj.node.line}: {obj.describe()}", **entries)

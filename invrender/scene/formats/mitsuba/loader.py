@@ -23,7 +23,7 @@ from pathlib import Path
 from invrender.errors import InvRenderError, SceneError
 from invrender.scene.formats.mitsuba.bsdfs import material
 from invrender.scene.formats.mitsuba.context import Context
-from invrender.scene.formats.mitsuba.emitters import top_level_emitter
+from invrender.scene.formats.mitsuba.emitters import emitter
 from invrender.scene.formats.mitsuba.integrator import integrator
 from invrender.scene.formats.mitsuba.parser import Obj
 from invrender.scene.formats.mitsuba.sensor import DEFAULT_FILM, sensor
@@ -56,11 +56,12 @@ def build(ctx: Context, resolution) -> Scene:
     emission: dict[str, object] = {}
     meshes: list[tuple[Mesh, int]] = []
 
-    def emitter_name(shape: Obj, eps) -> str:
-        # a shape's id is its own; the fallback avoids every id (BSDF ids become material names)
-        name = shape.id if shape.id and shape.id not in used_names else _unique(shape.id or "emitter", used_names | set(ctx.ids))
+    def emitter_name(owner: Obj, spec) -> str:
+        # named by its owner's id (the shape that emits, or the emitter itself outside shapes);
+        # the fallback avoids every id (BSDF ids become material names)
+        name = owner.id if owner.id and owner.id not in used_names else _unique(owner.id or "emitter", used_names | set(ctx.ids))
         used_names.add(name)
-        emission[name] = eps
+        emission[name] = spec
         return name
 
     camera, film, defaults, seen = None, DEFAULT_FILM, {}, {}
@@ -81,7 +82,7 @@ def build(ctx: Context, resolution) -> Scene:
         elif obj.tag == "integrator":
             defaults.update(integrator(ctx, obj))
         elif obj.tag == "emitter":
-            top_level_emitter(ctx, obj)
+            emitter_name(obj, emitter(ctx, obj, in_shape=False))
         else:
             home = {"film": " (it belongs inside a <sensor>)", "sampler": " (it belongs inside a <sensor>)", "rfilter": " (it belongs inside a <film>)"}
             raise ctx.error(obj.node, f"<{obj.tag}> cannot be a child of <scene>{home.get(obj.tag, '')}", obj)

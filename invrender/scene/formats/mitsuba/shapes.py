@@ -31,7 +31,7 @@ import numpy as np
 from invrender.errors import SceneError
 from invrender.scene.formats.mitsuba.bsdfs import material
 from invrender.scene.formats.mitsuba.context import Context
-from invrender.scene.formats.mitsuba.emitters import area_emitter
+from invrender.scene.formats.mitsuba.emitters import emitter as emitter_of
 from invrender.scene.formats.mitsuba.parser import Node, Obj
 from invrender.scene.formats.values import one_line
 from invrender.scene.shapes import Mesh, primitive, scale, translate
@@ -90,8 +90,7 @@ def shape(ctx: Context, obj: Obj, emitter_name) -> tuple[Mesh, int]:
     key = material(ctx, bsdf, obj.id)
     emitter = ctx.one_nested(obj, "emitter")
     if emitter is not None:
-        emission = area_emitter(ctx, emitter)
-        mesh = Mesh(mesh.vertices, mesh.faces, mesh.uvs, "", emitter_name(obj, emission), mesh.normals)
+        mesh = Mesh(mesh.vertices, mesh.faces, mesh.uvs, "", emitter_name(obj, emitter_of(ctx, emitter, in_shape=True)), mesh.normals)
     return mesh, key
 
 
