@@ -49,7 +49,7 @@ from invrender.inverse.params import check_names
 from invrender.scene.scene import Scene
 from invrender.study.configs import GradientConfig, parse_configs
 from invrender.study.gradients import _copy, _move_to, _target
-from invrender.transport.driver import check_int
+from invrender.validate import check_int
 
 #: the fit studies' configurations: fit's defaults (decorrelated replay, stratified samples), then
 #: each variance reduction alone and both together

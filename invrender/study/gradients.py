@@ -49,7 +49,7 @@ from invrender.study.configs import GradientConfig, parse_configs
 from invrender.study.loss_gradients import Objective
 from invrender.study.statistics import Moments, log_slope, moments
 from invrender.study.trials import gradient_sample, pixel_contributions
-from invrender.transport.driver import check_int
+from invrender.validate import check_int
 from invrender.transport.ranks import refuse
 
 #: the configurations of a default study: both pairings with one estimator, both estimators with

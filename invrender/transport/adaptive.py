@@ -25,7 +25,8 @@ import torch
 
 from invrender.errors import ParameterError
 from invrender.scene.scene import Scene
-from invrender.transport.driver import RenderSettings, SamplePlan, check_film_memory, check_int, cpu_workers, for_each_chunk
+from invrender.transport.driver import RenderSettings, SamplePlan, check_film_memory, cpu_workers, for_each_chunk
+from invrender.validate import check_int
 from invrender.transport.film import Film
 
 
