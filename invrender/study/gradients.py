@@ -47,6 +47,7 @@ from invrender.inverse.params import check_names
 from invrender.scene.scene import Scene
 from invrender.study.configs import GradientConfig, parse_configs
 from invrender.study.loss_gradients import Objective
+from invrender.study.setup import copy_scene, move_to, study_target
 from invrender.study.statistics import Moments, log_slope, moments
 from invrender.study.trials import gradient_sample, pixel_contributions
 from invrender.validate import check_int
@@ -376,9 +377,9 @@ def gradient_study(
     check_int("", "pixel_spp", pixel_spp, 1)
     seeds = Seeds(seed * 1_000_003, trials, reference_repeats)
 
-    work = _copy(scene)
-    _move_to(work, names, at)  # checks `at` before the target is rendered
-    target_image, target_label = _target(scene, target, target_spp, seeds.target, configs[0])
+    work = copy_scene(scene)
+    move_to(work, names, at)  # checks `at` before the target is rendered
+    target_image, target_label = study_target(scene, target, target_spp, seeds.target, configs[0])
     for n in names:
         work.params[n].requires_grad_(True)
     objective = Objective(work, target_image, loss)
@@ -491,7 +492,7 @@ class _Workers:
 
 def _own_objective(objective: Objective, names: list[str]) -> Objective:
     """The same objective with leaf tensors of its own (a worker's: gradients must not mix)."""
-    scene = _copy(objective.scene)
+    scene = copy_scene(objective.scene)
     for n in names:
         scene.params[n].requires_grad_(True)
     return Objective(scene, objective.target, objective.loss)
@@ -519,34 +520,3 @@ def _check_spp(spp) -> list[int]:
     if len(set(values)) != len(values):
         raise ParameterError(f"an spp value is given twice: {values}")
     return sorted(values)
-
-
-def _target(scene: Scene, target, target_spp: int, seed: int, config: GradientConfig) -> tuple[torch.Tensor, str]:
-    """The target image (H, W, 3) and how it was made."""
-    if target is not None:
-        from invrender.inverse.fit import load_views  # the checks fit applies to its targets
-
-        return load_views(scene, target, None)[0][1], "given"
-    model = config.model  # the configuration's expected image
-    options = {k: v for k, v in model.render_kwargs().items() if k != "estimator"}
-    with torch.no_grad():
-        image = render(scene, spp=target_spp, seed=seed, progress=False, **options)
-    return image, f"rendered: {model.integrator}, {target_spp} spp" + "".join(f", {k}={v}" for k, v in model.options)
-
-
-def _copy(scene: Scene) -> Scene:
-    """``scene`` with parameters of its own (detached clones)."""
-    return dataclasses.replace(scene, params={k: v.detach().clone() for k, v in scene.params.items()})
-
-
-def _move_to(scene: Scene, names: list[str], at) -> None:
-    """Set the studied parameters of ``scene`` (in place) to where the gradient is taken."""
-    from invrender.recipes import apply_init, set_param
-
-    if isinstance(at, dict):
-        apply_init(scene, names, at)
-        return
-    if isinstance(at, bool) or not isinstance(at, (int, float)) or not math.isfinite(at) or at <= 0:
-        raise ParameterError(f"at must be a positive factor or a dict of parameter values, got {at!r}")
-    for n in names:
-        set_param(scene, n, scene.params[n].detach() * at)
