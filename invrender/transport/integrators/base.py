@@ -286,7 +286,8 @@ def integrators_help(width: int = 100) -> str:
 
     lines = []
     for name, cls in INTEGRATORS.items():
-        lines.append(f"  {name}: {cls.summary}" if cls.summary else f"  {name}")
+        summary = cls.summary.removeprefix(f"{name}: ")  # some summaries start with their name
+        lines.append(f"  {name}: {summary}" if summary else f"  {name}")
         for d in setting_docs(cls):
             head = f"    {d.name} = {d.default!r}"
             lines += textwrap.wrap(d.doc, width, initial_indent=f"{head:<32} " if len(head) < 32 else head + " ", subsequent_indent=" " * 33) or [head]
