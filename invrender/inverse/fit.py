@@ -159,7 +159,7 @@ class FitSettings:
         has_depth = "max_depth" in {f.name for f in dataclasses.fields(INTEGRATORS[name].Settings)}
         if self.max_depth is not None:
             if options.get("max_depth", self.max_depth) != self.max_depth:
-                raise ParameterError(f"fit settings max_depth {self.max_depth} and integrator max_depth {options['max_depth']} differ: give one")
+                raise ParameterError(f"fit settings max_depth {self.max_depth} and the integrator's max_depth {options['max_depth']} differ: give one of them")
             options["max_depth"] = self.max_depth
         elif has_depth:
             options.setdefault("max_depth", FIT_MAX_DEPTH)
