@@ -250,7 +250,7 @@ def _attribute_docs(docstring: str) -> dict[tuple[str, ...], str]:
             out[current] = [entry.group(3)]
         elif current is not None and line.strip():
             out[current].append(line.strip())
-    return {names: re.sub(r"``|:class:`~?[\w.]*?\.?(\w+)`", lambda m: m.group(1) or "", " ".join(parts)).strip() for names, parts in out.items()}
+    return {names: re.sub(r"``|:\w+:`~?(?:[\w.]*\.)?(\w+)`", lambda m: m.group(1) or "", " ".join(parts)).strip() for names, parts in out.items()}
 
 
 def setting_from_text(integrator, key: str, text: str):
