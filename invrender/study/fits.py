@@ -44,7 +44,7 @@ from invrender.study.configs import GradientConfig, parse_configs
 from invrender.study.loss_gradients import LOSS_GRADIENTS
 from invrender.study.setup import copy_scene, move_to, study_target
 from invrender.transport.driver import RenderSettings
-from invrender.validate import check_int
+from invrender.validate import MAX_SPP, check_int
 
 #: the fit studies' configurations: fit's defaults (decorrelated replay, stratified samples), then
 #: each variance reduction alone and both together
@@ -251,7 +251,7 @@ def fit_study(
     names = check_names(scene.params, params)
     configs = parse_configs(configs)
     check_int("", "repeats", repeats, 1)
-    check_int("", "target_spp", target_spp, 1)
+    check_int("", "target_spp", target_spp, 1, MAX_SPP)
     check_int("", "seed", seed, 0)
     settings = dict(settings or {})
     taken = [k for k in settings if k in CONFIG_FIELDS or k in STUDY_FIELDS]

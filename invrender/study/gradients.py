@@ -50,7 +50,7 @@ from invrender.study.loss_gradients import Objective
 from invrender.study.setup import copy_scene, move_to, study_target
 from invrender.study.statistics import Moments, log_slope, moments
 from invrender.study.trials import gradient_sample, pixel_contributions
-from invrender.validate import check_int
+from invrender.validate import MAX_SPP, check_int, check_paths
 from invrender.transport.ranks import refuse
 
 #: the configurations of a default study: both pairings with one estimator, both estimators with
@@ -362,11 +362,11 @@ def gradient_study(
         raise ParameterError(f"trials must be >= 2 (a variance needs two samples), got {trials}")
     if loss not in LOSSES:
         raise ParameterError(f"unknown loss {loss!r} for a gradient study (known: {', '.join(LOSSES)})")
-    check_int("", "reference_spp", reference_spp, 0)
+    check_int("", "reference_spp", reference_spp, 0, MAX_SPP)
     check_int("", "reference_repeats", reference_repeats)
     if reference_repeats < 2:
         raise ParameterError(f"reference_repeats must be >= 2 (the reference's standard error needs two), got {reference_repeats}")
-    check_int("", "target_spp", target_spp, 1)
+    check_int("", "target_spp", target_spp, 1, MAX_SPP)
     check_int("", "seed", seed, 0)
     workers = len(os.sched_getaffinity(0)) if workers is None else workers
     check_int("", "workers", workers, 1)
@@ -374,7 +374,9 @@ def gradient_study(
     if pixel_param not in names:
         raise ParameterError(f"pixel_param {pixel_param!r} is not one of the studied parameters ({', '.join(names)})")
     pixel_spp = spp[0] if pixel_spp is None else pixel_spp
-    check_int("", "pixel_spp", pixel_spp, 1)
+    check_int("", "pixel_spp", pixel_spp, 1, MAX_SPP)
+    for n in (*spp, reference_spp * reference_repeats, target_spp, pixel_spp):
+        check_paths(scene.width, scene.height, n)  # every render the study makes, before any of them
     seeds = Seeds(seed * 1_000_003, trials, reference_repeats)
 
     work = copy_scene(scene)
@@ -516,7 +518,7 @@ def _check_spp(spp) -> list[int]:
     if not values:
         raise ParameterError("the spp list is empty: give at least one samples-per-pixel value")
     for v in values:
-        check_int("", "spp", v, 1)
+        check_int("", "spp", v, 1, MAX_SPP)
     if len(set(values)) != len(values):
         raise ParameterError(f"an spp value is given twice: {values}")
     return sorted(values)
