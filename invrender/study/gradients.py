@@ -29,7 +29,6 @@ what load there is falls on all of them alike.
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 import math
 import os
@@ -41,7 +40,6 @@ from dataclasses import dataclass
 import torch
 from tqdm.auto import tqdm
 
-from invrender.diff import render
 from invrender.errors import ParameterError
 from invrender.inverse.params import check_names
 from invrender.scene.scene import Scene

@@ -67,7 +67,9 @@ class Objective:
 
 
 class LossGradient(ABC):
-    """A way of pairing ``dl/dI`` with the differentiated image."""
+    """A way of pairing ``dl/dI`` with the differentiated image. Its methods take the study's
+    ``config``, a :class:`~invrender.study.configs.GradientConfig` (which names the pairing, so
+    this module does not import it)."""
 
     #: the name configurations use
     name: ClassVar[str]
@@ -88,18 +90,18 @@ class LossGradient(ABC):
     def check_options(cls, label: str, options: dict) -> None:
         """A one-line :class:`ParameterError` for an option value the pairing cannot use."""
 
-    def prepare(self, objective: Objective, config: GradientConfig, spp: int, seed: int) -> object:
+    def prepare(self, objective: Objective, config, spp: int, seed: int) -> object:
         """Untimed work a trial needs before its gradient (what earlier steps of a fit would have
         done); passed to :meth:`backward` and :meth:`adjoint` as ``prepared``. Default: none."""
         return None
 
     @abstractmethod
-    def backward(self, objective: Objective, config: GradientConfig, spp: int, seed: int, prepared: object = None) -> None:
+    def backward(self, objective: Objective, config, spp: int, seed: int, prepared: object = None) -> None:
         """Add one gradient sample of ``objective``'s loss to the ``.grad`` of every parameter of
         ``objective.scene`` that requires grad; ``seed`` is the differentiated image's seed."""
 
     @abstractmethod
-    def adjoint(self, objective: Objective, config: GradientConfig, spp: int, seed: int, image: torch.Tensor, prepared: object = None) -> torch.Tensor:
+    def adjoint(self, objective: Objective, config, spp: int, seed: int, image: torch.Tensor, prepared: object = None) -> torch.Tensor:
         """The (H, W, 3) ``dl/dI`` that :meth:`backward` weights the image of ``seed`` with, given
         that image (detached): ``G = sum(adjoint * dI/dtheta)``. Per-pixel studies use it (without
         ``prepared``, the pairing prepares itself)."""

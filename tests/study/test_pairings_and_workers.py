@@ -7,7 +7,7 @@ import pytest
 import torch
 
 import invrender as ir
-from invrender.study import gradients, parse_config, setup
+from invrender.study import parse_config, setup
 from invrender.study.loss_gradients import LOSS_GRADIENTS, Objective
 from invrender.study.trials import gradient_sample, pixel_contributions
 
