@@ -27,7 +27,8 @@ examples:
 Defaults: 200 Adam steps on rho = sigmoid(x), eps = exp(x) (step 0.15, cosine decay), 16 then 64
 spp, the path tracer at max_depth 8, relative L2 loss, path-replay gradients decorrelated from the
 loss's image. --integrator and --set choose the model every render of the fit uses (any setting of
-any integrator, listed below); with a recipe they change the recipe's integrator.
+any integrator, listed below); with a recipe they change the recipe's integrator (a variant that
+names an integrator of its own keeps it).
 
 Writes OUT/report.json (initial, recovered and, when a recipe knows it, true values with errors),
 OUT/loss.png (loss and parameter error per step), OUT/final.exr (the recovered scene rendered) and

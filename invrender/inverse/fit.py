@@ -230,7 +230,9 @@ def fit(
             ``steps``); with the stored settings unchanged, it ends exactly where the
             uninterrupted fit does.
         progress: show a progress bar with step, loss and ETA.
-        settings: any :class:`FitSettings` field, e.g. ``steps=300, loss="l1"``.
+        settings: any :class:`FitSettings` field, e.g. ``steps=300, loss="l1"`` or
+            ``integrator={"type": "path", "rr_depth": 3, "strategy": "emitter"}``; all are checked
+            (one-line :class:`ParameterError`) before any target is read or any render starts.
     """
     known = {f.name for f in dataclasses.fields(FitSettings)}
     unknown = set(settings) - known

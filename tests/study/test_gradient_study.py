@@ -113,7 +113,7 @@ def test_bad_input_fails_before_any_rendering(cbox8, monkeypatch, kwargs, error,
         raise AssertionError("rendered before checking the input")
 
     monkeypatch.setattr(gradients, "gradient_sample", no_work)
-    monkeypatch.setattr(gradients, "render", no_work)
+    monkeypatch.setattr(setup, "render", no_work)  # the study target is rendered in study.setup
     args = {"params": PARAMS, **kwargs}
     with pytest.raises(error, match=words) as e:
         ir.gradient_study(cbox8, args.pop("params"), progress=False, **args)
