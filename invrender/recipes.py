@@ -32,6 +32,7 @@ Fit recipe::
 
     [fit]                              # any FitSettings field (invrender.inverse.fit)
     steps = 200
+    integrator = { type = "path", rr_depth = 3 }   # an integrator spec: a name or a table
 
     [[variants]]                       # optional: one fit per variant, on the same targets, and a
     label = "utah + eps0"              # table of every variant's parameter errors (a model study);
@@ -264,6 +265,8 @@ def load_fit_recipe(path) -> FitRecipe:
     variants = [_variant(v, f"{where} variants[{i}]") for i, v in enumerate(variants)]
     if len({v.slug for v in variants}) != len(variants):
         raise ParameterError(f"{where}: variant labels must differ")
+    for label, own in [("[fit]", {})] + [(f"variant {v.label!r}", v.settings) for v in variants]:
+        _check_settings({**choices["settings"], **own}, f"{where} {label}")  # before any work
     return FitRecipe(**choices, path=path, dataset=dataset, variants=variants)
 
 
@@ -284,6 +287,17 @@ def _fit_choices(doc: dict, settings: dict, where: str, required: bool) -> dict:
     if not (isinstance(params, list) and all(isinstance(p, str) for p in params)) or (required and not params):
         raise ParameterError(f"{where}: 'params' must be a {'non-empty ' if required else ''}list of parameter names")
     return {"params": list(params), "init": dict(table(doc, "init", where)), "settings": dict(settings)}
+
+
+def _check_settings(settings: dict, where: str) -> None:
+    """The fit settings of a recipe (or of one of its variants) checked as a fit checks them,
+    the integrator spec included; a one-line error naming ``where``."""
+    from invrender.inverse.fit import FitSettings
+
+    try:
+        FitSettings(**settings)
+    except ParameterError as e:
+        raise ParameterError(f"{where}: {e}") from None
 
 
 def _setting_names() -> set[str]:

@@ -115,9 +115,10 @@ def ablation(
     spp: tuple[int, ...] = (8, 16, 32, 64),
     trials: int = 2,
     reference_spp: int = 4096,
-    max_depth: int = 8,
+    max_depth: int | None = 8,
     seed: int = 0,
     progress: bool = True,
+    integrator="path",
 ) -> AblationResult:
     """Render ``scene`` with each sampling strategy at each ``spp`` and measure its error.
 
@@ -128,11 +129,20 @@ def ablation(
         spp: samples per pixel (ascending); adaptive sampling needs at least 6.
         trials: seeds per variant and spp (their squared errors are averaged).
         reference_spp: samples per pixel of the reference (the defaults, independent seeds).
-        max_depth: Neumann terms kept by every render.
+        max_depth: Neumann terms kept by every render (set in the integrator spec; None = the spec's).
         seed: offsets every seed of the study.
         progress: a progress bar over the renders.
+        integrator: the integrator spec of the defaults (:mod:`invrender.registry`; default
+            ``"path"``), whose settings each variant changes; every spec is checked before any work.
     """
     variants = select_variants(strategies)
+    from invrender.transport.integrators import make_integrator
+
+    base = variants[0].integrator_spec(integrator)
+    if max_depth is not None:
+        base["max_depth"] = max_depth
+    models = {v.name: make_integrator(v.integrator_spec(base)) for v in variants}  # checked here, before any work
+    max_depth = models["default"].terms_kept
     spp = tuple(spp)
     if not spp or any(isinstance(n, bool) or not isinstance(n, int) or n < 1 for n in spp) or list(spp) != sorted(set(spp)):
         raise ParameterError(f"spp must be ascending positive integers, got {', '.join(map(str, spp)) or 'none'}")
@@ -146,15 +156,15 @@ def ablation(
     with tqdm(total=renders, desc=f"ablation {scene.name}", unit="render", disable=not progress, file=sys.stderr) as bar:
         parts = []
         for k in range(REFERENCE_PARTS):
-            parts.append(render(scene, spp=reference_spp // REFERENCE_PARTS, max_depth=max_depth, seed=seed + REFERENCE_SEED + k, progress=False).double())
+            parts.append(render(scene, models["default"], spp=reference_spp // REFERENCE_PARTS, seed=seed + REFERENCE_SEED + k, progress=False).double())
             bar.update()
         parts = torch.stack(parts)
         reference = parts.mean(0)
         reference_rmse = math.sqrt(float(parts.var(0).mean()) / REFERENCE_PARTS)
-        render(scene, spp=1, max_depth=max_depth, seed=seed, progress=False)  # warm-up: the timings start warm
+        render(scene, models["default"], spp=1, seed=seed, progress=False)  # warm-up: the timings start warm
         bar.update()
         denominator = (reference.mean(-1, keepdim=True) + reference.mean()).clamp_min(1e-30)
-        cells = [(v, n) for v in variants for n in spp if not (v.options.get("adaptive") and n < 6)]  # adaptive: a pilot and a sample per round
+        cells = [(v, n) for v in variants for n in spp if not (v.render.get("adaptive") and n < 6)]  # adaptive: a pilot and a sample per round
         bar.update(trials * (len(variants) * len(spp) - len(cells)))
         squared = {(v.name, n): 0.0 for v, n in cells}
         relative = dict(squared)
@@ -163,7 +173,7 @@ def ablation(
         for t in range(trials):  # variants interleaved, so that other processes' load slows them alike
             for variant, n in cells:
                 start, cpu_start = time.perf_counter(), time.process_time()
-                image = render(scene, spp=n, max_depth=max_depth, seed=seed + 1 + t, progress=False, **variant.options)
+                image = render(scene, models[variant.name], spp=n, seed=seed + 1 + t, progress=False, **variant.render)
                 key = (variant.name, n)
                 seconds[key] = min(seconds[key], time.perf_counter() - start)
                 cpu_seconds[key] = min(cpu_seconds[key], time.process_time() - cpu_start)

@@ -22,6 +22,7 @@ from invrender.scene.scene import Scene
 from invrender.transport.adaptive import AdaptiveSettings
 from invrender.transport.driver import RenderSettings, total_paths
 from invrender.transport.integrators import Integrator, make_integrator
+from invrender.validate import check_paths
 
 ESTIMATORS = ("autodiff", "replay")
 #: what ``render``, ``backpropagate`` and fits accept: the estimators, or ``"auto"`` (:func:`resolve_estimator`)
@@ -77,8 +78,11 @@ def render(
 
     Args:
         scene: from :func:`invrender.load_scene`; its ``params`` are read at this call.
-        integrator: a name (``"path"``, ``"random_walk"``, ``"utah"``, ``"whitted"``,
-            ``"distributed"``, ``"radiosity"``) or an :class:`~invrender.transport.integrators.Integrator` object.
+        integrator: an integrator spec (:mod:`invrender.registry`): a name (``"path"``,
+            ``"random_walk"``, ``"utah"``, ``"whitted"``, ``"distributed"``, ``"radiosity"``), a
+            mapping ``{"type": "path", "max_depth": 8, "rr_depth": 3}`` or an
+            :class:`~invrender.transport.integrators.Integrator` object. Settings given as keywords
+            beside a name or mapping (``max_depth``, ``rr_depth``, ``options``) are added to it.
         spp: samples per pixel.
         max_depth: Neumann terms kept (1 = emitters seen directly, 2 = + direct light, ...; -1 =
             unbounded, ended by Russian roulette); None = the integrator's default (8; utah 2).
@@ -116,6 +120,7 @@ def render(
             options[key] = value
     model = make_integrator(integrator, **options)
     settings = RenderSettings(spp=spp, seed=seed, terms=terms, backend=backend, chunk_paths=chunk_paths, memory_mb=memory_mb, progress=progress, sampler=sampler)
+    check_paths(scene.width, scene.height, spp)  # before any work, whichever estimator runs
     estimator = resolve_estimator(_check_estimator(estimator or "replay"), scene, model, settings)
     device = _device(scene, device)
     differentiable = [k for k, v in scene.params.items() if v.requires_grad] if torch.is_grad_enabled() else []

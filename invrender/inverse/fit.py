@@ -33,8 +33,10 @@ from invrender.scene.camera import Camera
 from invrender.scene.kinds import kind_of
 from invrender.scene.scene import Scene
 from invrender.transport.driver import RenderSettings
-from invrender.transport.integrators import make_integrator
+from invrender.registry import INTEGRATORS, integrator_spec
+from invrender.transport.integrators import Integrator, make_integrator
 from invrender.transport.ranks import is_main
+from invrender.validate import MAX_SPP, check_float, check_int
 
 CHECKPOINT_FORMAT = 1
 #: least-squares rounds end when no parameter channel moved by more than this many standard errors
@@ -43,6 +45,10 @@ CONVERGED_MOVE = 2.5
 #: least-squares rounds before the rounds may end (the first rounds' standard errors are too wide
 #: for a move to be significant)
 MIN_ROUNDS = 3
+#: Neumann terms a fit's renders keep unless its integrator spec (or ``max_depth``) says otherwise
+FIT_MAX_DEPTH = 8
+#: most steps (or rounds, or steps between checkpoints) a fit may be asked for
+MAX_STEPS = 10**7
 
 
 @dataclass(frozen=True)
@@ -60,9 +66,15 @@ class FitSettings:
             steps, not tens of thousands).
         spp: samples per pixel of each render in the first half of the steps.
         spp_final: samples per pixel in the second half (less noise where the steps are small).
-        max_depth: Neumann terms kept by the renders (Mitsuba's count).
-        integrator: the model fitted: ``"path"``, ``"random_walk"``, ``"utah"``, ``"whitted"``,
-            ``"distributed"`` or ``"radiosity"`` (Adam only: not a polynomial, see records.py).
+        max_depth: a shortcut for the integrator spec's ``max_depth`` (Neumann terms kept by the
+            renders, Mitsuba's count); None = the spec's, else :data:`FIT_MAX_DEPTH` (8) for an
+            integrator with a depth. Giving both, different, is an error.
+        integrator: the model fitted, as an integrator spec (:mod:`invrender.registry`): a name
+            (``"path"``, ``"random_walk"``, ``"utah"``, ``"whitted"``, ``"distributed"`` or
+            ``"radiosity"``: Adam only, not a polynomial, see records.py), a mapping with its
+            settings (``{"type": "path", "rr_depth": 3, "strategy": "emitter"}``) or an integrator
+            object (kept as its mapping, so settings stay plain data in checkpoints and reports).
+            :attr:`model` is the integrator every render of the fit uses.
         loss: ``"l2"``, ``"l1"``, ``"relative_l2"`` or ``"ssim"``.
         estimator: ``"auto"`` (default: ``"autodiff"`` where the recorded render fits in the
             memory budget, 512 MiB, about 128 bytes a path and term; else ``"replay"``; the same
@@ -94,8 +106,8 @@ class FitSettings:
     beta2: float = 0.95
     spp: int = 16
     spp_final: int = 64
-    max_depth: int = 8
-    integrator: str = "path"
+    max_depth: int | None = None
+    integrator: str | dict = "path"
     loss: str = "relative_l2"
     estimator: str = "auto"
     decorrelate: bool = True
@@ -108,29 +120,50 @@ class FitSettings:
     control_variate: bool = False
 
     def __post_init__(self):
-        for name in ("steps", "spp", "spp_final", "max_depth", "seed", "checkpoint_every", "rounds"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int):
-                raise ParameterError(f"fit setting {name} must be an integer, got {value!r}")
+        for name in ("steps", "spp", "spp_final", "seed", "checkpoint_every", "rounds") + (("max_depth",) if self.max_depth is not None else ()):
+            check_int("fit setting ", name, getattr(self, name))
         if self.steps <= 0 or self.spp <= 0 or self.spp_final <= 0 or self.checkpoint_every <= 0 or self.rounds <= 0:
             raise ParameterError("fit settings steps, spp, spp_final, checkpoint_every and rounds must be positive")
+        for name in ("steps", "checkpoint_every", "rounds"):
+            check_int("fit setting ", name, getattr(self, name), 1, MAX_STEPS)
+        for name in ("spp", "spp_final"):
+            check_int("fit setting ", name, getattr(self, name), 1, MAX_SPP)
+        if isinstance(self.integrator, Integrator):  # plain data from here on
+            object.__setattr__(self, "integrator", {"type": self.integrator.name, **dataclasses.asdict(self.integrator.settings)})
+        elif not isinstance(self.integrator, str):
+            name, options = integrator_spec(self.integrator, "fit setting integrator")
+            object.__setattr__(self, "integrator", {"type": name, **options})
+        model = self.model  # validates the spec and max_depth together
         if self.control_variate and not (self.decorrelate and self.solver == "adam"):
             raise ParameterError("control_variate needs solver 'adam' with decorrelate (it replaces the render dl/dI is taken at)")
         if self.solver not in SOLVERS:
             raise ParameterError(f"unknown solver {self.solver!r} (known: {', '.join(SOLVERS)})")
-        if self.solver != "adam" and (self.max_depth < 1 or self.loss != "relative_l2"):
-            raise ParameterError(f"solver {self.solver!r} needs a finite max_depth >= 1 and the relative_l2 loss (got max_depth {self.max_depth}, loss {self.loss!r})")
+        if self.solver != "adam" and (model.terms_kept < 1 or self.loss != "relative_l2"):
+            raise ParameterError(f"solver {self.solver!r} needs a finite max_depth >= 1 and the relative_l2 loss (got max_depth {model.terms_kept}, loss {self.loss!r})")
         for name in ("lr", "lr_emission", "lr_final", "precision"):
             if name == "precision" and self.precision is None:
                 continue
-            if not getattr(self, name) > 0:
-                raise ParameterError(f"fit setting {name} must be positive, got {getattr(self, name)!r}")
-        make_integrator(self.integrator, max_depth=self.max_depth)  # validates both
+            check_float("fit setting ", name, getattr(self, name), positive=True)
+        check_float("fit setting ", "beta2", self.beta2, 0.0, 1.0)
         RenderSettings(sampler=self.sampler)  # validates the sampler
         if self.loss not in LOSSES:
             raise ParameterError(f"unknown loss {self.loss!r} (known: {', '.join(LOSSES)})")
         if self.estimator not in ESTIMATOR_CHOICES:
             raise ParameterError(f"unknown estimator {self.estimator!r} (known: {', '.join(ESTIMATOR_CHOICES)})")
+
+    @property
+    def model(self) -> Integrator:
+        """The integrator of every render: :attr:`integrator` with :attr:`max_depth` (or the fit's
+        default depth, :data:`FIT_MAX_DEPTH`) where the spec gives none."""
+        name, options = integrator_spec(self.integrator, "fit setting integrator")
+        has_depth = "max_depth" in {f.name for f in dataclasses.fields(INTEGRATORS[name].Settings)}
+        if self.max_depth is not None:
+            if options.get("max_depth", self.max_depth) != self.max_depth:
+                raise ParameterError(f"fit settings max_depth {self.max_depth} and the integrator's max_depth {options['max_depth']} differ: give one of them")
+            options["max_depth"] = self.max_depth
+        elif has_depth:
+            options.setdefault("max_depth", FIT_MAX_DEPTH)
+        return make_integrator({"type": name, **options})
 
     def spp_at(self, step: int) -> int:
         return self.spp if step < self.steps // 2 else self.spp_final
@@ -197,7 +230,9 @@ def fit(
             ``steps``); with the stored settings unchanged, it ends exactly where the
             uninterrupted fit does.
         progress: show a progress bar with step, loss and ETA.
-        settings: any :class:`FitSettings` field, e.g. ``steps=300, loss="l1"``.
+        settings: any :class:`FitSettings` field, e.g. ``steps=300, loss="l1"`` or
+            ``integrator={"type": "path", "rr_depth": 3, "strategy": "emitter"}``; all are checked
+            (one-line :class:`ParameterError`) before any target is read or any render starts.
     """
     known = {f.name for f in dataclasses.fields(FitSettings)}
     unknown = set(settings) - known
@@ -271,6 +306,7 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
     from invrender.inverse.least_squares import solve
 
     initial = {n: scene.params[n].detach().clone() for n in names}
+    model = cfg.model
     current = {n: scene.params[n].detach().double().clamp(1e-4, None) for n in names}
     history: list[dict] = []
     if state is not None:
@@ -287,8 +323,8 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
                 recs[half] = [
                     record_paths(
                         view_scene.with_params({n: current[n].float() for n in names}),
-                        names, spp=spp, max_depth=cfg.max_depth, seed=cfg.seed * 1_000_003 + 2 * (rnd * len(views) + v) + half,
-                        integrator=cfg.integrator, progress=False, sampler=cfg.sampler,
+                        names, spp=spp, max_depth=model.terms_kept, seed=cfg.seed * 1_000_003 + 2 * (rnd * len(views) + v) + half,
+                        integrator=model.name, progress=False, sampler=cfg.sampler, **_settings_besides_depth(model),
                     )  # fmt: skip
                     for v, (view_scene, _) in enumerate(views)
                 ]
@@ -344,7 +380,7 @@ def identifiability(scene: Scene, target, params, *, cameras: list[Camera] | Non
 
 def _control_variate(view_scene: Scene, cfg: FitSettings) -> RecursiveControlVariate:
     """One view's recursive control variate, rendering with the fit's integrator and sampler."""
-    integrator = make_integrator(cfg.integrator, max_depth=cfg.max_depth)
+    integrator = cfg.model
 
     def render_at(values: dict, seed: int, spp: int) -> torch.Tensor:
         with torch.no_grad():
@@ -360,7 +396,7 @@ def _view_loss(view_scene: Scene, values, target, cfg: FitSettings, step: int, v
     work = view_scene.with_params(values)
     spp = cfg.spp_at(step)
     seed = cfg.seed * 1_000_003 + 2 * (step * n_views + view)
-    integrator = make_integrator(cfg.integrator, max_depth=cfg.max_depth)
+    integrator = cfg.model
     kw = dict(spp=spp, progress=False, sampler=cfg.sampler)
     if not cfg.decorrelate:
         image = render(work, integrator, seed=seed, estimator=cfg.estimator, **kw)
@@ -374,6 +410,11 @@ def _view_loss(view_scene: Scene, values, target, cfg: FitSettings, step: int, v
     dl_dI, value = loss_gradient(cfg.loss, target, residual)
     backpropagate(work, dl_dI / n_views, integrator, RenderSettings(seed=seed, **kw), cfg.estimator)
     return value / n_views
+
+
+def _settings_besides_depth(model: Integrator) -> dict:
+    """The integrator's settings other than ``max_depth`` (path records take that apart)."""
+    return {k: v for k, v in dataclasses.asdict(model.settings).items() if k != "max_depth"}
 
 
 def _record(step, loss, spp, seconds, names, raw, truth) -> dict:

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 from invrender.diff import ESTIMATORS
 from invrender.errors import ParameterError
+from invrender.registry import integrator_spec
 from invrender.study.loss_gradients import LOSS_GRADIENTS
 from invrender.transport.driver import RenderSettings
 from invrender.transport.integrators import INTEGRATORS, Integrator, make_integrator
@@ -53,7 +54,9 @@ class GradientConfig:
     """One gradient estimator of a study.
 
     Attributes:
-        integrator: a registered integrator name.
+        integrator: a registered integrator name; also accepted: any integrator spec (a
+            ``{"type": name, ...}`` mapping or an integrator object), whose settings become
+            ``options`` (an object's: those that differ from the defaults).
         estimator: ``"replay"`` or ``"autodiff"``.
         gradient: a :data:`~invrender.study.loss_gradients.LOSS_GRADIENTS` name, ``"correlated"`` or
             ``"decorrelated"`` (how ``dl/dI`` is paired with the differentiated image).
@@ -67,6 +70,14 @@ class GradientConfig:
     options: tuple[tuple[str, object], ...] = ()
 
     def __post_init__(self):
+        if not isinstance(self.integrator, str):  # a spec with settings: they become options
+            name, settings = _spec_settings(self.integrator)
+            given = dict(self.options)
+            clash = next((k for k, v in settings.items() if k in given and given[k] != v), None)
+            if clash:
+                raise ParameterError(f"configuration: {clash!r} is given in the integrator spec and as an option, differently")
+            object.__setattr__(self, "integrator", name)
+            object.__setattr__(self, "options", tuple({**given, **settings}.items()))
         if self.integrator not in INTEGRATORS:
             raise ParameterError(f"unknown integrator {self.integrator!r} in a configuration (known: {', '.join(INTEGRATORS)})")
         if self.estimator not in ESTIMATORS:
@@ -172,6 +183,14 @@ def parse_configs(specs) -> list[GradientConfig]:
     if twice:
         raise ParameterError(f"configuration {twice!r} is given twice")
     return configs
+
+
+def _spec_settings(spec) -> tuple[str, dict]:
+    """(name, settings) of an integrator spec; an object's settings that differ from its defaults."""
+    if isinstance(spec, Integrator):
+        defaults = type(spec).Settings()
+        return spec.name, {k: v for k, v in dataclasses.asdict(spec.settings).items() if getattr(defaults, k) != v}
+    return integrator_spec(spec, "configuration integrator")
 
 
 def _value(text: str):

@@ -2,25 +2,17 @@
 fit (``ir.fit``, Adam) from the same perturbed start against the same target, and the parameters'
 largest relative error is recorded against wall time.
 
-**From a configuration to fit settings.** A gradient configuration (:mod:`invrender.study.configs`)
-maps onto :class:`~invrender.inverse.fit.FitSettings` part by part (:data:`FIT_MAPPING`):
-
-====================================  =====================================================
-configuration                         FitSettings
-====================================  =====================================================
-integrator (``path``, ...)            ``integrator``
-estimator (``replay``, ``autodiff``)  ``estimator``
-pairing ``correlated``                ``decorrelate=False``
-pairing ``decorrelated``              ``decorrelate=True``
-pairing ``control_variate``           ``decorrelate=True, control_variate=True``
-option ``max_depth=D``                ``max_depth=D``
-option ``sampler=S``                  ``sampler=S``
-====================================  =====================================================
-
-Anything else has no fit setting and is refused with a one-line error before any work: render
-options such as ``rr_depth``, ``hemisphere``, ``strategy`` or an integrator's own settings (a fit
-renders with the integrator's defaults), and the control-variate pairing's ``cv_steps`` and
-``cv_step`` (in a fit the chain is the fit's own steps).
+**From a configuration to fit settings** (:func:`fit_settings`). A gradient configuration
+(:mod:`invrender.study.configs`) becomes :class:`~invrender.inverse.fit.FitSettings` by what each of
+its parts is, not by a table: its integrator and the integrator's settings among its options
+(``rr_depth``, ``hemisphere``, ``strategy``, ...) become the fit's integrator spec
+(``{"type": "path", "rr_depth": 2}``; the name alone when it has none); ``max_depth`` becomes the
+fit's ``max_depth``; its estimator the fit's ``estimator``; its pairing the fit settings the pairing
+declares (``LossGradient.fit_settings``: ``correlated`` is ``decorrelate=False``, ``decorrelated``
+``decorrelate=True``, ``control_variate`` adds ``control_variate=True``); the render option
+``sampler`` the fit's ``sampler``. Anything else has no fit setting and is refused with a one-line
+error before any work: the other render settings (``backend``, ``memory_mb``, ...) and the
+control-variate pairing's ``cv_steps`` and ``cv_step`` (in a fit the chain is the fit's own steps).
 
 **What is measured.** Each fit's history gives, per step, the wall seconds since its start and the
 largest relative error over every channel of every fitted parameter (against the scene's own
@@ -34,6 +26,7 @@ over all of them; each fit's CPU seconds are kept beside its wall seconds.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import statistics
 import sys
@@ -48,8 +41,10 @@ from invrender.inverse.fit import FitSettings, fit
 from invrender.inverse.params import check_names
 from invrender.scene.scene import Scene
 from invrender.study.configs import GradientConfig, parse_configs
-from invrender.study.gradients import _copy, _move_to, _target
-from invrender.transport.driver import check_int
+from invrender.study.loss_gradients import LOSS_GRADIENTS
+from invrender.study.setup import copy_scene, move_to, study_target
+from invrender.transport.driver import RenderSettings
+from invrender.validate import MAX_SPP, check_int
 
 #: the fit studies' configurations: fit's defaults (decorrelated replay, stratified samples), then
 #: each variance reduction alone and both together
@@ -65,34 +60,36 @@ THRESHOLDS = (0.02, 0.01)
 CONFIG_FIELDS = ("integrator", "estimator", "decorrelate", "control_variate", "max_depth", "sampler")
 #: FitSettings fields a fit study sets itself
 STUDY_FIELDS = ("loss", "seed", "solver")
-#: how each part of a configuration becomes fit settings (the module docstring's table)
-FIT_MAPPING = {
-    "integrator": "integrator",
-    "estimator": "estimator",
-    "pairing": {"correlated": {"decorrelate": False}, "decorrelated": {"decorrelate": True}, "control_variate": {"decorrelate": True, "control_variate": True}},
-    "options": {"max_depth": "max_depth", "sampler": "sampler"},
-}
+#: render options (RenderSettings fields) a fit takes from a configuration; the others it has not
+FIT_RENDER_OPTIONS = ("sampler",)
 
 
 def fit_settings(config) -> dict:
-    """The :class:`FitSettings` fields a configuration sets (:data:`FIT_MAPPING`); a one-line
-    :class:`ParameterError` for a part no fit setting expresses."""
+    """The :class:`FitSettings` fields a configuration sets (the module docstring says how); a
+    one-line :class:`ParameterError` for a part no fit setting expresses."""
     config = parse_configs(config)[0] if not isinstance(config, GradientConfig) else config
-    pairings = FIT_MAPPING["pairing"]
-    if config.gradient not in pairings:
-        raise ParameterError(f"configuration {config.label!r}: a fit has no setting for the {config.gradient} pairing (fits take: {', '.join(pairings)})")
-    settings = {"integrator": config.integrator, "estimator": config.estimator, **pairings[config.gradient]}
+    pairing = LOSS_GRADIENTS[config.gradient]
+    if pairing.fit_settings is None:
+        fitted = ", ".join(name for name, cls in LOSS_GRADIENTS.items() if cls.fit_settings is not None)
+        raise ParameterError(f"configuration {config.label!r}: a fit has no setting for the {config.gradient} pairing (fits take: {fitted})")
+    settings = {"estimator": config.estimator, **pairing.fit_settings}
     own = config.pairing_options
+    render_fields = {f.name for f in dataclasses.fields(RenderSettings)}
+    integrator_settings = {}
     for key, value in config.options:
         if key in own:
             raise ParameterError(f"configuration {config.label!r}: {key} does not apply to a fit (its control variate is carried along the fit's own steps)")
-        if key not in FIT_MAPPING["options"]:
+        if key == "max_depth" or key in FIT_RENDER_OPTIONS:
+            settings[key] = value
+        elif key in render_fields:
             raise ParameterError(
-                f"configuration {config.label!r}: option {key!r} has no fit setting (a fit takes the integrator, estimator, pairing, "
-                f"{' and '.join(FIT_MAPPING['options'])}; it renders with the integrator's other defaults)"
+                f"configuration {config.label!r}: option {key!r} has no fit setting (a fit takes the integrator and its settings, the estimator, "
+                f"the pairing and {', '.join(FIT_RENDER_OPTIONS)})"
             )
-        settings[FIT_MAPPING["options"][key]] = value
-    return settings
+        else:
+            integrator_settings[key] = value  # the integrator checks them (FitSettings)
+    settings["integrator"] = {"type": config.integrator, **integrator_settings} if integrator_settings else config.integrator
+    return {k: settings[k] for k in ("integrator", *[k for k in settings if k != "integrator"])}
 
 
 @dataclass(frozen=True)
@@ -234,7 +231,7 @@ def fit_study(
         scene: from :func:`invrender.load_scene`; its own values are the truth (not modified).
         params: the fitted parameters (names, list or comma-separated).
         configs: configurations (spec strings or :class:`GradientConfig`), each mapped onto fit
-            settings by :data:`FIT_MAPPING`.
+            settings by :func:`fit_settings`.
         repeats: fits per configuration, with seeds ``seed + r`` (medians are reported).
         steps, spp, spp_final: as :class:`FitSettings` takes them (the first half of the steps at
             ``spp``, the second at ``spp_final``).
@@ -254,7 +251,7 @@ def fit_study(
     names = check_names(scene.params, params)
     configs = parse_configs(configs)
     check_int("", "repeats", repeats, 1)
-    check_int("", "target_spp", target_spp, 1)
+    check_int("", "target_spp", target_spp, 1, MAX_SPP)
     check_int("", "seed", seed, 0)
     settings = dict(settings or {})
     taken = [k for k in settings if k in CONFIG_FIELDS or k in STUDY_FIELDS]
@@ -269,10 +266,10 @@ def fit_study(
             raise ParameterError(f"unknown fit setting in {sorted(settings)}: {e}") from None
         except ParameterError as e:
             raise ParameterError(f"configuration {label!r}: {e}") from None
-    start = _copy(scene)
-    _move_to(start, names, at)
+    start = copy_scene(scene)
+    move_to(start, names, at)
     truth = {n: scene.params[n].detach().clone() for n in names}
-    target_image, target_label = _target(scene, target, target_spp, seed * 1_000_003 + 999_999, configs[0])
+    target_image, target_label = study_target(scene, target, target_spp, seed * 1_000_003 + 999_999, configs[0])
 
     runs = []
     bar = tqdm(total=repeats * len(configs), unit="fit", desc=f"fits {scene.name}", file=sys.stderr, disable=not progress, dynamic_ncols=True)
@@ -350,36 +347,12 @@ def fit_study_dict(study: FitStudy) -> dict:
         "configs": [c.label for c in study.configs], "settings": study.settings, "truth": study.truth, "start": study.start,
         "target": study.target, "repeats": study.repeats, "seed": study.seed,
         "fit_settings": {run.config: run.settings for run in study.runs},
-        "summaries": [_finite(study.summary(c)) for c in study.configs],
+        "summaries": [finite(study.summary(c)) for c in study.configs],
         "runs": [{"config": r.config, "repeat": r.repeat, "cpu_seconds": r.cpu_seconds, "recovered": r.recovered,
                   "seconds": r.seconds.tolist(), "error": r.error.tolist()} for r in study.runs],
     }  # fmt: skip
 
 
-def _finite(d: dict) -> dict:
+def finite(d: dict) -> dict:
     """JSON has no infinity: ``None`` for never."""
     return {k: (None if isinstance(v, float) and math.isinf(v) else v) for k, v in d.items()}
-
-
-def write_fit_study(study: FitStudy, out) -> list:
-    """Write ``fits.csv`` (every step of every fit), ``fits_summary.csv`` (per configuration),
-    ``fits.json`` and ``fits.png`` into ``out``; returns the paths."""
-    import csv
-    import io
-    from pathlib import Path
-
-    from invrender.inverse.report import write_json, write_text
-    from invrender.study.plots import plot_fits
-
-    out = Path(out)
-    paths = []
-    for name, rows in (("fits.csv", fit_rows(study)), ("fits_summary.csv", [_finite(study.summary(c)) for c in study.configs])):
-        buffer = io.StringIO()
-        writer = csv.DictWriter(buffer, fieldnames=list(rows[0]), lineterminator="\n")
-        writer.writeheader()
-        writer.writerows(rows)
-        write_text(out / name, buffer.getvalue())
-        paths.append(out / name)
-    write_json(out / "fits.json", fit_study_dict(study))
-    plot_fits(study, out / "fits.png")
-    return paths + [out / "fits.json", out / "fits.png"]

@@ -29,7 +29,6 @@ what load there is falls on all of them alike.
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 import math
 import os
@@ -41,15 +40,15 @@ from dataclasses import dataclass
 import torch
 from tqdm.auto import tqdm
 
-from invrender.diff import render
 from invrender.errors import ParameterError
 from invrender.inverse.params import check_names
 from invrender.scene.scene import Scene
 from invrender.study.configs import GradientConfig, parse_configs
 from invrender.study.loss_gradients import Objective
+from invrender.study.setup import copy_scene, move_to, study_target
 from invrender.study.statistics import Moments, log_slope, moments
 from invrender.study.trials import gradient_sample, pixel_contributions
-from invrender.transport.driver import check_int
+from invrender.validate import MAX_SPP, check_int, check_paths
 from invrender.transport.ranks import refuse
 
 #: the configurations of a default study: both pairings with one estimator, both estimators with
@@ -361,11 +360,11 @@ def gradient_study(
         raise ParameterError(f"trials must be >= 2 (a variance needs two samples), got {trials}")
     if loss not in LOSSES:
         raise ParameterError(f"unknown loss {loss!r} for a gradient study (known: {', '.join(LOSSES)})")
-    check_int("", "reference_spp", reference_spp, 0)
+    check_int("", "reference_spp", reference_spp, 0, MAX_SPP)
     check_int("", "reference_repeats", reference_repeats)
     if reference_repeats < 2:
         raise ParameterError(f"reference_repeats must be >= 2 (the reference's standard error needs two), got {reference_repeats}")
-    check_int("", "target_spp", target_spp, 1)
+    check_int("", "target_spp", target_spp, 1, MAX_SPP)
     check_int("", "seed", seed, 0)
     workers = len(os.sched_getaffinity(0)) if workers is None else workers
     check_int("", "workers", workers, 1)
@@ -373,12 +372,14 @@ def gradient_study(
     if pixel_param not in names:
         raise ParameterError(f"pixel_param {pixel_param!r} is not one of the studied parameters ({', '.join(names)})")
     pixel_spp = spp[0] if pixel_spp is None else pixel_spp
-    check_int("", "pixel_spp", pixel_spp, 1)
+    check_int("", "pixel_spp", pixel_spp, 1, MAX_SPP)
+    for n in (*spp, reference_spp * reference_repeats, target_spp, pixel_spp):
+        check_paths(scene.width, scene.height, n)  # every render the study makes, before any of them
     seeds = Seeds(seed * 1_000_003, trials, reference_repeats)
 
-    work = _copy(scene)
-    _move_to(work, names, at)  # checks `at` before the target is rendered
-    target_image, target_label = _target(scene, target, target_spp, seeds.target, configs[0])
+    work = copy_scene(scene)
+    move_to(work, names, at)  # checks `at` before the target is rendered
+    target_image, target_label = study_target(scene, target, target_spp, seeds.target, configs[0])
     for n in names:
         work.params[n].requires_grad_(True)
     objective = Objective(work, target_image, loss)
@@ -491,7 +492,7 @@ class _Workers:
 
 def _own_objective(objective: Objective, names: list[str]) -> Objective:
     """The same objective with leaf tensors of its own (a worker's: gradients must not mix)."""
-    scene = _copy(objective.scene)
+    scene = copy_scene(objective.scene)
     for n in names:
         scene.params[n].requires_grad_(True)
     return Objective(scene, objective.target, objective.loss)
@@ -515,38 +516,7 @@ def _check_spp(spp) -> list[int]:
     if not values:
         raise ParameterError("the spp list is empty: give at least one samples-per-pixel value")
     for v in values:
-        check_int("", "spp", v, 1)
+        check_int("", "spp", v, 1, MAX_SPP)
     if len(set(values)) != len(values):
         raise ParameterError(f"an spp value is given twice: {values}")
     return sorted(values)
-
-
-def _target(scene: Scene, target, target_spp: int, seed: int, config: GradientConfig) -> tuple[torch.Tensor, str]:
-    """The target image (H, W, 3) and how it was made."""
-    if target is not None:
-        from invrender.inverse.fit import load_views  # the checks fit applies to its targets
-
-        return load_views(scene, target, None)[0][1], "given"
-    model = config.model  # the configuration's expected image
-    options = {k: v for k, v in model.render_kwargs().items() if k != "estimator"}
-    with torch.no_grad():
-        image = render(scene, spp=target_spp, seed=seed, progress=False, **options)
-    return image, f"rendered: {model.integrator}, {target_spp} spp" + "".join(f", {k}={v}" for k, v in model.options)
-
-
-def _copy(scene: Scene) -> Scene:
-    """``scene`` with parameters of its own (detached clones)."""
-    return dataclasses.replace(scene, params={k: v.detach().clone() for k, v in scene.params.items()})
-
-
-def _move_to(scene: Scene, names: list[str], at) -> None:
-    """Set the studied parameters of ``scene`` (in place) to where the gradient is taken."""
-    from invrender.recipes import apply_init, set_param
-
-    if isinstance(at, dict):
-        apply_init(scene, names, at)
-        return
-    if isinstance(at, bool) or not isinstance(at, (int, float)) or not math.isfinite(at) or at <= 0:
-        raise ParameterError(f"at must be a positive factor or a dict of parameter values, got {at!r}")
-    for n in names:
-        set_param(scene, n, scene.params[n].detach() * at)

@@ -35,7 +35,7 @@ from __future__ import annotations
 import dataclasses
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 import torch
 
@@ -45,9 +45,6 @@ from invrender.inverse import params as P
 from invrender.inverse.control_variates import RecursiveControlVariate
 from invrender.inverse.losses import loss_and_gradient, loss_gradient
 from invrender.scene.scene import Scene
-
-if TYPE_CHECKING:
-    from invrender.study.configs import GradientConfig
 
 #: pairing name -> class, filled by subclassing :class:`LossGradient`
 LOSS_GRADIENTS: dict[str, type[LossGradient]] = {}
@@ -70,7 +67,9 @@ class Objective:
 
 
 class LossGradient(ABC):
-    """A way of pairing ``dl/dI`` with the differentiated image."""
+    """A way of pairing ``dl/dI`` with the differentiated image. Its methods take the study's
+    ``config``, a :class:`~invrender.study.configs.GradientConfig` (which names the pairing, so
+    this module does not import it)."""
 
     #: the name configurations use
     name: ClassVar[str]
@@ -78,6 +77,9 @@ class LossGradient(ABC):
     summary: ClassVar[str] = ""
     #: the pairing's own spec options and their defaults (``KEY=VALUE`` parts that do not go to the render)
     options: ClassVar[dict[str, object]] = {}
+    #: the :class:`~invrender.inverse.fit.FitSettings` fields that make a fit pair ``dl/dI`` this
+    #: way (None: a fit cannot; fit studies refuse the pairing)
+    fit_settings: ClassVar[dict[str, object] | None] = None
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
@@ -88,18 +90,18 @@ class LossGradient(ABC):
     def check_options(cls, label: str, options: dict) -> None:
         """A one-line :class:`ParameterError` for an option value the pairing cannot use."""
 
-    def prepare(self, objective: Objective, config: GradientConfig, spp: int, seed: int) -> object:
+    def prepare(self, objective: Objective, config, spp: int, seed: int) -> object:
         """Untimed work a trial needs before its gradient (what earlier steps of a fit would have
         done); passed to :meth:`backward` and :meth:`adjoint` as ``prepared``. Default: none."""
         return None
 
     @abstractmethod
-    def backward(self, objective: Objective, config: GradientConfig, spp: int, seed: int, prepared: object = None) -> None:
+    def backward(self, objective: Objective, config, spp: int, seed: int, prepared: object = None) -> None:
         """Add one gradient sample of ``objective``'s loss to the ``.grad`` of every parameter of
         ``objective.scene`` that requires grad; ``seed`` is the differentiated image's seed."""
 
     @abstractmethod
-    def adjoint(self, objective: Objective, config: GradientConfig, spp: int, seed: int, image: torch.Tensor, prepared: object = None) -> torch.Tensor:
+    def adjoint(self, objective: Objective, config, spp: int, seed: int, image: torch.Tensor, prepared: object = None) -> torch.Tensor:
         """The (H, W, 3) ``dl/dI`` that :meth:`backward` weights the image of ``seed`` with, given
         that image (detached): ``G = sum(adjoint * dI/dtheta)``. Per-pixel studies use it (without
         ``prepared``, the pairing prepares itself)."""
@@ -108,6 +110,7 @@ class LossGradient(ABC):
 class Correlated(LossGradient):
     name = "correlated"
     summary = "dl/dI from the differentiated render itself (biased at low spp)"
+    fit_settings: ClassVar[dict[str, object] | None] = {"decorrelate": False}
 
     def backward(self, objective, config, spp, seed, prepared=None):
         image = render(objective.scene, spp=spp, seed=seed, progress=False, **config.render_kwargs())
@@ -120,6 +123,7 @@ class Correlated(LossGradient):
 class Decorrelated(LossGradient):
     name = "decorrelated"
     summary = "dl/dI from an independent render (seed + 1), as fit does"
+    fit_settings: ClassVar[dict[str, object] | None] = {"decorrelate": True}
 
     def backward(self, objective, config, spp, seed, prepared=None):
         integrator, settings = config.integrator_and_settings(spp, seed)
@@ -141,6 +145,7 @@ class ControlVariate(Decorrelated):
     name = "control_variate"
     summary = "dl/dI at a recursive control variate (Nicolet et al. 2023) built along cv_steps steps of cv_step toward the point, as fit(control_variate=True) takes it"
     options: ClassVar[dict[str, object]] = {"cv_steps": 8, "cv_step": 0.01}
+    fit_settings: ClassVar[dict[str, object] | None] = {"decorrelate": True, "control_variate": True}
 
     @classmethod
     def check_options(cls, label, options):

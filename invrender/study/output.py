@@ -16,7 +16,9 @@ import torch
 
 from invrender.inverse.report import write_json, write_text
 from invrender.io.atomic import atomic_file
+from invrender.study.fits import FitStudy, finite, fit_rows, fit_study_dict
 from invrender.study.gradients import GradientStudy
+from invrender.study.plots import plot_fits
 
 COLUMNS = (
     "config", "integrator", "estimator", "gradient", "options", "spp", "trials", "quantity", "kind",
@@ -122,3 +124,20 @@ def summary_text(study: GradientStudy) -> str:
     for m in study.pixel_maps:
         lines.append(f"per-pixel variance of {m.parameter} at {m.spp} spp ({', '.join(m.configs)}): sum {m.total:.4g}")
     return "\n".join(lines)
+
+
+def write_fit_study(study: FitStudy, out) -> list:
+    """Write ``fits.csv`` (every step of every fit), ``fits_summary.csv`` (per configuration),
+    ``fits.json`` and ``fits.png`` into ``out``; returns the paths."""
+    out = Path(out)
+    paths = []
+    for name, rows in (("fits.csv", fit_rows(study)), ("fits_summary.csv", [finite(study.summary(c)) for c in study.configs])):
+        buffer = io.StringIO()
+        writer = csv.DictWriter(buffer, fieldnames=list(rows[0]), lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(rows)
+        write_text(out / name, buffer.getvalue())
+        paths.append(out / name)
+    write_json(out / "fits.json", fit_study_dict(study))
+    plot_fits(study, out / "fits.png")
+    return paths + [out / "fits.json", out / "fits.png"]

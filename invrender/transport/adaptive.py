@@ -25,7 +25,8 @@ import torch
 
 from invrender.errors import ParameterError
 from invrender.scene.scene import Scene
-from invrender.transport.driver import RenderSettings, SamplePlan, check_film_memory, check_int, cpu_workers, for_each_chunk
+from invrender.transport.driver import RenderSettings, SamplePlan, check_film_memory, cpu_workers, for_each_chunk
+from invrender.validate import MAX_SPP, check_int
 from invrender.transport.film import Film
 
 
@@ -55,12 +56,12 @@ class AdaptiveSettings:
     def __post_init__(self):
         owner = "adaptive "
         if self.pilot_spp is not None:
-            check_int(owner, "pilot_spp", self.pilot_spp, 2)
-        check_int(owner, "rounds", self.rounds, 1)
+            check_int(owner, "pilot_spp", self.pilot_spp, 2, MAX_SPP)
+        check_int(owner, "rounds", self.rounds, 1, 1000)
         if self.target_error is not None and not (_is_number(self.target_error) and math.isfinite(self.target_error) and self.target_error > 0):
             raise ParameterError(f"adaptive target_error must be a number > 0, got {self.target_error!r}")
         if self.max_spp is not None:
-            check_int(owner, "max_spp", self.max_spp, 1)
+            check_int(owner, "max_spp", self.max_spp, 1, MAX_SPP)
         if not (_is_number(self.floor) and math.isfinite(self.floor) and self.floor >= 0):
             raise ParameterError(f"adaptive floor must be a number >= 0, got {self.floor!r}")
 

@@ -30,6 +30,7 @@ from invrender.transport import ranks
 from invrender.transport.context import PathState
 from invrender.transport.memory import keep_freed_blocks
 from invrender.transport.sampler import mirrored, path_keys, uniform
+from invrender.validate import MAX_SPP, check_bool, check_choice, check_float, check_int
 
 #: working-set estimate per path in a chunk (state, hits, temporaries, backend copies), bytes
 BYTES_PER_PATH = 2048
@@ -38,16 +39,10 @@ BYTES_PER_PATH = 2048
 BYTES_PER_REPLAYED_PATH = 5120
 
 
-def check_int(owner: str, name: str, value, low: int | None = None) -> None:
-    """A :class:`ParameterError` unless ``value`` is an int (not a bool) >= ``low``."""
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise ParameterError(f"{owner}{name} must be an integer, got {value!r}")
-    if low is not None and value < low:
-        raise ParameterError(f"{owner}{name} must be {'positive' if low == 1 else f'>= {low}'}, got {value}")
-
-
 #: how a pixel's samples are drawn (RenderSettings.sampler)
 SAMPLERS = ("stratified", "independent", "antithetic")
+#: intersection backends (RenderSettings.backend)
+BACKENDS = ("embree", "warp", "torch")
 
 
 @dataclass(frozen=True)
@@ -83,14 +78,16 @@ class RenderSettings:
     plan: SamplePlan | None = dataclasses.field(default=None, compare=False)
 
     def __post_init__(self):
-        check_int("", "spp", self.spp, 1)
-        if self.sampler not in SAMPLERS:
-            raise ParameterError(f"unknown sampler {self.sampler!r} (known: {', '.join(SAMPLERS)})")
+        check_int("", "spp", self.spp, 1, MAX_SPP)
+        check_choice("", "sampler", self.sampler, SAMPLERS)
         check_int("", "seed", self.seed, 0)
+        check_bool("", "terms", self.terms)
+        check_bool("", "progress", self.progress)
+        if self.backend is not None:
+            check_choice("intersection ", "backend", self.backend, BACKENDS)
         if self.chunk_paths is not None:
             check_int("", "chunk_paths", self.chunk_paths, 1)
-        if not self.memory_mb > 0:
-            raise ParameterError(f"memory_mb must be positive, got {self.memory_mb}")
+        check_float("", "memory_mb", self.memory_mb, positive=True)
 
     def replace(self, **changes) -> RenderSettings:
         return dataclasses.replace(self, **changes)

@@ -19,6 +19,8 @@ from invrender.study.fits import FitRun, fit_settings, fit_study
         ("path/replay/decorrelated", {"integrator": "path", "estimator": "replay", "decorrelate": True}),
         ("random_walk/autodiff/correlated/max_depth=4", {"integrator": "random_walk", "estimator": "autodiff", "decorrelate": False, "max_depth": 4}),
         ("path/replay/control_variate/sampler=antithetic", {"integrator": "path", "estimator": "replay", "decorrelate": True, "control_variate": True, "sampler": "antithetic"}),
+        # the integrator's own settings go into the fit's integrator spec (issue 18: a fit can set them)
+        ("path/replay/decorrelated/rr_depth=2/hemisphere=uniform", {"integrator": {"type": "path", "rr_depth": 2, "hemisphere": "uniform"}, "estimator": "replay", "decorrelate": True}),
     ],
 )
 def test_configurations_map_onto_fit_settings(spec, settings):
@@ -28,8 +30,8 @@ def test_configurations_map_onto_fit_settings(spec, settings):
 @pytest.mark.parametrize(
     "spec, words",
     [
-        ("path/replay/decorrelated/rr_depth=2", "option 'rr_depth' has no fit setting"),
-        ("path/replay/decorrelated/hemisphere=uniform", "option 'hemisphere' has no fit setting"),
+        ("path/replay/decorrelated/memory_mb=64", "option 'memory_mb' has no fit setting"),
+        ("path/replay/decorrelated/backend=torch", "option 'backend' has no fit setting"),
         ("path/replay/control_variate/cv_steps=4", "cv_steps does not apply to a fit"),
     ],
 )
@@ -69,10 +71,10 @@ def test_fit_study_checks_before_any_work(monkeypatch):
         raise AssertionError("worked before checking the input")
 
     monkeypatch.setattr(fits, "fit", no_work)
-    monkeypatch.setattr(fits, "_target", no_work)
+    monkeypatch.setattr(fits, "study_target", no_work)
     scene = ir.load_scene("cornell_box", resolution=(4, 4))
     for kwargs, words in (
-        ({"configs": ["path/replay/decorrelated", "path/replay/decorrelated/rr_depth=1"]}, "rr_depth"),
+        ({"configs": ["path/replay/decorrelated", "path/replay/decorrelated/rr_depth=0"]}, "rr_depth"),
         ({"settings": {"sampler": "independent"}}, "set by each configuration"),
         ({"settings": {"lr": -1.0}}, "lr must be positive"),
         ({"repeats": 0}, "repeats must be positive"),
@@ -101,7 +103,7 @@ def test_cli_fits_write_tables_and_figure(tmp_path, capsys):
     [
         (["--fits", "--trials", "5"], "--trials applies to gradient studies"),
         (["--steps", "5"], "--steps applies to fits only"),
-        (["--fits", "--configs", "path/replay/decorrelated/rr_depth=2"], "option 'rr_depth' has no fit setting"),
+        (["--fits", "--configs", "path/replay/decorrelated/memory_mb=64"], "option 'memory_mb' has no fit setting"),
         (["--fits", "--fit-spp", "4,8,16"], "one or two values"),
     ],
 )

@@ -9,7 +9,7 @@ import torch
 
 import invrender as ir
 from invrender.errors import ImageError, ParameterError
-from invrender.study import gradients, parse_config
+from invrender.study import gradients, parse_config, setup
 from invrender.study.loss_gradients import Objective
 from invrender.study.output import COLUMNS, write_study
 from invrender.study.plots import plot_study
@@ -53,7 +53,7 @@ def test_references_are_shared_by_model_and_bias_is_mean_minus_reference(study):
 def test_pixel_contributions_add_up_to_the_gradient(cbox8):
     """Forward mode gives dI/dt per pixel; with the same dl/dI the pixels' contributions sum to the
     reverse-mode gradient, channel by channel, for either pairing."""
-    scene = gradients._copy(cbox8)
+    scene = setup.copy_scene(cbox8)
     for n in PARAMS:
         scene.params[n].requires_grad_(True)
     target = torch.full((8, 8, 3), 0.3)
@@ -113,7 +113,7 @@ def test_bad_input_fails_before_any_rendering(cbox8, monkeypatch, kwargs, error,
         raise AssertionError("rendered before checking the input")
 
     monkeypatch.setattr(gradients, "gradient_sample", no_work)
-    monkeypatch.setattr(gradients, "render", no_work)
+    monkeypatch.setattr(setup, "render", no_work)  # the study target is rendered in study.setup
     args = {"params": PARAMS, **kwargs}
     with pytest.raises(error, match=words) as e:
         ir.gradient_study(cbox8, args.pop("params"), progress=False, **args)

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 import invrender as ir
-from invrender.study import gradients, parse_config
+from invrender.study import parse_config, setup
 from invrender.study.loss_gradients import LOSS_GRADIENTS, Objective
 from invrender.study.trials import gradient_sample, pixel_contributions
 
@@ -20,8 +20,8 @@ def cbox6():
 
 
 def _objective(scene, at=0.5, loss="relative_l2"):
-    work = gradients._copy(scene)
-    gradients._move_to(work, PARAMS, at)
+    work = setup.copy_scene(scene)
+    setup.move_to(work, PARAMS, at)
     for n in PARAMS:
         work.params[n].requires_grad_(True)
     target = ir.render(scene, spp=64, seed=777, progress=False)

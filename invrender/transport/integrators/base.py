@@ -28,11 +28,11 @@ from invrender.transport.driver import (
     BYTES_PER_REPLAYED_PATH,
     RenderSettings,
     check_film_memory,
-    check_int,
     cpu_workers,
     for_each_chunk,
 )
 from invrender.transport.film import Film, PathFilm
+from invrender.validate import check_depth, check_paths
 
 #: integrator name -> class, filled by subclassing :class:`Integrator` (the package's registry)
 INTEGRATORS = registry.INTEGRATORS
@@ -50,9 +50,7 @@ class DepthSettings:
     max_depth: int = 8
 
     def __post_init__(self):
-        check_int("", "max_depth", self.max_depth)
-        if self.max_depth == 0 or self.max_depth < -1:
-            raise ParameterError(f"max_depth must be >= 1, or -1 for unbounded, got {self.max_depth}")
+        check_depth("", "max_depth", self.max_depth)
 
     def continues_after(self, depth: int) -> bool:
         """May a path whose last vertex has index ``depth`` (0 = first hit) add terms beyond ``depth``?"""
@@ -73,9 +71,7 @@ class RouletteSettings(DepthSettings):
 
     def __post_init__(self):
         super().__post_init__()
-        check_int("", "rr_depth", self.rr_depth)
-        if self.rr_depth == 0 or self.rr_depth < -1:
-            raise ParameterError(f"rr_depth must be >= 1, or -1 for no Russian roulette, got {self.rr_depth}")
+        check_depth("", "rr_depth", self.rr_depth, "no Russian roulette")
         if self.rr_depth == -1 and self.max_depth == -1:
             raise ParameterError("max_depth -1 (unbounded) needs Russian roulette to end paths: give rr_depth >= 1 or a finite max_depth")
 
@@ -166,6 +162,7 @@ class Integrator(ABC):
         """
         if keep is not None and settings.terms:
             raise ValueError("keep: per-path radiance is kept for full images only, not per term")
+        check_paths(scene.width, scene.height, settings.spp)
         check_film_memory(scene.width, scene.height, device, max(self.terms_kept, 1) if settings.terms else 1)
         ctx = self.context(scene, settings, device, params)
         films = [Film(scene.width, scene.height, settings.terms, device) for _ in range(cpu_workers(device))]
@@ -194,3 +191,104 @@ def make_integrator(integrator="path", **options) -> Integrator:
         return integrator
     name, settings = registry.integrator_spec(integrator)
     return INTEGRATORS[name](**{**settings, **options})
+
+
+@dataclass(frozen=True)
+class SettingDoc:
+    """One field of an integrator's settings, for help texts and for reading values from text.
+
+    Attributes:
+        name: the field's name (a key of the integrator spec).
+        kind: its type as written in the dataclass (``"int"``, ``"float | None"``, ...).
+        default: its default value.
+        doc: its line of the settings' docstring (its ``Attributes`` section).
+    """
+
+    name: str
+    kind: str
+    default: object
+    doc: str
+
+
+def setting_docs(cls) -> list[SettingDoc]:
+    """The settings of the integrator class ``cls`` (or a settings dataclass), with each field's
+    doc read from the ``Attributes`` section of the first class in the settings' MRO that documents
+    it other than as ``as :class:...`` (a subclass's "max_depth: as DepthSettings")."""
+    settings = cls.Settings if isinstance(cls, type) and issubclass(cls, Integrator) else cls
+    docs: dict[str, str] = {}
+    for klass in settings.__mro__:
+        for names, text in _attribute_docs(klass.__doc__ or "").items():
+            for name in names:
+                if name not in docs and not text.startswith("as "):
+                    docs[name] = text
+    return [
+        SettingDoc(f.name, str(f.type), f.default if f.default is not dataclasses.MISSING else None, docs.get(f.name, ""))
+        for f in dataclasses.fields(settings) if f.init
+    ]  # fmt: skip
+
+
+def _attribute_docs(docstring: str) -> dict[tuple[str, ...], str]:
+    """``Attributes:`` entries of a Google-style docstring: (names, ...) -> text on one line."""
+    import inspect
+    import re
+
+    lines = inspect.cleandoc(docstring).splitlines()
+    out: dict[tuple[str, ...], list[str]] = {}
+    inside, current, indent = False, None, None
+    for line in lines:
+        if line.strip() == "Attributes:":
+            inside = True
+            continue
+        if not inside:
+            continue
+        if line and not line.startswith(" "):
+            break  # the section ended
+        entry = re.match(r"^(\s+)([a-z_][a-z0-9_]*(?:, [a-z_][a-z0-9_]*)*): ?(.*)$", line)
+        if entry and (indent is None or len(entry.group(1)) == indent):
+            indent = len(entry.group(1))
+            current = tuple(entry.group(2).split(", "))
+            out[current] = [entry.group(3)]
+        elif current is not None and line.strip():
+            out[current].append(line.strip())
+    return {names: re.sub(r"``|:\w+:`~?(?:[\w.]*\.)?(\w+)`", lambda m: m.group(1) or "", " ".join(parts)).strip() for names, parts in out.items()}
+
+
+def setting_from_text(integrator, key: str, text: str):
+    """The value of setting ``key`` of ``integrator`` (a registered name or class) read from text
+    as the settings dataclass's field type says: an int, a float, ``true``/``false``, a string, or
+    ``none`` for a field that may be None. A one-line :class:`ParameterError` for an unknown key
+    or text that is not of the field's type (the value's range is checked by the settings)."""
+    cls = INTEGRATORS.get(integrator) if isinstance(integrator, str) else integrator
+    fields = {d.name: d for d in setting_docs(cls)}
+    if key not in fields:
+        raise ParameterError(f"integrator {cls.name!r} has no setting {key!r} (its settings: {', '.join(sorted(fields)) or 'none'})")
+    kinds = [k.strip() for k in fields[key].kind.split("|")]
+    lowered = text.strip().lower()
+    if "None" in kinds and lowered in ("none", "null"):
+        return None
+    for kind in kinds:
+        if kind == "bool" and lowered in ("true", "false", "yes", "no", "1", "0"):
+            return lowered in ("true", "yes", "1")
+        if kind in ("int", "float"):
+            try:
+                return int(text) if kind == "int" else float(text)
+            except ValueError:
+                continue
+        if kind == "str":
+            return text
+    raise ParameterError(f"integrator {cls.name!r} setting {key} must be {' or '.join(k if k != 'None' else 'none' for k in kinds)}, got {text!r}")
+
+
+def integrators_help(width: int = 100) -> str:
+    """Every registered integrator with its summary and its settings (name, default, doc), for
+    the command line's ``--help``; generated from the registry and the settings dataclasses."""
+    import textwrap
+
+    lines = []
+    for name, cls in INTEGRATORS.items():
+        summary = cls.summary.removeprefix(f"{name}: ")  # some summaries start with their name
+        lines.append(f"  {name}: {summary}" if summary else f"  {name}")
+        for d in setting_docs(cls):
+            head = f"    {d.name} = {d.default!r}"
+            lines += textwrap.wrap(d.doc, width, initial_indent=f"{head:<32} " if len(head) < 32 else head + " ", subsequent_indent=" " * 33) or [head]
+    return "\n".join(lines)

@@ -1,0 +1,137 @@
+"""``invrender fit``: fit parameters to target images (a front over
+:func:`invrender.inverse.fit_output.fit_into` and :func:`invrender.study.recipe_fits.fit_recipe`)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from invrender.cli.common import (
+    EXIT_INTERRUPTED, add_integrator_arguments, check_out_dir, fmt, integrator_spec, integrators_epilog, parse_bool, parse_init, parse_resolution,
+)  # fmt: skip
+from invrender.errors import ParameterError
+
+EPILOG = """\
+examples:
+  invrender render cornell_box --resolution 64x64 --spp 1024 --out target.exr
+  invrender fit --scene cornell_box --target target.exr --init reflectance=0.5 --init emission=5 \\
+      --params red.reflectance,green.reflectance,white.reflectance,light.emission --out runs/cbox
+  invrender fit --scene cornell_box --target target.exr --params light.emission \\
+      --integrator path --set rr_depth=3 --set strategy=emitter --out runs/nee
+  invrender fit optimize/cornell_random.toml --out runs/cornell_random
+  invrender fit optimize/cornell_random.toml --out runs/cornell_random --resume     # after Ctrl-C
+  invrender fit optimize/utah_bias.toml --out runs/utah_bias    # a model study: path vs utah
+  torchrun --standalone --nproc-per-node 2 -m invrender fit optimize/cornell_views.toml --out runs/views
+                                                # renders and gradients split across 2 processes
+
+Defaults: 200 Adam steps on rho = sigmoid(x), eps = exp(x) (step 0.15, cosine decay), 16 then 64
+spp, the path tracer at max_depth 8, relative L2 loss, path-replay gradients decorrelated from the
+loss's image. --integrator and --set choose the model every render of the fit uses (any setting of
+any integrator, listed below); with a recipe they change the recipe's integrator (a variant that
+names an integrator of its own keeps it).
+
+Writes OUT/report.json (initial, recovered and, when a recipe knows it, true values with errors),
+OUT/loss.png (loss and parameter error per step), OUT/final.exr (the recovered scene rendered) and
+OUT/checkpoint.pt (every few steps and on Ctrl-C; --resume continues to the same result).
+A recipe with [[variants]] runs one fit per variant into OUT/<label>/ and writes OUT/study.md and
+OUT/study.json: each parameter channel's relative error under each variant.
+
+"""
+
+
+def _fit_options() -> list[tuple[str, object, str]]:
+    """(field, argparse type, help) of every FitSettings field, from the dataclass and its docstring."""
+    from invrender.inverse.fit import FitSettings
+    from invrender.transport.integrators.base import setting_docs
+
+    kinds = {"int": int, "float": float, "bool": "bool", "str": str}
+    options = []
+    for d in setting_docs(FitSettings):
+        kind = kinds.get(next(k.strip() for k in d.kind.split("|") if k.strip() != "None"), str)
+        default = "none" if d.default is None else str(d.default).lower() if isinstance(d.default, bool) else d.default
+        options.append((d.name, kind, f"{d.doc} (default: {default})".replace("%", "%%")))
+    return options
+
+
+#: every FitSettings field as a flag: (name, type, help); ``integrator`` is --integrator (and --set)
+FIT_OPTIONS = _fit_options()
+
+
+def add_parser(sub) -> None:
+    f = sub.add_parser(
+        "fit", help="recover rho and eps from target images",
+        description="Fit parameters to target images by gradient descent through the Monte Carlo estimate.",
+        epilog=EPILOG + integrators_epilog(), formatter_class=argparse.RawDescriptionHelpFormatter,
+    )  # fmt: skip
+    f.add_argument("recipe", nargs="?", help="an optimize/*.toml fit recipe (instead of --scene/--target/--params)")
+    f.add_argument("--scene", help="built-in name or scene file whose parameters are fitted")
+    f.add_argument("--target", nargs="+", metavar="IMAGE", help="target image(s): EXR (linear) or PNG; one per view")
+    f.add_argument("--params", help="comma-separated parameter names, e.g. red.reflectance,light.emission")
+    f.add_argument("--init", action="append", default=[], metavar="KEY=VALUE", help="starting value: NAME=v or NAME=r,g,b; NAME may be a kind (reflectance, specular_reflectance, emission) for all fitted ones of it (repeatable)")
+    f.add_argument("--resolution", type=parse_resolution, default=None, metavar="WxH", help="render size (default: the target's)")
+    f.add_argument("--out", required=True, help="output folder: report.json, loss.png, final.exr, final.png, checkpoint.pt")
+    f.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt with the settings stored in it, except those given anew")
+    add_integrator_arguments(f, default=None, what="the model fitted")
+    for name, kind, doc in FIT_OPTIONS:
+        if name != "integrator":
+            f.add_argument(f"--{name.replace('_', '-')}", dest=name, type=parse_bool if kind == "bool" else kind, default=None, metavar=name.upper() if kind != "bool" else "true|false", help=doc)
+    f.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    f.set_defaults(run=run, group=True)
+
+
+def run(args) -> int:
+    import invrender as ir
+    from invrender.inverse.fit_output import fit_into
+    from invrender.recipes import apply_init, load_fit_recipe
+    from invrender.study.recipe_fits import fit_recipe
+
+    out = check_out_dir(args.out)
+    settings = {name: getattr(args, name) for name, _, _ in FIT_OPTIONS if name != "integrator" and getattr(args, name) is not None}
+    recipe = None
+    if args.recipe:
+        if args.scene or args.target or args.params:
+            raise ParameterError("give either a recipe or --scene/--target/--params, not both")
+        recipe = load_fit_recipe(args.recipe)
+    elif not (args.scene and args.target and args.params):
+        raise ParameterError("fit needs a recipe, or all of --scene, --target and --params")
+    if args.integrator or args.set:
+        base = recipe.settings.get("integrator") if recipe is not None else None
+        settings["integrator"] = integrator_spec(args, base)
+    init = parse_init(args.init)
+    try:
+        if recipe is not None:
+            done = fit_recipe(recipe, out, init=init, settings=settings, resume=args.resume, progress=not args.quiet, log=lambda line: _say(args, line), on_fit=lambda label, o: _summary(args, o))
+            if done.markdown is not None:
+                print(done.markdown)
+                print(f"wrote {out}/study.md, study.json and one folder per variant", file=sys.stderr)
+            return 0
+        targets = list(args.target)  # paths: fit reads them, and its errors name the file
+        if args.resolution is None:
+            height, width = ir.read_image(targets[0]).shape[:2]
+        scene = ir.load_scene(args.scene, resolution=args.resolution or (width, height))
+        names = [n.strip() for n in args.params.split(",") if n.strip()]
+        apply_init(scene, names, init)
+        _summary(args, fit_into(out, scene, targets, names, resume=args.resume, progress=not args.quiet, report={"targets": targets}, **settings))
+    except KeyboardInterrupt:
+        print("invrender: interrupted; checkpoint saved (continue with --resume)", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    return 0
+
+
+def _say(args, line: str) -> None:
+    if not args.quiet:
+        print(line, file=sys.stderr)
+
+
+def _summary(args, output) -> None:
+    """What a fit recovered, on stderr (unless --quiet)."""
+    if args.quiet:
+        return
+    report, result = output.report, output.result
+    print(f"{report['steps']} steps in {report['seconds']:.1f} s, final loss {report['final_loss']:.4g}", file=sys.stderr)
+    for name, value in result.params.items():
+        err = f"  (rel. error {result.errors[name]:.2%})" if name in result.errors else ""
+        print(f"  {name}: {fmt(value)}{err}", file=sys.stderr)
+    folder = output.written[0].parent
+    figures = "loss.png, correlation.png" if any(p.name == "correlation.png" for p in output.written) else "loss.png"
+    print(f"wrote {folder}/report.json, {figures}, final EXR and PNG, checkpoint.pt", file=sys.stderr)
