@@ -200,7 +200,7 @@ def set_param(scene: Scene, name: str, value) -> None:
 
 def make_dataset(recipe, out, progress: bool = True) -> dict:
     """Render a dataset recipe (a :class:`DatasetRecipe` or its path) into ``out``; returns the manifest."""
-    from invrender.inverse.report import write_json
+    from invrender.io.reports import write_json
     from invrender.io import write_image
     from invrender.diff import render
 

@@ -7,7 +7,7 @@ import io
 from pathlib import Path
 
 from invrender.ablation.measure import AblationResult
-from invrender.inverse.report import save_figure, write_text
+from invrender.io.reports import save_figure, write_text
 
 
 def format_table(result: AblationResult) -> str:

@@ -86,7 +86,7 @@ def study_defaults() -> tuple:
 
 def run(args) -> int:
     import invrender as ir
-    from invrender.inverse.report import write_json, write_text
+    from invrender.io.reports import write_json, write_text
     from invrender.study.furnace import FURNACE_CONFIGS, FURNACE_PARAMS, FURNACE_SPP, furnace_check
     from invrender.study.output import summary_text, write_study
     from invrender.study.plots import plot_study

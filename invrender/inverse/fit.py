@@ -31,7 +31,7 @@ from invrender.inverse.losses import LOSSES, loss_and_gradient, loss_gradient
 from invrender.io.atomic import atomic_file
 from invrender.scene.camera import Camera
 from invrender.scene.kinds import kind_of
-from invrender.scene.scene import Scene
+from invrender.scene.scene import Scene, check_names
 from invrender.transport.driver import RenderSettings
 from invrender.registry import INTEGRATORS, integrator_spec
 from invrender.transport.integrators import Integrator, make_integrator
@@ -238,7 +238,7 @@ def fit(
     unknown = set(settings) - known
     if unknown:
         raise ParameterError(f"unknown fit setting {sorted(unknown)[0]!r} (known: {', '.join(sorted(known))})")
-    names = P.check_names(scene.params, params)
+    names = check_names(scene.params, params)
     checkpoint = Path(checkpoint) if checkpoint is not None else None
     state = None
     if resume:
@@ -371,7 +371,7 @@ def identifiability(scene: Scene, target, params, *, cameras: list[Camera] | Non
     from invrender.diff.records import record_paths
     from invrender.inverse.least_squares import analyse
 
-    names = P.check_names(scene.params, params)
+    names = check_names(scene.params, params)
     views = load_views(scene, target, cameras)
     recs = [[record_paths(view_scene, names, spp=spp, max_depth=max_depth, seed=2 * (seed * len(views) + v) + half, integrator=integrator, progress=False) for v, (view_scene, _) in enumerate(views)] for half in (0, 1)]
     values = {n: scene.params[n].detach().double() for n in names}

@@ -15,7 +15,8 @@ from pathlib import Path
 
 from invrender.diff import render
 from invrender.inverse.fit import FitResult, fit
-from invrender.inverse.report import plot_correlation, plot_history, report_dict, write_json
+from invrender.inverse.report import plot_correlation, plot_history, report_dict
+from invrender.io.reports import write_json
 from invrender.io import write_image
 from invrender.scene.camera import Camera
 from invrender.scene.scene import Scene

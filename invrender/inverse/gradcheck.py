@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import torch
 
 from invrender.errors import ParameterError
-from invrender.inverse.params import check_names
+from invrender.scene.scene import check_names
 from invrender.scene.scene import Scene
 from invrender.diff import ESTIMATORS, render
 from invrender.scene.kinds import kind_of

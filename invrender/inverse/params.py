@@ -19,7 +19,6 @@ import warnings
 import torch
 
 from invrender.scene.kinds import kind_of
-from invrender.scene.scene import check_names  # noqa: F401  (the names a fit changes are checked as the scene checks them)
 
 
 def to_raw(name: str, value: torch.Tensor) -> torch.Tensor:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 
 from invrender.inverse.fit import FitResult
-from invrender.io.reports import save_figure, write_json, write_text  # noqa: F401  (also imported from here by older callers)
+from invrender.io.reports import save_figure
 
 
 def report_dict(result: FitResult, **extra) -> dict:

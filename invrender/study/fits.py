@@ -38,7 +38,7 @@ from tqdm.auto import tqdm
 
 from invrender.errors import ParameterError
 from invrender.inverse.fit import FitSettings, fit
-from invrender.inverse.params import check_names
+from invrender.scene.scene import check_names
 from invrender.scene.scene import Scene
 from invrender.study.configs import GradientConfig, parse_configs
 from invrender.study.loss_gradients import LOSS_GRADIENTS

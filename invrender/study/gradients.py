@@ -41,7 +41,7 @@ import torch
 from tqdm.auto import tqdm
 
 from invrender.errors import ParameterError
-from invrender.inverse.params import check_names
+from invrender.scene.scene import check_names
 from invrender.scene.scene import Scene
 from invrender.study.configs import GradientConfig, parse_configs
 from invrender.study.loss_gradients import Objective

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import torch
 
-from invrender.inverse.report import write_json, write_text
+from invrender.io.reports import write_json, write_text
 from invrender.io.atomic import atomic_file
 from invrender.study.fits import FitStudy, finite, fit_rows, fit_study_dict
 from invrender.study.gradients import GradientStudy

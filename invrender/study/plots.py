@@ -17,7 +17,7 @@ import math
 
 import torch
 
-from invrender.inverse.report import save_figure
+from invrender.io.reports import save_figure
 from invrender.io.images import to_srgb
 from invrender.study.gradients import GradientStudy
 

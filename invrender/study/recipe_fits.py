@@ -16,7 +16,8 @@ from pathlib import Path
 from invrender.errors import ParameterError
 from invrender.inverse.fit import FitSettings
 from invrender.inverse.fit_output import FitOutput, fit_into
-from invrender.inverse.report import study_table, write_json, write_text
+from invrender.inverse.report import study_table
+from invrender.io.reports import write_json, write_text
 from invrender.recipes import FitRecipe, apply_init, load_dataset, load_fit_recipe, make_dataset
 from invrender.study.setup import copy_scene
 from invrender.transport.ranks import barrier
