@@ -155,6 +155,8 @@ class Results:
         self.machine = machine()
         self.tables: list[dict] = []
         self.notes: list[str] = []
+        self.commit = _git("rev-parse", "--short", "HEAD")  # what ran: the commit and whether tracked files differed from it
+        self.dirty = bool(_git("status", "--porcelain", "--untracked-files=no"))
 
     def table(self, title: str, columns: list[str], note: str | None = None) -> list:
         rows: list = []
@@ -185,15 +187,14 @@ class Results:
             argv.append(a)
         niceness = self.machine.get("nice") or 0
         command = ("nice " if niceness > 0 else "") + shlex.join(["python", str(script), *argv])
-        status = _git("status", "--porcelain", "--untracked-files=no")
         record = {
             "benchmark": self.benchmark,
             "title": self.title,
             "command": command,
             "date": self.started.strftime("%Y-%m-%d %H:%M UTC"),
             "seconds": round((ended - self.started).total_seconds(), 1),
-            "commit": _git("rev-parse", "--short", "HEAD"),
-            "dirty": bool(status),
+            "commit": self.commit,
+            "dirty": self.dirty,
             "machine": {**self.machine, "load_average_end": [round(x, 2) for x in os.getloadavg()]},
             "tables": self.tables,
             "notes": self.notes,
