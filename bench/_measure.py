@@ -166,6 +166,14 @@ class Results:
     def note(self, text: str) -> None:
         self.notes.append(text)
 
+    def markdown(self, title: str, text: str) -> None:
+        """A table a script already prints as Markdown (``| a | b |`` lines); other lines become its note."""
+        cells = [[c.strip() for c in line.strip().strip("|").split("|")] for line in text.splitlines() if line.strip().startswith("|")]
+        cells = [row for row in cells if not all(set(c) <= set("-: ") for c in row)]  # the |---| rule
+        rest = " ".join(line.strip() for line in text.splitlines() if line.strip() and not line.strip().startswith("|"))
+        rows = self.table(title, cells[0] if cells else [], note=rest or None)
+        rows.extend(cells[1:])
+
     def write(self, path: str | os.PathLike | None) -> None:
         """Write the JSON file (nothing when ``path`` is None)."""
         if path is None:
