@@ -67,13 +67,16 @@ def test_readme_links_exist():
             assert anchor in _anchors(target), f"README.md links {link}: {path} has no heading #{anchor}"
 
 
-def test_docs_pages_link_existing_files():
+def test_docs_pages_link_existing_files_and_headings():
     for page in sorted((REPO / "docs").glob("*.md")):
         for link in LINK.findall(page.read_text()):
-            if re.match(r"[a-z]+:", link) or link.startswith("#"):
+            if re.match(r"[a-z]+:", link):
                 continue
-            path = link.partition("#")[0]
-            assert (page.parent / path).exists(), f"{page.relative_to(REPO)} links {link}: it does not exist"
+            path, _, anchor = link.partition("#")
+            target = page.parent / path if path else page
+            assert target.exists(), f"{page.relative_to(REPO)} links {link}: it does not exist"
+            if anchor and target.suffix == ".md":
+                assert anchor in _anchors(target), f"{page.relative_to(REPO)} links {link}: no heading #{anchor} there"
 
 
 def test_every_docs_page_is_in_the_readme_map():
