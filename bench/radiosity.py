@@ -199,6 +199,7 @@ def walks_part(record: Results) -> None:
         sol.random_walk(transition="uniform")
     except ir.ParameterError as err:
         print(f"cornell, uniform transitions refused: {err}")
+        record.note(f"Cornell box, uniform transitions refused: {err}")
     n = M.shape[1]
     P = torch.full((n, n), 0.9 / n, dtype=torch.float64)
     P[:, 0] = 1e-4
@@ -207,6 +208,7 @@ def walks_part(record: Results) -> None:
         neumann_ulam(M, E.T.contiguous(), P)
     except ir.ParameterError as err:
         print(f"refused: {err}")
+        record.note(f"sphere, a transition matrix with a near-zero column refused: {err}")
 
 
 def _pct(x: torch.Tensor) -> str:
