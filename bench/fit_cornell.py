@@ -37,6 +37,7 @@ import time
 import torch
 
 import invrender as ir
+from _measure import Results, add_json_option
 
 PARAMS = ["white.reflectance", "red.reflectance", "green.reflectance", "light.emission"]
 SOLVER_NAMES = ("adam", "lm", "gauss_newton")
@@ -231,7 +232,9 @@ def main() -> None:
     parser.add_argument("--tol", type=float, default=0.01, help="relative error every channel must reach (default 1%%)")
     parser.add_argument("--also-tol", default="0.05", help="further thresholds for the table, comma-separated ('' for none)")
     parser.add_argument("--out", default=None, help="folder for the reports, plots and summary.json")
+    add_json_option(parser)
     args = parser.parse_args()
+    record = Results("fit_cornell", "The inverse-rendering acceptance fit (Cornell box)")
     solvers = [s.strip() for s in args.solvers.split(",") if s.strip()]
     also = [float(t) for t in args.also_tol.split(",") if t.strip()]
     for s in solvers:
@@ -304,11 +307,15 @@ def main() -> None:
     print(f"\n| method | time to {pct(args.tol)} | " + "".join(f"time to {pct(t)} | " for t in also)
           + "final max error | best max error (step) | total time |")  # fmt: skip
     print("|---|---|" + "---|" * len(also) + "---|---|---|")
+    table = record.table(f"Cornell box {n}x{n}, target {args.target_spp} spp; the 12 channels of white, red, green and light.emission from grey 0.5 / emission 5",
+                         ["method", f"time to {pct(args.tol)}", *(f"time to {pct(t)}" for t in also), "final max error", "best max error (step)", "total time"])  # fmt: skip
     for r in rows:
         hit = secs(r["time_to_tol"]) + ("" if r["time_to_tol"] is None else f" (step {r['step_to_tol']})")
         print(f"| {r['method']} | {hit} | " + "".join(f"{secs(r['time_to'][str(t)])} | " for t in also)
               + f"{100 * r['final_max_error']:.2f}% | {100 * r['best_max_error']:.2f}% ({r['best_step']}) | "
               f"{r['total_seconds']:.1f} s ({r['steps']} steps) |")  # fmt: skip
+        table.append([r["method"], hit, *(secs(r["time_to"][str(t)]) for t in also), f"{100 * r['final_max_error']:.2f}%",
+                      f"{100 * r['best_max_error']:.2f}% ({r['best_step']})", f"{r['total_seconds']:.1f} s ({r['steps']} steps)"])  # fmt: skip
     if mitsuba:
         summary["ratios"] = {}
         for r in rows[:-1]:
@@ -326,6 +333,7 @@ def main() -> None:
                         + f" never within {pct(t)})"
                     )
                 print(f"time to {pct(t)}, {r['method']} / Mitsuba: {text}")
+                record.note(f"time to {pct(t)}, {r['method']} / Mitsuba: {text}")
 
     if args.out:
         from pathlib import Path
@@ -341,6 +349,8 @@ def main() -> None:
             json.dump(summary, fh, indent=1)
             fh.write("\n")
         print(f"wrote {out}/summary.json" + "".join(f", report_{s}.json, loss_{s}.png" for s in results))
+
+    record.write(args.json)
 
 
 if __name__ == "__main__":

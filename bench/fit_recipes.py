@@ -26,7 +26,8 @@ import statistics
 import time
 from pathlib import Path
 
-from fit_cornell import setting  # bench/ is the script's directory
+from _measure import Results, add_json_option  # bench/ is the script's directory
+from fit_cornell import setting
 
 import invrender as ir
 from invrender.inverse.report import report_dict, write_json
@@ -63,7 +64,9 @@ def main() -> None:
     parser.add_argument("--recipes", default=None, help="comma-separated recipe stems (default: every recipe in optimize/)")
     parser.add_argument("--out", default="runs/fit_recipes")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a fit setting for every fit")
+    add_json_option(parser)
     args = parser.parse_args()
+    record = Results("fit_recipes", "Every shipped fit recipe with each solver")
     overrides = dict(setting(t) for t in args.set)
     solvers = [s.strip() for s in args.solvers.split(",") if s.strip()]
     paths = sorted((ROOT / "optimize").glob("*.toml"))
@@ -99,8 +102,11 @@ def main() -> None:
 
     print("\n| recipe | solver | to 2% | to 1% | final largest error | median error | total |")
     print("|---|---|---|---|---|---|---|")
+    table = record.table("each recipe at its own settings, only the solver changed (final largest and median error over all channels)",
+                         ["recipe", "solver", "to 2%", "to 1%", "final largest error", "median error", "total"])
     for r in rows:
         print(f"| {r['recipe']} | {r['solver']} | {when(r['to_0.02'])} | {when(r['to_0.01'])} | {100 * r['max_error']:.2f}% | {100 * r['median_error']:.2f}% | {r['seconds']:.1f} s |")
+        table.append([r["recipe"], r["solver"], when(r["to_0.02"]), when(r["to_0.01"]), f"{100 * r['max_error']:.2f}%", f"{100 * r['median_error']:.2f}%", f"{r['seconds']:.1f} s"])
     print()
     for label in dict.fromkeys(r["recipe"] for r in rows):
         group = [r for r in rows if r["recipe"] == label]
@@ -108,6 +114,8 @@ def main() -> None:
         contenders = [r for r in group if r["max_error"] <= 1.1 * best]
         winner = min(contenders, key=lambda r: r["seconds"])
         print(f"{label}: {winner['solver']} (largest error {100 * winner['max_error']:.2f}% in {winner['seconds']:.1f} s)")
+        record.note(f"{label}: {winner['solver']} does better (largest error {100 * winner['max_error']:.2f}% in {winner['seconds']:.1f} s)")
+    record.write(args.json)
 
 
 if __name__ == "__main__":

@@ -26,7 +26,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).parent))
 
 import mitsuba_ref  # noqa: E402
-from _measure import peak_rss_mib  # noqa: E402
+from _measure import Results, add_json_option, peak_rss_mib  # noqa: E402
 
 import invrender as ir  # noqa: E402
 from invrender.transport.kernels import ENV as KERNELS_ENV  # noqa: E402
@@ -50,7 +50,7 @@ def sphere_in_box(n: int):
     return build_scene(meshes, materials, {e: box.params[f"{e}.emission"] for e in box.emitters}, box.camera, (n, n), name="sphere_in_box")
 
 
-def throughput(args) -> None:
+def throughput(args, results: Results) -> None:
     n, spp, depth = args.resolution, args.spp, args.max_depth
     samples = n * n * spp
     device = torch.device(args.device)
@@ -87,31 +87,40 @@ def throughput(args) -> None:
                 times[b].append(ours(i + 1, b))
             if mi_scene is not None:
                 mi_times.append(mitsuba_ref.time_render(mi_scene, spp, seed=i + 1))
-        print(f"{scene.name} ({scene.triangles.count} triangles) {n}x{n}, {spp} spp, max_depth {depth}, {device}, {args.repeats} repeats (median)")
+        heading = f"{scene.name} ({scene.triangles.count} triangles) {n}x{n}, {spp} spp, max_depth {depth}, {device}, {args.repeats} repeats (median)"
+        print(heading)
+        rows = results.table(heading, ["renderer", "time s (median)", "min-max s", "M path samples/s", "x Mitsuba"])
         for b in backends:
             t = statistics.median(times[b])
             ratio = f"  {statistics.median(mi_times) / t:.3f}x Mitsuba" if mi_times else ""
             label = f"{b.split('/')[0]}, torch steps" if "/" in b else b
             print(f"  {'invrender path (' + label + '):':38s} {t:7.3f} s  {samples / t / 1e6:.3f} M path samples/s{ratio}")
+            rows.append([f"invrender path ({label})", round(t, 3), f"{min(times[b]):.3f}-{max(times[b]):.3f}", round(samples / t / 1e6, 3),
+                         round(statistics.median(mi_times) / t, 3) if mi_times else "n/a"])
         if mi_times:
             tm = statistics.median(mi_times)
             print(f"  {mitsuba_ref.label() + ' path:':38s} {tm:7.3f} s  {samples / tm / 1e6:.3f} M path samples/s")
+            rows.append([f"{mitsuba_ref.label()} path", round(tm, 3), f"{min(mi_times):.3f}-{max(mi_times):.3f}", round(samples / tm / 1e6, 3), 1.0])
         elif device.type == "cpu":
             print("  (Mitsuba 3 not installed: no ratio; see bench/README.md)")
     if device.type == "cpu" and torch.cuda.is_available() and not args.no_cuda:
         cuda = argparse.Namespace(**{**vars(args), "device": "cuda", "backends": "warp,torch" if not args.backends else args.backends})
         os.environ[KERNELS_ENV] = "warp"
-        throughput(cuda)
+        throughput(cuda, results)
         if mitsuba_ref.available() and not args.no_mitsuba:
-            print(mitsuba_ref.cuda_forward(n, spp, depth, args.repeats))
+            line = mitsuba_ref.cuda_forward(n, spp, depth, args.repeats)
+            print(line)
+            results.note(str(line))
 
 
-def memory(args) -> None:
+def memory(args, results: Results) -> None:
     scene = ir.load_scene("cornell_box", resolution=(64, 64))
     start = time.perf_counter()
     img = ir.render(scene, spp=args.memory_spp, max_depth=args.max_depth, seed=0, progress=True)
     seconds = time.perf_counter() - start
     print(f"Cornell box 64x64, {args.memory_spp} spp, max_depth {args.max_depth}: {seconds:.1f} s, peak RSS {peak_rss_mib():.0f} MiB, mean RGB {img.mean(dim=(0, 1)).tolist()}")
+    rows = results.table("peak memory of one render, Cornell box 64x64", ["spp", "max_depth", "seconds", "peak RSS MiB", "mean RGB"])
+    rows.append([args.memory_spp, args.max_depth, round(seconds, 1), round(peak_rss_mib()), " ".join(f"{v:.4f}" for v in img.mean(dim=(0, 1)).tolist())])
 
 
 def main() -> int:
@@ -127,8 +136,11 @@ def main() -> int:
     parser.add_argument("--device", default="cpu", help="cpu or cuda (default: cpu; with a GPU present the CUDA figures follow the CPU ones)")
     parser.add_argument("--no-cuda", action="store_true", help="skip the CUDA figures even when a GPU is present")
     parser.add_argument("--memory-spp", type=int, default=0, help="instead: peak memory of a 64x64 render at this spp")
+    add_json_option(parser)
     args = parser.parse_args()
-    memory(args) if args.memory_spp else throughput(args)
+    results = Results("forward", "Forward rendering: memory" if args.memory_spp else "Forward rendering throughput")
+    memory(args, results) if args.memory_spp else throughput(args, results)
+    results.write(args.json)
     return 0
 
 

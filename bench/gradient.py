@@ -41,7 +41,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).parent))
 
 import mitsuba_ref  # noqa: E402
-from _measure import ChildError, peak_rss_mib, print_json, rss_mib, run_json_child  # noqa: E402
+from _measure import ChildError, Results, add_json_option, peak_rss_mib, print_json, rss_mib, run_json_child  # noqa: E402
 
 PARAMS = ("white.reflectance", "red.reflectance", "green.reflectance", "light.emission")
 MI_PARAMS = ("white", "red", "green", "light")  # the same four, as named in mitsuba_ref.PARAM_KEYS
@@ -198,7 +198,7 @@ def _rel_diff(a: dict, b: dict) -> float:
     return sum((p - q) ** 2 for p, q in zip(x, y)) ** 0.5 / max(sum(q * q for q in y) ** 0.5, 1e-30)
 
 
-def main_table(args, targets: Targets, with_mitsuba: bool) -> None:
+def main_table(args, targets: Targets, with_mitsuba: bool, record: Results) -> None:
     n, spp, depth = args.resolution, args.spp, args.max_depth
     target = targets(n, depth)
     kinds = [("invrender autodiff", "autodiff"), ("invrender replay", "replay")]
@@ -208,15 +208,20 @@ def main_table(args, targets: Targets, with_mitsuba: bool) -> None:
     print(f"   one warm-up, then median of {args.repeats}; each estimator in a fresh process")
     print(f"   {'estimator':<28} {'time s':>7} {'min-max s':>11} {'peak RSS MiB':>12} {'increment MiB':>13}   loss")
     results = {}
+    rows = record.table(f"one gradient, Cornell box {n}x{n}, {spp} spp, max_depth {depth}, 4 parameters (12 scalars), L2 loss; "
+                        f"one warm-up, then the median of {args.repeats}; each estimator in a fresh process",
+                        ["estimator", "time s", "min-max s", "peak RSS MiB", "increment MiB"])  # fmt: skip
     for label, kind in kinds:
         res = results[kind] = run_child(kind, n, spp, depth, args.repeats, 1, target, args.main_timeout)
         t, peak, inc, note = _fmt(res)
         loss = f"{res['loss']:.6g}" if "loss" in res else note
         spread = f"{min(res['all_seconds']):.2f}-{max(res['all_seconds']):.2f}" if "all_seconds" in res else "-"
         print(f"   {label:<28} {t:>7} {spread:>11} {peak:>12} {inc:>13}   {loss}", flush=True)
+        rows.append([label, t.strip(), spread, peak.strip(), inc.strip()])
     ad, rp = results["autodiff"], results["replay"]
     if "failed" not in ad and "failed" not in rp:
         print(f"   gradient |replay - autodiff| / |autodiff| = {_rel_diff(rp, ad):.2e} (same seeds)")
+        record.note(f"gradient |replay - autodiff| / |autodiff| = {_rel_diff(rp, ad):.2e} (same seeds)")
     if not with_mitsuba:
         print("   (Mitsuba 3 not installed or --no-mitsuba: no ratios; see bench/README.md)")
         return
@@ -224,9 +229,12 @@ def main_table(args, targets: Targets, with_mitsuba: bool) -> None:
     if "failed" in rp or "failed" in prb:
         print("   (a run failed: no ratios)")
         return
-    print(f"   gradient |replay - Mitsuba prb| / |Mitsuba prb| = {_rel_diff(rp, prb):.2e} (independent samples: Monte Carlo noise)")
-    print(f"   ratio invrender replay / Mitsuba prb: time {rp['seconds'] / prb['seconds']:.2f}x, "
-          f"peak RSS {rp['peak_rss_mib'] / prb['peak_rss_mib']:.2f}x, increment {increment(rp) / max(increment(prb), 1e-9):.2f}x")  # fmt: skip
+    lines = [f"gradient |replay - Mitsuba prb| / |Mitsuba prb| = {_rel_diff(rp, prb):.2e} (independent samples: Monte Carlo noise)",
+             f"ratio invrender replay / Mitsuba prb: time {rp['seconds'] / prb['seconds']:.2f}x, "
+             f"peak RSS {rp['peak_rss_mib'] / prb['peak_rss_mib']:.2f}x, increment {increment(rp) / max(increment(prb), 1e-9):.2f}x"]  # fmt: skip
+    for line in lines:
+        print(f"   {line}")
+        record.note(line)
 
 
 def _spread(label: str, values: list[float | None], within: float | None = None) -> None:
@@ -250,12 +258,14 @@ def median_child(results: list[dict]) -> dict:
     return res
 
 
-def sweep_table(title: str, column: str, points: list[int], config, skip_autodiff, args, targets: Targets) -> None:
+def sweep_table(title: str, column: str, points: list[int], config, skip_autodiff, args, targets: Targets, record: Results) -> None:
     """One row per point: replay and autodiff time / peak / increment (one gradient per child; the
     child of median increment among ``--memory-repeats``)."""
     print(f"\n{title}; the median increment of {args.memory_repeats} process(es) per point")
     print(f"   {column:>9}   {'replay: time s':>14} {'peak MiB':>8} {'incr MiB':>8}   {'autodiff: time s':>16} {'peak MiB':>8} {'incr MiB':>8}")
     rows, notes = {}, []
+    table = record.table(f"{title}; the median increment of {args.memory_repeats} process(es) per point",
+                         [column, "replay: time s", "peak MiB", "incr MiB", "autodiff: time s", "peak MiB", "incr MiB"])
     for x in points:
         res, spp, depth = {}, *config(x)
         for kind in ("replay", "autodiff"):
@@ -267,6 +277,7 @@ def sweep_table(title: str, column: str, points: list[int], config, skip_autodif
         rows[x] = res
         r, a = _fmt(res["replay"]), _fmt(res["autodiff"])
         print(f"   {x:>9}   {r[0]:>14} {r[1]:>8} {r[2]:>8}   {a[0]:>16} {a[1]:>8} {a[2]:>8}", flush=True)
+        table.append([x, *(v.strip() for v in r[:3]), *(v.strip() for v in a[:3])])
         notes += [f"{column} {x} {kind}: {res[kind]['failed']}" for kind in res if "failed" in res[kind]]
     for note in notes:
         print(f"   note: {note}")
@@ -292,6 +303,7 @@ def main() -> int:
     parser.add_argument("--child", choices=["autodiff", "replay", "prb", "path"], help=argparse.SUPPRESS)
     parser.add_argument("--warmup", type=int, default=1, help=argparse.SUPPRESS)
     parser.add_argument("--target", help=argparse.SUPPRESS)
+    add_json_option(parser)
     args = parser.parse_args()
 
     if args.child:
@@ -309,21 +321,23 @@ def main() -> int:
     print(f"target: ground truth at {args.spp} spp, seed {TARGET_SEED}; differentiated at parameters x {PERTURB}; "
           f"increment = peak RSS - RSS before the first gradient")  # fmt: skip
     start = time.perf_counter()
+    record = Results("gradient", "Gradient cost: time and memory of one L2 gradient")
     with tempfile.TemporaryDirectory(prefix="invrender-gradient-bench-") as folder:
         targets = Targets(folder, args.spp)
         if 1 in args.tables:
-            main_table(args, targets, with_mitsuba)
+            main_table(args, targets, with_mitsuba, record)
         if 2 in args.tables:
             sweep_table(
                 f"2. memory vs spp: one gradient, {n}x{n}, max_depth {args.max_depth}", "spp", args.sweep_spp,
-                lambda s: (s, args.max_depth), lambda s: s > args.max_autodiff_spp, args, targets,
+                lambda s: (s, args.max_depth), lambda s: s > args.max_autodiff_spp, args, targets, record,
             )  # fmt: skip
         if 3 in args.tables:
             sweep_table(
                 f"3. memory vs max_depth: one gradient, {n}x{n}, {args.spp} spp", "max_depth", args.sweep_depth,
-                lambda d: (args.spp, d), lambda d: False, args, targets,
+                lambda d: (args.spp, d), lambda d: False, args, targets, record,
             )  # fmt: skip
     print(f"\n(total {time.perf_counter() - start:.0f} s)")
+    record.write(args.json)
     return 0
 
 

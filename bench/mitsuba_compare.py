@@ -42,6 +42,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).parent))
 
 import mitsuba_ref  # noqa: E402
+from _measure import Results, add_json_option  # noqa: E402
 
 import invrender as ir  # noqa: E402
 
@@ -111,7 +112,7 @@ def _rel_cells(rel, se) -> str:
     return "  ".join(f"{r:+6.3f} ± {e:.3f}" for r, e in zip(rel, se))
 
 
-def compare(scene, label: str, spp: int, mi_spp: int, seeds: int, depths, tolerance: float, own_cornell: bool = False) -> float:
+def compare(scene, label: str, spp: int, mi_spp: int, seeds: int, depths, tolerance: float, own_cornell: bool = False, record: Results | None = None) -> float:
     """Print the table for one scene; returns the largest channel |relative difference| (percent)
     of invrender vs Mitsuba (converted scene) over ``depths``."""
     w, h = scene.width, scene.height
@@ -123,6 +124,9 @@ def compare(scene, label: str, spp: int, mi_spp: int, seeds: int, depths, tolera
     header = f"  {'depth':>5}  {'renderer':<22} {'R mean ± s.e.':^19}  {'G mean ± s.e.':^19}  {'B mean ± s.e.':^19}"
     print(f"{header}  {'invrender / this - 1 (%) ± s.e.: R, G, B':<46}  {'time':>5}")
     worst = 0.0
+    rows = [] if record is None else record.table(
+        f"{label}: {w}x{h}, box filter, {seeds} seeds; invrender {spp} spp per seed, {mitsuba_ref.label()} path {mi_spp} spp per seed",
+        ["max_depth", "renderer", "R mean ± s.e.", "G mean ± s.e.", "B mean ± s.e.", "invrender / this - 1 (%) ± s.e.: R, G, B", "seconds"])  # fmt: skip
     for depth in depths:
         ours = invrender_means(scene, spp, depth, range(seeds))
         refs = [("Mitsuba (converted)", mitsuba_means(mitsuba_ref.load_scene(scene, mi_spp, depth), mi_spp, range(seeds)))]
@@ -130,14 +134,18 @@ def compare(scene, label: str, spp: int, mi_spp: int, seeds: int, depths, tolera
             own = mitsuba_ref.cornell_scene(w, h, mi_spp, depth)
             refs.append(("Mitsuba cornell_box()", mitsuba_means(own, mi_spp, range(seeds, 2 * seeds))))
         print(f"  {depth:>5}  {'invrender':<22} {_cells(ours)}  {'':<46}  {ours.seconds:4.0f}s")
+        cells = lambda m: [f"{v:.5f} ± {e:.5f}" for v, e in zip(m.mean, m.se)]  # noqa: E731
+        rows.append([depth, "invrender", *cells(ours), "", round(ours.seconds)])
         for i, (name, ref) in enumerate(refs):
             rel, se = relative(ours, ref)
             if i == 0:
                 worst = max(worst, *map(abs, rel))
             print(f"  {'':>5}  {name:<22} {_cells(ref)}  {_rel_cells(rel, se):<46}  {ref.seconds:4.0f}s")
+            rows.append([depth, name, *cells(ref), " ".join(_rel_cells(rel, se).split()), round(ref.seconds)])
         if own_cornell:
             rel, se = relative(refs[0][1], refs[1][1])
             print(f"  {'':>5}  {'(converted / own - 1)':<22} {'':<61}  {_rel_cells(rel, se):<46}")
+            rows.append([depth, "(converted / own - 1)", "", "", "", " ".join(_rel_cells(rel, se).split()), ""])
     verdict = "within" if worst < tolerance else "NOT within"
     print(f"  largest channel |difference| vs Mitsuba (converted): {worst:.3f}% ({verdict} {tolerance:g}%)")
     return worst
@@ -162,7 +170,9 @@ def main() -> int:
     parser.add_argument("--tolerance", type=float, default=None, help="percent (default 1, 1.5 for cornell_specular)")
     parser.add_argument("--closeups", action="store_true", help="cornell_specular's glass sphere, mirror sphere, glossy block")
     parser.add_argument("--acceptance", action="store_true", help="the Cornell box, cornell_specular and the thin-lens box")
+    add_json_option(parser)
     args = parser.parse_args()
+    record = Results("mitsuba_compare", "Channel means against Mitsuba 3")
     if not mitsuba_ref.available():
         print("Mitsuba 3 is not installed (see bench/README.md); nothing to compare.")
         return 0
@@ -204,11 +214,15 @@ def main() -> int:
 
     results = []
     for name, scene, label, depths, tol, own in cases:
-        results.append((name, compare(scene, label, args.spp, mi_spp, args.seeds, depths, tol, own), tol))
+        results.append((name, compare(scene, label, args.spp, mi_spp, args.seeds, depths, tol, own, record), tol))
     if len(results) > 1:
         print("\nsummary (largest channel |relative difference| vs Mitsuba):")
-        for name, worst, tol in results:
+    summary = record.table("summary: largest channel |relative difference| against Mitsuba (converted scene)", ["case", "largest difference", "tolerance"])
+    for name, worst, tol in results:
+        if len(results) > 1:
             print(f"  {name:<17} {worst:6.3f}%  ({'within' if worst < tol else 'NOT within'} {tol:g}%)")
+        summary.append([name, f"{worst:.3f}%", f"{'within' if worst < tol else 'NOT within'} {tol:g}%"])
+    record.write(args.json)
     return 0
 
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import shutil
+import sys
 from pathlib import Path
 
 import torch
@@ -23,6 +24,9 @@ import invrender as ir
 from invrender.ablation import ablation, format_table, write_ablation
 from invrender.inverse.report import save_figure
 from invrender.io.images import to_srgb
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _measure import Results, add_json_option  # noqa: E402
 
 RUNS = [
     ("cornell_box", "cornell_box", None),
@@ -60,16 +64,20 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", default="runs/sampling")
     parser.add_argument("--figures", default="docs/images")
+    add_json_option(parser)
     args = parser.parse_args()
     figures = Path(args.figures)
+    record = Results("sampling_ablation", "Sampling-strategy ablation: RMSE at equal samples and at equal time")
     for name, scene_path, strategies in RUNS:
         scene = ir.load_scene(scene_path, resolution=(64, 64))
         result = ablation(scene, strategies, spp=(16, 32, 64, 128), trials=3, reference_spp=8192)
         written = write_ablation(result, Path(args.out) / name)
         print(format_table(result), flush=True)
+        record.markdown(f"{name} ({scene_path}), 64x64, spp 16-128, 3 seeds, reference 8192 spp", format_table(result))
         shutil.copyfile(written[2], figures / f"sampling_{name}.png")
     torch.manual_seed(0)
     adaptive_figure(figures / "adaptive_counts.png")
+    record.write(args.json)
 
 
 if __name__ == "__main__":
