@@ -93,8 +93,7 @@ def run(args) -> int:
     # integrator's defaults; its max_depth and rr_depth belong to its integrator (Mitsuba's path)
     defaults = scene.defaults
     spp = args.spp if args.spp is not None else defaults.get("spp", 64)
-    args.integrator = args.integrator or "path"
-    base = {"type": defaults.get("integrator", "path"), **{k: defaults[k] for k in ("max_depth", "rr_depth") if k in defaults}}
+    base = {"type": defaults.get("integrator", "path"), **{k: v for k, v in defaults.items() if k not in ("spp", "integrator")}}
     flags = {"max_depth": args.max_depth, "rr_depth": args.rr_depth, "strategy": args.strategy, "hemisphere": args.hemisphere}
     spec = integrator_spec(args, base, flags)
     adaptive = adaptive_settings(args)

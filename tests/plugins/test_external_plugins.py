@@ -11,12 +11,18 @@ package (integrators ask lobe flags, never types; escaped rays ask the emitters)
 - ``test_sky``: a uniform sky of radiance L, emitting from infinitely far and sampled uniformly over
   the sphere. A convex diffuse object under it has radiance ``rho L`` exactly (it sees only the sky),
   and the camera sees L where its rays leave the scene; the image is linear in L.
+- ``test_albedo``: an integrator that shows ``scale x`` the diffuse albedo at the first hit.
+
+Each also loads from the scene files through the registry: the material and the emitter by their
+``type`` in TOML and their ``mitsuba_plugins`` in Mitsuba XML, the integrator from a fit recipe's
+``[fit] integrator`` table (TOML) and from ``<integrator type=...>`` (XML, with its settings).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from dataclasses import dataclass
 
 import pytest
 import torch
@@ -25,7 +31,11 @@ import invrender as ir
 from invrender.materials import checks
 from invrender.materials.diffuse import Diffuse
 from invrender.materials.mirror import reflect
-from invrender.registry import EMITTERS, MATERIALS
+from invrender.cli import main
+from invrender.errors import ParameterError
+from invrender.recipes import load_fit_recipe
+from invrender.registry import EMITTERS, INTEGRATORS, MATERIALS
+from invrender.scene.kinds import REFLECTANCE
 from invrender.scene.builtin import furnace
 from invrender.scene.camera import Camera
 from invrender.scene.emitters import Emitter
@@ -35,6 +45,8 @@ from invrender.scene.plugins import Constant, Param
 from invrender.scene.scene import build_scene
 from invrender.scene.shapes import Mesh, cube
 from invrender.transport.bsdfs import BSDFSample, Lobe
+from invrender.transport.integrators import Integrator
+from invrender.transport.integrators.vertex import next_vertex
 from invrender.transport.lights import Light, LightSample
 from invrender.vec import dot
 
@@ -64,6 +76,15 @@ class Coated(Diffuse):
 
     def specular_lobes(self, sp):
         return [(reflect(sp.wo, sp.n), self.constant("coat", sp)[:, None].expand(-1, 3))]
+
+    mitsuba_plugins = ("test_coated",)
+
+    @classmethod
+    def from_mitsuba(cls, bsdf) -> dict:
+        rho = bsdf.colour("reflectance", REFLECTANCE, 0.5)
+        coat = bsdf.number("coat", cls.constants["coat"], "the coating's reflectance")
+        bsdf.finish(("reflectance", "coat"))
+        return {"reflectance": rho, "coat": coat}
 
 
 class Sky(Light):
@@ -96,14 +117,54 @@ class Sky(Light):
     def pdf_escaped(self, d):
         return torch.full((d.shape[0],), 1.0 / (4.0 * math.pi), device=d.device)
 
+    mitsuba_plugins = ("test_sky",)
+
+    @classmethod
+    def from_mitsuba(cls, emitter) -> dict:
+        L = emitter.colour("radiance", EMISSION, 1.0, texture=False)
+        emitter.finish(("radiance",))
+        return {"emission": L}
+
+
+@dataclass(frozen=True)
+class AlbedoSettings:
+    """Attributes:
+    scale: the factor on the albedo, > 0."""
+
+    scale: float = 1.0
+
+    def __post_init__(self):
+        if not (isinstance(self.scale, (int, float)) and math.isfinite(self.scale) and self.scale > 0):
+            raise ParameterError(f"scale must be a finite number > 0, got {self.scale!r}")
+
+
+class Albedo(Integrator):
+    """``scale`` times the diffuse albedo at the first hit (a first-hit AOV, differentiable in rho)."""
+
+    name = "test_albedo"
+    Settings = AlbedoSettings
+    summary = "test: scale x the first hit's diffuse albedo"
+    mitsuba_plugins = ("test_albedo",)
+
+    @property
+    def terms_kept(self) -> int:
+        return 1
+
+    def trace(self, ctx, state, film):
+        state, s = next_vertex(ctx, state, film, 0)
+        if s is not None:
+            sp = ctx.shading_point(s, -state.d)
+            film.add(0, state.pixel, self.settings.scale * ctx.materials.diffuse_reflectance(sp))
+
 
 @pytest.fixture(scope="module", autouse=True)
 def registered():
     MATERIALS.register(Coated)
-    EMITTERS.register(Sky)
+    EMITTERS.register(Sky)  # the integrator registered itself by subclassing
     yield
     MATERIALS.unregister(Coated.type_name)
     EMITTERS.unregister(Sky.type_name)
+    INTEGRATORS.unregister(Albedo.name)
 
 
 RHO, F, EPS, D = 0.6, 0.3, 1.0, 4
@@ -183,3 +244,78 @@ def test_a_shape_cannot_name_an_emitter_from_outside_the_scene():
 def test_radiosity_refuses_a_sky():
     with pytest.raises(ir.ParameterError, match="emitter 'sky' is test_sky"):
         ir.render(sky_scene(), "radiosity", spp=1, progress=False)
+
+
+TOML_SCENE = """
+[camera]
+origin = [3.0, 2.5, 3.5]
+target = [0, 0, 0]
+fov = 35
+
+[materials.box]
+type = "test_coated"
+reflectance = 0.6
+coat = 0.25
+
+[emitters.sky]
+type = "test_sky"
+emission = 2
+
+[[shapes]]
+type = "cube"
+material = "box"
+"""
+
+XML_SCENE = """<scene version="3.0.0">
+<integrator type="test_albedo"><float name="scale" value="2"/></integrator>
+<sensor type="perspective"><float name="fov" value="35"/>
+  <transform name="to_world"><lookat origin="3, 2.5, 3.5" target="0, 0, 0" up="0, 1, 0"/></transform>
+  <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/></film></sensor>
+<emitter type="test_sky" id="sky"><rgb name="radiance" value="2"/></emitter>
+<shape type="cube"><bsdf type="test_coated" id="box"><float name="reflectance" value="0.6"/><float name="coat" value="0.25"/></bsdf></shape>
+</scene>
+"""
+
+
+@pytest.mark.parametrize("suffix", [".toml", ".xml"])
+def test_the_material_and_the_sky_load_from_scene_files(tmp_path, suffix):
+    path = tmp_path / f"scene{suffix}"
+    path.write_text(TOML_SCENE if suffix == ".toml" else XML_SCENE)
+    scene = ir.load_scene(str(path), resolution=(16, 16))
+    assert scene.material_spec(0).type == "test_coated" and scene.material_spec(0).constants == {"coat": 0.25}
+    assert scene.emitter_spec(0).type == "test_sky" and scene.emitters == ("sky",)
+    torch.testing.assert_close(scene.params["box.reflectance"], torch.full((3,), 0.6))
+    torch.testing.assert_close(scene.params["sky.emission"], torch.full((3,), 2.0))
+    img = ir.render(scene, spp=4, max_depth=3, seed=0, progress=False)
+    assert bool((img[0, 0] == 2.0).all())  # a corner pixel sees the sky
+
+
+def test_the_integrator_renders_and_differentiates():
+    scene = sky_scene(rho=0.5)
+    rho = scene.params["box.reflectance"].requires_grad_(True)
+    img = ir.render(scene, {"type": "test_albedo", "scale": 2.0}, spp=4, seed=0, progress=False)
+    assert float(img.detach().min()) == pytest.approx(1.0) and float(img.detach().max()) == 2.0  # 2 x 0.5 on the cube; the sky (2) where rays leave
+    img.sum().backward()
+    on_cube = 2.0 - img.detach()  # the fraction f of a pixel's samples on the cube: its value is 2 f rho + 2 (1 - f)
+    torch.testing.assert_close(rho.grad, 2.0 * on_cube.sum((0, 1)))  # d/drho of 2 f rho
+    with pytest.raises(ParameterError, match="scale must be a finite number > 0"):
+        ir.render(scene, {"type": "test_albedo", "scale": -1.0}, spp=1, progress=False)
+
+
+def test_the_integrator_loads_from_a_fit_recipe_and_from_xml(tmp_path):
+    dataset = tmp_path / "data.toml"
+    dataset.write_text('scene = "cornell_box"\nresolution = [8, 8]\nspp = 4\n')
+    recipe = tmp_path / "fit.toml"
+    recipe.write_text('dataset = "data.toml"\nparams = ["red.reflectance"]\n[fit]\nintegrator = { type = "test_albedo", scale = 2.0 }\n')
+    assert load_fit_recipe(recipe).settings["integrator"] == {"type": "test_albedo", "scale": 2.0}
+
+    path = tmp_path / "scene.xml"
+    path.write_text(XML_SCENE)
+    assert ir.load_scene(str(path)).defaults == {"integrator": "test_albedo", "scale": 2.0}
+    out = tmp_path / "out.exr"
+    assert main(["render", str(path), "--spp", "2", "--out", str(out), "--quiet"]) == 0  # the file's integrator and settings
+    assert float(ir.read_image(out).min()) == pytest.approx(2 * 0.6)  # scale x rho on the cube (the sky, 2, around it)
+    bad = tmp_path / "bad.xml"
+    bad.write_text(XML_SCENE.replace('value="2"/></integrator>', 'value="-1"/></integrator>'))
+    with pytest.raises(ir.SceneError, match=r"bad.xml:2: .*'scale' must be a finite number > 0"):
+        ir.load_scene(str(bad))

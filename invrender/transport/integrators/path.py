@@ -49,6 +49,8 @@ class Path(RandomWalk):
     name = "path"
     Settings = PathSettings
     summary = "path tracer: BSDF sampling + next-event estimation with MIS, Russian roulette (default)"
+    #: the Mitsuba integrator plugins it stands for (scene files' ``<integrator type=...>``)
+    mitsuba_plugins = ("path",)
 
     def __init__(self, **options):
         super().__init__(**options)
