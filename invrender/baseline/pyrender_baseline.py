@@ -61,6 +61,7 @@ import torch
 from invrender.errors import BaselineError, ParameterError
 from invrender.io.images import to_srgb
 from invrender.scene.scene import AMBIENT, Scene, scene_extent
+from invrender.transport.bsdfs import Lobe
 from invrender.transport.textures import lookup
 from invrender.vec import dot, normalize
 
@@ -240,8 +241,11 @@ def pyrender_render(
     if lobe not in LOBES:
         raise ParameterError(f"unknown lobe {lobe!r} (known: {', '.join(LOBES)})")
     for i, name in enumerate(scene.materials):
-        if scene.material_spec(i).type != "diffuse":
+        if scene.material_spec(i).spec.lobes != Lobe.DIFFUSE:
             raise BaselineError(f"the pyrender baseline rasterizes diffuse materials only (the Utah model); material {name!r} is {scene.material_spec(i).type}")
+    for i, name in enumerate(scene.emitters):
+        if not scene.emitter_spec(i).spec.surface:
+            raise BaselineError(f"the pyrender baseline lights the scene from its emissive shapes only; emitter {name!r} is {scene.emitter_spec(i).type}")
     eps0 = _ambient(scene, ambient)
     lights = emitter_lights(scene, point_lights)
     device = torch.device(device) if device is not None else scene.device

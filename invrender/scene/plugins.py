@@ -133,19 +133,20 @@ def _interval(c: Constant) -> str:
     return f"{'(' if c.low_open else '['}{_number(c.low)}, {_number(c.high)}{')' if c.high_open else ']'}"
 
 
-def plugin_table(plugins: Registry, flags=None) -> str:
+def plugin_table(plugins: Registry, extra: tuple[str, object] | None = None) -> str:
     """A Markdown table of the registered types of ``plugins`` (materials or emitters): type,
     what it is, its parameters (kind, symbol, default; textures where the kind allows them), its
-    constants (default and range) and, when ``flags(cls)`` is given, what that returns (the lobes).
-    The docs' tables are this function's output, so they cannot drift from the plugins."""
-    head = "| type | what it is | parameters | constants |" + (" lobes |" if flags else "")
-    rule = "|---|---|---|---|" + ("---|" if flags else "")
-    rows = [head, rule]
+    constants (default and range), the Mitsuba plugins it reads (its own ``mitsuba_plugins``) and,
+    with ``extra = (heading, fn)``, a column ``fn(cls)``. The docs' tables are this function's
+    output (``invrender plugins``), so they cannot drift from the plugins."""
+    head = "| type | what it is | parameters | constants | Mitsuba XML |" + (f" {extra[0]} |" if extra else "")
+    rows = [head, "|---" * (head.count("|") - 1) + "|"]
     for name, cls in plugins.items():
         params = "<br>".join(
             f"`{k}` {p.kind.symbol}, default {_default(p.default)}" + (" (RGB or texture)" if p.kind.texture else " (RGB)") for k, p in cls.params.items()
         )
         constants = "<br>".join(f"`{k}` in {_interval(c)}, default {_number(c.default)}" for k, c in cls.constants.items())
-        row = f"| `{name}` | {cls.doc} | {params or '--'} | {constants or '--'} |"
-        rows.append(row + (f" {flags(cls)} |" if flags else ""))
+        mitsuba = ", ".join(f"`{m}`" for m in vars(cls).get("mitsuba_plugins", ()))
+        row = f"| `{name}` | {cls.doc} | {params or '--'} | {constants or '--'} | {mitsuba or '--'} |"
+        rows.append(row + (f" {extra[1](cls)} |" if extra else ""))
     return "\n".join(rows) + "\n"

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from invrender import validate
 from invrender.errors import ParameterError, SceneError
 from invrender.scene.camera import Camera
 from invrender.scene.kinds import kind_of, param_name
@@ -223,7 +224,8 @@ class Scene:
 
 
 def check_resolution(resolution) -> tuple[int, int]:
-    """Validate ``(width, height)``: two positive integers."""
+    """Validate ``(width, height)``: two positive integers, an image a machine can hold
+    (:func:`invrender.validate.check_resolution`)."""
     try:
         w, h = (int(r) for r in resolution)
         ok = all(float(r) == int(r) for r in resolution) and len(tuple(resolution)) == 2
@@ -231,6 +233,7 @@ def check_resolution(resolution) -> tuple[int, int]:
         ok = False
     if not ok or w <= 0 or h <= 0:
         raise SceneError(f"resolution must be two positive integers (width, height), got {resolution!r}")
+    validate.check_resolution(w, h)
     return w, h
 
 

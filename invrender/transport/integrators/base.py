@@ -279,6 +279,17 @@ def setting_from_text(integrator, key: str, text: str):
     raise ParameterError(f"integrator {cls.name!r} setting {key} must be {' or '.join(k if k != 'None' else 'none' for k in kinds)}, got {text!r}")
 
 
+def integrators_table() -> str:
+    """A Markdown table of every registered integrator: name, what it is, its settings (name,
+    default, doc), generated from the registry and the settings dataclasses (the docs' table)."""
+    rows = ["| integrator | what it is | settings | Mitsuba XML |", "|---|---|---|---|"]
+    for name, cls in INTEGRATORS.items():
+        settings = "<br>".join(f"`{d.name}` = `{d.default!r}`: {d.doc}".rstrip(": ") for d in setting_docs(cls))
+        mitsuba = ", ".join(f"`{m}`" for m in vars(cls).get("mitsuba_plugins", ()))
+        rows.append(f"| `{name}` | {cls.summary.removeprefix(f'{name}: ')} | {settings or '--'} | {mitsuba or '--'} |")
+    return "\n".join(rows) + "\n"
+
+
 def integrators_help(width: int = 100) -> str:
     """Every registered integrator with its summary and its settings (name, default, doc), for
     the command line's ``--help``; generated from the registry and the settings dataclasses."""

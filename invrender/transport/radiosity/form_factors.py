@@ -37,11 +37,15 @@ import torch
 
 from invrender.errors import ParameterError
 from invrender.transport.radiosity.patches import Patches
+from invrender.validate import check_int
 
 #: rays cast per batch of work (bounds memory)
 RAYS_PER_CHUNK = 1 << 18
 #: emitter sides cast up to this many times ``rays`` unless ``emitter_rays`` is given
 EMITTER_RAY_FACTOR = 16
+#: most rays cast from one patch side (4M: beyond that the form factors' noise is far below any
+#: discretization error, and a full scene would cast more rays than a machine can in a day)
+MAX_RAYS = 1 << 22
 
 
 @dataclass(frozen=True)
@@ -62,10 +66,10 @@ class FormFactorSettings:
     emitter_rays: int | None = None
 
     def __post_init__(self):
-        for name, low in (("rays", 1), ("batches", 2), ("seed", 0)):
-            _check_int(name, getattr(self, name), low)
+        for name, low, high in (("rays", 1, MAX_RAYS), ("batches", 2, MAX_RAYS), ("seed", 0, None)):
+            _check_int(name, getattr(self, name), low, high)
         if self.emitter_rays is not None:
-            _check_int("emitter_rays", self.emitter_rays, 1)
+            _check_int("emitter_rays", self.emitter_rays, 1, MAX_RAYS)
         if min(self.rays, self.emitter_rays or self.rays) < self.batches:
             raise ParameterError(f"form factor rays ({self.rays}, emitters {self.emitter_rays}) must be at least batches ({self.batches})")
 
@@ -277,9 +281,10 @@ def _cast(patches: Patches, intersector, m: int, B: int, seed: int, ray_offset: 
     return target, torch.arange(B, device=device).repeat_interleave(m).repeat(n)
 
 
-def _check_int(name: str, value, low: int) -> None:
+def _check_int(name: str, value, low: int, high: int | None) -> None:
     if isinstance(value, bool) or not isinstance(value, int) or value < low:
         raise ParameterError(f"form factor {name} must be an integer >= {low}, got {value!r}")
+    check_int("form factor ", name, value, None, high)
 
 
 __all__ = ["FormFactors", "FormFactorSettings", "form_factors", "EMITTER_RAY_FACTOR"]

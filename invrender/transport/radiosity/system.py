@@ -34,6 +34,10 @@ from dataclasses import dataclass
 import torch
 
 from invrender.errors import ParameterError
+from invrender.validate import check_int
+
+#: most iterations an iterative solve may take (each costs a matrix-vector product)
+MAX_ITERATIONS = 10**7
 
 #: largest number of unknowns ``auto`` solves directly
 DIRECT_MAX = 1024
@@ -60,8 +64,7 @@ class SolverSettings:
             raise ParameterError(f"unknown radiosity solver method {self.method!r} (known: {', '.join(METHODS)})")
         if isinstance(self.tolerance, bool) or not isinstance(self.tolerance, (int, float)) or not 0 < self.tolerance < 1:
             raise ParameterError(f"radiosity tolerance must be a number in (0, 1), got {self.tolerance!r}")
-        if isinstance(self.max_iterations, bool) or not isinstance(self.max_iterations, int) or self.max_iterations < 1:
-            raise ParameterError(f"radiosity max_iterations must be a positive integer, got {self.max_iterations!r}")
+        check_int("radiosity ", "max_iterations", self.max_iterations, 1, MAX_ITERATIONS)
 
     def resolved(self, unknowns: int) -> str:
         """The method used for a system of ``unknowns`` unknowns."""
