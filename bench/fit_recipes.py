@@ -20,7 +20,6 @@ error under every solver: there the comparison is between two estimates of the s
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import statistics
 import time
@@ -83,7 +82,7 @@ def main() -> None:
         scene0, targets, cameras, truth = load_dataset(data)
         for label, names, init, settings in fits:
             for solver in solvers:
-                scene = dataclasses.replace(scene0, params={k: v.detach().clone() for k, v in scene0.params.items()})
+                scene = scene0.with_params(detach=True)
                 apply_init(scene, names, init)
                 start = time.perf_counter()
                 result = ir.fit(scene, targets, names, cameras=cameras, truth=truth, progress=False, **{**settings, **overrides, "solver": solver})

@@ -114,7 +114,7 @@ def render_page(records: dict[str, dict]) -> str:
                 f"## {name}: not regenerated in this run",
                 "",
                 f"{what[0].upper() + what[1:]}. Regenerate with `{command} --json bench/results/{name}.json` ({duration} at the",
-                f"documented settings), then `python bench/results.py`. The last figures measured by hand, with their",
+                "documented settings), then `python bench/results.py`. The last figures measured by hand, with their",
                 f"dates and machines, are in [{page.split('#')[0]}]({page}) (labelled historical).",
                 "",
             ]

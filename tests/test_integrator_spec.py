@@ -3,6 +3,7 @@
 renders with those settings, observed in the integrator's traces and in the images it writes; bad
 specs are one-line errors before any work, from Python and from the command line."""
 
+import dataclasses
 import json
 import math
 
@@ -145,7 +146,9 @@ def test_a_resolution_no_machine_holds_is_refused_before_rendering(monkeypatch):
     from invrender.transport.integrators import base
 
     monkeypatch.setattr(base.Integrator, "context", lambda *a, **k: pytest.fail("worked before checking the resolution"))
-    scene = ir.load_scene("cornell_box", resolution=(10**6, 10**6))
+    with pytest.raises(ParameterError, match="resolution width must be <= 65536"):
+        ir.load_scene("cornell_box", resolution=(10**6, 10**6))  # refused where the scene is made
+    scene = dataclasses.replace(ir.load_scene("cornell_box"), resolution=(10**6, 10**6))  # and where it is rendered
     with pytest.raises(ParameterError, match="resolution width must be <= 65536"):
         ir.render(scene, spp=1, progress=False)
 

@@ -6,7 +6,6 @@ so the docs' tables are this command's output and cannot drift from the plugins.
 from __future__ import annotations
 
 import re
-import sys
 from pathlib import Path
 
 from invrender.errors import InvRenderError

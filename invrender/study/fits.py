@@ -42,7 +42,7 @@ from invrender.scene.scene import check_names
 from invrender.scene.scene import Scene
 from invrender.study.configs import GradientConfig, parse_configs
 from invrender.study.loss_gradients import LOSS_GRADIENTS
-from invrender.study.setup import copy_scene, move_to, study_target
+from invrender.study.setup import move_to, study_target
 from invrender.transport.driver import RenderSettings
 from invrender.validate import MAX_SPP, check_int
 
@@ -266,7 +266,7 @@ def fit_study(
             raise ParameterError(f"unknown fit setting in {sorted(settings)}: {e}") from None
         except ParameterError as e:
             raise ParameterError(f"configuration {label!r}: {e}") from None
-    start = copy_scene(scene)
+    start = scene.with_params(detach=True)
     move_to(start, names, at)
     truth = {n: scene.params[n].detach().clone() for n in names}
     target_image, target_label = study_target(scene, target, target_spp, seed * 1_000_003 + 999_999, configs[0])

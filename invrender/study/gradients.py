@@ -45,7 +45,7 @@ from invrender.scene.scene import check_names
 from invrender.scene.scene import Scene
 from invrender.study.configs import GradientConfig, parse_configs
 from invrender.study.loss_gradients import Objective
-from invrender.study.setup import copy_scene, move_to, study_target
+from invrender.study.setup import move_to, study_target
 from invrender.study.statistics import Moments, log_slope, moments
 from invrender.study.trials import gradient_sample, pixel_contributions
 from invrender.validate import MAX_SPP, check_int, check_paths
@@ -377,7 +377,7 @@ def gradient_study(
         check_paths(scene.width, scene.height, n)  # every render the study makes, before any of them
     seeds = Seeds(seed * 1_000_003, trials, reference_repeats)
 
-    work = copy_scene(scene)
+    work = scene.with_params(detach=True)
     move_to(work, names, at)  # checks `at` before the target is rendered
     target_image, target_label = study_target(scene, target, target_spp, seeds.target, configs[0])
     for n in names:
@@ -492,7 +492,7 @@ class _Workers:
 
 def _own_objective(objective: Objective, names: list[str]) -> Objective:
     """The same objective with leaf tensors of its own (a worker's: gradients must not mix)."""
-    scene = copy_scene(objective.scene)
+    scene = objective.scene.with_params(detach=True)
     for n in names:
         scene.params[n].requires_grad_(True)
     return Objective(scene, objective.target, objective.loss)

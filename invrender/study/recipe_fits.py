@@ -19,7 +19,6 @@ from invrender.inverse.fit_output import FitOutput, fit_into
 from invrender.inverse.report import study_table
 from invrender.io.reports import write_json, write_text
 from invrender.recipes import FitRecipe, apply_init, load_dataset, load_fit_recipe, make_dataset
-from invrender.study.setup import copy_scene
 from invrender.transport.ranks import barrier
 
 
@@ -91,7 +90,7 @@ def fit_recipe(
     fits = {}
     for variant in recipe.variants:
         log(f"variant {variant.label!r}")
-        own = copy_scene(scene)
+        own = scene.with_params(detach=True)
         names = recipe.params + [p for p in variant.params if p not in recipe.params]
         apply_init(own, names, {**init, **variant.init})
         output = fit_into(out / variant.slug, own, targets, names, report={**report, "variant": variant.label}, **common, **{**settings, **variant.settings})

@@ -3,7 +3,6 @@ fits start), and its target image. Shared by gradient studies and fit studies.""
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import torch
@@ -25,11 +24,6 @@ def study_target(scene: Scene, target, target_spp: int, seed: int, config: Gradi
     with torch.no_grad():
         image = render(scene, spp=target_spp, seed=seed, progress=False, **options)
     return image, f"rendered: {model.integrator}, {target_spp} spp" + "".join(f", {k}={v}" for k, v in model.options)
-
-
-def copy_scene(scene: Scene) -> Scene:
-    """``scene`` with parameters of its own (detached clones)."""
-    return dataclasses.replace(scene, params={k: v.detach().clone() for k, v in scene.params.items()})
 
 
 def move_to(scene: Scene, names: list[str], at) -> None:

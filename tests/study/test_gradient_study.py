@@ -53,7 +53,7 @@ def test_references_are_shared_by_model_and_bias_is_mean_minus_reference(study):
 def test_pixel_contributions_add_up_to_the_gradient(cbox8):
     """Forward mode gives dI/dt per pixel; with the same dl/dI the pixels' contributions sum to the
     reverse-mode gradient, channel by channel, for either pairing."""
-    scene = setup.copy_scene(cbox8)
+    scene = cbox8.with_params(detach=True)
     for n in PARAMS:
         scene.params[n].requires_grad_(True)
     target = torch.full((8, 8, 3), 0.3)

@@ -20,7 +20,7 @@ def cbox6():
 
 
 def _objective(scene, at=0.5, loss="relative_l2"):
-    work = setup.copy_scene(scene)
+    work = scene.with_params(detach=True)
     setup.move_to(work, PARAMS, at)
     for n in PARAMS:
         work.params[n].requires_grad_(True)
