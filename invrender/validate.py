@@ -10,6 +10,7 @@ only :mod:`invrender.errors`.
 from __future__ import annotations
 
 import math
+import typing
 
 from invrender.errors import ParameterError
 
@@ -94,3 +95,17 @@ def check_paths(width: int, height: int, spp: int) -> None:
             f"a {width}x{height} render at {spp} spp traces {width * height * spp:.3g} paths, more than the {MAX_PATHS:.3g} "
             "one render may trace: lower spp or the resolution"
         )
+
+
+def type_names(annotation) -> list[str]:
+    """The type names of a dataclass field's annotation, whether the annotation is a string (a
+    module with ``from __future__ import annotations``) or the types themselves: ``"int | None"``,
+    ``int | None`` and ``Optional[int]`` all give ``["int", "None"]``."""
+    if isinstance(annotation, str):
+        return [name.strip() for name in annotation.split("|")]
+    if annotation is None or annotation is type(None):
+        return ["None"]
+    args = typing.get_args(annotation)
+    if args:
+        return [name for arg in args for name in type_names(arg)]
+    return [getattr(annotation, "__name__", str(annotation))]

@@ -157,10 +157,14 @@ class Albedo(Integrator):
             film.add(0, state.pixel, self.settings.scale * ctx.materials.diffuse_reflectance(sp))
 
 
+INTEGRATORS.unregister(Albedo.name)  # subclassing registered it; the tests below register it for themselves
+
+
 @pytest.fixture(scope="module", autouse=True)
 def registered():
     MATERIALS.register(Coated)
-    EMITTERS.register(Sky)  # the integrator registered itself by subclassing
+    EMITTERS.register(Sky)
+    INTEGRATORS.register(Albedo)
     yield
     MATERIALS.unregister(Coated.type_name)
     EMITTERS.unregister(Sky.type_name)

@@ -32,7 +32,7 @@ from invrender.transport.driver import (
     for_each_chunk,
 )
 from invrender.transport.film import Film, PathFilm
-from invrender.validate import check_depth, check_paths
+from invrender.validate import check_depth, check_paths, type_names
 
 #: integrator name -> class, filled by subclassing :class:`Integrator` (the package's registry)
 INTEGRATORS = registry.INTEGRATORS
@@ -222,7 +222,7 @@ def setting_docs(cls) -> list[SettingDoc]:
                 if name not in docs and not text.startswith("as "):
                     docs[name] = text
     return [
-        SettingDoc(f.name, str(f.type), f.default if f.default is not dataclasses.MISSING else None, docs.get(f.name, ""))
+        SettingDoc(f.name, " | ".join(type_names(f.type)), f.default if f.default is not dataclasses.MISSING else None, docs.get(f.name, ""))
         for f in dataclasses.fields(settings) if f.init
     ]  # fmt: skip
 

@@ -17,6 +17,7 @@ from invrender import registry
 from invrender.errors import ParameterError
 from invrender.scene.formats.mitsuba.context import Context
 from invrender.scene.formats.mitsuba.parser import Obj
+from invrender.validate import type_names
 
 #: a settings field's type -> the property element read for it
 _TAGS = {"int": "integer", "float": "float", "bool": "boolean", "str": "string"}
@@ -38,7 +39,7 @@ def integrator(ctx: Context, obj: Obj) -> dict:
     settings = {}
     for name in list(obj.props):
         if name in fields:
-            kind = str(fields[name].type).split("|")[0].strip()
+            kind = type_names(fields[name].type)[0]
             value = ctx.get(obj, name, _TAGS.get(kind, "string"))
             settings[name] = int(value) if kind == "int" else value
     if ctx.get(obj, "hide_emitters", "boolean", False):
