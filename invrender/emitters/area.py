@@ -80,8 +80,7 @@ class Area(Light):
         cdf = torch.cumsum(weight[self.tri].double(), 0)
         self.cdf = (cdf / cdf[-1]).float() if self.count else cdf.float()
         #: (T,) bool: the triangles that emit (of this type)
-        self._emitting = torch.zeros(triangles.count + 1, dtype=torch.bool, device=device)
-        self._emitting[:-1] = torch.isin(triangles.emitter, torch.tensor(emitters, device=device))
+        self._emitting = torch.isin(triangles.emitter, torch.tensor(emitters, device=device))
 
     @property
     def power(self) -> float:

@@ -45,10 +45,6 @@ class Materials:
         self.single = len(self.bsdfs) == 1
         #: (K,) int64 each BSDF slot's lobe flags (for :meth:`has`)
         self._lobe_table = torch.tensor([int(b.lobes) for b in self.bsdfs], dtype=torch.int64, device=device)
-        #: the union of every present BSDF's lobes, and whether every BSDF has a smooth lobe
-        self.lobes = Lobe(0)
-        for b in self.bsdfs:
-            self.lobes |= b.lobes
         #: some BSDF has no smooth lobe (delta only): next-event estimation skips its hits
         self.any_delta_only = any(not b.has(Lobe.SMOOTH) for b in self.bsdfs)
         #: every BSDF is purely Lambertian (its sample weight is rho, never zero on a flat scene)
