@@ -12,5 +12,6 @@ The table of types (docs/plugins.md) is generated from these declarations
 """
 
 from invrender.emitters.area import Area
+from invrender.emitters.constant import Constant
 
-__all__ = ["Area"]
+__all__ = ["Area", "Constant"]

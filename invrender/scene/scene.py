@@ -323,9 +323,9 @@ def build_scene(
     specs = {k: v if isinstance(v, Material) else Material(values={"reflectance": v}) for k, v in materials.items()}
     material_names = tuple(materials)
     emitters = tuple(emission)
-    params = {param_name(k, key): check_param_value(param_name(k, key), v) for k, m in specs.items() for key, v in m.values.items()}
+    params = {param_name(k, key): _plugin_value(m, k, key, v) for k, m in specs.items() for key, v in m.values.items()}
     emitter_specs = {k: v if isinstance(v, Emitter) else Emitter(values={"emission": v}) for k, v in emission.items()}
-    params.update({param_name(k, key): check_param_value(param_name(k, key), v) for k, e in emitter_specs.items() for key, v in e.values.items()})
+    params.update({param_name(k, key): _plugin_value(e, k, key, v) for k, e in emitter_specs.items() for key, v in e.values.items()})
 
     tris, uvs, mats, emits, normals, smooth = [], [], [], [], [], []
     for mesh in meshes:
@@ -398,6 +398,18 @@ def build_scene(
     if all(e.type == Emitter.default_type and not e.constants for e in emitters_only):
         emitters_only = ()  # every emitter an area light: the default
     return Scene(triangles, material_names, emitters, camera, resolution, params, name, specs_only, emitter_specs=emitters_only)
+
+
+def _plugin_value(spec, owner: str, key: str, value) -> torch.Tensor:
+    """Parameter ``key`` of the material or emitter ``owner`` (its :class:`PluginSpec` ``spec``),
+    checked as :func:`check_param_value` checks it and refused as a texture where its type
+    declares it RGB only."""
+    name = param_name(owner, key)
+    t = check_param_value(name, value)
+    declared = spec.spec.params.get(key)
+    if t.ndim == 3 and declared is not None and not declared.kind.texture:
+        raise ParameterError(f"{name}: a {spec.type} {spec.noun}'s {key} must be an RGB triple, not a texture")
+    return t
 
 
 def scene_extent(triangles: Triangles) -> float:

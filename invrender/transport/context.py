@@ -36,6 +36,7 @@ class TransportContext:
         ray_offset: distance new rays start off a surface, to avoid self-intersection.
         textured: does any parameter vary over UVs (else hits skip texture coordinates)?
         extra: what an integrator's pre-pass computed for its ``trace`` (None without one).
+        hide_emitters: camera rays see no emission (the integrator's ``hide_emitters``).
     """
 
     triangles: Triangles
@@ -47,6 +48,7 @@ class TransportContext:
     ray_offset: float
     textured: bool
     extra: object = None
+    hide_emitters: bool = False
 
     @staticmethod
     def build(

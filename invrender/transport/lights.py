@@ -8,8 +8,11 @@ its type name, parameters and constants, and answers the queries of the integrat
 - for a ray that hit a surface it emits from (:attr:`Light.surface` types, e.g. ``area``): the
   radiance leaving back along the ray and the pdf with which :meth:`Light.sample_from` would have
   chosen that point (for multiple importance sampling);
-- for a ray that leaves the scene (types that emit from infinitely far, e.g. a sky): the radiance
+- for a ray that leaves the scene (:attr:`Light.infinite` types, e.g. a sky): the radiance
   arriving along it and the pdf of having sampled its direction.
+
+Delta emitters (a point light, a directional light) are neither: they are sampled and never hit,
+their samples flagged ``delta`` (:class:`LightSample`).
 
 Sampling is detached (docs/architecture.md#detached-sampling-differentiable-evaluation): whatever a
 light picks by (power, luminance) is read without gradient when the render starts; only the
@@ -20,6 +23,7 @@ the instance their emitter belongs to.
 
 from __future__ import annotations
 
+import dataclasses
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import ClassVar
@@ -46,7 +50,12 @@ class LightSample:
         pdf: (N,) solid-angle density at ``o`` of having sampled ``wl`` (including the choice of
             the emitter).
         Le: (N, 3) radiance arriving at x along ``-wl`` from the sample if unoccluded
-            (differentiable in the emitter's parameters).
+            (differentiable in the emitter's parameters); for a delta emitter (a point or a
+            direction) the irradiance-like quantity whose ratio to ``pdf`` is the estimate.
+        delta: (N,) bool where the sample came from a delta emitter (a point light, a
+            directional light): ``pdf`` is then the discrete probability of the choice, no BSDF
+            sample can hit the emitter, and multiple importance sampling gives it weight 1; None
+            when no sample did.
     """
 
     o: torch.Tensor
@@ -55,11 +64,12 @@ class LightSample:
     facing: torch.Tensor
     pdf: torch.Tensor
     Le: torch.Tensor
+    delta: torch.Tensor | None = None
 
     def scaled_pdf(self, p: float) -> "LightSample":
         """The same samples with their pdf multiplied by ``p`` (the probability of having chosen
         this emitter type)."""
-        return LightSample(self.o, self.wl, self.tmax, self.facing, self.pdf * p, self.Le)
+        return dataclasses.replace(self, pdf=self.pdf * p)
 
 
 class Light(Declared, ABC):
@@ -77,8 +87,10 @@ class Light(Declared, ABC):
         triangles: the scene geometry on the render device.
     """
 
-    #: does it emit from scene surfaces (the shapes naming it) rather than from infinitely far?
+    #: does it emit from scene surfaces (the shapes naming it)?
     surface: ClassVar[bool] = True
+    #: do rays that leave the scene see it (emitters infinitely far away: skies, environment maps)?
+    infinite: ClassVar[bool] = False
 
     def __init__(self, emitters: list[int], values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], triangles: Triangles):
         self.emitters, self.values, self.constants, self.triangles = emitters, values, constants, triangles
@@ -144,7 +156,7 @@ class Lights:
         #: cumulative choice probabilities of ``sampled``
         self._cdf = torch.tensor([p for p in self.choice if p > 0], dtype=torch.float64).cumsum(0).float().to(device)
         self.surfaces = [light for light in self.lights if light.surface]
-        self.infinite = [light for light in self.lights if not light.surface]
+        self.infinite = [light for light in self.lights if light.infinite]
         #: (E + 1,) int64, which of ``surfaces`` each scene emitter belongs to (last: no emitter)
         slot = [-1] * (len(types) + 1)
         for k, light in enumerate(self.surfaces):
@@ -174,6 +186,8 @@ class Lights:
             ui = u.index_select(0, index).clone()
             ui[:, 0] = ((ui[:, 0] - lo) / p).clamp(0.0, 1.0 - 2**-24)
             part = light.sample_from(ui, x.index_select(0, index), nx.index_select(0, index), offset).scaled_pdf(p)
+            if part.delta is None:
+                part = dataclasses.replace(part, delta=torch.zeros_like(part.facing))
             if out is None:
                 out = {f: getattr(part, f).new_zeros((x.shape[0], *getattr(part, f).shape[1:])) for f in part.__dataclass_fields__}
             out = {f: out[f].index_put((index,), getattr(part, f)) for f in out}

@@ -94,6 +94,7 @@ class Sky(Light):
     params = {"emission": Param(EMISSION, 1.0)}
     doc = "test: a uniform sky"
     surface = False
+    infinite = True
 
     @property
     def power(self) -> float:

@@ -32,7 +32,7 @@ from invrender.transport.driver import (
     for_each_chunk,
 )
 from invrender.transport.film import Film, PathFilm
-from invrender.validate import check_depth, check_paths, type_names
+from invrender.validate import check_bool, check_depth, check_paths, type_names
 
 #: integrator name -> class, filled by subclassing :class:`Integrator` (the package's registry)
 INTEGRATORS = registry.INTEGRATORS
@@ -45,12 +45,16 @@ class DepthSettings:
     Attributes:
         max_depth: Neumann terms kept, counted as Mitsuba counts: 1 = emitters seen directly,
             2 = + direct illumination, ...; -1 = unbounded (ended by Russian roulette only).
+        hide_emitters: the camera sees black where it would see an emitter directly (Mitsuba's
+            hide_emitters); emitters still light the scene and show in reflections.
     """
 
     max_depth: int = 8
+    hide_emitters: bool = False
 
     def __post_init__(self):
         check_depth("", "max_depth", self.max_depth)
+        check_bool("", "hide_emitters", self.hide_emitters)
 
     def continues_after(self, depth: int) -> bool:
         """May a path whose last vertex has index ``depth`` (0 = first hit) add terms beyond ``depth``?"""
@@ -148,7 +152,10 @@ class Integrator(ABC):
     def context(self, scene: Scene, settings: RenderSettings, device: torch.device, params: dict | None = None) -> TransportContext:
         """The prepared :class:`TransportContext` of one render."""
         threads = 1 if cpu_workers(device) > 1 else None
-        return self.prepare(TransportContext.build(scene, device, settings.backend, threads, params, self.bsdf_sampling))
+        ctx = TransportContext.build(scene, device, settings.backend, threads, params, self.bsdf_sampling)
+        if getattr(self.settings, "hide_emitters", False):  # settings without it (a plugin's own) show emitters
+            ctx = dataclasses.replace(ctx, hide_emitters=True)
+        return self.prepare(ctx)
 
     def render(self, scene: Scene, settings: RenderSettings, device: torch.device, params: dict | None = None, keep: dict | None = None) -> torch.Tensor:
         """The image: (H, W, 3), or (K, H, W, 3) per term with ``settings.terms``; records autograd

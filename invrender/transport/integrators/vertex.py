@@ -51,10 +51,13 @@ def add_emitted(ctx: TransportContext, state: PathState, s: Surface | None, dept
     With ``mis`` the weight w balances this BSDF-sampled ray against the emitter sample taken at
     the previous vertex (power heuristic); with ``nee_only`` that emitter sample alone estimated
     the term, so w = 0. Either way w is 1 for camera rays and after delta lobes, where no emitter
-    sample competes; without either w = 1 everywhere (no emitter sampling).
+    sample competes; without either w = 1 everywhere (no emitter sampling). With the integrator's
+    ``hide_emitters`` the camera rays (depth 0) add nothing.
     """
     if mis and nee_only:
         raise ValueError("add_emitted: mis and nee_only exclude each other")
+    if depth == 0 and ctx.hide_emitters:
+        return  # the camera does not see emitters directly
     emits = ctx.lights.emits(s) if s is not None else torch.ones_like(state.delta)
     if nee_only:
         emits = emits & state.delta  # camera rays (delta = True) and delta lobes only
@@ -94,6 +97,8 @@ def add_direct(ctx: TransportContext, state: PathState, s: Surface, sp: ShadingP
     f_cos = ctx.materials.eval(sp, ls.wl)
     if mis:
         w = power_heuristic(ls.pdf, ctx.materials.pdf(sp, ls.wl).detach())
+        if ls.delta is not None:
+            w = torch.where(ls.delta, 1.0, w)  # no BSDF sample hits a point or a direction
         weight = torch.where(ok, w / ls.pdf, 0.0)
     else:
         weight = torch.where(ok, 1.0 / ls.pdf, 0.0)

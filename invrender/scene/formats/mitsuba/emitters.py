@@ -28,7 +28,8 @@ def emitter(ctx: Context, obj: Obj, in_shape: bool) -> Emitter:
     """The :class:`Emitter` of an ``<emitter>`` nested in a shape (``in_shape``) or in the scene."""
     known = plugins()
     if obj.type not in known:
-        raise ctx.error(obj.node, f"unsupported emitter type {obj.type!r} (supported: {', '.join(known)})", obj)
+        listed = [name for name, cls in known.items() if cls.surface or not in_shape]  # in a shape: the ones a shape can hold
+        raise ctx.error(obj.node, f"unsupported emitter type {obj.type!r} (supported: {', '.join(listed)})", obj)
     cls = known[obj.type]
     if cls.surface and not in_shape:
         raise ctx.error(obj.node, f"an emitter of type {obj.type!r} must be nested in the <shape> that emits", obj)

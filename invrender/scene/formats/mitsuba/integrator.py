@@ -5,7 +5,7 @@ Integrator (at most one ``<integrator>``)
     it stands for in ``mitsuba_plugins`` (``path``: Mitsuba's ``path``). The element's properties
     are the integrator's settings by name (``max_depth``, ``rr_depth``, ...), each read as its
     settings field's type says (``<integer>``, ``<float>``, ``<boolean>``, ``<string>``) and
-    checked by the settings themselves; Mitsuba's ``hide_emitters`` is accepted when false. The
+    checked by the settings themselves (``hide_emitters`` is one of every integrator's). The
     message for an unsupported type lists the registry's aliases.
 """
 
@@ -42,9 +42,7 @@ def integrator(ctx: Context, obj: Obj) -> dict:
             kind = type_names(fields[name].type)[0]
             value = ctx.get(obj, name, _TAGS.get(kind, "string"))
             settings[name] = int(value) if kind == "int" else value
-    if ctx.get(obj, "hide_emitters", "boolean", False):
-        raise ctx.error(obj.props["hide_emitters"].node, "hide_emitters=true is not supported", obj)
-    ctx.finish(obj, (*fields, "hide_emitters"))
+    ctx.finish(obj, tuple(fields))
     try:
         cls(**settings)  # the settings check their own values
     except ParameterError as e:
