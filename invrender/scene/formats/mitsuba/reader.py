@@ -4,6 +4,8 @@ plugin's messages say the same things the same way."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from invrender.errors import SceneError
@@ -66,6 +68,27 @@ class PluginReader:
         except SceneError as e:  # the constant's range ("... 'alpha' must lie in (0, 1], got 0"), said of this property
             requirement = str(e).split(f"'{name}' ", 1)[1]
             raise self.error(name, f"'{name}' ({label}) {requirement}") from None
+
+    def transform(self, name: str = "to_world") -> np.ndarray:
+        """A ``<transform>`` as its (4, 4) matrix (float64), the identity when absent."""
+        prop = self._ctx.take(self._obj, name, ("transform",), "a <transform>")
+        return np.eye(4) if prop is None else np.asarray(prop.value, dtype=np.float64)
+
+    def vector(self, name: str, default=None) -> np.ndarray | None:
+        """A ``<point>`` or ``<vector>`` as (3,) float64, ``default`` when absent."""
+        value = self._ctx.get(self._obj, name, "point", None)
+        return default if value is None else np.asarray(value, dtype=np.float64)
+
+    def filename(self, name: str = "filename") -> Path:
+        """A ``<string>`` naming a file relative to the scene file's folder; an error naming the
+        property when the file does not exist."""
+        value = self.string(name)
+        if value is None:
+            raise self.error(None, f"'{name}' is required")
+        path = self._ctx.base / value
+        if not path.is_file():
+            raise self.error(name, f"file not found: {path}")
+        return path
 
     def finish(self, supported: tuple) -> None:
         """Errors for the properties nothing read (listing ``supported``) and for nested objects."""
