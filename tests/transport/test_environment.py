@@ -108,3 +108,12 @@ def test_bad_constant_skies_are_one_line_errors():
         del sky_scene_radiance
     with pytest.raises(ir.ParameterError, match="radiosity models emission from the scene's surfaces only: emitter 'sky' is constant"):
         ir.render(sky_scene(), "radiosity", spp=1, progress=False)
+
+
+def test_path_records_hold_the_sky_as_a_linear_factor():
+    """Records re-evaluate the render exactly, and its Jacobian in L is the image over L (linear)."""
+    scene = sky_scene()
+    record = ir.record_paths(scene, ["sky.emission", "box.reflectance"], spp=8, max_depth=3, seed=1, progress=False)
+    img = ir.render(scene, spp=8, max_depth=3, seed=1, progress=False)
+    torch.testing.assert_close(record.image().float(), img, rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(record.jacobian()["sky.emission"].float(), img / L, rtol=1e-5, atol=1e-6)
