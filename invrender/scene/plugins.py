@@ -139,7 +139,7 @@ class PluginSpec:
 
 
 def _number(x) -> str:
-    return "inf" if isinstance(x, float) and math.isinf(x) else f"{x:g}" if isinstance(x, (int, float)) else str(x)
+    return ("inf" if x > 0 else "-inf") if isinstance(x, float) and math.isinf(x) else f"{x:g}" if isinstance(x, (int, float)) else str(x)
 
 
 def _default(value) -> str:
