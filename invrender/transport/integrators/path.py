@@ -77,6 +77,10 @@ class Path(RandomWalk):
         return getattr(self.settings, "strategy", "mis")
 
     @property
+    def samples_emitters(self) -> bool:
+        return self.strategy != "bsdf"
+
+    @property
     def emitter_mis(self) -> bool:
         return self.strategy == "mis"
 
