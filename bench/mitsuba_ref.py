@@ -42,7 +42,9 @@ The converter (``scene_dict``) maps each invrender material by its type's ``to_m
 material's module of ``invrender/materials/``: the two-sided ones wrapped in ``twosided``, colours
 as ``rgb``, textures as linear ``bitmap`` (raw, bilinear, repeat)), and the rest as follows:
 
-    emitter     -> area(radiance = rgb) on the mesh (one-sided, the front = counter-clockwise side)
+    emitter     -> area(radiance = rgb) on the mesh (one-sided, the front = counter-clockwise side);
+                   emitters that are not surfaces (constant, point, spot, directional) by their
+                   type's to_mitsuba, at the scene's top level
     camera      -> perspective or thinlens (aperture_radius, focus_distance), fov and fov_axis,
                    to_world = look_at(origin, target, up); hdrfilm with the scene's resolution
 
@@ -201,14 +203,23 @@ def plugin_dict(plugin, values: dict, constants: dict, name: str = "material") -
     ``plugin``: the type's class (``scene.material_spec(i).spec``, ``scene.emitter_spec(i).spec``),
     whose ``to_mitsuba(values, constants)`` gives the dict with invrender's values in it;
     ``values``: parameter key -> tensor ((3,) or (h, w, 3)); ``constants``: constant key -> float.
-    Each tensor in the dict becomes an ``rgb`` or ``bitmap`` texture.
+    Each tensor in the dict becomes an ``rgb`` or ``bitmap`` texture, and a ``to_world`` matrix
+    (4, 4) a ``ScalarTransform4f``.
     """
     to_mitsuba = getattr(plugin, "to_mitsuba", None)
     if to_mitsuba is None:
         raise ValueError(f"{name!r}: no Mitsuba counterpart for type {getattr(plugin, 'type_name', plugin)!r}")
 
+    def convert(k: str, v):
+        if isinstance(v, dict):
+            return textures(v)
+        if k == "to_world":  # a (4, 4) matrix (a spot light's frame)
+            mi, _ = _require()
+            return mi.ScalarTransform4f([[float(x) for x in row] for row in _np(v)])
+        return _rgb_or_bitmap(v, f"{name}.{k}") if hasattr(v, "shape") else v
+
     def textures(d: dict) -> dict:
-        return {k: textures(v) if isinstance(v, dict) else _rgb_or_bitmap(v, f"{name}.{k}") if hasattr(v, "shape") else v for k, v in d.items()}
+        return {k: convert(k, v) for k, v in d.items()}
 
     return textures(to_mitsuba(values, constants))
 

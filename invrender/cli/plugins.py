@@ -19,7 +19,7 @@ def tables() -> dict[str, str]:
 
     return {
         "materials": plugin_table(MATERIALS, ("lobes", lambda cls: cls.lobes.describe())),
-        "emitters": plugin_table(EMITTERS, ("emits from", lambda cls: "the shapes naming it" if cls.surface else "outside the scene")),
+        "emitters": plugin_table(EMITTERS, ("emits from", lambda cls: "the shapes naming it" if cls.surface else "outside the scene" if cls.infinite else "a point or a direction (a delta light: sampled, never hit)")),
         "integrators": integrators_table(),
     }
 

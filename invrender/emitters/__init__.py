@@ -15,3 +15,8 @@ from invrender.emitters.area import Area
 from invrender.emitters.constant import Constant
 
 __all__ = ["Area", "Constant"]
+from invrender.emitters.point import Point  # noqa: E402
+from invrender.emitters.spot import Spot  # noqa: E402
+from invrender.emitters.directional import Directional  # noqa: E402
+
+__all__ += ["Point", "Spot", "Directional"]

@@ -31,15 +31,25 @@ class Param(NamedTuple):
 
 @dataclass(frozen=True)
 class Constant:
-    """A scalar constant of a material type: default and the open/closed interval it must lie in."""
+    """A constant of a plugin type: default and the open/closed interval it must lie in.
 
-    default: float
+    With ``size`` > 1 it is a vector of that many numbers (a light's ``position``, ``direction``),
+    given as a list and kept as a tuple of floats, each in the interval; ``default`` is then a tuple.
+    """
+
+    default: float | tuple
     low: float
     high: float
     low_open: bool = True
     high_open: bool = False
+    size: int = 1
 
-    def check(self, where: str, key: str, value) -> float:
+    def check(self, where: str, key: str, value) -> float | tuple:
+        if self.size > 1:
+            if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != self.size:
+                raise SceneError(f"{where}: '{key}' must be a list of {self.size} numbers, got {value!r}")
+            items = [v.item() if hasattr(v, "item") else v for v in value]
+            return tuple(Constant(0.0, self.low, self.high, self.low_open, self.high_open).check(where, key, v) for v in items)
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(float(value)):
             raise SceneError(f"{where}: '{key}' must be a finite number, got {value!r}")
         v = float(value)
@@ -60,13 +70,20 @@ class Declared:
     type_name: ClassVar[str]
     #: differentiable parameters: key -> :class:`Param` (kind, default)
     params: ClassVar[dict[str, Param]] = {}
-    #: scalar constants of the scene: key -> :class:`Constant`
+    #: constants of the scene (numbers, or vectors of numbers): key -> :class:`Constant`
     constants: ClassVar[dict[str, Constant]] = {}
     #: one line for messages and the docs' tables
     doc: ClassVar[str] = ""
     #: keys a scene-file table of this type may hold besides ``type`` (parameters, their
     #: ``_texture`` forms where the kind allows one, constants); set for each subclass
     keys: ClassVar[frozenset[str]] = frozenset()
+
+    @classmethod
+    def resolve(cls, where: str, constants: dict, given: set) -> dict:
+        """The constants once each is checked on its own: a type whose defaults depend on other
+        constants (a spot's ``beam_width``) or whose constants constrain each other overrides this
+        (``given``: the keys the scene gave; raise :class:`SceneError` naming ``where``)."""
+        return constants
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
@@ -112,6 +129,7 @@ class PluginSpec:
             raise SceneError(f"{where}: unknown key {unknown[0]!r} for a {type} {cls.noun} (allowed: {allowed})")
         values = {k: entries.get(k, p.default) for k, p in spec.params.items()}
         constants = {k: c.check(where, k, entries.get(k, c.default)) for k, c in spec.constants.items()}
+        constants = spec.resolve(where, constants, {k for k in spec.constants if k in entries})
         return cls(type, values, constants)
 
     @property
@@ -121,7 +139,7 @@ class PluginSpec:
 
 
 def _number(x) -> str:
-    return "inf" if isinstance(x, float) and math.isinf(x) else f"{x:g}" if isinstance(x, (int, float)) else str(x)
+    return ("inf" if x > 0 else "-inf") if isinstance(x, float) and math.isinf(x) else f"{x:g}" if isinstance(x, (int, float)) else str(x)
 
 
 def _default(value) -> str:
@@ -146,7 +164,7 @@ def plugin_table(plugins: Registry, extra: tuple[str, object] | None = None) -> 
         params = "<br>".join(
             f"`{k}` {p.kind.symbol}, default {_default(p.default)}" + (" (RGB or texture)" if p.kind.texture else " (RGB)") for k, p in cls.params.items()
         )
-        constants = "<br>".join(f"`{k}` in {_interval(c)}, default {_number(c.default)}" for k, c in cls.constants.items())
+        constants = "<br>".join(f"`{k}`{f' ({c.size} numbers)' if c.size > 1 else ''} in {_interval(c)}, default {_default(c.default)}" for k, c in cls.constants.items())
         mitsuba = ", ".join(f"`{m}`" for m in vars(cls).get("mitsuba_plugins", ()))
         row = f"| `{name}` | {cls.doc} | {params or '--'} | {constants or '--'} | {mitsuba or '--'} |"
         rows.append(row + (f" {extra[1](cls)} |" if extra else ""))

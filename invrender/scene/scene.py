@@ -334,7 +334,9 @@ def build_scene(
         if mesh.emitter is not None and mesh.emitter not in emission:
             raise SceneError(f"shape uses unknown emitter {mesh.emitter!r} (known: {', '.join(emitters) or 'none'})")
         if mesh.emitter is not None and not emitter_specs[mesh.emitter].spec.surface:
-            raise SceneError(f"shape names emitter {mesh.emitter!r} of type {emitter_specs[mesh.emitter].type!r}, which emits from outside the scene, not from shapes")
+            cls = emitter_specs[mesh.emitter].spec
+            what = "emits from outside the scene, not from shapes" if cls.infinite else "is a point or a direction (a delta light), not emitted by shapes"
+            raise SceneError(f"shape names emitter {mesh.emitter!r} of type {emitter_specs[mesh.emitter].type!r}, which {what}")
         v = np.asarray(mesh.vertices, dtype=np.float64)
         f = np.asarray(mesh.faces)
         if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:

@@ -97,6 +97,29 @@ class SamplingSettings(RouletteSettings):
         BSDFSampling(self.hemisphere)  # validates
 
 
+@dataclass(frozen=True)
+class MitsubaAlias:
+    """A Mitsuba integrator plugin an integrator stands for with some of its settings fixed, where
+    the two estimate the same image (``Integrator.mitsuba_aliases``; Mitsuba's ``direct`` is
+    :class:`~invrender.transport.integrators.path.Path` at ``max_depth`` 2).
+
+    Attributes:
+        settings: the settings it fixes (the element may not give them).
+        passed: the settings the element may give by name (``hide_emitters``).
+        counts: integer properties of the Mitsuba plugin that change only the variance where they
+            lie in ``[low, high]`` (``high`` None: no bound) and are then read and ignored:
+            name -> ``(low, high, why)``; outside, an error saying ``why``.
+    """
+
+    settings: dict
+    passed: tuple = ("hide_emitters",)
+    counts: dict = dataclasses.field(default_factory=dict)
+
+    def describe(self) -> str:
+        """The fixed settings as the docs' tables show them (``max_depth = 2``)."""
+        return ", ".join(f"{k} = {v!r}" for k, v in self.settings.items())
+
+
 class Integrator(ABC):
     """Base class: a named estimator with validated settings and the default chunked driver.
 
@@ -112,6 +135,9 @@ class Integrator(ABC):
     summary: ClassVar[str] = ""
     #: why the estimate is not a polynomial in the parameters (path records refuse it); None = it is
     not_recordable: ClassVar[str | None] = None
+    #: Mitsuba integrator plugins it stands for with some settings fixed: plugin -> :class:`MitsubaAlias`
+    #: (read from the class body itself, as ``mitsuba_plugins`` is)
+    mitsuba_aliases: ClassVar[dict] = {}
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
@@ -292,7 +318,7 @@ def integrators_table() -> str:
     rows = ["| integrator | what it is | settings | Mitsuba XML |", "|---|---|---|---|"]
     for name, cls in INTEGRATORS.items():
         settings = "<br>".join(f"`{d.name}` = `{d.default!r}`: {d.doc}".rstrip(": ") for d in setting_docs(cls))
-        mitsuba = ", ".join(f"`{m}`" for m in vars(cls).get("mitsuba_plugins", ()))
+        mitsuba = ", ".join([f"`{m}`" for m in vars(cls).get("mitsuba_plugins", ())] + [f"`{m}` ({a.describe()})" for m, a in vars(cls).get("mitsuba_aliases", {}).items()])
         rows.append(f"| `{name}` | {cls.summary.removeprefix(f'{name}: ')} | {settings or '--'} | {mitsuba or '--'} |")
     return "\n".join(rows) + "\n"
 

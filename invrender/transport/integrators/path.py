@@ -18,7 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from invrender.errors import ParameterError
-from invrender.transport.integrators.base import SamplingSettings
+from invrender.transport.integrators.base import MitsubaAlias, SamplingSettings
 from invrender.transport.integrators.random_walk import RandomWalk
 from invrender.transport.integrators.vertex import add_direct
 
@@ -51,6 +51,20 @@ class Path(RandomWalk):
     summary = "path tracer: BSDF sampling + next-event estimation with MIS, Russian roulette (default)"
     #: the Mitsuba integrator plugins it stands for (scene files' ``<integrator type=...>``)
     mitsuba_plugins = ("path",)
+    #: Mitsuba's ``direct`` (emitters seen + direct light, emitter and BSDF samples combined by the
+    #: power heuristic, no roulette) is this path tracer at max_depth 2: the same terms, the same
+    #: MIS (delta lights weight 1, BSDF samples after delta lobes weight 1), so the same expectation
+    #: (docs/rendering.md#mitsubas-direct-integrator)
+    mitsuba_aliases = {
+        "direct": MitsubaAlias(
+            {"max_depth": 2},
+            counts={
+                "shading_samples": (1, 1, "Mitsuba's direct counts a point, spot or directional light once per emitter sample (shading_samples times its light); only 1 estimates the same image"),
+                "emitter_samples": (1, 1, "Mitsuba's direct counts a point, spot or directional light once per emitter sample (emitter_samples times its light), and none with 0; only 1 estimates the same image"),
+                "bsdf_samples": (1, None, "with 0 BSDF samples Mitsuba's direct misses emitters seen through mirrors and glass; 1 or more estimate the same image (more change the variance only)"),
+            },
+        )
+    }
 
     def __init__(self, **options):
         super().__init__(**options)
@@ -61,6 +75,10 @@ class Path(RandomWalk):
     def strategy(self) -> str:
         """The settings' strategy (``"mis"`` for subclasses whose settings have none, e.g. utah)."""
         return getattr(self.settings, "strategy", "mis")
+
+    @property
+    def samples_emitters(self) -> bool:
+        return self.strategy != "bsdf"
 
     @property
     def emitter_mis(self) -> bool:

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import math
 
+from invrender.errors import ParameterError
+
 from invrender.transport.context import PathState, TransportContext, russian_roulette
 from invrender.transport.film import Film
 from invrender.transport.integrators.base import Integrator, SamplingSettings
@@ -32,6 +34,21 @@ class RandomWalk(Integrator):
     #: emitter hits count only where no emitter sample was taken (camera rays, after delta lobes):
     #: the previous vertex's emitter sample alone estimates direct light (path tracer, strategy "emitter")
     emitter_nee_only = False
+
+    @property
+    def samples_emitters(self) -> bool:
+        """Does it sample emitters (next-event estimation)? Without, delta lights (a point, a spot, a
+        direction: never hit by a ray) are refused (:meth:`prepare`)."""
+        return False
+
+    def prepare(self, ctx: TransportContext) -> TransportContext:
+        delta = [light.type_name for light in ctx.lights.lights if not light.surface and not light.infinite]
+        if delta and not self.samples_emitters:
+            raise ParameterError(
+                f"integrator {self.name!r} estimates light by BSDF samples only, which never hit a {delta[0]} light (a delta light): "
+                "render with an integrator that samples emitters (path with strategy 'mis' or 'emitter')"
+            )
+        return ctx
 
     def at_vertex(self, ctx: TransportContext, state: PathState, s, sp, u, depth: int, film: Film) -> PathState | None:
         """What a vertex adds before the path scatters on (nothing here; the path tracer adds direct

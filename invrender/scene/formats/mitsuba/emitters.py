@@ -6,7 +6,7 @@ Emitters (``<emitter type=...>``)
     in the emitter's module of :mod:`invrender.emitters`, says which properties it takes), through
     a :class:`~.reader.PluginReader`. Types that emit from surfaces (``area``: radiance from the
     front side) are nested in the ``<shape>`` that emits; types that emit from outside the scene
-    are children of ``<scene>``. The message for an unsupported type lists the registry's.
+    and delta lights (``point``, ``spot``, ``directional``) are children of ``<scene>``. The message for an unsupported type lists the registry's.
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ def emitter(ctx: Context, obj: Obj, in_shape: bool) -> Emitter:
     if cls.surface and not in_shape:
         raise ctx.error(obj.node, f"an emitter of type {obj.type!r} must be nested in the <shape> that emits", obj)
     if not cls.surface and in_shape:
-        raise ctx.error(obj.node, f"an emitter of type {obj.type!r} emits from outside the scene: it is a child of <scene>, not of a <shape>", obj)
+        what = "emits from outside the scene" if cls.infinite else "is a point or a direction (a delta light), not emitted by a shape"
+        raise ctx.error(obj.node, f"an emitter of type {obj.type!r} {what}: it is a child of <scene>, not of a <shape>", obj)
     entries = cls.from_mitsuba(PluginReader(ctx, obj))
     return Emitter.of(cls.type_name, f"{ctx.where}:{obj.node.line}: {obj.describe()}", **entries)

@@ -2,7 +2,9 @@
 
 Integrator (at most one ``<integrator>``)
     Each registered integrator (:data:`invrender.registry.INTEGRATORS`) names the Mitsuba plugins
-    it stands for in ``mitsuba_plugins`` (``path``: Mitsuba's ``path``). The element's properties
+    it stands for in ``mitsuba_plugins`` (``path``: Mitsuba's ``path``), and those it stands for
+    with some settings fixed in ``mitsuba_aliases`` (Mitsuba's ``direct``: ``path`` at max_depth 2,
+    whose sample counts are read, checked and ignored). The element's properties
     are the integrator's settings by name (``max_depth``, ``rr_depth``, ...), each read as its
     settings field's type says (``<integer>``, ``<float>``, ``<boolean>``, ``<string>``) and
     checked by the settings themselves (``hide_emitters`` is one of every integrator's). The
@@ -24,25 +26,39 @@ _TAGS = {"int": "integer", "float": "float", "bool": "boolean", "str": "string"}
 
 
 def plugins() -> dict:
-    """Mitsuba integrator plugin name -> the registered integrator class that stands for it."""
-    return {name: cls for cls in registry.INTEGRATORS.values() for name in vars(cls).get("mitsuba_plugins", ())}
+    """Mitsuba integrator plugin name -> the registered integrator class that stands for it (its
+    ``mitsuba_plugins``, then its ``mitsuba_aliases``)."""
+    out = {name: cls for cls in registry.INTEGRATORS.values() for name in vars(cls).get("mitsuba_plugins", ())}
+    out.update({name: cls for cls in registry.INTEGRATORS.values() for name in vars(cls).get("mitsuba_aliases", {})})
+    return out
 
 
 def integrator(ctx: Context, obj: Obj) -> dict:
     """The render settings an ``<integrator>`` states (for ``scene.defaults``): ``{"integrator":
-    name, setting: value, ...}`` with the settings the element gives."""
+    name, setting: value, ...}`` with the settings the element gives (and, for an alias such as
+    Mitsuba's ``direct``, the settings it fixes; its sample counts checked and ignored)."""
     known = plugins()
     if obj.type not in known:
         raise ctx.error(obj.node, f"unsupported integrator type {obj.type!r} (supported: {', '.join(known)})", obj)
     cls = known[obj.type]
+    alias = vars(cls).get("mitsuba_aliases", {}).get(obj.type)
     fields = {f.name: f for f in dataclasses.fields(cls.Settings) if f.init}
+    if alias is not None:
+        fields = {k: f for k, f in fields.items() if k in alias.passed}
     settings = {}
     for name in list(obj.props):
         if name in fields:
             kind = type_names(fields[name].type)[0]
             value = ctx.get(obj, name, _TAGS.get(kind, "string"))
             settings[name] = int(value) if kind == "int" else value
-    ctx.finish(obj, tuple(fields))
+    counts = alias.counts if alias is not None else {}
+    for name, (low, high, why) in counts.items():
+        prop = ctx.take(obj, name, ("integer",), "an <integer>")
+        if prop is not None and not (int(prop.value) >= low and (high is None or int(prop.value) <= high)):
+            raise ctx.error(prop.node, f"'{name}' {prop.value}: {why}", obj)
+    ctx.finish(obj, tuple(fields) + tuple(counts))
+    if alias is not None:
+        settings = {**alias.settings, **settings}
     try:
         cls(**settings)  # the settings check their own values
     except ParameterError as e:
