@@ -65,6 +65,13 @@ def test_hide_emitters_hides_area_lights_seen_directly():
     for integrator in ("path", "whitted", "utah", "random_walk", "distributed"):
         hidden = ir.render(scene, {"type": integrator, "hide_emitters": True, "max_depth": 1}, spp=4, seed=0, progress=False)
         assert float(hidden.abs().max()) == 0.0, integrator
+    # as Mitsuba's: the camera sees through the light to the (dim) ceiling behind it; elsewhere nothing changes
+    seen = ir.render(scene, spp=16, max_depth=1, seed=0, progress=False)  # the same camera rays as below
+    light, away = (seen > 1.0).all(-1), (seen == 0).all(-1)
+    shown = ir.render(scene, spp=16, seed=0, progress=False)
+    hidden = ir.render(scene, {"type": "path", "hide_emitters": True}, spp=16, seed=0, progress=False)
+    assert 0.0 < float(hidden[light].mean()) < 0.5 < 5.0 < float(shown[light].mean())
+    assert torch.equal(hidden[away], shown[away])  # paths whose camera ray misses the light are the same paths
 
 
 @pytest.mark.parametrize("estimator", ["autodiff", "replay"])

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import torch
 
+from invrender.transport.accel import Hits
 from invrender.transport.bsdfs import BSDFSample, Lobe, ShadingPoint
 from invrender.transport.context import PathState, TransportContext
 from invrender.transport.film import Film
@@ -27,9 +28,12 @@ def next_vertex(ctx: TransportContext, state: PathState, film: Film, depth: int,
 
     Paths whose ray leaves the scene end here; where the scene has emitters infinitely far away
     (a sky), they first add term ``depth``, the radiance arriving along the ray, weighted as
-    :func:`add_emitted` weighs emission seen (``mis``, ``nee_only``).
+    :func:`add_emitted` weighs emission seen (``mis``, ``nee_only``). With the integrator's
+    ``hide_emitters``, camera rays pass through emitting shapes (:func:`through_emitters`).
     """
     hits = ctx.accel.intersect(state.o, state.d)
+    if depth == 0 and ctx.hide_emitters and ctx.lights.surfaces:
+        hits = through_emitters(ctx, state, hits)
     if ctx.lights.infinite:
         missed = (~hits.valid).nonzero()[:, 0]
         if missed.numel():
@@ -42,6 +46,28 @@ def next_vertex(ctx: TransportContext, state: PathState, film: Film, depth: int,
     s = surface_at(ctx.triangles, hits, state.d, ctx.textured)
     film.visit(state.pixel, s)
     return state, s
+
+
+#: emitting shapes a camera ray passes through with hide_emitters before it is taken as it is
+MAX_HIDDEN_LAYERS = 8
+
+
+def through_emitters(ctx: TransportContext, state: PathState, hits: Hits) -> Hits:
+    """``hits`` of camera rays with the emitting shapes (either side) taken out, as Mitsuba's
+    ``hide_emitters`` does: a ray that hits one goes on along the same direction from just past
+    it, up to :data:`MAX_HIDDEN_LAYERS` times, and the camera sees what lies behind the light."""
+    for _ in range(MAX_HIDDEN_LAYERS):
+        on = hits.valid & (ctx.triangles.emitter.index_select(0, hits.prim.clamp_min(0)) >= 0)
+        i = on.nonzero()[:, 0]
+        if not i.numel():
+            break
+        d = state.d.index_select(0, i)
+        t = hits.t.index_select(0, i)
+        o = state.o.index_select(0, i) + (t + ctx.ray_offset)[:, None] * d
+        again = ctx.accel.intersect(o, d)
+        again = Hits(torch.where(again.valid, again.t + t + ctx.ray_offset, again.t), again.prim, again.u, again.v)  # distances from the camera
+        hits = Hits(*(x.index_put((i,), y) for x, y in ((hits.t, again.t), (hits.prim, again.prim), (hits.u, again.u), (hits.v, again.v))))
+    return hits
 
 
 def add_emitted(ctx: TransportContext, state: PathState, s: Surface | None, depth: int, film: Film, mis: bool, nee_only: bool = False) -> None:
