@@ -13,5 +13,6 @@ The table of types (docs/plugins.md) is generated from these declarations
 
 from invrender.emitters.area import Area
 from invrender.emitters.constant import Constant
+from invrender.emitters.envmap import Envmap
 
-__all__ = ["Area", "Constant"]
+__all__ = ["Area", "Constant", "Envmap"]

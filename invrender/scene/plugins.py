@@ -112,6 +112,9 @@ class PluginSpec:
             raise SceneError(f"{where}: unknown key {unknown[0]!r} for a {type} {cls.noun} (allowed: {allowed})")
         values = {k: entries.get(k, p.default) for k, p in spec.params.items()}
         constants = {k: c.check(where, k, entries.get(k, c.default)) for k, c in spec.constants.items()}
+        check_spec = getattr(spec, "check_spec", None)  # a type's own checks of its values together
+        if check_spec is not None:
+            check_spec(values, constants, where)
         return cls(type, values, constants)
 
     @property

@@ -216,8 +216,11 @@ def _plugin(doc, cls: type[PluginSpec], where: str, base: Path) -> PluginSpec:
         raise SceneError(f"{where}: must be a table of {cls.noun} keys, got {show(doc)}")
     kind = string(doc, "type", where) if "type" in doc else cls.default_type
     spec = cls.registry.get(kind, where)
-    check_keys(doc, spec.keys | {"type"}, where)
+    transform_key = getattr(spec, "toml_transform", None)  # a type reading a rotation (envmap's to_world)
+    check_keys(doc, spec.keys | {"type"} | ({transform_key} if transform_key else set()), where)
     entries = {}
+    if transform_key and transform_key in doc:
+        entries.update(spec.from_transform(_transform(doc[transform_key], f"{where} {transform_key}"), where))
     for key, (param_kind, _) in spec.params.items():
         if key in doc or f"{key}_texture" in doc:
             entries[key] = _colour_or_texture(doc, key, where, base)
