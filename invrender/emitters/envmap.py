@@ -146,9 +146,10 @@ class Distribution:
     """The detached sampling density of one map (h x w after padding): piecewise constant over the
     w x (h - 1) cells between texel centres, cell (i, j) spanning ``u in [(j + 0.5) / w, (j + 1.5)
     / w)`` (wrapping) and ``v' in [i / (h - 1), (i + 1) / (h - 1)]``, with weight the mean luminance
-    of its four corner texels times the cell's mean sin(theta)."""
+    of its four corner texels times the cell's mean sin(theta) (``sin_weighted=False``: without it,
+    a deliberately poor density for the tests of the sampling checks)."""
 
-    def __init__(self, texture: torch.Tensor):
+    def __init__(self, texture: torch.Tensor, sin_weighted: bool = True):
         t = texture.detach().to(torch.float64)
         h, w = t.shape[0], t.shape[1]
         self.h, self.w = h, w
@@ -157,7 +158,7 @@ class Distribution:
         corners = 0.25 * (lum[:-1] + right[:-1] + lum[1:] + right[1:])  # (h - 1, w)
         theta = torch.arange(h, dtype=torch.float64, device=t.device) * (math.pi / (h - 1))
         band = (torch.cos(theta[:-1]) - torch.cos(theta[1:])) / (math.pi / (h - 1))  # mean sin over each row of cells
-        weight = corners * band[:, None]
+        weight = corners * band[:, None] if sin_weighted else corners
         self.total = float(weight.sum())
         #: the map's solid-angle mean radiance (mean of RGB), for the power
         rgb = t.mean(2)
