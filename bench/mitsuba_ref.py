@@ -207,8 +207,24 @@ def plugin_dict(plugin, values: dict, constants: dict, name: str = "material") -
     if to_mitsuba is None:
         raise ValueError(f"{name!r}: no Mitsuba counterpart for type {getattr(plugin, 'type_name', plugin)!r}")
 
+    mi = None
+
+    def convert(k, v):
+        nonlocal mi
+        if isinstance(v, dict):
+            return textures(v)
+        if k == "bitmap" and hasattr(v, "shape"):  # an envmap's map: an mi.Bitmap itself, row 0 at the top (theta = 0) as invrender's
+            import numpy as np
+
+            mi = mi or _require()[0]
+            return mi.Bitmap(np.ascontiguousarray(_np(v).astype(np.float32)))
+        if k == "to_world" and isinstance(v, list):  # a 4x4 nested list
+            mi = mi or _require()[0]
+            return mi.ScalarTransform4f(v)
+        return _rgb_or_bitmap(v, f"{name}.{k}") if hasattr(v, "shape") else v
+
     def textures(d: dict) -> dict:
-        return {k: textures(v) if isinstance(v, dict) else _rgb_or_bitmap(v, f"{name}.{k}") if hasattr(v, "shape") else v for k, v in d.items()}
+        return {k: convert(k, v) for k, v in d.items()}
 
     return textures(to_mitsuba(values, constants))
 
@@ -309,7 +325,7 @@ def scene_dict(scene, spp: int, max_depth: int, filter: str = "box", integrator:
     for i, name in enumerate(scene.emitters):
         spec = scene.emitter_spec(i)
         values = {key: params[f"{name}.{key}"] for key in spec.spec.params}
-        if any(_np(v).ndim != 1 for v in values.values()):
+        if spec.spec.surface and any(_np(v).ndim != 1 for v in values.values()):  # an envmap's map is a bitmap
             raise ValueError(f"emitter {name!r}: emission textures are not converted to Mitsuba (give an RGB emission)")
         emitters.append(plugin_dict(spec.spec, values, dict(spec.constants), name))
 
