@@ -312,7 +312,7 @@ class Envmap(Light):
 
     @classmethod
     def from_mitsuba(cls, emitter) -> dict:
-        """Mitsuba's ``envmap``: ``filename`` (EXR, or Radiance .hdr; linear RGB), ``scale``
+        """Mitsuba's ``envmap``: ``filename`` (EXR or Radiance .hdr: linear RGB), ``scale``
         (float > 0, default 1), ``to_world`` (a rotation; a translation is ignored)."""
         from invrender.errors import InvRenderError
         from invrender.scene.formats.values import one_line

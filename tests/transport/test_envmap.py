@@ -295,3 +295,17 @@ def test_bad_maps_and_rotations_are_one_line_errors(tmp_path):
         p.write_text(f'<scene version="3.0.0"><emitter type="envmap" id="sky">{body}</emitter><shape type="cube"/></scene>')
         message = error_of(lambda: ir.load_scene(str(p)))
         assert match in message and "bad.xml" in message, message
+
+
+def test_a_radiance_hdr_map_loads(tmp_path):
+    cv2 = pytest.importorskip("cv2")
+    sky = sky_map()
+    cv2.imwrite(str(tmp_path / "sky.hdr"), np.ascontiguousarray(sky.numpy()[..., ::-1]))  # OpenCV writes BGR
+    (tmp_path / "s.toml").write_text('[camera]\norigin = [3, 2.5, 3.5]\n[emitters.sky]\ntype = "envmap"\nemission_texture = "sky.hdr"\n[materials.box]\nreflectance = 0.5\n[[shapes]]\ntype = "cube"\nmaterial = "box"\n')
+    loaded = ir.load_scene(str(tmp_path / "s.toml")).params["sky.emission"]
+    error = (loaded - sky).abs() / sky.amax(-1, keepdim=True)  # RGBE: 8-bit mantissas under the pixel's shared exponent
+    assert float(error.max()) < 1e-2
+    (tmp_path / "bad.hdr").write_bytes(b"#?RADIANCE\nnot an image")
+    (tmp_path / "s.toml").write_text((tmp_path / "s.toml").read_text().replace("sky.hdr", "bad.hdr"))
+    with pytest.raises(ir.SceneError, match=r"emitters.sky\]: cannot read image .*bad.hdr: not a valid HDR \(Radiance RGBE\) file$"):
+        ir.load_scene(str(tmp_path / "s.toml"))
