@@ -10,7 +10,9 @@ on a diffuse floor, under an ``envmap`` with a ``to_world`` rotation (40 degrees
 gradient over a darker ground, and a sun (a Gaussian blob 60x the sky) 35 degrees above the
 horizon. Mitsuba renders the same scene through ``mitsuba_ref.scene_dict`` (the envmap as an
 ``mi.Bitmap``, its rotation as ``to_world``), with its ``path`` integrator; the table is
-``mitsuba_compare.compare``'s (seeds, standard errors, relative differences). Needs Mitsuba 3
+``mitsuba_compare.compare``'s (seeds, standard errors, relative differences). First, the lookup
+alone: invrender's envmap radiance against Mitsuba's ``eval`` of the same map on random directions,
+the axes and the poles, under rotations and on a padded 1 x 1 map. Needs Mitsuba 3
 (see bench/README.md). The issue's target: within 1.5% in channel means.
 """
 
@@ -102,6 +104,39 @@ def write_scene(folder: Path) -> Path:
     return folder / "scene.toml"
 
 
+def lookup_check(record: Results, triangles, n: int = 20000) -> float:
+    """Largest |difference| between invrender's envmap radiance and Mitsuba's ``eval`` of the same
+    map, over ``n`` random directions, the six axes and the poles, under three rotations (one of
+    them none) and on a 1 x 1 map (padded); printed and recorded."""
+    import numpy as np
+
+    from invrender.emitters.envmap import Envmap, quaternion_of
+    from invrender.scene.shapes import rotate
+
+    mi, dr = mitsuba_ref._require()
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(n, 3))
+    d = np.concatenate([d / np.linalg.norm(d, axis=1, keepdims=True), np.vstack([np.eye(3), -np.eye(3)])])
+    rows = record.table("the envmap lookup against Mitsuba 3's eval (same directions)", ["map", "to_world", "max |difference|", "max radiance"])
+    print(f"\nlookup: invrender's envmap radiance against {mitsuba_ref.label()} envmap eval, {len(d)} directions")
+    worst = 0.0
+    for label, tex in (("64x128 sky", sky_map()), ("1x1 (padded)", torch.tensor([[[0.3, 0.6, 0.9]]]))):
+        for axis, angle in (((0, 1, 0), 0.0), ((0, 1, 0), 40.0), ((0.3, 1.0, -0.5), 70.0)):
+            matrix = rotate(axis, angle)
+            q = quaternion_of(matrix, "lookup")
+            ours = Envmap([0], [{"emission": tex}], [{"scale": 1.5, **q}], triangles)
+            L = ours.escaped(torch.tensor(d, dtype=torch.float32)).numpy()
+            em = mi.load_dict({"type": "envmap", "bitmap": mi.Bitmap(np.ascontiguousarray(tex.numpy())), "scale": 1.5, "to_world": mi.ScalarTransform4f(matrix.tolist())})
+            si = dr.zeros(mi.SurfaceInteraction3f)
+            si.wi = mi.Vector3f(*(-d.T).astype(np.float32))
+            ref = np.array(em.eval(si)).T
+            diff = float(np.abs(L - ref).max())
+            worst = max(worst, diff)
+            print(f"  {label:<14} rotate {angle:4.0f} deg about {axis}: max |difference| {diff:.2e} (max radiance {ref.max():.3g})")
+            rows.append([label, f"{angle:g} deg about {list(axis)}", f"{diff:.2e}", f"{ref.max():.3g}"])
+    return worst
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--resolution", type=int, default=48)
@@ -121,6 +156,7 @@ def main() -> int:
         folder = Path(args.out or tmp)
         folder.mkdir(parents=True, exist_ok=True)
         scene = ir.load_scene(str(write_scene(folder)), resolution=(args.resolution, args.resolution))
+        lookup_check(record, scene.triangles)
         label = "diffuse and GGX spheres on a floor under a 64x128 envmap (rotated 40 degrees about +Y, scale 1.5)"
         worst = mitsuba_compare.compare(scene, label, args.spp, mi_spp, args.seeds, args.max_depth, TOLERANCE, record=record)
     summary = record.table("summary: largest channel |relative difference| against Mitsuba", ["case", "largest difference", "tolerance"])
