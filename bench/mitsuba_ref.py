@@ -213,7 +213,10 @@ def plugin_dict(plugin, values: dict, constants: dict, name: str = "material") -
     def convert(k: str, v):
         if isinstance(v, dict):
             return textures(v)
-        if k == "to_world":  # a (4, 4) matrix (a spot light's frame)
+        if k == "bitmap" and hasattr(v, "shape"):  # an envmap's map: an mi.Bitmap itself, row 0 at the top (theta = 0) as invrender's
+            mi, _ = _require()
+            return mi.Bitmap(np.ascontiguousarray(_np(v).astype(np.float32)))
+        if k == "to_world":  # a (4, 4) matrix or nested list (an envmap's rotation, a spot light's frame)
             mi, _ = _require()
             return mi.ScalarTransform4f([[float(x) for x in row] for row in _np(v)])
         return _rgb_or_bitmap(v, f"{name}.{k}") if hasattr(v, "shape") else v
@@ -320,7 +323,7 @@ def scene_dict(scene, spp: int, max_depth: int, filter: str = "box", integrator:
     for i, name in enumerate(scene.emitters):
         spec = scene.emitter_spec(i)
         values = {key: params[f"{name}.{key}"] for key in spec.spec.params}
-        if any(_np(v).ndim != 1 for v in values.values()):
+        if spec.spec.surface and any(_np(v).ndim != 1 for v in values.values()):  # an envmap's map is a bitmap
             raise ValueError(f"emitter {name!r}: emission textures are not converted to Mitsuba (give an RGB emission)")
         emitters.append(plugin_dict(spec.spec, values, dict(spec.constants), name))
 

@@ -13,10 +13,10 @@ The table of types (docs/plugins.md) is generated from these declarations
 
 from invrender.emitters.area import Area
 from invrender.emitters.constant import Constant
+from invrender.emitters.envmap import Envmap
 
-__all__ = ["Area", "Constant"]
-from invrender.emitters.point import Point  # noqa: E402
-from invrender.emitters.spot import Spot  # noqa: E402
-from invrender.emitters.directional import Directional  # noqa: E402
+from invrender.emitters.point import Point
+from invrender.emitters.spot import Spot
+from invrender.emitters.directional import Directional
 
-__all__ += ["Point", "Spot", "Directional"]
+__all__ = ["Area", "Constant", "Envmap", "Point", "Spot", "Directional"]

@@ -35,7 +35,7 @@ class Directional(DeltaLight):
     doc = "a directional light: irradiance E (RGB) travelling along `direction` from infinitely far"
 
     @classmethod
-    def resolve(cls, where: str, constants: dict, given: set) -> dict:
+    def resolve(cls, where: str, values: dict, constants: dict, given: set) -> dict:
         return dict(constants, direction=unit(where, "direction", constants["direction"]))
 
     def member_power(self, i: int) -> float:

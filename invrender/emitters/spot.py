@@ -60,7 +60,7 @@ class Spot(DeltaLight):
     doc = "a spot light: intensity I (W/sr, RGB) from `position` along `direction`, Mitsuba's falloff (beam_width default: 3/4 of cutoff_angle)"
 
     @classmethod
-    def resolve(cls, where: str, constants: dict, given: set) -> dict:
+    def resolve(cls, where: str, values: dict, constants: dict, given: set) -> dict:
         out = dict(constants, direction=unit(where, "direction", constants["direction"]))
         if "beam_width" not in given:
             out["beam_width"] = 0.75 * out["cutoff_angle"]  # Mitsuba's default

@@ -3,6 +3,7 @@
 Every image in invrender is a float tensor of shape (H, W, 3): linear RGB radiance (W sr^-1 m^-2 per
 channel, unitless scale), row 0 at the top. EXR files hold those values exactly (float32); PNG and
 JPEG files hold sRGB-encoded 8-bit values in [0, 1] and are converted to and from linear on the way.
+Radiance ``.hdr`` (RGBE) files are read as linear (through OpenCV), for environment maps.
 Every failure raises :class:`~invrender.errors.ImageError` with a one-line message naming the file.
 """
 
@@ -23,7 +24,7 @@ from invrender.errors import ImageError
 from invrender.io.atomic import atomic_file
 
 WRITE_SUFFIXES = (".exr", ".png")
-READ_SUFFIXES = (".exr", ".png", ".jpg", ".jpeg")
+READ_SUFFIXES = (".exr", ".hdr", ".png", ".jpg", ".jpeg")
 
 
 def write_image(path: str | os.PathLike, image: torch.Tensor) -> None:
@@ -66,7 +67,8 @@ def read_image(path: str | os.PathLike, device: torch.device | str | None = None
     """Read an image file as linear radiance.
 
     Args:
-        path: ``.exr`` (R, G, B channels; a Y-only file is replicated to grey, alpha is dropped), or
+        path: ``.exr`` (R, G, B channels; a Y-only file is replicated to grey, alpha is dropped),
+            ``.hdr`` (Radiance RGBE, linear), or
             ``.png`` / ``.jpg`` / ``.jpeg`` (decoded from sRGB to linear; alpha dropped).
         device: device of the returned tensor (default CPU).
 
@@ -85,7 +87,7 @@ def read_image(path: str | os.PathLike, device: torch.device | str | None = None
     if not path.is_file():
         raise ImageError(f"cannot read image {path}: not a regular file")
     try:
-        rgb = _read_exr(path) if suffix == ".exr" else _read_srgb(path)
+        rgb = _read_exr(path) if suffix == ".exr" else _read_hdr(path) if suffix == ".hdr" else _read_srgb(path)
     except ImageError:
         raise
     except Exception as e:  # OpenEXR raises RuntimeError/ValueError, PIL OSError/SyntaxError/...
@@ -152,6 +154,23 @@ def _read_exr(path: Path) -> torch.Tensor:
             raise ImageError(f"cannot read image {path}: no R, G, B or Y channels (found {', '.join(sorted(channels)) or 'none'})")
         rgb = np.stack([np.asarray(p, dtype=np.float32) for p in planes], axis=-1)
     return torch.from_numpy(rgb)
+
+
+def _read_hdr(path: Path) -> torch.Tensor:
+    """Read a Radiance RGBE (.hdr) file as a (H, W, 3) float32 linear tensor (OpenCV's reader, which
+    gives BGR)."""
+    import cv2  # lazily: only .hdr files need it
+
+    log = cv2.utils.logging
+    level = log.getLogLevel()
+    log.setLogLevel(log.LOG_LEVEL_SILENT)  # a bad file: our one-line error, not OpenCV's log lines
+    try:
+        bgr = cv2.imread(str(path), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_COLOR)
+    finally:
+        log.setLogLevel(level)
+    if bgr is None or bgr.ndim != 3 or bgr.shape[2] != 3:
+        raise ImageError(f"cannot read image {path}: not a valid HDR (Radiance RGBE) file")
+    return torch.from_numpy(np.ascontiguousarray(bgr[..., ::-1], dtype=np.float32))
 
 
 def _read_srgb(path: Path) -> torch.Tensor:

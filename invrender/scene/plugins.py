@@ -79,10 +79,12 @@ class Declared:
     keys: ClassVar[frozenset[str]] = frozenset()
 
     @classmethod
-    def resolve(cls, where: str, constants: dict, given: set) -> dict:
+    def resolve(cls, where: str, values: dict, constants: dict, given: set) -> dict:
         """The constants once each is checked on its own: a type whose defaults depend on other
-        constants (a spot's ``beam_width``) or whose constants constrain each other overrides this
-        (``given``: the keys the scene gave; raise :class:`SceneError` naming ``where``)."""
+        constants (a spot's ``beam_width``), whose constants constrain each other or whose values
+        need a check of their own (an envmap that is zero everywhere) overrides this (``values``:
+        the parameter values given or defaulted; ``given``: the constant keys the scene gave;
+        raise :class:`SceneError` naming ``where``)."""
         return constants
 
     def __init_subclass__(cls, **kwargs):
@@ -129,7 +131,7 @@ class PluginSpec:
             raise SceneError(f"{where}: unknown key {unknown[0]!r} for a {type} {cls.noun} (allowed: {allowed})")
         values = {k: entries.get(k, p.default) for k, p in spec.params.items()}
         constants = {k: c.check(where, k, entries.get(k, c.default)) for k, c in spec.constants.items()}
-        constants = spec.resolve(where, constants, {k for k in spec.constants if k in entries})
+        constants = spec.resolve(where, values, constants, {k for k in spec.constants if k in entries})
         return cls(type, values, constants)
 
     @property

@@ -1,6 +1,8 @@
 """Every registered material passes the BSDF conformance checks (invrender.materials.checks), so a
 new material gets them without writing a test: its sampling against its pdf (chi-square), its sample
-weights against eval / pdf, its delta samples against its listed delta lobes, and its albedo below 1."""
+weights against eval / pdf, its delta samples against its listed delta lobes, and its albedo below 1.
+Every registered emitter type infinitely far away passes invrender.emitters.checks: its pdf
+integrates to 1 and its samples follow it (chi-square)."""
 
 from __future__ import annotations
 
@@ -63,3 +65,34 @@ def test_albedo_at_most_one(name):
     for theta_o in ANGLES:
         bs = bsdf.sample(checks.shading_point(theta_o, n), torch.rand(n, generator=g), torch.rand(n, 2, generator=g))
         assert float(bs.weight.double().mean(0).max()) <= 1.0 + 5e-3
+
+
+# ---------------------------------------------------------------- emitters infinitely far away
+
+
+def _environment(name: str):
+    """An instance of the registered emitter type ``name`` with its default values, in a scene of
+    one cube."""
+    from invrender.registry import EMITTERS
+    from invrender.scene.camera import Camera
+    from invrender.scene.emitters import Emitter
+    from invrender.scene.scene import build_scene
+    from invrender.scene.shapes import Mesh, cube
+
+    scene = build_scene([Mesh(*cube(), material="m")], {"m": 0.5}, {"e": Emitter.of(name)}, Camera(origin=(3, 2, 3), target=(0, 0, 0)), (4, 4))
+    return EMITTERS[name]([0], [{"emission": scene.params["e.emission"]}], [dict(scene.emitter_spec(0).constants)], scene.triangles)
+
+
+def _infinite_types():
+    from invrender.registry import EMITTERS
+
+    return [name for name in EMITTERS.names() if EMITTERS[name].infinite]
+
+
+@pytest.mark.parametrize("name", _infinite_types())
+def test_an_environments_sampling_matches_its_pdf(name):
+    from invrender.emitters import checks as emitter_checks
+
+    light = _environment(name)
+    assert emitter_checks.pdf_integral(light) == pytest.approx(1.0, abs=2e-3)
+    assert emitter_checks.chi_square_p(light, samples=100_000) > 1e-3

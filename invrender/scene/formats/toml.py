@@ -179,14 +179,15 @@ def _shape(doc: dict, where: str, base: Path) -> Mesh:
     return mesh.transformed(_transform(doc.get("transform", []), where))
 
 
-def _transform(ops, where: str) -> np.ndarray:
-    """4x4 matrix of a list of {translate|rotate|scale} steps applied in the order listed."""
+def _transform(ops, where: str, key: str = "transform") -> np.ndarray:
+    """4x4 matrix of a list of {translate|rotate|scale} steps applied in the order listed (the
+    value of ``key``, named so in messages)."""
     usage = "{ translate = [x, y, z] }, { rotate = { axis = [x, y, z], angle = degrees } } or { scale = s or [x, y, z] }"
     if not isinstance(ops, list):
-        raise SceneError(f"{where}: 'transform' must be a list of steps {usage}, got {show(ops)}")
+        raise SceneError(f"{where}: '{key}' must be a list of steps {usage}, got {show(ops)}")
     matrix = np.eye(4)
     for i, op in enumerate(ops):
-        w = f"{where} transform[{i}]"
+        w = f"{where} {key}[{i}]"
         if not isinstance(op, dict) or len(op) != 1:
             raise SceneError(f"{w}: each step must be a table with one key, one of {usage}; got {show(op)}")
         ((kind, value),) = op.items()
@@ -216,8 +217,11 @@ def _plugin(doc, cls: type[PluginSpec], where: str, base: Path) -> PluginSpec:
         raise SceneError(f"{where}: must be a table of {cls.noun} keys, got {show(doc)}")
     kind = string(doc, "type", where) if "type" in doc else cls.default_type
     spec = cls.registry.get(kind, where)
-    check_keys(doc, spec.keys | {"type"}, where)
+    transform_key = getattr(spec, "toml_transform", None)  # a type reading a rotation (envmap's to_world)
+    check_keys(doc, spec.keys | {"type"} | ({transform_key} if transform_key else set()), where)
     entries = {}
+    if transform_key and transform_key in doc:
+        entries.update(spec.from_transform(_transform(doc[transform_key], where, transform_key), where))
     for key, (param_kind, _) in spec.params.items():
         if key in doc or f"{key}_texture" in doc:
             entries[key] = _colour_or_texture(doc, key, where, base)
