@@ -214,6 +214,8 @@ def plugin_dict(plugin, values: dict, constants: dict, name: str = "material") -
         if isinstance(v, dict):
             return textures(v)
         if k == "bitmap" and hasattr(v, "shape"):  # an envmap's map: an mi.Bitmap itself, row 0 at the top (theta = 0) as invrender's
+            import numpy as np
+
             mi, _ = _require()
             return mi.Bitmap(np.ascontiguousarray(_np(v).astype(np.float32)))
         if k == "to_world":  # a (4, 4) matrix or nested list (an envmap's rotation, a spot light's frame)
