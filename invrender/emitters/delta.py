@@ -15,6 +15,8 @@ which is its flux divided by pi: a point light's flux ``4 pi I`` gives ``4 mean(
 
 from __future__ import annotations
 
+from abc import abstractmethod
+
 import math
 
 import numpy as np
@@ -59,8 +61,9 @@ class DeltaLight(Light):
         self.choice = torch.tensor([p / self.total if self.total > 0 else 0.0 for p in power], dtype=torch.float32, device=device)
         self._cdf = torch.tensor(power, dtype=torch.float64).cumsum(0).div(max(self.total, 1e-300)).float().to(device)
 
+    @abstractmethod
     def member_power(self, i: int) -> float:
-        raise NotImplementedError
+        """The power of the type's emitter ``i`` (detached; flux / pi, the area light's units)."""
 
     @property
     def power(self) -> float:
@@ -87,9 +90,9 @@ class DeltaLight(Light):
         pdf = self.choice.index_select(0, k)
         return LightSample(o, wl, tmax, facing & (pdf > 0), pdf, Le, torch.ones_like(facing))
 
+    @abstractmethod
     def arrive(self, k: torch.Tensor, o: torch.Tensor, nx: torch.Tensor, offset: float):
         """``(wl, tmax, facing, Le)`` of the shadow rays from ``o`` (N, 3) towards emitters ``k``."""
-        raise NotImplementedError
 
 
 def towards_point(p: torch.Tensor, o: torch.Tensor, nx: torch.Tensor, offset: float):
