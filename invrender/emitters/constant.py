@@ -10,13 +10,12 @@ and the scene's other emitters, is that of L through the scene's bounding sphere
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import torch
 
 from invrender import registry
-from invrender.scene.kinds import EMISSION
+from invrender.scene.kinds import EMISSION, EMISSION_RGB
 from invrender.scene.plugins import Param
 from invrender.scene.scene import scene_extent
 from invrender.transport.lights import Light, LightSample
@@ -29,7 +28,7 @@ UNIFORM_SPHERE_PDF = 1.0 / (4.0 * math.pi)
 @registry.EMITTERS.register
 class Constant(Light):
     type_name = "constant"
-    params = {"emission": Param(dataclasses.replace(EMISSION, texture=False), 1.0)}  # RGB only
+    params = {"emission": Param(EMISSION_RGB, 1.0)}
     doc = "a uniform environment: radiance L from every direction (RGB)"
     surface = False
     infinite = True

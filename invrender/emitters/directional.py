@@ -15,14 +15,13 @@ its ``to_world``, never both).
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import torch
 
 from invrender import registry
 from invrender.emitters.delta import DIRECTION, DeltaLight, unit
-from invrender.scene.kinds import EMISSION
+from invrender.scene.kinds import EMISSION, EMISSION_RGB
 from invrender.scene.plugins import Param
 from invrender.scene.scene import scene_extent
 
@@ -30,7 +29,7 @@ from invrender.scene.scene import scene_extent
 @registry.EMITTERS.register
 class Directional(DeltaLight):
     type_name = "directional"
-    params = {"emission": Param(dataclasses.replace(EMISSION, texture=False), 1.0)}  # RGB only
+    params = {"emission": Param(EMISSION_RGB, 1.0)}
     constants = {"direction": DIRECTION}
     doc = "a directional light: irradiance E (RGB) travelling along `direction` from infinitely far"
 

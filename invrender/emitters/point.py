@@ -15,18 +15,17 @@ the translation of its ``to_world``, never both).
 
 from __future__ import annotations
 
-import dataclasses
 
 from invrender import registry
 from invrender.emitters.delta import POSITION, DeltaLight, towards_point
-from invrender.scene.kinds import EMISSION
+from invrender.scene.kinds import EMISSION, EMISSION_RGB
 from invrender.scene.plugins import Param
 
 
 @registry.EMITTERS.register
 class Point(DeltaLight):
     type_name = "point"
-    params = {"emission": Param(dataclasses.replace(EMISSION, texture=False), 1.0)}  # RGB only
+    params = {"emission": Param(EMISSION_RGB, 1.0)}
     constants = {"position": POSITION}
     doc = "a point light: radiant intensity I (W/sr, RGB) from `position`, equally in all directions"
 

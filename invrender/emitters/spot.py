@@ -17,7 +17,6 @@ cutoff_angle``). Mitsuba's projected ``texture`` is not supported (an error).
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import torch
@@ -25,7 +24,7 @@ import torch
 from invrender import registry
 from invrender.emitters.delta import DIRECTION, POSITION, DeltaLight, frame_z, look_at_matrix, towards_point, unit
 from invrender.errors import SceneError
-from invrender.scene.kinds import EMISSION
+from invrender.scene.kinds import EMISSION, EMISSION_RGB
 from invrender.scene.plugins import Constant, Param
 
 
@@ -50,7 +49,7 @@ def falloff_solid_angle(cutoff_deg: float, beam_deg: float) -> float:
 @registry.EMITTERS.register
 class Spot(DeltaLight):
     type_name = "spot"
-    params = {"emission": Param(dataclasses.replace(EMISSION, texture=False), 1.0)}  # RGB only
+    params = {"emission": Param(EMISSION_RGB, 1.0)}
     constants = {
         "position": POSITION,
         "direction": DIRECTION,

@@ -10,6 +10,7 @@ reads a parameter's name to decide how to treat it: callers ask :func:`kind_of`.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -82,6 +83,10 @@ SPECULAR_REFLECTANCE = ParamKind(
     "specular_reflectance", "k_s", 1.0, False, "sigmoid", "lr", 1e-2, "specular reflectance k_s of a mirror or glossy conductor, in [0, 1]"
 )
 EMISSION = ParamKind("emission", "eps", math.inf, True, "exp", "lr_emission", 1e-2, "emitted radiance eps, >= 0")
+
+#: emission that cannot vary over a surface (lights without one: skies, point, spot and directional
+#: lights): the same kind, an RGB triple only
+EMISSION_RGB = dataclasses.replace(EMISSION, texture=False)
 
 #: every kind, by key
 KINDS: dict[str, ParamKind] = {k.key: k for k in (REFLECTANCE, SPECULAR_REFLECTANCE, EMISSION)}

@@ -23,7 +23,7 @@ from invrender.scene.kinds import ParamKind
 class Param(NamedTuple):
     """A differentiable parameter of a plugin type: its kind and default value (an RGB triple or
     one number). A plugin whose parameter cannot be a texture although its kind can declares it
-    with the kind's RGB-only form, ``dataclasses.replace(kind, texture=False)``."""
+    with the kind's RGB-only form (:data:`~invrender.scene.kinds.EMISSION_RGB` for emission)."""
 
     kind: ParamKind
     default: object
