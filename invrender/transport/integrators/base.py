@@ -45,8 +45,9 @@ class DepthSettings:
     Attributes:
         max_depth: Neumann terms kept, counted as Mitsuba counts: 1 = emitters seen directly,
             2 = + direct illumination, ...; -1 = unbounded (ended by Russian roulette only).
-        hide_emitters: the camera sees black where it would see an emitter directly (Mitsuba's
-            hide_emitters); emitters still light the scene and show in reflections.
+        hide_emitters: the camera does not see emitters directly (Mitsuba's hide_emitters): black
+            where it would see an environment, what lies behind where it would see an emitting
+            shape; emitters still light the scene and show in reflections.
     """
 
     max_depth: int = 8
