@@ -136,22 +136,24 @@ def sphere_views():
     return scene, cameras
 
 
-def test_a_diffuse_sphere_determines_orders_0_to_2_and_not_3():
-    """Six views of a diffuse sphere under an order-3 environment: Ramamoorthi & Hanrahan's
-    A_3 = 0 makes every order-3 coefficient undetermined, orders 0-2 are determined (their singular
-    values stand above the Jacobian's Monte Carlo noise), and the fit recovers the order 0-1
-    coefficients within 4 standard errors (order 2 mixes with the undetermined directions a
-    little at this size; the minimum-norm solution sets those to zero)."""
+def test_a_diffuse_sphere_determines_orders_0_to_2_and_not_3_or_5():
+    """Six views of a diffuse sphere (8 x 8 pixels each) under an order-5 environment (about 13 s):
+    Ramamoorthi & Hanrahan's A_3 = A_5 = 0 make every order-3 and order-5 coefficient undetermined;
+    orders 0-2 are determined (their singular values stand 5-200 times above the Jacobian's Monte
+    Carlo noise, the undetermined ones about 1 time); order 4 (A_4 = -pi / 24, 1/24 of order 0's
+    gain) is below the noise at 192 spp and not asserted either way. The fit recovers the order 0-1
+    coefficients within 4 standard errors (order 2 mixes a little with the undetermined directions
+    at this size; the minimum-norm solution sets those to zero)."""
     scene, cameras = sphere_views()
-    basis = L.emitter_basis(scene, "sky", order=3)
-    truth = torch.zeros(16, 3, dtype=torch.float64)
+    basis = L.emitter_basis(scene, "sky", order=5)
+    truth = torch.zeros(36, 3, dtype=torch.float64)
     truth[0], truth[1:4], truth[4:9], truth[9:16] = 2.0, 0.3, 0.12, 0.1
     lit = scene.with_params({"sky.emission": basis.texels(truth)})
     hidden = {"type": "path", "hide_emitters": True, "strategy": "bsdf"}
     targets = [ir.render(lit.with_camera(c), hidden, spp=1024, max_depth=2, seed=7, progress=False) for c in cameras]
-    fit = L.fit_sh(scene, targets, "sky", 3, cameras=cameras, integrator=hidden, spp=192, max_depth=2, sampler="antithetic")
+    fit = L.fit_sh(scene, targets, "sky", 5, cameras=cameras, integrator=hidden, spp=192, max_depth=2, sampler="antithetic")
     print("singular values / noise (R):", (fit.singular_values[0] / fit.noise[0]).numpy().round(1).tolist())
-    assert fit.undetermined_orders() == [3]
+    assert {3, 5} <= set(fit.undetermined_orders())
     assert not any(label.startswith(("Y[0", "Y[1", "Y[2")) for label in fit.undetermined), fit.undetermined
     err = (fit.coefficients[:4] - truth[:4]).abs()
     assert bool((err < 4 * fit.std_error[:4] + 1e-3).all()), (fit.coefficients[:4], fit.std_error[:4])
