@@ -10,6 +10,7 @@ Public API::
     img = ir.render(scene, ir.integrators.Whitted(max_depth=6))   # an integrator object
     res = ir.render(scene, spp=64, adaptive=ir.AdaptiveSettings(rounds=2), return_counts=True)   # adaptive sampling
     res = ir.fit(scene, target, params=["red.reflectance", "light.emission"])   # inverse rendering
+    sh = ir.lighting.fit_sh(scene, targets, emitter="sky", order=2, cameras=cams)   # SH lighting coefficients
     study = ir.gradient_study(scene, ["red.reflectance", "light.emission"])   # gradient variance and bias
     base = ir.baseline.pyrender_render(scene)               # the rasterized Utah baseline
 """
@@ -18,6 +19,7 @@ from invrender import emitters, materials  # noqa: F401  (registers the built-in
 from invrender.errors import BaselineError, ImageError, InvRenderError, ParameterError, SceneError
 from invrender.inverse.fit import FitResult, fit, identifiability
 from invrender.inverse.gradcheck import gradcheck
+from invrender.inverse import lighting
 from invrender.io import read_image, write_image
 from invrender.diff import render
 from invrender.diff.records import PathRecords, record_paths
@@ -44,6 +46,6 @@ def __getattr__(name):
 
 __all__ = [
     "load_scene", "render", "fit", "gradcheck", "read_image", "write_image", "FitResult", "Camera", "Material", "integrators",
-    "radiosity", "RadiositySolution", "AdaptiveSettings", "AdaptiveResult", "record_paths", "PathRecords", "identifiability", "gradient_study", "GradientStudy", "GradientConfig",
+    "radiosity", "RadiositySolution", "AdaptiveSettings", "AdaptiveResult", "record_paths", "PathRecords", "identifiability", "lighting", "gradient_study", "GradientStudy", "GradientConfig",
     "InvRenderError", "SceneError", "ImageError", "ParameterError", "BaselineError",
 ]  # fmt: skip
