@@ -33,6 +33,13 @@ product of the k linear forms gives up to 4^k monomials in single texels, each w
 saturates as spp grows instead of growing with it. Every texel is a variable of its own (three
 channels), and the record keeps these monomials in a sparse table per degree k (:class:`TexelTerms`),
 within a memory budget.
+
+**Environment maps.** An emitter infinitely far away whose emission is a texture read through a
+linear filter by direction (``envmap``: :meth:`Light.texels <invrender.transport.lights.Light.texels>`)
+is a textured parameter too: the integrators tell the film the direction of each contribution that
+may end on such an emitter (``Film.arrive``, just before it is added), the record film looks up the
+texels and weights the map reads there, and a contribution with the map's factor (its digit: 0 or
+1) takes them as one more linear form, multiplied out with the path's textured vertices as above.
 """
 
 from __future__ import annotations
