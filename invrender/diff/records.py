@@ -33,10 +33,18 @@ product of the k linear forms gives up to 4^k monomials in single texels, each w
 saturates as spp grows instead of growing with it. Every texel is a variable of its own (three
 channels), and the record keeps these monomials in a sparse table per degree k (:class:`TexelTerms`),
 within a memory budget.
+
+**Environment maps.** An emitter infinitely far away whose emission is a texture read through a
+linear filter by direction (``envmap``: :meth:`Light.texels <invrender.transport.lights.Light.texels>`)
+is a textured parameter too: the integrators tell the film the direction of each contribution that
+may end on such an emitter (``Film.arrive``, just before it is added), the record film looks up the
+texels and weights the map reads there, and a contribution with the map's factor (its digit: 0 or
+1) takes them as one more linear form, multiplied out with the path's textured vertices as above.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -44,6 +52,7 @@ import torch
 import torch.autograd.forward_ad as fwAD
 
 from invrender.errors import ParameterError
+from invrender.registry import EMITTERS
 from invrender.scene.kinds import kind_of
 from invrender.scene.scene import Scene, check_names
 from invrender.transport.driver import RenderSettings, for_each_chunk
@@ -227,8 +236,10 @@ def _power_derivative(V: torch.Tensor, E: torch.Tensor, p: int) -> torch.Tensor:
 
 @dataclass(frozen=True)
 class _TextureSlot:
-    """A recorded textured parameter: its digit ``p`` of the code, the scene material it belongs to,
-    its texture size and its first variable row."""
+    """A recorded textured parameter: its digit ``p`` of the code, the scene material it belongs to
+    (-1 for an emitter's map), its texture size and its first variable row; for a map of an emitter
+    infinitely far away, ``lookup(d)`` gives the texels (N, J) and weights (N, J) its radiance along
+    world directions d reads (:meth:`Light.texels <invrender.transport.lights.Light.texels>`)."""
 
     p: int
     name: str
@@ -236,6 +247,11 @@ class _TextureSlot:
     h: int
     w: int
     offset: int
+    lookup: object = None
+
+    @property
+    def sky(self) -> bool:
+        return self.lookup is not None
 
 
 class _History:
@@ -282,7 +298,8 @@ class _RecordFilm(Film):
         self.pixel_of = pixel
         n = pixel.shape[0]
         self.visits = torch.zeros(n, dtype=torch.int64, device=pixel.device)
-        self.history = [_History(n, self.depth, pixel.device) for _ in self.slots]
+        # a map's history holds one entry: the texels of the next contribution's arrival (arrive)
+        self.history = [_History(n, 1 if s.sky else self.depth, pixel.device) for s in self.slots]
         return torch.arange(n, device=pixel.device)
 
     def branch(self, path: torch.Tensor) -> torch.Tensor:
@@ -295,6 +312,8 @@ class _RecordFilm(Film):
 
     def visit(self, path: torch.Tensor, s) -> None:
         for slot, hist in zip(self.slots, self.history):
+            if slot.sky:
+                continue
             on = (self.material_of[s.tri] == slot.material).nonzero()[:, 0]
             if on.numel():
                 at = path[on]
@@ -306,7 +325,25 @@ class _RecordFilm(Film):
                 hist.count[at] += 1
         self.visits[path] += 1
 
+    def arrive(self, path: torch.Tensor, d: torch.Tensor) -> None:
+        """Note, per path, the texels of each recorded map that radiance arriving along ``d`` reads:
+        the next contribution of the path with a factor of the map takes them (and clears them)."""
+        for slot, hist in zip(self.slots, self.history):
+            if slot.sky:
+                rows, weights = slot.lookup(d)
+                hist.rows[path, 0] = rows + slot.offset
+                hist.weights[path, 0] = weights.double()
+                hist.count[path] = 1
+
     def add(self, term: int, path: torch.Tensor, radiance: torch.Tensor) -> None:
+        try:
+            self._add(path, radiance)
+        finally:
+            for slot, hist in zip(self.slots, self.history):
+                if slot.sky:
+                    hist.count[path] = 0  # an arrival serves the one contribution after it
+
+    def _add(self, path: torch.Tensor, radiance: torch.Tensor) -> None:
         primal, tangent = fwAD.unpack_dual(radiance)
         c = primal.detach().double()
         if tangent is None:
@@ -357,6 +394,10 @@ class _RecordFilm(Film):
         Each takes its path's first ``count`` vertices on that texture's material."""
         for slot, hist, k in zip(self.slots, self.history, counts.T):
             n = hist.count[path]
+            if slot.sky:  # at most one factor, from the arrival noted just before
+                if not bool((k <= n).all()):
+                    raise ParameterError(f"{slot.name} enters a contribution whose direction the path records were not told (an integrator that reads the map without Film.arrive); fit it with adam")
+                continue
             last = hist.vertex[path, (n - 1).clamp_min(0)]
             ok = (k == n) | ((k == n - 1) & (last == self.visits[path] - 1))
             if not bool(ok.all()):
@@ -417,6 +458,15 @@ class _RecordFilm(Film):
         return {code: self.buffer[r] for code, r in self.rows.items()}
 
 
+def _with_lookup(slot: _TextureSlot, lights) -> _TextureSlot:
+    """``slot`` of an emitter's map (``slot.lookup`` its scene emitter index until now) with the
+    lookup of the light instance that holds that emitter."""
+    e = slot.lookup
+    light = next(light for light in lights.lights if e in light.emitters)
+    k = light.emitters.index(e)
+    return dataclasses.replace(slot, lookup=lambda d: light.texels(k, d))
+
+
 def _first_rows(record: torch.Tensor, slots: list[_TextureSlot], count: int) -> list[int]:
     """Each parameter's first variable row (constants are one row each; textures many)."""
     sizes = {s.p: s.h * s.w for s in slots}
@@ -465,7 +515,9 @@ def record_paths(
         scene: its parameter values are the record point (every recorded value must be > 0 in
             every channel and texel: a path's weight is recovered by dividing by its monomial there).
         params: names of parameters to record (list or comma-separated): constants (RGB) and
-            textured reflectances (per texel); textured emission is not supported.
+            textured reflectances (per texel), and environment maps (``envmap``'s ``NAME.emission``,
+            per texel: every contribution ending on the map is linear in the four texels its
+            direction reads).
         spp, max_depth, seed: as :func:`invrender.render` (``max_depth`` finite: it bounds the
             degree of the polynomial).
         integrator: any integrator name; ``options`` are its further settings (e.g. ``rr_depth``).
@@ -484,9 +536,12 @@ def record_paths(
         v = scene.params[n]
         if v.ndim == 3:
             owner = n.rpartition(".")[0]
-            if kind_of(n).key == "emission" or owner not in scene.materials:
-                raise ParameterError(f"{n} is a textured emission: path records follow textures of materials only (record a constant emission, or fit it with adam)")
-            slots.append(_TextureSlot(p, n, scene.materials.index(owner), v.shape[0], v.shape[1], offset))
+            if kind_of(n).key == "emission" and owner in scene.emitters and EMITTERS[scene.emitter_spec(scene.emitters.index(owner)).type].texel_lookup:
+                slots.append(_TextureSlot(p, n, -1, v.shape[0], v.shape[1], offset, scene.emitters.index(owner)))  # its lookup once the lights exist
+            elif kind_of(n).key == "emission" or owner not in scene.materials:
+                raise ParameterError(f"{n} is a textured emission of a type without a texel lookup: path records follow textures of materials and environment maps (record a constant emission, or fit it with adam)")
+            else:
+                slots.append(_TextureSlot(p, n, scene.materials.index(owner), v.shape[0], v.shape[1], offset))
         offset += v.numel() // 3
         if not bool((v.detach() > 0).all()):
             raise ParameterError(f"{n} must be > 0 in every channel at the record point, got {v.detach().tolist() if v.ndim == 1 else 'a texture with a texel <= 0'}")
@@ -510,6 +565,7 @@ def record_paths(
     with fwAD.dual_level(), torch.no_grad():
         duals = {n: fwAD.make_dual(scene.params[n].detach().to(device), scene.params[n].detach().to(device) * place[p]) for p, n in enumerate(names)}
         ctx = model.context(scene, settings, device, params=duals)
+        slots = [_with_lookup(s, ctx.lights) if s.lookup is not None else s for s in slots]
 
         def work(worker: int, state) -> None:
             if worker not in films:

@@ -219,6 +219,7 @@ class Envmap(Light):
     )
     surface = False
     infinite = True
+    texel_lookup = True
 
     def __init__(self, emitters, values, constants, triangles):
         super().__init__(emitters, values, constants, triangles)
@@ -238,11 +239,29 @@ class Envmap(Light):
         radius = 0.5 * math.sqrt(3.0) * scene_extent(self.triangles)  # the bounding box's sphere
         return 4.0 * math.pi * radius * radius * sum(d.mean * s for d, s in zip(self.dist, self.scale))
 
+    def _lookup(self, k: int, v: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Emitter k's bilinear filter towards local directions ``v`` (N, 3): indices (N, 4) into
+        its own (unpadded, flattened h * w) texels and their weights (N, 4). A padded map's extra
+        row or column repeats the last one, so its indices fold back onto that one."""
+        e = self.values[k]["emission"]
+        h, w = (1, 1) if e.ndim == 1 else (e.shape[0], e.shape[1])
+        hp, wp = max(h, MIN_ROWS), max(w, MIN_COLUMNS)
+        index, weight = texel_filter(hp, wp, direction_to_uv(v))
+        if (hp, wp) != (h, w):
+            index = (index // wp).clamp_max(h - 1) * w + (index % wp).clamp_max(w - 1)
+        return index, weight
+
+    def texels(self, k: int, d: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Which texels of emitter k's map the radiance along world directions ``d`` (N, 3) reads:
+        (indices (N, 4) into the flattened h * w texels, bilinear weights (N, 4)); the radiance is
+        ``scale * sum_j weight_j * texel_j``, linear in the map (path records use it)."""
+        return self._lookup(k, d.detach() @ self.R[k])
+
     def _radiance(self, k: int, v: torch.Tensor) -> torch.Tensor:
         """(N, 3) emitter k's radiance towards local directions ``v`` (differentiable in the map)."""
-        t = padded(self.values[k]["emission"])
-        index, weight = texel_filter(t.shape[0], t.shape[1], direction_to_uv(v))
-        texels = t.reshape(-1, 3)[index]
+        e = self.values[k]["emission"]
+        index, weight = self._lookup(k, v)
+        texels = e.reshape(-1, 3)[index]
         return (texels * weight[:, :, None].to(texels.dtype)).sum(1) * self.scale[k]
 
     def escaped(self, d: torch.Tensor) -> torch.Tensor:

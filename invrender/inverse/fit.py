@@ -92,6 +92,12 @@ class FitSettings:
             times its value.
         precision: least-squares solvers: a relative standard error the rounds must reach
             before they stop (None: no such requirement).
+        prior_weight: least-squares solvers: the weight lambda of the Tikhonov prior on
+            environment maps (textured emissions), residual rows ``sqrt(lambda) (v - p) / p`` per
+            texel channel toward the fit's starting value p, so that texels the targets cannot see
+            stay at p instead of noise (least_squares.py, ``Prior``). None (default): by the rule
+            lambda = 1e-3 times the mean diagonal of the images' ``J^T J`` over the map's channels
+            in relative units (each column times its value), at each round's start; 0: no prior.
         sampler: how each render's or record's pixel samples are drawn: ``"stratified"``,
             ``"independent"`` or ``"antithetic"`` (mirrored pairs; see ``invrender.render``).
         control_variate: Adam with ``decorrelate``: take ``dl/dI`` at the recursive control-variate
@@ -116,6 +122,7 @@ class FitSettings:
     solver: str = "adam"
     rounds: int = 5
     precision: float | None = None
+    prior_weight: float | None = None
     sampler: str = "stratified"
     control_variate: bool = False
 
@@ -145,6 +152,8 @@ class FitSettings:
                 continue
             check_float("fit setting ", name, getattr(self, name), positive=True)
         check_float("fit setting ", "beta2", self.beta2, 0.0, 1.0)
+        if self.prior_weight is not None:
+            check_float("fit setting ", "prior_weight", self.prior_weight, 0.0, math.inf)
         RenderSettings(sampler=self.sampler)  # validates the sampler
         if self.loss not in LOSSES:
             raise ParameterError(f"unknown loss {self.loss!r} (known: {', '.join(LOSSES)})")
@@ -303,9 +312,11 @@ def fit(
 def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, checkpoint: Path | None, state: dict | None, progress: bool) -> FitResult:
     """Outer rounds of record-and-solve (least_squares.py): one history entry per round."""
     from invrender.diff.records import record_paths
-    from invrender.inverse.least_squares import solve
+    from invrender.inverse.least_squares import Prior, solve
 
     initial = {n: scene.params[n].detach().clone() for n in names}
+    # the prior of environment maps: the starting values
+    prior = {n: initial[n].double().clamp(1e-4, None) for n in names if kind_of(n).key == "emission" and initial[n].ndim == 3}
     model = cfg.model
     current = {n: scene.params[n].detach().double().clamp(1e-4, None) for n in names}
     history: list[dict] = []
@@ -328,7 +339,9 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
                     )  # fmt: skip
                     for v, (view_scene, _) in enumerate(views)
                 ]
-            sol = solve(recs[0], recs[1], [t for _, t in views], current, solver=cfg.solver)
+            targets = [t for _, t in views]
+            regularizer = Prior.by_rule(prior, recs[1], targets, current, cfg.prior_weight) if prior and cfg.prior_weight != 0 else None
+            sol = solve(recs[0], recs[1], targets, current, solver=cfg.solver, prior=regularizer)
             # how far each channel moved, in standard errors of the difference of two rounds
             moved = max(
                 float(((sol.values[n] - current[n]).abs() / (sol.std_error[n] ** 2 + (std_error[n] ** 2 if std_error else 0.0)).sqrt().clamp_min(1e-12)).max())

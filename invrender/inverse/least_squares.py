@@ -17,6 +17,15 @@ tangent map is B's), so it solves ``J_B^T r_A = 0``, whose expectation factors.
 **Constraints** by the parameter kinds' reparametrizations (sigmoid for [0, 1] kinds, exp for
 emission): the solver moves unconstrained ``x``.
 
+**Prior (Tikhonov regularization).** An environment map (a textured emission) has texels no view
+sees, or sees only through a few noisy paths; their columns of the Jacobian are zero or noise, and
+the solution there is whatever the start was, or noise. A :class:`Prior` adds, per channel of each
+such texel, the residual ``sqrt(lambda) (v - p) / p`` (relative, like the image's weighted
+residual) toward a prior value ``p`` (the fit's starting value): texels the images determine are
+pulled by it negligibly, texels they cannot see stay at ``p``. ``lambda`` is the user's, or by the
+default rule :data:`PRIOR_FRACTION` times the mean over the parameter's channels of the diagonal of
+the data term's ``J^T J`` in relative units (each column times its value), at the round's start.
+
 **Uncertainty.** At the solution, the Gauss-Newton sandwich
 ``Cov(theta) = (J^T J)^-1 J^T diag(s^2) J (J^T J)^-1`` with ``s^2`` each residual's Monte Carlo
 variance, estimated from the two independent sets (``(r_A - r_B)^2 / 2``), gives each parameter's
@@ -37,6 +46,8 @@ from invrender.scene.kinds import kind_of
 SOLVERS = ("adam", "lm", "gauss_newton")
 #: Gauss-Newton steps on J_B^T r_A = 0 after the solver (see solve)
 REFINE_STEPS = 4
+#: the default prior weight: this fraction of the mean diagonal of the data term's J^T J (relative units)
+PRIOR_FRACTION = 1e-3
 
 
 def _inside(kind, value: torch.Tensor) -> torch.Tensor:
@@ -127,6 +138,58 @@ class _Layout:
 
 
 @dataclass(frozen=True)
+class Prior:
+    """Tikhonov regularization toward prior values (see the module docstring): residual rows
+    ``sqrt(weight[n]) (v - values[n]) / values[n]``, one per channel of each variable row of each
+    parameter ``n`` it names (their Monte Carlo variance is zero: the prior is not sampled).
+
+    Attributes:
+        values: name -> prior value, shaped as recorded (> 0).
+        weight: name -> lambda >= 0.
+    """
+
+    values: dict
+    weight: dict
+
+    def _rows(self, layout: _Layout):
+        for n, a, b in layout._rows():
+            if n in self.values and self.weight[n] > 0:
+                yield n, a, b
+
+    def residual(self, layout: _Layout, values: dict) -> torch.Tensor:
+        """(M,) the prior's residual rows at ``values``."""
+        parts = [(values[n].double().reshape(-1) / self.values[n].double().reshape(-1) - 1.0) * self.weight[n] ** 0.5 for n, _, _ in self._rows(layout)]
+        return torch.cat(parts) if parts else torch.zeros(0, dtype=torch.float64)
+
+    def jacobian(self, layout: _Layout) -> torch.Tensor:
+        """(M, 3 N_var) their value-space derivatives (constant: diagonal ``sqrt(lambda) / p``)."""
+        total = 3 * layout.offsets[-1]
+        blocks = []
+        for n, a, b in self._rows(layout):
+            block = torch.zeros(3 * (b - a), total, dtype=torch.float64)
+            block[:, 3 * a : 3 * b] = torch.diag(self.weight[n] ** 0.5 / self.values[n].double().reshape(-1))
+            blocks.append(block)
+        return torch.cat(blocks) if blocks else torch.zeros(0, total, dtype=torch.float64)
+
+    @staticmethod
+    def by_rule(prior: dict, records: list[PathRecords], targets: list, values: dict, weight: float | None = None) -> "Prior":
+        """The prior toward ``prior`` (name -> value) with ``weight`` for every parameter, or, when
+        ``weight`` is None, each parameter's lambda by the default rule (:data:`PRIOR_FRACTION`
+        times the mean diagonal of the data term's J^T J in relative units) at ``values``."""
+        if weight is not None:
+            return Prior(prior, {n: float(weight) for n in prior})
+        layout = _Layout.of(records[0])
+        weights = [1.0 / (t.double() ** 2 + 0.01).sqrt().reshape(-1, 3) for t in targets]
+        J = torch.cat([_value_jacobian(r, values, w) for r, w in zip(records, weights)])
+        diag = (J * layout.flatten(values).reshape(1, -1)).pow(2).sum(0)
+        out = {}
+        for n, a, b in layout._rows():
+            if n in prior:
+                out[n] = PRIOR_FRACTION * float(diag[3 * a : 3 * b].mean())
+        return Prior(prior, out)
+
+
+@dataclass(frozen=True)
 class _Problem:
     """One least-squares problem, evaluated by torch for the solver: set A's weighted residual and
     set B's Jacobian in the unconstrained variables (the chain rule through the reparametrization
@@ -137,11 +200,15 @@ class _Problem:
     records_b: list
     targets: list
     weights: list
+    prior: Prior | None = None
 
     def residual(self, x) -> np.ndarray:
-        """(R,) set A's weighted residual at unconstrained ``x`` (N_var, 3)."""
+        """(R,) set A's weighted residual at unconstrained ``x`` (N_var, 3), the prior's rows last."""
         values = self.layout.unflatten(self.layout.from_raw(torch.from_numpy(x)))
-        return torch.cat([_residual(r, values, t, w) for r, t, w in zip(self.records_a, self.targets, self.weights)]).numpy()
+        parts = [_residual(r, values, t, w) for r, t, w in zip(self.records_a, self.targets, self.weights)]
+        if self.prior is not None:
+            parts.append(self.prior.residual(self.layout, values))
+        return torch.cat(parts).numpy()
 
     def jacobian(self, x) -> np.ndarray:
         """(R, 3 N_var) set B's Jacobian with respect to ``x`` (variable-major, channel-minor)."""
@@ -150,7 +217,7 @@ class _Problem:
             rows = torch.cat([kind_of(n).from_raw(raw[a:b]) for n, a, b in self.layout._rows()])
             (dv_dx,) = torch.autograd.grad(rows.sum(), raw)  # elementwise reparametrizations
         values = self.layout.unflatten(self.layout.inside(rows.detach()))
-        J = torch.cat([_value_jacobian(r, values, w) for r, w in zip(self.records_b, self.weights)])
+        J = torch.cat([_value_jacobian(r, values, w) for r, w in zip(self.records_b, self.weights)] + ([self.prior.jacobian(self.layout)] if self.prior is not None else []))
         return (J * dv_dx.reshape(1, -1)).numpy()
 
 
@@ -199,20 +266,22 @@ def solve(
     max_steps: int = 100,
     rtol: float = 1e-6,
     atol: float = 1e-9,
+    prior: Prior | None = None,
 ) -> LeastSquaresSolution:
     """Fit the recorded parameters to ``targets`` (one per view) by Levenberg-Marquardt (``"lm"``)
     or Gauss-Newton, residual from ``records_a``, Jacobian from ``records_b`` (independent seeds).
 
     ``start``: name -> starting value shaped as recorded ((3,), or (h, w, 3) for a texture),
-    inside each kind's range."""
+    inside each kind's range. ``prior``: Tikhonov rows added to the objective (:class:`Prior`)."""
     jax, jnp, optx = _jax()
     layout = _Layout.of(records_a[0])
     weights = [1.0 / (t.double() ** 2 + 0.01).sqrt().reshape(-1, 3) for t in targets]
-    problem = _Problem(layout, records_a, records_b, targets, weights)
+    problem = _Problem(layout, records_a, records_b, targets, weights, prior)
     handle = id(problem)
     _PROBLEMS[handle] = problem
+    extra = prior.residual(layout, start).numel() if prior is not None else 0
     try:
-        args = {"handle": jnp.asarray(handle, dtype=jnp.int64), "r": jnp.zeros(sum(t.numel() for t in targets))}
+        args = {"handle": jnp.asarray(handle, dtype=jnp.int64), "r": jnp.zeros(sum(t.numel() for t in targets) + extra)}
         method = optx.LevenbergMarquardt(rtol=rtol, atol=atol) if solver == "lm" else optx.GaussNewton(rtol=rtol, atol=atol)
         x0 = jnp.asarray(layout.to_raw(start).numpy())
         sol = optx.least_squares(_decorrelated_residual(), method, x0, args=args, options={"jac": "fwd"}, max_steps=max_steps, throw=False)
@@ -228,12 +297,14 @@ def solve(
     # on that equation (near the solution the problem is almost linear; a few steps suffice).
     for _ in range(REFINE_STEPS):
         J, ra = _jacobian_b_and_residual_a(records_a, records_b, targets, weights, layout.unflatten(flat))
+        if prior is not None:
+            J, ra = torch.cat([J, prior.jacobian(layout)]), torch.cat([ra, prior.residual(layout, layout.unflatten(flat))])
         step = torch.linalg.lstsq(J, -ra[:, None]).solution[:, 0]
         flat = layout.inside(flat + step.reshape(-1, 3))
         if float(step.abs().max()) < 1e-10:
             break
     values = layout.unflatten(flat)
-    ident = analyse(records_a, records_b, targets, values)
+    ident = analyse(records_a, records_b, targets, values, prior=prior)
     return LeastSquaresSolution(values, ident, ident.loss, steps)
 
 
@@ -301,15 +372,20 @@ class Identifiability:
         return "; ".join(" + ".join(f"{w:+.2f} {c}" for c, w in combo.items()) for combo in self.weak)
 
 
-def analyse(records_a: list[PathRecords], records_b: list[PathRecords], targets: list[torch.Tensor], values: dict, threshold: float = 1e-6) -> Identifiability:
+def analyse(records_a: list[PathRecords], records_b: list[PathRecords], targets: list[torch.Tensor], values: dict, threshold: float = 1e-6, prior: Prior | None = None) -> Identifiability:
     """Standard errors, correlations and undetermined combinations at ``values``.
 
     The standard errors are the sandwich of the estimating equation ``J_B^T r_A = 0``, whose
     variance has the residual's noise seen through J (``s^2`` per residual, from the two sets) and
-    the Jacobian's own noise times the residual (``dJ^T diag(r_A^2) dJ``, ``dJ = (J_A - J_B)/sqrt 2``)."""
+    the Jacobian's own noise times the residual (``dJ^T diag(r_A^2) dJ``, ``dJ = (J_A - J_B)/sqrt 2``).
+    With a ``prior`` its rows enter the estimating equation (noise-free: a texel the prior alone
+    holds has standard error 0, the Monte Carlo error of an estimate that is the prior); the
+    undetermined combinations are those of the images alone, the prior left out. ``loss`` is the
+    images' residual only."""
     layout = _Layout.of(records_a[0])
     weights = [1.0 / (t.double() ** 2 + 0.01).sqrt().reshape(-1, 3) for t in targets]
     J, J_a, ra, rb = _jacobian_and_residuals(records_a, records_b, targets, weights, values)
+    loss = float((ra**2).mean())
     # relative units: each column scaled by its parameter value, so eps and rho compare
     scale = layout.flatten(values).reshape(-1)
     Js = J * scale[None, :]
@@ -325,10 +401,13 @@ def analyse(records_a: list[PathRecords], records_b: list[PathRecords], targets:
             if lam < threshold * float(eigenvalues.max()):
                 order = torch.argsort(v.abs(), descending=True)
                 weak.append({labels[int(cols[i])]: float(v[i]) for i in order.tolist() if abs(float(v[i])) > 0.2})
+    if prior is not None:
+        Jp, rp = prior.jacobian(layout), prior.residual(layout, values)
+        J, J_a, ra, rb = torch.cat([J, Jp]), torch.cat([J_a, Jp]), torch.cat([ra, rp]), torch.cat([rb, rp])
     s2 = (ra - rb) ** 2 / 2
     dJ = (J_a - J) / 2**0.5
     inv = torch.linalg.pinv(J.T @ J)
     cov = inv @ ((J.T * s2) @ J + (dJ.T * ra**2) @ dJ) @ inv
     se = cov.diagonal().clamp_min(0).sqrt()
     corr = cov / (se[:, None] * se[None, :]).clamp_min(1e-300)
-    return Identifiability(layout.unflatten(se.reshape(-1, 3)), corr, labels, weak, float((ra**2).mean()))
+    return Identifiability(layout.unflatten(se.reshape(-1, 3)), corr, labels, weak, loss)

@@ -34,6 +34,12 @@ class Film:
         :class:`~invrender.transport.surface.Surface` of N hits), before anything is added there.
         The film ignores it; path records note where each path met a textured parameter."""
 
+    def arrive(self, pixel: torch.Tensor, d: torch.Tensor) -> None:
+        """Hook called just before the next contribution of the paths writing to ``pixel`` (N,)
+        that may end on an emitter infinitely far away (an escaped ray, an emitter sample): the
+        radiance it carries arrives along world directions ``d`` (N, 3). The film ignores it; path
+        records look up which texels of an environment map that radiance reads."""
+
     def scatter(self, pixel: torch.Tensor, weight: torch.Tensor) -> None:
         """Hook called at each scattering vertex with the sample weight ``f cos / pdf`` (N, 3) the
         path's throughput is multiplied by, after every contribution that does not pass through it

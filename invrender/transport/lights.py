@@ -129,6 +129,16 @@ class Light(Declared, ABC):
         ``d`` (N, 3) (types that emit from infinitely far only)."""
         return d.new_zeros(d.shape[0])
 
+    #: does :meth:`texels` answer (a textured emission read through a linear filter by direction)?
+    texel_lookup: ClassVar[bool] = False
+
+    def texels(self, k: int, d: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """For types with :attr:`texel_lookup`: which texels of emitter ``k``'s (of this instance)
+        textured emission the radiance along world directions ``d`` (N, 3) reads, as (indices
+        (N, J) into its flattened texels, filter weights (N, J)); the radiance must be a constant
+        times ``sum_j weight_j texel_j``. Path records use it to keep such a map per texel."""
+        raise NotImplementedError(f"emitter type {self.type_name!r} has no texel lookup")
+
 
 class Lights:
     """The scene's emitters on one device, and the dispatch of queries to them.

@@ -231,9 +231,10 @@ def test_next_event_estimation_and_escaping_rays_give_the_same_texel_gradients()
     assert error < 0.03, (error, int(big.sum()))
 
 
-def test_path_records_refuse_the_map_by_name():
-    with pytest.raises(ir.ParameterError, match=r"sky.emission is a textured emission: path records"):
-        ir.record_paths(grad_scene(), ["sky.emission"], spp=1, max_depth=2)
+def test_path_records_keep_the_map_per_texel():
+    """(The records' own tests: tests/diff/test_records.py.)"""
+    rec = ir.record_paths(grad_scene(), ["sky.emission"], spp=2, max_depth=2, progress=False)
+    assert rec.jacobian()["sky.emission"].shape == (16, 16, 5, 8, 3)
 
 
 # ---------------------------------------------------------------- loading

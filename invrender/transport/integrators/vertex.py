@@ -96,6 +96,7 @@ def add_emitted(ctx: TransportContext, state: PathState, s: Surface | None, dept
     else:
         d = state.d.index_select(0, m)
         Le = ctx.lights.escaped(d)
+        film.arrive(state.pixel[m], d)
     if mis and depth > 0:
         pdf_light = ctx.lights.pdf_hit(se) if s is not None else ctx.lights.pdf_escaped(d)  # the emitter sample's density, as a solid angle
         w = torch.where(state.delta[m], 1.0, power_heuristic(state.pdf_dir[m], pdf_light))[:, None]
@@ -128,6 +129,8 @@ def add_direct(ctx: TransportContext, state: PathState, s: Surface, sp: ShadingP
         weight = torch.where(ok, w / ls.pdf, 0.0)
     else:
         weight = torch.where(ok, 1.0 / ls.pdf, 0.0)
+    if ctx.lights.infinite:
+        film.arrive(state.pixel, ls.wl)
     film.add(term, state.pixel, (state.beta * weight[:, None]) * f_cos * ls.Le)  # the constant factors first: autograd saves less
 
 
