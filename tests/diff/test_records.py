@@ -168,8 +168,6 @@ def test_textured_record_follows_whitted_splits_at_glass():
 def sky_scene(floor_texture: bool = False, sky: str = "envmap", resolution=(16, 16), camera=None):
     """A glossy cube on a floor under a 4 x 8 sky (or a constant sky), the sky visible behind;
     the floor's albedo a 2 x 2 texture when ``floor_texture``."""
-    import numpy as np
-
     from invrender.scene.camera import Camera
     from invrender.scene.emitters import Emitter
     from invrender.scene.materials import Material

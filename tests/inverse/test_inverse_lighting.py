@@ -11,7 +11,6 @@ reaches it) stays at the prior and is reported undetermined, by the fit and by `
 from __future__ import annotations
 
 import math
-import warnings
 
 import pytest
 import torch
