@@ -1,9 +1,15 @@
-"""Built-in scenes by name: ``cornell_box`` (the default), ``cornell_specular`` and ``furnace``."""
+"""Built-in scenes by name: ``cornell_box`` (the default), ``cornell_specular``, ``furnace`` and
+``sky_spheres``."""
 
 from __future__ import annotations
 
+import math
+
+import torch
+
 from invrender.errors import SceneError
 from invrender.scene.camera import Camera
+from invrender.scene.emitters import Emitter
 from invrender.scene.materials import Material
 from invrender.scene.scene import Scene, build_scene
 from invrender.scene.shapes import Mesh, primitive, rotate, scale, sphere, translate
@@ -117,7 +123,67 @@ def _rgb(x):
         return x
 
 
-BUILTIN_SCENES = {"cornell_box": cornell_box, "cornell_specular": cornell_specular, "furnace": furnace}
+#: sky_spheres: the sky's colours (linear RGB) at the zenith, at the horizon and below it, and the sun
+SKY_ZENITH = (0.25, 0.45, 0.95)
+SKY_HORIZON = (0.9, 0.9, 0.85)
+SKY_GROUND = (0.25, 0.2, 0.15)
+SUN_RGB = (1.0, 0.9, 0.75)
+#: the sun: its peak radiance over the sky's, its elevation and azimuth (u in the map), its width
+SUN_PEAK, SUN_ELEVATION, SUN_U, SUN_WIDTH = 20.0, 35.0, 0.3, 10.0
+SKY_CAMERA = Camera(origin=(0, 0.35, 4.2), target=(0, -0.35, 0), up=(0, 1, 0), fov=40.0, fov_axis="smaller")
+
+
+def map_directions(h: int, w: int) -> torch.Tensor:
+    """(h, w, 3) unit directions of an envmap's texel centres in its own frame (docs/environment.md:
+    row i at theta = pi i / (h - 1), column j at u = (j + 0.5) / w, +Y up, u = 0 towards -Z)."""
+    theta = (torch.arange(h, dtype=torch.float64) * math.pi / max(h - 1, 1))[:, None].expand(h, w)
+    phi = ((torch.arange(w, dtype=torch.float64) + 0.5) * 2 * math.pi / w)[None, :].expand(h, w)
+    return torch.stack([torch.sin(phi) * torch.sin(theta), torch.cos(theta), -torch.cos(phi) * torch.sin(theta)], dim=-1)
+
+
+def sun_direction() -> torch.Tensor:
+    """The sky_spheres sun's direction (the map's frame, which is the world's: no rotation)."""
+    st, sp = math.radians(90.0 - SUN_ELEVATION), SUN_U * 2 * math.pi
+    return torch.tensor([math.sin(sp) * math.sin(st), math.cos(st), -math.cos(sp) * math.sin(st)], dtype=torch.float64)
+
+
+def sky_map(h: int = 16, w: int = 32) -> torch.Tensor:
+    """The sky_spheres map: (h, w, 3) linear HDR RGB, procedural and deterministic. Above the
+    horizon a gradient from ``SKY_HORIZON`` to ``SKY_ZENITH`` (in sqrt of the height), below it a
+    uniform ``SKY_GROUND``, plus a sun: a Gaussian blob of ``SUN_WIDTH`` degrees peaking at
+    ``SUN_PEAK`` x ``SUN_RGB``, ``SUN_ELEVATION`` degrees above the horizon at ``u = SUN_U``."""
+    if h < 3 or w < 4:
+        raise SceneError(f"sky_spheres: map_size must be at least (3, 4), got ({h}, {w})")
+    d = map_directions(h, w)
+    up = d[..., 1:2]
+    zenith, horizon, ground = (torch.tensor(c, dtype=torch.float64) for c in (SKY_ZENITH, SKY_HORIZON, SKY_GROUND))
+    sky = torch.where(up >= 0, horizon + (zenith - horizon) * up.clamp_min(0).sqrt(), ground)
+    angle = torch.acos((d @ sun_direction()).clamp(-1, 1))
+    blob = SUN_PEAK * torch.exp(-0.5 * (angle / math.radians(SUN_WIDTH)) ** 2)
+    return (sky + blob[..., None] * torch.tensor(SUN_RGB, dtype=torch.float64)).float()
+
+
+def sky_spheres(resolution=(64, 64), map_size=(16, 32), subdivisions: int = 4, sky=None) -> Scene:
+    """A diffuse sphere (``diffuse``, left) and a glossy GGX sphere (``glossy``, roughness 0.2,
+    right), radius 0.5, on a 6 x 6 diffuse floor (``floor``, y = -1) under an ``envmap`` emitter
+    ``sky`` whose map (``sky.emission``, (h, w, 3)) is :func:`sky_map` of ``map_size`` (or the
+    given ``sky`` texture), seen in the background above the floor. The scene of
+    ``bench/envmap_compare.py`` without its map's rotation and scale: the example of inverse
+    lighting (docs/environment.md#inverse-lighting).
+    """
+    h, w = map_size
+    texture = sky_map(int(h), int(w)) if sky is None else torch.as_tensor(sky, dtype=torch.float32)
+    ball = lambda x, material: primitive("sphere", material, None, subdivisions).transformed(translate([x, -0.5, 0]) @ scale(0.5))  # noqa: E731
+    shapes = [_shape("rectangle", translate([0, -1, 0]) @ rotate([1, 0, 0], -90) @ scale(3.0), "floor"), ball(-0.65, "diffuse"), ball(0.65, "glossy")]
+    materials = {
+        "floor": (0.5, 0.5, 0.5),
+        "diffuse": (0.7, 0.45, 0.3),
+        "glossy": Material.of("glossy", specular_reflectance=(0.9, 0.9, 0.85), roughness=0.2),
+    }
+    return build_scene(shapes, materials, {"sky": Emitter.of("envmap", emission=texture)}, SKY_CAMERA, resolution, name="sky_spheres")
+
+
+BUILTIN_SCENES = {"cornell_box": cornell_box, "cornell_specular": cornell_specular, "furnace": furnace, "sky_spheres": sky_spheres}
 
 
 def builtin_scene(name: str, **kwargs) -> Scene:

@@ -63,3 +63,31 @@ def test_degenerate_triangles_dropped_with_warning():
     assert scene.triangles.count == 1
     with pytest.raises(SceneError, match="index out of range"):
         build_scene([Mesh(v, f + 3, None, "m")], {"m": [0.5] * 3}, {}, Camera(), (4, 4))
+
+
+def test_sky_spheres_loads_renders_and_shows_its_map():
+    """The envmap scene: its parameters, the sun is the map's brightest texel, and the background
+    pixels are the map's radiance along their directions."""
+    from invrender.emitters.envmap import Envmap, quaternion_of
+    from invrender.scene.builtin import map_directions, sun_direction
+
+    scene = ir.load_scene("sky_spheres", resolution=(32, 32), map_size=(8, 16), subdivisions=2)
+    assert set(scene.params) == {"floor.reflectance", "diffuse.reflectance", "glossy.specular_reflectance", "sky.emission"}
+    sky = scene.params["sky.emission"]
+    assert sky.shape == (8, 16, 3) and bool((sky > 0).all())
+    luminance = sky @ torch.tensor([0.212671, 0.715160, 0.072169])
+    nearest = (map_directions(8, 16) @ sun_direction()).argmax()
+    assert int(luminance.argmax()) == int(nearest) and float(luminance.max()) > 5 * float(luminance.median())
+    torch.testing.assert_close(ir.load_scene("sky_spheres", map_size=(8, 16)).params["sky.emission"], sky)  # deterministic
+
+    img = ir.render(scene, spp=16, max_depth=4, seed=1, progress=False)
+    assert img.shape == (32, 32, 3) and bool(torch.isfinite(img).all()) and float(img.mean()) > 0.05
+    # the top two rows see only the sky: the map's bilinear radiance at each pixel centre
+    yx = torch.stack(torch.meshgrid(torch.arange(2), torch.arange(32), indexing="ij"), -1).reshape(-1, 2).float() + 0.5
+    _, d = scene.camera.generate_rays(yx.flip(-1), 32, 32)
+    L = Envmap([0], [{"emission": sky}], [{"scale": 1.0, **quaternion_of(torch.eye(3).numpy(), "test")}], scene.triangles).escaped(d)
+    torch.testing.assert_close(img[:2].reshape(-1, 3), L, rtol=0.02, atol=0.0)
+    hidden = ir.render(scene, {"type": "path", "hide_emitters": True}, spp=4, max_depth=4, progress=False)
+    assert float(hidden[:2].abs().max()) == 0.0  # hide_emitters: a black background
+    with pytest.raises(SceneError, match="map_size"):
+        ir.load_scene("sky_spheres", map_size=(2, 2))
