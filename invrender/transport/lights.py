@@ -30,6 +30,7 @@ from typing import ClassVar
 
 import torch
 
+from invrender.errors import ParameterError
 from invrender.registry import EMITTERS
 from invrender.scene.plugins import Declared
 from invrender.scene.scene import Triangles
@@ -137,7 +138,7 @@ class Light(Declared, ABC):
         textured emission the radiance along world directions ``d`` (N, 3) reads, as (indices
         (N, J) into its flattened texels, filter weights (N, J)); the radiance must be a constant
         times ``sum_j weight_j texel_j``. Path records use it to keep such a map per texel."""
-        raise NotImplementedError(f"emitter type {self.type_name!r} has no texel lookup")
+        raise ParameterError(f"emitter type {self.type_name!r} reads no texture by direction: path records cannot keep its emission per texel")
 
 
 class Lights:
