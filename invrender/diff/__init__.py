@@ -72,6 +72,7 @@ def render(
     sampler: str = "stratified",
     adaptive=None,
     return_counts: bool = False,
+    sampling_params: dict | None = None,
     **options,
 ):
     """Render ``scene`` by Monte Carlo estimation of ``I = g eps + gMg eps + g(Mg)^2 eps + ...``.
@@ -108,6 +109,9 @@ def render(
         return_counts: with ``adaptive``, return an
             :class:`~invrender.transport.adaptive.AdaptiveResult` (image, samples per pixel,
             estimated relative error) instead of the image alone.
+        sampling_params: values (name -> tensor, all or some) the emitters' sampling is built from
+            instead of ``scene.params`` (see :class:`~invrender.transport.driver.RenderSettings`):
+            for finite differences whose renders must draw the same paths.
         options: further settings of the integrator, e.g. for ``path`` ``strategy`` (``"mis"``,
             ``"bsdf"``, ``"emitter"``) and ``hemisphere`` (``"cosine"``, ``"uniform"``).
     Returns:
@@ -119,7 +123,7 @@ def render(
         if value is not None:
             options[key] = value
     model = make_integrator(integrator, **options)
-    settings = RenderSettings(spp=spp, seed=seed, terms=terms, backend=backend, chunk_paths=chunk_paths, memory_mb=memory_mb, progress=progress, sampler=sampler)
+    settings = RenderSettings(spp=spp, seed=seed, terms=terms, backend=backend, chunk_paths=chunk_paths, memory_mb=memory_mb, progress=progress, sampler=sampler, sampling_params=sampling_params)
     check_paths(scene.width, scene.height, spp)  # before any work, whichever estimator runs
     estimator = resolve_estimator(_check_estimator(estimator or "replay"), scene, model, settings)
     device = _device(scene, device)

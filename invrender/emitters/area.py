@@ -57,8 +57,8 @@ class Area(Light):
     doc = "emissive shapes: radiance eps from their front side (RGB or texture)"
     surface = True
 
-    def __init__(self, emitters: list[int], values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], triangles: Triangles):
-        super().__init__(emitters, values, constants, triangles)
+    def __init__(self, emitters: list[int], values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], triangles: Triangles, sampling=None):
+        super().__init__(emitters, values, constants, triangles, sampling)
         device = triangles.area.device
         eps = [v["emission"] for v in values]
         #: does any emission vary over UVs (else samples skip their texture coordinates)?
@@ -69,7 +69,7 @@ class Area(Light):
         for e, value in zip(emitters, eps):
             self.eps[e] = value
         power = torch.zeros(count + 1, device=device)  # the last entry: emitter -1 (and other types) -> 0
-        power[torch.tensor(emitters, device=device)] = torch.tensor([float(e.detach().mean()) for e in eps], device=device)
+        power[torch.tensor(emitters, device=device)] = torch.tensor([float(v["emission"].mean()) for v in self.sampling], device=device)
         emitter = torch.where(triangles.emitter < count, triangles.emitter, -1)
         weight = triangles.area * power[emitter]
         self.tri = torch.nonzero(weight > 0)[:, 0]

@@ -43,7 +43,7 @@ class Constant(Light):
     @property
     def power(self) -> float:
         radius = 0.5 * math.sqrt(3.0) * scene_extent(self.triangles)  # the bounding box's sphere
-        return 4.0 * math.pi * radius * radius * sum(float(v["emission"].detach().mean()) for v in self.values)
+        return 4.0 * math.pi * radius * radius * sum(float(v["emission"].mean()) for v in self.sampling)
 
     def sample_from(self, u: torch.Tensor, x: torch.Tensor, nx: torch.Tensor, offset: float) -> LightSample:
         """Directions uniform over the sphere from ``u[:, 1:3]`` (``z = 1 - 2 u_1``, ``phi = 2 pi u_2``)."""

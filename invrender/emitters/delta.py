@@ -51,8 +51,8 @@ class DeltaLight(Light):
     surface = False
     infinite = False
 
-    def __init__(self, emitters, values, constants, triangles):
-        super().__init__(emitters, values, constants, triangles)
+    def __init__(self, emitters, values, constants, triangles, sampling=None):
+        super().__init__(emitters, values, constants, triangles, sampling)
         device = triangles.p0.device
         self.device = device
         power = [max(self.member_power(i), 0.0) for i in range(len(emitters))]

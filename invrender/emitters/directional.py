@@ -39,7 +39,7 @@ class Directional(DeltaLight):
 
     def member_power(self, i: int) -> float:
         radius = 0.5 * math.sqrt(3.0) * scene_extent(self.triangles)
-        return radius * radius * float(self.values[i]["emission"].detach().mean())
+        return radius * radius * float(self.sampling[i]["emission"].mean())
 
     def arrive(self, k, o, nx, offset):
         wl = -self.vectors("direction").index_select(0, k)

@@ -221,13 +221,13 @@ class Envmap(Light):
     infinite = True
     texel_lookup = True
 
-    def __init__(self, emitters, values, constants, triangles):
-        super().__init__(emitters, values, constants, triangles)
+    def __init__(self, emitters, values, constants, triangles, sampling=None):
+        super().__init__(emitters, values, constants, triangles, sampling)
         device = triangles.p0.device
         self.scale = [float(c.get("scale", 1.0)) for c in constants]
         #: per emitter, its to_world rotation (3, 3) float32 on the render device
         self.R = [torch.tensor(rotation_of(c), dtype=torch.float32, device=device) for c in constants]
-        self.dist = [Distribution(padded(v["emission"])) for v in values]
+        self.dist = [Distribution(padded(v["emission"])) for v in self.sampling]
         weights = [d.total * s for d, s in zip(self.dist, self.scale)]
         total = sum(weights)
         #: per emitter, the probability of being chosen for a sample

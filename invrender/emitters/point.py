@@ -30,7 +30,7 @@ class Point(DeltaLight):
     doc = "a point light: radiant intensity I (W/sr, RGB) from `position`, equally in all directions"
 
     def member_power(self, i: int) -> float:
-        return 4.0 * float(self.values[i]["emission"].detach().mean())
+        return 4.0 * float(self.sampling[i]["emission"].mean())
 
     def arrive(self, k, o, nx, offset):
         p = self.vectors("position").index_select(0, k)

@@ -69,7 +69,7 @@ class Spot(DeltaLight):
 
     def member_power(self, i: int) -> float:
         c = self.constants[i]
-        return float(self.values[i]["emission"].detach().mean()) * falloff_solid_angle(c["cutoff_angle"], c["beam_width"]) / math.pi
+        return float(self.sampling[i]["emission"].mean()) * falloff_solid_angle(c["cutoff_angle"], c["beam_width"]) / math.pi
 
     def arrive(self, k, o, nx, offset):
         p = self.vectors("position").index_select(0, k)

@@ -4,7 +4,10 @@ The objective is a fixed random weighting of the pixels, ``sum(W * I)`` with W u
 drawn from the seed, so every pixel counts and no pixel's sign cancels another's. Finite
 differences re-render with the same seed (common random numbers): with ``max_depth`` below the
 Russian-roulette start the estimate is then a smooth polynomial in eps and rho, and a central
-difference with step ``h`` is accurate to O(h^2).
+difference with step ``h`` is accurate to O(h^2). The perturbed renders also build their emitters'
+sampling (the choice by power, an environment map's density) from the unperturbed values
+(``sampling_params``), so they draw the same paths as the gradients' render: sampling depends on
+emissions, and a perturbed density would move every light sample.
 """
 
 from __future__ import annotations
@@ -87,6 +90,7 @@ def gradcheck(
             scene.params[n].grad = None
 
     rows = []
+    kw["sampling_params"] = {n: v.detach().clone() for n, v in scene.params.items()}
     with torch.no_grad():
         for n in names:
             flat = scene.params[n].view(-1)

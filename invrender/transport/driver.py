@@ -65,6 +65,10 @@ class RenderSettings:
             roulette; the pairs are stratified).
         plan: which samples each pixel traces (:class:`SamplePlan`, the passes of adaptive
             sampling); None = samples ``0 .. spp - 1`` in every pixel.
+        sampling_params: parameter values (name -> tensor, all or some) the emitters' sampling
+            (choice by power, environment-map densities) is built from instead of the render's own;
+            None = its own, detached. Finite differences with common random numbers give the
+            perturbed renders the unperturbed values, so every render draws the same paths.
     """
 
     spp: int = 64
@@ -76,6 +80,7 @@ class RenderSettings:
     progress: bool = True
     sampler: str = "stratified"
     plan: SamplePlan | None = dataclasses.field(default=None, compare=False)
+    sampling_params: dict | None = dataclasses.field(default=None, compare=False)
 
     def __post_init__(self):
         check_int("", "spp", self.spp, 1, MAX_SPP)

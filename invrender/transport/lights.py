@@ -86,6 +86,10 @@ class Light(Declared, ABC):
         values: per emitter, parameter key -> tensor (differentiable).
         constants: per emitter, constant key -> float.
         triangles: the scene geometry on the render device.
+        sampling: per emitter, the (detached) values its sampling decisions are built from: the
+            choice by power, an environment map's density (:attr:`sampling`). None = ``values``.
+            Finite differences with common random numbers give both renders the unperturbed values,
+            so that both draw the same paths (``render(..., sampling_params=...)``).
     """
 
     #: does it emit from scene surfaces (the shapes naming it)?
@@ -93,8 +97,10 @@ class Light(Declared, ABC):
     #: do rays that leave the scene see it (emitters infinitely far away: skies, environment maps)?
     infinite: ClassVar[bool] = False
 
-    def __init__(self, emitters: list[int], values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], triangles: Triangles):
+    def __init__(self, emitters: list[int], values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], triangles: Triangles, sampling: list[dict[str, torch.Tensor]] | None = None):
         self.emitters, self.values, self.constants, self.triangles = emitters, values, constants, triangles
+        #: per emitter, parameter key -> detached tensor: what sampling (never evaluation) reads
+        self.sampling = [{k: v.detach() for k, v in d.items()} for d in (values if sampling is None else sampling)]
 
     @property
     @abstractmethod
@@ -149,16 +155,20 @@ class Lights:
         values: per scene emitter, parameter key -> tensor (differentiable).
         constants: per scene emitter, constant key -> float.
         triangles: the scene geometry on the render device.
+        sampling: per scene emitter, the values sampling is built from (:class:`Light`); None =
+            ``values``.
     """
 
-    def __init__(self, types: list[str], values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], triangles: Triangles):
+    def __init__(self, types: list[str], values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], triangles: Triangles, sampling: list[dict[str, torch.Tensor]] | None = None):
         device = triangles.p0.device
         self.triangles = triangles
         present = list(dict.fromkeys(types))  # first-seen order
         self.lights: list[Light] = []
         for t in present:
             members = [i for i, ti in enumerate(types) if ti == t]
-            self.lights.append(EMITTERS[t](members, [values[i] for i in members], [constants[i] for i in members], triangles))
+            args = (members, [values[i] for i in members], [constants[i] for i in members], triangles)
+            # only when asked: a plugin's own __init__ may not take ``sampling``
+            self.lights.append(EMITTERS[t](*args) if sampling is None else EMITTERS[t](*args, sampling=[sampling[i] for i in members]))
         power = [max(light.power, 0.0) for light in self.lights]
         total = sum(power)
         #: per instance, the probability of being chosen for an emitter sample

@@ -179,7 +179,7 @@ class Integrator(ABC):
     def context(self, scene: Scene, settings: RenderSettings, device: torch.device, params: dict | None = None) -> TransportContext:
         """The prepared :class:`TransportContext` of one render."""
         threads = 1 if cpu_workers(device) > 1 else None
-        ctx = TransportContext.build(scene, device, settings.backend, threads, params, self.bsdf_sampling)
+        ctx = TransportContext.build(scene, device, settings.backend, threads, params, self.bsdf_sampling, settings.sampling_params)
         if getattr(self.settings, "hide_emitters", False):  # settings without it (a plugin's own) show emitters
             ctx = dataclasses.replace(ctx, hide_emitters=True)
         return self.prepare(ctx)
