@@ -98,6 +98,11 @@ class FitSettings:
             stay at p instead of noise (least_squares.py, ``Prior``). None (default): by the rule
             lambda = 1e-3 times the mean diagonal of the images' ``J^T J`` over the map's channels
             in relative units (each column times its value), at each round's start; 0: no prior.
+        smoothness: least-squares solvers: the weight mu of the smoothness prior on environment
+            maps, residual rows ``sqrt(mu) (v_i - v_j) / sqrt(p_i p_j)`` per pair of neighbouring
+            texels (``Prior``), so that texels the targets see poorly take their neighbours'
+            values instead of noise or the start. None: by the rule mu = 1e-2 times the same mean
+            diagonal; 0 (default): none.
         sampler: how each render's or record's pixel samples are drawn: ``"stratified"``,
             ``"independent"`` or ``"antithetic"`` (mirrored pairs; see ``invrender.render``).
         control_variate: Adam with ``decorrelate``: take ``dl/dI`` at the recursive control-variate
@@ -123,6 +128,7 @@ class FitSettings:
     rounds: int = 5
     precision: float | None = None
     prior_weight: float | None = None
+    smoothness: float | None = 0.0
     sampler: str = "stratified"
     control_variate: bool = False
 
@@ -152,8 +158,9 @@ class FitSettings:
                 continue
             check_float("fit setting ", name, getattr(self, name), positive=True)
         check_float("fit setting ", "beta2", self.beta2, 0.0, 1.0)
-        if self.prior_weight is not None:
-            check_float("fit setting ", "prior_weight", self.prior_weight, 0.0, math.inf)
+        for name in ("prior_weight", "smoothness"):
+            if getattr(self, name) is not None:
+                check_float("fit setting ", name, getattr(self, name), 0.0, math.inf)
         RenderSettings(sampler=self.sampler)  # validates the sampler
         if self.loss not in LOSSES:
             raise ParameterError(f"unknown loss {self.loss!r} (known: {', '.join(LOSSES)})")
@@ -340,7 +347,7 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
                     for v, (view_scene, _) in enumerate(views)
                 ]
             targets = [t for _, t in views]
-            regularizer = Prior.by_rule(prior, recs[1], targets, current, cfg.prior_weight) if prior and cfg.prior_weight != 0 else None
+            regularizer = Prior.by_rule(prior, recs[1], targets, current, cfg.prior_weight, cfg.smoothness) if prior and (cfg.prior_weight != 0 or cfg.smoothness != 0) else None
             sol = solve(recs[0], recs[1], targets, current, solver=cfg.solver, prior=regularizer)
             # how far each channel moved, in standard errors of the difference of two rounds
             moved = max(

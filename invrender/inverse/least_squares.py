@@ -34,7 +34,7 @@ standard error; a near-singular ``J^T J`` names the combinations the targets can
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -48,6 +48,8 @@ SOLVERS = ("adam", "lm", "gauss_newton")
 REFINE_STEPS = 4
 #: the default prior weight: this fraction of the mean diagonal of the data term's J^T J (relative units)
 PRIOR_FRACTION = 1e-3
+#: the default smoothness weight, the same way
+SMOOTHNESS_FRACTION = 1e-2
 
 
 def _inside(kind, value: torch.Tensor) -> torch.Tensor:
@@ -137,56 +139,92 @@ class _Layout:
         return out
 
 
+def neighbour_pairs(h: int, w: int) -> torch.Tensor:
+    """(P, 2) int64 flattened indices (row-major) of the neighbouring texels of an (h, w)
+    latitude-longitude map: each texel with the next one in its row (wrapping around in longitude)
+    and with the one below it (rows do not wrap: row 0 is the pole, row h - 1 the other)."""
+    index = torch.arange(h * w).reshape(h, w)
+    across = torch.stack([index.reshape(-1), torch.roll(index, -1, dims=1).reshape(-1)], dim=1) if w > 1 else torch.zeros(0, 2, dtype=torch.int64)
+    down = torch.stack([index[:-1].reshape(-1), index[1:].reshape(-1)], dim=1)
+    return torch.cat([across, down])
+
+
 @dataclass(frozen=True)
 class Prior:
-    """Tikhonov regularization toward prior values (see the module docstring): residual rows
-    ``sqrt(weight[n]) (v - values[n]) / values[n]``, one per channel of each variable row of each
-    parameter ``n`` it names (their Monte Carlo variance is zero: the prior is not sampled).
+    """Regularization of environment maps (see the module docstring), as residual rows whose Monte
+    Carlo variance is zero (the prior is not sampled), one per channel:
+
+    - Tikhonov toward prior values: ``sqrt(weight[n]) (v - p) / p`` for each texel of ``n``;
+    - smoothness: ``sqrt(smoothness[n]) (v_i - v_j) / sqrt(p_i p_j)`` for each pair of
+      neighbouring texels i, j (:func:`neighbour_pairs`), a relative difference that is linear in
+      the values.
 
     Attributes:
         values: name -> prior value, shaped as recorded (> 0).
-        weight: name -> lambda >= 0.
+        weight: name -> Tikhonov lambda >= 0.
+        smoothness: name -> smoothness mu >= 0 (textures only; missing = 0).
     """
 
     values: dict
     weight: dict
+    smoothness: dict = field(default_factory=dict)
 
     def _rows(self, layout: _Layout):
         for n, a, b in layout._rows():
             if n in self.values and self.weight[n] > 0:
                 yield n, a, b
 
+    def _smooth(self, layout: _Layout):
+        """(name, first row, pairs (P, 2), 1 / sqrt(p_i p_j) (P, 3)) of each smoothed texture."""
+        for n, shape, a in zip(layout.names, layout.shapes, layout.offsets):
+            if n in self.values and self.smoothness.get(n, 0) > 0 and len(shape) == 3:
+                pairs = neighbour_pairs(shape[0], shape[1])
+                p = self.values[n].double().reshape(-1, 3)
+                yield n, a, pairs, (p[pairs[:, 0]] * p[pairs[:, 1]]).rsqrt()
+
     def residual(self, layout: _Layout, values: dict) -> torch.Tensor:
         """(M,) the prior's residual rows at ``values``."""
         parts = [(values[n].double().reshape(-1) / self.values[n].double().reshape(-1) - 1.0) * self.weight[n] ** 0.5 for n, _, _ in self._rows(layout)]
+        for n, _, pairs, inv in self._smooth(layout):
+            v = values[n].double().reshape(-1, 3)
+            parts.append(((v[pairs[:, 0]] - v[pairs[:, 1]]) * inv).reshape(-1) * self.smoothness[n] ** 0.5)
         return torch.cat(parts) if parts else torch.zeros(0, dtype=torch.float64)
 
     def jacobian(self, layout: _Layout) -> torch.Tensor:
-        """(M, 3 N_var) their value-space derivatives (constant: diagonal ``sqrt(lambda) / p``)."""
+        """(M, 3 N_var) their value-space derivatives (constant)."""
         total = 3 * layout.offsets[-1]
         blocks = []
         for n, a, b in self._rows(layout):
             block = torch.zeros(3 * (b - a), total, dtype=torch.float64)
             block[:, 3 * a : 3 * b] = torch.diag(self.weight[n] ** 0.5 / self.values[n].double().reshape(-1))
             blocks.append(block)
+        for n, a, pairs, inv in self._smooth(layout):
+            block = torch.zeros(pairs.shape[0], 3, total, dtype=torch.float64)
+            rows = torch.arange(pairs.shape[0])
+            for c in range(3):
+                block[rows, c, 3 * (a + pairs[:, 0]) + c] = inv[:, c] * self.smoothness[n] ** 0.5
+                block[rows, c, 3 * (a + pairs[:, 1]) + c] = -inv[:, c] * self.smoothness[n] ** 0.5
+            blocks.append(block.reshape(-1, total))
         return torch.cat(blocks) if blocks else torch.zeros(0, total, dtype=torch.float64)
 
     @staticmethod
-    def by_rule(prior: dict, records: list[PathRecords], targets: list, values: dict, weight: float | None = None) -> "Prior":
-        """The prior toward ``prior`` (name -> value) with ``weight`` for every parameter, or, when
-        ``weight`` is None, each parameter's lambda by the default rule (:data:`PRIOR_FRACTION`
-        times the mean diagonal of the data term's J^T J in relative units) at ``values``."""
-        if weight is not None:
-            return Prior(prior, {n: float(weight) for n in prior})
-        layout = _Layout.of(records[0])
-        weights = [1.0 / (t.double() ** 2 + 0.01).sqrt().reshape(-1, 3) for t in targets]
-        J = torch.cat([_value_jacobian(r, values, w) for r, w in zip(records, weights)])
-        diag = (J * layout.flatten(values).reshape(1, -1)).pow(2).sum(0)
-        out = {}
-        for n, a, b in layout._rows():
-            if n in prior:
-                out[n] = PRIOR_FRACTION * float(diag[3 * a : 3 * b].mean())
-        return Prior(prior, out)
+    def by_rule(prior: dict, records: list[PathRecords], targets: list, values: dict, weight: float | None = None, smoothness: float | None = 0.0) -> "Prior":
+        """The prior toward ``prior`` (name -> value) with Tikhonov ``weight`` and ``smoothness``
+        for every parameter; either None: by the default rule (:data:`PRIOR_FRACTION`, resp.
+        :data:`SMOOTHNESS_FRACTION`, times the mean diagonal of the data term's J^T J in relative
+        units, over the parameter's channels) at ``values``."""
+        fixed = {"weight": weight, "smoothness": smoothness}
+        rules = {"weight": PRIOR_FRACTION, "smoothness": SMOOTHNESS_FRACTION}
+        out = {key: {n: float(v) for n in prior} for key, v in fixed.items() if v is not None}
+        if len(out) < 2:
+            layout = _Layout.of(records[0])
+            weights = [1.0 / (t.double() ** 2 + 0.01).sqrt().reshape(-1, 3) for t in targets]
+            J = torch.cat([_value_jacobian(r, values, w) for r, w in zip(records, weights)])
+            diag = (J * layout.flatten(values).reshape(1, -1)).pow(2).sum(0)
+            mean = {n: float(diag[3 * a : 3 * b].mean()) for n, a, b in layout._rows() if n in prior}
+            for key in fixed:
+                out.setdefault(key, {n: rules[key] * mean[n] for n in prior})
+        return Prior(prior, out["weight"], out["smoothness"])
 
 
 @dataclass(frozen=True)

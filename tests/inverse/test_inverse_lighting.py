@@ -17,7 +17,7 @@ import torch
 
 import invrender as ir
 from invrender.errors import ParameterError
-from invrender.inverse.least_squares import Prior, _Layout
+from invrender.inverse.least_squares import Prior, _Layout, neighbour_pairs
 from invrender.scene.camera import Camera
 from invrender.scene.emitters import Emitter
 from invrender.scene.materials import Material
@@ -93,3 +93,32 @@ def test_the_prior_is_a_relative_tikhonov_term():
     torch.testing.assert_close(J[:, :96], torch.eye(96, dtype=torch.float64) * 1.0)
     with pytest.raises(ParameterError, match="prior_weight must be >= 0"):
         ir.fit(scene, torch.zeros(4, 4, 3), ["sky.emission"], solver="lm", prior_weight=-1.0, progress=False)
+
+
+def test_the_smoothness_prior_is_a_relative_difference_of_neighbours():
+    """Rows sqrt(mu) (v_i - v_j) / sqrt(p_i p_j) per channel and pair of neighbouring texels (each
+    row's next texel, wrapping in longitude; the texel below, not wrapping): 4 x 8 + 3 x 8 = 56
+    pairs; zero on a constant map; their Jacobian the derivative of the residual, exactly."""
+    pairs = neighbour_pairs(4, 8)
+    assert pairs.shape == (56, 2)
+    assert [7, 0] in pairs.tolist() and [0, 8] in pairs.tolist() and [24, 0] not in pairs.tolist()
+    scene = lighting_scene(torch.full((4, 8, 3), 2.0), resolution=(4, 4))
+    rec = ir.record_paths(scene, ["matte.reflectance", "sky.emission"], spp=1, max_depth=2, progress=False)
+    layout = _Layout.of(rec)
+    p = 1.0 + torch.rand(4, 8, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
+    prior = Prior({"sky.emission": p}, {"sky.emission": 0.0}, {"sky.emission": 9.0})
+    rho = torch.full((3,), 0.5, dtype=torch.float64)
+    flat = torch.full((4, 8, 3), 3.0, dtype=torch.float64)
+    v = p * (1 + 0.1 * torch.randn(4, 8, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(2)))
+    r = prior.residual(layout, {"sky.emission": v, "matte.reflectance": rho})
+    assert r.shape == (56 * 3,)
+    i, j = int(pairs[5, 0]), int(pairs[5, 1])
+    a, b = v.reshape(-1, 3), p.reshape(-1, 3)
+    torch.testing.assert_close(r[15:18], 3.0 * (a[i] - a[j]) / (b[i] * b[j]).sqrt())
+    assert float(Prior({"sky.emission": flat}, {"sky.emission": 0.0}, {"sky.emission": 9.0}).residual(layout, {"sky.emission": flat, "matte.reflectance": rho}).abs().max()) == 0.0
+    J = prior.jacobian(layout)
+    auto = torch.autograd.functional.jacobian(lambda x: prior.residual(layout, {"sky.emission": x[3:].reshape(4, 8, 3), "matte.reflectance": x[:3]}), torch.cat([rho, v.reshape(-1)]))
+    assert J.shape == (168, 99)
+    torch.testing.assert_close(J, auto)
+    with pytest.raises(ParameterError, match="smoothness must be >= 0"):
+        ir.fit(scene, torch.zeros(4, 4, 3), ["sky.emission"], solver="lm", smoothness=-1.0, progress=False)
