@@ -39,6 +39,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 from pathlib import Path
 from typing import NamedTuple
 
@@ -397,8 +398,9 @@ def write_transforms(path, cameras: list[Camera], resolution: tuple[int, int], i
         frame["transform_matrix"] = matrix.tolist()
         frames.append(frame if shared else {**frame, **keys[i]})
     doc = {**(keys[0] if shared else {}), "frames": frames}
+    text = re.sub(r"\[\s+([^\[\]{}\"]*?)\s+\]", lambda m: "[" + " ".join(m.group(1).split()) + "]", json.dumps(doc, indent=2))  # a matrix row on one line
     with atomic_file(path) as f:
-        f.write((json.dumps(doc, indent=2) + "\n").encode())
+        f.write((text + "\n").encode())
 
 
 def write_colmap(folder, cameras: list[Camera], resolution: tuple[int, int], images=None) -> None:
