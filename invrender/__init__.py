@@ -10,6 +10,7 @@ Public API::
     img = ir.render(scene, ir.integrators.Whitted(max_depth=6))   # an integrator object
     res = ir.render(scene, spp=64, adaptive=ir.AdaptiveSettings(rounds=2), return_counts=True)   # adaptive sampling
     res = ir.fit(scene, target, params=["red.reflectance", "light.emission"])   # inverse rendering
+    views = ir.load_cameras("capture/transforms.json")       # (camera, image, (w, h)) per view; or COLMAP
     sh = ir.lighting.fit_sh(scene, targets, emitter="sky", order=2, cameras=cams)   # SH lighting coefficients
     study = ir.gradient_study(scene, ["red.reflectance", "light.emission"])   # gradient variance and bias
     base = ir.baseline.pyrender_render(scene)               # the rasterized Utah baseline
@@ -25,6 +26,7 @@ from invrender.diff import render
 from invrender.diff.records import PathRecords, record_paths
 from invrender.scene import load_scene
 from invrender.scene.camera import Camera
+from invrender.scene.formats.cameras import load_cameras
 from invrender.scene.materials import Material
 from invrender.study import GradientConfig, GradientStudy, gradient_study
 from invrender.transport import integrators
@@ -45,7 +47,7 @@ def __getattr__(name):
 
 
 __all__ = [
-    "load_scene", "render", "fit", "gradcheck", "read_image", "write_image", "FitResult", "Camera", "Material", "integrators",
+    "load_scene", "render", "fit", "gradcheck", "read_image", "write_image", "FitResult", "Camera", "load_cameras", "Material", "integrators",
     "radiosity", "RadiositySolution", "AdaptiveSettings", "AdaptiveResult", "record_paths", "PathRecords", "identifiability", "lighting", "gradient_study", "GradientStudy", "GradientConfig",
     "InvRenderError", "SceneError", "ImageError", "ParameterError", "BaselineError",
 ]  # fmt: skip

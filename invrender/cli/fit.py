@@ -18,6 +18,8 @@ examples:
       --params red.reflectance,green.reflectance,white.reflectance,light.emission --out runs/cbox
   invrender fit --scene cornell_box --target target.exr --params light.emission \\
       --integrator path --set rr_depth=3 --set strategy=emitter --out runs/nee
+  invrender fit --scene scene.xml --cameras capture/transforms.json --params white.reflectance --out runs/capture
+                                                # every view of a dataset; its images the targets
   invrender fit optimize/cornell_random.toml --out runs/cornell_random
   invrender fit optimize/cornell_random.toml --out runs/cornell_random --resume     # after Ctrl-C
   invrender fit optimize/utah_bias.toml --out runs/utah_bias    # a model study: path vs utah
@@ -66,6 +68,7 @@ def add_parser(sub) -> None:
     f.add_argument("recipe", nargs="?", help="an optimize/*.toml fit recipe (instead of --scene/--target/--params)")
     f.add_argument("--scene", help="built-in name or scene file whose parameters are fitted")
     f.add_argument("--target", nargs="+", metavar="IMAGE", help="target image(s): EXR (linear) or PNG; one per view")
+    f.add_argument("--cameras", metavar="FILE", help="the views: a NeRF transforms.json, a COLMAP cameras.txt/images.txt or a folder holding them (docs/cameras.md); every view is fitted at once, its image the target unless --target is given")
     f.add_argument("--params", help="comma-separated parameter names, e.g. red.reflectance,light.emission")
     f.add_argument("--init", action="append", default=[], metavar="KEY=VALUE", help="starting value: NAME=v or NAME=r,g,b; NAME may be a kind (reflectance, specular_reflectance, emission) for all fitted ones of it (repeatable)")
     f.add_argument("--resolution", type=parse_resolution, default=None, metavar="WxH", help="render size (default: the target's)")
@@ -89,11 +92,11 @@ def run(args) -> int:
     settings = {name: getattr(args, name) for name, _, _ in FIT_OPTIONS if name != "integrator" and getattr(args, name) is not None}
     recipe = None
     if args.recipe:
-        if args.scene or args.target or args.params:
+        if args.scene or args.target or args.params or args.cameras:
             raise ParameterError("give either a recipe or --scene/--target/--params, not both")
         recipe = load_fit_recipe(args.recipe)
-    elif not (args.scene and args.target and args.params):
-        raise ParameterError("fit needs a recipe, or all of --scene, --target and --params")
+    elif not (args.scene and (args.target or args.cameras) and args.params):
+        raise ParameterError("fit needs a recipe, or all of --scene, --target (or --cameras) and --params")
     if args.integrator or args.set:
         base = recipe.settings.get("integrator") if recipe is not None else None
         settings["integrator"] = integrator_spec(args, base)
@@ -105,17 +108,33 @@ def run(args) -> int:
                 print(done.markdown)
                 print(f"wrote {out}/study.md, study.json and one folder per variant", file=sys.stderr)
             return 0
-        targets = list(args.target)  # paths: fit reads them, and its errors name the file
-        if args.resolution is None:
+        cameras, size = _cameras(args)
+        targets = list(args.target or [])  # paths: fit reads them, and its errors name the file
+        if args.resolution is None and size is None:
             height, width = ir.read_image(targets[0]).shape[:2]
-        scene = ir.load_scene(args.scene, resolution=args.resolution or (width, height))
+            size = (width, height)
+        scene = ir.load_scene(args.scene, resolution=args.resolution or size)
         names = [n.strip() for n in args.params.split(",") if n.strip()]
         apply_init(scene, names, init)
-        _summary(args, fit_into(out, scene, targets, names, resume=args.resume, progress=not args.quiet, report={"targets": targets}, **settings))
+        if cameras is not None:
+            targets = targets or [str(f.image) for f in cameras]
+        views = None if cameras is None else [f.camera for f in cameras]
+        report = {"targets": targets, **({"cameras": str(args.cameras)} if cameras is not None else {})}
+        _summary(args, fit_into(out, scene, targets, names, cameras=views, resume=args.resume, progress=not args.quiet, report=report, **settings))
     except KeyboardInterrupt:
         print("invrender: interrupted; checkpoint saved (continue with --resume)", file=sys.stderr)
         return EXIT_INTERRUPTED
     return 0
+
+
+def _cameras(args):
+    """(the --cameras views, their common (width, height)), or (None, None) without --cameras."""
+    if not args.cameras:
+        return None, None
+    from invrender.scene.formats.cameras import common_resolution, load_cameras
+
+    frames = load_cameras(args.cameras, require_images=not args.target)
+    return frames, common_resolution(frames, args.cameras)
 
 
 def _say(args, line: str) -> None:

@@ -4,6 +4,18 @@ Conventions (shared with Mitsuba 3): the camera looks from ``origin`` at ``targe
 the camera's right (``forward x up``) and image rows grow downwards, so row 0 is the top of the
 image; ``fov`` is the full field of view in degrees along ``fov_axis``.
 
+Off-centre and non-square pinholes (the intrinsics of a calibrated camera): ``principal_point_offset``
+(ox, oy) shifts the image window in the image plane by fractions of the image's width and height
+(x to the right, y down), as Mitsuba 3's ``principal_point_offset_x/_y``: film position (x, y) sees
+what the centred camera sees at (x + ox W, y + oy H), so the optical axis crosses the film at pixel
+position (cx, cy) = ((0.5 - ox) W, (0.5 - oy) H). ``pixel_aspect`` = fy / fx is the ratio of the
+focal lengths in pixels (1 = square pixels): ``fov`` fixes the angle along ``fov_axis`` and the
+other axis's extent is divided by (x) or multiplied by (y) the aspect. A film position is in pixel
+units, the top-left corner at (0, 0) and pixel centres at i + 0.5 (COLMAP's convention), so
+``fx = W / (2 tan(fov_x / 2))`` and a world point at camera coordinates (right r, down d, depth z)
+lands at ``(cx + fx r / z, cy + fy d / z)``: :meth:`Camera.intrinsics` and
+:meth:`Camera.from_intrinsics` convert.
+
 The thin lens (Mitsuba's ``thinlens``): with ``aperture_radius`` r > 0, each ray starts at a point
 uniformly distributed on the lens, a disk of radius r around ``origin`` in the image plane's
 orientation, and passes through the point the pinhole ray meets on the plane of focus, at
@@ -14,6 +26,7 @@ orientation, and passes through the point the pinhole ray meets on the plane of 
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 
 import torch
@@ -36,6 +49,9 @@ class Camera:
         fov_axis: ``"x"``, ``"y"``, ``"smaller"`` or ``"larger"`` image axis.
         aperture_radius: radius of the thin lens, world units, >= 0 (0 = pinhole).
         focus_distance: distance of the plane of focus along the view axis, world units, > 0.
+        principal_point_offset: (ox, oy), the image window's shift in fractions of the image's
+            width and height (x right, y down; module docstring); (0, 0) = centred.
+        pixel_aspect: fy / fx, the ratio of the focal lengths in pixels, > 0 (1 = square pixels).
     """
 
     origin: tuple[float, float, float] = (0.0, 0.0, 3.9)
@@ -45,6 +61,8 @@ class Camera:
     fov_axis: str = "smaller"
     aperture_radius: float = 0.0
     focus_distance: float = 1.0
+    principal_point_offset: tuple[float, float] = (0.0, 0.0)
+    pixel_aspect: float = 1.0
 
     def __post_init__(self):
         for name in ("origin", "target", "up"):
@@ -55,11 +73,17 @@ class Camera:
         object.__setattr__(self, "fov", float(self.fov))
         if not (0.0 < self.fov < 180.0):
             raise SceneError(f"camera fov must be in (0, 180) degrees, got {self.fov}")
-        for name in ("aperture_radius", "focus_distance"):
+        for name in ("aperture_radius", "focus_distance", "pixel_aspect"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            if not _is_finite(value):
                 raise SceneError(f"camera {name} must be a finite number, got {value!r}")
             object.__setattr__(self, name, float(value))
+        offset = tuple(self.principal_point_offset)
+        if len(offset) != 2 or not all(_is_finite(x) for x in offset):
+            raise SceneError(f"camera principal_point_offset must be 2 finite numbers (fractions of the image width and height), got {self.principal_point_offset!r}")
+        object.__setattr__(self, "principal_point_offset", tuple(float(x) for x in offset))
+        if self.pixel_aspect <= 0:
+            raise SceneError(f"camera pixel_aspect (fy / fx) must be positive, got {self.pixel_aspect:g}")
         if self.aperture_radius < 0:
             raise SceneError(f"camera aperture_radius must be >= 0 (0 = pinhole), got {self.aperture_radius:g}")
         if self.focus_distance <= 0:
@@ -84,7 +108,8 @@ class Camera:
         return right, up, forward
 
     def tan_half_fov(self, width: int, height: int) -> tuple[float, float]:
-        """``tan`` of the half field of view along image x and y for a ``width x height`` film."""
+        """``tan`` of the half field of view along image x and y for a ``width x height`` film
+        (of the centred window: the principal point offset shifts it, not its size)."""
         axis = self.fov_axis
         if axis == "smaller":
             axis = "x" if width <= height else "y"
@@ -92,8 +117,28 @@ class Camera:
             axis = "x" if width >= height else "y"
         t = math.tan(math.radians(self.fov) / 2.0)
         if axis == "x":
-            return t, t * height / width
-        return t * width / height, t
+            return t, t * height / width / self.pixel_aspect
+        return t * width / height * self.pixel_aspect, t
+
+    def intrinsics(self, width: int, height: int) -> tuple[float, float, float, float]:
+        """Pinhole intrinsics ``(fx, fy, cx, cy)`` in pixels for a ``width x height`` film: the
+        focal lengths and the principal point, in film coordinates (module docstring)."""
+        tx, ty = self.tan_half_fov(width, height)
+        ox, oy = self.principal_point_offset
+        return width / (2.0 * tx), height / (2.0 * ty), (0.5 - ox) * width, (0.5 - oy) * height
+
+    @classmethod
+    def from_intrinsics(cls, fx: float, fy: float, cx: float, cy: float, width: int, height: int, **pose) -> "Camera":
+        """The pinhole with intrinsics ``(fx, fy, cx, cy)`` (pixels, as :meth:`intrinsics` gives
+        them) on a ``width x height`` film; ``pose``: ``origin``, ``target``, ``up`` (and any other
+        field). The field of view is stated along x."""
+        for name, value in (("fx", fx), ("fy", fy), ("cx", cx), ("cy", cy)):
+            if not _is_finite(value):
+                raise SceneError(f"camera intrinsics: {name} must be a finite number, got {value!r}")
+        if fx <= 0 or fy <= 0:
+            raise SceneError(f"camera intrinsics: focal lengths must be positive, got fx {fx:g}, fy {fy:g}")
+        fov = math.degrees(2.0 * math.atan(width / (2.0 * fx)))
+        return cls(fov=fov, fov_axis="x", pixel_aspect=fy / fx, principal_point_offset=(0.5 - cx / width, 0.5 - cy / height), **pose)
 
     @property
     def is_pinhole(self) -> bool:
@@ -112,8 +157,9 @@ class Camera:
         """
         right, up, forward = (v.to(film_xy.device, torch.float32) for v in self.frame())
         tx, ty = self.tan_half_fov(width, height)
-        sx = (2.0 * film_xy[:, 0] / width - 1.0) * tx
-        sy = (1.0 - 2.0 * film_xy[:, 1] / height) * ty
+        ox, oy = self.principal_point_offset  # (0, 0) adds exact zeros: a centred camera's rays are unchanged
+        sx = (2.0 * film_xy[:, 0] / width + 2.0 * ox - 1.0) * tx
+        sy = (1.0 - 2.0 * film_xy[:, 1] / height - 2.0 * oy) * ty
         d = sx[:, None] * right + sy[:, None] * up + forward  # 1 along the view axis
         o = torch.tensor(self.origin, dtype=torch.float32, device=film_xy.device).expand_as(d)
         if self.is_pinhole or u_lens is None:
@@ -137,6 +183,10 @@ def concentric_disk(u: torch.Tensor) -> torch.Tensor:
     safe = lambda x: torch.where(x == 0, torch.ones_like(x), x)  # noqa: E731
     phi = torch.where(wide, (math.pi / 4) * b / safe(a), math.pi / 2 - (math.pi / 4) * a / safe(b))
     return torch.stack([r * torch.cos(phi), r * torch.sin(phi)], dim=1)
+
+
+def _is_finite(value) -> bool:
+    return not isinstance(value, bool) and isinstance(value, numbers.Real) and math.isfinite(value)
 
 
 def _cross(a, b):

@@ -5,7 +5,10 @@ Sensor (at most one ``<sensor>``)
     supported), ``fov_axis`` (x, y, smaller, larger; default x; ``diagonal`` is an error),
     ``to_world`` (lookat or any rotation and translation, optionally a uniform scale; the camera
     looks along local +z with local +y up and the image's x axis along local -x, as in Mitsuba; a
-    mirrored (det < 0), non-uniformly scaled or sheared to_world is an error), ``near_clip`` /
+    mirrored (det < 0), non-uniformly scaled or sheared to_world is an error),
+    ``principal_point_offset_x`` / ``_y`` (perspective; default 0; the image window's shift in
+    fractions of the film's width and height, x right and y down, as Mitsuba: the camera's
+    ``principal_point_offset``), ``near_clip`` /
     ``far_clip`` (accepted, checked, ignored), ``focus_distance`` (thinlens; default ``far_clip``;
     > 0), ``aperture_radius`` (thinlens, required, >= 0). Inside the sensor: ``<film
     type="hdrfilm">`` with ``width``/``height`` (default 768 x 576 as Mitsuba; the ``resolution``
@@ -62,6 +65,10 @@ def sensor(ctx: Context, obj: Obj) -> tuple[Camera, tuple[int, int], dict]:
     matrix = np.eye(4) if to_world is None else to_world.value
     supported = ["fov", "fov_axis", "near_clip", "far_clip", "to_world", "focus_distance"]
     aperture, focus = 0.0, ctx.get(obj, "focus_distance", "float", far)
+    offset = (0.0, 0.0)
+    if obj.type == "perspective":
+        supported += ["principal_point_offset_x", "principal_point_offset_y"]
+        offset = tuple(ctx.get(obj, f"principal_point_offset_{c}", "float", 0.0) for c in "xy")
     if obj.type == "thinlens":
         supported.append("aperture_radius")
         aperture = ctx.get(obj, "aperture_radius", "float")
@@ -87,7 +94,7 @@ def sensor(ctx: Context, obj: Obj) -> tuple[Camera, tuple[int, int], dict]:
         if obj.type == "thinlens":
             camera = Camera(tuple(origin), tuple(origin + forward), tuple(up), fov, axis, aperture * s, focus * s)
         else:
-            camera = Camera(tuple(origin), tuple(origin + forward), tuple(up), fov, axis)
+            camera = Camera(tuple(origin), tuple(origin + forward), tuple(up), fov, axis, principal_point_offset=offset)
     except SceneError as e:
         raise ctx.error(obj.node, str(e), obj) from None
 
