@@ -206,7 +206,8 @@ def calibrate(stack: np.ndarray, times: np.ndarray, samples: int, smoothness: fl
 
 def response_csv(response: torch.Tensor | np.ndarray) -> str:
     """The text of a response CSV: the header ``value,red,green,blue``, then one row per code: the
-    encoded value code / (N - 1) in [0, 1] and the linear response of each channel.
+    encoded value code / (N - 1) in [0, 1] (the shortest decimal that reads back as that float64)
+    and the linear response of each channel (9 significant digits: float32 exactly).
 
     Raises:
         ParameterError: ``response`` is not (N, 3) with N >= 2, finite, > 0, strictly increasing
@@ -218,7 +219,7 @@ def response_csv(response: torch.Tensor | np.ndarray) -> str:
     if not (np.isfinite(r).all() and (r > 0).all() and (np.diff(r, axis=0) > 0).all() and (r[-1] == 1.0).all()):
         raise ParameterError("a response is finite, > 0, strictly increasing per channel and 1.0 at the last code")
     values = np.arange(r.shape[0]) / (r.shape[0] - 1)
-    lines = [CSV_HEADER] + [f"{v:.9g},{a:.9g},{b:.9g},{c:.9g}" for v, (a, b, c) in zip(values, r)]
+    lines = [CSV_HEADER] + [f"{v!r},{a:.9g},{b:.9g},{c:.9g}" for v, (a, b, c) in zip(values.tolist(), r)]
     return "\n".join(lines) + "\n"
 
 
