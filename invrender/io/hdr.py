@@ -109,7 +109,7 @@ def _read_8bit(path: Path) -> tuple[np.ndarray, float | None]:
             return np.asarray(img.convert("RGB"), dtype=np.uint8), _exif_exposure(img)
     except ImageError:
         raise
-    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as e:
+    except (UnidentifiedImageError, Image.DecompressionBombError, OSError, SyntaxError, ValueError) as e:
         reason = (str(e).strip().splitlines() or [type(e).__name__])[0]
         raise ImageError(f"cannot read image {path}: not a valid image file ({reason})") from None
 
