@@ -3,7 +3,7 @@
 Bad input ends with one line ``invrender: error: ...`` on stderr and exit status 2; outputs are
 written atomically, so a failed or interrupted run leaves no half-written file. Each command module
 (:mod:`invrender.cli.render`, ``fit``, ``gradcheck``, ``dataset``, ``baseline``, ``compare``,
-``variance``, ``ablation``, ``plugins``) has ``add_parser(sub)`` and ``run(args)``; what they share is in
+``variance``, ``ablation``, ``hdr``, ``plugins``) has ``add_parser(sub)`` and ``run(args)``; what they share is in
 :mod:`invrender.cli.common`.
 """
 
@@ -13,13 +13,13 @@ import argparse
 import sys
 import warnings
 
-from invrender.cli import ablation, baseline, compare, dataset, fit, gradcheck, plugins, render, variance
+from invrender.cli import ablation, baseline, compare, dataset, fit, gradcheck, hdr, plugins, render, variance
 from invrender.cli.common import EXIT_BAD_INPUT, EXIT_INTERRUPTED, OneLineParser, join_process_group, leave_process_group, one_line_warning
 from invrender.cli.fit import FIT_OPTIONS
 from invrender.errors import InvRenderError
 
 #: the commands, in the order of ``--help``
-COMMANDS = (render, fit, gradcheck, dataset, baseline, compare, variance, ablation, plugins)
+COMMANDS = (render, fit, gradcheck, dataset, baseline, compare, variance, ablation, hdr, plugins)
 
 DESCRIPTION = """\
 invrender renders Kajiya's rendering equation I = g(eps + M I) by Monte Carlo on torch tensors
@@ -43,6 +43,8 @@ commands:
   ablation   sampling strategies (pixel samples, hemisphere sampling, MIS / BSDF / emitter
              sampling, Russian roulette, adaptive sampling) compared by RMSE against a high-spp
              reference at equal samples and equal time (a table, CSV and a log-log figure)
+  hdr        merge an exposure bracket of 8-bit photographs into a linear EXR, with the camera
+             response recovered from it (Debevec; a CSV and its plot)
   plugins    the registered materials, emitters and integrators with their parameters and
              settings (Markdown tables, as docs/plugins.md shows them)
 

@@ -155,15 +155,17 @@ def integrator_spec(args, base=None, flags: dict | None = None, default: str = "
 # --- outputs ------------------------------------------------------------------------------------
 
 
-def check_outputs(paths: list[str]) -> list[Path]:
-    """Fail early (before a long render) on output paths that cannot be written."""
+def check_outputs(paths: list[str], suffixes: tuple[str, ...] | None = None) -> list[Path]:
+    """Fail early (before a long render) on output paths that cannot be written (or whose suffix is
+    not one of ``suffixes``, by default the image suffixes)."""
     from invrender.io.images import WRITE_SUFFIXES
 
+    suffixes = suffixes or WRITE_SUFFIXES
     out = []
     for p in paths:
         path = Path(p)
-        if path.suffix.lower() not in WRITE_SUFFIXES:
-            raise ImageError(f"cannot write {p}: unknown image suffix {path.suffix or '(none)'!r} (use {', '.join(WRITE_SUFFIXES)})")
+        if path.suffix.lower() not in suffixes:
+            raise ImageError(f"cannot write {p}: unknown {'image ' if suffixes == WRITE_SUFFIXES else ''}suffix {path.suffix or '(none)'!r} (use {', '.join(suffixes)})")
         parent = path.parent if str(path.parent) else Path(".")
         existing = next((a for a in [parent, *parent.parents] if a.exists()), Path("."))
         if not existing.is_dir() or not os.access(existing, os.W_OK):
