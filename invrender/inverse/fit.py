@@ -101,7 +101,8 @@ class FitSettings:
         smoothness: least-squares solvers: the weight mu of the smoothness prior on environment
             maps, residual rows ``sqrt(mu) (v_i - v_j) / sqrt(p_i p_j)`` per pair of neighbouring
             texels (``Prior``), so that texels the targets see poorly take their neighbours'
-            values instead of noise or the start. None: by the rule mu = 1e-2 times the same mean
+            values instead of noise or the start (for maps that vary smoothly, as skies do; it
+            biases a map of independent texels). None: by the rule mu = 1e-2 times the same mean
             diagonal; 0 (default): none.
         sampler: how each render's or record's pixel samples are drawn: ``"stratified"``,
             ``"independent"`` or ``"antithetic"`` (mirrored pairs; see ``invrender.render``).
