@@ -237,6 +237,8 @@ def sensor_dict(camera, width: int, height: int, spp: int, filter: str = "box", 
     rows grow downwards, as invrender's do (checked on the Cornell box: the red wall on the left).
     """
     mi, _ = _require()
+    if float(getattr(camera, "pixel_aspect", 1.0)) != 1.0:
+        raise ValueError(f"Mitsuba's sensors have square pixels: cannot convert pixel_aspect {camera.pixel_aspect:g}")
     d = {
         "type": "perspective" if float(camera.aperture_radius) == 0.0 else "thinlens",
         "fov": float(camera.fov),
@@ -257,6 +259,9 @@ def sensor_dict(camera, width: int, height: int, spp: int, filter: str = "box", 
     if d["type"] == "thinlens":
         d["aperture_radius"] = float(camera.aperture_radius)
         d["focus_distance"] = float(camera.focus_distance)
+    ox, oy = (float(x) for x in getattr(camera, "principal_point_offset", (0.0, 0.0)))
+    if (ox, oy) != (0.0, 0.0):  # the same meaning in both (docs/cameras.md); thinlens has none
+        d["principal_point_offset_x"], d["principal_point_offset_y"] = ox, oy
     return d
 
 

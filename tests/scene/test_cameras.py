@@ -371,3 +371,15 @@ def test_fit_cli_with_cameras_fits_every_view(tmp_path, capsys):
     assert main(args + ["--cameras", str(tmp_path / "bad.json"), "--out", str(tmp_path / "o2")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "bad.json: frame 0: image 'gone' not found" in err[0] and not (tmp_path / "o2" / "report.json").exists()
+
+
+def test_the_scene_formats_camera_table_takes_the_intrinsics(tmp_path):
+    """TOML ``[camera]`` keys ``principal_point_offset`` and ``pixel_aspect`` reach the Camera;
+    a malformed offset is a one-line error naming the key."""
+    from invrender.errors import SceneError
+    from invrender.scene.formats.toml import camera_from_table
+
+    cam = camera_from_table({"principal_point_offset": [0.1, -0.25], "pixel_aspect": 1.5}, "scene.toml [camera]")
+    assert cam.principal_point_offset == (0.1, -0.25) and cam.pixel_aspect == 1.5
+    with pytest.raises(SceneError, match=r"scene.toml \[camera\]: 'principal_point_offset' must be \[ox, oy\]"):
+        camera_from_table({"principal_point_offset": [0.1]}, "scene.toml [camera]")

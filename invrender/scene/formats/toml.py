@@ -88,7 +88,7 @@ from invrender.scene.scene import Scene, build_scene
 from invrender.scene.shapes import PRIMITIVES, Mesh, primitive, rotate, scale, translate
 
 TOP_KEYS = {"name", "resolution", "ambient", "camera", "materials", "emitters", "shapes"}
-CAMERA_KEYS = {"origin", "target", "up", "fov", "fov_axis", "aperture_radius", "focus_distance"}
+CAMERA_KEYS = {"origin", "target", "up", "fov", "fov_axis", "aperture_radius", "focus_distance", "principal_point_offset", "pixel_aspect"}
 SHAPE_KEYS = {"type", "material", "emitter", "file", "subdivisions", "flip_normals", "transform"}
 SHAPE_TYPES = (*PRIMITIVES, "mesh")
 TRANSFORM_STEPS = ("translate", "rotate", "scale")
@@ -139,9 +139,14 @@ def camera_from_table(doc, where: str) -> Camera:
         raise SceneError(f"{where}: must be a table of camera keys, got {show(doc)}")
     check_keys(doc, CAMERA_KEYS, where)
     args = {k: vector(doc, k, where) for k in ("origin", "target", "up") if k in doc}
-    for key in ("fov", "aperture_radius", "focus_distance"):
+    for key in ("fov", "aperture_radius", "focus_distance", "pixel_aspect"):
         if key in doc:
             args[key] = number(doc, key, where)
+    if "principal_point_offset" in doc:
+        offset = doc["principal_point_offset"]
+        if not (isinstance(offset, list) and len(offset) == 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in offset)):
+            raise SceneError(f"{where}: 'principal_point_offset' must be [ox, oy] (fractions of the image width and height), got {show(offset)}")
+        args["principal_point_offset"] = tuple(float(x) for x in offset)
     if "fov_axis" in doc:
         args["fov_axis"] = string(doc, "fov_axis", where)
         if args["fov_axis"] not in FOV_AXES:
