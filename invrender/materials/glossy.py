@@ -104,7 +104,7 @@ class Glossy(ConductorFresnel, BSDF):
         for key in ("alpha_u", "alpha_v"):
             if bsdf.has(key):
                 raise bsdf.error(key, f"'{key}' (anisotropic roughness) is not supported: give one 'alpha'")
-        alpha = bsdf.number("alpha", cls.constants["roughness"], f"{name} roughness", "a <float> (textured roughness is not supported)")
+        alpha = bsdf.number("alpha", cls.constants["roughness"], f"{target.distribution.label} roughness", "a <float> (textured roughness is not supported)")
         bsdf.boolean("sample_visible")  # either way the same BRDF (invrender always samples visible normals)
         bsdf.finish(("material", "eta", "k", "specular_reflectance", "distribution", "alpha", "sample_visible"))
         return {"type": target.type_name, "specular_reflectance": ks, "roughness": alpha, **ior}

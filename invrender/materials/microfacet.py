@@ -142,8 +142,9 @@ class Distribution(ABC):
     """A microfacet normal distribution of roughness alpha (isotropic), in a material's local
     frame (normal +z). Every tensor argument is (N,) or (N, 3); alpha (N,) per point."""
 
-    #: the name scene files give it (Mitsuba's ``distribution``)
+    #: the name scene files give it (Mitsuba's ``distribution``), and how messages spell it
     name: str
+    label: str
 
     @abstractmethod
     def D(self, cos_h: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
@@ -167,7 +168,7 @@ class Distribution(ABC):
 
 
 class _GGX(Distribution):
-    name = "ggx"
+    name, label = "ggx", "GGX"
 
     def D(self, cos_h, alpha):
         return ggx_D(cos_h, alpha)
@@ -180,7 +181,7 @@ class _GGX(Distribution):
 
 
 class _Beckmann(Distribution):
-    name = "beckmann"
+    name, label = "beckmann", "Beckmann"
 
     def D(self, cos_h, alpha):
         return beckmann_D(cos_h, alpha)
