@@ -125,3 +125,5 @@ class GlossyBeckmann(Glossy):
     type_name = "glossy_beckmann"
     doc = "Beckmann rough conductor (Mitsuba's default roughconductor; eta, k as glossy), two-sided"
     distribution = BECKMANN
+    # the same Mitsuba plugin (its distribution picks the type: Glossy.from_mitsuba, inherited)
+    mitsuba_plugins = ("roughconductor",)
