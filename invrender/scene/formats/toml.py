@@ -27,17 +27,27 @@ allowed keys). Out-of-range colours (rho outside [0, 1], eps < 0) are
     # reflectance_texture = "albedo.png"   # relative to this file; PNG/JPEG are sRGB-decoded to linear, EXR read as linear
 
     [materials.chrome]
-    type = "mirror"                    # a perfect mirror, two-sided (Mitsuba's conductor, material "none")
+    type = "mirror"                    # a smooth conductor, two-sided (Mitsuba's conductor)
     specular_reflectance = [0.9, 0.9, 0.9]   # k_s, RGB in [0, 1] (default 1), differentiable
+    material = "Cr"                    # a conductor's index: one of Mitsuba's named metals (Au, Cu, Al, Ag, Cr, ...)
+                                       # or "none" (the default: Fresnel 1, a perfect mirror); or instead
+    # eta = [3.2, 2.9, 1.7]            # the complex index eta + i k itself, 3 numbers each >= 0 (defaults 0 and 1)
+    # k = [3.3, 3.1, 2.8]
 
     [materials.glass]
     type = "dielectric"                # smooth glass: Fresnel reflection and refraction (Mitsuba's dielectric)
     ior = 1.5                          # interior index over the exterior's (1.0), > 0 (default 1.5); a constant
 
     [materials.brushed]
-    type = "glossy"                    # GGX rough conductor, Fresnel 1, two-sided (Mitsuba's roughconductor, material "none")
-    roughness = 0.2                    # GGX alpha in (0, 1] (default 0.1); a constant
+    type = "glossy"                    # GGX rough conductor, two-sided (Mitsuba's roughconductor, distribution ggx);
+                                       # "glossy_beckmann": the same with Beckmann (Mitsuba's default distribution)
+    roughness = 0.2                    # alpha in (0, 1] (default 0.1); a constant
     specular_reflectance = [0.95, 0.8, 0.5]   # k_s in [0, 1] (default 1), differentiable
+    material = "none"                  # or a named metal, or eta / k, as for a mirror (default none: Fresnel 1)
+
+    [materials.tiles]                  # a colour that may be a texture may also be a procedural one (baked, bilinear):
+    reflectance = { checkerboard = { color0 = [0.8, 0.8, 0.8], color1 = 0.2, scale = 4, translate = [0, 0], resolution = 512 } }
+                                       # Mitsuba's checkerboard (defaults 0.4, 0.2, scale 1, no translation, 512^2 texels)
 
     [emitters.light]                   # one table per emitter: type (default "area": emits from the shapes naming it,
                                        # from their front side only), then the type's keys
