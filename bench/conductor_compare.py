@@ -78,6 +78,7 @@ def main() -> int:
     if not mitsuba_ref.available():
         print("Mitsuba 3 is not available (bench/README.md)", file=sys.stderr)
         return 2
+    record = Results("conductor_compare", "Conductors (named metals, Beckmann) and checkerboards vs Mitsuba 3")  # made first: it times the run
     mi_spp = args.mitsuba_spp or 4 * args.spp
     text = scene_xml()
     if args.write:
@@ -96,7 +97,6 @@ def main() -> int:
     print(f"  invrender  {_cells(ours)}  {ours.seconds:4.0f}s")
     print(f"  Mitsuba    {_cells(ref)}  {ref.seconds:4.0f}s")
     print(f"  invrender / Mitsuba - 1 (%): {_rel_cells(rel, se)}; largest {worst:.3f}% ({'within' if worst < TOLERANCE else 'NOT within'} {TOLERANCE:g}%)")
-    record = Results("conductor_compare", "Conductors (named metals, Beckmann) and checkerboards vs Mitsuba 3")
     table = record.table(title, ["renderer", "R mean ± s.e.", "G mean ± s.e.", "B mean ± s.e.", "seconds"])
     cells = lambda m: [f"{v:.5f} ± {e:.5f}" for v, e in zip(m.mean, m.se)]  # noqa: E731
     table.append(["invrender", *cells(ours), round(ours.seconds)])
