@@ -33,6 +33,7 @@ from invrender.scene.plugins import Constant, Param
 from invrender.transport.bsdfs.base import BSDF, BSDFSample, Lobe, ShadingPoint
 from invrender.vec import dot, normalize
 
+
 @registry.MATERIALS.register
 class Glossy(ConductorFresnel, BSDF):
     type_name = "glossy"

@@ -1,8 +1,9 @@
-"""Colours and bitmap textures of Mitsuba properties, checked against the parameter kinds.
+"""Colours and textures (bitmap, checkerboard) of Mitsuba properties, checked against the parameter kinds.
 
 Colours
     ``<rgb>``, ``<float>`` (grey) or a constant ``<spectrum>`` (grey), or a ``<texture
-    type="bitmap">`` (inline or a ``<ref>``) where the parameter may be a texture; each value is
+    type="bitmap">`` or ``<texture type="checkerboard">`` (inline or a ``<ref>``) where the
+    parameter may be a texture; each value is
     checked against its kind's range (:mod:`invrender.scene.kinds`). Colours are linear RGB (RGB
     variants of Mitsuba); spectra other than constants are errors.
 
