@@ -24,7 +24,7 @@ def instance(cls: type[BSDF], **entries) -> BSDF:
     """One material of type ``cls`` at its declared defaults (``entries`` override parameters or
     constants), as a render would build it."""
     values = {k: torch.as_tensor(entries.get(k, p.default), dtype=torch.float32).expand(3).clone() for k, p in cls.params.items()}
-    constants = {k: float(entries.get(k, c.default)) for k, c in cls.constants.items()}
+    constants = {k: (tuple(float(x) for x in v) if c.size > 1 else float(v)) for k, c in cls.constants.items() for v in [entries.get(k, c.default)]}
     return cls([values], [constants])
 
 

@@ -1,24 +1,33 @@
-"""A glossy conductor, two-sided: Mitsuba's ``roughconductor`` with ``material = "none"`` (Fresnel 1).
+"""Glossy conductors, two-sided: Mitsuba's ``roughconductor``, with the GGX distribution (type
+``glossy``) or the Beckmann distribution (type ``glossy_beckmann``, Mitsuba's default).
 
-Torrance-Sparrow microfacet BRDF with the GGX (Trowbridge-Reitz) distribution of roughness alpha
-(Walter et al., "Microfacet Models for Refraction through Rough Surfaces", EGSR 2007):
+Torrance-Sparrow microfacet BRDF of roughness alpha with a microfacet distribution (D, G1 and the
+sampling of visible normals of :mod:`invrender.materials.microfacet`; Walter et al., "Microfacet
+Models for Refraction through Rough Surfaces", EGSR 2007):
 
-    f(wo, wi) = k_s D(h) G(wo, wi) / (4 cos_o cos_i),   h = normalize(wo + wi)
-    D(h) = alpha^2 / (pi (cos_h^2 (alpha^2 - 1) + 1)^2)
-    G = G1(wo) G1(wi),   G1(v) = 2 / (1 + sqrt(1 + alpha^2 tan^2 theta_v))   (separable Smith)
+    f(wo, wi) = k_s F(wo . h) D(h) G(wo, wi) / (4 cos_o cos_i),   h = normalize(wo + wi)
+    G = G1(wo) G1(wi)   (separable Smith)
+
+F is the conductor Fresnel term of the complex index ``eta + i k`` (RGB constants, a named metal
+or given: :mod:`invrender.materials.metals`); the default ``eta = 0, k = 1`` (Mitsuba's material
+``none``) is F = 1 exactly, and then no Fresnel term is computed at all.
 
 Directions are sampled from the distribution of visible normals (Heitz, "Sampling the GGX
-Distribution of Visible Normals", JCGT 7(4), 2018): a normal h is drawn with density
-``G1(wo) max(0, wo.h) D(h) / cos_o`` and ``wo`` is reflected about it, so
-``pdf(wi) = G1(wo) D(h) / (4 cos_o)`` and the weight ``f cos_i / pdf`` is ``k_s G1(wi)``.
+Distribution of Visible Normals", JCGT 7(4), 2018; Heitz and d'Eon 2014 for Beckmann): a normal
+h is drawn with density ``G1(wo) max(0, wo.h) D(h) / cos_o`` and ``wo`` is reflected about it, so
+``pdf(wi) = G1(wo) D(h) / (4 cos_o)`` and the weight ``f cos_i / pdf`` is ``k_s F G1(wi)``.
 """
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import torch
 
 from invrender import registry
-from invrender.materials.microfacet import ggx_D, sample_visible_normal, smith_G1
+from invrender.materials.metal_iors import METAL_IORS
+from invrender.materials.metals import CONDUCTOR_CONSTANTS, ConductorFresnel
+from invrender.materials.microfacet import BECKMANN, GGX, Distribution
 from invrender.scene.kinds import SPECULAR_REFLECTANCE
 from invrender.scene.plugins import Constant, Param
 from invrender.transport.bsdfs.base import BSDF, BSDFSample, Lobe, ShadingPoint
@@ -26,45 +35,56 @@ from invrender.vec import dot, normalize
 
 
 @registry.MATERIALS.register
-class Glossy(BSDF):
+class Glossy(ConductorFresnel, BSDF):
     type_name = "glossy"
     lobes = Lobe.GLOSSY
     params = {"specular_reflectance": Param(SPECULAR_REFLECTANCE, 1.0)}
-    constants = {"roughness": Constant(0.1, 0.0, 1.0, True, False)}
-    doc = "GGX rough conductor, Fresnel 1, two-sided"
+    constants = {"roughness": Constant(0.1, 0.0, 1.0, True, False), **CONDUCTOR_CONSTANTS}
+    doc = "GGX rough conductor (eta, k: a named metal or given; default Fresnel 1), two-sided"
+    #: the microfacet distribution
+    distribution: ClassVar[Distribution] = GGX
 
     def _local(self, sp: ShadingPoint, wi: torch.Tensor):
         return sp.frame, sp.wo_local, sp.frame.to_local(wi), self.constant("roughness", sp)
 
     def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        """``k_s D G / (4 cos_o)`` (N, 3) (the cosine cos_i folded in)."""
+        """``k_s F D G / (4 cos_o)`` (N, 3) (the cosine cos_i folded in)."""
         _, wo, wl, alpha = self._local(sp, wi)
+        d = self.distribution
         cos_o, cos_i = wo[:, 2], wl[:, 2]
         h = normalize(wo + wl)
-        value = ggx_D(h[:, 2], alpha) * smith_G1(cos_o, alpha) * smith_G1(cos_i, alpha) / (4.0 * cos_o.clamp_min(1e-12))
+        value = d.D(h[:, 2], alpha) * d.G1(cos_o, alpha) * d.G1(cos_i, alpha) / (4.0 * cos_o.clamp_min(1e-12))
         value = torch.where((cos_o > 0) & (cos_i > 0), value, 0.0)
-        return self.param("specular_reflectance", sp) * value[:, None]
+        ks = self.param("specular_reflectance", sp)
+        fresnel = self.fresnel(sp, dot(wo, h))
+        return ks * value[:, None] if fresnel is None else ks * (fresnel * value[:, None])
 
     def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
         """``G1(wo) D(h) / (4 cos_o)`` (N,) (visible-normal sampling)."""
         _, wo, wl, alpha = self._local(sp, wi)
+        d = self.distribution
         cos_o, cos_i = wo[:, 2], wl[:, 2]
         h = normalize(wo + wl)
-        p = smith_G1(cos_o, alpha) * ggx_D(h[:, 2], alpha) / (4.0 * cos_o.clamp_min(1e-12))
+        p = d.G1(cos_o, alpha) * d.D(h[:, 2], alpha) / (4.0 * cos_o.clamp_min(1e-12))
         return torch.where((cos_o > 0) & (cos_i > 0), p, 0.0)
 
     def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
-        """A visible normal, ``wo`` reflected about it: weight ``k_s G1(wi)``."""
+        """A visible normal, ``wo`` reflected about it: weight ``k_s F G1(wi)``."""
         frame, wo = sp.frame, sp.wo_local
+        d = self.distribution
         alpha = self.constant("roughness", sp)
         above = wo[:, 2] > 0
         wo_up = torch.where(above[:, None], wo, torch.tensor([0.0, 0.0, 1.0], device=wo.device))
-        h = sample_visible_normal(wo_up, alpha, u_dir)
-        wl = 2.0 * dot(wo_up, h)[:, None] * h - wo_up
+        h = d.sample_visible(wo_up, alpha, u_dir)
+        cos_d = dot(wo_up, h)
+        wl = 2.0 * cos_d[:, None] * h - wo_up
         cos_i = wl[:, 2]
         ok = above & (cos_i > 0)
-        pdf = torch.where(ok, smith_G1(wo_up[:, 2], alpha) * ggx_D(h[:, 2], alpha) / (4.0 * wo_up[:, 2].clamp_min(1e-12)), 0.0)
-        weight = self.param("specular_reflectance", sp) * torch.where(ok, smith_G1(cos_i, alpha), 0.0)[:, None]
+        pdf = torch.where(ok, d.G1(wo_up[:, 2], alpha) * d.D(h[:, 2], alpha) / (4.0 * wo_up[:, 2].clamp_min(1e-12)), 0.0)
+        weight = self.param("specular_reflectance", sp) * torch.where(ok, d.G1(cos_i, alpha), 0.0)[:, None]
+        fresnel = self.fresnel(sp, cos_d)
+        if fresnel is not None:
+            weight = weight * fresnel
         return BSDFSample(frame.to_world(wl), weight, pdf, torch.zeros_like(ok))
 
     # ---- its aliases in the scene formats (read through the registry)
@@ -74,20 +94,21 @@ class Glossy(BSDF):
 
     @classmethod
     def from_mitsuba(cls, bsdf) -> dict:
-        """Mitsuba's ``roughconductor``, material none (Fresnel 1), ``distribution`` ggx (required:
-        Mitsuba's default is beckmann), isotropic ``alpha`` (the roughness), ``specular_reflectance``."""
-        bsdf.fresnel_one()
+        """Mitsuba's ``roughconductor``: ``distribution`` beckmann (Mitsuba's default: type
+        glossy_beckmann) or ggx (type glossy), isotropic ``alpha`` (the roughness, default 0.1),
+        ``material`` (a named metal, default none) or ``eta``/``k``, ``specular_reflectance``,
+        ``sample_visible`` (read; invrender always samples visible normals)."""
+        ior = bsdf.conductor(METAL_IORS)
         ks = bsdf.colour("specular_reflectance", SPECULAR_REFLECTANCE, 1.0, texture=False)
-        if bsdf.string("distribution", allowed=("ggx",)) is None:
-            message = "give <string name=\"distribution\" value=\"ggx\"/>: Mitsuba's default distribution is beckmann, and invrender has GGX only"
-            raise bsdf.error(None, message)
+        name = (bsdf.string("distribution", allowed=("beckmann", "ggx")) or "beckmann").lower()
+        target = GlossyBeckmann if name == "beckmann" else Glossy
         for key in ("alpha_u", "alpha_v"):
             if bsdf.has(key):
                 raise bsdf.error(key, f"'{key}' (anisotropic roughness) is not supported: give one 'alpha'")
-        alpha = bsdf.number("alpha", cls.constants["roughness"], "GGX roughness", "a <float> (textured roughness is not supported)")
-        bsdf.boolean("sample_visible")
-        bsdf.finish(("material", "specular_reflectance", "distribution", "alpha", "sample_visible"))
-        return {"specular_reflectance": ks, "roughness": alpha}
+        alpha = bsdf.number("alpha", cls.constants["roughness"], f"{target.distribution.label} roughness", "a <float> (textured roughness is not supported)")
+        bsdf.boolean("sample_visible")  # either way the same BRDF (invrender always samples visible normals)
+        bsdf.finish(("material", "eta", "k", "specular_reflectance", "distribution", "alpha", "sample_visible"))
+        return {"type": target.type_name, "specular_reflectance": ks, "roughness": alpha, **ior}
 
     @classmethod
     def from_gltf(cls, material) -> dict | None:
@@ -96,5 +117,14 @@ class Glossy(BSDF):
 
     @classmethod
     def to_mitsuba(cls, values: dict, constants: dict) -> dict:
-        inner = {"type": "roughconductor", "material": "none", "distribution": "ggx", "alpha": float(constants["roughness"])}
+        inner = {"type": "roughconductor", **cls.mitsuba_ior(constants), "distribution": cls.distribution.name, "alpha": float(constants["roughness"])}
         return {"type": "twosided", "bsdf": {**inner, "sample_visible": True, "specular_reflectance": values["specular_reflectance"]}}
+
+
+@registry.MATERIALS.register
+class GlossyBeckmann(Glossy):
+    type_name = "glossy_beckmann"
+    doc = "Beckmann rough conductor (Mitsuba's default roughconductor; eta, k as glossy), two-sided"
+    distribution = BECKMANN
+    # the same Mitsuba plugin (its distribution picks the type: Glossy.from_mitsuba, inherited)
+    mitsuba_plugins = ("roughconductor",)

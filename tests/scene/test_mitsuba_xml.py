@@ -121,6 +121,59 @@ def test_bitmap_texture_lands_where_mitsuba_puts_it(tmp_path):
     assert at[(-1.0, -1.0)] == (0.0, 1.0) and at[(1.0, 1.0)] == (1.0, 0.0)  # invrender's v = 1 - Mitsuba's v
 
 
+def test_conductors_named_metals_eta_k_and_beckmann(tmp_path):
+    """Mitsuba's conductors as scene files write them: roughconductor without a distribution is
+    Beckmann, named metals take the RGB eta/k of Mitsuba's RGB variants, eta/k given explicitly
+    (defaults 0 and 1, as Mitsuba's), material none is Fresnel 1 (no eta/k constants set)."""
+    path = write(tmp_path, """
+    <bsdf type="roughconductor" id="rough_default"/>
+    <bsdf type="roughconductor" id="rough_gold"><string name="material" value="Au"/><float name="alpha" value="0.25"/></bsdf>
+    <bsdf type="roughconductor" id="rough_ggx"><string name="distribution" value="GGX"/><rgb name="eta" value="0.2, 0.9, 1.1"/></bsdf>
+    <bsdf type="conductor" id="copper"><string name="material" value="Cu"/></bsdf>
+    <bsdf type="conductor" id="given"><spectrum name="k" value="3"/></bsdf>
+    <bsdf type="twosided" id="plain"><bsdf type="conductor"><string name="material" value="none"/></bsdf></bsdf>
+""" + "".join(f'<shape type="rectangle"><ref id="{m}"/></shape>' for m in ("rough_default", "rough_gold", "rough_ggx", "copper", "given", "plain")))
+    scene = load_mitsuba_xml(path)
+    m = {name: material(scene, name) for name in scene.materials}
+    assert {k: v.type for k, v in m.items()} == {"rough_default": "glossy_beckmann", "rough_gold": "glossy_beckmann", "rough_ggx": "glossy",
+                                                 "copper": "mirror", "given": "mirror", "plain": "mirror"}  # fmt: skip
+    assert m["rough_default"].constants["roughness"] == pytest.approx(0.1) and m["rough_gold"].constants["roughness"] == pytest.approx(0.25)
+    # Mitsuba 3.9.1 scalar_rgb, mi.traverse(conductor material=Au / Cu): eta.value, k.value
+    assert m["rough_gold"].constants["eta"] == pytest.approx((0.143036, 0.375307, 1.44205), rel=1e-5)
+    assert m["rough_gold"].constants["k"] == pytest.approx((3.983, 2.38556, 1.60336), rel=1e-5)
+    assert m["copper"].constants["eta"] == pytest.approx((0.201005, 0.92375, 1.10222), rel=1e-5)
+    assert m["copper"].constants["k"] == pytest.approx((3.91326, 2.45305, 2.14209), rel=1e-5)
+    assert m["rough_ggx"].constants["eta"] == pytest.approx((0.2, 0.9, 1.1)) and m["rough_ggx"].constants["k"] == (1.0, 1.0, 1.0)
+    assert m["given"].constants["eta"] == (0.0, 0.0, 0.0) and m["given"].constants["k"] == (3.0, 3.0, 3.0)
+    for name in ("rough_default", "plain"):
+        assert m[name].constants["eta"] == (0.0, 0.0, 0.0) and m[name].constants["k"] == (1.0, 1.0, 1.0)
+
+
+def test_checkerboard_cells_are_mitsubas(tmp_path):
+    """Mitsuba's checkerboard: color0 where frac(s) > 0.5 and frac(t) > 0.5 agree, (s, t) = to_uv (u, v),
+    v = 0 at the image's top row; baked at 512 x 512, a to_uv scale of 2 makes 4 x 4 cells of 128 texels."""
+    path = write(tmp_path, """
+    <shape type="rectangle" id="floor"><bsdf type="diffuse">
+        <texture type="checkerboard" name="reflectance"><rgb name="color0" value="0.9, 0.1, 0.1"/><float name="color1" value="0.3"/>
+            <transform name="to_uv"><scale x="2" y="2"/></transform></texture>
+    </bsdf></shape>
+    <shape type="rectangle" id="wall"><bsdf type="diffuse">
+        <texture type="checkerboard" name="reflectance"><transform name="to_uv"><translate x="0.5"/></transform></texture>
+    </bsdf></shape>""")
+    scene = load_mitsuba_xml(path)
+    board = scene.params["floor_bsdf.reflectance"]
+    assert board.shape == (512, 512, 3)
+    red, grey = torch.tensor([0.9, 0.1, 0.1]), torch.tensor([0.3] * 3)
+    for i in range(4):  # cell rows (Mitsuba's v, from the top) and columns (u)
+        for j in range(4):
+            cell = board[128 * i:128 * (i + 1), 128 * j:128 * (j + 1)].reshape(-1, 3)
+            expected = red if (i + j) % 2 == 0 else grey  # the cell at uv = 0 (top left) is color0
+            assert torch.allclose(cell, expected.expand_as(cell)), (i, j)
+    wall = scene.params["wall_bsdf.reflectance"]  # defaults 0.4 / 0.2, shifted half a period in u: the top-left cell is color1
+    assert float(wall[0, 0, 0]) == pytest.approx(0.2) and float(wall[0, 511, 0]) == pytest.approx(0.4)
+    assert float(wall[511, 0, 0]) == pytest.approx(0.4) and float(wall[511, 511, 0]) == pytest.approx(0.2)
+
+
 # ---------------------------------------------------------------- shapes and transforms
 
 
@@ -290,10 +343,16 @@ BAD = {
     "unsupported bsdf": ('<shape type="rectangle"><bsdf type="plastic"/></shape>', "plastic", "unsupported bsdf type 'plastic'"),
     "unsupported emitter": ('<shape type="rectangle"/>\n<emitter type="projector"/>', "projector", "unsupported emitter type 'projector' (supported: area"),
     "emitter in shape": ('<shape type="rectangle"><emitter type="spot"/></shape>', "spot", "an emitter of type 'spot' is a point or a direction (a delta light), not emitted by a shape"),
-    "conductor material": ('<shape type="rectangle"><bsdf type="conductor">\n<string name="material" value="Au"/></bsdf></shape>', "Au", "only 'none' (Fresnel 1"),
-    "conductor eta": ('<shape type="rectangle"><bsdf type="conductor">\n<rgb name="eta" value="0.2"/></bsdf></shape>', "eta", "'eta' is not supported"),
-    "beckmann": ('<shape type="rectangle"><bsdf type="roughconductor">\n<string name="distribution" value="beckmann"/></bsdf></shape>', "beckmann", "distribution 'beckmann' is not supported (supported: ggx)"),
-    "default distribution": ('<shape type="rectangle">\n<bsdf type="roughconductor"/></shape>', "roughconductor", "default distribution is beckmann"),
+    # conductors: named metals, eta/k and Beckmann load (test_conductors_...); what stays outside the subset
+    "conductor material": ('<shape type="rectangle"><bsdf type="conductor">\n<string name="material" value="Unobtainium"/></bsdf></shape>', "Unobtainium", "unknown conductor material 'Unobtainium' (known: none, a-C, Ag, Al,"),
+    "conductor material and eta": ('<shape type="rectangle"><bsdf type="conductor"><string name="material" value="Au"/>\n<rgb name="eta" value="0.2"/></bsdf></shape>', "eta", "give either material 'Au' or 'eta', not both"),
+    "negative k": ('<shape type="rectangle"><bsdf type="roughconductor">\n<rgb name="k" value="1, -2, 3"/></bsdf></shape>', "1, -2, 3", "'k' (the complex index of refraction's imaginary part) must be >= 0, got 1, -2, 3"),
+    "textured eta": ('<shape type="rectangle"><bsdf type="conductor">\n<texture type="checkerboard" name="eta"/></bsdf></shape>', "checkerboard", "'eta' must be an <rgb>, a <float> or a constant <spectrum>"),
+    "unknown distribution": ('<shape type="rectangle"><bsdf type="roughconductor">\n<string name="distribution" value="phong"/></bsdf></shape>', "phong", "distribution 'phong' is not supported (supported: beckmann, ggx)"),
+    "beckmann roughness 0": ('<shape type="rectangle"><bsdf type="roughconductor">\n<float name="alpha" value="0"/></bsdf></shape>', "alpha", "'alpha' (Beckmann roughness) must lie in (0, 1], got 0"),
+    "checkerboard nested texture": ('<shape type="rectangle"><bsdf type="diffuse"><texture type="checkerboard" name="reflectance">\n<texture type="bitmap" name="color0"/></texture></bsdf></shape>', "color0", "'color0' must be an <rgb>, a <float> or a constant <spectrum> (nested textures are not supported)"),
+    "checkerboard specular": ('<shape type="rectangle"><bsdf type="conductor">\n<texture type="checkerboard" name="specular_reflectance"/></bsdf></shape>', "checkerboard", "'specular_reflectance' must be a constant"),
+    "checkerboard colour range": ('<shape type="rectangle"><bsdf type="diffuse"><texture type="checkerboard" name="reflectance">\n<rgb name="color1" value="2"/></texture></bsdf></shape>', "checkerboard", "'reflectance' (diffuse albedo rho) must lie in [0, 1], got values in [0.4, 2]"),
     "alpha_u": ('<shape type="rectangle"><bsdf type="roughconductor"><string name="distribution" value="ggx"/>\n<float name="alpha_u" value="0.1"/><float name="alpha_v" value="0.2"/></bsdf></shape>', "alpha_u", "'alpha_u' (anisotropic roughness) is not supported"),
     "roughness 0": ('<shape type="rectangle"><bsdf type="roughconductor"><string name="distribution" value="ggx"/>\n<float name="alpha" value="0"/></bsdf></shape>', "alpha", "'alpha' (GGX roughness) must lie in (0, 1], got 0"),
     "roughness 1.5": ('<shape type="rectangle"><bsdf type="roughconductor"><string name="distribution" value="ggx"/>\n<float name="alpha" value="1.5"/></bsdf></shape>', "alpha", "got 1.5"),

@@ -27,17 +27,27 @@ allowed keys). Out-of-range colours (rho outside [0, 1], eps < 0) are
     # reflectance_texture = "albedo.png"   # relative to this file; PNG/JPEG are sRGB-decoded to linear, EXR read as linear
 
     [materials.chrome]
-    type = "mirror"                    # a perfect mirror, two-sided (Mitsuba's conductor, material "none")
+    type = "mirror"                    # a smooth conductor, two-sided (Mitsuba's conductor)
     specular_reflectance = [0.9, 0.9, 0.9]   # k_s, RGB in [0, 1] (default 1), differentiable
+    material = "Cr"                    # a conductor's index: one of Mitsuba's named metals (Au, Cu, Al, Ag, Cr, ...)
+                                       # or "none" (the default: Fresnel 1, a perfect mirror); or instead
+    # eta = [3.2, 2.9, 1.7]            # the complex index eta + i k itself, 3 numbers each >= 0 (defaults 0 and 1)
+    # k = [3.3, 3.1, 2.8]
 
     [materials.glass]
     type = "dielectric"                # smooth glass: Fresnel reflection and refraction (Mitsuba's dielectric)
     ior = 1.5                          # interior index over the exterior's (1.0), > 0 (default 1.5); a constant
 
     [materials.brushed]
-    type = "glossy"                    # GGX rough conductor, Fresnel 1, two-sided (Mitsuba's roughconductor, material "none")
-    roughness = 0.2                    # GGX alpha in (0, 1] (default 0.1); a constant
+    type = "glossy"                    # GGX rough conductor, two-sided (Mitsuba's roughconductor, distribution ggx);
+                                       # "glossy_beckmann": the same with Beckmann (Mitsuba's default distribution)
+    roughness = 0.2                    # alpha in (0, 1] (default 0.1); a constant
     specular_reflectance = [0.95, 0.8, 0.5]   # k_s in [0, 1] (default 1), differentiable
+    material = "none"                  # or a named metal, or eta / k, as for a mirror (default none: Fresnel 1)
+
+    [materials.tiles]                  # a colour that may be a texture may also be a procedural one (baked, bilinear):
+    reflectance = { checkerboard = { color0 = [0.8, 0.8, 0.8], color1 = 0.2, scale = 4, translate = [0, 0], resolution = 512 } }
+                                       # Mitsuba's checkerboard (defaults 0.4, 0.2, scale 1, no translation, 512^2 texels)
 
     [emitters.light]                   # one table per emitter: type (default "area": emits from the shapes naming it,
                                        # from their front side only), then the type's keys
@@ -80,7 +90,7 @@ import numpy as np
 from invrender.errors import InvRenderError, SceneError
 from invrender.scene.camera import FOV_AXES, Camera
 from invrender.scene.formats.trimesh import mesh_arrays
-from invrender.scene.formats.values import is_number, one_line, show
+from invrender.scene.formats.values import CHECKERBOARD_RESOLUTION, checkerboard, is_number, one_line, show
 from invrender.scene.emitters import Emitter
 from invrender.scene.materials import Material
 from invrender.scene.plugins import PluginSpec
@@ -223,21 +233,26 @@ def _plugin(doc, cls: type[PluginSpec], where: str, base: Path) -> PluginSpec:
     kind = string(doc, "type", where) if "type" in doc else cls.default_type
     spec = cls.registry.get(kind, where)
     transform_key = getattr(spec, "toml_transform", None)  # a type reading a rotation (envmap's to_world)
-    check_keys(doc, spec.keys | {"type"} | ({transform_key} if transform_key else set()), where)
+    named_key = getattr(spec, "toml_named", None)  # a type reading a named preset of constants (a conductor's material = "Au")
+    check_keys(doc, spec.keys | {"type"} | {k for k in (transform_key, named_key) if k}, where)
     entries = {}
     if transform_key and transform_key in doc:
         entries.update(spec.from_transform(_transform(doc[transform_key], where, transform_key), where))
+    if named_key and named_key in doc:
+        entries.update(spec.from_name(doc[named_key], where, set(doc)))
     for key, (param_kind, _) in spec.params.items():
         if key in doc or f"{key}_texture" in doc:
-            entries[key] = _colour_or_texture(doc, key, where, base)
+            entries[key] = _colour_or_texture(doc, key, where, base, texture=param_kind.texture)
     for key in spec.constants:
         if key in doc:
             entries[key] = doc[key]
     return cls.of(kind, where, **entries)
 
 
-def _colour_or_texture(doc, kind: str, where: str, base: Path, others: set | None = None):
-    """An RGB list or a linear (h, w, 3) texture tensor from a material/emitter table.
+def _colour_or_texture(doc, kind: str, where: str, base: Path, others: set | None = None, texture: bool = True):
+    """An RGB list or a linear (h, w, 3) texture tensor from a material/emitter table: ``kind`` an
+    RGB list, one number or (where ``texture``) a procedural texture table
+    (``{ checkerboard = {...} }``, :func:`_procedural`), or ``kind_texture`` an image file.
 
     ``others``: further keys the table may hold (None: the table is checked by its caller)."""
     key_tex = f"{kind}_texture"
@@ -247,6 +262,10 @@ def _colour_or_texture(doc, kind: str, where: str, base: Path, others: set | Non
         check_keys(doc, {kind, key_tex} | others, where)
     if (kind in doc) == (key_tex in doc):
         raise SceneError(f"{where}: give exactly one of '{kind}' or '{key_tex}'")
+    if kind in doc and isinstance(doc[kind], dict):
+        if not texture:
+            raise SceneError(f"{where}: '{kind}' must be an RGB list or one number: it cannot be a texture")
+        return _procedural(doc[kind], f"{where} {kind}")
     if kind in doc:
         return vector(doc, kind, where, scalar_ok=True)  # one number: grey
     from invrender.io import read_image  # lazily: images need kornia/OpenEXR
@@ -258,6 +277,38 @@ def _colour_or_texture(doc, kind: str, where: str, base: Path, others: set | Non
         return read_image(texture_path)
     except InvRenderError as e:
         raise SceneError(f"{where}: {one_line(e)}") from None
+
+
+PROCEDURAL = ("checkerboard",)
+CHECKERBOARD_KEYS = {"color0", "color1", "scale", "translate", "resolution"}
+
+
+def _procedural(doc: dict, where: str):
+    """A procedural texture table, baked: ``{ checkerboard = { color0 = [r, g, b] or v (default
+    0.4), color1 = ... (default 0.2), scale = s or [su, sv] (default 1), translate = [du, dv]
+    (default 0), resolution = texels per side (default 512) } }``: Mitsuba's checkerboard with
+    ``to_uv`` = the scale, then the translation (:func:`~.values.checkerboard`)."""
+    import torch  # lazily, as the images are
+
+    if len(doc) != 1 or next(iter(doc)) not in PROCEDURAL:
+        raise SceneError(f"{where}: a texture table holds one key naming its type ({', '.join(PROCEDURAL)}), got {show(doc)}")
+    board = table(doc, "checkerboard", where)
+    w = f"{where} checkerboard"
+    check_keys(board, CHECKERBOARD_KEYS, w)
+    colours = [vector(board, key, w, scalar_ok=True) if key in board else default for key, default in (("color0", 0.4), ("color1", 0.2))]
+    to_uv = np.eye(3)
+    if "scale" in board:
+        s = board["scale"]
+        su, sv = (float(s), float(s)) if is_number(s) else tuple(vector(board, "scale", w, length=2))
+        if su == 0 or sv == 0:
+            raise SceneError(f"{w}: 'scale' must be non-zero, got {show(s)}")
+        to_uv = np.diag([su, sv, 1.0])
+    if "translate" in board:
+        to_uv[:2, 2] = vector(board, "translate", w, length=2)
+    resolution = integer(board, "resolution", w) if "resolution" in board else CHECKERBOARD_RESOLUTION
+    if not 2 <= resolution <= 8192:
+        raise SceneError(f"{w}: 'resolution' must lie in [2, 8192], got {resolution}")
+    return torch.from_numpy(checkerboard(*colours, to_uv, resolution)).float()
 
 
 # ---------------------------------------------------------------- typed readers

@@ -11,9 +11,11 @@ BSDFs (``<bsdf type=...>``)
     - colours: ``<rgb>``, ``<float>``, a constant ``<spectrum>``, or a bitmap texture where the
       parameter may be one (:mod:`.textures`);
     - indices of refraction: positive numbers or Mitsuba's named media (:data:`NAMED_IOR`);
-    - conductors: only Fresnel 1, i.e. ``<string name="material" value="none"/>``, which is
-      Mitsuba 3's default when ``material`` is absent; any other material and ``eta``/``k`` are
-      errors;
+    - conductors: ``material``, Mitsuba's named metals (``"Au"``, ``"Cu"``, ...: the RGB values
+      of :mod:`invrender.materials.metals`) or ``"none"`` (Fresnel 1, Mitsuba 3's default), or
+      the complex index given as ``eta`` (default 0) and ``k`` (default 1), each an ``<rgb>``, a
+      ``<float>`` or a constant ``<spectrum>``, >= 0; ``material`` other than none beside
+      ``eta``/``k`` is an error (as in Mitsuba);
     - any property the material does not list is an error (as in Mitsuba).
 
     ``twosided`` wrapping one BSDF (or two references to the same one) is accepted, the material
@@ -28,6 +30,7 @@ Deviations from Mitsuba
 
 from __future__ import annotations
 
+import numpy as np
 
 from invrender import registry
 from invrender.scene.formats.mitsuba.context import Context
@@ -98,7 +101,9 @@ def convert_bsdf(ctx: Context, bsdf: Obj) -> Material:
         raise ctx.error(bsdf.node, f"unsupported bsdf type {bsdf.type!r} (supported: {', '.join([*known, TWOSIDED])})", bsdf)
     cls = known[bsdf.type]
     entries = cls.from_mitsuba(BsdfReader(ctx, bsdf))
-    return Material.of(cls.type_name, f"{ctx.where}:{bsdf.node.line}: {bsdf.describe()}", **entries)
+    # a plugin standing for several types names the one it read (roughconductor: its distribution)
+    type_name = entries.pop("type", cls.type_name)
+    return Material.of(type_name, f"{ctx.where}:{bsdf.node.line}: {bsdf.describe()}", **entries)
 
 
 def _transmits(cls) -> bool:
@@ -128,12 +133,28 @@ class BsdfReader(PluginReader):
             raise self.error(name, f"'{name}' must be positive, got {value:g}")
         return value
 
-    def fresnel_one(self) -> None:
-        """A conductor's Fresnel term must be 1: ``material`` absent or ``"none"`` (Mitsuba 3's
-        default), no ``eta`` or ``k`` (the complex index of refraction of a real metal)."""
+    def conductor(self, metals: dict) -> dict:
+        """A conductor's complex index of refraction as the constants ``eta``, ``k`` (RGB tuples):
+        ``material`` (a name in ``metals``, name -> (eta, k), the material's table of named metals;
+        absent or ``"none"``: eta 0, k 1, Fresnel 1, Mitsuba 3's default) or ``eta`` and ``k``
+        (defaults 0 and 1, as Mitsuba's); empty for Fresnel 1."""
         prop = self._ctx.take(self._obj, "material", ("string",), "a <string>")
-        if prop is not None and prop.value != "none":
-            raise self.error("material", f"conductor material {prop.value!r} is not supported: only 'none' (Fresnel 1, a perfect reflector) is")
-        for key in ("eta", "k"):
-            if self.has(key):
-                raise self.error(key, f"'{key}' is not supported: only material 'none' (Fresnel 1) is")
+        name = "none" if prop is None else prop.value.strip()
+        given = [key for key in ("eta", "k") if self.has(key)]
+        if name != "none":
+            if given:
+                raise self.error(given[0], f"give either material {name!r} or '{given[0]}', not both (as Mitsuba)")
+            if name not in metals:
+                raise self.error("material", f"unknown conductor material {name!r} (known: none, {', '.join(metals)})")
+            eta, k = metals[name]
+            return {"eta": tuple(eta), "k": tuple(k)}
+        if not given:
+            return {}
+        out = {}
+        for key, default in (("eta", (0.0, 0.0, 0.0)), ("k", (1.0, 1.0, 1.0))):
+            p = self._ctx.take(self._obj, key, ("rgb", "float", "spectrum"), "an <rgb>, a <float> or a constant <spectrum> (textures are not supported)")
+            value = default if p is None else tuple(float(x) for x in np.broadcast_to(np.asarray(p.value, dtype=np.float64), (3,)))
+            if min(value) < 0:
+                raise self.error(key, f"'{key}' (the complex index of refraction's {'real' if key == 'eta' else 'imaginary'} part) must be >= 0, got {', '.join(f'{v:g}' for v in value)}")
+            out[key] = value
+        return out

@@ -1,8 +1,9 @@
-"""Colours and bitmap textures of Mitsuba properties, checked against the parameter kinds.
+"""Colours and textures (bitmap, checkerboard) of Mitsuba properties, checked against the parameter kinds.
 
 Colours
     ``<rgb>``, ``<float>`` (grey) or a constant ``<spectrum>`` (grey), or a ``<texture
-    type="bitmap">`` (inline or a ``<ref>``) where the parameter may be a texture; each value is
+    type="bitmap">`` or ``<texture type="checkerboard">`` (inline or a ``<ref>``) where the
+    parameter may be a texture; each value is
     checked against its kind's range (:mod:`invrender.scene.kinds`). Colours are linear RGB (RGB
     variants of Mitsuba); spectra other than constants are errors.
 
@@ -14,6 +15,17 @@ Bitmap textures (``<texture type="bitmap">``)
     ``(phi / 2 pi, theta / pi)`` about local z, the cube's per-face layout, OBJ/PLY as Mitsuba
     reads them) and Mitsuba's image convention (``v = 0`` is the image's top row), so an image
     lands where Mitsuba puts it; they are stored in invrender's convention (``v`` flipped).
+
+Checkerboard textures (``<texture type="checkerboard">``)
+    ``color0`` (default 0.4), ``color1`` (default 0.2), each an ``<rgb>``, ``<float>`` or constant
+    ``<spectrum>`` (not a nested texture), and ``to_uv`` (a ``<transform>``; its 2D part, as
+    Mitsuba reads it). Mitsuba's rule: with ``(s, t) = to_uv (u, v)``, ``color0`` where
+    ``frac(s) > 0.5`` and ``frac(t) > 0.5`` agree, else ``color1`` (so the cell at the origin,
+    ``[0, 0.5)^2``, is ``color0``). Baked into a 512 x 512 texture over ``[0, 1]^2``
+    (:func:`invrender.scene.formats.values.checkerboard`): exact away from half a texel of the
+    cell edges when those fall on texel edges (``to_uv`` an integer scale dividing 256), filtered
+    bilinearly like every texture; beyond ``[0, 1]^2`` it repeats (Mitsuba's board when ``to_uv``
+    makes it periodic with period 1).
 """
 
 from __future__ import annotations
@@ -25,7 +37,7 @@ import numpy as np
 from invrender.errors import InvRenderError
 from invrender.scene.formats.mitsuba.context import Context
 from invrender.scene.formats.mitsuba.parser import Obj, Ref
-from invrender.scene.formats.values import one_line
+from invrender.scene.formats.values import CHECKERBOARD_RESOLUTION, checkerboard, one_line
 from invrender.scene.kinds import ParamKind
 
 
@@ -56,16 +68,27 @@ def colour(ctx: Context, obj: Obj, name: str, kind: ParamKind, default: float, t
 
 
 def bitmap(ctx: Context, tex: Obj) -> np.ndarray:
-    """The linear RGB (h, w, 3) float64 of a ``<texture>`` (read once; references share it)."""
+    """The linear RGB (h, w, 3) float64 of a ``<texture>`` (read or baked once; references share it)."""
     if id(tex) not in ctx.textures:
-        ctx.textures[id(tex)] = read_bitmap(ctx, tex)
+        ctx.textures[id(tex)] = read_checkerboard(ctx, tex) if tex.type == "checkerboard" else read_bitmap(ctx, tex)
     return ctx.textures[id(tex)]
+
+
+def read_checkerboard(ctx: Context, tex: Obj) -> np.ndarray:
+    """A ``<texture type="checkerboard">`` baked (see this module's docstring)."""
+    colours = []
+    for key, default in (("color0", 0.4), ("color1", 0.2)):
+        prop = ctx.take(tex, key, ("rgb", "float", "spectrum"), "an <rgb>, a <float> or a constant <spectrum> (nested textures are not supported)")
+        colours.append(default if prop is None else prop.value)
+    to_uv = ctx.take(tex, "to_uv", ("transform",), "a <transform>")
+    ctx.finish(tex, ("color0", "color1", "to_uv"))
+    return checkerboard(*colours, None if to_uv is None else to_uv.value, CHECKERBOARD_RESOLUTION)
 
 
 def read_bitmap(ctx: Context, tex: Obj) -> np.ndarray:
     """Read a ``<texture type="bitmap">``'s file (see this module's docstring)."""
     if tex.type != "bitmap":
-        raise ctx.error(tex.node, f"unsupported texture type {tex.type!r} (supported: bitmap)", tex)
+        raise ctx.error(tex.node, f"unsupported texture type {tex.type!r} (supported: bitmap, checkerboard)", tex)
     filename = ctx.get(tex, "filename", "string")
     if filename is None:
         raise ctx.error(tex.node, "missing <string name=\"filename\">", tex)
