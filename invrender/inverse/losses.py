@@ -27,8 +27,9 @@ def image_loss(name: str, image: torch.Tensor, target) -> torch.Tensor:
     """Scalar loss between ``image`` and ``target``, both (H, W, 3) linear; ``target`` may be a
     :class:`~invrender.inverse.targets.Target` (a photograph, a mask), whose per-pixel weights
     turn each residual into the file's encoded units and zero the pixels that do not count (the
-    mean stays over every pixel): ``l2`` and ``l1`` of the weighted residual, ``relative_l2`` over
-    the encoded target squared plus 0.01, ``ssim`` of the masked linear images."""
+    mean stays over every pixel): ``l2`` and ``l1`` of the weighted residual, ``relative_l2`` of it
+    over ``sqrt(T^2 + 0.01)`` for a linear target (over 1 for an encoded one: ``Target.norm``),
+    ``ssim`` of the masked linear images."""
     if not isinstance(target, torch.Tensor):
         if target.plain:
             target = target.linear
@@ -57,7 +58,7 @@ def _weighted_loss(name: str, image: torch.Tensor, target) -> torch.Tensor:
     if name == "l1":
         return d.abs().mean()
     if name == "relative_l2":
-        return (d**2 / (target.encoded**2 + 0.01)).mean()
+        return (d / target.norm()).pow(2).mean()
     if name == "ssim":
         m = target.mask[..., None]
         return image_loss("ssim", image * m, target.linear * m)

@@ -198,3 +198,31 @@ def _per_view(value, views: int, shape: tuple, key: str) -> torch.Tensor:
     if tuple(t.shape) != (views, *shape) or not bool(torch.isfinite(t).all()):
         raise ParameterError(f"sensor option {key} must be {'a number' if not shape else 'an RGB triple'} or one per view ({views}), got shape {tuple(t.shape)}")
     return t.clone()
+
+
+def photograph(radiance: torch.Tensor, exposure: float = 1.0, white_balance=(1.0, 1.0, 1.0), response="srgb") -> torch.Tensor:
+    """What a camera with this sensor stores of ``radiance`` (H, W, 3) linear: ``response(exposure
+    * white_balance * radiance)``, clipped to [0, 1] (saturation), as (H, W, 3) float32 encoded
+    values; :func:`invrender.io.images.write_photo` quantizes and writes them (8-bit JPEG or PNG,
+    16-bit PNG). The inverse of the model a fit with a free sensor assumes; for synthetic
+    photographs and tests."""
+    from invrender.io.response import response as make_response
+
+    gains = float(exposure) * torch.as_tensor(white_balance, dtype=torch.float64).reshape(3)
+    linear = (torch.as_tensor(radiance).detach().double() * gains).clamp(0.0, 1.0)
+    return make_response(response).encode(linear).clamp(0.0, 1.0).float()
+
+
+def synthetic_photograph(scene, path, exposure: float = 1.0, white_balance=(1.0, 1.0, 1.0), *, spp: int = 1024, max_depth: int = 5, seed: int = 0,
+                         response="srgb", bits: int = 8, quality: int = 95, subsampling: str = "4:4:4") -> torch.Tensor:  # fmt: skip
+    """Photograph ``scene`` as a camera would: render it (``spp``, ``max_depth``, ``seed``), apply
+    the sensor (:func:`photograph`: exposure, white balance, clipping, ``response``) and write the
+    quantized file ``path`` (:func:`invrender.io.images.write_photo`: JPEG or PNG). Returns the
+    (H, W, 3) linear render it was made from. For round trips: a fit of the file with the
+    sensor free should recover ``exposure`` and ``white_balance``."""
+    from invrender.diff import render
+    from invrender.io.images import write_photo
+
+    radiance = render(scene, spp=spp, max_depth=max_depth, seed=seed, progress=False)
+    write_photo(path, photograph(radiance, exposure, white_balance, response), bits=bits, quality=quality, subsampling=subsampling)
+    return radiance

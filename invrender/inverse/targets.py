@@ -11,9 +11,12 @@ the response at the target (``1 / decode'(y)``, averaged over one code): to firs
 residual in the file's encoded units, where the noise of an 8-bit photo (quantization, JPEG) is
 roughly uniform, so every pixel weighs by how precisely the file states it; and unlike encoding
 the render, it keeps the model linear in the render (a Monte Carlo render's noise enters
-unbiased, and path records stay polynomials for the least-squares solvers). The loss's own
-weighting then applies in encoded units (``relative_l2``: over ``y^2 + 0.01``). For a linear
-target all of this is the plain comparison.
+unbiased, and path records stay polynomials for the least-squares solvers). ``relative_l2`` does
+not divide an encoded target's residuals further (:meth:`Target.norm`): uniform noise makes the
+plain encoded residual the maximum-likelihood choice (on the JPEG round trip of
+tests/inverse/test_sensor.py dividing by ``y^2 + 0.01`` as for linear images doubled the errors
+of the dark blue channel), and the curve's compression of highlights already weighs dark pixels
+up as the relative weighting does. For a linear target all of this is the plain comparison.
 
 **Pixels that count.** A per-pixel weight in [0, 1]: the user's mask (an image, a tensor, or the
 target's own alpha channel), times the automatic exclusion of an integer file's clipped pixels:
@@ -70,11 +73,20 @@ class Target:
         return Target(self.label, response=self.response, saturated=self.saturated, dark=self.dark, plain=self.plain, **move)
 
     def relative_weight(self) -> torch.Tensor:
-        """(H, W, 3) float64 the least-squares residual weight: ``relative_l2`` in encoded units,
-        ``weight / sqrt(y^2 + 0.01)``."""
+        """(H, W, 3) float64 the least-squares residual weight: ``relative_l2`` in the target's
+        units, ``weight / norm``."""
         if self.plain:
             return 1.0 / (self.linear.double() ** 2 + 0.01).sqrt()
-        return self.weight.double() / (self.encoded.double() ** 2 + 0.01).sqrt()
+        return self.weight.double() / self.norm().double()
+
+    def norm(self) -> torch.Tensor:
+        """(H, W, 3) what ``relative_l2`` divides a residual by: ``sqrt(T^2 + 0.01)`` for a linear
+        target; 1 for an encoded one, whose response already weighs the residuals in encoded units
+        (where its noise is uniform, and where the curve's compression of highlights does what the
+        relative weighting does for linear images)."""
+        if self.response.is_linear:
+            return (self.linear**2 + 0.01).sqrt()
+        return torch.ones_like(self.linear)
 
     def report(self) -> dict:
         """What the fit used of this target, as plain data."""

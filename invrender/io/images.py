@@ -283,3 +283,36 @@ def read_mask(path: str | os.PathLike) -> torch.Tensor:
     photo = read_photo(path)
     weights = photo.alpha if photo.alpha is not None else photo.values.mean(-1)
     return weights.clamp(0.0, 1.0)
+
+
+def write_photo(path: str | os.PathLike, encoded: torch.Tensor, bits: int = 8, quality: int = 95, subsampling: str = "4:4:4") -> None:
+    """Write (H, W, 3) encoded values in [0, 1] (a camera's output, e.g.
+    :func:`invrender.inverse.sensor.photograph`) quantized to ``bits`` per channel, atomically:
+    ``.jpg``/``.jpeg`` (8 bits; JPEG ``quality`` and chroma ``subsampling``, PIL's names) or
+    ``.png`` (8 or 16 bits). The values are written as they are (no response is applied)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (".png", ".jpg", ".jpeg") or bits not in (8, 16) or (bits == 16 and suffix != ".png"):
+        raise ImageError(f"cannot write photo {path}: 8-bit .jpg/.png or 16-bit .png, got {bits} bits and suffix {suffix!r}")
+    values = _to_rgb_array(encoded, path)
+    if values.min() < 0 or values.max() > 1:
+        raise ImageError(f"cannot write photo {path}: encoded values must lie in [0, 1]")
+    top = 2**bits - 1
+    codes = np.round(values * top).astype(np.uint8 if bits == 8 else np.uint16)
+    try:
+        with atomic_file(path) as f:
+            if bits == 16:
+                import cv2
+
+                ok, data = cv2.imencode(".png", np.ascontiguousarray(codes[..., ::-1]))
+                if not ok:
+                    raise ImageError(f"cannot write photo {path}: OpenCV could not encode it")
+                f.write(data.tobytes())
+            elif suffix == ".png":
+                Image.fromarray(codes, mode="RGB").save(f, format="PNG")
+            else:
+                Image.fromarray(codes, mode="RGB").save(f, format="JPEG", quality=quality, subsampling=subsampling)
+    except ImageError:
+        raise
+    except Exception as e:
+        raise ImageError(f"cannot write photo {path}: {_reason(e)}") from None
