@@ -182,3 +182,47 @@ def test_bad_photo_inputs_name_the_file(tmp_path):
     synthetic_photograph(scene, tmp_path / "white.png", 1000.0, spp=4, max_depth=2)
     with pytest.raises(ImageError, match=r"white\.png is saturated or 0"):
         ir.fit(scene, tmp_path / "white.png", names, **kw)
+
+
+def test_cli_fits_a_photograph_with_a_mask(tmp_path, capsys):
+    import json
+
+    from PIL import Image
+
+    from invrender.cli import main
+
+    scene = ir.load_scene("cornell_box", resolution=(8, 8))
+    synthetic_photograph(scene, tmp_path / "photo.png", 0.6, spp=16, max_depth=2)
+    Image.new("L", (8, 8), 255).save(tmp_path / "mask.png")
+    argv = ["fit", "--scene", "cornell_box", "--target", str(tmp_path / "photo.png"), "--params", "white.reflectance,sensor.exposure",
+            "--mask", str(tmp_path / "mask.png"), "--response", "srgb", "--steps", "2", "--spp", "2", "--spp-final", "2", "--max-depth", "2", "--quiet"]  # fmt: skip
+    assert main([*argv, "--out", str(tmp_path / "run")]) == 0
+    report = json.loads((tmp_path / "run" / "report.json").read_text())
+    assert report["pixels"][0]["response"] == "srgb" and report["pixels"][0]["excluded_saturated"] > 0
+    assert len(report["recovered"]["sensor.exposure"]) == 1
+    assert main([*argv, "--response", "sepia", "--out", str(tmp_path / "bad")]) == 2
+    assert "unknown response 'sepia'" in capsys.readouterr().err
+
+
+def test_a_recipe_fits_with_a_mask_and_the_sensor(tmp_path):
+    """A fit recipe's [photo] table: the mask (relative to the recipe) and sensor options reach the
+    fit; a key it does not know is an error naming the file."""
+    from PIL import Image
+
+    from invrender.recipes import load_fit_recipe
+    from invrender.study.recipe_fits import fit_recipe
+
+    (tmp_path / "data.toml").write_text('scene = "cornell_box"\nresolution = [8, 8]\nspp = 16\nmax_depth = 2\n')
+    mask = np.full((8, 8), 255, dtype=np.uint8)
+    mask[:4] = 0
+    Image.fromarray(mask, mode="L").save(tmp_path / "half.png")
+    body = 'dataset = "data.toml"\nparams = ["white.reflectance", "sensor.exposure"]\n[fit]\nsteps = 2\nspp = 2\nspp_final = 2\nmax_depth = 2\n'
+    (tmp_path / "fit.toml").write_text(body + '[photo]\nmask = "half.png"\nsensor = { exposure = 0.9 }\n')
+    recipe = load_fit_recipe(tmp_path / "fit.toml")
+    assert recipe.photo == {"mask": str(tmp_path / "half.png"), "sensor": {"exposure": 0.9}}
+    done = fit_recipe(recipe, tmp_path / "run", progress=False)
+    result = done.fits[""].result
+    assert result.targets[0]["counting"] == 32 and result.initial["sensor.exposure"].tolist() == pytest.approx([0.9])
+    (tmp_path / "bad.toml").write_text(body + "[photo]\niso = 100\n")
+    with pytest.raises(ParameterError, match=r"bad\.toml \[photo\].*iso"):
+        load_fit_recipe(tmp_path / "bad.toml")
