@@ -69,7 +69,7 @@ def test_round_trip_lm(photo):
     assert res.params["sensor.white_balance"][0, 1] == 1.0 and set(res.std_error) == set(ALBEDOS + SENSOR)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        biased = ir.fit(scene, path, ALBEDOS + SENSOR, solver="lm", max_depth=5, spp=16, rounds=2, progress=False, exclude_clipped=False)
+        biased = ir.fit(scene, path, ALBEDOS + SENSOR, solver="lm", max_depth=5, spp=16, rounds=1, progress=False, exclude_clipped=False)
     worst = max(abs(v) for v in errors(biased, truth).values())
     print("lm without the saturation mask: largest error", f"{100 * worst:.1f}%")
     assert worst > 0.2 and biased.targets[0]["excluded_saturated"] == 0
@@ -78,7 +78,7 @@ def test_round_trip_lm(photo):
 def test_round_trip_adam(photo):
     """The same photograph fitted by Adam."""
     scene, truth, path = photo
-    res = ir.fit(scene, path, ALBEDOS + SENSOR, max_depth=5, steps=150, spp=4, spp_final=16, lr=0.3, lr_sensor=0.2, progress=False)
+    res = ir.fit(scene, path, ALBEDOS + SENSOR, max_depth=5, steps=200, spp=16, spp_final=64, lr=0.1, lr_sensor=0.1, progress=False)
     err = errors(res, truth)
     print("adam", {k: f"{100 * v:+.2f}%" for k, v in err.items()})
     check_round_trip(err)
