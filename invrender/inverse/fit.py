@@ -6,6 +6,10 @@ Each step renders every view, back-propagates the loss through the Monte Carlo e
 values: rho = sigmoid(x), eps = exp(x) (params.py). Every random number is a
 pure function of (seed, step, view), so a fit is deterministic, and a fit resumed from a checkpoint
 ends exactly where the uninterrupted one does.
+
+Targets may be photographs (targets.py: a camera response, masks, clipped pixels excluded) and
+the model image of view v is ``exposure_v * white_balance_v * I_v`` (sensor.py), the sensor's
+parameters fitted when named (``sensor.exposure``, ``sensor.white_balance``); docs/photographs.md.
 """
 
 from __future__ import annotations

@@ -78,7 +78,7 @@ def test_round_trip_lm(photo):
 def test_round_trip_adam(photo):
     """The same photograph fitted by Adam."""
     scene, truth, path = photo
-    res = ir.fit(scene, path, ALBEDOS + SENSOR, max_depth=5, steps=200, spp=16, spp_final=64, lr=0.1, lr_sensor=0.1, progress=False)
+    res = ir.fit(scene, path, ALBEDOS + SENSOR, max_depth=5, steps=300, spp=16, spp_final=64, lr=0.1, lr_sensor=0.1, progress=False)
     err = errors(res, truth)
     print("adam", {k: f"{100 * v:+.2f}%" for k, v in err.items()})
     check_round_trip(err)
