@@ -65,7 +65,7 @@ class Response:
         if self.name == "srgb":
             return torch.where(x <= _SRGB_LINEAR_MAX, 12.92 * x, 1.055 * x.clamp_min(_SRGB_LINEAR_MAX) ** (1 / 2.4) - 0.055)
         if self.gamma is not None:
-            return x.clamp_min(1e-12) ** (1.0 / self.gamma)
+            return x.clamp_min(torch.finfo(x.dtype).tiny) ** (1.0 / self.gamma)
         codes, linear = self.table
         return _interp_channels(x, linear.to(x), codes.to(x))
 
