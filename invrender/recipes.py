@@ -34,6 +34,12 @@ Fit recipe::
     steps = 200
     integrator = { type = "path", rr_depth = 3 }   # an integrator spec: a name or a table
 
+    [photo]                            # optional: the targets as photographs (docs/photographs.md)
+    mask = "mask.png"                  # pixel weights (relative to the recipe), or one per view
+    response = "linear"                # the targets' response (the dataset's EXRs: linear)
+    sensor = { shared = ["exposure"] } # sensor options: exposure, white_balance, shared
+    exclude_clipped = true
+
     [[variants]]                       # optional: one fit per variant, on the same targets, and a
     label = "utah + eps0"              # table of every variant's parameter errors (a model study);
     integrator = "utah"                # required label; any [fit] setting overrides [fit];
@@ -61,7 +67,8 @@ from invrender.scene.formats.toml import camera_from_table, check_keys, integer,
 from invrender.scene.scene import AMBIENT, Scene, check_param_value
 
 DATASET_KEYS = {"scene", "resolution", "spp", "max_depth", "seed", "randomize", "set", "views"}
-FIT_KEYS = {"dataset", "params", "init", "fit", "variants"}
+FIT_KEYS = {"dataset", "params", "init", "fit", "photo", "variants"}
+PHOTO_KEYS = {"mask", "response", "sensor", "exclude_clipped"}
 VARIANT_KEYS = {"label", "params", "init"}
 KINDS = tuple(PARAM_KINDS)  # [init] keys that start every fitted parameter of that kind
 
@@ -115,6 +122,7 @@ class FitRecipe(FitChoices):
     path: Path
     dataset: DatasetRecipe
     variants: list[FitVariant] = dataclasses.field(default_factory=list)
+    photo: dict = dataclasses.field(default_factory=dict)  # fit's mask, response, sensor, exclude_clipped
 
 
 def _recipe_errors(parse):
@@ -267,7 +275,25 @@ def load_fit_recipe(path) -> FitRecipe:
         raise ParameterError(f"{where}: variant labels must differ")
     for label, own in [("[fit]", {})] + [(f"variant {v.label!r}", v.settings) for v in variants]:
         _check_settings({**choices["settings"], **own}, f"{where} {label}")  # before any work
-    return FitRecipe(**choices, path=path, dataset=dataset, variants=variants)
+    return FitRecipe(**choices, path=path, dataset=dataset, variants=variants, photo=_photo(doc, path, where))
+
+
+def _photo(doc: dict, path: Path, where: str) -> dict:
+    """A fit recipe's ``[photo]`` table as fit's keyword arguments (mask paths relative to the
+    recipe), checked for its keys and types."""
+    photo = dict(table(doc, "photo", where))
+    check_keys(photo, PHOTO_KEYS, f"{where} [photo]")
+    if "mask" in photo:
+        masks = photo["mask"] if isinstance(photo["mask"], list) else [photo["mask"]]
+        if not all(isinstance(m, str) for m in masks):
+            raise ParameterError(f"{where} [photo]: mask must be a path or a list of paths")
+        resolved = [str(path.parent / m) for m in masks]
+        photo["mask"] = resolved if isinstance(photo["mask"], list) else resolved[0]
+    if "sensor" in photo and not isinstance(photo["sensor"], dict):
+        raise ParameterError(f"{where} [photo]: sensor must be a table (exposure, white_balance, shared)")
+    if "exclude_clipped" in photo and not isinstance(photo["exclude_clipped"], bool):
+        raise ParameterError(f"{where} [photo]: exclude_clipped must be true or false")
+    return photo
 
 
 def _variant(doc, where: str) -> FitVariant:

@@ -67,13 +67,18 @@ def add_parser(sub) -> None:
     )  # fmt: skip
     f.add_argument("recipe", nargs="?", help="an optimize/*.toml fit recipe (instead of --scene/--target/--params)")
     f.add_argument("--scene", help="built-in name or scene file whose parameters are fitted")
-    f.add_argument("--target", nargs="+", metavar="IMAGE", help="target image(s): EXR (linear) or PNG; one per view")
+    f.add_argument("--target", nargs="+", metavar="IMAGE", help="target image(s): EXR or HDR (linear), PNG (8/16-bit) or JPEG (photographs: sRGB unless --response); one per view")
     f.add_argument("--cameras", metavar="FILE", help="the views: a NeRF transforms.json, a COLMAP cameras.txt/images.txt or a folder holding them (docs/cameras.md); every view is fitted at once, its image the target unless --target is given")
     f.add_argument("--params", help="comma-separated parameter names, e.g. red.reflectance,light.emission")
     f.add_argument("--init", action="append", default=[], metavar="KEY=VALUE", help="starting value: NAME=v or NAME=r,g,b; NAME may be a kind (reflectance, specular_reflectance, emission) for all fitted ones of it (repeatable)")
     f.add_argument("--resolution", type=parse_resolution, default=None, metavar="WxH", help="render size (default: the target's)")
     f.add_argument("--out", required=True, help="output folder: report.json, loss.png, final.exr, final.png, checkpoint.pt")
     f.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt with the settings stored in it, except those given anew")
+    # photographs (docs/photographs.md): masks, the camera response, the sensor
+    f.add_argument("--mask", nargs="+", metavar="IMAGE", help="pixel weights: one mask image for every target or one per target (white counts, black does not; default: a PNG target's alpha)")
+    f.add_argument("--response", nargs="+", metavar="NAME", help="camera response of the targets: linear, srgb, gamma:G or a CSV curve; one, or one per target (default: srgb for 8/16-bit files, linear for EXR/HDR)")
+    f.add_argument("--shared-sensor", metavar="LIST", help="comma-separated: exposure, white_balance: one value for every view (default: one per view)")
+    f.add_argument("--keep-clipped", action="store_true", help="do not exclude the saturated pixels and pixels at 0 of 8/16-bit targets")
     add_integrator_arguments(f, default=None, what="the model fitted")
     for name, kind, doc in FIT_OPTIONS:
         if name != "integrator":
@@ -95,6 +100,8 @@ def run(args) -> int:
         if args.scene or args.target or args.params or args.cameras:
             raise ParameterError("give either a recipe or --scene/--target/--params, not both")
         recipe = load_fit_recipe(args.recipe)
+        if args.mask or args.response or args.shared_sensor or args.keep_clipped:
+            raise ParameterError("--mask, --response, --shared-sensor and --keep-clipped go with --target, not with a recipe")
     elif not (args.scene and (args.target or args.cameras) and args.params):
         raise ParameterError("fit needs a recipe, or all of --scene, --target (or --cameras) and --params")
     if args.integrator or args.set:
@@ -120,7 +127,8 @@ def run(args) -> int:
             targets = targets or [str(f.image) for f in cameras]
         views = None if cameras is None else [f.camera for f in cameras]
         report = {"targets": targets, **({"cameras": str(args.cameras)} if cameras is not None else {})}
-        _summary(args, fit_into(out, scene, targets, names, cameras=views, resume=args.resume, progress=not args.quiet, report=report, **settings))
+        photo = _photo_options(args, len(targets))
+        _summary(args, fit_into(out, scene, targets, names, cameras=views, resume=args.resume, progress=not args.quiet, report=report, **photo, **settings))
     except KeyboardInterrupt:
         print("invrender: interrupted; checkpoint saved (continue with --resume)", file=sys.stderr)
         return EXIT_INTERRUPTED
@@ -135,6 +143,20 @@ def _cameras(args):
 
     frames = load_cameras(args.cameras, require_images=not args.target)
     return frames, common_resolution(frames, args.cameras)
+
+
+def _photo_options(args, views: int) -> dict:
+    """fit's mask, response, sensor and exclude_clipped from the photograph flags."""
+    out = {"exclude_clipped": not args.keep_clipped}
+    for key in ("mask", "response"):
+        given = getattr(args, key)
+        if given:
+            if len(given) not in (1, views):
+                raise ParameterError(f"--{key}: give one for every target or one per target ({views}), got {len(given)}")
+            out[key] = given[0] if len(given) == 1 else list(given)
+    if args.shared_sensor:
+        out["sensor"] = {"shared": [s.strip() for s in args.shared_sensor.split(",") if s.strip()]}
+    return out
 
 
 def _say(args, line: str) -> None:

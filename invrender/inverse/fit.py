@@ -6,6 +6,10 @@ Each step renders every view, back-propagates the loss through the Monte Carlo e
 values: rho = sigmoid(x), eps = exp(x) (params.py). Every random number is a
 pure function of (seed, step, view), so a fit is deterministic, and a fit resumed from a checkpoint
 ends exactly where the uninterrupted one does.
+
+Targets may be photographs (targets.py: a camera response, masks, clipped pixels excluded) and
+the model image of view v is ``exposure_v * white_balance_v * I_v`` (sensor.py), the sensor's
+parameters fitted when named (``sensor.exposure``, ``sensor.white_balance``); docs/photographs.md.
 """
 
 from __future__ import annotations
@@ -23,11 +27,13 @@ import torch
 from tqdm.auto import tqdm
 
 from invrender.diff import ESTIMATOR_CHOICES, backpropagate, render
-from invrender.errors import ImageError, ParameterError
+from invrender.errors import ParameterError
 from invrender.inverse import params as P
 from invrender.inverse.control_variates import RecursiveControlVariate
 from invrender.inverse.least_squares import SOLVERS
 from invrender.inverse.losses import LOSSES, loss_and_gradient, loss_gradient
+from invrender.inverse.sensor import NAMES as SENSOR_NAMES, Sensor, is_sensor
+from invrender.inverse.targets import Target, make_targets
 from invrender.io.atomic import atomic_file
 from invrender.scene.camera import Camera
 from invrender.scene.kinds import kind_of
@@ -60,6 +66,8 @@ class FitSettings:
         lr: Adam step size for [0, 1] parameters (reflectance, specular reflectance), in logit
             units (about a relative step for dark channels: 0.05 = 5% per step).
         lr_emission: Adam step size for emissions, in log(eps) units (0.05 = 5% per step).
+        lr_sensor: Adam step size for the sensor's exposure and white balance, in log units
+            (sensor.py).
         lr_final: the step sizes decay along a cosine to this fraction of themselves.
         beta2: Adam's second-moment decay. Shorter than the usual 0.999 so that the step size does
             not stay scaled down by the large gradients of the first steps (a fit is a few hundred
@@ -114,6 +122,7 @@ class FitSettings:
     steps: int = 200
     lr: float = 0.15
     lr_emission: float = 0.15
+    lr_sensor: float = 0.05
     lr_final: float = 0.05
     beta2: float = 0.95
     spp: int = 16
@@ -154,7 +163,7 @@ class FitSettings:
             raise ParameterError(f"unknown solver {self.solver!r} (known: {', '.join(SOLVERS)})")
         if self.solver != "adam" and (model.terms_kept < 1 or self.loss != "relative_l2"):
             raise ParameterError(f"solver {self.solver!r} needs a finite max_depth >= 1 and the relative_l2 loss (got max_depth {model.terms_kept}, loss {self.loss!r})")
-        for name in ("lr", "lr_emission", "lr_final", "precision"):
+        for name in ("lr", "lr_emission", "lr_sensor", "lr_final", "precision"):
             if name == "precision" and self.precision is None:
                 continue
             check_float("fit setting ", name, getattr(self, name), positive=True)
@@ -204,6 +213,8 @@ class FitResult:
         initial: name -> starting value.
         truth: name -> ground truth, when given.
         std_error: name -> standard error of each recovered channel (least-squares solvers).
+        targets: per view what the fit used of its target (targets.py): response, pixels
+            excluded as saturated or dark, pixels counting.
     """
 
     params: dict[str, torch.Tensor]
@@ -213,6 +224,7 @@ class FitResult:
     initial: dict[str, torch.Tensor]
     truth: dict[str, torch.Tensor] = field(default_factory=dict)
     std_error: dict[str, torch.Tensor] = field(default_factory=dict)
+    targets: list[dict] = field(default_factory=list)
 
     @property
     def errors(self) -> dict[str, float]:
@@ -230,14 +242,20 @@ def fit(
     checkpoint=None,
     resume: bool = False,
     progress: bool = True,
+    mask=None,
+    response=None,
+    sensor: dict | None = None,
+    exclude_clipped: bool = True,
     **settings,
 ) -> FitResult:
     """Recover ``params`` of ``scene`` from target image(s).
 
     Args:
         scene: the known geometry, with starting values in ``scene.params`` (left unchanged).
-        target: an (H, W, 3) tensor or image path, or a list of them (one per view).
-        params: names to fit (list or comma-separated string), e.g. ``["red.reflectance", "light.emission"]``.
+        target: an (H, W, 3) tensor or image path (PNG 8/16-bit, JPEG, EXR, HDR), or a list of
+            them (one per view); the size of the scene's renders (targets.py).
+        params: names to fit (list or comma-separated string), e.g. ``["red.reflectance", "light.emission"]``;
+            ``"sensor.exposure"`` and ``"sensor.white_balance"`` fit the camera's (sensor.py).
         cameras: one camera per target for several views (default: the scene's camera).
         truth: name -> ground-truth value, to record errors in the history.
         checkpoint: path of a checkpoint file written every ``checkpoint_every`` steps, on Ctrl-C
@@ -247,6 +265,16 @@ def fit(
             ``steps``); with the stored settings unchanged, it ends exactly where the
             uninterrupted fit does.
         progress: show a progress bar with step, loss and ETA.
+        mask: pixel weights in [0, 1]: an image path or an (H, W) tensor, or a list with one per
+            view (None: the target's alpha channel, if any); masked pixels count for nothing.
+        response: the targets' camera response (``"linear"``, ``"srgb"``, ``"gamma:G"``, a CSV
+            curve; one, or a list per view); None: each file's default (``srgb`` for 8/16-bit
+            files, ``linear`` for float files and tensors).
+        sensor: sensor options (sensor.py): ``exposure`` and ``white_balance`` starting (or, when
+            not fitted, fixed) values, one or one per view; ``shared``: which of the two one value
+            serves every view for.
+        exclude_clipped: leave out an 8/16-bit target's saturated pixels and pixels at 0
+            (counted per view in :attr:`FitResult.targets`).
         settings: any :class:`FitSettings` field, e.g. ``steps=300, loss="l1"`` or
             ``integrator={"type": "path", "rr_depth": 3, "strategy": "emitter"}``; all are checked
             (one-line :class:`ParameterError`) before any target is read or any render starts.
@@ -255,7 +283,7 @@ def fit(
     unknown = set(settings) - known
     if unknown:
         raise ParameterError(f"unknown fit setting {sorted(unknown)[0]!r} (known: {', '.join(sorted(known))})")
-    names = check_names(scene.params, params)
+    names = _check_fit_names(scene, params)
     checkpoint = Path(checkpoint) if checkpoint is not None else None
     state = None
     if resume:
@@ -264,21 +292,27 @@ def fit(
         state = _read_checkpoint(checkpoint, scene, names)
         settings = {**{k: v for k, v in state["settings"].items() if k in known}, **settings}  # stored, unless given anew
     cfg = FitSettings(**settings)
-    views = load_views(scene, target, cameras)
+    views = load_targets(scene, target, cameras, mask=mask, response=response, exclude_clipped=exclude_clipped)
+    sensor = Sensor.make(len(views), names, sensor)
     truth = {k: torch.as_tensor(v, dtype=torch.float32) for k, v in (truth or {}).items()}
     if state is not None and ("raw" in state) != (cfg.solver == "adam"):
         raise ParameterError(f"checkpoint {checkpoint} was written by another solver than {cfg.solver!r}")
     if cfg.solver != "adam":
-        return _fit_least_squares(scene, views, names, cfg, truth, checkpoint, state, progress)
+        return _fit_least_squares(scene, views, names, cfg, truth, checkpoint, state, progress, sensor)
 
-    raw = {n: P.to_raw(n, scene.params[n]).requires_grad_(True) for n in names}
-    optimizer = torch.optim.Adam([{"params": [raw[n]], "lr": getattr(cfg, kind_of(n).lr_setting)} for n in names], betas=(0.9, cfg.beta2))
+    scene_names = [n for n in names if not is_sensor(n)]
+    raw = {n: P.to_raw(n, scene.params[n]).requires_grad_(True) for n in scene_names}
+    groups = [{"params": [raw[n]], "lr": getattr(cfg, kind_of(n).lr_setting)} for n in scene_names]
+    if sensor.size:
+        raw[SENSOR_RAW] = sensor.to_raw().float().requires_grad_(True)
+        groups.append({"params": [raw[SENSOR_RAW]], "lr": cfg.lr_sensor})
+    optimizer = torch.optim.Adam(groups, betas=(0.9, cfg.beta2))
     base_lr = [g["lr"] for g in optimizer.param_groups]
-    initial = {n: scene.params[n].detach().clone() for n in names}
+    initial = {n: v.detach().clone() for n, v in _values(raw, scene_names, sensor, names).items()}
     history: list[dict] = []
     start = 0
     if state is not None:
-        start, history = _restore(state, names, raw, optimizer)
+        start, history = _restore(state, list(raw), raw, optimizer)
     variates = [_control_variate(view_scene, cfg) if cfg.control_variate else None for view_scene, _ in views]
     for cv, cv_state in zip(variates, (state or {}).get("control_variates") or []):
         cv.load(cv_state)
@@ -293,13 +327,13 @@ def fit(
                     group["lr"] = lr * cfg.lr_factor(step)
                 optimizer.zero_grad(set_to_none=True)
                 loss = sum(
-                    _view_loss(view_scene, {n: P.from_raw(n, raw[n]) for n in names}, view_target, cfg, step, v, len(views), variates[v])  # a fresh graph per view
+                    _view_loss(view_scene, {n: P.from_raw(n, raw[n]) for n in scene_names}, view_target, cfg, step, v, len(views), variates[v], _gain(raw, sensor, v))  # a fresh graph per view
                     for v, (view_scene, view_target) in enumerate(views)
                 )
                 if step == 0:
-                    P.warn_unused({n: raw[n].grad for n in names})
+                    P.warn_unused({n: raw[n].grad for n in scene_names})
                 optimizer.step()
-                record = _record(step, float(loss), cfg.spp_at(step), time.perf_counter() - clock, names, raw, truth)
+                record = _record(step, float(loss), cfg.spp_at(step), time.perf_counter() - clock, _values(raw, scene_names, sensor, names), truth)
                 history.append(record)
                 bar.set_postfix(loss=f"{record['loss']:.4g}", refresh=False)
                 bar.update(1)
@@ -312,21 +346,52 @@ def fit(
     if checkpoint is not None:
         _save_checkpoint(checkpoint, scene, names, cfg, len(history), history, **_adam_state(raw, optimizer, variates))
 
-    recovered = {n: P.from_raw(n, raw[n]).detach().clone() for n in names}
-    out_scene = scene.with_params(recovered, detach=True)
-    return FitResult(recovered, history, out_scene, cfg, initial, {k: v for k, v in truth.items() if k in names})
+    recovered = {n: v.detach().clone() for n, v in _values(raw, scene_names, sensor, names).items()}
+    out_scene = scene.with_params({n: recovered[n] for n in scene_names}, detach=True)
+    return FitResult(recovered, history, out_scene, cfg, initial, {k: v for k, v in truth.items() if k in names}, targets=[t.report() for _, t in views])
 
 
-def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, checkpoint: Path | None, state: dict | None, progress: bool) -> FitResult:
+#: the key of the sensor's free log variables among Adam's leaves (and in checkpoints)
+SENSOR_RAW = "sensor"
+
+
+def _check_fit_names(scene: Scene, params) -> list[str]:
+    """``params`` checked against the scene's parameters and the sensor's (:func:`check_names`)."""
+    return check_names({**scene.params, **{n: None for n in SENSOR_NAMES}}, params)
+
+
+def _values(raw: dict, scene_names, sensor: Sensor, names) -> dict:
+    """name -> current value of every fitted parameter (Adam's leaves through the kinds'
+    reparametrizations; the sensor's from its log variables)."""
+    out = {n: P.from_raw(n, raw[n]) for n in scene_names}
+    if sensor.size:
+        out.update({n: v for n, v in sensor.values(raw[SENSOR_RAW].double()).items() if n in names})
+    return {n: out[n] for n in names}
+
+
+def _gain(raw: dict, sensor: Sensor, view: int) -> torch.Tensor | None:
+    """View ``view``'s (3,) gains, differentiable in the sensor's leaf (None: all 1, nothing free)."""
+    if not sensor.active:
+        return None
+    s = raw[SENSOR_RAW] if sensor.size else torch.zeros(0)
+    return sensor.gains(s.double())[view].float()
+
+
+def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, checkpoint: Path | None, state: dict | None, progress: bool, sensor: Sensor) -> FitResult:
     """Outer rounds of record-and-solve (least_squares.py): one history entry per round."""
     from invrender.diff.records import record_paths
     from invrender.inverse.least_squares import Prior, solve
 
-    initial = {n: scene.params[n].detach().clone() for n in names}
+    scene_names = [n for n in names if not is_sensor(n)]
+    if not scene_names:
+        raise ParameterError(f"solver {cfg.solver!r} needs a scene parameter among the fitted ones (got only {', '.join(names)}); use solver 'adam'")
+    start_sensor = sensor.values(sensor.to_raw())
+    initial = {n: (start_sensor[n] if is_sensor(n) else scene.params[n]).detach().clone() for n in names}
     # the prior of environment maps: the starting values
-    prior = {n: initial[n].double().clamp(1e-4, None) for n in names if kind_of(n).key == "emission" and initial[n].ndim == 3}
+    prior = {n: initial[n].double().clamp(1e-4, None) for n in scene_names if kind_of(n).key == "emission" and initial[n].ndim == 3}
+    ambiguities = sensor.ambiguities(names, scene.params)
     model = cfg.model
-    current = {n: scene.params[n].detach().double().clamp(1e-4, None) for n in names}
+    current = {n: initial[n].double() if is_sensor(n) else scene.params[n].detach().double().clamp(1e-4, None) for n in names}
     history: list[dict] = []
     if state is not None:
         current, history = {n: v.double() for n, v in state["values"].items()}, list(state["history"])
@@ -341,15 +406,15 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
             for half in (0, 1):  # two independent record sets: residual (A) and Jacobian (B)
                 recs[half] = [
                     record_paths(
-                        view_scene.with_params({n: current[n].float() for n in names}),
-                        names, spp=spp, max_depth=model.terms_kept, seed=cfg.seed * 1_000_003 + 2 * (rnd * len(views) + v) + half,
+                        view_scene.with_params({n: current[n].float() for n in scene_names}),
+                        scene_names, spp=spp, max_depth=model.terms_kept, seed=cfg.seed * 1_000_003 + 2 * (rnd * len(views) + v) + half,
                         integrator=model.name, progress=False, sampler=cfg.sampler, **_settings_besides_depth(model),
                     )  # fmt: skip
                     for v, (view_scene, _) in enumerate(views)
                 ]
             targets = [t for _, t in views]
             regularizer = Prior.by_rule(prior, recs[1], targets, current, cfg.prior_weight, cfg.smoothness) if prior and (cfg.prior_weight != 0 or cfg.smoothness != 0) else None
-            sol = solve(recs[0], recs[1], targets, current, solver=cfg.solver, prior=regularizer)
+            sol = solve(recs[0], recs[1], targets, current, solver=cfg.solver, prior=regularizer, sensor=sensor, ambiguities=ambiguities)
             # how far each channel moved, in standard errors of the difference of two rounds
             moved = max(
                 float(((sol.values[n] - current[n]).abs() / (sol.std_error[n] ** 2 + (std_error[n] ** 2 if std_error else 0.0)).sqrt().clamp_min(1e-12)).max())
@@ -364,7 +429,7 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
             if truth:
                 record["errors"] = {n: P.relative_error(current[n].float(), truth[n]) for n in names if n in truth}
             record["correlation"] = {"channels": sol.identifiability.channels, "matrix": sol.identifiability.correlation.tolist()}
-            if sol.identifiability.weak:
+            if sol.identifiability.undetermined:
                 record["undetermined"] = sol.identifiability.describe()
             record["converged"] = rnd >= MIN_ROUNDS - 1 and moved < CONVERGED_MOVE and (
                 cfg.precision is None or all(bool((std_error[n] <= cfg.precision * current[n].abs()).all()) for n in names)
@@ -379,24 +444,35 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
     if history and history[-1].get("undetermined"):
         warnings.warn(f"the targets do not determine these parameter combinations: {history[-1]['undetermined']}", stacklevel=3)
     recovered = {n: current[n].float().clone() for n in names}
-    out_scene = scene.with_params(recovered, detach=True)
-    return FitResult(recovered, history, out_scene, cfg, initial, {k: v for k, v in truth.items() if k in names}, {n: std_error[n].float() for n in names})
+    out_scene = scene.with_params({n: recovered[n] for n in scene_names}, detach=True)
+    return FitResult(recovered, history, out_scene, cfg, initial, {k: v for k, v in truth.items() if k in names}, {n: std_error[n].float() for n in names}, [t.report() for _, t in views])
 
 
-def identifiability(scene: Scene, target, params, *, cameras: list[Camera] | None = None, spp: int = 64, max_depth: int = 8, seed: int = 0, integrator: str = "path"):
+def identifiability(
+    scene: Scene, target, params, *, cameras: list[Camera] | None = None, spp: int = 64, max_depth: int = 8, seed: int = 0, integrator: str = "path",
+    mask=None, response=None, sensor: dict | None = None, exclude_clipped: bool = True,
+):  # fmt: skip
     """What ``target`` (one image or one per camera) determines about ``params`` at the scene's
     current values, without fitting: standard errors, correlations and the parameter
     combinations the targets cannot determine (a near-singular ``J^T J``; e.g. the scale between an
     emitter's eps and every rho when the emitter is never seen directly), from two independent
-    path records of ``spp`` samples. Returns an :class:`~invrender.inverse.least_squares.Identifiability`."""
+    path records of ``spp`` samples; with ``sensor.exposure`` or ``sensor.white_balance`` among
+    ``params``, the sensor's scale ambiguities against the emissions are named
+    (:meth:`~invrender.inverse.sensor.Sensor.ambiguities`). ``mask``, ``response``, ``sensor`` and
+    ``exclude_clipped`` as in :func:`fit`. Returns an
+    :class:`~invrender.inverse.least_squares.Identifiability`."""
     from invrender.diff.records import record_paths
     from invrender.inverse.least_squares import analyse
 
-    names = check_names(scene.params, params)
-    views = load_views(scene, target, cameras)
-    recs = [[record_paths(view_scene, names, spp=spp, max_depth=max_depth, seed=2 * (seed * len(views) + v) + half, integrator=integrator, progress=False) for v, (view_scene, _) in enumerate(views)] for half in (0, 1)]
-    values = {n: scene.params[n].detach().double() for n in names}
-    return analyse(recs[0], recs[1], [t for _, t in views], values)
+    names = _check_fit_names(scene, params)
+    views = load_targets(scene, target, cameras, mask=mask, response=response, exclude_clipped=exclude_clipped)
+    sens = Sensor.make(len(views), names, sensor)
+    scene_names = [n for n in names if not is_sensor(n)]
+    if not scene_names:
+        raise ParameterError("identifiability needs a scene parameter among params")
+    recs = [[record_paths(view_scene, scene_names, spp=spp, max_depth=max_depth, seed=2 * (seed * len(views) + v) + half, integrator=integrator, progress=False) for v, (view_scene, _) in enumerate(views)] for half in (0, 1)]
+    values = {n: scene.params[n].detach().double() for n in scene_names}
+    return analyse(recs[0], recs[1], [t for _, t in views], values, sensor=sens, ambiguities=sens.ambiguities(names, scene.params))
 
 
 def _control_variate(view_scene: Scene, cfg: FitSettings) -> RecursiveControlVariate:
@@ -411,9 +487,11 @@ def _control_variate(view_scene: Scene, cfg: FitSettings) -> RecursiveControlVar
     return RecursiveControlVariate(render_at)
 
 
-def _view_loss(view_scene: Scene, values, target, cfg: FitSettings, step: int, view: int, n_views: int, cv: RecursiveControlVariate | None = None) -> torch.Tensor:
+def _view_loss(view_scene: Scene, values, target, cfg: FitSettings, step: int, view: int, n_views: int, cv: RecursiveControlVariate | None = None, gain: torch.Tensor | None = None) -> torch.Tensor:
     """Render one view, back-propagate its share of the loss, return the loss value (with ``cv``,
-    ``dl/dI`` is taken at its estimate of the image)."""
+    ``dl/dI`` is taken at its estimate of the image). ``gain``: the view's (3,) sensor gains (the
+    model image is ``gain * I``), differentiable when the sensor is fitted (its gradient is then
+    taken with the render of the scene's, independent of the one ``dl/dI`` comes from)."""
     work = view_scene.with_params(values)
     spp = cfg.spp_at(step)
     seed = cfg.seed * 1_000_003 + 2 * (step * n_views + view)
@@ -421,6 +499,8 @@ def _view_loss(view_scene: Scene, values, target, cfg: FitSettings, step: int, v
     kw = dict(spp=spp, progress=False, sampler=cfg.sampler)
     if not cfg.decorrelate:
         image = render(work, integrator, seed=seed, estimator=cfg.estimator, **kw)
+        if gain is not None:
+            image = image * gain
         return loss_and_gradient(cfg.loss, target, image, image / n_views) / n_views
     # dl/dI from one render, differentiated through another (independent seed): unbiased (losses.py)
     if cv is not None:
@@ -428,8 +508,16 @@ def _view_loss(view_scene: Scene, values, target, cfg: FitSettings, step: int, v
     else:
         with torch.no_grad():
             residual = render(work, integrator, seed=seed + 1, **kw)
-    dl_dI, value = loss_gradient(cfg.loss, target, residual)
-    backpropagate(work, dl_dI / n_views, integrator, RenderSettings(seed=seed, **kw), cfg.estimator)
+    if gain is None:
+        dl_dI, value = loss_gradient(cfg.loss, target, residual)
+        backpropagate(work, dl_dI / n_views, integrator, RenderSettings(seed=seed, **kw), cfg.estimator)
+        return value / n_views
+    dl_dM, value = loss_gradient(cfg.loss, target, residual * gain.detach())
+    if not gain.requires_grad:
+        backpropagate(work, dl_dM * gain / n_views, integrator, RenderSettings(seed=seed, **kw), cfg.estimator)
+    else:  # the scene's and the sensor's gradients from one differentiable render
+        image = render(work, integrator, seed=seed, estimator=cfg.estimator, **kw)
+        (dl_dM * image * gain).sum().div(n_views).backward()
     return value / n_views
 
 
@@ -438,46 +526,33 @@ def _settings_besides_depth(model: Integrator) -> dict:
     return {k: v for k, v in dataclasses.asdict(model.settings).items() if k != "max_depth"}
 
 
-def _record(step, loss, spp, seconds, names, raw, truth) -> dict:
-    values = {n: P.from_raw(n, raw[n]).detach() for n in names}
+def _record(step, loss, spp, seconds, values, truth) -> dict:
+    values = {n: v.detach() for n, v in values.items()}
     record = {"step": step + 1, "loss": loss, "spp": spp, "seconds": seconds, "params": {n: v.tolist() for n, v in values.items()}}
     if truth:
-        record["errors"] = {n: P.relative_error(values[n], truth[n]) for n in names if n in truth}
+        record["errors"] = {n: P.relative_error(values[n], truth[n]) for n in values if n in truth}
     return record
 
 
 def load_views(scene: Scene, target, cameras) -> list[tuple[Scene, torch.Tensor]]:
-    """(scene seen by each camera, its target image (H, W, 3)) per view, every target checked as
-    ``fit`` checks them (file readable, finite, non-negative, the scene's size; one camera each)."""
+    """(scene seen by each camera, its linear target image (H, W, 3)) per view, every target checked
+    as ``fit`` checks them (file readable, finite, non-negative, the scene's size; one camera each;
+    files decoded by their default response)."""
+    return [(view_scene, t.linear) for view_scene, t in load_targets(scene, target, cameras)]
+
+
+def load_targets(scene: Scene, target, cameras, *, mask=None, response=None, exclude_clipped: bool = True) -> list[tuple[Scene, Target]]:
+    """(scene seen by each camera, its :class:`~invrender.inverse.targets.Target`) per view, with
+    ``mask``, ``response`` and ``exclude_clipped`` as :func:`fit` takes them."""
     targets = list(target) if isinstance(target, (list, tuple)) else [target]
     if cameras is not None and len(cameras) != len(targets):
         raise ParameterError(f"{len(targets)} target(s) but {len(cameras)} camera(s): give one camera per target")
     if cameras is None and len(targets) > 1:
         raise ParameterError("several targets need one camera each (cameras=[...])")
-    views = []
-    for i, t in enumerate(targets):
-        label = str(t) if isinstance(t, (str, os.PathLike)) else f"target {i}"
-        image = _load_target(t, label)
-        view_scene = scene.with_camera(cameras[i]) if cameras is not None else scene
-        if image.shape[:2] != (view_scene.height, view_scene.width):
-            raise ImageError(f"{label} is {image.shape[1]}x{image.shape[0]} but the scene renders {view_scene.width}x{view_scene.height} (set the scene's resolution to the target's)")
-        views.append((view_scene, image.to(scene.device)))
-    return views
-
-
-def _load_target(t, label: str) -> torch.Tensor:
-    if isinstance(t, (str, os.PathLike)):
-        from invrender.io import read_image
-
-        t = read_image(t)
-    image = torch.as_tensor(t, dtype=torch.float32).detach()
-    if image.ndim != 3 or image.shape[2] != 3:
-        raise ImageError(f"{label} must be an (H, W, 3) RGB image, got shape {tuple(image.shape)}")
-    if not torch.isfinite(image).all():
-        raise ImageError(f"{label} contains NaN or Inf values")
-    if bool((image < 0).any()):
-        raise ImageError(f"{label} has negative radiance (minimum {float(image.min()):.4g}); a target is linear radiance >= 0")
-    return image
+    view_scenes = [scene.with_camera(cameras[i]) if cameras is not None else scene for i in range(len(targets))]
+    labels = [str(t) if isinstance(t, (str, os.PathLike)) else f"target {i}" for i, t in enumerate(targets)]
+    made = make_targets(targets, labels, [(v.width, v.height) for v in view_scenes], mask=mask, response=response, exclude=exclude_clipped)
+    return [(v, t.to(scene.device)) for v, t in zip(view_scenes, made)]
 
 
 def _signature(scene: Scene, names: list[str]) -> dict:
@@ -485,7 +560,7 @@ def _signature(scene: Scene, names: list[str]) -> dict:
         "scene": scene.name,
         "triangles": scene.triangles.count,
         "resolution": list(scene.resolution),
-        "params": {n: list(scene.params[n].shape) for n in names},
+        "params": {n: [] if is_sensor(n) else list(scene.params[n].shape) for n in names},
     }
 
 

@@ -26,6 +26,14 @@ pulled by it negligibly, texels they cannot see stay at ``p``. ``lambda`` is the
 default rule :data:`PRIOR_FRACTION` times the mean over the parameter's channels of the diagonal of
 the data term's ``J^T J`` in relative units (each column times its value), at the round's start.
 
+**Sensor and masks.** With a :class:`~invrender.inverse.sensor.Sensor`, view v's model is
+``g_v * I_v`` (its gains times the recorded image): still a polynomial in the scene parameters,
+and in the sensor's free log variables ``s`` an exponential of a linear map, so the sensor adds K
+columns ``w g_v I_v A[v]`` to the Jacobian (set B's image, like every column). A target that is a
+:class:`~invrender.inverse.targets.Target` brings its per-pixel weights: its residual is the
+linear one times the mask and the response's inverse slope over ``sqrt(y^2 + 0.01)`` (encoded
+units, relative), so masked pixels' rows are zero and change nothing.
+
 **Uncertainty.** At the solution, the Gauss-Newton sandwich
 ``Cov(theta) = (J^T J)^-1 J^T diag(s^2) J (J^T J)^-1`` with ``s^2`` each residual's Monte Carlo
 variance, estimated from the two independent sets (``(r_A - r_B)^2 / 2``), gives each parameter's
@@ -41,6 +49,8 @@ import torch
 
 from invrender.diff.records import PathRecords
 from invrender.errors import ParameterError
+from invrender.inverse.sensor import Sensor
+from invrender.inverse.targets import Target
 from invrender.scene.kinds import kind_of
 
 SOLVERS = ("adam", "lm", "gauss_newton")
@@ -218,7 +228,7 @@ class Prior:
         out = {key: {n: float(v) for n in prior} for key, v in fixed.items() if v is not None}
         if len(out) < 2:
             layout = _Layout.of(records[0])
-            weights = [1.0 / (t.double() ** 2 + 0.01).sqrt().reshape(-1, 3) for t in targets]
+            weights = _weights(targets)
             J = torch.cat([_value_jacobian(r, values, w) for r, w in zip(records, weights)])
             diag = (J * layout.flatten(values).reshape(1, -1)).pow(2).sum(0)
             mean = {n: float(diag[3 * a : 3 * b].mean()) for n, a, b in layout._rows() if n in prior}
@@ -239,24 +249,37 @@ class _Problem:
     targets: list
     weights: list
     prior: Prior | None = None
+    sensor: Sensor | None = None
+
+    def _split(self, x):
+        """Unconstrained scene rows (N_var, 3) and sensor log variables (K,) of the solver's ``x``."""
+        flat = torch.from_numpy(np.asarray(x, dtype=np.float64)).reshape(-1)
+        n = 3 * self.layout.offsets[-1]
+        return flat[:n].reshape(-1, 3), flat[n:]
 
     def residual(self, x) -> np.ndarray:
-        """(R,) set A's weighted residual at unconstrained ``x`` (N_var, 3), the prior's rows last."""
-        values = self.layout.unflatten(self.layout.from_raw(torch.from_numpy(x)))
-        parts = [_residual(r, values, t, w) for r, t, w in zip(self.records_a, self.targets, self.weights)]
+        """(R,) set A's weighted residual at unconstrained ``x`` (N_var, 3) (then the sensor's K
+        log variables, flat, when there is a sensor), the prior's rows last."""
+        rows, s = self._split(x)
+        values = self.layout.unflatten(self.layout.from_raw(rows))
+        gains = _gains(self.sensor, s, len(self.targets))
+        parts = [_residual(r, values, t, w, g) for r, t, w, g in zip(self.records_a, self.targets, self.weights, gains)]
         if self.prior is not None:
             parts.append(self.prior.residual(self.layout, values))
         return torch.cat(parts).numpy()
 
     def jacobian(self, x) -> np.ndarray:
-        """(R, 3 N_var) set B's Jacobian with respect to ``x`` (variable-major, channel-minor)."""
-        raw = torch.from_numpy(x).requires_grad_(True)
+        """(R, 3 N_var (+ K)) set B's Jacobian with respect to ``x`` (variable-major, channel-minor;
+        the sensor's columns last)."""
+        rows_x, s = self._split(x)
+        raw = rows_x.clone().requires_grad_(True)
         with torch.enable_grad():
             rows = torch.cat([kind_of(n).from_raw(raw[a:b]) for n, a, b in self.layout._rows()])
             (dv_dx,) = torch.autograd.grad(rows.sum(), raw)  # elementwise reparametrizations
         values = self.layout.unflatten(self.layout.inside(rows.detach()))
-        J = torch.cat([_value_jacobian(r, values, w) for r, w in zip(self.records_b, self.weights)] + ([self.prior.jacobian(self.layout)] if self.prior is not None else []))
-        return (J * dv_dx.reshape(1, -1)).numpy()
+        J = _full_jacobian(self.records_b, self.weights, values, self.sensor, s, self.prior, self.layout)
+        scale = torch.cat([dv_dx.reshape(-1), torch.ones(J.shape[1] - dv_dx.numel(), dtype=torch.float64)])
+        return (J * scale.reshape(1, -1)).numpy()
 
 
 #: problems being solved, by handle: the jitted residual reads them through ``jax.pure_callback``
@@ -305,70 +328,131 @@ def solve(
     rtol: float = 1e-6,
     atol: float = 1e-9,
     prior: Prior | None = None,
+    sensor: Sensor | None = None,
+    ambiguities: list[str] = (),
 ) -> LeastSquaresSolution:
-    """Fit the recorded parameters to ``targets`` (one per view) by Levenberg-Marquardt (``"lm"``)
-    or Gauss-Newton, residual from ``records_a``, Jacobian from ``records_b`` (independent seeds).
+    """Fit the recorded parameters to ``targets`` (one per view: linear (H, W, 3) tensors or
+    :class:`~invrender.inverse.targets.Target`) by Levenberg-Marquardt (``"lm"``) or Gauss-Newton,
+    residual from ``records_a``, Jacobian from ``records_b`` (independent seeds).
 
     ``start``: name -> starting value shaped as recorded ((3,), or (h, w, 3) for a texture),
-    inside each kind's range. ``prior``: Tikhonov rows added to the objective (:class:`Prior`)."""
+    inside each kind's range, and the sensor's values (``sensor.exposure`` (V,), ...) where there
+    is one. ``prior``: Tikhonov rows added to the objective (:class:`Prior`). ``sensor``: the
+    views' exposure and white balance (:mod:`invrender.inverse.sensor`), its free variables
+    solved for with the rest; ``ambiguities``: its named scale ambiguities, reported in the
+    solution's identifiability."""
     jax, jnp, optx = _jax()
     layout = _Layout.of(records_a[0])
-    weights = [1.0 / (t.double() ** 2 + 0.01).sqrt().reshape(-1, 3) for t in targets]
-    problem = _Problem(layout, records_a, records_b, targets, weights, prior)
+    weights = _weights(targets)
+    sensor = sensor if sensor is not None and sensor.active else None
+    problem = _Problem(layout, records_a, records_b, targets, weights, prior, sensor)
     handle = id(problem)
     _PROBLEMS[handle] = problem
     extra = prior.residual(layout, start).numel() if prior is not None else 0
+    s0 = sensor.to_raw(start) if sensor is not None else torch.zeros(0, dtype=torch.float64)
     try:
-        args = {"handle": jnp.asarray(handle, dtype=jnp.int64), "r": jnp.zeros(sum(t.numel() for t in targets) + extra)}
+        args = {"handle": jnp.asarray(handle, dtype=jnp.int64), "r": jnp.zeros(sum(_linear(t).numel() for t in targets) + extra)}
         method = optx.LevenbergMarquardt(rtol=rtol, atol=atol) if solver == "lm" else optx.GaussNewton(rtol=rtol, atol=atol)
-        x0 = jnp.asarray(layout.to_raw(start).numpy())
+        raw0 = layout.to_raw(start)
+        x0 = jnp.asarray(raw0.numpy() if sensor is None else torch.cat([raw0.reshape(-1), s0]).numpy())
         sol = optx.least_squares(_decorrelated_residual(), method, x0, args=args, options={"jac": "fwd"}, max_steps=max_steps, throw=False)
         x = torch.from_numpy(jax.device_get(sol.value).copy()).double()
     finally:
         del _PROBLEMS[handle]
     if not bool(torch.isfinite(x).all()):
         raise ParameterError(f"solver {solver!r} diverged (non-finite parameters); start closer or use 'lm', whose damping bounds its steps")
-    flat = layout.from_raw(x)
+    rows, s = problem._split(x.numpy())
+    flat = layout.from_raw(rows)
+    n = flat.numel()
     steps = int(sol.stats["num_steps"])
     # The trust region accepts steps by the decrease of |r_A|^2, which B's Jacobian does not model
     # exactly, so it stalls a little short of J_B^T r_A = 0: finish with undamped Gauss-Newton steps
     # on that equation (near the solution the problem is almost linear; a few steps suffice).
     for _ in range(REFINE_STEPS):
-        J, ra = _jacobian_b_and_residual_a(records_a, records_b, targets, weights, layout.unflatten(flat))
-        if prior is not None:
-            J, ra = torch.cat([J, prior.jacobian(layout)]), torch.cat([ra, prior.residual(layout, layout.unflatten(flat))])
+        values = layout.unflatten(flat)
+        J = _full_jacobian(records_b, weights, values, sensor, s, prior, layout)
+        ra = _all_residuals(records_a, targets, weights, values, sensor, s, prior, layout)
         step = torch.linalg.lstsq(J, -ra[:, None]).solution[:, 0]
-        flat = layout.inside(flat + step.reshape(-1, 3))
+        flat = layout.inside(flat + step[:n].reshape(-1, 3))
+        s = s + step[n:]
         if float(step.abs().max()) < 1e-10:
             break
     values = layout.unflatten(flat)
-    ident = analyse(records_a, records_b, targets, values, prior=prior)
+    ident = analyse(records_a, records_b, targets, values, prior=prior, sensor=sensor, sensor_raw=s, ambiguities=ambiguities)
+    if sensor is not None:
+        values.update({k: v.detach() for k, v in sensor.values(s).items()})
     return LeastSquaresSolution(values, ident, ident.loss, steps)
 
 
-def _jacobian_b_and_residual_a(records_a, records_b, targets, weights, values):
-    """Value-space Jacobian (R, 3 N_var) of set B's weighted residual and set A's residual (R,):
-    what a Gauss-Newton step on ``J_B^T r_A = 0`` needs."""
-    J = torch.cat([_value_jacobian(rec_b, values, w) for rec_b, w in zip(records_b, weights)])
-    ra = torch.cat([_residual(rec_a, values, t, w) for rec_a, t, w in zip(records_a, targets, weights)])
-    return J, ra
+def _weights(targets: list) -> list[torch.Tensor]:
+    """(N, 3) float64 residual weights per view: the ``relative_l2`` weighting (a
+    :class:`~invrender.inverse.targets.Target`'s own, with its mask and response)."""
+    return [(t.relative_weight() if isinstance(t, Target) else 1.0 / (t.double() ** 2 + 0.01).sqrt()).reshape(-1, 3) for t in targets]
 
 
-def _residual(rec: PathRecords, values: dict, target: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
-    """(N * 3,) one view's weighted residual ``(I - T) w``."""
-    return ((rec.image(values).reshape(-1, 3) - target.double().reshape(-1, 3)) * w).reshape(-1)
+def _linear(target) -> torch.Tensor:
+    """The linear (H, W, 3) target of a tensor or a Target."""
+    return target.linear if isinstance(target, Target) else target
 
 
-def _jacobian_and_residuals(records_a, records_b, targets, weights, values):
-    """Value-space Jacobians (R, 3 N_var) of set B's and set A's weighted residuals, and both
+def _gains(sensor: Sensor | None, s: torch.Tensor, views: int) -> list:
+    """Per view its (3,) float64 gains, or None without a sensor."""
+    if sensor is None:
+        return [None] * views
+    g = sensor.gains(s.double())
+    return [g[v] for v in range(views)]
+
+
+def _all_residuals(records, targets, weights, values, sensor, s, prior, layout) -> torch.Tensor:
+    """(R,) every view's weighted residual of ``records``, then the prior's rows."""
+    gains = _gains(sensor, s, len(targets))
+    parts = [_residual(r, values, t, w, g) for r, t, w, g in zip(records, targets, weights, gains)]
+    if prior is not None:
+        parts.append(prior.residual(layout, values))
+    return torch.cat(parts)
+
+
+def _full_jacobian(records, weights, values, sensor, s, prior, layout) -> torch.Tensor:
+    """(R, 3 N_var + K) value-space Jacobian of ``records``' weighted residuals (the scene's
+    columns, then the sensor's log-variable columns), then the prior's rows (zero in the sensor's)."""
+    gains = _gains(sensor, s, len(records))
+    A = sensor.A if sensor is not None else None
+    blocks = []
+    for v, (r, w, g) in enumerate(zip(records, weights, gains)):
+        J = _value_jacobian(r, values, w if g is None else w * g)
+        if sensor is not None:
+            J = torch.cat([J, _sensor_jacobian(r, values, w, g, A[v])], dim=1)
+        blocks.append(J)
+    if prior is not None:
+        Jp = prior.jacobian(layout)
+        blocks.append(torch.cat([Jp, torch.zeros(Jp.shape[0], blocks[0].shape[1] - Jp.shape[1], dtype=torch.float64)], dim=1))
+    return torch.cat(blocks)
+
+
+def _sensor_jacobian(rec: PathRecords, values: dict, w: torch.Tensor, g: torch.Tensor, A: torch.Tensor) -> torch.Tensor:
+    """(N * 3, K) derivatives of one view's weighted residual ``w (g I - T)`` with respect to the
+    sensor's log variables (``A``: (3, K), d log g / d s)."""
+    gI = (rec.image(values).reshape(-1, 3) * g * w)  # (N, 3)
+    return (gI[:, :, None] * A[None]).reshape(-1, A.shape[1])
+
+
+def _residual(rec: PathRecords, values: dict, target, w: torch.Tensor, g: torch.Tensor | None = None) -> torch.Tensor:
+    """(N * 3,) one view's weighted residual ``(g I - T) w`` (``g``: the view's gains, or none)."""
+    image = rec.image(values).reshape(-1, 3)
+    if g is not None:
+        image = image * g
+    return ((image - _linear(target).double().reshape(-1, 3)) * w).reshape(-1)
+
+
+def _jacobian_and_residuals(records_a, records_b, targets, weights, values, sensor=None, s=None):
+    """Value-space Jacobians (R, 3 N_var (+ K)) of set B's and set A's weighted residuals, and both
     sets' residuals (R,)."""
-    blocks, blocks_a, ra, rb = [], [], [], []
-    for rec_a, rec_b, t, w in zip(records_a, records_b, targets, weights):
-        ra.append(_residual(rec_a, values, t, w))
-        rb.append(_residual(rec_b, values, t, w))
-        blocks.append(_value_jacobian(rec_b, values, w))
-        blocks_a.append(_value_jacobian(rec_a, values, w))
-    return torch.cat(blocks), torch.cat(blocks_a), torch.cat(ra), torch.cat(rb)
+    gains = _gains(sensor, s, len(targets))
+    ra = torch.cat([_residual(r, values, t, w, g) for r, t, w, g in zip(records_a, targets, weights, gains)])
+    rb = torch.cat([_residual(r, values, t, w, g) for r, t, w, g in zip(records_b, targets, weights, gains)])
+    J = _full_jacobian(records_b, weights, values, sensor, s, None, None)
+    J_a = _full_jacobian(records_a, weights, values, sensor, s, None, None)
+    return J, J_a, ra, rb
 
 
 def _value_jacobian(rec: PathRecords, values: dict, w: torch.Tensor) -> torch.Tensor:
@@ -404,13 +488,24 @@ class Identifiability:
     channels: list[str]
     weak: list[dict]
     loss: float
+    sensor: list[str] = ()
 
     def describe(self) -> str:
-        """One line per undetermined combination (empty when everything is determined)."""
-        return "; ".join(" + ".join(f"{w:+.2f} {c}" for c, w in combo.items()) for combo in self.weak)
+        """One line per undetermined combination (empty when everything is determined): the
+        sensor's scale ambiguities first (named, with what resolves them), then the numerical ones."""
+        return "; ".join(list(self.sensor) + [" + ".join(f"{w:+.2f} {c}" for c, w in combo.items()) for combo in self.weak])
+
+    @property
+    def undetermined(self) -> bool:
+        """Whether anything is undetermined (a sensor ambiguity or a weak combination)."""
+        return bool(self.weak) or bool(self.sensor)
 
 
-def analyse(records_a: list[PathRecords], records_b: list[PathRecords], targets: list[torch.Tensor], values: dict, threshold: float = 1e-6, prior: Prior | None = None) -> Identifiability:
+def analyse(
+    records_a: list[PathRecords], records_b: list[PathRecords], targets: list, values: dict, threshold: float = 1e-6,
+    prior: Prior | None = None, sensor: Sensor | None = None, sensor_raw: torch.Tensor | None = None,
+    ambiguities: list[str] = (),
+) -> Identifiability:  # fmt: skip
     """Standard errors, correlations and undetermined combinations at ``values``.
 
     The standard errors are the sandwich of the estimating equation ``J_B^T r_A = 0``, whose
@@ -419,21 +514,32 @@ def analyse(records_a: list[PathRecords], records_b: list[PathRecords], targets:
     With a ``prior`` its rows enter the estimating equation (noise-free: a texel the prior alone
     holds has standard error 0, the Monte Carlo error of an estimate that is the prior); the
     undetermined combinations are those of the images alone, the prior left out. ``loss`` is the
-    images' residual only."""
+    images' residual only.
+
+    With a ``sensor`` (its free log variables at ``sensor_raw``, default its starting values) its
+    columns join the analysis (the standard errors of ``sensor.exposure`` and
+    ``sensor.white_balance`` come out beside the scene's), and the channels are analysed together
+    (an exposure couples them). ``ambiguities``: the sensor's named scale ambiguities
+    (:meth:`~invrender.inverse.sensor.Sensor.ambiguities`), reported as they are."""
     layout = _Layout.of(records_a[0])
-    weights = [1.0 / (t.double() ** 2 + 0.01).sqrt().reshape(-1, 3) for t in targets]
-    J, J_a, ra, rb = _jacobian_and_residuals(records_a, records_b, targets, weights, values)
+    weights = _weights(targets)
+    sensor = sensor if sensor is not None and sensor.active else None
+    s = (sensor_raw if sensor_raw is not None else sensor.to_raw()) if sensor is not None else torch.zeros(0, dtype=torch.float64)
+    J, J_a, ra, rb = _jacobian_and_residuals(records_a, records_b, targets, weights, values, sensor, s)
     loss = float((ra**2).mean())
-    # relative units: each column scaled by its parameter value, so eps and rho compare
-    scale = layout.flatten(values).reshape(-1)
+    # relative units: each column scaled by its parameter value, so eps and rho compare (the
+    # sensor's columns are per log value already)
+    scale = torch.cat([layout.flatten(values).reshape(-1), torch.ones(J.shape[1] - 3 * layout.offsets[-1], dtype=torch.float64)])
     Js = J * scale[None, :]
     JtJ = Js.T @ Js
     norms = JtJ.diagonal().clamp_min(1e-300).sqrt()
     normalized = JtJ / (norms[:, None] * norms[None, :])
-    labels = layout.labels()
+    labels = layout.labels() + (sensor.labels() if sensor is not None else [])
     weak = []
-    for c in range(3):  # channels never mix (J^T J is block diagonal): one eigenproblem per channel
-        cols = torch.arange(c, normalized.shape[0], 3)
+    # channels never mix (J^T J is block diagonal): one eigenproblem per channel; an exposure
+    # couples them: one for all
+    groups = [torch.arange(c, 3 * layout.offsets[-1], 3) for c in range(3)] if sensor is None or sensor.size == 0 else [torch.arange(normalized.shape[0])]
+    for cols in groups:
         eigenvalues, vectors = torch.linalg.eigh(normalized[cols][:, cols])
         for lam, v in zip(eigenvalues.tolist(), vectors.T):
             if lam < threshold * float(eigenvalues.max()):
@@ -441,6 +547,7 @@ def analyse(records_a: list[PathRecords], records_b: list[PathRecords], targets:
                 weak.append({labels[int(cols[i])]: float(v[i]) for i in order.tolist() if abs(float(v[i])) > 0.2})
     if prior is not None:
         Jp, rp = prior.jacobian(layout), prior.residual(layout, values)
+        Jp = torch.cat([Jp, torch.zeros(Jp.shape[0], J.shape[1] - Jp.shape[1], dtype=torch.float64)], dim=1)
         J, J_a, ra, rb = torch.cat([J, Jp]), torch.cat([J_a, Jp]), torch.cat([ra, rp]), torch.cat([rb, rp])
     s2 = (ra - rb) ** 2 / 2
     dJ = (J_a - J) / 2**0.5
@@ -448,4 +555,8 @@ def analyse(records_a: list[PathRecords], records_b: list[PathRecords], targets:
     cov = inv @ ((J.T * s2) @ J + (dJ.T * ra**2) @ dJ) @ inv
     se = cov.diagonal().clamp_min(0).sqrt()
     corr = cov / (se[:, None] * se[None, :]).clamp_min(1e-300)
-    return Identifiability(layout.unflatten(se.reshape(-1, 3)), corr, labels, weak, loss)
+    n = 3 * layout.offsets[-1]
+    std_error = layout.unflatten(se[:n].reshape(-1, 3))
+    if sensor is not None:
+        std_error.update(sensor.std_error(sensor.values(s), se[n:]))
+    return Identifiability(std_error, corr, labels, weak, loss, tuple(ambiguities))

@@ -23,8 +23,18 @@ from invrender.errors import ParameterError
 LOSSES = ("l2", "l1", "relative_l2", "ssim")
 
 
-def image_loss(name: str, image: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """Scalar loss between ``image`` and ``target``, both (H, W, 3) linear."""
+def image_loss(name: str, image: torch.Tensor, target) -> torch.Tensor:
+    """Scalar loss between ``image`` and ``target``, both (H, W, 3) linear; ``target`` may be a
+    :class:`~invrender.inverse.targets.Target` (a photograph, a mask), whose per-pixel weights
+    turn each residual into the file's encoded units and zero the pixels that do not count (the
+    mean stays over every pixel): ``l2`` and ``l1`` of the weighted residual, ``relative_l2`` of it
+    over ``sqrt(T^2 + 0.01)`` for a linear target (over 1 for an encoded one: ``Target.norm``),
+    ``ssim`` of the masked linear images."""
+    if not isinstance(target, torch.Tensor):
+        if target.plain:
+            target = target.linear
+        else:
+            return _weighted_loss(name, image, target)
     if name == "l2":
         return torch.nn.functional.mse_loss(image, target)
     if name == "l1":
@@ -37,6 +47,21 @@ def image_loss(name: str, image: torch.Tensor, target: torch.Tensor) -> torch.Te
         a, b = image.permute(2, 0, 1)[None], target.permute(2, 0, 1)[None]
         scale = max(float(target.detach().max()), 1e-6)  # SSIM's constants assume a [0, 1] range
         return kornia.losses.ssim_loss(a / scale, b / scale, window_size=min(11, _odd(min(image.shape[:2]))), reduction="mean")
+    raise ParameterError(f"unknown loss {name!r} (known: {', '.join(LOSSES)})")
+
+
+def _weighted_loss(name: str, image: torch.Tensor, target) -> torch.Tensor:
+    """:func:`image_loss` against a Target that is not plain."""
+    d = (image - target.linear) * target.weight
+    if name == "l2":
+        return (d**2).mean()
+    if name == "l1":
+        return d.abs().mean()
+    if name == "relative_l2":
+        return (d / target.norm()).pow(2).mean()
+    if name == "ssim":
+        m = target.mask[..., None]
+        return image_loss("ssim", image * m, target.linear * m)
     raise ParameterError(f"unknown loss {name!r} (known: {', '.join(LOSSES)})")
 
 

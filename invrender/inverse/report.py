@@ -25,6 +25,8 @@ def report_dict(result: FitResult, **extra) -> dict:
         for key in ("correlation", "undetermined"):  # least-squares fits: from the last round
             if key in last:
                 out[key] = last[key]
+    if result.targets and any(t["response"] != "linear" or t["counting"] != t["pixels"] for t in result.targets):
+        out["pixels"] = result.targets  # photographs and masks: per view what counted
     if result.truth:
         out["truth"] = {k: v.tolist() for k, v in result.truth.items()}
         out["relative_error"] = result.errors

@@ -4,6 +4,9 @@ Every image in invrender is a float tensor of shape (H, W, 3): linear RGB radian
 channel, unitless scale), row 0 at the top. EXR files hold those values exactly (float32); PNG and
 JPEG files hold sRGB-encoded 8-bit values in [0, 1] and are converted to and from linear on the way.
 Radiance ``.hdr`` (RGBE) files are read as linear (through OpenCV), for environment maps.
+:func:`read_photo` reads a file as a camera stored it (a fit target that is a photograph): its
+encoded values, bit depth, default camera response and alpha channel (:class:`Photo`), 8- and
+16-bit PNG (grey or RGB, with or without alpha, through OpenCV), JPEG, EXR and HDR.
 Every failure raises :class:`~invrender.errors.ImageError` with a one-line message naming the file.
 """
 
@@ -12,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import kornia
@@ -190,3 +194,125 @@ def decode_srgb(img: Image.Image) -> torch.Tensor:
         srgb = np.asarray(img.convert("RGB"), dtype=np.float32) / 255.0
     linear = kornia.color.rgb_to_linear_rgb(torch.from_numpy(srgb).permute(2, 0, 1))
     return linear.permute(1, 2, 0).contiguous()
+
+
+@dataclass(frozen=True)
+class Photo:
+    """An image file as the camera stored it.
+
+    Attributes:
+        path: the file.
+        values: (H, W, 3) float32 encoded values: code / top code in [0, 1] for an integer file,
+            the stored floats for EXR and HDR; grey replicated to RGB; row 0 at the top.
+        bits: bits per channel of an integer file (8 or 16), None for a float file.
+        alpha: (H, W) float32 alpha in [0, 1] when the file has an alpha channel, else None.
+    """
+
+    path: Path
+    values: torch.Tensor
+    bits: int | None
+    alpha: torch.Tensor | None
+
+    @property
+    def default_response(self) -> str:
+        """``"srgb"`` for an 8- or 16-bit file, ``"linear"`` for a float one."""
+        return "linear" if self.bits is None else "srgb"
+
+    @property
+    def top_code(self) -> int | None:
+        """The largest code of an integer file (255, 65535), None for a float one."""
+        return None if self.bits is None else 2**self.bits - 1
+
+
+def read_photo(path: str | os.PathLike) -> Photo:
+    """Read ``path`` (``.png``, ``.jpg``/``.jpeg``, ``.exr``, ``.hdr``) without converting it:
+    a :class:`Photo` with its encoded values, bit depth and alpha. Raises :class:`ImageError` naming
+    the file when it is missing, of an unknown suffix, or cannot be decoded."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in READ_SUFFIXES:
+        raise ImageError(f"cannot read image {path}: unknown suffix {suffix!r}, expected one of {', '.join(READ_SUFFIXES)}")
+    if not path.is_file():
+        raise ImageError(f"cannot read image {path}: {'file not found' if not path.exists() else 'not a regular file'}")
+    try:
+        if suffix == ".exr":
+            return Photo(path, _read_exr(path), None, None)
+        if suffix == ".hdr":
+            return Photo(path, _read_hdr(path), None, None)
+        if suffix == ".png":
+            return _read_png_codes(path)
+        with Image.open(path) as img:
+            img.load()
+            if img.mode.startswith("I;16"):
+                grey = np.asarray(img, dtype=np.float32) / 65535.0
+                return Photo(path, torch.from_numpy(np.repeat(grey[..., None], 3, axis=-1)), 16, None)
+            alpha = np.asarray(img.getchannel("A"), dtype=np.float32) / 255.0 if "A" in img.getbands() else None
+            rgb = np.asarray(img.convert("RGB"), dtype=np.float32) / 255.0
+        return Photo(path, torch.from_numpy(rgb), 8, None if alpha is None else torch.from_numpy(alpha))
+    except ImageError:
+        raise
+    except Exception as e:
+        raise ImageError(f"cannot read image {path}: not a valid {suffix[1:].upper()} file ({_reason(e)})") from None
+
+
+def _read_png_codes(path: Path) -> Photo:
+    """A PNG's codes through OpenCV (8 or 16 bits, grey, grey + alpha, RGB or RGBA)."""
+    import cv2
+
+    data = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if data is None:
+        raise ImageError(f"cannot read image {path}: not a valid PNG file")
+    if data.dtype not in (np.uint8, np.uint16):
+        raise ImageError(f"cannot read image {path}: expected 8 or 16 bits per channel, got {data.dtype}")
+    bits = 8 if data.dtype == np.uint8 else 16
+    codes = data.astype(np.float32) / float(2**bits - 1)
+    if codes.ndim == 2:
+        codes = codes[..., None]
+    alpha = None
+    if codes.shape[2] in (2, 4):  # grey + alpha or BGRA
+        alpha = torch.from_numpy(np.ascontiguousarray(codes[..., -1]))
+        codes = codes[..., :-1]
+    rgb = np.repeat(codes, 3, axis=-1) if codes.shape[2] == 1 else codes[..., ::-1]
+    return Photo(path, torch.from_numpy(np.ascontiguousarray(rgb)), bits, alpha)
+
+
+def read_mask(path: str | os.PathLike) -> torch.Tensor:
+    """A per-pixel weight image (H, W) in [0, 1] from ``path``: its alpha channel when it has one,
+    else the mean of its channels' encoded values (a black-and-white or grey mask image: white
+    counts, black does not), clamped to [0, 1]."""
+    photo = read_photo(path)
+    weights = photo.alpha if photo.alpha is not None else photo.values.mean(-1)
+    return weights.clamp(0.0, 1.0)
+
+
+def write_photo(path: str | os.PathLike, encoded: torch.Tensor, bits: int = 8, quality: int = 95, subsampling: str = "4:4:4") -> None:
+    """Write (H, W, 3) encoded values in [0, 1] (a camera's output, e.g.
+    :func:`invrender.inverse.sensor.photograph`) quantized to ``bits`` per channel, atomically:
+    ``.jpg``/``.jpeg`` (8 bits; JPEG ``quality`` and chroma ``subsampling``, PIL's names) or
+    ``.png`` (8 or 16 bits). The values are written as they are (no response is applied)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (".png", ".jpg", ".jpeg") or bits not in (8, 16) or (bits == 16 and suffix != ".png"):
+        raise ImageError(f"cannot write photo {path}: 8-bit .jpg/.png or 16-bit .png, got {bits} bits and suffix {suffix!r}")
+    values = _to_rgb_array(encoded, path)
+    if values.min() < 0 or values.max() > 1:
+        raise ImageError(f"cannot write photo {path}: encoded values must lie in [0, 1]")
+    top = 2**bits - 1
+    codes = np.round(values * top).astype(np.uint8 if bits == 8 else np.uint16)
+    try:
+        with atomic_file(path) as f:
+            if bits == 16:
+                import cv2
+
+                ok, data = cv2.imencode(".png", np.ascontiguousarray(codes[..., ::-1]))
+                if not ok:
+                    raise ImageError(f"cannot write photo {path}: OpenCV could not encode it")
+                f.write(data.tobytes())
+            elif suffix == ".png":
+                Image.fromarray(codes, mode="RGB").save(f, format="PNG")
+            else:
+                Image.fromarray(codes, mode="RGB").save(f, format="JPEG", quality=quality, subsampling=subsampling)
+    except ImageError:
+        raise
+    except Exception as e:
+        raise ImageError(f"cannot write photo {path}: {_reason(e)}") from None

@@ -88,13 +88,25 @@ EMISSION = ParamKind("emission", "eps", math.inf, True, "exp", "lr_emission", 1e
 #: lights): the same kind, an RGB triple only
 EMISSION_RGB = dataclasses.replace(EMISSION, texture=False)
 
-#: every kind, by key
+#: every kind of a scene parameter, by key
 KINDS: dict[str, ParamKind] = {k.key: k for k in (REFLECTANCE, SPECULAR_REFLECTANCE, EMISSION)}
+
+#: the owner of the camera's sensor parameters (``"sensor.exposure"``), which every fit has beside
+#: the scene's (invrender.inverse.sensor): ``value = response(exposure_v * white_balance_v * radiance)``
+SENSOR = "sensor"
+#: exposure of a view: a positive scalar, 1 = the scene's radiance as it is (log-space Adam steps)
+EXPOSURE = ParamKind("exposure", "e", math.inf, False, "exp", "lr_sensor", 1e-2, "exposure e of a view, a positive scalar multiplying its radiance")
+#: white balance of a view: RGB gains, green fixed at 1 (the common scale is the exposure's)
+WHITE_BALANCE = ParamKind("white_balance", "wb", math.inf, False, "exp", "lr_sensor", 1e-2, "white balance wb of a view, RGB gains with green = 1")
+SENSOR_KINDS: dict[str, ParamKind] = {k.key: k for k in (EXPOSURE, WHITE_BALANCE)}
 
 
 def kind_of(name: str) -> ParamKind:
-    """The kind of the parameter ``name`` (``"<owner>.<kind>"``)."""
+    """The kind of the parameter ``name`` (``"<owner>.<kind>"``; ``"sensor.exposure"`` and
+    ``"sensor.white_balance"`` are the sensor's)."""
     owner, _, key = name.rpartition(".")
+    if owner == SENSOR and key in SENSOR_KINDS:
+        return SENSOR_KINDS[key]
     if not owner or key not in KINDS:
         raise ParameterError(f"{name!r} is not a parameter name '<owner>.<kind>' with kind one of {', '.join(KINDS)}")
     return KINDS[key]

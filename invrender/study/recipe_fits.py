@@ -80,7 +80,7 @@ def fit_recipe(
     init = {**recipe.init, **(init or {})}
     settings = {**recipe.settings, **(settings or {})}
     report = {"recipe": str(recipe.path)}
-    common = dict(cameras=cameras, truth=truth, resume=resume, progress=progress)
+    common = dict(cameras=cameras, truth=truth, resume=resume, progress=progress, **recipe.photo)
     if not recipe.variants:
         apply_init(scene, recipe.params, init)
         output = fit_into(out, scene, targets, recipe.params, report=report, **common, **settings)

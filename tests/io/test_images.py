@@ -182,3 +182,39 @@ def test_nan_or_inf_raises_and_keeps_target(tmp_path, name, bad):
         write_image(target, img)
     assert target.read_bytes() == b"precious"
     assert _leftovers(tmp_path, {name}) == []
+
+
+def test_read_photo_keeps_codes_bit_depth_and_alpha(tmp_path):
+    """read_photo: 16-bit RGBA and 8-bit grey PNGs (OpenCV), JPEG (PIL), EXR; codes / top code,
+    the bit depth, the alpha channel and the default response."""
+    import cv2
+
+    from invrender.io.images import read_mask, read_photo, write_photo
+
+    rng = np.random.default_rng(0)
+    rgba = rng.integers(0, 65536, size=(5, 7, 4), dtype=np.uint16)
+    cv2.imwrite(str(tmp_path / "a16.png"), rgba[..., [2, 1, 0, 3]])  # OpenCV writes BGRA
+    photo = read_photo(tmp_path / "a16.png")
+    assert photo.bits == 16 and photo.top_code == 65535 and photo.default_response == "srgb"
+    np.testing.assert_array_equal(np.round(photo.values.numpy() * 65535).astype(np.uint16), rgba[..., :3])
+    np.testing.assert_allclose(photo.alpha.numpy(), rgba[..., 3] / 65535.0, rtol=1e-6)
+    torch.testing.assert_close(read_mask(tmp_path / "a16.png"), photo.alpha)
+    grey = rng.integers(0, 256, size=(4, 3), dtype=np.uint8)
+    Image.fromarray(grey, mode="L").save(tmp_path / "g.png")
+    photo = read_photo(tmp_path / "g.png")
+    assert photo.bits == 8 and photo.alpha is None
+    np.testing.assert_array_equal(np.round(photo.values.numpy() * 255).astype(np.uint8), np.repeat(grey[..., None], 3, -1))
+    values = torch.rand(8, 8, 3)
+    write_photo(tmp_path / "p16.png", values, bits=16)
+    assert float((read_photo(tmp_path / "p16.png").values - values).abs().max()) <= 0.5 / 65535 + 1e-7
+    write_photo(tmp_path / "p.jpg", values, quality=100)
+    photo = read_photo(tmp_path / "p.jpg")
+    assert photo.bits == 8 and float((photo.values - values).abs().max()) < 0.05
+    write_image(tmp_path / "f.exr", values * 4)
+    photo = read_photo(tmp_path / "f.exr")
+    assert photo.bits is None and photo.default_response == "linear"
+    torch.testing.assert_close(photo.values, values * 4)
+    with pytest.raises(ImageError, match="p.gif"):
+        read_photo(tmp_path / "p.gif")
+    with pytest.raises(ImageError, match="16-bit .png"):
+        write_photo(tmp_path / "x.jpg", values, bits=16)
