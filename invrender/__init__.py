@@ -18,7 +18,8 @@ Public API::
 
 from invrender import emitters, materials  # noqa: F401  (registers the built-in emitters and materials)
 from invrender.errors import BaselineError, ImageError, InvRenderError, ParameterError, SceneError
-from invrender.inverse.fit import FitResult, fit, identifiability
+from invrender.inverse.fit import FitResult, fit
+from invrender.inverse.identifiability import identifiability
 from invrender.inverse.gradcheck import gradcheck
 from invrender.inverse import lighting
 from invrender.io import read_image, write_image

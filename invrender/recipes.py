@@ -17,8 +17,19 @@ Dataset recipe::
     [[views]]                          # cameras, each as the scene format's [camera]; default: the scene's
     origin = [0, 0, 3.9]
 
+    [photograph]                       # optional: the targets as a camera would store them
+    exposure = 0.6                     # one number, or one per view
+    white_balance = [0.8, 1.0, 1.25]   # RGB gains, or one per view (normalized to green = 1)
+    response = "srgb"                  # the camera's response (docs/photographs.md)
+    format = "jpg"                     # jpg (8 bits) or png (bits = 8 or 16)
+    quality = 95                       # JPEG quality (chroma not subsampled)
+
 ``invrender dataset RECIPE --out DIR`` writes ``view_NN.exr`` (linear) and ``view_NN.png`` (preview),
-``truth.json`` (every parameter's true value) and ``manifest.json`` (scene, settings, views).
+``truth.json`` (every parameter's true value) and ``manifest.json`` (scene, settings, views); with
+``[photograph]``, ``view_NN.jpg`` (or ``.png``) is each view's target instead, made by
+:func:`invrender.inverse.sensor.photograph` (exposure, white balance, clipping, response,
+quantization), ``view_NN.exr`` its linear radiance, and the truth holds ``sensor.exposure`` (V,) and
+``sensor.white_balance`` (V, 3).
 
 Fit recipe::
 
@@ -52,13 +63,14 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 
-from invrender.errors import ParameterError, SceneError
+from invrender.errors import InvRenderError, ParameterError, SceneError
 from invrender.scene import load_scene
 from invrender.scene.camera import Camera
 from invrender.scene.kinds import KINDS as PARAM_KINDS
@@ -66,7 +78,8 @@ from invrender.scene.kinds import kind_of
 from invrender.scene.formats.toml import camera_from_table, check_keys, integer, read_toml, table, vector
 from invrender.scene.scene import AMBIENT, Scene, check_param_value
 
-DATASET_KEYS = {"scene", "resolution", "spp", "max_depth", "seed", "randomize", "set", "views"}
+DATASET_KEYS = {"scene", "resolution", "spp", "max_depth", "seed", "randomize", "set", "views", "photograph"}
+PHOTOGRAPH_KEYS = {"exposure", "white_balance", "response", "format", "bits", "quality"}
 FIT_KEYS = {"dataset", "params", "init", "fit", "photo", "variants"}
 PHOTO_KEYS = {"mask", "response", "sensor", "exclude_clipped"}
 VARIANT_KEYS = {"label", "params", "init"}
@@ -86,6 +99,7 @@ class DatasetRecipe:
     randomize: dict[str, tuple[float, float]]
     fixed: dict[str, object]
     views: list[Camera]
+    photograph: dict | None = None  # the [photograph] table, checked (see make_dataset)
 
 
 @dataclass(frozen=True)
@@ -174,7 +188,45 @@ def load_dataset_recipe(path) -> DatasetRecipe:
         raise ParameterError(f"{where}: 'spp' must be positive")
     max_depth = integer(doc, "max_depth", where) if "max_depth" in doc else 8
     seed = integer(doc, "seed", where) if "seed" in doc else 0
-    return DatasetRecipe(path, scene, (int(width), int(height)), spp, max_depth, seed, randomize, dict(table(doc, "set", where)), cameras)
+    photograph = _photograph(doc["photograph"], f"{where} [photograph]", max(len(cameras), 1)) if "photograph" in doc else None
+    return DatasetRecipe(path, scene, (int(width), int(height)), spp, max_depth, seed, randomize, dict(table(doc, "set", where)), cameras, photograph)
+
+
+def _photograph(doc, where: str, views: int) -> dict:
+    """A dataset recipe's ``[photograph]`` table, checked: exposure (V,) and white balance (V, 3)
+    per view (green = 1: a white balance's green gain is moved into the exposure), response,
+    suffix, bits, quality."""
+    from invrender.io.response import response as make_response
+
+    if not isinstance(doc, dict):
+        raise ParameterError(f"{where}: must be a table")
+    check_keys(doc, PHOTOGRAPH_KEYS, where)
+    exposure = doc.get("exposure", 1.0)
+    exposure = [exposure] * views if isinstance(exposure, (int, float)) and not isinstance(exposure, bool) else exposure
+    wb = doc.get("white_balance", [1.0, 1.0, 1.0])
+    wb = [wb] * views if isinstance(wb, list) and len(wb) == 3 and all(isinstance(x, (int, float)) for x in wb) else wb
+    number = lambda x: isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and x > 0  # noqa: E731
+    if not (isinstance(exposure, list) and len(exposure) == views and all(number(x) for x in exposure)):
+        raise ParameterError(f"{where}: 'exposure' must be a positive number or one per view ({views})")
+    if not (isinstance(wb, list) and len(wb) == views and all(isinstance(g, list) and len(g) == 3 and all(number(x) for x in g) for g in wb)):
+        raise ParameterError(f"{where}: 'white_balance' must be positive [r, g, b] gains or one per view ({views})")
+    response = doc.get("response", "srgb")
+    try:
+        make_response(response)
+    except InvRenderError as e:
+        raise ParameterError(f"{where}: {e}") from None
+    suffix = doc.get("format", "jpg")
+    bits = doc.get("bits", 8)
+    if suffix not in ("jpg", "png") or bits not in (8, 16) or (suffix == "jpg" and bits != 8):
+        raise ParameterError(f"{where}: 'format' must be \"jpg\" (8 bits) or \"png\" ('bits' 8 or 16), got {suffix!r} with {bits!r} bits")
+    quality = doc.get("quality", 95)
+    if isinstance(quality, bool) or not isinstance(quality, int) or not 1 <= quality <= 100:
+        raise ParameterError(f"{where}: 'quality' must be an integer in [1, 100], got {quality!r}")
+    return {
+        "exposure": [float(e) * float(g[1]) for e, g in zip(exposure, wb)],
+        "white_balance": [[float(g[0]) / float(g[1]), 1.0, float(g[2]) / float(g[1])] for g in wb],
+        "response": response, "suffix": "." + suffix, "bits": int(bits), "quality": int(quality),
+    }  # fmt: skip
 
 
 def dataset_scene(recipe: DatasetRecipe) -> Scene:
@@ -216,13 +268,26 @@ def make_dataset(recipe, out, progress: bool = True) -> dict:
     scene = dataset_scene(recipe)
     out = Path(out)
     cameras = recipe.views or [scene.camera]
+    photo = recipe.photograph
     views = []
     for i, camera in enumerate(cameras):
         image = render(scene.with_camera(camera), spp=recipe.spp, max_depth=recipe.max_depth, seed=recipe.seed + 7919 * (i + 1), progress=progress)
         write_image(out / f"view_{i:02d}.exr", image)
-        write_image(out / f"view_{i:02d}.png", image)
-        views.append({"image": f"view_{i:02d}.exr", "camera": dataclasses.asdict(camera)})
-    write_json(out / "truth.json", {k: v.tolist() for k, v in scene.params.items()})
+        if photo is None:
+            write_image(out / f"view_{i:02d}.png", image)
+            views.append({"image": f"view_{i:02d}.exr", "camera": dataclasses.asdict(camera)})
+            continue
+        from invrender.io.images import write_photo
+        from invrender.inverse.sensor import photograph
+
+        name = f"view_{i:02d}{photo['suffix']}"
+        encoded = photograph(image, photo["exposure"][i], photo["white_balance"][i], photo["response"])
+        write_photo(out / name, encoded, bits=photo["bits"], quality=photo["quality"])
+        views.append({"image": name, "radiance": f"view_{i:02d}.exr", "camera": dataclasses.asdict(camera)})
+    truth = {k: v.tolist() for k, v in scene.params.items()}
+    if photo is not None:
+        truth |= {"sensor.exposure": photo["exposure"][: len(cameras)], "sensor.white_balance": photo["white_balance"][: len(cameras)]}
+    write_json(out / "truth.json", truth)
     manifest = {
         "recipe": str(recipe.path),
         "scene": recipe.scene,
@@ -232,13 +297,16 @@ def make_dataset(recipe, out, progress: bool = True) -> dict:
         "seed": recipe.seed,
         "randomized": sorted(recipe.randomize),
         "views": views,
+        **({"photograph": {k: v for k, v in photo.items()}} if photo is not None else {}),
     }
     write_json(out / "manifest.json", manifest)
     return manifest
 
 
-def load_dataset(directory) -> tuple[Scene, list[torch.Tensor], list[Camera], dict[str, torch.Tensor]]:
-    """(scene at the dataset's resolution, targets, cameras, truth) of a generated dataset."""
+def load_dataset(directory) -> tuple[Scene, list, list[Camera], dict[str, torch.Tensor]]:
+    """(scene at the dataset's resolution, targets, cameras, truth) of a generated dataset; the
+    targets are (H, W, 3) linear tensors, or the paths of photographs (``[photograph]``), which a
+    fit reads with their bit depth and response."""
     from invrender.io import read_image
 
     directory = Path(directory)
@@ -255,7 +323,8 @@ def load_dataset(directory) -> tuple[Scene, list[torch.Tensor], list[Camera], di
     except (KeyError, TypeError) as e:
         raise ParameterError(f"{directory / 'manifest.json'} is not an invrender dataset manifest ({type(e).__name__}: {e})") from None
     scene = load_scene(scene_name, resolution=resolution)
-    return scene, [read_image(p) for p in images], cameras, {k: torch.tensor(v) for k, v in truth.items()}
+    targets = [read_image(p) if p.suffix.lower() == ".exr" else str(p) for p in images]
+    return scene, targets, cameras, {k: torch.tensor(v) for k, v in truth.items()}
 
 
 @_recipe_errors

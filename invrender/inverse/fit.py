@@ -215,6 +215,9 @@ class FitResult:
         std_error: name -> standard error of each recovered channel (least-squares solvers).
         targets: per view what the fit used of its target (targets.py): response, pixels
             excluded as saturated or dark, pixels counting.
+        pixels: per view, the (H, W, 3) image of which pixels counted
+            (:meth:`~invrender.inverse.targets.Target.pixels_image`), where a mask or the automatic
+            exclusion left any out; None for a view where every pixel counted.
     """
 
     params: dict[str, torch.Tensor]
@@ -225,6 +228,7 @@ class FitResult:
     truth: dict[str, torch.Tensor] = field(default_factory=dict)
     std_error: dict[str, torch.Tensor] = field(default_factory=dict)
     targets: list[dict] = field(default_factory=list)
+    pixels: list = field(default_factory=list)
 
     @property
     def errors(self) -> dict[str, float]:
@@ -348,7 +352,7 @@ def fit(
 
     recovered = {n: v.detach().clone() for n, v in _values(raw, scene_names, sensor, names).items()}
     out_scene = scene.with_params({n: recovered[n] for n in scene_names}, detach=True)
-    return FitResult(recovered, history, out_scene, cfg, initial, {k: v for k, v in truth.items() if k in names}, targets=[t.report() for _, t in views])
+    return FitResult(recovered, history, out_scene, cfg, initial, {k: v for k, v in truth.items() if k in names}, targets=[t.report() for _, t in views], pixels=_pixels(views))
 
 
 #: the key of the sensor's free log variables among Adam's leaves (and in checkpoints)
@@ -445,34 +449,12 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
         warnings.warn(f"the targets do not determine these parameter combinations: {history[-1]['undetermined']}", stacklevel=3)
     recovered = {n: current[n].float().clone() for n in names}
     out_scene = scene.with_params({n: recovered[n] for n in scene_names}, detach=True)
-    return FitResult(recovered, history, out_scene, cfg, initial, {k: v for k, v in truth.items() if k in names}, {n: std_error[n].float() for n in names}, [t.report() for _, t in views])
+    return FitResult(recovered, history, out_scene, cfg, initial, {k: v for k, v in truth.items() if k in names}, {n: std_error[n].float() for n in names}, [t.report() for _, t in views], _pixels(views))
 
 
-def identifiability(
-    scene: Scene, target, params, *, cameras: list[Camera] | None = None, spp: int = 64, max_depth: int = 8, seed: int = 0, integrator: str = "path",
-    mask=None, response=None, sensor: dict | None = None, exclude_clipped: bool = True,
-):  # fmt: skip
-    """What ``target`` (one image or one per camera) determines about ``params`` at the scene's
-    current values, without fitting: standard errors, correlations and the parameter
-    combinations the targets cannot determine (a near-singular ``J^T J``; e.g. the scale between an
-    emitter's eps and every rho when the emitter is never seen directly), from two independent
-    path records of ``spp`` samples; with ``sensor.exposure`` or ``sensor.white_balance`` among
-    ``params``, the sensor's scale ambiguities against the emissions are named
-    (:meth:`~invrender.inverse.sensor.Sensor.ambiguities`). ``mask``, ``response``, ``sensor`` and
-    ``exclude_clipped`` as in :func:`fit`. Returns an
-    :class:`~invrender.inverse.least_squares.Identifiability`."""
-    from invrender.diff.records import record_paths
-    from invrender.inverse.least_squares import analyse
-
-    names = _check_fit_names(scene, params)
-    views = load_targets(scene, target, cameras, mask=mask, response=response, exclude_clipped=exclude_clipped)
-    sens = Sensor.make(len(views), names, sensor)
-    scene_names = [n for n in names if not is_sensor(n)]
-    if not scene_names:
-        raise ParameterError("identifiability needs a scene parameter among params")
-    recs = [[record_paths(view_scene, scene_names, spp=spp, max_depth=max_depth, seed=2 * (seed * len(views) + v) + half, integrator=integrator, progress=False) for v, (view_scene, _) in enumerate(views)] for half in (0, 1)]
-    values = {n: scene.params[n].detach().double() for n in scene_names}
-    return analyse(recs[0], recs[1], [t for _, t in views], values, sensor=sens, ambiguities=sens.ambiguities(names, scene.params))
+def _pixels(views) -> list:
+    """FitResult.pixels of the views' targets."""
+    return [None if bool((t.mask == 1).all()) else t.pixels_image() for _, t in views]
 
 
 def _control_variate(view_scene: Scene, cfg: FitSettings) -> RecursiveControlVariate:

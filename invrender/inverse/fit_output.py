@@ -3,7 +3,10 @@
 :func:`fit_into` runs :func:`~invrender.inverse.fit.fit` with its checkpoint in the folder and
 writes, beside it, ``report.json`` (initial, recovered and, when known, true values with errors),
 ``loss.png`` (loss and parameter error per step), ``correlation.png`` (least-squares solvers) and
-the recovered scene rendered from each view (``final.exr`` / ``final.png``, or ``final_NN.*``).
+the recovered scene rendered from each view (``final.exr`` / ``final.png``, or ``final_NN.*``), and,
+where a mask or the automatic exclusion of clipped pixels left pixels out, ``pixels.png`` (or
+``pixels_NN.png``): the target where it counted, saturated pixels red, pixels at 0 blue, masked
+ones dark.
 Every file is written atomically; an interrupted fit (Ctrl-C) leaves its checkpoint, from which
 ``resume=True`` continues to the same result.
 """
@@ -75,6 +78,11 @@ def fit_into(
         for suffix in (".exr", ".png"):
             write_image(out / f"{stem}{suffix}", image)
             written.append(out / f"{stem}{suffix}")
+    for i, image in enumerate(result.pixels):  # which pixels counted, where some did not
+        if image is not None:
+            path = out / ("pixels.png" if len(result.pixels) == 1 else f"pixels_{i:02d}.png")
+            write_image(path, image)
+            written.append(path)
     data = report_dict(result, **(report or {}))
     write_json(out / "report.json", data)
     plot_history(result, out / "loss.png")

@@ -292,6 +292,10 @@ class SHFit:
         """The recovered map (h, w, 3) (may be negative where the fit is)."""
         return self.basis.texels(self.coefficients)
 
+    def describe(self) -> str:
+        """The undetermined coefficients, one line (empty when every one is determined)."""
+        return ", ".join(self.undetermined)
+
     def undetermined_orders(self) -> list[int]:
         """The orders all of whose coefficients are undetermined."""
         un = set(self.undetermined)

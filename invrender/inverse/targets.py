@@ -39,6 +39,8 @@ from invrender.io.response import Response, response as make_response
 #: an integer file's pixel is saturated when a channel is at or above this fraction of the top code
 #: (250 of 255: the codes just below the top are where clipping and JPEG ringing meet)
 SATURATION = 0.98
+#: Target.excluded codes
+SATURATED, DARK = 1, 2
 
 
 @dataclass(frozen=True)
@@ -56,6 +58,8 @@ class Target:
         saturated: pixels excluded as saturated.
         dark: pixels excluded at code 0.
         plain: a linear target with every pixel counting (the losses' plain formulas apply).
+        excluded: (H, W) int8 why a pixel was excluded automatically: 0 not (it counts by
+            ``mask``), :data:`SATURATED`, :data:`DARK`; None where nothing was.
     """
 
     label: str
@@ -67,10 +71,22 @@ class Target:
     saturated: int = 0
     dark: int = 0
     plain: bool = True
+    excluded: torch.Tensor | None = None
 
     def to(self, device) -> "Target":
         move = {k: getattr(self, k).to(device) for k in ("linear", "encoded", "weight", "mask")}
-        return Target(self.label, response=self.response, saturated=self.saturated, dark=self.dark, plain=self.plain, **move)
+        return Target(self.label, response=self.response, saturated=self.saturated, dark=self.dark, plain=self.plain, excluded=self.excluded, **move)
+
+    def pixels_image(self) -> torch.Tensor:
+        """(H, W, 3) linear RGB in [0, 1] showing which pixels count: the target (clipped to 1)
+        times each pixel's mask weight, pixels excluded as saturated in red, at 0 in blue, pixels the
+        user's mask leaves out dark grey."""
+        m = self.mask.cpu()[..., None]
+        image = self.linear.cpu().clamp(0.0, 1.0) * m + (1.0 - m) * 0.02
+        if self.excluded is not None:
+            for code, colour in ((SATURATED, (1.0, 0.0, 0.0)), (DARK, (0.0, 0.2, 1.0))):
+                image[self.excluded.cpu() == code] = torch.tensor(colour)
+        return image
 
     def relative_weight(self) -> torch.Tensor:
         """(H, W, 3) float64 the least-squares residual weight: ``relative_l2`` in the target's
@@ -151,19 +167,21 @@ def make_target(t, label: str, size: tuple[int, int], mask=None, response=None, 
         raise ImageError(f"mask {mask_label} excludes every pixel of {label}")
     # the automatic exclusion of clipped pixels (integer files)
     saturated = dark = 0
+    excluded = None
     if exclude and bits is not None:
         top = 2**bits - 1
         sat = (values >= SATURATION).any(-1)
         low = (values * top < 0.5).any(-1) & ~sat
         saturated, dark = int(sat.sum()), int(low.sum())
         weights = weights * (~(sat | low)).float()
+        excluded = (sat.to(torch.int8) * SATURATED + low.to(torch.int8) * DARK) if saturated + dark else None
         if not bool((weights > 0).any()):
             raise ImageError(f"every counting pixel of {label} is saturated or 0 ({saturated} saturated, {dark} at 0): nothing left to fit")
     step = 1.0 / (2**bits - 1) if bits is not None else 1e-3
     slope = resp.slope(values.double(), step).float()
     plain = resp.is_linear and bool((weights == 1).all())
     weight = weights[..., None] / slope
-    return Target(label, linear, values.float(), weight, weights, resp, saturated, dark, plain)
+    return Target(label, linear, values.float(), weight, weights, resp, saturated, dark, plain, excluded)
 
 
 def make_targets(targets: list, labels: list[str], sizes: list[tuple[int, int]], mask=None, response=None, exclude: bool = True) -> list[Target]:

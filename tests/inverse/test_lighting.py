@@ -70,6 +70,12 @@ def test_the_texels_follow_the_envmaps_convention_under_a_rotation():
     assert float((Envmap([0], [{"emission": basis.texels(c) + 5.0}], [{}], scene.triangles).escaped(d.float()).double() - expected).abs().max()) > 0.1
 
 
+def test_identifiability_in_harmonics_takes_one_envmap():
+    scene, _ = sphere_views()
+    with pytest.raises(ParameterError, match=r"one environment map's emission in spherical harmonics, got params \['ball.reflectance'\]"):
+        ir.identifiability(scene, torch.zeros(8, 8, 3), ["ball.reflectance"], order=2)
+
+
 def test_bad_orders_shapes_and_values_are_one_line_errors():
     for order, shape, match in [(-1, (9, 16), r"order must be in \[0, 4\]"), (5, (9, 16), r"\[0, 4\] \(the map is 9 x 16"), (1.5, (9, 16), "integer"), (17, (99, 200), r"\[0, 16\]")]:
         with pytest.raises(ParameterError, match=match) as e:
@@ -152,9 +158,9 @@ def test_a_diffuse_sphere_determines_orders_0_to_2_and_not_3_or_5():
     lit = scene.with_params({"sky.emission": basis.texels(truth)})
     hidden = {"type": "path", "hide_emitters": True, "strategy": "bsdf"}
     targets = [ir.render(lit.with_camera(c), hidden, spp=1024, max_depth=2, seed=7, progress=False) for c in cameras]
-    fit = L.fit_sh(scene, targets, "sky", 5, cameras=cameras, integrator=hidden, spp=192, max_depth=2, sampler="antithetic")
+    fit = ir.identifiability(scene, targets, ["sky.emission"], cameras=cameras, integrator=hidden, spp=192, max_depth=2, sampler="antithetic", order=5)
     print("singular values / noise (R):", (fit.singular_values[0] / fit.noise[0]).numpy().round(1).tolist())
-    assert {3, 5} <= set(fit.undetermined_orders())
+    assert {3, 5} <= set(fit.undetermined_orders()) and "Y[3,-3]" in fit.describe()
     assert not any(label.startswith(("Y[0", "Y[1", "Y[2")) for label in fit.undetermined), fit.undetermined
     err = (fit.coefficients[:4] - truth[:4]).abs()
     assert bool((err < 4 * fit.std_error[:4] + 1e-3).all()), (fit.coefficients[:4], fit.std_error[:4])
@@ -175,5 +181,5 @@ def test_a_glossy_sphere_determines_the_orders_a_diffuse_one_cannot():
     fit = L.fit_sh(glossy, targets, "sky", 5, cameras=cameras, integrator=hidden, spp=64, max_depth=2, sampler="antithetic")
     ratio = fit.singular_values / fit.noise
     print("singular values / noise (R):", ratio[0].numpy().round(1).tolist())
-    assert fit.undetermined == [] and fit.undetermined_orders() == []
+    assert fit.undetermined == [] and fit.undetermined_orders() == [] and fit.describe() == ""
     assert float(ratio.min()) > 4.0
