@@ -72,7 +72,7 @@ def add_parser(sub) -> None:
     f.add_argument("--params", help="comma-separated parameter names, e.g. red.reflectance,light.emission")
     f.add_argument("--init", action="append", default=[], metavar="KEY=VALUE", help="starting value: NAME=v or NAME=r,g,b; NAME may be a kind (reflectance, specular_reflectance, emission) for all fitted ones of it (repeatable)")
     f.add_argument("--resolution", type=parse_resolution, default=None, metavar="WxH", help="render size (default: the target's)")
-    f.add_argument("--out", required=True, help="output folder: report.json, loss.png, final.exr, final.png, checkpoint.pt")
+    f.add_argument("--out", required=True, help="output folder: report.json, loss.png, final.exr, final.png, checkpoint.pt (correlation.png for lm, pixels.png where pixels were left out)")
     f.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt with the settings stored in it, except those given anew")
     # photographs (docs/photographs.md): masks, the camera response, the sensor
     f.add_argument("--mask", nargs="+", metavar="IMAGE", help="pixel weights: one mask image for every target or one per target (white counts, black does not; default: a PNG target's alpha)")
@@ -174,5 +174,7 @@ def _summary(args, output) -> None:
         err = f"  (rel. error {result.errors[name]:.2%})" if name in result.errors else ""
         print(f"  {name}: {fmt(value)}{err}", file=sys.stderr)
     folder = output.written[0].parent
-    figures = "loss.png, correlation.png" if any(p.name == "correlation.png" for p in output.written) else "loss.png"
-    print(f"wrote {folder}/report.json, {figures}, final EXR and PNG, checkpoint.pt", file=sys.stderr)
+    names = {p.name for p in output.written}
+    figures = ", ".join(n for n in ("loss.png", "correlation.png") if n in names)
+    pixels = ", pixels*.png (the pixels that counted)" if any(n.startswith("pixels") for n in names) else ""
+    print(f"wrote {folder}/report.json, {figures}, final EXR and PNG{pixels}, checkpoint.pt", file=sys.stderr)

@@ -56,6 +56,60 @@ def test_dataset_command_writes_views_truth_manifest(tmp_path, capsys):
     assert (tmp_path / "d" / "view_00.png").exists()
 
 
+PHOTOGRAPH = """
+[photograph]
+exposure = [0.5, 2.0]
+white_balance = [0.8, 2.0, 1.0]
+format = "png"
+bits = 16
+"""
+
+
+def test_a_photograph_dataset_writes_the_camera_files_and_the_sensor_truth(tmp_path):
+    """``[photograph]``: each view's target is the photograph (16-bit PNG here) of its linear
+    render (kept as view_NN.exr), the truth holds the sensor per view with the white balance
+    normalized to green = 1 (its green gain moved into the exposure), and load_dataset gives the
+    photographs as paths, which fit reads with their bit depth; the file's codes are the sensor
+    applied to the radiance."""
+    from invrender.inverse.sensor import photograph
+    from invrender.io.images import read_photo
+    from invrender.recipes import load_dataset, make_dataset
+
+    (tmp_path / "data.toml").write_text(DATASET + PHOTOGRAPH)
+    make_dataset(tmp_path / "data.toml", tmp_path / "d", progress=False)
+    truth = json.loads((tmp_path / "d" / "truth.json").read_text())
+    assert truth["sensor.exposure"] == [1.0, 4.0] and truth["sensor.white_balance"] == [[0.4, 1.0, 0.5]] * 2
+    _, targets, cameras, _ = load_dataset(tmp_path / "d")
+    assert targets == [str(tmp_path / "d" / f"view_{i:02d}.png") for i in range(2)] and len(cameras) == 2
+    radiance = ir.read_image(tmp_path / "d" / "view_01.exr")
+    photo = read_photo(targets[1])
+    assert photo.bits == 16
+    expected = photograph(radiance, 4.0, (0.4, 1.0, 0.5))
+    assert float((photo.values - expected).abs().max()) <= 0.5 / 65535 + 1e-6
+
+
+@pytest.mark.parametrize(
+    "table, words",
+    [
+        ('exposure = -1', "'exposure' must be a positive number or one per view (2)"),
+        ('exposure = [1, 2, 3]', "'exposure' must be a positive number or one per view (2)"),
+        ('white_balance = [1, 0, 1]', "'white_balance' must be positive [r, g, b] gains"),
+        ('response = "log"', "unknown response"),
+        ('format = "jpg"\nbits = 16', "'format' must be \"jpg\" (8 bits)"),
+        ('quality = 0', "'quality' must be an integer in [1, 100]"),
+        ('iso = 100', "iso"),
+    ],
+)
+def test_bad_photograph_tables_are_one_line_errors(table, words, tmp_path):
+    from invrender.errors import ParameterError
+    from invrender.recipes import load_dataset_recipe
+
+    (tmp_path / "data.toml").write_text(DATASET + "[photograph]\n" + table + "\n")
+    with pytest.raises(ParameterError) as e:
+        load_dataset_recipe(tmp_path / "data.toml")
+    assert words in str(e.value) and "[photograph]" in str(e.value) and "\n" not in str(e.value)
+
+
 def test_fit_recipe_writes_report_plot_render_checkpoint_and_resumes(recipe, tmp_path, capsys, monkeypatch):
     out = tmp_path / "run"
     assert main(["fit", str(recipe), "--out", str(out), "--quiet"]) == 0
@@ -147,7 +201,7 @@ def test_gradcheck_command(capsys):
 
 def test_every_shipped_recipe_parses_and_names_real_parameters():
     """Each optimize/ recipe and its dataset load, and every fitted and randomized name is a
-    parameter of the dataset's scene (with its initial values applied)."""
+    parameter of the dataset's scene (with its initial values applied) or of the sensor."""
     from pathlib import Path
 
     from invrender.recipes import apply_init, dataset_scene, load_fit_recipe
@@ -161,7 +215,9 @@ def test_every_shipped_recipe_parses_and_names_real_parameters():
         assert set(recipe.dataset.randomize) <= set(scene.params), path
         names = recipe.params + [n for v in recipe.variants for n in v.params]
         apply_init(scene, names, recipe.init)
-        assert set(recipe.params) <= set(scene.params), path
+        from invrender.inverse.sensor import is_sensor
+
+        assert {n for n in recipe.params if not is_sensor(n)} <= set(scene.params), path
 
 
 def test_every_fit_setting_has_a_flag():
