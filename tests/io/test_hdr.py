@@ -248,3 +248,23 @@ def test_grey_and_palette_images_are_8_bit(tmp_path):
         paths.append(tmp_path / f"g{t:g}.png")
     hdr, response = merge_bracket(paths, list(TIMES[:3]))
     assert torch.equal(hdr[..., 0], hdr[..., 2]) and torch.equal(response[:, 0], response[:, 1])
+
+
+def test_the_recovered_curve_is_a_response_fit_accepts(tmp_path):
+    """The CSV ``invrender hdr`` writes is what ``response=`` reads: decoding each code gives the
+    curve's value, and the recovered curve decodes an sRGB photograph within 3% of the sRGB
+    response itself (after the per-channel scale)."""
+    from invrender.io.response import response as make_response
+
+    e = radiance()
+    _, curve = merge_images([photograph(e, t) for t in TIMES], TIMES)
+    path = tmp_path / "curve.csv"
+    write_response_csv(path, curve)
+    read = make_response(str(path))
+    codes = torch.arange(256, dtype=torch.float64) / 255
+    decoded = read.decode(codes[:, None].expand(256, 3).contiguous())
+    torch.testing.assert_close(decoded.float(), curve / curve[-1], rtol=1e-6, atol=1e-7)
+    truth = make_response("srgb").decode(codes[:, None].expand(256, 3).contiguous())
+    mid = slice(16, 251)
+    ratio = decoded[mid] / truth[mid]
+    assert float((ratio / ratio.median(0).values - 1).abs().max()) < 0.03
