@@ -37,9 +37,10 @@ camera) and ``wi`` (towards the light) at cosines ``c_o``, ``c_i`` with the norm
 
 Sampling (both): the specular lobe with probability ``P_s = a w / (a w + (1 - a)(1 - w))``, else
 cosine-weighted directions, where ``a`` is ``F(c_o)`` (plastic) or ``1 - T(c_o)`` (roughplastic) and
-``w = mean(k_s) / (mean(rho) + mean(k_s))`` is Mitsuba's specular sampling weight, per material
-from the detached parameter values when the BSDF is built (so sampling never depends on a
-differentiable parameter, yet follows them from one render to the next). The rough lobe samples
+``w = mean(k_s) / (mean(rho) + mean(k_s))`` is Mitsuba's specular sampling weight, computed from
+the values a scene is built with and kept as the constant ``specular_sampling_weight`` (or given),
+so sampling never depends on a differentiable parameter: finite differences with common random
+numbers stay exact, and a fit only changes how well it samples, never what it estimates. The rough lobe samples
 visible normals; its ``pdf`` is ``P_s D G1(wo) / (4 c_o) + (1 - P_s) c_i / pi`` and a sample's
 weight is ``f cos / pdf`` of the whole BSDF, as Mitsuba's.
 
@@ -75,6 +76,8 @@ COATING_CONSTANTS = {
     "int_ior": Constant(NAMED_IOR["polypropylene"], 0.0, math.inf, True, True, names=NAMED_IOR),
     "ext_ior": Constant(NAMED_IOR["air"], 0.0, math.inf, True, True, names=NAMED_IOR),
     "nonlinear": Constant(False, 0.0, 1.0, False, False, boolean=True),
+    # Mitsuba's, for the defaults rho 0.5 and k_s 1; computed from the values unless given (resolve)
+    "specular_sampling_weight": Constant(2.0 / 3.0, 0.0, 1.0, False, False),
 }
 
 
@@ -86,6 +89,11 @@ def fresnel_diffuse_reflectance(eta: float) -> float:
         return 0.0636 / eta + eta * (eta * -1.4399 + 0.7099) + 0.6681
     x = 1.0 / eta
     return float(np.polyval([-1.36881, 4.98554, -7.80989, 6.75335, -3.4793, 0.919317], x))
+
+
+def _mean(value) -> float:
+    """The mean of a colour (a number, an RGB triple or a texture; arrays or tensors)."""
+    return float(np.mean(np.asarray(value.detach().cpu() if torch.is_tensor(value) else value, dtype=np.float64)))
 
 
 def cosine_hemisphere(u: torch.Tensor) -> torch.Tensor:
@@ -154,15 +162,8 @@ class Coated(BSDF):
         return self.constant("int_ior", sp) / self.constant("ext_ior", sp)
 
     def _spec_weight(self, sp: ShadingPoint) -> torch.Tensor:
-        """(N,) Mitsuba's specular sampling weight ``mean(k_s) / (mean(rho) + mean(k_s))`` of each
-        point's material, from its detached values (0.5 when both are 0)."""
-
-        def weight(i: int) -> float:
-            d = float(self.values[i]["reflectance"].detach().double().mean())
-            s = float(self.values[i]["specular_reflectance"].detach().double().mean())
-            return s / (d + s) if d + s > 0 else 0.5
-
-        return self._per_material("specular_sampling_weight", sp.wo.device, weight).index_select(0, sp.material)
+        """(N,) the specular sampling weight of each point's material (a constant: :meth:`resolve`)."""
+        return self.constant("specular_sampling_weight", sp)
 
     @staticmethod
     def _lobe_choice(a: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
@@ -182,9 +183,26 @@ class Coated(BSDF):
         return self.param("reflectance", sp)
 
     @classmethod
+    def not_polynomial(cls, key: str, constants: dict) -> str | None:
+        """Path records: the rough plastic's ``f`` sums its two lobes (no single monomial in
+        ``k_s`` and ``rho``), and ``nonlinear`` makes ``rho / (1 - rho F_dr)``; the smooth one
+        with ``nonlinear = false`` is linear in each, lobe by lobe."""
+        if cls.has(Lobe.GLOSSY):
+            return f"a {cls.type_name}'s value sums two lobes (k_s times the coating's, rho times the base's), not one monomial"
+        if key == "reflectance" and constants.get("nonlinear"):
+            return "with nonlinear = true the base's factor rho / (1 - rho F_dr) is not a polynomial in rho"
+        return None
+
+    @classmethod
     def resolve(cls, where: str, values: dict, constants: dict, given: set) -> dict:
+        """Mitsuba's specular sampling weight ``mean(k_s) / (mean(rho) + mean(k_s))`` (over channels
+        and texels; 0.5 when both are 0) from the values the scene is built with, unless given;
+        the rough plastic's indices must differ (as Mitsuba's)."""
         if constants["int_ior"] == constants["ext_ior"] and cls.has(Lobe.GLOSSY):
             raise SceneError(f"{where}: 'int_ior' and 'ext_ior' must differ (both {constants['int_ior']:g}), as Mitsuba's roughplastic requires")
+        if "specular_sampling_weight" not in given:
+            d, s = (_mean(values[k]) for k in ("reflectance", "specular_reflectance"))
+            constants = {**constants, "specular_sampling_weight": s / (d + s) if d + s > 0 else 0.5}
         return constants
 
     # ---- its aliases in the scene formats (read through the registry)
