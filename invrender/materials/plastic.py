@@ -330,8 +330,8 @@ class RoughPlastic(Coated):
         """(N,) T at cosines ``cos`` (N,), linear in the table (Mitsuba's ``lerp_gather``)."""
         x = cos.clamp(0.0, 1.0) * (TABLE_SIZE - 1)
         i = x.long().clamp_max(TABLE_SIZE - 2)
-        rows = table.index_select(0, sp.material)
-        t0, t1 = rows.gather(1, i[:, None])[:, 0], rows.gather(1, i[:, None] + 1)[:, 0]
+        flat = sp.material * TABLE_SIZE + i  # into the (M * 64,) table: no (N, 64) rows
+        t0, t1 = table.reshape(-1).index_select(0, flat), table.reshape(-1).index_select(0, flat + 1)
         return t0 + (t1 - t0) * (x - i)
 
     def _terms(self, sp: ShadingPoint, wl: torch.Tensor, value: bool = True) -> tuple[torch.Tensor | None, torch.Tensor]:
