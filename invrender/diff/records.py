@@ -531,6 +531,11 @@ def record_paths(
     names = check_names(scene.params, params)
     if isinstance(max_depth, bool) or not isinstance(max_depth, int) or max_depth < 1:
         raise ParameterError(f"record_paths needs a finite max_depth >= 1 (it bounds the polynomial's degree), got {max_depth!r}")
+    for n in names:  # a material's parameter that is not a monomial factor of its weights (a plastic's two lobes)
+        owner, _, key = n.rpartition(".")
+        spec = scene.material_spec(scene.materials.index(owner)) if owner in scene.materials else None
+        if spec is not None and (why := spec.spec.not_polynomial(key, spec.constants)):
+            raise ParameterError(f"{n} cannot be recorded as path records: {why}; fit it with solver 'adam'")
     slots, offset = [], 0
     for p, n in enumerate(names):
         v = scene.params[n]

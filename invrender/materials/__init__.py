@@ -10,10 +10,11 @@ The table of types (docs/plugins.md) is generated from these declarations
 (:func:`invrender.scene.plugins.plugin_table`).
 """
 
-from invrender.materials import diffuse, mirror, dielectric, glossy  # noqa: F401  (registration order)
+from invrender.materials import diffuse, mirror, dielectric, glossy, plastic  # noqa: F401  (registration order)
 from invrender.materials.dielectric import Dielectric
 from invrender.materials.diffuse import Diffuse
 from invrender.materials.glossy import Glossy
 from invrender.materials.mirror import Mirror
+from invrender.materials.plastic import Plastic, RoughPlastic, RoughPlasticGGX
 
-__all__ = ["Diffuse", "Mirror", "Dielectric", "Glossy"]
+__all__ = ["Diffuse", "Mirror", "Dielectric", "Glossy", "Plastic", "RoughPlastic", "RoughPlasticGGX"]

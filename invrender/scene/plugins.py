@@ -35,6 +35,8 @@ class Constant:
 
     With ``size`` > 1 it is a vector of that many numbers (a light's ``position``, ``direction``),
     given as a list and kept as a tuple of floats, each in the interval; ``default`` is then a tuple.
+    With ``names`` (name -> number) it may also be given as one of those names (a plastic's
+    ``int_ior = "bk7"``); with ``boolean`` it is ``true``/``false`` only, kept as 1.0/0.0.
     """
 
     default: float | tuple
@@ -43,8 +45,18 @@ class Constant:
     low_open: bool = True
     high_open: bool = False
     size: int = 1
+    names: dict | None = field(default=None, compare=False, hash=False)
+    boolean: bool = False
 
     def check(self, where: str, key: str, value) -> float | tuple:
+        if self.boolean:
+            if not isinstance(value, bool) and value not in (0.0, 1.0):
+                raise SceneError(f"{where}: '{key}' must be true or false, got {value!r}")
+            return float(value)
+        if self.names is not None and isinstance(value, str):
+            if value.strip().lower() not in self.names:
+                raise SceneError(f"{where}: unknown {key} {value!r} (a number or one of {', '.join(self.names)})")
+            value = self.names[value.strip().lower()]
         if self.size > 1:
             if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != self.size:
                 raise SceneError(f"{where}: '{key}' must be a list of {self.size} numbers, got {value!r}")
@@ -151,7 +163,10 @@ def _default(value) -> str:
 
 
 def _interval(c: Constant) -> str:
-    return f"{'(' if c.low_open else '['}{_number(c.low)}, {_number(c.high)}{')' if c.high_open else ']'}"
+    if c.boolean:
+        return "{false, true}"
+    interval = f"{'(' if c.low_open else '['}{_number(c.low)}, {_number(c.high)}{')' if c.high_open else ']'}"
+    return f"{interval} or a named medium" if c.names else interval
 
 
 def plugin_table(plugins: Registry, extra: tuple[str, object] | None = None) -> str:
@@ -166,7 +181,7 @@ def plugin_table(plugins: Registry, extra: tuple[str, object] | None = None) -> 
         params = "<br>".join(
             f"`{k}` {p.kind.symbol}, default {_default(p.default)}" + (" (RGB or texture)" if p.kind.texture else " (RGB)") for k, p in cls.params.items()
         )
-        constants = "<br>".join(f"`{k}`{f' ({c.size} numbers)' if c.size > 1 else ''} in {_interval(c)}, default {_default(c.default)}" for k, c in cls.constants.items())
+        constants = "<br>".join(f"`{k}`{f' ({c.size} numbers)' if c.size > 1 else ''} in {_interval(c)}, default {str(bool(c.default)).lower() if c.boolean else _default(c.default)}" for k, c in cls.constants.items())
         mitsuba = ", ".join(f"`{m}`" for m in vars(cls).get("mitsuba_plugins", ()))
         row = f"| `{name}` | {cls.doc} | {params or '--'} | {constants or '--'} | {mitsuba or '--'} |"
         rows.append(row + (f" {extra[1](cls)} |" if extra else ""))

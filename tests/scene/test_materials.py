@@ -106,7 +106,7 @@ def test_every_kind_and_type_is_registered_once():
 @pytest.mark.parametrize(
     "floor, camera, message",
     [
-        ('type = "plastic"', "", r"\[materials.floor\]: unknown material type 'plastic' \(known: diffuse, mirror, dielectric, glossy, glossy_beckmann\)"),
+        ('type = "principled"', "", r"\[materials.floor\]: unknown material type 'principled' \(known: diffuse, mirror, dielectric, glossy, glossy_beckmann, plastic, roughplastic, roughplastic_ggx\)"),
         ('type = "diffuse"\nroughness = 0.2', "", r"\[materials.floor\]: unknown key 'roughness'"),
         ('type = "glossy"\nroughness = 0', "", r"\[materials.floor\]: 'roughness' must lie in \(0, 1\], got 0"),
         ('type = "glossy"\nroughness = 1.5', "", r"'roughness' must lie in \(0, 1\], got 1.5"),

@@ -227,6 +227,13 @@ class BSDF(Declared, ABC):
         diffuse part."""
         return None
 
+    @classmethod
+    def not_polynomial(cls, key: str, constants: dict) -> str | None:
+        """Why parameter ``key`` of a material with ``constants`` is not one factor of each of its
+        sample weights and ``eval`` values (path records need one monomial per contribution), or
+        None when it is (every reflectance-like factor of the single-lobe materials)."""
+        return None
+
 
 class DeltaBSDF(BSDF):
     """A BSDF with delta lobes only (mirror, smooth glass): no density to evaluate or sample

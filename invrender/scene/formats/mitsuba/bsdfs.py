@@ -23,9 +23,9 @@ BSDFs (``<bsdf type=...>``)
     another ``twosided``.
 
 Deviations from Mitsuba
-    - invrender's diffuse, mirror and glossy materials are two-sided: one-sided Mitsuba materials
-      (diffuse, conductor, roughconductor without ``twosided``) are rendered two-sided (Mitsuba
-      renders their back side black).
+    - invrender's diffuse, mirror, glossy and plastic materials are two-sided: one-sided Mitsuba
+      materials (diffuse, conductor, roughconductor, plastic, roughplastic without ``twosided``)
+      are rendered two-sided (Mitsuba renders their back side black).
 """
 
 from __future__ import annotations
