@@ -514,7 +514,8 @@ def record_paths(
     Args:
         scene: its parameter values are the record point (every recorded value must be > 0 in
             every channel and texel: a path's weight is recovered by dividing by its monomial there).
-        params: names of parameters to record (list or comma-separated): constants (RGB) and
+        params: names of parameters to record (list or comma-separated; polynomial kinds only,
+            not a roughness): constants (RGB) and
             textured reflectances (per texel), and environment maps (``envmap``'s ``NAME.emission``,
             per texel: every contribution ending on the map is linear in the four texels its
             direction reads).
@@ -529,6 +530,9 @@ def record_paths(
         up to float rounding.
     """
     names = check_names(scene.params, params)
+    for n in names:
+        if not kind_of(n).polynomial:
+            raise ParameterError(f"{n}: path records (solver 'lm', identifiability) cannot represent a {kind_of(n).key}, which is not a polynomial factor of a path's weight; fit it with solver 'adam'")
     if isinstance(max_depth, bool) or not isinstance(max_depth, int) or max_depth < 1:
         raise ParameterError(f"record_paths needs a finite max_depth >= 1 (it bounds the polynomial's degree), got {max_depth!r}")
     slots, offset = [], 0
