@@ -2,7 +2,8 @@
 
 Sampling never depends on a differentiable parameter (``docs/architecture.md``, detached sampling),
 so once paths are traced every contribution a path adds to a pixel is a *monomial* in the
-parameters, per colour channel:
+parameters of polynomial kinds (not a roughness: its D and G terms enter non-linearly, and
+:func:`record_paths` refuses it), per colour channel:
 
     contribution_c = w_c * prod_p v_{p,c} ^ k_p
 

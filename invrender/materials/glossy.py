@@ -111,10 +111,11 @@ class Glossy(ConductorFresnel, BSDF):
     def from_mitsuba(cls, bsdf) -> dict:
         """Mitsuba's ``roughconductor``: ``distribution`` beckmann (Mitsuba's default: type
         glossy_beckmann) or ggx (type glossy), isotropic ``alpha`` (the roughness, default 0.1),
-        ``material`` (a named metal, default none) or ``eta``/``k``, ``specular_reflectance``,
+        ``material`` (a named metal, default none) or ``eta``/``k``, ``specular_reflectance`` (a
+        colour or a bitmap texture),
         ``sample_visible`` (read; invrender always samples visible normals)."""
         ior = bsdf.conductor(METAL_IORS)
-        ks = bsdf.colour("specular_reflectance", SPECULAR_REFLECTANCE, 1.0, texture=False)
+        ks = bsdf.colour("specular_reflectance", SPECULAR_REFLECTANCE, 1.0)
         name = (bsdf.string("distribution", allowed=("beckmann", "ggx")) or "beckmann").lower()
         target = GlossyBeckmann if name == "beckmann" else Glossy
         for key in ("alpha_u", "alpha_v"):

@@ -94,8 +94,10 @@ class ParamKind:
 
 REFLECTANCE = ParamKind("reflectance", "rho", 1.0, True, "sigmoid", "lr", 1e-2, "diffuse albedo rho, in [0, 1]")
 SPECULAR_REFLECTANCE = ParamKind(
-    "specular_reflectance", "k_s", 1.0, False, "sigmoid", "lr", 1e-2, "specular reflectance k_s of a mirror or glossy conductor, in [0, 1]"
+    "specular_reflectance", "k_s", 1.0, True, "sigmoid", "lr", 1e-2, "specular reflectance k_s of a mirror or glossy conductor, in [0, 1]"
 )
+#: specular reflectance that cannot vary over a surface (a mirror's): the same kind, RGB only
+SPECULAR_REFLECTANCE_RGB = dataclasses.replace(SPECULAR_REFLECTANCE, texture=False)
 EMISSION = ParamKind("emission", "eps", math.inf, True, "exp", "lr_emission", 1e-2, "emitted radiance eps, >= 0")
 
 #: emission that cannot vary over a surface (lights without one: skies, point, spot and directional
@@ -105,10 +107,11 @@ EMISSION_RGB = dataclasses.replace(EMISSION, texture=False)
 # ---- microfacet roughness (glossy materials): not a polynomial factor of a path's weight
 
 #: the roughness alpha of a microfacet distribution (GGX, Beckmann), in (0, 1]: one number (kept
-#: as three equal channels); fitted as sigmoid(x) in logit units (``lr``); path records cannot
-#: represent it (fit it with Adam)
+#: as three equal channels), or a map over the mesh UVs ((h, w), kept as (h, w, 3) grey texels,
+#: filtered bilinearly as reflectance textures are); fitted as sigmoid(x) in logit units (``lr``);
+#: path records cannot represent it (fit it with Adam)
 ROUGHNESS = ParamKind(
-    "roughness", "alpha", 1.0, False, "sigmoid", "lr", 1e-2, "microfacet roughness alpha of a glossy material, in (0, 1]",
+    "roughness", "alpha", 1.0, True, "sigmoid", "lr", 1e-2, "microfacet roughness alpha of a glossy material, in (0, 1]",
     positive=True, polynomial=False, grey=True,
 )  # fmt: skip
 
