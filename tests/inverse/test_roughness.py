@@ -174,3 +174,21 @@ def test_a_mirror_refuses_a_specular_map_a_glossy_takes_one():
         build_scene([primitive("rectangle", "m")], {"m": Material.of("mirror", specular_reflectance=maps)}, {}, Camera(), (4, 4))
     scene = build_scene([primitive("rectangle", "m")], {"m": Material.of("glossy", specular_reflectance=maps, roughness=torch.full((2, 2), 0.2))}, {}, Camera(), (4, 4))
     assert scene.params["m.roughness"].shape == (2, 2, 3)
+
+
+def test_adam_recovers_a_roughness_map():
+    """A 1 x 2 map (0.2 left, 0.4 right) from 0.1 everywhere, under two lamps whose highlights fall
+    mostly on one texel each."""
+    meshes = [primitive("rectangle", "plate").transformed(scale([1.5, 1.5, 1.0]))]
+    for x in (-0.75, 0.75):
+        meshes.append(primitive("rectangle", "lamp", "light").transformed(translate([x, 0.8, 1.2]) @ rotate([1, 0, 0], 150) @ scale([0.12, 0.12, 1])))
+    camera = Camera(origin=(0, -2.0, 2.2), target=(0, 0.2, 0), fov=50, fov_axis="x")
+
+    def scene(alpha):
+        materials = {"plate": Material.of("glossy", specular_reflectance=[0.8, 0.7, 0.6], roughness=alpha), "lamp": 0.0}
+        return build_scene(meshes, materials, {"light": [30.0, 30.0, 30.0]}, camera, (16, 8))
+
+    truth = scene([[0.2, 0.4]])
+    target = ir.render(truth, spp=512, max_depth=2, seed=9, progress=False)
+    res = ir.fit(scene([[0.1, 0.1]]), target, ["plate.roughness"], steps=120, spp=4, spp_final=16, lr=0.1, max_depth=2, progress=False, truth={"plate.roughness": truth.params["plate.roughness"]})
+    assert res.errors["plate.roughness"] < 0.02, res.params["plate.roughness"][..., 0]
