@@ -125,6 +125,13 @@ def test_toml_and_mitsuba_alpha_load_as_the_parameter(tmp_path):
         '[[shapes]]\ntype = "rectangle"\nmaterial = "metal"\n[[shapes]]\ntype = "sphere"\nmaterial = "metal"\nemitter = "light"\n'
     )
     assert ir.load_scene(toml).params["metal.roughness"].tolist() == pytest.approx([0.2] * 3)
+    from invrender.io.images import write_image
+
+    write_image(tmp_path / "alpha.exr", torch.tensor([[0.2, 0.4], [0.3, 0.1]])[:, :, None].expand(-1, -1, 3).contiguous())
+    toml.write_text(toml.read_text().replace("roughness = 0.2", 'roughness_texture = "alpha.exr"\nspecular_reflectance_texture = "alpha.exr"'))
+    scene = ir.load_scene(toml)
+    torch.testing.assert_close(scene.params["metal.roughness"][..., 0], torch.tensor([[0.2, 0.4], [0.3, 0.1]]))
+    assert scene.params["metal.specular_reflectance"].shape == (2, 2, 3)
     xml = tmp_path / "s.xml"
     xml.write_text(
         '<scene version="3.0.0"><sensor type="perspective"><float name="fov" value="40"/>'
