@@ -133,7 +133,10 @@ class Glossy(ConductorFresnel, BSDF):
 
     @classmethod
     def to_mitsuba(cls, values: dict, constants: dict) -> dict:
-        inner = {"type": "roughconductor", **cls.mitsuba_ior(constants), "distribution": cls.distribution.name, "alpha": float(values["roughness"].reshape(-1)[0])}
+        alpha = values["roughness"]
+        if alpha.ndim != 1:
+            raise ValueError("a roughness map has no Mitsuba counterpart here (alpha is written as one number)")
+        inner = {"type": "roughconductor", **cls.mitsuba_ior(constants), "distribution": cls.distribution.name, "alpha": float(alpha[0])}
         return {"type": "twosided", "bsdf": {**inner, "sample_visible": True, "specular_reflectance": values["specular_reflectance"]}}
 
 
