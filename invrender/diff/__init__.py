@@ -109,7 +109,7 @@ def render(
         return_counts: with ``adaptive``, return an
             :class:`~invrender.transport.adaptive.AdaptiveResult` (image, samples per pixel,
             estimated relative error) instead of the image alone.
-        sampling_params: values (name -> tensor, all or some) the emitters' sampling is built from
+        sampling_params: values (name -> tensor, all or some) the emitters' and BSDFs' sampling is built from
             instead of ``scene.params`` (see :class:`~invrender.transport.driver.RenderSettings`):
             for finite differences whose renders must draw the same paths.
         options: further settings of the integrator, e.g. for ``path`` ``strategy`` (``"mis"``,

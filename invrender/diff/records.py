@@ -2,7 +2,8 @@
 
 Sampling never depends on a differentiable parameter (``docs/architecture.md``, detached sampling),
 so once paths are traced every contribution a path adds to a pixel is a *monomial* in the
-parameters, per colour channel:
+parameters of polynomial kinds (not a roughness: its D and G terms enter non-linearly, and
+:func:`record_paths` refuses it), per colour channel:
 
     contribution_c = w_c * prod_p v_{p,c} ^ k_p
 
@@ -514,7 +515,8 @@ def record_paths(
     Args:
         scene: its parameter values are the record point (every recorded value must be > 0 in
             every channel and texel: a path's weight is recovered by dividing by its monomial there).
-        params: names of parameters to record (list or comma-separated): constants (RGB) and
+        params: names of parameters to record (list or comma-separated; polynomial kinds only,
+            not a roughness): constants (RGB) and
             textured reflectances (per texel), and environment maps (``envmap``'s ``NAME.emission``,
             per texel: every contribution ending on the map is linear in the four texels its
             direction reads).
@@ -529,6 +531,9 @@ def record_paths(
         up to float rounding.
     """
     names = check_names(scene.params, params)
+    for n in names:
+        if not kind_of(n).polynomial:
+            raise ParameterError(f"{n}: path records (solver 'lm', identifiability) cannot represent a {kind_of(n).key}, which is not a polynomial factor of a path's weight; fit it with solver 'adam'")
     if isinstance(max_depth, bool) or not isinstance(max_depth, int) or max_depth < 1:
         raise ParameterError(f"record_paths needs a finite max_depth >= 1 (it bounds the polynomial's degree), got {max_depth!r}")
     for n in names:  # a material's parameter that is not a monomial factor of its weights (a plastic's two lobes)

@@ -17,7 +17,9 @@ by chunk, regenerates the very same paths from the counter-based sampler twice:
    the radiance the path still gathers beyond it, ``L_rem`` (= L minus what was added so far),
    contains ``w_i`` exactly once as a factor, so its derivative is ``<dl/dI, L_rem / w_i> d w_i``
    (Mitsuba 3's ``prb``: ``L_rem * f / detach(f)``). Sampling never depends on the parameters, so
-   only f carries a derivative: the same adjoint serves every material.
+   only f carries a derivative: the same adjoint serves every material, and every parameter kind,
+   polynomial or not (a roughness: ``w_i = f(alpha) cos / pdf(detached alpha)``, differentiated by
+   autograd at the vertex like any other).
 
 Paths that split (Whitted's glass) give each branch a film index of its own (``Film.branch``): the
 primal pass sums each branch's radiance into its parent's, so ``L_rem`` at a vertex counts exactly

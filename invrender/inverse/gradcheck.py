@@ -5,9 +5,15 @@ drawn from the seed, so every pixel counts and no pixel's sign cancels another's
 differences re-render with the same seed (common random numbers): with ``max_depth`` below the
 Russian-roulette start the estimate is then a smooth polynomial in eps and rho, and a central
 difference with step ``h`` is accurate to O(h^2). The perturbed renders also build their emitters'
-sampling (the choice by power, an environment map's density) from the unperturbed values
+sampling (the choice by power, an environment map's density) and their BSDFs' sampling (a glossy
+material's visible normals and pdf, which read its roughness) from the unperturbed values
 (``sampling_params``), so they draw the same paths as the gradients' render: sampling depends on
-emissions, and a perturbed density would move every light sample.
+emissions and roughness, and a perturbed density would move every sample. The estimate is then
+``f(theta) / pdf(theta_0)`` path by path, and a central difference differentiates exactly what the
+estimators do (a roughness is smooth in it, not a polynomial: still O(h^2)).
+
+A grey parameter (roughness: one number kept as three equal channels) is one component: its three
+channels move together and its gradient is their sum.
 """
 
 from __future__ import annotations
@@ -29,7 +35,8 @@ class GradcheckRow:
 
     Attributes:
         name: parameter name.
-        index: component index into the flattened parameter (0-2 = R, G, B for a constant).
+        index: component index into the flattened parameter (0-2 = R, G, B for a constant; for a
+            grey parameter, the texel: its three channels together).
         fd: the central finite difference.
         gradients: estimator -> its gradient.
         rel_errors: estimator -> ``|gradient - fd| / |fd|``.
@@ -93,17 +100,19 @@ def gradcheck(
     kw["sampling_params"] = {n: v.detach().clone() for n, v in scene.params.items()}
     with torch.no_grad():
         for n in names:
-            flat = scene.params[n].view(-1)
-            for i in range(min(flat.numel(), max_components)):
-                original = float(flat[i])
-                step = kind_of(n).fd_interval(original) * h / kind_of(n).fd_step  # stays inside the kind's range
+            kind = kind_of(n)
+            group = 3 if kind.grey else 1  # a grey parameter's channels move together
+            flat = scene.params[n].view(-1, group)
+            for i in range(min(flat.shape[0], max_components)):
+                original = flat[i].clone()
+                step = kind.fd_interval(float(original[0])) * h / kind.fd_step  # stays inside the kind's range
                 flat[i] = original + step
                 plus = float((render(scene, **kw) * weights).sum())
                 flat[i] = original - step
                 minus = float((render(scene, **kw) * weights).sum())
                 flat[i] = original
                 fd = (plus - minus) / (2 * step)
-                g = {e: float(grads[e][n][i]) for e in estimators}
+                g = {e: float(grads[e][n].view(-1, group)[i].sum()) for e in estimators}
                 rel = {e: abs(v - fd) / max(abs(fd), 1e-12) for e, v in g.items()}
                 rows.append(GradcheckRow(n, i, fd, g, rel))
     return rows

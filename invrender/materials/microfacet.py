@@ -39,6 +39,7 @@ import math
 from abc import ABC, abstractmethod
 
 import torch
+import torch.autograd.forward_ad as fwAD
 
 from invrender.vec import normalize
 
@@ -198,3 +199,41 @@ BECKMANN: Distribution = _Beckmann()
 
 #: the distributions by name (Mitsuba's ``distribution`` values)
 DISTRIBUTIONS: dict[str, Distribution] = {d.name: d for d in (GGX, BECKMANN)}
+
+
+# ---------------------------------------------------------------- a differentiable roughness
+
+
+def roughness_at(bsdf, sp, key: str = "roughness") -> tuple[torch.Tensor, torch.Tensor]:
+    """The roughness of a material's parameter ``key`` (kind ``roughness``: three equal channels)
+    at the points ``sp``: ``(alpha, alpha_s)``, both (N,).
+
+    ``alpha`` is what ``eval`` and the sample weight read: differentiable (the gradient of the
+    channels' mean, its value channel 0's exactly, so a render is bit-identical to one with the
+    same roughness as a constant). ``alpha_s`` is what sampling and ``pdf`` read: detached, and
+    held at the unperturbed value where a render freezes sampling (``sampling_params``)."""
+    v = bsdf.param(key, sp)
+    alpha = v[:, 0]
+    if v.requires_grad or fwAD_active(v):
+        m = v.mean(dim=1)
+        alpha = alpha.detach() + (m - m.detach())
+    return alpha, bsdf.sampling_param(key, sp)[:, 0]
+
+
+def fwAD_active(v: torch.Tensor) -> bool:
+    """Does ``v`` carry a forward-mode tangent (a record's trace)?"""
+    return fwAD.unpack_dual(v).tangent is not None
+
+
+def visible_reweight(d: Distribution, cos_h: torch.Tensor, cos_o: torch.Tensor, alpha: torch.Tensor, alpha_s: torch.Tensor) -> torch.Tensor | None:
+    """The factor (N,) that turns a visible-normal sample weight of roughness ``alpha_s`` into the
+    weight ``f(alpha) cos_i / pdf(alpha_s)`` of a BRDF of roughness ``alpha``:
+    ``D(h; alpha) G1(wo; alpha) / (D(h; alpha_s) G1(wo; alpha_s))`` (1 where the sampling density
+    vanishes). Its value is exactly 1 where ``alpha == alpha_s``; its derivative in ``alpha`` is what
+    the weight's roughness gradient needs. None where nothing differs (no gradient, no frozen
+    sampling): the weight needs no factor."""
+    if not alpha.requires_grad and not fwAD_active(alpha) and torch.equal(alpha, alpha_s):
+        return None
+    num = d.D(cos_h, alpha) * d.G1(cos_o, alpha)
+    den = (d.D(cos_h, alpha_s) * d.G1(cos_o, alpha_s)).detach()
+    return torch.where(den > 0, num / torch.where(den > 0, den, 1.0), 1.0)

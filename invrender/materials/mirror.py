@@ -14,7 +14,7 @@ import torch
 from invrender import registry
 from invrender.materials.metal_iors import METAL_IORS
 from invrender.materials.metals import CONDUCTOR_CONSTANTS, ConductorFresnel
-from invrender.scene.kinds import SPECULAR_REFLECTANCE
+from invrender.scene.kinds import SPECULAR_REFLECTANCE_RGB as SPECULAR_REFLECTANCE
 from invrender.scene.plugins import Param
 from invrender.transport.bsdfs.base import BSDFSample, DeltaBSDF, Lobe, ShadingPoint
 from invrender.vec import dot

@@ -39,6 +39,12 @@ class ParamKind:
             (``"lr"`` for [0, 1] kinds, in logit units; ``"lr_emission"``, in log units).
         fd_step: ``gradcheck``'s central-difference step, relative to the value (absolute below 1).
         doc: one line for messages and docs.
+        positive: values must be > 0 (the range is ``(0, upper]``), not merely >= 0.
+        polynomial: a path's weight is a polynomial in it (each BSDF or emitter factor linear in
+            it), so path records (:mod:`invrender.diff.records`) can represent it; False for
+            parameters that enter non-linearly (roughness).
+        grey: one number stored as three equal channels (the RGB form every parameter shares);
+            the BSDF reads their mean.
     """
 
     key: str
@@ -49,14 +55,20 @@ class ParamKind:
     lr_setting: str
     fd_step: float
     doc: str
+    positive: bool = False
+    polynomial: bool = True
+    grey: bool = False
 
     def check(self, name: str, value: torch.Tensor) -> None:
         """A :class:`ParameterError` naming ``name`` when ``value`` lies outside this kind's range."""
         if value.ndim == 3 and not self.texture:
             raise ParameterError(f"{name}: {self.key} must be an RGB triple, not a texture")
+        if self.grey and value.shape[-1] == 3 and not bool((value == value[..., :1]).all()):
+            raise ParameterError(f"{name}: {self.key} {self.symbol} is one number (three equal channels), got {_short(value)}")
         lo, hi = float(value.min()), float(value.max())
-        if lo < 0 or hi > self.upper:
-            expected = f"lie in [0, {self.upper:g}]" if math.isfinite(self.upper) else "be >= 0"
+        if (lo <= 0 if self.positive else lo < 0) or hi > self.upper:
+            low = "(0" if self.positive else "[0"
+            expected = f"lie in {low}, {self.upper:g}]" if math.isfinite(self.upper) else ("be > 0" if self.positive else "be >= 0")
             raise ParameterError(f"{name}: {self.key} {self.symbol} must {expected}, got values in [{lo:.4g}, {hi:.4g}]")
 
     def to_raw(self, value: torch.Tensor) -> torch.Tensor:
@@ -75,21 +87,41 @@ class ParamKind:
         step = self.fd_step * max(1.0, abs(value))
         if math.isfinite(self.upper):
             step = min(step, max(value, 1e-6), max(self.upper - value, 1e-6))
+        if self.positive:
+            step = min(step, 0.5 * value)  # value - step stays > 0
         return step
 
 
 REFLECTANCE = ParamKind("reflectance", "rho", 1.0, True, "sigmoid", "lr", 1e-2, "diffuse albedo rho, in [0, 1]")
 SPECULAR_REFLECTANCE = ParamKind(
-    "specular_reflectance", "k_s", 1.0, False, "sigmoid", "lr", 1e-2, "specular reflectance k_s of a mirror or glossy conductor, in [0, 1]"
+    "specular_reflectance", "k_s", 1.0, True, "sigmoid", "lr", 1e-2, "specular reflectance k_s of a mirror or glossy conductor, in [0, 1]"
 )
+#: specular reflectance that cannot vary over a surface (a mirror's): the same kind, RGB only
+SPECULAR_REFLECTANCE_RGB = dataclasses.replace(SPECULAR_REFLECTANCE, texture=False)
 EMISSION = ParamKind("emission", "eps", math.inf, True, "exp", "lr_emission", 1e-2, "emitted radiance eps, >= 0")
 
 #: emission that cannot vary over a surface (lights without one: skies, point, spot and directional
 #: lights): the same kind, an RGB triple only
 EMISSION_RGB = dataclasses.replace(EMISSION, texture=False)
 
+# ---- microfacet roughness (glossy materials): not a polynomial factor of a path's weight
+
+#: the roughness alpha of a microfacet distribution (GGX, Beckmann), in (0, 1]: one number (kept
+#: as three equal channels), or a map over the mesh UVs ((h, w), kept as (h, w, 3) grey texels,
+#: filtered bilinearly as reflectance textures are); fitted as sigmoid(x) in logit units (``lr``);
+#: path records cannot represent it (fit it with Adam)
+ROUGHNESS = ParamKind(
+    "roughness", "alpha", 1.0, True, "sigmoid", "lr", 1e-2, "microfacet roughness alpha of a glossy material, in (0, 1]",
+    positive=True, polynomial=False, grey=True,
+)  # fmt: skip
+
 #: every kind of a scene parameter, by key
-KINDS: dict[str, ParamKind] = {k.key: k for k in (REFLECTANCE, SPECULAR_REFLECTANCE, EMISSION)}
+KINDS: dict[str, ParamKind] = {k.key: k for k in (REFLECTANCE, SPECULAR_REFLECTANCE, EMISSION, ROUGHNESS)}
+
+
+def _short(value: torch.Tensor) -> str:
+    return str([round(float(x), 4) for x in value.reshape(-1)[:6]]) + (" ..." if value.numel() > 6 else "")
+
 
 #: the owner of the camera's sensor parameters (``"sensor.exposure"``), which every fit has beside
 #: the scene's (invrender.inverse.sensor): ``value = response(exposure_v * white_balance_v * radiance)``

@@ -179,7 +179,8 @@ def plugin_table(plugins: Registry, extra: tuple[str, object] | None = None) -> 
     rows = [head, "|---" * (head.count("|") - 1) + "|"]
     for name, cls in plugins.items():
         params = "<br>".join(
-            f"`{k}` {p.kind.symbol}, default {_default(p.default)}" + (" (RGB or texture)" if p.kind.texture else " (RGB)") for k, p in cls.params.items()
+            f"`{k}` {p.kind.symbol}" + (f" in (0, {_number(p.kind.upper)}]" if p.kind.positive else "") + f", default {_default(p.default)}"
+            + (" (one number" if p.kind.grey else " (RGB") + (" or texture)" if p.kind.texture else ")") for k, p in cls.params.items()
         )
         constants = "<br>".join(f"`{k}`{f' ({c.size} numbers)' if c.size > 1 else ''} in {_interval(c)}, default {str(bool(c.default)).lower() if c.boolean else _default(c.default)}" for k, c in cls.constants.items())
         mitsuba = ", ".join(f"`{m}`" for m in vars(cls).get("mitsuba_plugins", ()))

@@ -246,6 +246,7 @@ def check_param_value(name: str, value) -> torch.Tensor:
         raise ParameterError(f"{name}: expected an RGB triple or an (h, w, 3) texture, got {_short(value)}") from None
     if t.ndim == 0:
         t = t.expand(3).clone()
+    t = _grey_map(name, t).clone()
     _check_tensor(name, t)
     return t
 
@@ -255,9 +256,14 @@ def _checked_value(name: str, value) -> torch.Tensor:
     it is (its graph, dtype and device; one number is expanded to three), anything else converted."""
     if not (isinstance(value, torch.Tensor) and value.is_floating_point()):
         return check_param_value(name, value)
-    t = value.expand(3) if value.ndim == 0 else value
+    t = value.expand(3) if value.ndim == 0 else _grey_map(name, value)
     _check_tensor(name, t.detach())
     return t
+
+
+def _grey_map(name: str, t: torch.Tensor) -> torch.Tensor:
+    """An (h, w) map of a grey kind (a roughness) as its (h, w, 3) texels; anything else as it is."""
+    return t[:, :, None].expand(-1, -1, 3) if t.ndim == 2 and kind_of(name).grey and kind_of(name).texture else t
 
 
 def _check_tensor(name: str, t: torch.Tensor) -> None:

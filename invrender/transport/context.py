@@ -62,8 +62,8 @@ class TransportContext:
         ``embree_threads``: threads each Embree query is split across (None = one per core).
         ``params``: values to use instead of ``scene.params`` (same names; all or some).
         ``sampling``: how the BSDFs draw directions (None = cosine-weighted diffuse lobes).
-        ``sampling_params``: values (same names; all or some) the emitters' sampling is built from
-            instead of the render's own (:class:`~invrender.transport.lights.Light`); None = none.
+        ``sampling_params``: values (same names; all or some) the emitters' and BSDFs' sampling is
+            built from instead of the render's own (:class:`~invrender.transport.lights.Light`); None = none.
         """
         tris = scene.triangles.to(device)
         kernels.load(device)  # compiled or loaded here, before any render thread launches them
@@ -73,15 +73,16 @@ class TransportContext:
         emitters = [scene.emitter_spec(i) for i in range(len(scene.emitters))]
         light_values = [{key: values[param_name(e, key)].to(device) for key in spec.spec.params} for e, spec in zip(scene.emitters, emitters)]
         eps = [v.get("emission", torch.zeros(3, device=device)) for v in light_values]
-        frozen = None
+        frozen = frozen_materials = None
         if sampling_params:
             sampled_from = {**values, **sampling_params}
             frozen = [{key: sampled_from[param_name(e, key)].detach().to(device) for key in spec.spec.params} for e, spec in zip(scene.emitters, emitters)]
+            frozen_materials = [{key: sampled_from[param_name(m, key)].detach().to(device) for key in spec.spec.params} for m, spec in zip(scene.materials, specs)]
         return TransportContext(
             triangles=tris,
             accel=intersector_for(tris, backend, embree_threads),
             lights=Lights([e.type for e in emitters], light_values, [dict(e.constants) for e in emitters], tris, frozen),
-            materials=Materials([s.type for s in specs], material_values, [dict(s.constants) for s in specs], device, flat=not tris.any_smooth, sampling=sampling),
+            materials=Materials([s.type for s in specs], material_values, [dict(s.constants) for s in specs], device, flat=not tris.any_smooth, sampling=sampling, sampling_values=frozen_materials),
             eps=eps,
             ambient=values[AMBIENT].to(device) if AMBIENT in values else None,
             ray_offset=1e-4 * max(scene_extent(tris), 1e-3),

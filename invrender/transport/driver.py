@@ -66,7 +66,8 @@ class RenderSettings:
         plan: which samples each pixel traces (:class:`SamplePlan`, the passes of adaptive
             sampling); None = samples ``0 .. spp - 1`` in every pixel.
         sampling_params: parameter values (name -> tensor, all or some) the emitters' sampling
-            (choice by power, environment-map densities) is built from instead of the render's own;
+            (choice by power, environment-map densities) and the BSDFs' (a glossy material's
+            roughness: its visible normals and pdf) are built from instead of the render's own;
             None = its own, detached. Finite differences with common random numbers give the
             perturbed renders the unperturbed values, so every render draws the same paths.
     """

@@ -132,7 +132,7 @@ def test_fresnel_one_computes_no_fresnel_term():
     k_s G1 exactly as before conductors had an index."""
     sp = checks.shading_point(0.7, 64)
     default = checks.instance(Glossy, roughness=0.3)
-    bare = Glossy([{"specular_reflectance": torch.ones(3)}], [{"roughness": 0.3}])
+    bare = Glossy([{"specular_reflectance": torch.ones(3), "roughness": torch.full((3,), 0.3)}], [{}])
     assert default.fresnel(sp, torch.ones(64)) is None and bare.fresnel(sp, torch.ones(64)) is None
     u = torch.rand(64, 2, generator=torch.Generator().manual_seed(2))
     a, b = default.sample(sp, torch.zeros(64), u), bare.sample(sp, torch.zeros(64), u)
@@ -140,7 +140,7 @@ def test_fresnel_one_computes_no_fresnel_term():
     cos_i = sp.frame.to_local(a.wi)[:, 2]
     assert torch.equal(a.weight[:, 0], torch.where(cos_i > 0, GGX.G1(cos_i, torch.tensor(0.3)), 0.0))  # k_s G1, no factor more
     # mixed: a none material beside a gold one keeps F = 1 exactly where it is none
-    mixed = Glossy([{"specular_reflectance": torch.ones(3)}] * 2, [{"roughness": 0.3, "eta": (0.0,) * 3, "k": (1.0,) * 3}, {"roughness": 0.3, "eta": GOLD[0], "k": GOLD[1]}])
+    mixed = Glossy([{"specular_reflectance": torch.ones(3), "roughness": torch.full((3,), 0.3)}] * 2, [{"eta": (0.0,) * 3, "k": (1.0,) * 3}, {"eta": GOLD[0], "k": GOLD[1]}])
     sp2 = checks.shading_point(0.7, 2)
     sp2.material[1] = 1
     f = mixed.fresnel(sp2, torch.tensor([0.6, 0.6]))

@@ -19,7 +19,7 @@ def test_docs_plugins_md_holds_the_generated_tables():
 
 def test_the_tables_list_every_registered_plugin_with_its_keys():
     t = tables()
-    assert "| `glossy` | GGX rough conductor" in t["materials"] and "`roughness` in (0, 1], default 0.1" in t["materials"]
+    assert "| `glossy` | GGX rough conductor" in t["materials"] and "`roughness` alpha in (0, 1], default 0.1 (one number or texture)" in t["materials"]
     assert "| `area` |" in t["emitters"] and "the shapes naming it" in t["emitters"]
     assert all(f"| `{name}` |" in t["integrators"] for name in ("path", "random_walk", "utah", "whitted", "distributed", "radiosity"))
     assert "`rr_depth` = `5`" in t["integrators"]

@@ -72,7 +72,7 @@ def test_sky_spheres_loads_renders_and_shows_its_map():
     from invrender.scene.builtin import map_directions, sun_direction
 
     scene = ir.load_scene("sky_spheres", resolution=(32, 32), map_size=(8, 16), subdivisions=2)
-    assert set(scene.params) == {"floor.reflectance", "diffuse.reflectance", "glossy.specular_reflectance", "sky.emission"}
+    assert set(scene.params) == {"floor.reflectance", "diffuse.reflectance", "glossy.specular_reflectance", "glossy.roughness", "sky.emission"}
     sky = scene.params["sky.emission"]
     assert sky.shape == (8, 16, 3) and bool((sky > 0).all())
     luminance = sky @ torch.tensor([0.212671, 0.715160, 0.072169])

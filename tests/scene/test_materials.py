@@ -74,8 +74,9 @@ def test_material_types_load_with_their_parameters_and_constants(tmp_path):
     types = {m: scene.material_spec(i).type for i, m in enumerate(scene.materials)}
     assert types == {"floor": "diffuse", "chrome": "mirror", "glass": "dielectric", "brushed": "glossy"}
     assert scene.material_spec(2).constants == {"ior": 1.33}
-    assert scene.material_spec(3).constants == {"roughness": 0.3, "eta": (0.0, 0.0, 0.0), "k": (1.0, 1.0, 1.0)}  # material none
-    assert set(scene.params) == {"floor.reflectance", "chrome.specular_reflectance", "brushed.specular_reflectance", "lamp.emission"}
+    assert scene.material_spec(3).constants == {"eta": (0.0, 0.0, 0.0), "k": (1.0, 1.0, 1.0)}  # material none
+    assert set(scene.params) == {"floor.reflectance", "chrome.specular_reflectance", "brushed.specular_reflectance", "brushed.roughness", "lamp.emission"}
+    torch.testing.assert_close(scene.params["brushed.roughness"], torch.full((3,), 0.3))  # a parameter now (differentiable)
     torch.testing.assert_close(scene.params["brushed.specular_reflectance"], torch.full((3,), 0.5))
     assert scene.camera.aperture_radius == 0.05 and scene.camera.focus_distance == 2.5
     assert bool(scene.triangles.smooth[scene.triangles.material == 1].all())  # the sphere shades smoothly
@@ -88,12 +89,12 @@ def test_type_defaults_to_diffuse_and_defaults_follow_mitsuba(tmp_path):
     scene = ir.load_scene(write(tmp_path, floor=""), resolution=(8, 8))
     torch.testing.assert_close(scene.params["floor.reflectance"], torch.full((3,), 0.5))
     m = Material.of("glossy")
-    assert m.constants == {"roughness": 0.1, "eta": (0.0, 0.0, 0.0), "k": (1.0, 1.0, 1.0)} and m.values == {"specular_reflectance": 1.0}
+    assert m.constants == {"eta": (0.0, 0.0, 0.0), "k": (1.0, 1.0, 1.0)} and m.values == {"specular_reflectance": 1.0, "roughness": 0.1}
     assert Material.of("dielectric").constants == {"ior": 1.5}
 
 
 def test_every_kind_and_type_is_registered_once():
-    assert set(KINDS) == {"reflectance", "specular_reflectance", "emission"}
+    assert set(KINDS) == {"reflectance", "specular_reflectance", "emission", "roughness"}
     assert kind_of("white.reflectance").reparam == "sigmoid" and kind_of("light.emission").reparam == "exp"
     assert kind_of("a.b.specular_reflectance").upper == 1.0
     with pytest.raises(ParameterError, match="not a parameter name"):
@@ -108,8 +109,8 @@ def test_every_kind_and_type_is_registered_once():
     [
         ('type = "principled"', "", r"\[materials.floor\]: unknown material type 'principled' \(known: diffuse, mirror, dielectric, glossy, glossy_beckmann, plastic, roughplastic, roughplastic_ggx\)"),
         ('type = "diffuse"\nroughness = 0.2', "", r"\[materials.floor\]: unknown key 'roughness'"),
-        ('type = "glossy"\nroughness = 0', "", r"\[materials.floor\]: 'roughness' must lie in \(0, 1\], got 0"),
-        ('type = "glossy"\nroughness = 1.5', "", r"'roughness' must lie in \(0, 1\], got 1.5"),
+        ('type = "glossy"\nroughness = 0', "", r"floor.roughness: roughness alpha must lie in \(0, 1\], got values in \[0, 0\]"),
+        ('type = "glossy"\nroughness = 1.5', "", r"floor.roughness: roughness alpha must lie in \(0, 1\], got values in \[1.5, 1.5\]"),
         ('type = "dielectric"\nior = 0', "", r"'ior' must lie in \(0, inf\), got 0"),
         ('type = "dielectric"\nior = -1.5', "", r"'ior' must lie in \(0, inf\), got -1.5"),
         ('type = "dielectric"\nior = "glass"', "", r"'ior' must be a finite number, got 'glass'"),

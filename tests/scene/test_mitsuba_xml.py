@@ -90,7 +90,7 @@ def test_bsdfs_map_to_invrender_materials(tmp_path):
                      "bk7": "dielectric", "paper": "diffuse", "grey": "diffuse", "material_1": "diffuse"}  # fmt: skip
     p = {k: v.tolist() for k, v in scene.params.items()}
     assert p["mirror.specular_reflectance"] == pytest.approx([0.9, 0.8, 0.7]) and p["default_conductor.specular_reflectance"] == [1, 1, 1]
-    assert p["glossy.specular_reflectance"] == pytest.approx([0.6] * 3) and material(scene, "glossy").constants["roughness"] == pytest.approx(0.3)
+    assert p["glossy.specular_reflectance"] == pytest.approx([0.6] * 3) and p["glossy.roughness"] == pytest.approx([0.3] * 3)
     assert material(scene, "glass").constants["ior"] == pytest.approx(1.25)
     assert material(scene, "water").constants["ior"] == pytest.approx(1.3330 / 1.000277)
     assert material(scene, "bk7").constants["ior"] == pytest.approx(1.5046 / 1.000277)  # Mitsuba's defaults
@@ -137,7 +137,8 @@ def test_conductors_named_metals_eta_k_and_beckmann(tmp_path):
     m = {name: material(scene, name) for name in scene.materials}
     assert {k: v.type for k, v in m.items()} == {"rough_default": "glossy_beckmann", "rough_gold": "glossy_beckmann", "rough_ggx": "glossy",
                                                  "copper": "mirror", "given": "mirror", "plain": "mirror"}  # fmt: skip
-    assert m["rough_default"].constants["roughness"] == pytest.approx(0.1) and m["rough_gold"].constants["roughness"] == pytest.approx(0.25)
+    roughness = {k: v.tolist() for k, v in scene.params.items() if k.endswith(".roughness")}
+    assert roughness["rough_default.roughness"] == pytest.approx([0.1] * 3) and roughness["rough_gold.roughness"] == pytest.approx([0.25] * 3)
     # Mitsuba 3.9.1 scalar_rgb, mi.traverse(conductor material=Au / Cu): eta.value, k.value
     assert m["rough_gold"].constants["eta"] == pytest.approx((0.143036, 0.375307, 1.44205), rel=1e-5)
     assert m["rough_gold"].constants["k"] == pytest.approx((3.983, 2.38556, 1.60336), rel=1e-5)

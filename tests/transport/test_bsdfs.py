@@ -32,7 +32,7 @@ def diffuse():
 
 
 def glossy(alpha: float):
-    return Glossy([{"specular_reflectance": KS}], [{"roughness": alpha}])
+    return Glossy([{"specular_reflectance": KS, "roughness": torch.full((3,), float(alpha))}], [{}])
 
 
 @pytest.mark.parametrize("theta_o", [0.0, 0.7, 1.4])
@@ -53,7 +53,7 @@ def test_chi_square_catches_a_wrong_pdf():
         def pdf(self, sp, wi):
             return glossy(0.3).pdf(sp, wi)
 
-    assert chi_square_p(Mismatched([{"specular_reflectance": KS}], [{"roughness": 0.25}]), 0.5) < 1e-6
+    assert chi_square_p(Mismatched([{"specular_reflectance": KS, "roughness": torch.full((3,), 0.25)}], [{}]), 0.5) < 1e-6
 
 
 @pytest.mark.parametrize("bsdf", [diffuse(), glossy(0.1), glossy(0.5), glossy(1.0)], ids=["diffuse", "ggx0.1", "ggx0.5", "ggx1"])

@@ -41,7 +41,8 @@ allowed keys). Out-of-range colours (rho outside [0, 1], eps < 0) are
     [materials.brushed]
     type = "glossy"                    # GGX rough conductor, two-sided (Mitsuba's roughconductor, distribution ggx);
                                        # "glossy_beckmann": the same with Beckmann (Mitsuba's default distribution)
-    roughness = 0.2                    # alpha in (0, 1] (default 0.1); a constant
+    roughness = 0.2                    # alpha in (0, 1] (default 0.1), differentiable (fit it with adam);
+                                       # or roughness_texture = "alpha.exr" (grey), as specular_reflectance_texture
     specular_reflectance = [0.95, 0.8, 0.5]   # k_s in [0, 1] (default 1), differentiable
     material = "none"                  # or a named metal, or eta / k, as for a mirror (default none: Fresnel 1)
 

@@ -26,15 +26,21 @@ class Materials:
         device: where hits live.
         flat: the scene has no shading normals (BSDFs may skip checks that only they need).
         sampling: how the BSDFs draw directions (default: cosine-weighted diffuse lobes).
+        sampling_values: per scene material, the values its sampling reads (detached; None = its
+            own ``values``, detached).
     """
 
-    def __init__(self, types: list[str], values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], device, flat: bool = False, sampling: BSDFSampling | None = None):
+    def __init__(
+        self, types: list[str], values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], device, flat: bool = False, sampling: BSDFSampling | None = None,
+        sampling_values: list[dict[str, torch.Tensor]] | None = None,
+    ):  # fmt: skip
         present = list(dict.fromkeys(types))  # first-seen order
         self.bsdfs: list[BSDF] = []
         slot_of, local_of = [], []
         for t in present:
             members = [i for i, ti in enumerate(types) if ti == t]
-            self.bsdfs.append(MATERIALS[t]([values[i] for i in members], [constants[i] for i in members], flat, sampling))
+            frozen = None if sampling_values is None else [sampling_values[i] for i in members]
+            self.bsdfs.append(MATERIALS[t]([values[i] for i in members], [constants[i] for i in members], flat, sampling, frozen))
         for t in types:
             k = present.index(t)
             slot_of.append(k)

@@ -10,9 +10,11 @@ Conventions, shared by every material:
   lobe (reflection or refraction), ``u_dir`` (N, 2) the direction within it.
 - Delta lobes (a mirror, smooth glass) have no density: ``eval`` and ``pdf`` return 0 for them and
   ``sample`` flags them, and integrators never sample emitters towards them.
-- Sampling never depends on a differentiable parameter: pdfs read constants only (roughness, ior),
-  so the derivative of a weight is the derivative of its ``f`` alone. Weights are differentiable in
-  the material's parameters; that is what path replay's vertex adjoint differentiates.
+- Sampling never depends on a differentiable parameter: pdfs read constants (ior) or detached
+  values (:meth:`BSDF.sampling_param`: a roughness), so the derivative of a weight is the
+  derivative of its ``f`` alone (``f(alpha) cos / pdf(detached alpha)``). Weights are
+  differentiable in the material's parameters; that is what path replay's vertex adjoint
+  differentiates.
 - ``n`` is the shading normal turned to ``wo``'s geometric side; ``front`` says whether that side
   is the triangle's front (for glass: outside). :attr:`ShadingPoint.frame` is the shading frame,
   built once per vertex and shared by every BSDF call there; BSDFs that are not rotationally
@@ -174,8 +176,13 @@ class BSDF(Declared, ABC):
     #: the kinds of lobe it has (several for layered materials)
     lobes: ClassVar[Lobe]
 
-    def __init__(self, values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], flat: bool = False, sampling: BSDFSampling | None = None):
+    def __init__(
+        self, values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], flat: bool = False, sampling: BSDFSampling | None = None,
+        sampling_values: list[dict[str, torch.Tensor]] | None = None,
+    ):  # fmt: skip
         self.values, self.constants = values, constants
+        #: per material, the (detached) values its sampling reads (:meth:`sampling_param`)
+        self.sampling_values = sampling_values or [{k: v.detach() for k, v in m.items()} for m in values]
         self.sampling = sampling or BSDFSampling()
         #: no shading normals in the scene: ``n`` is the geometric normal, ``wo`` always above it
         self.flat = flat
@@ -192,6 +199,14 @@ class BSDF(Declared, ABC):
         token = (id(self), key)
         if token not in sp.cache:
             sp.cache[token] = gather_rgb([v[key] for v in self.values], sp.material, sp.uv)
+        return sp.cache[token]
+
+    def sampling_param(self, key: str, sp: ShadingPoint) -> torch.Tensor:
+        """Parameter ``key`` at each point (N, 3) as sampling and ``pdf`` read it: detached, and
+        the unperturbed value where a render holds sampling fixed (``sampling_params``)."""
+        token = (id(self), key, "sampling")
+        if token not in sp.cache:
+            sp.cache[token] = gather_rgb([v[key] for v in self.sampling_values], sp.material, sp.uv)
         return sp.cache[token]
 
     def constant(self, key: str, sp: ShadingPoint) -> torch.Tensor:
