@@ -63,7 +63,8 @@ from invrender.materials.dielectric import fresnel_dielectric
 from invrender.materials.microfacet import BECKMANN, DISTRIBUTIONS, GGX, Distribution
 from invrender.materials.mirror import reflect
 from invrender.scene.formats.mitsuba.bsdfs import NAMED_IOR
-from invrender.scene.kinds import REFLECTANCE, SPECULAR_REFLECTANCE
+from invrender.scene.kinds import REFLECTANCE
+from invrender.scene.kinds import SPECULAR_REFLECTANCE_RGB as SPECULAR_REFLECTANCE
 from invrender.scene.plugins import Constant, Param
 from invrender.transport.bsdfs.base import BSDF, BSDFSample, Lobe, ShadingPoint
 from invrender.vec import dot, normalize
