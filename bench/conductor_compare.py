@@ -13,21 +13,12 @@ standard errors over seeds (box filter, max_depth 8), target within 1.5%.
 
 from __future__ import annotations
 
-import argparse
 import sys
-import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-import mitsuba_ref  # noqa: E402
-from _measure import Results, add_json_option  # noqa: E402
-from mitsuba_compare import Means, _cells, _rel_cells, invrender_means, relative  # noqa: E402
-
-import invrender as ir  # noqa: E402
-
-BOX = Path(__file__).parents[1] / "forward" / "cornell_box.xml"
-TOLERANCE = 1.5  # percent, largest channel |difference|
+from xml_compare import box_with, compare, parser  # noqa: E402
 
 GOLD = """<bsdf type="roughconductor">
             <string name="material" value="Au"/>
@@ -46,64 +37,13 @@ CHECKER = """<bsdf type="twosided"><bsdf type="diffuse">
 
 
 def scene_xml() -> str:
-    """forward/cornell_box.xml with the tall box gold (Beckmann), the short box copper, the floor a checkerboard."""
-    text = BOX.read_text()
-    for shape, bsdf in (("large_box", GOLD), ("small_box", COPPER), ("floor", CHECKER)):
-        head = f'<shape type="{"rectangle" if shape == "floor" else "cube"}" id="{shape}">'
-        start = text.index(head)
-        ref = text.index('<ref id="white"/>', start)
-        text = text[:ref] + bsdf + text[ref + len('<ref id="white"/>'):]
-    return text
-
-
-def mitsuba_file_means(path: Path, resolution: int, spp: int, seeds) -> Means:
-    import time
-
-    mi, _ = mitsuba_ref._require()
-    scene = mi.load_file(str(path), spp=str(spp), res=str(resolution))
-    start = time.perf_counter()
-    runs = [mitsuba_ref.render(scene, spp, seed=s).mean(axis=(0, 1), dtype="float64").tolist() for s in seeds]
-    return Means(runs, time.perf_counter() - start)
+    """forward/cornell_box.xml with the tall box, the short box and the floor replaced."""
+    return box_with({"large_box": GOLD, "small_box": COPPER, "floor": CHECKER})
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--resolution", type=int, default=64)
-    parser.add_argument("--spp", type=int, default=1024, help="invrender's samples per pixel of each render")
-    parser.add_argument("--mitsuba-spp", type=int, default=None, help="Mitsuba's (default 4 x spp)")
-    parser.add_argument("--seeds", type=int, default=8)
-    parser.add_argument("--write", type=Path, default=None, help="also save the scene file here")
-    add_json_option(parser)
-    args = parser.parse_args()
-    if not mitsuba_ref.available():
-        print("Mitsuba 3 is not available (bench/README.md)", file=sys.stderr)
-        return 2
-    record = Results("conductor_compare", "Conductors (named metals, Beckmann) and checkerboards vs Mitsuba 3")  # made first: it times the run
-    mi_spp = args.mitsuba_spp or 4 * args.spp
-    text = scene_xml()
-    if args.write:
-        args.write.write_text(text)
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "cornell_metals.xml"
-        path.write_text(text)
-        scene = ir.load_scene(path, resolution=(args.resolution, args.resolution))
-        ours = invrender_means(scene, args.spp, 8, range(args.seeds))
-        ref = mitsuba_file_means(path, args.resolution, mi_spp, range(args.seeds))
-    rel, se = relative(ours, ref)
-    worst = max(map(abs, rel))
-    title = (f"Cornell box, gold Beckmann roughconductor (alpha 0.2), copper conductor, checkerboard floor: {args.resolution}^2, "
-             f"box filter, max_depth 8, {args.seeds} seeds; invrender {args.spp} spp, {mitsuba_ref.label()} path {mi_spp} spp (same XML file)")  # fmt: skip
-    print(title)
-    print(f"  invrender  {_cells(ours)}  {ours.seconds:4.0f}s")
-    print(f"  Mitsuba    {_cells(ref)}  {ref.seconds:4.0f}s")
-    print(f"  invrender / Mitsuba - 1 (%): {_rel_cells(rel, se)}; largest {worst:.3f}% ({'within' if worst < TOLERANCE else 'NOT within'} {TOLERANCE:g}%)")
-    table = record.table(title, ["renderer", "R mean ± s.e.", "G mean ± s.e.", "B mean ± s.e.", "seconds"])
-    cells = lambda m: [f"{v:.5f} ± {e:.5f}" for v, e in zip(m.mean, m.se)]  # noqa: E731
-    table.append(["invrender", *cells(ours), round(ours.seconds)])
-    table.append(["Mitsuba", *cells(ref), round(ref.seconds)])
-    table.append(["invrender / Mitsuba - 1 (%)", *(f"{r:+.3f} ± {e:.3f}" for r, e in zip(rel, se)), ""])
-    record.write(args.json)
-    return 0 if worst < TOLERANCE else 1
+    args = parser(__doc__, spp=1024, seeds=8).parse_args()
+    return compare(args, "conductor_compare", "Conductors (named metals, Beckmann) and checkerboards vs Mitsuba 3", "Cornell box, gold Beckmann roughconductor (alpha 0.2), copper conductor, checkerboard floor", scene_xml())
 
 
 if __name__ == "__main__":
