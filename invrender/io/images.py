@@ -82,6 +82,19 @@ def read_image(path: str | os.PathLike, device: torch.device | str | None = None
     Raises:
         ImageError: the file is missing, has an unknown suffix, or cannot be decoded.
     """
+    path, suffix = _readable(path)
+    try:
+        rgb = _read_exr(path) if suffix == ".exr" else _read_hdr(path) if suffix == ".hdr" else _read_srgb(path)
+    except ImageError:
+        raise
+    except Exception as e:  # OpenEXR raises RuntimeError/ValueError, PIL OSError/SyntaxError/...
+        raise ImageError(f"cannot read image {path}: not a valid {suffix[1:].upper()} file ({_reason(e)})") from None
+    return rgb.to(device) if device is not None else rgb
+
+
+def _readable(path) -> tuple[Path, str]:
+    """``(path, its lower-case suffix)``; an :class:`ImageError` naming the file when the suffix is
+    not one :func:`read_image` reads or the file is missing or not a regular file."""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in READ_SUFFIXES:
@@ -90,13 +103,7 @@ def read_image(path: str | os.PathLike, device: torch.device | str | None = None
         raise ImageError(f"cannot read image {path}: file not found")
     if not path.is_file():
         raise ImageError(f"cannot read image {path}: not a regular file")
-    try:
-        rgb = _read_exr(path) if suffix == ".exr" else _read_hdr(path) if suffix == ".hdr" else _read_srgb(path)
-    except ImageError:
-        raise
-    except Exception as e:  # OpenEXR raises RuntimeError/ValueError, PIL OSError/SyntaxError/...
-        raise ImageError(f"cannot read image {path}: not a valid {suffix[1:].upper()} file ({_reason(e)})") from None
-    return rgb.to(device) if device is not None else rgb
+    return path, suffix
 
 
 def _reason(e: Exception) -> str:
@@ -228,12 +235,7 @@ def read_photo(path: str | os.PathLike) -> Photo:
     """Read ``path`` (``.png``, ``.jpg``/``.jpeg``, ``.exr``, ``.hdr``) without converting it:
     a :class:`Photo` with its encoded values, bit depth and alpha. Raises :class:`ImageError` naming
     the file when it is missing, of an unknown suffix, or cannot be decoded."""
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix not in READ_SUFFIXES:
-        raise ImageError(f"cannot read image {path}: unknown suffix {suffix!r}, expected one of {', '.join(READ_SUFFIXES)}")
-    if not path.is_file():
-        raise ImageError(f"cannot read image {path}: {'file not found' if not path.exists() else 'not a regular file'}")
+    path, suffix = _readable(path)
     try:
         if suffix == ".exr":
             return Photo(path, _read_exr(path), None, None)
