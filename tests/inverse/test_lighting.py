@@ -143,6 +143,19 @@ def sphere_views():
     return scene, cameras
 
 
+#: the views' integrator: the sky hidden from the camera, BSDF sampling (paths independent of the map)
+HIDDEN = {"type": "path", "hide_emitters": True, "strategy": "bsdf"}
+
+
+def order5_targets(scene, cameras, spp: int):
+    """(truth (36, 3), one target per camera) under an order-5 environment of known coefficients."""
+    basis = L.emitter_basis(scene, "sky", order=5)
+    truth = torch.zeros(36, 3, dtype=torch.float64)
+    truth[0], truth[1:4], truth[4:9], truth[9:16] = 2.0, 0.3, 0.12, 0.1
+    lit = scene.with_params({"sky.emission": basis.texels(truth)})
+    return truth, [ir.render(lit.with_camera(c), HIDDEN, spp=spp, max_depth=2, seed=7, progress=False) for c in cameras]
+
+
 def test_a_diffuse_sphere_determines_orders_0_to_2_and_not_3_or_5():
     """Six views of a diffuse sphere (8 x 8 pixels each) under an order-5 environment (about 13 s):
     Ramamoorthi & Hanrahan's A_3 = A_5 = 0 make every order-3 and order-5 coefficient undetermined;
@@ -152,13 +165,8 @@ def test_a_diffuse_sphere_determines_orders_0_to_2_and_not_3_or_5():
     coefficients within 4 standard errors (order 2 mixes a little with the undetermined directions
     at this size; the minimum-norm solution sets those to zero)."""
     scene, cameras = sphere_views()
-    basis = L.emitter_basis(scene, "sky", order=5)
-    truth = torch.zeros(36, 3, dtype=torch.float64)
-    truth[0], truth[1:4], truth[4:9], truth[9:16] = 2.0, 0.3, 0.12, 0.1
-    lit = scene.with_params({"sky.emission": basis.texels(truth)})
-    hidden = {"type": "path", "hide_emitters": True, "strategy": "bsdf"}
-    targets = [ir.render(lit.with_camera(c), hidden, spp=1024, max_depth=2, seed=7, progress=False) for c in cameras]
-    fit = ir.identifiability(scene, targets, ["sky.emission"], cameras=cameras, integrator=hidden, spp=192, max_depth=2, sampler="antithetic", order=5)
+    truth, targets = order5_targets(scene, cameras, spp=1024)
+    fit = ir.identifiability(scene, targets, ["sky.emission"], cameras=cameras, integrator=HIDDEN, spp=192, max_depth=2, sampler="antithetic", order=5)
     print("singular values / noise (R):", (fit.singular_values[0] / fit.noise[0]).numpy().round(1).tolist())
     assert {3, 5} <= set(fit.undetermined_orders()) and "Y[3,-3]" in fit.describe()
     assert not any(label.startswith(("Y[0", "Y[1", "Y[2")) for label in fit.undetermined), fit.undetermined
@@ -172,13 +180,8 @@ def test_a_glossy_sphere_determines_the_orders_a_diffuse_one_cannot():
     diffuse sphere, are determined (every singular value stands 5-60 times above the noise)."""
     scene, cameras = sphere_views()
     glossy = build_scene([Mesh(*sphere(3), material="ball")], {"ball": Material.of("glossy", specular_reflectance=[0.8] * 3, roughness=0.1)}, {"sky": Emitter.of("envmap", emission=torch.ones(17, 32, 3))}, Camera(), (8, 8))
-    basis = L.emitter_basis(glossy, "sky", order=5)
-    truth = torch.zeros(36, 3, dtype=torch.float64)
-    truth[0], truth[1:4], truth[4:9], truth[9:16] = 2.0, 0.3, 0.12, 0.1
-    lit = glossy.with_params({"sky.emission": basis.texels(truth)})
-    hidden = {"type": "path", "hide_emitters": True, "strategy": "bsdf"}
-    targets = [ir.render(lit.with_camera(c), hidden, spp=64, max_depth=2, seed=7, progress=False) for c in cameras]
-    fit = L.fit_sh(glossy, targets, "sky", 5, cameras=cameras, integrator=hidden, spp=64, max_depth=2, sampler="antithetic")
+    _, targets = order5_targets(glossy, cameras, spp=64)
+    fit = L.fit_sh(glossy, targets, "sky", 5, cameras=cameras, integrator=HIDDEN, spp=64, max_depth=2, sampler="antithetic")
     ratio = fit.singular_values / fit.noise
     print("singular values / noise (R):", ratio[0].numpy().round(1).tolist())
     assert fit.undetermined == [] and fit.undetermined_orders() == [] and fit.describe() == ""
