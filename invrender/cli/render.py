@@ -117,8 +117,8 @@ def run(args) -> int:
     if not args.quiet:
         paths = scene.width * scene.height * spp
         file_spp = scene.defaults.get("spp")
-        overridden = f" (--spp overrides the file's {file_spp})" if file_spp is not None and file_spp != spp else ""
-        print(f"{scene.name}: {scene.width}x{scene.height}, {spp} spp{overridden}, {seconds:.2f} s ({paths / seconds / 1e6:.3g} M paths/s); mean RGB {mean_rgb(full)}", file=sys.stderr)
+        overridden = f"; --spp overrides the file's {file_spp} spp" if file_spp is not None and file_spp != spp else ""
+        print(f"{scene.name}: {scene.width}x{scene.height}, {spp} spp, {seconds:.2f} s ({paths / seconds / 1e6:.3g} M paths/s); mean RGB {mean_rgb(full)}{overridden}", file=sys.stderr)
         if adaptive is not None:
             counts = result.spp.float()
             print(f"adaptive: pilot {result.pilot_spp} spp + {len(result.passes)} rounds; samples per pixel {int(counts.min())} to {int(counts.max())} (mean {counts.mean():.4g}); "
