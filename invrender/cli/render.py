@@ -17,6 +17,8 @@ examples:
   invrender render                                         # Cornell box, 256x256, 64 spp -> out.exr
   invrender render cornell_box --spp 256 --resolution 128x128 --out cbox.exr cbox.png
   invrender render forward/mesh_in_box.toml --max-depth -1 --out mesh.png
+  invrender render bunny.ply --out bunny.png               # a mesh file (PLY, STL, OBJ, glTF) in the default studio
+  invrender render scene.xml --out s.exr                   # the file's integrator, max_depth and sample_count
   invrender render furnace --integrator random_walk --max-depth 4 --terms --out furnace.exr
   invrender render cornell_box --integrator utah --ambient 0.05 --out utah.exr
   invrender render cornell_specular --spp 256 --out spec.png            # mirror, glass, glossy
