@@ -92,7 +92,7 @@ def add_scene_argument(parser: argparse.ArgumentParser) -> None:
     """The optional positional SCENE every rendering command takes."""
     parser.add_argument(
         "scene", nargs="?", default="cornell_box",
-        help=f"built-in name ({', '.join(BUILTIN_SCENES)}) or a scene file: .toml, Mitsuba 3 .xml (a subset), .gltf/.glb/.obj (default: cornell_box)",
+        help=f"built-in name ({', '.join(BUILTIN_SCENES)}) or a scene file: .toml, Mitsuba 3 .xml (a subset), or a mesh .gltf/.glb/.obj/.ply/.stl (in a default studio when it has no emitter) (default: cornell_box)",
     )  # fmt: skip
 
 

@@ -17,6 +17,8 @@ examples:
   invrender render                                         # Cornell box, 256x256, 64 spp -> out.exr
   invrender render cornell_box --spp 256 --resolution 128x128 --out cbox.exr cbox.png
   invrender render forward/mesh_in_box.toml --max-depth -1 --out mesh.png
+  invrender render bunny.ply --out bunny.png               # a mesh file (PLY, STL, OBJ, glTF) in the default studio
+  invrender render scene.xml --out s.exr                   # the file's integrator, max_depth and sample_count
   invrender render furnace --integrator random_walk --max-depth 4 --terms --out furnace.exr
   invrender render cornell_box --integrator utah --ambient 0.05 --out utah.exr
   invrender render cornell_specular --spp 256 --out spec.png            # mirror, glass, glossy
@@ -64,12 +66,12 @@ def add_parser(sub) -> None:
     add_scene_argument(r)
     r.add_argument("--out", nargs="+", default=["out.exr"], metavar="PATH", help="output image(s): .exr (linear float32) and/or .png (sRGB, clipped) (default: out.exr)")
     r.add_argument("--spp", type=int, default=None, help="samples per pixel (default: the scene file's, e.g. a Mitsuba sampler's sample_count, else 64)")
-    r.add_argument("--max-depth", type=int, default=None, help="the integrator's max_depth: Neumann terms kept, Mitsuba's count; -1 = unbounded (default: 8; utah: 2)")
+    r.add_argument("--max-depth", type=int, default=None, help="the integrator's max_depth: Neumann terms kept, Mitsuba's count; -1 = unbounded (default: the scene file's, else 8; utah: 2)")
     r.add_argument("--resolution", type=parse_resolution, default=None, metavar="WxH", help="image size in pixels (default: the scene's)")
-    add_integrator_arguments(r)
+    add_integrator_arguments(r, default="the scene file's, else path")
     r.add_argument("--ambient", type=parse_rgb, default=None, metavar="R,G,B", help="ambient radiance eps0 for --integrator utah, whitted or distributed (one number or R,G,B; default: the scene's, else 0)")
     r.add_argument("--seed", type=int, default=0, help="random seed; the image is a pure function of it (default: 0)")
-    r.add_argument("--rr-depth", type=int, default=None, help="the integrator's rr_depth: Russian roulette starts after this many terms; -1 = no roulette (path, random_walk, distributed; default: 5)")
+    r.add_argument("--rr-depth", type=int, default=None, help="the integrator's rr_depth: Russian roulette starts after this many terms; -1 = no roulette (path, random_walk, distributed; default: the scene file's, else 5)")
     r.add_argument("--sampler", default="stratified", help="pixel samples: stratified (jittered on a grid, default), independent, or antithetic (pairs whose second path draws 1 - u for every number of the first)")
     r.add_argument("--strategy", default=None, help="the path tracer's strategy for direct light: mis (emitter and BSDF samples by multiple importance sampling, default), bsdf (BSDF samples only) or emitter (emitter samples only)")
     r.add_argument("--hemisphere", default=None, help="the integrator's hemisphere: diffuse BSDF sampling, cosine (default) or uniform over the hemisphere (path, random_walk, distributed)")
@@ -86,14 +88,15 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     import invrender as ir
+    from invrender.diff.defaults import DEFAULT_INTEGRATOR, file_integrator, scene_spp
 
     outputs = check_outputs(args.out)
     scene = ir.load_scene(args.scene, resolution=args.resolution, ambient=args.ambient)
-    # settings not given fall back to the scene file's suggestions (scene.defaults), then to the
-    # integrator's defaults; its max_depth and rr_depth belong to its integrator (Mitsuba's path)
-    defaults = scene.defaults
-    spp = args.spp if args.spp is not None else defaults.get("spp", 64)
-    base = {"type": defaults.get("integrator", "path"), **{k: v for k, v in defaults.items() if k not in ("spp", "integrator")}}
+    # settings not given fall back to the scene file's (scene.defaults), then to the integrator's
+    # defaults; the file's settings belong to its integrator; invrender.render reports overrides
+    file_name, file_settings = file_integrator(scene)
+    spp = scene_spp(scene, args.spp)
+    base = {"type": file_name or DEFAULT_INTEGRATOR, **file_settings}
     flags = {"max_depth": args.max_depth, "rr_depth": args.rr_depth, "strategy": args.strategy, "hemisphere": args.hemisphere}
     spec = integrator_spec(args, base, flags)
     adaptive = adaptive_settings(args)
@@ -115,7 +118,9 @@ def run(args) -> int:
             written += [p for p in write_sample_counts(path, result.spp) if p not in written]
     if not args.quiet:
         paths = scene.width * scene.height * spp
-        print(f"{scene.name}: {scene.width}x{scene.height}, {spp} spp, {seconds:.2f} s ({paths / seconds / 1e6:.3g} M paths/s); mean RGB {mean_rgb(full)}", file=sys.stderr)
+        file_spp = scene.defaults.get("spp")
+        overridden = f"; --spp overrides the file's {file_spp} spp" if file_spp is not None and file_spp != spp else ""
+        print(f"{scene.name}: {scene.width}x{scene.height}, {spp} spp, {seconds:.2f} s ({paths / seconds / 1e6:.3g} M paths/s); mean RGB {mean_rgb(full)}{overridden}", file=sys.stderr)
         if adaptive is not None:
             counts = result.spp.float()
             print(f"adaptive: pilot {result.pilot_spp} spp + {len(result.passes)} rounds; samples per pixel {int(counts.min())} to {int(counts.max())} (mean {counts.mean():.4g}); "

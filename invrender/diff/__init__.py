@@ -17,6 +17,7 @@ from __future__ import annotations
 import torch
 
 from invrender.diff.autodiff import autodiff_render
+from invrender.diff.defaults import report, scene_integrator, scene_spp
 from invrender.errors import ParameterError
 from invrender.scene.scene import Scene
 from invrender.transport.adaptive import AdaptiveSettings
@@ -56,8 +57,8 @@ def resolve_estimator(estimator: str, scene: Scene, integrator: Integrator, sett
 
 def render(
     scene: Scene,
-    integrator="path",
-    spp: int = 64,
+    integrator=None,
+    spp: int | None = None,
     max_depth: int | None = None,
     seed: int = 0,
     *,
@@ -78,18 +79,27 @@ def render(
     """Render ``scene`` by Monte Carlo estimation of ``I = g eps + gMg eps + g(Mg)^2 eps + ...``.
 
     Args:
-        scene: from :func:`invrender.load_scene`; its ``params`` are read at this call.
-        integrator: an integrator spec (:mod:`invrender.registry`): a name (``"path"``,
+        scene: from :func:`invrender.load_scene`; its ``params`` are read at this call, and its
+            ``defaults`` (the render settings its file states: a Mitsuba ``<integrator>`` and
+            ``<sampler>``) are the defaults of ``integrator``, its settings and ``spp``
+            (:mod:`invrender.diff.defaults`: settings given win, and those that differ from the
+            file's are reported in one :class:`~invrender.diff.defaults.SettingOverridden` warning).
+        integrator: None (the scene file's integrator and settings, else ``"path"``) or an
+            integrator spec (:mod:`invrender.registry`): a name (``"path"``,
             ``"random_walk"``, ``"utah"``, ``"whitted"``, ``"distributed"``, ``"radiosity"``), a
             mapping ``{"type": "path", "max_depth": 8, "rr_depth": 3}`` or an
-            :class:`~invrender.transport.integrators.Integrator` object. Settings given as keywords
-            beside a name or mapping (``max_depth``, ``rr_depth``, ``options``) are added to it.
-        spp: samples per pixel.
+            :class:`~invrender.transport.integrators.Integrator` object (used as it is). Settings
+            given as keywords beside a name or mapping (``max_depth``, ``rr_depth``, ``options``)
+            are added to it. A name or mapping naming the file's integrator keeps the file's
+            settings not given; another integrator starts from its own defaults.
+        spp: samples per pixel; None = the scene file's sample count, else 64.
         max_depth: Neumann terms kept (1 = emitters seen directly, 2 = + direct light, ...; -1 =
-            unbounded, ended by Russian roulette); None = the integrator's default (8; utah 2).
+            unbounded, ended by Russian roulette); None = the scene file's, else the integrator's
+            default (8; utah 2).
         seed: the image is a pure function of the seed (and the scene and settings).
         terms: return one image per Neumann term instead of their sum.
-        rr_depth: Russian roulette starts after this many terms (None = the integrator's default, 5).
+        rr_depth: Russian roulette starts after this many terms (None = the scene file's, else the
+            integrator's default, 5).
         estimator: how the image is differentiated when a parameter requires grad:
             ``"replay"`` (default; path-replay backpropagation, memory flat in spp and depth),
             ``"autodiff"`` (torch records the whole wavefront) or ``"auto"`` (autodiff where the
@@ -122,7 +132,10 @@ def render(
     for key, value in (("max_depth", max_depth), ("rr_depth", rr_depth)):
         if value is not None:
             options[key] = value
-    model = make_integrator(integrator, **options)
+    spec, overridden = scene_integrator(scene, integrator, options)
+    model = make_integrator(integrator, **options) if isinstance(spec, Integrator) else make_integrator(spec)
+    report(scene, overridden)
+    spp = scene_spp(scene, spp)
     settings = RenderSettings(spp=spp, seed=seed, terms=terms, backend=backend, chunk_paths=chunk_paths, memory_mb=memory_mb, progress=progress, sampler=sampler, sampling_params=sampling_params)
     check_paths(scene.width, scene.height, spp)  # before any work, whichever estimator runs
     estimator = resolve_estimator(_check_estimator(estimator or "replay"), scene, model, settings)

@@ -27,6 +27,7 @@ import torch
 from tqdm.auto import tqdm
 
 from invrender.diff import ESTIMATOR_CHOICES, backpropagate, render
+from invrender.diff.defaults import fit_settings
 from invrender.errors import ParameterError
 from invrender.inverse import params as P
 from invrender.inverse.control_variates import RecursiveControlVariate
@@ -282,6 +283,8 @@ def fit(
         settings: any :class:`FitSettings` field, e.g. ``steps=300, loss="l1"`` or
             ``integrator={"type": "path", "rr_depth": 3, "strategy": "emitter"}``; all are checked
             (one-line :class:`ParameterError`) before any target is read or any render starts.
+            The scene file's integrator and its settings are the default of ``integrator``
+            (:func:`invrender.diff.defaults.fit_settings`; not its sample count).
     """
     known = {f.name for f in dataclasses.fields(FitSettings)}
     unknown = set(settings) - known
@@ -295,7 +298,7 @@ def fit(
             raise ParameterError(f"cannot resume: no checkpoint at {checkpoint}")
         state = _read_checkpoint(checkpoint, scene, names)
         settings = {**{k: v for k, v in state["settings"].items() if k in known}, **settings}  # stored, unless given anew
-    cfg = FitSettings(**settings)
+    cfg = FitSettings(**(settings if state is not None else fit_settings(scene, settings)))  # the scene file's integrator unless given
     views = load_targets(scene, target, cameras, mask=mask, response=response, exclude_clipped=exclude_clipped)
     sensor = Sensor.make(len(views), names, sensor)
     truth = {k: torch.as_tensor(v, dtype=torch.float32) for k, v in (truth or {}).items()}

@@ -34,6 +34,7 @@ import dataclasses
 from dataclasses import dataclass
 
 from invrender.diff import ESTIMATORS
+from invrender.diff.defaults import scene_integrator
 from invrender.errors import ParameterError
 from invrender.registry import integrator_spec
 from invrender.study.loss_gradients import LOSS_GRADIENTS
@@ -117,13 +118,16 @@ class GradientConfig:
         """Keywords of :func:`invrender.render` for this configuration (without spp and seed)."""
         return {"integrator": self.integrator, "estimator": self.estimator, **self.render_options}
 
-    def integrator_and_settings(self, spp: int, seed: int) -> tuple[Integrator, RenderSettings]:
+    def integrator_and_settings(self, spp: int, seed: int, scene=None) -> tuple[Integrator, RenderSettings]:
         """What :func:`invrender.diff.backpropagate` takes: the options split into the integrator's
-        settings and the render settings (:class:`RenderSettings` fields such as ``backend``)."""
+        settings and the render settings (:class:`RenderSettings` fields such as ``backend``);
+        with ``scene``, its file's integrator settings fill in as :func:`invrender.render`'s do."""
         render_fields = {f.name for f in dataclasses.fields(RenderSettings)}
         options = self.render_options
         settings = RenderSettings(spp=spp, seed=seed, progress=False, **{k: v for k, v in options.items() if k in render_fields})
-        return make_integrator(self.integrator, **{k: v for k, v in options.items() if k not in render_fields}), settings
+        given = {k: v for k, v in options.items() if k not in render_fields}
+        spec = scene_integrator(scene, self.integrator, given)[0] if scene is not None else {"type": self.integrator, **given}
+        return make_integrator(spec), settings
 
     def replace(self, **changes) -> GradientConfig:
         return dataclasses.replace(self, **changes)

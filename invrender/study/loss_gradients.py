@@ -126,7 +126,7 @@ class Decorrelated(LossGradient):
     fit_settings: ClassVar[dict[str, object] | None] = {"decorrelate": True}
 
     def backward(self, objective, config, spp, seed, prepared=None):
-        integrator, settings = config.integrator_and_settings(spp, seed)
+        integrator, settings = config.integrator_and_settings(spp, seed, objective.scene)
         backpropagate(objective.scene, self.adjoint(objective, config, spp, seed, None, prepared), integrator, settings, config.estimator)
 
     def adjoint(self, objective, config, spp, seed, image, prepared=None):

@@ -291,7 +291,7 @@ def test_the_material_and_the_sky_load_from_scene_files(tmp_path, suffix):
     assert scene.emitter_spec(0).type == "test_sky" and scene.emitters == ("sky",)
     torch.testing.assert_close(scene.params["box.reflectance"], torch.full((3,), 0.6))
     torch.testing.assert_close(scene.params["sky.emission"], torch.full((3,), 2.0))
-    img = ir.render(scene, spp=4, max_depth=3, seed=0, progress=False)
+    img = ir.render(scene, "path", spp=4, max_depth=3, seed=0, progress=False)  # path, not the .xml file's test_albedo
     assert bool((img[0, 0] == 2.0).all())  # a corner pixel sees the sky
 
 

@@ -87,7 +87,7 @@ def test_obj_mtl_through_from_gltf(tmp_path, tinted):
     (tmp_path / "m.mtl").write_text("newmtl shiny\nillum 3\nKs 0.5 0.25 1\nnewmtl matte\nKd 0.2 0.3 0.4\n")
     faces = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nusemtl shiny\nf 1 2 3\nusemtl matte\nf 2 4 3\n"
     (tmp_path / "m.obj").write_text("mtllib m.mtl\n" + faces)
-    scene = ir.load_scene(tmp_path / "m.obj", resolution=(4, 4))
+    scene = ir.load_scene(tmp_path / "m.obj", resolution=(4, 4), studio=False)
     types = {name: spec.type for name, spec in zip(scene.materials, scene.material_specs)}
     assert types == {"shiny": "test_tinted", "matte": "diffuse"}
     assert scene.material_specs[scene.materials.index("shiny")].constants == {"tint": 0.75}

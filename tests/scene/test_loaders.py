@@ -181,7 +181,7 @@ def test_glb_materials_emission_strength_and_camera():
 
 
 def test_obj_loads_with_default_camera():
-    scene = ir.load_scene(FORWARD / "meshes" / "torus.obj", resolution=(16, 16))
+    scene = ir.load_scene(FORWARD / "meshes" / "torus.obj", resolution=(16, 16), studio=False)  # the file as it is: no studio
     assert scene.triangles.count == 576 and scene.emitters == () and scene.materials == ("material",)
     assert torch.allclose(scene.params["material.reflectance"], torch.full((3,), 0.8))  # no .mtl: grey
     cam = scene.camera

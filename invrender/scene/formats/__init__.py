@@ -2,7 +2,8 @@
 
 - ``.toml``: invrender's own TOML scene format (:mod:`.toml`);
 - ``.xml``: a documented subset of Mitsuba 3's XML scene format (:mod:`.mitsuba`);
-- ``.gltf``, ``.glb``, ``.obj``: whole scenes through trimesh (:mod:`.trimesh`).
+- ``.gltf``, ``.glb``, ``.obj``, ``.ply``, ``.stl``: whole scenes through trimesh (:mod:`.trimesh`),
+  placed in a default studio when they have no emitter (:mod:`.studio`).
 
 :func:`load_file` picks the format by the file's suffix (:data:`SUFFIXES`). Mesh files named by
 the TOML format's ``mesh`` shapes are read by :mod:`.trimesh` too; Mitsuba's ``obj``/``ply`` shapes
@@ -27,11 +28,11 @@ from pathlib import Path
 
 from invrender.scene.formats.mitsuba import load_mitsuba_xml
 from invrender.scene.formats.toml import load_toml
-from invrender.scene.formats.trimesh import load_mesh_file
+from invrender.scene.formats.trimesh import MESH_SUFFIXES, load_mesh_file
 from invrender.scene.scene import Scene
 
 #: file suffix (lower case) -> the loader of that format: ``loader(path, resolution) -> Scene``
-SUFFIXES = {".toml": load_toml, ".xml": load_mitsuba_xml, ".gltf": load_mesh_file, ".glb": load_mesh_file, ".obj": load_mesh_file}
+SUFFIXES = {".toml": load_toml, ".xml": load_mitsuba_xml, **{suffix: load_mesh_file for suffix in MESH_SUFFIXES}}
 
 
 def load_file(path, resolution=None) -> Scene:
@@ -46,4 +47,4 @@ def load_file(path, resolution=None) -> Scene:
     return SUFFIXES[path.suffix.lower()](path, resolution)
 
 
-__all__ = ["SUFFIXES", "load_file", "load_mesh_file", "load_mitsuba_xml", "load_toml"]
+__all__ = ["MESH_SUFFIXES", "SUFFIXES", "load_file", "load_mesh_file", "load_mitsuba_xml", "load_toml"]

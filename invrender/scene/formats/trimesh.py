@@ -1,4 +1,4 @@
-"""Whole scenes from glTF, GLB and OBJ files, and the mesh files of other formats' shapes, through trimesh.
+"""Whole scenes from glTF, GLB, OBJ, PLY and STL files, and the mesh files of other formats' shapes, through trimesh.
 
 :func:`load_mesh_file` reads a whole scene with ``trimesh.load(path, force="scene")``; every
 geometry is moved to world space by its scene-graph transform, and triangles are ordered by
@@ -53,6 +53,9 @@ colour), read as follows.
   orthographic cameras), a camera with a 45-degree field of view on the image's smaller axis looks
   down -z at the bounding-box centre from far enough on +z to see the whole bounding sphere, and
   the default resolution is 256 x 256.
+- PLY and STL files are geometry only (a grey diffuse, reflectance 0.8). With ``studio`` (what
+  :func:`invrender.load_scene` does for a file without an emitter) the mesh is placed in the
+  default studio of :mod:`.studio`: its camera (unless the glTF file has one), a floor and a light.
 """
 
 from __future__ import annotations
@@ -69,23 +72,29 @@ import numpy as np
 from invrender import registry
 from invrender.errors import SceneError
 from invrender.scene.camera import Camera
+from invrender.scene.formats.studio import studio_camera, studio_parts
 from invrender.scene.formats.values import is_number, one_line, show
 from invrender.scene.materials import Material
 from invrender.scene.scene import Scene, build_scene
 from invrender.scene.shapes import Mesh
 
+#: the suffixes (lower case) of the mesh files read as whole scenes
+MESH_SUFFIXES = (".gltf", ".glb", ".obj", ".ply", ".stl")
 DEFAULT_RESOLUTION = (256, 256)
 DEFAULT_RHO = 0.8  # reflectance of glTF primitives / OBJ faces without a material
 FRAMING_FOV = 45.0
 
 
-def load_mesh_file(path, resolution=None) -> Scene:
-    """A whole scene from a .gltf/.glb/.obj file (mapping in this module's docstring).
+def load_mesh_file(path, resolution=None, studio: bool | None = False) -> Scene:
+    """A whole scene from a .gltf/.glb/.obj/.ply/.stl file (mapping in this module's docstring).
 
     Args:
         path: the file.
         resolution: (width, height); None = from the glTF camera's aspect ratio (height 256), else
             256 x 256.
+        studio: place the mesh in the default studio (:mod:`.studio`: a framing camera unless the
+            glTF file has one, a floor and an area light); None = when the file has no emitter;
+            False (default) = the file as it is (a framing camera where it has none, no floor or light).
     Raises:
         SceneError: missing or unreadable file, no triangles, an invalid camera.
     """
@@ -112,9 +121,15 @@ def load_mesh_file(path, resolution=None) -> Scene:
         v, f = np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64)
         meshes.append(Mesh(v, f, _uv(mesh), name, emitter, normals))
 
+    vertices = np.concatenate([m.vertices for m in meshes])
+    if studio is None:
+        studio = not emission
     camera, aspect = _gltf_camera(gltf, path) if is_gltf else (None, None)
     if camera is None:
-        camera = _framing_camera(np.concatenate([m.vertices for m in meshes]))
+        camera = studio_camera(vertices) if studio else _framing_camera(vertices)
+    if studio:
+        extra, extra_materials, extra_emission = studio_parts(vertices, set(materials) | set(emission))
+        meshes, materials, emission = meshes + extra, {**materials, **extra_materials}, {**emission, **extra_emission}
     if resolution is None:
         resolution = (max(1, round(256 * aspect)), 256) if aspect else DEFAULT_RESOLUTION
     try:
