@@ -79,13 +79,14 @@ class Film:
             self._images[k] = sum_across_ranks(image if image is not None else torch.zeros(self.width * self.height, 3, dtype=torch.float64, device=self.device))
         return self
 
-    def develop(self, spp: int) -> torch.Tensor:
-        """The mean over ``spp`` samples: (H, W, 3), or (K, H, W, 3) per term with ``terms``."""
+    def develop(self, spp: int, terms: int = 1) -> torch.Tensor:
+        """The mean over ``spp`` samples: (H, W, 3), or (K, H, W, 3) per term with ``terms``, K at
+        least ``terms`` (the terms the integrator keeps: an image of zeros for terms nothing reached)."""
         shape = (self.height, self.width, 3)
         if not self.terms:
             img = self._images.get(0, torch.zeros(self.width * self.height, 3, device=self.device))
             return (img / spp).float().reshape(shape)
-        count = max(self._images, default=-1) + 1
+        count = max(max(self._images, default=-1) + 1, terms)
         zero = torch.zeros(self.width * self.height, 3, dtype=torch.float64, device=self.device)
         return torch.stack([(self._images.get(k, zero) / spp).float().reshape(shape) for k in range(count)])
 

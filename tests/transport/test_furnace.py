@@ -55,3 +55,12 @@ def test_unbounded_terms_sum_to_image():
     terms = ir.render(scene, spp=16, max_depth=-1, rr_depth=2, seed=3, terms=True, progress=False)
     assert terms.shape[0] > 4
     assert torch.allclose(terms.sum(0), full, rtol=1e-5, atol=1e-6)
+
+
+def test_terms_nothing_reached_are_images_of_zeros():
+    """A tiny view where no camera ray sees the light: max_depth 1 gives one (zero) term image,
+    not an error, and max_depth 3 three, whichever terms the paths reached."""
+    scene = ir.load_scene("cornell_box", resolution=(4, 4))
+    one = ir.render(scene, spp=2, max_depth=1, terms=True, progress=False)
+    assert one.shape == (1, 4, 4, 3)
+    assert ir.render(scene, spp=2, max_depth=3, terms=True, progress=False).shape == (3, 4, 4, 3)

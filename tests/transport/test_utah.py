@@ -88,7 +88,7 @@ def test_ambient_adds_rho_eps0_where_a_surface_is_seen():
 def test_utah_gradient_in_eps0_rho_and_eps(cbox32, estimator):
     """d(sum of image)/d eps0 is the summed reflectance of what each pixel sees; replay equals
     autodiff for every parameter."""
-    scene = cbox32.with_ambient((0.1, 0.2, 0.3))
+    scene = cbox32.with_params({k: v.detach().clone() for k, v in cbox32.params.items()}).with_ambient((0.1, 0.2, 0.3))  # own leaves: cbox32 is shared
     for p in scene.params.values():
         p.requires_grad_(True)
     image = ir.render(scene, "utah", spp=4, seed=5, estimator=estimator, progress=False)

@@ -213,7 +213,7 @@ class Integrator(ABC):
 
         size = BYTES_PER_PATH if keep is None else BYTES_PER_REPLAYED_PATH  # kept chunks are replay's chunks
         for_each_chunk(scene, settings, device, chunk, across_ranks=True, with_start=True, bytes_per_path=size)
-        return Film.merge(films).summed_across_ranks().develop(settings.spp)
+        return Film.merge(films).summed_across_ranks().develop(settings.spp, max(self.terms_kept, 1))
 
 
 def make_integrator(integrator="path", **options) -> Integrator:
