@@ -372,7 +372,7 @@ BAD = {
     "bad transform op": ('<shape type="rectangle"><transform name="to_world">\n<shear value="1"/></transform></shape>', "shear", "a <transform> holds only translate"),
     "integrator": ('<shape type="rectangle"/>\n<integrator type="prb"/>', "prb", "unsupported integrator type 'prb' (supported: path, direct)"),
     "max_depth 0": ('<shape type="rectangle"/><integrator type="path">\n<integer name="max_depth" value="0"/></integrator>', "max_depth", "'max_depth' must be >= 1, or -1"),
-    "include": ('\n<include filename="other.xml"/><shape type="rectangle"/>', "include", "<include> is not supported"),
+    "include": ('\n<include filename="other.xml"/><shape type="rectangle"/>', "include", "included file not found: 'other.xml'"),
     "text": ('<shape type="rectangle">\nhello</shape>', "hello", "unexpected text 'hello'"),
 }
 

@@ -26,6 +26,7 @@ def plugins() -> dict:
 
 def emitter(ctx: Context, obj: Obj, in_shape: bool) -> Emitter:
     """The :class:`Emitter` of an ``<emitter>`` nested in a shape (``in_shape``) or in the scene."""
+    ctx.check_broken(obj)
     known = plugins()
     if obj.type not in known:
         listed = [name for name, cls in known.items() if cls.surface or not in_shape]  # in a shape: the ones a shape can hold

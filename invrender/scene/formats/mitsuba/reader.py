@@ -85,9 +85,9 @@ class PluginReader:
         value = self.string(name)
         if value is None:
             raise self.error(None, f"'{name}' is required")
-        path = self._ctx.base / value
-        if not path.is_file():
-            raise self.error(name, f"file not found: {path}")
+        path = self._ctx.find_file(self._obj.props[name].node, value)
+        if path is None or not path.is_file():
+            raise self.error(name, f"file not found: {self._ctx.base / value}")
         return path
 
     def finish(self, supported: tuple) -> None:

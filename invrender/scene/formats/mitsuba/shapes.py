@@ -82,15 +82,32 @@ def shape(ctx: Context, obj: Obj, emitter_name) -> tuple[Mesh, int]:
     mesh = mesh.transformed(matrix)
     if compute_normals:  # as Mitsuba does: angle-weighted, from the world-space triangles
         mesh = Mesh(mesh.vertices, mesh.faces, mesh.uvs, "", None, _vertex_normals(mesh.vertices, mesh.faces))
-    ctx.finish(obj, tuple(supported), ("bsdf", "emitter"))
+    own = None
+    try:
+        ctx.finish(obj, tuple(supported), ("bsdf", "emitter"))
+    except SceneError as e:  # its BSDF and emitter are still checked
+        own = e
 
     bsdf = ctx.one_nested(obj, "bsdf")
     if bsdf is None:  # Mitsuba's default BSDF
-        bsdf = Obj(Node("bsdf", {"type": "diffuse"}, obj.node.line), "diffuse", obj.order)
-    key = material(ctx, bsdf, obj.id)
+        bsdf = Obj(Node("bsdf", {"type": "diffuse"}, obj.node.line, where=obj.node.where), "diffuse", obj.order)
+    try:
+        key = material(ctx, bsdf, obj.id)
+    except SceneError as e:
+        if own is None:
+            raise
+        ctx.problem(e)
     emitter = ctx.one_nested(obj, "emitter")
     if emitter is not None:
-        mesh = Mesh(mesh.vertices, mesh.faces, mesh.uvs, "", emitter_name(obj, emitter_of(ctx, emitter, in_shape=True)), mesh.normals)
+        try:
+            ctx.attached.add(id(emitter))
+            mesh = Mesh(mesh.vertices, mesh.faces, mesh.uvs, "", emitter_name(obj, emitter_of(ctx, emitter, in_shape=True)), mesh.normals)
+        except SceneError as e:
+            if own is None:
+                raise
+            ctx.problem(e)
+    if own is not None:
+        raise own
     return mesh, key
 
 
@@ -102,9 +119,9 @@ def mesh_file(ctx: Context, obj: Obj) -> tuple[Mesh, np.ndarray, bool]:
     prop = ctx.take(obj, "filename", ("string",), "a <string>")
     if prop is None:
         raise ctx.error(obj.node, "missing <string name=\"filename\">", obj)
-    path = ctx.base / prop.value
-    if not path.is_file():
-        raise ctx.error(prop.node, f"mesh file not found: {path}", obj)
+    path = ctx.find_file(prop.node, prop.value)
+    if path is None or not path.is_file():
+        raise ctx.error(prop.node, f"mesh file not found: {ctx.base / prop.value}", obj)
     face_normals = ctx.get(obj, "face_normals", "boolean", False)
     flip_uv = ctx.get(obj, "flip_tex_coords", "boolean", obj.type == "obj")
     try:

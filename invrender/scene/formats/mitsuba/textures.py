@@ -69,6 +69,7 @@ def colour(ctx: Context, obj: Obj, name: str, kind: ParamKind, default: float, t
 
 def bitmap(ctx: Context, tex: Obj) -> np.ndarray:
     """The linear RGB (h, w, 3) float64 of a ``<texture>`` (read or baked once; references share it)."""
+    ctx.check_broken(tex)
     if id(tex) not in ctx.textures:
         ctx.textures[id(tex)] = read_checkerboard(ctx, tex) if tex.type == "checkerboard" else read_bitmap(ctx, tex)
     return ctx.textures[id(tex)]
@@ -96,7 +97,7 @@ def read_bitmap(ctx: Context, tex: Obj) -> np.ndarray:
         value = ctx.get(tex, key, "string", allowed)
         if value != allowed:
             raise ctx.error(tex.props[key].node, f"{key} {value!r} is not supported (supported: {allowed})", tex)
-    path = ctx.base / filename
+    path = ctx.find_file(tex.props["filename"].node, filename) or ctx.base / filename
     raw = ctx.get(tex, "raw", "boolean", False)
     if raw and path.suffix.lower() != ".exr":
         raise ctx.error(tex.props["raw"].node, "raw=true is supported for EXR files only (PNG/JPEG are always sRGB-decoded)", tex)
