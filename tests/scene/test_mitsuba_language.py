@@ -4,6 +4,7 @@ at the top level and referenced, Mitsuba 0.x upgrades, and one error listing eve
 Reference numbers marked "Mitsuba 3.9.1" were computed once with mitsuba 3.9.1 (``scalar_rgb``,
 ``mi.traverse`` of the same XML) and are hard-coded here: the tests do not need Mitsuba."""
 
+import numpy as np
 import pytest
 
 from invrender.errors import SceneError
@@ -193,3 +194,82 @@ def test_every_problem_is_listed_in_one_error(tmp_path):
         assert f"({i}) " in message and words in message.split(f"({i}) ")[1], (i, message)
     assert message.endswith("... and 3 more") and "prb" not in message
     assert "x" * 60 not in message  # long values abbreviated
+
+
+# ---------------------------------------------------------------- shapes, integrators, properties
+
+
+def test_serialized_meshes(tmp_path):
+    from invrender.scene.formats.mitsuba.serialized import write_serialized
+
+    tri = {"vertices": [[0, 0, 0], [1, 0, 0], [0, 1, 0]], "faces": [[0, 1, 2]], "uvs": [[0, 0], [1, 0], [0, 1]], "name": "tri"}
+    quad = {"vertices": [[0, 0, 1], [2, 0, 1], [2, 2, 1], [0, 2, 1]], "faces": [[0, 1, 2], [0, 2, 3]], "normals": [[0, 0, 1]] * 4}
+    for version in (3, 4):
+        (tmp_path / f"m{version}.serialized").write_bytes(write_serialized([tri, quad], version=version))
+    path = write(tmp_path / "s.xml", """
+    <shape type="serialized"><string name="filename" value="m4.serialized"/></shape>
+    <shape type="serialized"><string name="filename" value="m3.serialized"/><integer name="shape_index" value="1"/>
+        <transform name="to_world"><translate z="1"/></transform></shape>""")
+    scene = load_mitsuba_xml(path)
+    corners = scene.triangles.corners()
+    assert corners.shape[0] == 3 and corners[0].tolist() == [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
+    assert corners[1:, :, 2].flatten().tolist() == [2] * 6 and corners[2].tolist() == [[0, 0, 2], [2, 2, 2], [0, 2, 2]]
+    assert scene.triangles.uv[0].tolist() == [[0, 1], [1, 1], [0, 0]]  # stored unflipped, as Mitsuba (invrender's v = 1 - v)
+    # corrupt files: one line naming the file and line
+    data = (tmp_path / "m4.serialized").read_bytes()
+    for name, bad, words in (("magic", b"\0\0" + data[2:], "not a serialized mesh file (format identifier 0x0000"),
+                             ("zlib", data[:4] + b"garbage" + data[11:], "corrupt compressed data"),
+                             ("short", data[:30], "truncated mesh data")):  # fmt: skip
+        (tmp_path / f"{name}.serialized").write_bytes(bad)
+        p = write(tmp_path / f"{name}.xml", f'<shape type="serialized">\n<string name="filename" value="{name}.serialized"/></shape>')
+        assert error_of(p).startswith(f"{p}:{line_of(p, 'filename')}: <shape type=\"serialized\">: corrupt serialized file "), error_of(p)
+        assert words in error_of(p), error_of(p)
+    p = write(tmp_path / "index.xml", '<shape type="serialized"><string name="filename" value="m4.serialized"/>\n<integer name="shape_index" value="2"/></shape>')
+    assert error_of(p).startswith(f"{p}:{line_of(p, 'shape_index')}:") and "shape_index 2 is out of range: the file has 2 meshes" in error_of(p)
+
+
+def test_disk_and_cylinder_follow_mitsubas_parametrization(tmp_path):
+    """Mitsuba 3.9.1 scalar_rgb, ray hits: a cylinder radius 0.5 from 0 0 0 to 0 0 2 at
+    (0.4899, 0.1, 0.5) has uv (0.0320471, 0.25) and normal (0.9798, 0.2, 0); a disk at
+    (-0.2, -0.3, 0) has uv (0.360555, 0.656416): uv = (phi / 2 pi, z / length), (r, phi / 2 pi)."""
+    path = write(tmp_path / "s.xml", """
+    <shape type="cylinder"><float name="radius" value="0.5"/><point name="p1" x="0" y="0" z="2"/></shape>
+    <shape type="disk"/>""")
+    scene = load_mitsuba_xml(path)
+    tris = scene.triangles
+    corners, uv = tris.corners().numpy(), tris.uv.numpy()
+    n_cyl = 2 * 256
+    cyl, disk = corners[:n_cyl].reshape(-1, 3), corners[n_cyl:].reshape(-1, 3)
+    assert np.allclose(np.linalg.norm(cyl[:, :2], axis=1), 0.5) and set(np.round(cyl[:, 2], 9)) == {0.0, 2.0}
+    u = uv[:n_cyl].reshape(-1, 2)
+    phi = np.mod(np.arctan2(cyl[:, 1], cyl[:, 0]), 2 * np.pi) / (2 * np.pi)
+    assert np.allclose(np.where(np.isclose(u[:, 0], 1.0), 0.0, u[:, 0]), np.where(np.isclose(phi, 1.0), 0.0, phi), atol=1e-6)
+    assert np.allclose(1.0 - u[:, 1], cyl[:, 2] / 2)
+    geometric = np.cross(corners[:n_cyl, 1] - corners[:n_cyl, 0], corners[:n_cyl, 2] - corners[:n_cyl, 0])
+    assert np.all(np.einsum("ij,ij->i", geometric, corners[:n_cyl].mean(1) * [1, 1, 0]) > 0)  # facing outwards
+    r = np.linalg.norm(disk[:, :2], axis=1)
+    duv = uv[n_cyl:].reshape(-1, 2)
+    assert np.allclose(duv[:, 0], r) and np.allclose(disk[:, 2], 0)
+    rim = r > 0.5
+    wrap = np.mod(1.0 - duv[rim, 1] - np.arctan2(disk[rim, 1], disk[rim, 0]) / (2 * np.pi) + 0.5, 1.0) - 0.5
+    assert np.allclose(wrap, 0.0, atol=1e-6)
+    assert np.mod(np.arctan2(-0.3, -0.2), 2 * np.pi) / (2 * np.pi) == pytest.approx(0.656416, abs=1e-6)  # Mitsuba's v there
+
+
+def test_moment_integrator_and_accepted_defaults(tmp_path):
+    path = write(tmp_path / "s.xml", """
+    <integrator type="moment"><integrator type="path"><integer name="max_depth" value="5"/></integrator></integrator>
+    <shape type="rectangle"><bsdf type="dielectric"><float name="specular_reflectance" value="1"/></bsdf>
+        <emitter type="area"><float name="sampling_weight" value="1"/></emitter></shape>
+    <texture type="bitmap" id="t"><string name="filename" value="t.png"/><string name="wrap_mode" value="Repeat"/></texture>""")
+    from PIL import Image
+
+    Image.fromarray(np.zeros((2, 2, 3), dtype=np.uint8)).save(tmp_path / "t.png")
+    with pytest.warns(UserWarning, match="the moment images .* are not produced"):
+        scene = load_mitsuba_xml(path)
+    assert scene.defaults["integrator"] == "path" and scene.defaults["max_depth"] == 5
+    bad = write(tmp_path / "b.xml", '<shape type="rectangle"><bsdf type="dielectric">\n<float name="specular_reflectance" value="0.5"/></bsdf>'
+                '<emitter type="area"><float name="sampling_weight" value="2"/></emitter></shape>')
+    message = error_of(bad)
+    assert "2 problems" in message and "'specular_reflectance' other than 1 (Mitsuba's default) is not supported by invrender's dielectric" in message
+    assert "'sampling_weight' other than 1 (Mitsuba's default) is not supported by invrender's area" in message

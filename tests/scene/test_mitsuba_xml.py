@@ -339,7 +339,7 @@ def test_load_scene_dispatch_and_cli_defaults(tmp_path, capsys):
 BAD = {
     # name: (body, text on the offending line, words in the message)
     "unknown element": ('<shape type="rectangle"><colour name="x" value="1"/></shape>', "<colour", "unknown element <colour>"),
-    "unsupported shape": ('<shape type="disk"/>', "disk", "unsupported shape type 'disk' (supported: rectangle, cube, sphere, obj, ply)"),
+    "unsupported shape": ('<shape type="hair"/>', "hair", "unsupported shape type 'hair' (supported: rectangle, cube, sphere, disk, cylinder, obj, ply, serialized)"),
     "unsupported bsdf": ('<shape type="rectangle"><bsdf type="plastic"/></shape>', "plastic", "unsupported bsdf type 'plastic'"),
     "unsupported emitter": ('<shape type="rectangle"/>\n<emitter type="projector"/>', "projector", "unsupported emitter type 'projector' (supported: area"),
     "emitter in shape": ('<shape type="rectangle"><emitter type="spot"/></shape>', "spot", "an emitter of type 'spot' is a point or a direction (a delta light), not emitted by a shape"),

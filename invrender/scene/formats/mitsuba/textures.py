@@ -95,7 +95,7 @@ def read_bitmap(ctx: Context, tex: Obj) -> np.ndarray:
         raise ctx.error(tex.node, "missing <string name=\"filename\">", tex)
     for key, allowed in (("filter_type", "bilinear"), ("wrap_mode", "repeat")):
         value = ctx.get(tex, key, "string", allowed)
-        if value != allowed:
+        if value.strip().lower() != allowed:
             raise ctx.error(tex.props[key].node, f"{key} {value!r} is not supported (supported: {allowed})", tex)
     path = ctx.find_file(tex.props["filename"].node, filename) or ctx.base / filename
     raw = ctx.get(tex, "raw", "boolean", False)
