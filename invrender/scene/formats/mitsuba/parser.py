@@ -8,24 +8,33 @@ each with the line it came from. What a plugin type means is the mapping's busin
 (:meth:`Document.get`, :meth:`~Document.take`, :meth:`~Document.nested`, ...) and the check that
 nothing was left unread (:meth:`~Document.finish`). Every error is a one-line
 :class:`~invrender.errors.SceneError` naming the file, the line and the element
-(:meth:`Document.error`); malformed XML is reported with the line expat stopped at.
+(:meth:`Document.error`); malformed XML is reported with the line expat stopped at. A problem in
+one element is noted (:meth:`Document.problem`) and reading goes on; the element holding it is
+marked broken and left out, and :meth:`Document.check_problems` raises them together: one as it
+is, several as one error listing the first five in document order and counting the rest.
 
 File structure
-    ``<scene version="x.y.z">`` root (version 2.0.0 or later; Mitsuba 0.x files with camelCase names
-    are not upgraded). ``<default name="x" value="..."/>`` declares a parameter and ``$x`` in any
+    ``<scene version="x.y.z">`` root (at most 3.x; Mitsuba 0.x files are upgraded as Mitsuba 3
+    does, :func:`upgrade_tree`). ``<default name="x" value="..."/>`` declares a parameter and ``$x`` in any
     attribute value is replaced by it (as Mitsuba does: in document order, longer names first; a
     ``$`` left over is an error); values passed to :func:`~invrender.scene.formats.mitsuba.load_mitsuba_xml` as ``parameters``
     override the defaults (Mitsuba's ``-D x=...``). Objects may carry an ``id`` (unique in the
-    file) and be referenced with ``<ref id="..."/>`` (before or after their definition): BSDFs
-    defined at the top level and used by shapes, and bitmap textures. Comments are ignored; text
-    content, ``<include>``, ``<alias>``, ``<path>`` and unknown elements or attributes are errors,
-    and so is any property a plugin does not list (:meth:`Document.finish`; Mitsuba also rejects
-    unused properties).
+    file) and be referenced with ``<ref id="..."/>`` (before or after their definition): BSDFs,
+    textures and area emitters defined at the top level and used by shapes. ``<path
+    value="folder"/>`` (a child of ``<scene>``, relative to its file) adds a folder searched first
+    for files (:meth:`Document.find_file`). ``<include filename="part.xml"/>`` reads another file's
+    ``<scene>`` children as if they stood there (relative to the including file; its defaults join
+    the others; a cycle or a missing file is an error at the include's line; errors inside it name
+    that file). Comments are ignored; text content, ``<alias>`` and unknown elements or attributes
+    are errors, and so is any property a plugin does not list (:meth:`Document.finish`; Mitsuba
+    also rejects unused properties).
 
 Property elements
     ``<float>``, ``<integer>``, ``<boolean>`` (true/false), ``<string>``, ``<point>``/``<vector>``
     (``value="x y z"`` or ``x``/``y``/``z`` attributes), ``<rgb value="r, g, b"/>`` (one or three
-    numbers), ``<spectrum value="v"/>`` (one constant value only: read as grey ``v, v, v``),
+    numbers), ``<spectrum value="v"/>`` (a constant: read as grey ``v, v, v``), ``<spectrum
+    value="400:0.1, 500:0.3"/>`` or ``<spectrum filename="x.spd"/>`` (a linear sRGB triple as
+    Mitsuba's RGB variants compute it: :meth:`Document.parse_spectrum`, :mod:`.spectra`),
     ``<transform name="to_world">``.
 
 Transforms (inside ``<transform name="to_world">``)

@@ -5,7 +5,7 @@ Colours
     type="bitmap">`` or ``<texture type="checkerboard">`` (inline or a ``<ref>``) where the
     parameter may be a texture; each value is
     checked against its kind's range (:mod:`invrender.scene.kinds`). Colours are linear RGB (RGB
-    variants of Mitsuba); spectra other than constants are errors.
+    variants of Mitsuba); spectra are turned into RGB when read (:mod:`.spectra`).
 
 Bitmap textures (``<texture type="bitmap">``)
     ``filename`` (relative to the XML file; EXR linear, PNG/JPEG sRGB-decoded, like Mitsuba's
