@@ -310,3 +310,15 @@ def test_a_scene_using_the_language_renders_as_mitsuba(tmp_path):
     image = ir.render(scene, spp=64, max_depth=3, seed=0, progress=False)
     means = np.asarray(image).reshape(-1, 3).mean(0)
     assert means == pytest.approx([0.282146, 0.166536, 0.098576], rel=0.02)
+
+
+def test_sampler_and_film_declared_at_the_top_level(tmp_path):
+    path = tmp_path / "s.xml"
+    path.write_text("""<scene version="2.1.0">
+    <sampler type="ldsampler" id="my_sampler"><integer name="sample_count" value="9"/></sampler>
+    <film type="hdrfilm" id="film"><integer name="width" value="10"/><integer name="height" value="4"/></film>
+    <sensor type="perspective"><float name="fov" value="40"/><ref id="my_sampler"/><ref id="film"/></sensor>
+    <shape type="rectangle"/>
+</scene>""")
+    scene = load_mitsuba_xml(path)
+    assert scene.defaults["spp"] == 9 and scene.resolution == (10, 4)

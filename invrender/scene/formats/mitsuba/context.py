@@ -28,5 +28,3 @@ class Context(Document):
         self.subdivisions = subdivisions
         self.materials: dict[int, tuple[Obj, Material, str | None]] = {}
         self.textures: dict[int, np.ndarray] = {}
-        #: ``id(emitter)`` of the emitters shapes hold (nested, or declared at the top level and referenced)
-        self.attached: set[int] = set()

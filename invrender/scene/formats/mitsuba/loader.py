@@ -90,13 +90,15 @@ def build(ctx: Context, resolution) -> Scene:
                 surface_emitters.append(obj)
             elif obj.tag == "emitter":
                 emitter_name(obj, emitter(ctx, obj, in_shape=False))
+            elif obj.tag in ("film", "sampler", "rfilter") and obj.id in ctx.referenced:
+                continue  # declared at the top level for a <ref> where it belongs (a <sensor>, a <film>)
             else:
                 home = {"film": " (it belongs inside a <sensor>)", "sampler": " (it belongs inside a <sensor>)", "rfilter": " (it belongs inside a <film>)"}
                 raise ctx.error(obj.node, f"<{obj.tag}> cannot be a child of <scene>{home.get(obj.tag, '')}", obj)
         except SceneError as e:
             ctx.problem(e)
     for obj in surface_emitters:
-        if id(obj) not in ctx.attached:
+        if obj.id not in ctx.referenced:
             ctx.problem(ctx.error(obj.node, f"an emitter of type {obj.type!r} declared outside a shape must be attached to one (<ref id=\"{obj.id}\"/> inside the <shape>)", obj))
     for prop in scene.props.values():
         ctx.problem(ctx.error(prop.node, "unexpected property of <scene>"))

@@ -218,6 +218,8 @@ class Document:
         self.reading: list[Path] = [path.resolve()]
         #: the problems found so far (:meth:`problem`), raised together by :meth:`check_problems`
         self.problems: list[SceneError] = []
+        #: the ids some ``<ref>`` names
+        self.referenced: set[str] = set()
         #: every file read, in the order met (the main one first)
         self.files: list[str] = [self.where]
         self.scene = self.read()
@@ -367,6 +369,7 @@ class Document:
             self.check_attrs(node, {"id", "name"}, required={"id"})
             self.no_children(node)
             ref = Ref(node.attrs["id"], node)
+            self.referenced.add(ref.id)
             if "name" in node.attrs:
                 self.set_prop(parent, node, node.attrs["name"], ref)
             else:

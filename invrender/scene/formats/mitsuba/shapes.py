@@ -117,7 +117,6 @@ def shape(ctx: Context, obj: Obj, emitter_name) -> tuple[Mesh, int]:
     emitter = ctx.one_nested(obj, "emitter")
     if emitter is not None:
         try:
-            ctx.attached.add(id(emitter))
             mesh = Mesh(mesh.vertices, mesh.faces, mesh.uvs, "", emitter_name(obj, emitter_of(ctx, emitter, in_shape=True)), mesh.normals)
         except SceneError as e:
             found.append(e)
