@@ -189,7 +189,7 @@ def test_every_problem_is_listed_in_one_error(tmp_path):
     <shape type="rectangle"><bsdf type="pplastic"/></shape>
     <shape type="rectangle"><string name="filename" value="{long}"/></shape>""".replace("{long}", "x" * 300))
     message = error_of(path)
-    assert message.startswith(f"{path}: 8 problems stop this scene from loading: (1) {path}:{line_of(path, 'roughness')}: "), message
+    assert message.startswith(f"{path}: 8 problems stop this scene from loading: (1) s.xml:{line_of(path, 'roughness')}: "), message
     for i, words in enumerate(["'roughness'", "'sheen'", "'hair'", "<medium> is not supported", "'projector'"], 1):
         assert f"({i}) " in message and words in message.split(f"({i}) ")[1], (i, message)
     assert message.endswith("... and 3 more") and "prb" not in message

@@ -52,6 +52,7 @@ Transforms (inside ``<transform name="to_world">``)
 from __future__ import annotations
 
 import math
+import os
 import re
 import warnings
 from dataclasses import dataclass, field
@@ -243,12 +244,14 @@ class Document:
 
     def check_problems(self) -> None:
         """Raise the problems noted: one as it is, several as one error listing the first
-        :data:`SHOWN_PROBLEMS` and counting the rest."""
+        :data:`SHOWN_PROBLEMS` in document order (each naming its file relative to the scene's
+        folder, and its line; abbreviated past 240 characters) and counting the rest."""
         if len(self.problems) == 1:
             raise self.problems[0]
         if self.problems:
             problems = sorted(self.problems, key=self._place)  # in document order
-            shown = "; ".join(f"({i}) {_abbreviate(str(e))}" for i, e in enumerate(problems[:SHOWN_PROBLEMS], 1))
+            folder = str(self.path.parent) + os.sep  # each entry names its file relative to the scene's folder
+            shown = "; ".join(f"({i}) {_abbreviate(str(e).removeprefix(folder))}" for i, e in enumerate(problems[:SHOWN_PROBLEMS], 1))
             more = len(self.problems) - SHOWN_PROBLEMS
             rest = f"; ... and {more} more" if more > 0 else ""
             raise SceneError(f"{self.where}: {len(self.problems)} problems stop this scene from loading: {shown}{rest}")
