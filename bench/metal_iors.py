@@ -6,7 +6,7 @@ Source of the numbers: Mitsuba 3's spectral tables ``data/ior/<name>.eta.spd`` a
 Constants of Solids" and others, as shipped with the mitsuba 3.9.1 wheel, in
 ``mitsuba/data/ior``). Mitsuba's RGB variants read them through ``complex_ior_from_file``, which
 turns each table into an sRGB triple by ``spectrum_list_to_srgb(wavelengths, values, bounded=false,
-d65=false)``; this script does the same computation itself:
+d65=false)``; the package does the same computation:
 
 - 1000 wavelengths evenly spaced over [360, 830] nm (both ends included), those outside the
   table's range skipped, the table interpolated linearly at each;
@@ -15,9 +15,11 @@ d65=false)``; this script does the same computation itself:
 - linear sRGB = the XYZ -> sRGB matrix (Rec. 709 primaries, D65 white) times XYZ; negative
   channels clamped to 0.
 
-The colour matching functions are Mitsuba's own 5 nm table, interpolated linearly
-(``mi.cie1931_xyz``). With ``--check`` it also loads each metal in Mitsuba (``scalar_rgb``
-``conductor``) and compares the values Mitsuba built with these (they agree to float32 rounding).
+The conversion and the colour matching functions (Mitsuba's own 5 nm table, interpolated
+linearly) are the package's, :mod:`invrender.scene.formats.mitsuba.spectra` (regenerated with it,
+the table agrees with the one in the package to the last printed digit but one). With ``--check``
+it also loads each metal in Mitsuba (``scalar_rgb`` ``conductor``) and compares the values Mitsuba
+built with these (they agree to float32 rounding).
 Needs Mitsuba 3 (bench/README.md); run from the repository root::
 
     python bench/metal_iors.py [--check] [--data DIR] [--out invrender/materials/metal_iors.py]
@@ -31,27 +33,18 @@ from pathlib import Path
 
 import numpy as np
 
-XYZ_TO_SRGB = np.array([[3.240479, -1.537150, -0.498535], [-0.969256, 1.875991, 0.041556], [0.055648, -0.204043, 1.057311]])
-CIE_MIN, CIE_MAX, STEPS = 360.0, 830.0, 1000
-Y_NORMALIZATION = 1.0 / 106.7502593994140625
+from invrender.scene.formats.mitsuba import spectra
 
 
 def read_spd(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Wavelengths and values of an ``.spd`` file (``#`` comments, two numbers a line)."""
-    rows = [line.split("#", 1)[0].split() for line in path.read_text().splitlines()]
-    rows = [[float(x) for x in r] for r in rows if r]
-    data = np.array(rows, dtype=np.float64)
-    return data[:, 0], data[:, 1]
+    """Wavelengths and values of an ``.spd`` file (the package's reader)."""
+    return spectra.read_spd(path)
 
 
-def to_srgb(wavelengths: np.ndarray, values: np.ndarray, cmf) -> np.ndarray:
+def to_srgb(wavelengths: np.ndarray, values: np.ndarray) -> np.ndarray:
     """Linear sRGB (3,) of a tabulated spectrum, as Mitsuba's ``spectrum_list_to_srgb`` (unbounded,
-    no illuminant); ``cmf(w)`` gives the CIE 1931 x, y, z at wavelengths ``w`` (n,) as (n, 3)."""
-    w = CIE_MIN + np.arange(STEPS) / (STEPS - 1) * (CIE_MAX - CIE_MIN)
-    w = w[(w >= wavelengths[0]) & (w <= wavelengths[-1])]
-    v = np.interp(w, wavelengths, values)
-    xyz = (cmf(w) * v[:, None]).sum(0) * (CIE_MAX - CIE_MIN) * Y_NORMALIZATION / STEPS
-    return np.maximum(XYZ_TO_SRGB @ xyz, 0.0)
+    no illuminant), with the package's colour matching functions."""
+    return spectra.spectrum_to_srgb(wavelengths, values, bounded=False, d65=False)
 
 
 def main(argv=None) -> None:
@@ -66,13 +59,10 @@ def main(argv=None) -> None:
     mi.set_variant("scalar_rgb")
     data = args.data or Path(os.path.dirname(mi.__file__)) / "data" / "ior"
 
-    def cmf(w):
-        return np.array([list(mi.cie1931_xyz(float(x))) for x in w], dtype=np.float64)
-
     names = sorted({p.name.split(".")[0] for p in data.glob("*.eta.spd")}, key=str.lower)
     table = {}
     for name in names:
-        table[name] = tuple(tuple(float(x) for x in to_srgb(*read_spd(data / f"{name}.{part}.spd"), cmf)) for part in ("eta", "k"))
+        table[name] = tuple(tuple(float(x) for x in to_srgb(*read_spd(data / f"{name}.{part}.spd"))) for part in ("eta", "k"))
     worst = 0.0
     if args.check:
         for name, (eta, k) in table.items():

@@ -340,7 +340,7 @@ def test_load_scene_dispatch_and_cli_defaults(tmp_path, capsys):
 BAD = {
     # name: (body, text on the offending line, words in the message)
     "unknown element": ('<shape type="rectangle"><colour name="x" value="1"/></shape>', "<colour", "unknown element <colour>"),
-    "unsupported shape": ('<shape type="disk"/>', "disk", "unsupported shape type 'disk' (supported: rectangle, cube, sphere, obj, ply)"),
+    "unsupported shape": ('<shape type="hair"/>', "hair", "unsupported shape type 'hair' (supported: rectangle, cube, sphere, disk, cylinder, obj, ply, serialized)"),
     "unsupported bsdf": ('<shape type="rectangle"><bsdf type="principled"/></shape>', "principled", "unsupported bsdf type 'principled'"),
     "unsupported emitter": ('<shape type="rectangle"/>\n<emitter type="projector"/>', "projector", "unsupported emitter type 'projector' (supported: area"),
     "emitter in shape": ('<shape type="rectangle"><emitter type="spot"/></shape>', "spot", "an emitter of type 'spot' is a point or a direction (a delta light), not emitted by a shape"),
@@ -373,7 +373,7 @@ BAD = {
     "bad transform op": ('<shape type="rectangle"><transform name="to_world">\n<shear value="1"/></transform></shape>', "shear", "a <transform> holds only translate"),
     "integrator": ('<shape type="rectangle"/>\n<integrator type="prb"/>', "prb", "unsupported integrator type 'prb' (supported: path, direct)"),
     "max_depth 0": ('<shape type="rectangle"/><integrator type="path">\n<integer name="max_depth" value="0"/></integrator>', "max_depth", "'max_depth' must be >= 1, or -1"),
-    "include": ('\n<include filename="other.xml"/><shape type="rectangle"/>', "include", "<include> is not supported"),
+    "include": ('\n<include filename="other.xml"/><shape type="rectangle"/>', "include", "included file not found: 'other.xml'"),
     "text": ('<shape type="rectangle">\nhello</shape>', "hello", "unexpected text 'hello'"),
 }
 

@@ -11,14 +11,17 @@ SceneErrors naming the line and the value too.
 The subset, one module per part (each module's docstring is its reference):
 
 - :mod:`.parser`: the file structure (``<scene>``, ``<default>`` and ``$name`` parameters, ids and
-  ``<ref>``), the property elements and the transforms; a generic XML scene parser that knows no
-  plugin.
-- :mod:`.shapes`: ``rectangle``, ``cube``, ``sphere``, ``obj``, ``ply``.
+  ``<ref>``, ``<path>``, ``<include>``, the Mitsuba 0.x upgrade), the property elements and the
+  transforms; a generic XML scene parser that knows no plugin. A scene with several problems gets
+  one error listing them (the first five and a count).
+- :mod:`.spectra`: spectra into linear sRGB as Mitsuba's RGB variants (CIE 1931 tables).
+- :mod:`.shapes`: ``rectangle``, ``cube``, ``sphere``, ``disk``, ``cylinder``, ``obj``, ``ply``,
+  ``serialized`` (:mod:`.serialized`: Mitsuba's mesh format).
 - :mod:`.bsdfs`: BSDFs onto invrender's materials (and ``twosided``).
 - :mod:`.textures`: colours and bitmap textures.
-- :mod:`.emitters`: ``area`` emitters.
+- :mod:`.emitters`: the emitters of the registry (``area``, nested or referenced; ``point``, ...).
 - :mod:`.sensor`: ``perspective`` and ``thinlens`` sensors, the film, filter and sampler.
-- :mod:`.integrator`: ``path``.
+- :mod:`.integrator`: ``path``, ``direct``, ``moment`` (its nested integrator).
 - :mod:`.loader`: the render settings a file suggests (``scene.defaults``), how materials and
   emitters are named, and the assembled scene.
 """

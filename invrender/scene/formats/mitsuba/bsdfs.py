@@ -79,6 +79,7 @@ def plugins() -> dict:
 def material(ctx: Context, bsdf: Obj, owner: str | None) -> int:
     """The key of ``bsdf``'s material (converting it once; references share it)."""
     key = id(bsdf)
+    ctx.check_broken(bsdf)
     if key not in ctx.materials:
         ctx.materials[key] = (bsdf, convert_bsdf(ctx, bsdf), owner)
     return key

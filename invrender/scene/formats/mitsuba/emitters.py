@@ -5,8 +5,11 @@ Emitters (``<emitter type=...>``)
     it stands for in ``mitsuba_plugins`` and reads them in its ``from_mitsuba`` (whose docstring,
     in the emitter's module of :mod:`invrender.emitters`, says which properties it takes), through
     a :class:`~.reader.PluginReader`. Types that emit from surfaces (``area``: radiance from the
-    front side) are nested in the ``<shape>`` that emits; types that emit from outside the scene
-    and delta lights (``point``, ``spot``, ``directional``) are children of ``<scene>``. The message for an unsupported type lists the registry's.
+    front side) are nested in the ``<shape>`` that emits, or declared at the top level with an
+    ``id`` and attached by a ``<ref id=.../>`` in the shape (one declared so that no shape
+    references is an error); types that emit from outside the scene
+    and delta lights (``point``, ``spot``, ``directional``) are children of ``<scene>``. The message for an unsupported type lists the registry's. Every type accepts
+    Mitsuba's ``sampling_weight`` at its default 1 only (:data:`.reader.AT_DEFAULT`).
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ def plugins() -> dict:
 
 def emitter(ctx: Context, obj: Obj, in_shape: bool) -> Emitter:
     """The :class:`Emitter` of an ``<emitter>`` nested in a shape (``in_shape``) or in the scene."""
+    ctx.check_broken(obj)
     known = plugins()
     if obj.type not in known:
         listed = [name for name, cls in known.items() if cls.surface or not in_shape]  # in a shape: the ones a shape can hold

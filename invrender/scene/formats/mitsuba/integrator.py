@@ -8,18 +8,24 @@ Integrator (at most one ``<integrator>``)
     are the integrator's settings by name (``max_depth``, ``rr_depth``, ...), each read as its
     settings field's type says (``<integer>``, ``<float>``, ``<boolean>``, ``<string>``) and
     checked by the settings themselves (``hide_emitters`` is one of every integrator's). The
-    message for an unsupported type lists the registry's aliases.
+    message for an unsupported type lists the registry's aliases. Mitsuba's ``moment`` integrator
+    (which also writes the second moment of each pixel's samples) is read as the one integrator
+    it holds, with a warning that the moment images are not produced.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 from invrender import registry
 from invrender.errors import ParameterError
 from invrender.scene.formats.mitsuba.context import Context
 from invrender.scene.formats.mitsuba.parser import Obj
 from invrender.validate import type_names
+
+#: Mitsuba's moment integrator: its nested integrator is what is rendered
+MOMENT = "moment"
 
 #: a settings field's type -> the property element read for it
 _TAGS = {"int": "integer", "float": "float", "bool": "boolean", "str": "string"}
@@ -37,6 +43,14 @@ def integrator(ctx: Context, obj: Obj) -> dict:
     """The render settings an ``<integrator>`` states (for ``scene.defaults``): ``{"integrator":
     name, setting: value, ...}`` with the settings the element gives (and, for an alias such as
     Mitsuba's ``direct``, the settings it fixes; its sample counts checked and ignored)."""
+    if obj.type == MOMENT:
+        inner = ctx.nested(obj, "integrator")
+        if len(inner) != 1:
+            raise ctx.error(obj.node, f"a moment integrator must hold one <integrator> (got {len(inner)})", obj)
+        ctx.finish(obj, (), ("integrator",))
+        warnings.warn(f"{obj.node.where or ctx.where}:{obj.node.line}: {obj.describe()}: rendered as its nested <integrator type=\"{inner[0].type}\">; "
+                      "the moment images (the second moment of each pixel's samples) are not produced", stacklevel=2)
+        return integrator(ctx, inner[0])
     known = plugins()
     if obj.type not in known:
         raise ctx.error(obj.node, f"unsupported integrator type {obj.type!r} (supported: {', '.join(known)})", obj)

@@ -2,10 +2,11 @@
 mapped by the plugin modules, named, and assembled.
 
 Render settings the file suggests go to ``scene.defaults`` (only those the file states):
-``{"spp": sample_count, "integrator": "path", "max_depth": ..., "rr_depth": ...}``; ``invrender
-render`` uses them when ``--spp`` / ``--max-depth`` / ``--rr-depth`` are not given (max_depth and
-rr_depth only for ``--integrator path``). Mitsuba's own defaults when the file is silent (4 spp,
-max_depth -1) are not assumed: invrender's (64 spp, max_depth 8) apply.
+``{"spp": sample_count, "integrator": "path", "max_depth": ..., "rr_depth": ...}``; ``ir.render``,
+``fit``, studies and the CLI take them as their defaults where nothing is given
+(:mod:`invrender.diff.defaults`; the file's settings only with the file's integrator). Mitsuba's own
+defaults when the file is silent (4 spp, max_depth -1) are not assumed: invrender's (64 spp,
+max_depth 8) apply.
 
 Names
     A material is named by its BSDF's ``id`` (for ``twosided``, the outer one's), else by its
@@ -24,6 +25,7 @@ from invrender.errors import InvRenderError, SceneError
 from invrender.scene.formats.mitsuba.bsdfs import material
 from invrender.scene.formats.mitsuba.context import Context
 from invrender.scene.formats.mitsuba.emitters import emitter
+from invrender.scene.formats.mitsuba.emitters import plugins as emitter_plugins
 from invrender.scene.formats.mitsuba.integrator import integrator
 from invrender.scene.formats.mitsuba.parser import Obj
 from invrender.scene.formats.mitsuba.sensor import DEFAULT_FILM, sensor
@@ -65,32 +67,45 @@ def build(ctx: Context, resolution) -> Scene:
         return name
 
     camera, film, defaults, seen = None, DEFAULT_FILM, {}, {}
+    surface_emitters = []  # declared at the top level, for shapes to reference
     for item in scene.children:
-        obj = ctx.resolve(item)
-        if obj.tag in seen and obj.tag in ("sensor", "integrator"):
-            raise ctx.error(obj.node, f"only one <{obj.tag}> is supported (the first is at line {seen[obj.tag]})", obj)
-        seen.setdefault(obj.tag, obj.node.line)
-        if obj.tag == "shape":
-            meshes.append(shape(ctx, obj, emitter_name))
-        elif obj.tag == "bsdf":
-            material(ctx, obj, None)  # checked even when no shape uses it
-        elif obj.tag == "texture":
-            bitmap(ctx, obj)
-        elif obj.tag == "sensor":
-            camera, film, sensor_defaults = sensor(ctx, obj)
-            defaults.update(sensor_defaults)
-        elif obj.tag == "integrator":
-            defaults.update(integrator(ctx, obj))
-        elif obj.tag == "emitter":
-            emitter_name(obj, emitter(ctx, obj, in_shape=False))
-        else:
-            home = {"film": " (it belongs inside a <sensor>)", "sampler": " (it belongs inside a <sensor>)", "rfilter": " (it belongs inside a <film>)"}
-            raise ctx.error(obj.node, f"<{obj.tag}> cannot be a child of <scene>{home.get(obj.tag, '')}", obj)
-    if scene.props:
-        prop = next(iter(scene.props.values()))
-        raise ctx.error(prop.node, "unexpected property of <scene>")
-    if not meshes:
+        try:
+            obj = ctx.resolve(item)
+            if obj.broken:  # its problems are noted
+                continue
+            if obj.tag in seen and obj.tag in ("sensor", "integrator"):
+                raise ctx.error(obj.node, f"only one <{obj.tag}> is supported (the first is at line {seen[obj.tag]})", obj)
+            seen.setdefault(obj.tag, obj.node.line)
+            if obj.tag == "shape":
+                meshes.append(shape(ctx, obj, emitter_name))
+            elif obj.tag == "bsdf":
+                material(ctx, obj, None)  # checked even when no shape uses it
+            elif obj.tag == "texture":
+                bitmap(ctx, obj)
+            elif obj.tag == "sensor":
+                camera, film, sensor_defaults = sensor(ctx, obj)
+                defaults.update(sensor_defaults)
+            elif obj.tag == "integrator":
+                defaults.update(integrator(ctx, obj))
+            elif obj.tag == "emitter" and obj.id is not None and getattr(emitter_plugins().get(obj.type), "surface", False):
+                surface_emitters.append(obj)
+            elif obj.tag == "emitter":
+                emitter_name(obj, emitter(ctx, obj, in_shape=False))
+            elif obj.tag in ("film", "sampler", "rfilter") and obj.id in ctx.referenced:
+                continue  # declared at the top level for a <ref> where it belongs (a <sensor>, a <film>)
+            else:
+                home = {"film": " (it belongs inside a <sensor>)", "sampler": " (it belongs inside a <sensor>)", "rfilter": " (it belongs inside a <film>)"}
+                raise ctx.error(obj.node, f"<{obj.tag}> cannot be a child of <scene>{home.get(obj.tag, '')}", obj)
+        except SceneError as e:
+            ctx.problem(e)
+    for obj in surface_emitters:
+        if obj.id not in ctx.referenced:
+            ctx.problem(ctx.error(obj.node, f"an emitter of type {obj.type!r} declared outside a shape must be attached to one (<ref id=\"{obj.id}\"/> inside the <shape>)", obj))
+    for prop in scene.props.values():
+        ctx.problem(ctx.error(prop.node, "unexpected property of <scene>"))
+    if not meshes and not ctx.problems:
         raise SceneError(f"{ctx.where}: the scene has no shapes")
+    ctx.check_problems()
 
     # materials, in the order their BSDFs appear: named by the BSDF's id (ids are unique and no
     # emitter took one), then the others by shape id + _bsdf or material_N, avoiding every id

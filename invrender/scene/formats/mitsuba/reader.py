@@ -16,6 +16,13 @@ from invrender.scene.kinds import ParamKind
 from invrender.scene.plugins import Constant
 
 
+#: (element, Mitsuba plugin or "*" for any) -> properties accepted at Mitsuba's default value only
+AT_DEFAULT = {
+    ("emitter", "*"): {"sampling_weight": 1.0},
+    ("bsdf", "dielectric"): {"specular_reflectance": 1.0, "specular_transmittance": 1.0},
+}
+
+
 class PluginReader:
     """One element as a plugin class's ``from_mitsuba`` reads it: typed getters and :meth:`finish`,
     which rejects the properties nothing read. Each getter marks its property as read.
@@ -85,11 +92,23 @@ class PluginReader:
         value = self.string(name)
         if value is None:
             raise self.error(None, f"'{name}' is required")
-        path = self._ctx.base / value
-        if not path.is_file():
-            raise self.error(name, f"file not found: {path}")
+        path = self._ctx.find_file(self._obj.props[name].node, value)
+        if path is None or not path.is_file():
+            raise self.error(name, f"file not found: {self._ctx.base / value}")
         return path
 
     def finish(self, supported: tuple) -> None:
-        """Errors for the properties nothing read (listing ``supported``) and for nested objects."""
-        self._ctx.finish(self._obj, supported)
+        """Errors for the properties nothing read (listing ``supported``) and for nested objects;
+        the properties of :data:`AT_DEFAULT` are accepted at their Mitsuba default value."""
+        obj = self._obj
+        for key in (obj.type, "*"):
+            for name, default in AT_DEFAULT.get((obj.tag, key), {}).items():
+                prop = obj.props.get(name)
+                if prop is None or name in obj.used:
+                    continue
+                obj.used.add(name)
+                value = prop.value
+                ok = prop.tag in ("float", "integer", "rgb", "spectrum") and np.allclose(np.asarray(value, dtype=np.float64), default, rtol=0, atol=1e-9)
+                if not ok:
+                    raise self.error(name, f"'{name}' other than {default:g} (Mitsuba's default) is not supported by invrender's {obj.type}")
+        self._ctx.finish(obj, supported)

@@ -14,8 +14,17 @@ Shapes (``<shape type=...>``)
     ``<emitter type="area">`` (:mod:`.emitters`). Texture coordinates follow Mitsuba's
     parametrizations (:mod:`.textures`).
 
+    ``disk`` (radius 1 at z = 0 facing +z, ``uv = (r, phi / 2 pi)``) and ``cylinder`` (``p0``
+    default 0 0 0, ``p1`` default 0 0 1, ``radius`` default 1: open, facing outwards, ``uv =
+    (phi / 2 pi, t)`` with ``t`` from p0 to p1, ``phi`` about Mitsuba's frame of ``p1 - p0``) are
+    tessellated with 256 segments around (:data:`ROUND_SEGMENTS`: a disk's area is 1.0e-4 smaller
+    than the round one, the rim within 7.5e-5 of the radius; a cylinder's exact normals shade it
+    smoothly). ``serialized`` (Mitsuba's mesh format, :mod:`.serialized`: ``filename``,
+    ``shape_index`` default 0, ``face_normals``; the file's normals, else computed as for
+    OBJ/PLY, and its texture coordinates as stored).
+
 Deviations from Mitsuba
-    - Spheres are tessellated (see above); rectangles and cubes are exact.
+    - Spheres, disks and cylinders are tessellated (see above); rectangles and cubes are exact.
     - Textures on spheres show a seam where ``u`` wraps around (the tessellation interpolates
       across it).
 """
@@ -32,14 +41,17 @@ from invrender.errors import SceneError
 from invrender.scene.formats.mitsuba.bsdfs import material
 from invrender.scene.formats.mitsuba.context import Context
 from invrender.scene.formats.mitsuba.emitters import emitter as emitter_of
-from invrender.scene.formats.mitsuba.parser import Node, Obj
+from invrender.scene.formats.mitsuba.parser import Node, Obj, Reported, _coordinate_system
+from invrender.scene.formats.mitsuba.serialized import SerializedError, read_serialized
 from invrender.scene.formats.values import one_line
 from invrender.scene.shapes import Mesh, primitive, scale, translate
 
 #: icosphere subdivisions of a Mitsuba sphere: 20 * 4**5 = 20480 triangles
 SPHERE_SUBDIVISIONS = 5
 
-SHAPE_TYPES = ("rectangle", "cube", "sphere", "obj", "ply")
+SHAPE_TYPES = ("rectangle", "cube", "sphere", "disk", "cylinder", "obj", "ply", "serialized")
+#: segments around a disk and a cylinder (their tessellation; see the module docstring)
+ROUND_SEGMENTS = 256
 
 # Mitsuba's cube (src/shapes/cube.cpp): positions, face normals and texture coordinates of its 24 vertices
 _MITSUBA_CUBE = (
@@ -61,7 +73,15 @@ def shape(ctx: Context, obj: Obj, emitter_name) -> tuple[Mesh, int]:
     flip = ctx.get(obj, "flip_normals", "boolean", False)
     supported = ["to_world", "flip_normals"]
     compute_normals = False
-    if t in ("rectangle", "cube", "sphere"):
+    if t in ("disk", "cylinder"):
+        mesh, mitsuba_uv = _disk() if t == "disk" else _cylinder()
+        if t == "cylinder":
+            supported += ["p0", "p1", "radius"]
+            matrix = matrix @ _cylinder_frame(ctx, obj)
+    elif t == "serialized":
+        supported += ["filename", "shape_index", "face_normals"]
+        mesh, mitsuba_uv, compute_normals = serialized_file(ctx, obj)
+    elif t in ("rectangle", "cube", "sphere"):
         mesh = primitive(t, "", None, ctx.subdivisions) if t == "sphere" else primitive(t, "", None)
         mitsuba_uv = _primitive_uv(t, mesh)
         if t == "sphere":
@@ -82,16 +102,56 @@ def shape(ctx: Context, obj: Obj, emitter_name) -> tuple[Mesh, int]:
     mesh = mesh.transformed(matrix)
     if compute_normals:  # as Mitsuba does: angle-weighted, from the world-space triangles
         mesh = Mesh(mesh.vertices, mesh.faces, mesh.uvs, "", None, _vertex_normals(mesh.vertices, mesh.faces))
-    ctx.finish(obj, tuple(supported), ("bsdf", "emitter"))
-
+    found = []  # its own problems, its BSDF's and its emitter's: each checked
+    try:
+        ctx.finish(obj, tuple(supported), ("bsdf", "emitter"))
+    except SceneError as e:
+        found.append(e)
     bsdf = ctx.one_nested(obj, "bsdf")
     if bsdf is None:  # Mitsuba's default BSDF
-        bsdf = Obj(Node("bsdf", {"type": "diffuse"}, obj.node.line), "diffuse", obj.order)
-    key = material(ctx, bsdf, obj.id)
+        bsdf = Obj(Node("bsdf", {"type": "diffuse"}, obj.node.line, where=obj.node.where), "diffuse", obj.order)
+    try:
+        key = material(ctx, bsdf, obj.id)
+    except SceneError as e:
+        found.append(e)
     emitter = ctx.one_nested(obj, "emitter")
     if emitter is not None:
-        mesh = Mesh(mesh.vertices, mesh.faces, mesh.uvs, "", emitter_name(obj, emitter_of(ctx, emitter, in_shape=True)), mesh.normals)
+        try:
+            mesh = Mesh(mesh.vertices, mesh.faces, mesh.uvs, "", emitter_name(obj, emitter_of(ctx, emitter, in_shape=True)), mesh.normals)
+        except SceneError as e:
+            found.append(e)
+    if len(found) == 1:
+        raise found[0]
+    if found:
+        for e in found:
+            ctx.problem(e)
+        raise Reported(f"{obj.describe()}: {len(found)} problems noted")
     return mesh, key
+
+
+def serialized_file(ctx: Context, obj: Obj) -> tuple[Mesh, np.ndarray, bool]:
+    """The mesh of a serialized shape (:mod:`.serialized`), its texture coordinates as stored
+    (Mitsuba does not flip them), and whether its vertex normals are to be computed."""
+    prop = ctx.take(obj, "filename", ("string",), "a <string>")
+    if prop is None:
+        raise ctx.error(obj.node, "missing <string name=\"filename\">", obj)
+    path = ctx.find_file(prop.node, prop.value)
+    if path is None or not path.is_file():
+        raise ctx.error(prop.node, f"mesh file not found: {ctx.base / prop.value}", obj)
+    index = ctx.take(obj, "shape_index", ("integer",), "an <integer>")
+    face_normals = ctx.get(obj, "face_normals", "boolean", False)
+    try:
+        m = read_serialized(path, 0 if index is None else int(index.value))
+    except SerializedError as e:
+        raise ctx.error(prop.node if index is None or "shape_index" not in str(e) else index.node, f"corrupt serialized file {path}: {e}", obj) from None
+    except OSError as e:
+        raise ctx.error(prop.node, f"cannot read mesh file {path}: {e.strerror or e}", obj) from None
+    if len(m.faces) == 0:
+        raise ctx.error(prop.node, f"mesh file {path} has no faces", obj)
+    flat = face_normals or m.face_normals
+    normals = None if flat else m.normals
+    uv = m.uvs if m.uvs is not None else np.zeros((len(m.vertices), 2))
+    return Mesh(m.vertices, m.faces, None, "", None, normals), uv, not flat and normals is None
 
 
 def mesh_file(ctx: Context, obj: Obj) -> tuple[Mesh, np.ndarray, bool]:
@@ -102,9 +162,9 @@ def mesh_file(ctx: Context, obj: Obj) -> tuple[Mesh, np.ndarray, bool]:
     prop = ctx.take(obj, "filename", ("string",), "a <string>")
     if prop is None:
         raise ctx.error(obj.node, "missing <string name=\"filename\">", obj)
-    path = ctx.base / prop.value
-    if not path.is_file():
-        raise ctx.error(prop.node, f"mesh file not found: {path}", obj)
+    path = ctx.find_file(prop.node, prop.value)
+    if path is None or not path.is_file():
+        raise ctx.error(prop.node, f"mesh file not found: {ctx.base / prop.value}", obj)
     face_normals = ctx.get(obj, "face_normals", "boolean", False)
     flip_uv = ctx.get(obj, "flip_tex_coords", "boolean", obj.type == "obj")
     try:
@@ -171,6 +231,50 @@ def _vertex_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
         np.add.at(out, f[:, j], n * np.arccos(np.clip(cos, -1.0, 1.0))[:, None])
     length = np.linalg.norm(out, axis=1, keepdims=True)
     return np.where(length > 0, out / np.where(length > 0, length, 1.0), np.array([1.0, 0.0, 0.0]))
+
+
+def _disk(n: int = ROUND_SEGMENTS) -> tuple[Mesh, np.ndarray]:
+    """Mitsuba's disk (radius 1 at z = 0 facing +z) as a fan of ``n`` triangles, a centre vertex
+    per triangle and the rim's seam vertex twice, and its ``uv = (r, phi / 2 pi)``."""
+    phi = 2 * math.pi * np.arange(n + 1) / n
+    rim = np.stack([np.cos(phi), np.sin(phi), np.zeros(n + 1)], axis=1)
+    centre = np.zeros((n, 3))
+    v = np.concatenate([rim, centre])
+    f = np.stack([n + 1 + np.arange(n), np.arange(n), np.arange(n) + 1], axis=1)
+    uv = np.concatenate([np.stack([np.ones(n + 1), phi / (2 * math.pi)], axis=1), np.stack([np.zeros(n), (np.arange(n) + 0.5) / n], axis=1)])
+    return Mesh(v, f.astype(np.int64), None, "", None, np.tile([0.0, 0.0, 1.0], (len(v), 1))), uv
+
+
+def _cylinder(n: int = ROUND_SEGMENTS) -> tuple[Mesh, np.ndarray]:
+    """Mitsuba's cylinder (radius 1 about z from z = 0 to 1, open, facing outwards) as ``n``
+    quads, its exact normals, and its ``uv = (phi / 2 pi, z)``."""
+    phi = 2 * math.pi * np.arange(n + 1) / n
+    ring = np.stack([np.cos(phi), np.sin(phi)], axis=1)
+    v = np.concatenate([np.c_[ring, np.zeros(n + 1)], np.c_[ring, np.ones(n + 1)]])
+    i = np.arange(n)
+    f = np.concatenate([np.stack([i, i + 1, n + 2 + i], axis=1), np.stack([i, n + 2 + i, n + 1 + i], axis=1)])
+    uv = np.concatenate([np.stack([phi / (2 * math.pi), np.zeros(n + 1)], axis=1), np.stack([phi / (2 * math.pi), np.ones(n + 1)], axis=1)])
+    normals = np.c_[np.concatenate([ring, ring]), np.zeros(2 * n + 2)]
+    return Mesh(v, f.astype(np.int64), None, "", None, normals), uv
+
+
+def _cylinder_frame(ctx: Context, obj: Obj) -> np.ndarray:
+    """Mitsuba's cylinder placement: translate(p0) * to_frame(Frame(p1 - p0)) * scale(radius,
+    radius, |p1 - p0|) (``p0`` default 0 0 0, ``p1`` 0 0 1, ``radius`` 1)."""
+    p0 = np.asarray(ctx.get(obj, "p0", "point", (0.0, 0.0, 0.0)), dtype=np.float64)
+    p1 = np.asarray(ctx.get(obj, "p1", "point", (0.0, 0.0, 1.0)), dtype=np.float64)
+    radius = ctx.get(obj, "radius", "float", 1.0)
+    if radius <= 0:
+        raise ctx.error(obj.props["radius"].node, f"'radius' must be positive, got {radius:g}", obj)
+    d = p1 - p0
+    length = float(np.linalg.norm(d))
+    if length == 0:
+        raise ctx.error(obj.props.get("p1", obj.props.get("p0")).node, "p0 and p1 coincide", obj)
+    n = d / length
+    s = _coordinate_system(n)
+    frame = np.eye(4)
+    frame[:3, 0], frame[:3, 1], frame[:3, 2] = s, np.cross(n, s), n
+    return translate(p0) @ frame @ scale((radius, radius, length))
 
 
 def _primitive_uv(kind: str, mesh: Mesh) -> np.ndarray:

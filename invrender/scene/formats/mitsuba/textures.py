@@ -5,7 +5,7 @@ Colours
     type="bitmap">`` or ``<texture type="checkerboard">`` (inline or a ``<ref>``) where the
     parameter may be a texture; each value is
     checked against its kind's range (:mod:`invrender.scene.kinds`). Colours are linear RGB (RGB
-    variants of Mitsuba); spectra other than constants are errors.
+    variants of Mitsuba); spectra are turned into RGB when read (:mod:`.spectra`).
 
 Bitmap textures (``<texture type="bitmap">``)
     ``filename`` (relative to the XML file; EXR linear, PNG/JPEG sRGB-decoded, like Mitsuba's
@@ -69,6 +69,7 @@ def colour(ctx: Context, obj: Obj, name: str, kind: ParamKind, default: float, t
 
 def bitmap(ctx: Context, tex: Obj) -> np.ndarray:
     """The linear RGB (h, w, 3) float64 of a ``<texture>`` (read or baked once; references share it)."""
+    ctx.check_broken(tex)
     if id(tex) not in ctx.textures:
         ctx.textures[id(tex)] = read_checkerboard(ctx, tex) if tex.type == "checkerboard" else read_bitmap(ctx, tex)
     return ctx.textures[id(tex)]
@@ -94,9 +95,9 @@ def read_bitmap(ctx: Context, tex: Obj) -> np.ndarray:
         raise ctx.error(tex.node, "missing <string name=\"filename\">", tex)
     for key, allowed in (("filter_type", "bilinear"), ("wrap_mode", "repeat")):
         value = ctx.get(tex, key, "string", allowed)
-        if value != allowed:
+        if value.strip().lower() != allowed:
             raise ctx.error(tex.props[key].node, f"{key} {value!r} is not supported (supported: {allowed})", tex)
-    path = ctx.base / filename
+    path = ctx.find_file(tex.props["filename"].node, filename) or ctx.base / filename
     raw = ctx.get(tex, "raw", "boolean", False)
     if raw and path.suffix.lower() != ".exr":
         raise ctx.error(tex.props["raw"].node, "raw=true is supported for EXR files only (PNG/JPEG are always sRGB-decoded)", tex)
