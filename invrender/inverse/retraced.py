@@ -22,19 +22,28 @@ the record solver's block structure makes too), so a tangent of ones on all thre
 columns in one render; a grey parameter (a roughness: one number in three equal channels) is one
 column; a texture takes one render per texel (at most :data:`MAX_RENDERS` per view in all).
 
-**The iteration** is a small Levenberg-Marquardt loop in torch (Marquardt's diagonal scaling, in
-the kinds' unconstrained variables ``to_raw``/``from_raw``): a trial step costs one render per
-view (the residual), an accepted one the Jacobian's renders. optimistix's solvers (used on
-records) linearize the residual at every trial point, rejected ones included; here each
-linearization is several renders, so the loop takes the Jacobian at accepted points only. Like the
-record solver it ends with undamped Gauss-Newton steps on ``J_B^T r_A = 0`` (:data:`REFINE_STEPS`).
+**The iteration** is a small damped Gauss-Newton loop in torch on the value-space unknowns
+(Marquardt's diagonal damping :data:`DAMPING` for ``"lm"``, none for ``"gauss_newton"``): each
+step solves the linearization with B's Jacobian and A's residual, so its fixed point is
+``J_B^T r_A = 0``; a step may bring a value at most :data:`MAX_FACTOR` closer to a bound of its
+kind's range (no value leaves it), is taken back and damped where it multiplies ``|r_A|^2`` by
+more than :data:`GROWTH`, and is lengthened (2x, 4x, 8x) while ``|r_A|^2`` falls (Gauss-Newton
+undershoots along a roughness: the highlight's response to alpha is far from linear). There is no
+strict descent test: ``|r_A|^2`` of renders sampled at ``theta_0`` grows with their variance away
+from ``theta_0``, so its minimum lies between ``theta_0`` and the solution; a descent test would
+hold the fit back there. A trial step costs one render per view (the residual), an accepted one
+the Jacobian's renders too. optimistix's solvers (used on records) linearize at every trial point
+and accept steps by the decrease of that biased cost; here each linearization is several renders.
+The round ends when no unknown moves by more than :data:`XTOL` of itself, or after
+:data:`MAX_STEPS` steps; the next round resamples at the estimate with 4x the samples.
 
 **Uncertainty**: at the solution the Jacobian of set A too (the same renders at seed A), and the
 record solver's sandwich and undetermined combinations (``least_squares.sandwich``,
 ``weak_combinations``) on ``J_A``, ``J_B``, ``r_A``, ``r_B``.
 
-**Cost** per round and view: (1 + columns) renders for each accepted step, 1 for a rejected one,
-and 2 x columns at the end; a forward-mode render costs about 1.1-1.5 plain ones.
+**Cost** per round and view: the Jacobian's renders (one per RGB or grey parameter, one per texel
+of a texture) and one residual render per trial step (1-4 per step), and the Jacobian of set A
+once at the end; a forward-mode render costs about 1.1-1.5 plain ones.
 """
 
 from __future__ import annotations
