@@ -392,7 +392,7 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
     # the rule (retraced.py): any parameter path records cannot represent -> the whole fit on re-traced renders
     retrace = retraced.record_obstacle(scene, scene_names) is not None
     if retrace:
-        retraced.check(scene, scene_names, sensor, cfg.solver)
+        retraced.check(scene, scene_names, sensor, f"solver {cfg.solver!r}")
     start_sensor = sensor.values(sensor.to_raw())
     initial = {n: (start_sensor[n] if is_sensor(n) else scene.params[n]).detach().clone() for n in names}
     # the prior of environment maps: the starting values

@@ -156,16 +156,17 @@ class Unknowns:
         return [(i, t) for i in range(len(self.names)) for t in range(self.texels(i))]
 
 
-def check(scene: Scene, names: list[str], sensor: Sensor, solver: str) -> None:
-    """One-line errors for what a re-traced fit cannot do: fit the sensor, or more than
+def check(scene: Scene, names: list[str], sensor: Sensor, what: str) -> None:
+    """One-line errors (naming ``what``: ``"solver 'lm'"``, ``"identifiability"``) for what a
+    re-traced fit cannot do: fit the sensor, or more than
     :data:`MAX_RENDERS` forward-mode renders per Jacobian (textures: one per texel)."""
     why = record_obstacle(scene, names)
     if sensor.size:
-        raise ParameterError(f"solver {solver!r} on re-traced renders ({why}) cannot fit the sensor's exposure or white balance; fix them (sensor options) or use solver 'adam'")
+        raise ParameterError(f"{what} on re-traced renders ({why}) cannot fit the sensor's exposure or white balance; fix them (sensor options) or use solver 'adam'")
     count = Unknowns.of({n: scene.params[n] for n in names}).renders()
     if len(count) > MAX_RENDERS:
         raise ParameterError(
-            f"solver {solver!r} on re-traced renders ({why}) takes one forward-mode render per texel: "
+            f"{what} on re-traced renders ({why}) takes one forward-mode render per texel: "
             f"{', '.join(names)} need {len(count)} per Jacobian, at most {MAX_RENDERS}; fit fewer texels or use solver 'adam'"
         )
 
@@ -233,13 +234,8 @@ class _Renders:
         return columns.reshape(-1, o[-1]), image
 
 
-def solve(scenes: list[Scene], targets: list, start: dict, *, model, spp: int, seeds: list, sampler: str = "stratified", sensor: Sensor | None = None,
-          solver: str = "lm", max_steps: int = MAX_STEPS, threshold: float = 1e-6) -> LeastSquaresSolution:  # fmt: skip
-    """One round: fit the scene parameters ``start`` (name -> value at the round's start, inside
-    each kind's range) to ``targets`` (one per view in ``scenes``: tensors or Targets) on
-    re-traced renders of the integrator ``model`` at ``spp``, view v's residual from seed
-    ``seeds[v][0]`` and its Jacobian from ``seeds[v][1]`` (module docstring). ``sensor``: fixed
-    gains only (none fitted)."""
+def _problem(scenes, targets, start, model, spp, seeds, sampler, sensor):
+    """The round's renders, and its residual(values, half) (R,) and jacobian(values, half) ((R, P), residual)."""
     U = Unknowns.of(start)
     weights = _weights(targets)
     gains = _gains(sensor if sensor is not None and sensor.active else None, torch.zeros(0, dtype=torch.float64), len(targets))
@@ -260,6 +256,18 @@ def solve(scenes: list[Scene], targets: list, start: dict, *, model, spp: int, s
         blocks, images = zip(*(renders.jacobian(v, values, half, wg[v]) for v in range(len(targets))))
         return torch.cat(blocks), residual(values, images=list(images))
 
+    return renders, residual, jacobian
+
+
+def solve(scenes: list[Scene], targets: list, start: dict, *, model, spp: int, seeds: list, sampler: str = "stratified", sensor: Sensor | None = None,
+          solver: str = "lm", max_steps: int = MAX_STEPS, threshold: float = 1e-6) -> LeastSquaresSolution:  # fmt: skip
+    """One round: fit the scene parameters ``start`` (name -> value at the round's start, inside
+    each kind's range) to ``targets`` (one per view in ``scenes``: tensors or Targets) on
+    re-traced renders of the integrator ``model`` at ``spp``, view v's residual from seed
+    ``seeds[v][0]`` and its Jacobian from ``seeds[v][1]`` (module docstring). ``sensor``: fixed
+    gains only (none fitted)."""
+    U = Unknowns.of(start)
+    renders, residual, jacobian = _problem(scenes, targets, start, model, spp, seeds, sampler, sensor)
     u = U.vector(start)
     values = U.values(u)
     r = residual(values)
@@ -290,14 +298,30 @@ def solve(scenes: list[Scene], targets: list, start: dict, *, model, spp: int, s
         J, r_b = jacobian(values, 1)
         if moved < XTOL:
             break
-    J_a, r_a = jacobian(values, 0)  # r_a is r: the dual renders' primal is the plain render
-    J_b = J
+    ident = _identify(U, values, J, r_b, jacobian(values, 0), threshold)  # set A's renders once: r_A is r
+    return LeastSquaresSolution(values, ident, ident.loss, steps)
+
+
+def _identify(U: Unknowns, values: dict, J_b, r_b, set_a, threshold: float) -> Identifiability:
+    """The record solver's sandwich and undetermined combinations on both sets' Jacobians and residuals."""
+    J_a, r_a = set_a
     labels = U.labels()
-    groups = [torch.arange(J.shape[1])]
+    groups = [torch.arange(J_b.shape[1])]
     if all(U.channels(i) == 3 for i in range(len(U.names))):  # channels never mix without a grey unknown
-        groups = [torch.arange(c, J.shape[1], 3) for c in range(3)]
+        groups = [torch.arange(c, J_b.shape[1], 3) for c in range(3)]
     weak = weak_combinations(J_b * U.vector(values)[None, :], labels, groups, threshold)
     se, corr = sandwich(J_b, J_a, r_a, r_b)
-    std_error = U.values(se)
-    loss = float((r_a**2).mean())
-    return LeastSquaresSolution(values, Identifiability(std_error, corr, labels, weak, loss), loss, steps)
+    return Identifiability(U.values(se), corr, labels, weak, float((r_a**2).mean()))
+
+
+def analyse(scenes: list[Scene], targets: list, values: dict, *, model, spp: int, seeds: list, sampler: str = "stratified", sensor: Sensor | None = None,
+            threshold: float = 1e-6) -> Identifiability:  # fmt: skip
+    """Standard errors, correlations and undetermined combinations at ``values`` (name -> value)
+    from forward-mode renders of both seeds (``seeds[v]``: view v's (A, B)), without fitting: what
+    ``ir.identifiability`` gives for parameters path records cannot represent."""
+    U = Unknowns.of(values)
+    renders, residual, jacobian = _problem(scenes, targets, values, model, spp, seeds, sampler, sensor)
+    values = U.values(U.vector(values))
+    J_b, r_b = jacobian(values, 1)
+    return _identify(U, values, J_b, r_b, jacobian(values, 0), threshold)
+
