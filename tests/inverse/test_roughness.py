@@ -89,7 +89,6 @@ def test_adam_recovers_roughness_from_a_target():
 @pytest.mark.parametrize("call", ["record"])  # solver 'lm' and identifiability take it on re-traced renders (test_retraced_lm.py)
 def test_path_records_refuse_roughness(call):
     scene = plate(0.3, resolution=(8, 8))
-    target = torch.zeros(8, 8, 3)
     run = {
         "record": lambda: ir.record_paths(scene, ["plate.roughness"], spp=2, max_depth=2, progress=False),
     }[call]
