@@ -91,7 +91,9 @@ class FitSettings:
         seed: seed of every render's random numbers.
         checkpoint_every: steps between checkpoints (when a checkpoint path is given).
         solver: ``"adam"`` (gradient steps on re-traced renders, the default), ``"lm"``
-            (Levenberg-Marquardt) or ``"gauss_newton"`` on path records (least_squares.py).
+            (Levenberg-Marquardt) or ``"gauss_newton"`` on path records (least_squares.py), or,
+            when a fitted parameter is one records cannot represent (a roughness), on re-traced
+            renders with forward-mode Jacobian columns (retraced.py).
         rounds: least-squares solvers: at most this many outer rounds; round r records two
             independent path sets at ``spp * 4^r`` at the current estimate and solves on them; the
             rounds end early, after at least three, once no parameter channel moved significantly
