@@ -8,7 +8,7 @@ against the time it took (per Adam step every ``--every`` steps, per ``lm`` roun
 alpha within 5% and k_s within 3% at the end, with both solvers.
 
     python bench/roughness_fit.py [--resolution 32] [--target-spp 1024] [--max-depth 5]
-                                  [--adam-steps 120] [--lm-spp 8] [--lm-rounds 4] [--solvers adam,lm]
+                                  [--adam-steps 120] [--lm-spp 16] [--lm-rounds 4] [--solvers adam,lm]
 
 Needs Mitsuba 3 (bench/README.md); ``--invrender-target`` renders the target with invrender instead.
 """
@@ -39,7 +39,7 @@ def main(argv=None) -> int:
     p.add_argument("--max-depth", type=int, default=5)
     p.add_argument("--adam-steps", type=int, default=120)
     p.add_argument("--every", type=int, default=20)
-    p.add_argument("--lm-spp", type=int, default=8)
+    p.add_argument("--lm-spp", type=int, default=16)
     p.add_argument("--lm-rounds", type=int, default=4)
     p.add_argument("--solvers", default="adam,lm", help="comma-separated: adam, lm")
     p.add_argument("--invrender-target", action="store_true")
