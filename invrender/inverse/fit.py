@@ -92,7 +92,9 @@ class FitSettings:
         seed: seed of every render's random numbers.
         checkpoint_every: steps between checkpoints (when a checkpoint path is given).
         solver: ``"adam"`` (gradient steps on re-traced renders, the default), ``"lm"``
-            (Levenberg-Marquardt) or ``"gauss_newton"`` on path records (least_squares.py).
+            (Levenberg-Marquardt) or ``"gauss_newton"`` on path records (least_squares.py), or,
+            when a fitted parameter is one records cannot represent (a roughness), on re-traced
+            renders with forward-mode Jacobian columns (retraced.py).
         rounds: least-squares solvers: at most this many outer rounds; round r records two
             independent path sets at ``spp * 4^r`` at the current estimate and solves on them; the
             rounds end early, after at least three, once no parameter channel moved significantly
@@ -385,13 +387,17 @@ def _gain(raw: dict, sensor: Sensor, view: int) -> torch.Tensor | None:
 
 
 def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, checkpoint: Path | None, state: dict | None, progress: bool, sensor: Sensor) -> FitResult:
-    """Outer rounds of record-and-solve (least_squares.py): one history entry per round."""
-    from invrender.diff.records import record_paths
-    from invrender.inverse.least_squares import Prior, solve
+    """Outer rounds of record-and-solve (least_squares.py), or of solves on re-traced renders
+    (retraced.py) when a fitted parameter cannot be recorded: one history entry per round."""
+    from invrender.inverse import retraced
 
     scene_names = [n for n in names if not is_sensor(n)]
     if not scene_names:
         raise ParameterError(f"solver {cfg.solver!r} needs a scene parameter among the fitted ones (got only {', '.join(names)}); use solver 'adam'")
+    # the rule (retraced.py): any parameter path records cannot represent -> the whole fit on re-traced renders
+    retrace = retraced.record_obstacle(scene, scene_names) is not None
+    if retrace:
+        retraced.check(scene, scene_names, sensor, f"solver {cfg.solver!r}")
     start_sensor = sensor.values(sensor.to_raw())
     initial = {n: (start_sensor[n] if is_sensor(n) else scene.params[n]).detach().clone() for n in names}
     # the prior of environment maps: the starting values
@@ -409,19 +415,11 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
         done = bool(history) and history[-1].get("converged", False)  # a resumed fit that had converged
         for rnd in range(len(history), 0 if done else cfg.rounds):
             spp = cfg.spp * 4**rnd
-            recs = {}
-            for half in (0, 1):  # two independent record sets: residual (A) and Jacobian (B)
-                recs[half] = [
-                    record_paths(
-                        view_scene.with_params({n: current[n].float() for n in scene_names}),
-                        scene_names, spp=spp, max_depth=model.terms_kept, seed=cfg.seed * 1_000_003 + 2 * (rnd * len(views) + v) + half,
-                        integrator=model.name, progress=False, sampler=cfg.sampler, **_settings_besides_depth(model),
-                    )  # fmt: skip
-                    for v, (view_scene, _) in enumerate(views)
-                ]
-            targets = [t for _, t in views]
-            regularizer = Prior.by_rule(prior, recs[1], targets, current, cfg.prior_weight, cfg.smoothness) if prior and (cfg.prior_weight != 0 or cfg.smoothness != 0) else None
-            sol = solve(recs[0], recs[1], targets, current, solver=cfg.solver, prior=regularizer, sensor=sensor, ambiguities=ambiguities)
+            seeds = [(cfg.seed * 1_000_003 + 2 * (rnd * len(views) + v), cfg.seed * 1_000_003 + 2 * (rnd * len(views) + v) + 1) for v in range(len(views))]
+            if retrace:
+                sol = retraced.solve([s for s, _ in views], [t for _, t in views], {n: current[n] for n in scene_names}, model=model, spp=spp, seeds=seeds, sampler=cfg.sampler, sensor=sensor, solver=cfg.solver)
+            else:
+                sol = _solve_on_records(views, scene_names, current, cfg, model, spp, seeds, prior, sensor, ambiguities)
             # how far each channel moved, in standard errors of the difference of two rounds
             moved = max(
                 float(((sol.values[n] - current[n]).abs() / (sol.std_error[n] ** 2 + (std_error[n] ** 2 if std_error else 0.0)).sqrt().clamp_min(1e-12)).max())
@@ -431,7 +429,7 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
             record = {
                 "step": rnd + 1, "loss": sol.loss, "spp": spp, "seconds": time.perf_counter() - clock, "inner_steps": sol.steps,
                 "params": {n: current[n].tolist() for n in names}, "std_error": {n: std_error[n].tolist() for n in names},
-                "moved_in_std_errors": moved,
+                "moved_in_std_errors": moved, "on": "re-traced renders" if retrace else "path records",
             }  # fmt: skip
             if truth:
                 record["errors"] = {n: P.relative_error(current[n].float(), truth[n]) for n in names if n in truth}
@@ -453,6 +451,27 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
     recovered = {n: current[n].float().clone() for n in names}
     out_scene = scene.with_params({n: recovered[n] for n in scene_names}, detach=True)
     return FitResult(recovered, history, out_scene, cfg, initial, {k: v for k, v in truth.items() if k in names}, {n: std_error[n].float() for n in names}, [t.report() for _, t in views], _pixels(views))
+
+
+def _solve_on_records(views, scene_names, current, cfg: FitSettings, model, spp: int, seeds, prior: dict, sensor: Sensor, ambiguities):
+    """One round on path records: two independent record sets (residual A, Jacobian B) at
+    ``current``, solved by least_squares.solve."""
+    from invrender.diff.records import record_paths
+    from invrender.inverse.least_squares import Prior, solve
+
+    recs = {}
+    for half in (0, 1):  # two independent record sets: residual (A) and Jacobian (B)
+        recs[half] = [
+            record_paths(
+                view_scene.with_params({n: current[n].float() for n in scene_names}),
+                scene_names, spp=spp, max_depth=model.terms_kept, seed=seeds[v][half],
+                integrator=model.name, progress=False, sampler=cfg.sampler, **_settings_besides_depth(model),
+            )  # fmt: skip
+            for v, (view_scene, _) in enumerate(views)
+        ]
+    targets = [t for _, t in views]
+    regularizer = Prior.by_rule(prior, recs[1], targets, current, cfg.prior_weight, cfg.smoothness) if prior and (cfg.prior_weight != 0 or cfg.smoothness != 0) else None
+    return solve(recs[0], recs[1], targets, current, solver=cfg.solver, prior=regularizer, sensor=sensor, ambiguities=ambiguities)
 
 
 def _pixels(views) -> list:

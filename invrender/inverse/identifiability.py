@@ -1,6 +1,8 @@
 """identifiability(): what a set of target images determines about parameters, without fitting.
 
-From two independent path-record sets at the scene's current values (least_squares.analyse):
+From two independent path-record sets at the scene's current values (least_squares.analyse), or,
+for parameters path records cannot represent (a roughness; the rule of retraced.py), from
+forward-mode renders of two independent seeds (retraced.analyse):
 standard errors, correlations and the parameter combinations the targets cannot determine, the
 sensor's scale ambiguities named; or, for an environment map, in spherical harmonics
 (lighting.fit_sh: which coefficients, and so which orders, the images determine).
@@ -12,10 +14,12 @@ from invrender.diff.records import record_paths
 from invrender.errors import ParameterError
 from invrender.inverse import lighting
 from invrender.inverse.fit import _check_fit_names, load_targets
+from invrender.inverse import retraced
 from invrender.inverse.least_squares import analyse
 from invrender.inverse.sensor import Sensor, is_sensor
 from invrender.scene.camera import Camera
 from invrender.scene.scene import Scene
+from invrender.transport.integrators import make_integrator
 
 
 def identifiability(
@@ -26,7 +30,8 @@ def identifiability(
     current values, without fitting: standard errors, correlations and the parameter
     combinations the targets cannot determine (a near-singular ``J^T J``; e.g. the scale between an
     emitter's eps and every rho when the emitter is never seen directly), from two independent
-    path records of ``spp`` samples; with ``sensor.exposure`` or ``sensor.white_balance`` among
+    path records of ``spp`` samples (for a roughness, or any parameter records cannot represent:
+    two forward-mode renders per parameter and view, retraced.py); with ``sensor.exposure`` or ``sensor.white_balance`` among
     ``params``, the sensor's scale ambiguities against the emissions are named
     (:meth:`~invrender.inverse.sensor.Sensor.ambiguities`). ``mask``, ``response``, ``sensor`` and
     ``exclude_clipped`` as in :func:`fit`; ``sampler`` as in ``render``. Returns an
@@ -46,6 +51,12 @@ def identifiability(
     scene_names = [n for n in names if not is_sensor(n)]
     if not scene_names:
         raise ParameterError("identifiability needs a scene parameter among params")
+    if retraced.record_obstacle(scene, scene_names) is not None:
+        retraced.check(scene, scene_names, sens, "identifiability")
+        values = {n: scene.params[n].detach().double() for n in scene_names}
+        seeds = [(2 * (seed * len(views) + v), 2 * (seed * len(views) + v) + 1) for v in range(len(views))]
+        model = make_integrator(integrator, max_depth=max_depth)
+        return retraced.analyse([s for s, _ in views], [t for _, t in views], values, model=model, spp=spp, seeds=seeds, sampler=sampler, sensor=sens)
     recs = [[record_paths(view_scene, scene_names, spp=spp, max_depth=max_depth, seed=2 * (seed * len(views) + v) + half, integrator=integrator, sampler=sampler, progress=False) for v, (view_scene, _) in enumerate(views)] for half in (0, 1)]
     values = {n: scene.params[n].detach().double() for n in scene_names}
     return analyse(recs[0], recs[1], [t for _, t in views], values, sensor=sens, ambiguities=sens.ambiguities(names, scene.params))

@@ -530,33 +530,49 @@ def analyse(
     # relative units: each column scaled by its parameter value, so eps and rho compare (the
     # sensor's columns are per log value already)
     scale = torch.cat([layout.flatten(values).reshape(-1), torch.ones(J.shape[1] - 3 * layout.offsets[-1], dtype=torch.float64)])
-    Js = J * scale[None, :]
+    labels = layout.labels() + (sensor.labels() if sensor is not None else [])
+    # channels never mix (J^T J is block diagonal): one eigenproblem per channel; an exposure
+    # couples them: one for all
+    groups = [torch.arange(c, 3 * layout.offsets[-1], 3) for c in range(3)] if sensor is None or sensor.size == 0 else [torch.arange(J.shape[1])]
+    weak = weak_combinations(J * scale[None, :], labels, groups, threshold)
+    if prior is not None:
+        Jp, rp = prior.jacobian(layout), prior.residual(layout, values)
+        Jp = torch.cat([Jp, torch.zeros(Jp.shape[0], J.shape[1] - Jp.shape[1], dtype=torch.float64)], dim=1)
+        J, J_a, ra, rb = torch.cat([J, Jp]), torch.cat([J_a, Jp]), torch.cat([ra, rp]), torch.cat([rb, rp])
+    se, corr = sandwich(J, J_a, ra, rb)
+    n = 3 * layout.offsets[-1]
+    std_error = layout.unflatten(se[:n].reshape(-1, 3))
+    if sensor is not None:
+        std_error.update(sensor.std_error(sensor.values(s), se[n:]))
+    return Identifiability(std_error, corr, labels, weak, loss, tuple(ambiguities))
+
+
+def weak_combinations(Js: torch.Tensor, labels: list[str], groups: list[torch.Tensor], threshold: float = 1e-6) -> list[dict]:
+    """The combinations a column-scaled Jacobian ``Js`` (R, P) cannot determine: for each group of
+    columns (indices), every eigenvector of its normalized ``J^T J`` whose eigenvalue is below
+    ``threshold`` times the largest, as a dict label -> weight (weights above 0.2 only)."""
     JtJ = Js.T @ Js
     norms = JtJ.diagonal().clamp_min(1e-300).sqrt()
     normalized = JtJ / (norms[:, None] * norms[None, :])
-    labels = layout.labels() + (sensor.labels() if sensor is not None else [])
     weak = []
-    # channels never mix (J^T J is block diagonal): one eigenproblem per channel; an exposure
-    # couples them: one for all
-    groups = [torch.arange(c, 3 * layout.offsets[-1], 3) for c in range(3)] if sensor is None or sensor.size == 0 else [torch.arange(normalized.shape[0])]
     for cols in groups:
         eigenvalues, vectors = torch.linalg.eigh(normalized[cols][:, cols])
         for lam, v in zip(eigenvalues.tolist(), vectors.T):
             if lam < threshold * float(eigenvalues.max()):
                 order = torch.argsort(v.abs(), descending=True)
                 weak.append({labels[int(cols[i])]: float(v[i]) for i in order.tolist() if abs(float(v[i])) > 0.2})
-    if prior is not None:
-        Jp, rp = prior.jacobian(layout), prior.residual(layout, values)
-        Jp = torch.cat([Jp, torch.zeros(Jp.shape[0], J.shape[1] - Jp.shape[1], dtype=torch.float64)], dim=1)
-        J, J_a, ra, rb = torch.cat([J, Jp]), torch.cat([J_a, Jp]), torch.cat([ra, rp]), torch.cat([rb, rp])
+    return weak
+
+
+def sandwich(J: torch.Tensor, J_a: torch.Tensor, ra: torch.Tensor, rb: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Standard errors (P,) and correlations (P, P) of the solution of ``J^T r_A = 0`` from two
+    independent sets' Jacobians ``J`` (B's, the one solved with) and ``J_a`` (R, P) and residuals
+    ``ra``, ``rb`` (R,): the sandwich ``(J^T J)^-1 (J^T diag(s^2) J + dJ^T diag(r_A^2) dJ)
+    (J^T J)^-1`` with ``s^2 = (r_A - r_B)^2 / 2`` and ``dJ = (J_A - J_B) / sqrt 2`` (see
+    :func:`analyse`)."""
     s2 = (ra - rb) ** 2 / 2
     dJ = (J_a - J) / 2**0.5
     inv = torch.linalg.pinv(J.T @ J)
     cov = inv @ ((J.T * s2) @ J + (dJ.T * ra**2) @ dJ) @ inv
     se = cov.diagonal().clamp_min(0).sqrt()
-    corr = cov / (se[:, None] * se[None, :]).clamp_min(1e-300)
-    n = 3 * layout.offsets[-1]
-    std_error = layout.unflatten(se[:n].reshape(-1, 3))
-    if sensor is not None:
-        std_error.update(sensor.std_error(sensor.values(s), se[n:]))
-    return Identifiability(std_error, corr, labels, weak, loss, tuple(ambiguities))
+    return se, cov / (se[:, None] * se[None, :]).clamp_min(1e-300)

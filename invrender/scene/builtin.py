@@ -1,5 +1,5 @@
-"""Built-in scenes by name: ``cornell_box`` (the default), ``cornell_specular``, ``furnace`` and
-``sky_spheres``."""
+"""Built-in scenes by name: ``cornell_box`` (the default), ``cornell_specular``,
+``cornell_materials``, ``furnace`` and ``sky_spheres``."""
 
 from __future__ import annotations
 
@@ -102,6 +102,38 @@ def cornell_specular(resolution=(256, 256), subdivisions: int = 4) -> Scene:
     return build_scene(shapes, materials, {"light": CORNELL_LIGHT}, CORNELL_CAMERA, resolution, name="cornell_specular")
 
 
+#: the materials Cornell box: a rough gold-tinted metal block and a blue plastic sphere
+MATERIALS_METAL = (0.9, 0.7, 0.45)
+MATERIALS_METAL_ROUGHNESS = 0.3
+MATERIALS_PLASTIC = (0.15, 0.3, 0.65)
+
+
+def cornell_materials(resolution=(48, 48), subdivisions: int = 3) -> Scene:
+    """The Cornell box with the materials people fit: Mitsuba's box, walls and light, the tall box
+    a rough GGX conductor (``metal``: Mitsuba's ``roughconductor``, ``distribution = "ggx"``,
+    alpha 0.3, a gold-like specular reflectance with Fresnel 1) and, in place of the short box, a
+    smooth plastic sphere (``plastic``: a blue diffuse base under a polypropylene coating, Mitsuba's
+    ``plastic``) of radius 0.3, an icosphere of ``subdivisions`` (20 * 4^n triangles) shaded with
+    its exact normals. Its parameters: ``metal.roughness``, ``metal.specular_reflectance``,
+    ``plastic.reflectance``, ``plastic.specular_reflectance`` besides the box's; small by default
+    (48 x 48), the size of a fit (docs/fitting.md#roughness).
+    """
+    shapes = [
+        *_walls(),
+        _shape("cube", TALL_BOX, "metal"),
+        primitive("sphere", "plastic", None, subdivisions).transformed(translate([0.335, -0.7, 0.38]) @ scale(0.3)),
+        _light(),
+    ]
+    materials = {
+        "white": CORNELL_WHITE,
+        "red": CORNELL_RED,
+        "green": CORNELL_GREEN,
+        "metal": Material.of("glossy", specular_reflectance=MATERIALS_METAL, roughness=MATERIALS_METAL_ROUGHNESS),
+        "plastic": Material.of("plastic", reflectance=MATERIALS_PLASTIC),
+    }
+    return build_scene(shapes, materials, {"light": CORNELL_LIGHT}, CORNELL_CAMERA, resolution, name="cornell_materials")
+
+
 def furnace(resolution=(32, 32), rho=0.5, eps=1.0, subdivisions: int = 3) -> Scene:
     """The inside of a closed unit sphere with uniform reflectance ``rho`` and emission ``eps``.
 
@@ -183,7 +215,7 @@ def sky_spheres(resolution=(64, 64), map_size=(16, 32), subdivisions: int = 4, s
     return build_scene(shapes, materials, {"sky": Emitter.of("envmap", emission=texture)}, SKY_CAMERA, resolution, name="sky_spheres")
 
 
-BUILTIN_SCENES = {"cornell_box": cornell_box, "cornell_specular": cornell_specular, "furnace": furnace, "sky_spheres": sky_spheres}
+BUILTIN_SCENES = {"cornell_box": cornell_box, "cornell_specular": cornell_specular, "cornell_materials": cornell_materials, "furnace": furnace, "sky_spheres": sky_spheres}
 
 
 def builtin_scene(name: str, **kwargs) -> Scene:

@@ -86,14 +86,11 @@ def test_adam_recovers_roughness_from_a_target():
     assert res.errors["plate.roughness"] < 0.03, alpha
 
 
-@pytest.mark.parametrize("call", ["record", "identifiability", "lm"])
+@pytest.mark.parametrize("call", ["record"])  # solver 'lm' and identifiability take it on re-traced renders (test_retraced_lm.py)
 def test_path_records_refuse_roughness(call):
     scene = plate(0.3, resolution=(8, 8))
-    target = torch.zeros(8, 8, 3)
     run = {
         "record": lambda: ir.record_paths(scene, ["plate.roughness"], spp=2, max_depth=2, progress=False),
-        "identifiability": lambda: ir.identifiability(scene, target, ["plate.roughness", "light.emission"], spp=2, max_depth=2),
-        "lm": lambda: ir.fit(scene, target, ["plate.roughness"], solver="lm", steps=2, spp=2, max_depth=2, progress=False),
     }[call]
     with pytest.raises(ParameterError, match=r"plate.roughness: path records .* cannot represent a roughness.*fit it with solver 'adam'") as info:
         run()

@@ -91,3 +91,25 @@ def test_sky_spheres_loads_renders_and_shows_its_map():
     assert float(hidden[:2].abs().max()) == 0.0  # hide_emitters: a black background
     with pytest.raises(SceneError, match="map_size"):
         ir.load_scene("sky_spheres", map_size=(2, 2))
+
+
+def test_cornell_materials_params_and_its_materials_show():
+    """The fitting scene: the rough metal block and the plastic sphere with their parameters; the
+    block's pixels follow its roughness, the sphere's its base, and nothing else moves."""
+    scene = ir.load_scene("cornell_materials", resolution=(24, 24), subdivisions=1)
+    assert set(scene.params) == {
+        "white.reflectance", "red.reflectance", "green.reflectance", "light.emission",
+        "metal.specular_reflectance", "metal.roughness", "plastic.reflectance", "plastic.specular_reflectance",
+    }  # fmt: skip
+    torch.testing.assert_close(scene.params["metal.roughness"], torch.tensor([0.3] * 3))
+    assert scene.triangles.count == 5 * 2 + 12 + 20 * 4 + 2
+    assert scene.material_spec(scene.materials.index("metal")).type == "glossy"
+    assert scene.material_spec(scene.materials.index("plastic")).type == "plastic"
+    kw = dict(spp=8, max_depth=4, seed=1, progress=False)
+    base = ir.render(scene, **kw)
+    assert bool(torch.isfinite(base).all()) and 0.05 < float(base.mean()) < 1.0
+    metal = (base - ir.render(scene.with_params({"metal.roughness": 0.05}), **kw)).abs().sum(-1)
+    plastic = (base - ir.render(scene.with_params({"plastic.reflectance": [0.6, 0.6, 0.6]}), **kw)).abs().sum(-1)
+    # the tall block is left of centre, the sphere right of centre near the bottom
+    assert float(metal[:, :12].sum()) > 3 * float(metal[:, 12:].sum()) > 0
+    assert float(plastic[12:, 12:].sum()) > 3 * float(plastic[:12, :12].sum()) > 0
