@@ -22,5 +22,9 @@ class ParameterError(InvRenderError):
     """A parameter name, value or render setting is unknown or out of range."""
 
 
+class MissingPackageError(InvRenderError):
+    """An optional package (warp-lang, embreex, pyrender) that a path needs is not installed."""
+
+
 class BaselineError(InvRenderError):
     """A baseline renderer (pyrender) or an OpenGL context for it is not available."""

@@ -50,6 +50,7 @@ lights are split over several additive passes.
 
 from __future__ import annotations
 
+import importlib.util
 import math
 import os
 import threading
@@ -474,6 +475,8 @@ def _pyrender():
     """Import pyrender headless: PYOPENGL_PLATFORM=egl unless set (osmesa when EGL cannot start)."""
     if "module" in _STATE:
         return _STATE["module"]
+    if importlib.util.find_spec("pyrender") is None:  # not installed: say so before probing EGL
+        raise BaselineError(f"the pyrender baseline needs the pyrender package, which is not installed: pip install pyrender (and the Debian packages {DEBIAN_PACKAGES_EGL})")
     if "PYOPENGL_PLATFORM" not in os.environ:
         os.environ["PYOPENGL_PLATFORM"] = "egl" if not _osmesa_present() or _egl_works() else "osmesa"
     try:

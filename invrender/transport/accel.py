@@ -10,7 +10,8 @@ given distance). The backends give the same answers up to float rounding:
 - ``warp``: NVIDIA Warp's BVH (:mod:`invrender.transport.warp_bvh`), on CUDA (the default there)
   and on the CPU, rays and results shared with torch without copies;
 - ``torch``: Moller-Trumbore against every triangle in blocks sized to a memory budget, on any
-  device: the reference (fine for scenes of up to a few thousand triangles).
+  device: the reference (fine for scenes of up to a few thousand triangles), and the default where
+  the default backend's package (embreex, warp-lang) is not installed.
 
 Barycentrics follow Embree: the hit point is ``p0 + u e1 + v e2``.
 
@@ -32,6 +33,7 @@ import torch
 
 from invrender.errors import ParameterError
 from invrender.scene.scene import Triangles
+from invrender.transport import packages
 
 
 @dataclass(frozen=True)
@@ -67,6 +69,7 @@ class EmbreeIntersector:
     name = "embree"
 
     def __init__(self, triangles: Triangles, threads: int | None = None):
+        packages.require("embreex", "the embree intersection backend", "use backend 'torch'")
         from embreex import rtcore_scene
         from embreex.mesh_construction import TriangleMesh
 
@@ -182,9 +185,21 @@ class TorchIntersector:
 BACKENDS = {"embree": EmbreeIntersector, "warp": WarpIntersector, "torch": TorchIntersector}
 
 
+#: the package each backend needs (torch needs none)
+PACKAGES = {"embree": "embreex", "warp": "warp"}
+
+
 def default_backend(device: torch.device) -> str:
-    """``embree`` on the CPU, ``warp`` elsewhere (CUDA)."""
-    return "embree" if torch.device(device).type == "cpu" else "warp"
+    """``embree`` on the CPU, ``warp`` elsewhere (CUDA); ``torch`` when that backend's package
+    (embreex, warp-lang) cannot be imported, said once on stderr."""
+    backend = "embree" if torch.device(device).type == "cpu" else "warp"
+    if packages.find(PACKAGES[backend]) is None:
+        module = PACKAGES[backend]
+        packages.note_once(
+            f"{packages.PIP_NAMES[module]} is not installed: intersecting with the torch backend, not {backend} ({packages.install_hint(module)} for {backend})"
+        )
+        return "torch"
+    return backend
 
 
 def check_backend(backend: str | None, device: torch.device) -> str:

@@ -24,7 +24,6 @@ worker threads run theirs side by side.
 
 from __future__ import annotations
 
-import contextlib
 import os
 import sys
 import threading
@@ -32,45 +31,21 @@ import threading
 import torch
 
 from invrender.errors import ParameterError
+from invrender.transport import packages
 
 #: set INVRENDER_KERNELS=torch to run the torch reference expressions instead of the Warp kernels
 ENV = "INVRENDER_KERNELS"
 
-try:
-    import warp as wp
-except ImportError:  # pragma: no cover - warp-lang is a dependency; this guards broken installs
-    wp = None
+#: the module of the Warp kernels (:mod:`invrender.transport.warp_kernels`), imported on first use
+KERNELS = "invrender.transport.warp_kernels"
 
 
-@contextlib.contextmanager
-def _quiet_stderr():
-    """File descriptor 2 on /dev/null meanwhile: Warp's native library and its compiler write there
-    directly, not through Python."""
-    sys.stderr.flush()
-    saved = os.dup(2)
-    try:
-        with open(os.devnull, "w") as null:
-            os.dup2(null.fileno(), 2)
-            yield
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
-
-
-def _init() -> None:
-    """``wp.init()`` without console output: no banner or compile timings, and on a machine without
-    a CUDA driver (where torch sees none either) not the native library's note that it found none."""
-    wp.config.log_level = wp.LOG_ERROR
-    wp.config.quiet = True
-    if torch.cuda.is_available():
-        wp.init()
-        return
-    with _quiet_stderr():
-        wp.init()
-
-
-if wp is not None:
-    _init()
+def warp_kernels():
+    """:mod:`invrender.transport.warp_kernels` (and so ``warp``), imported on first call; None when
+    warp-lang cannot be imported."""
+    if packages.find("warp") is None:
+        return None
+    return packages.find(KERNELS)
 
 
 def enabled(device: torch.device) -> bool:
@@ -81,25 +56,31 @@ def enabled(device: torch.device) -> bool:
     choice = os.environ.get(ENV, "warp")
     if choice not in ("warp", "torch"):
         raise ParameterError(f"{ENV} must be 'warp' or 'torch', got {choice!r}")
-    return wp is not None and device.type in ("cpu", "cuda") and choice == "warp"
+    if choice != "warp" or device.type not in ("cpu", "cuda"):
+        return False
+    if warp_kernels() is None:
+        packages.note_once(f"warp-lang is not installed: the fused kernels run as their torch expressions ({packages.install_hint('warp')} for the kernels)")
+        return False
+    return True
 
 
 _loaded: set[tuple[str, str]] = set()
 _loading = threading.Lock()  # one thread at a time redirects stderr and compiles
 
 
-def load(device: torch.device, module: str = __name__) -> None:
-    """Compile (or load from Warp's cache) the kernels of ``module`` (default: this module's, when
-    they are :func:`enabled`) for ``device``, once per process, before render threads launch them.
-    Nothing is printed, compiler warnings included."""
+def load(device: torch.device, module: str = KERNELS) -> None:
+    """Compile (or load from Warp's cache) the kernels of ``module`` (default: the fused kernels',
+    when they are :func:`enabled`) for ``device``, once per process, before render threads launch
+    them. Nothing is printed, compiler warnings included."""
     key = (module, str(device))
-    if key in _loaded or (module == __name__ and not enabled(device)):
+    if key in _loaded or (module == KERNELS and not enabled(device)):
         return
+    wk = warp_kernels()
     with _loading:
         if key in _loaded:
             return
-        with _quiet_stderr():
-            wp.load_module(sys.modules[module], device=wp.device_from_torch(device))
+        with wk.quiet_stderr():
+            wk.wp.load_module(sys.modules[module], device=wk.wp.device_from_torch(device))
         _loaded.add(key)
 
 
@@ -114,6 +95,8 @@ def launch(kernel, n: int, inputs: list, device: torch.device) -> None:
     """
     if not n:
         return
+    wk = warp_kernels()
+    wp = wk.wp
     held, args = [], []
     for x in inputs:
         if isinstance(x, Vec3):
@@ -138,138 +121,11 @@ class Vec3:
         self.tensor = tensor
 
 
-if wp is not None:
-    _M1 = wp.constant(wp.uint32(0x7FEB352D))
-    _M2 = wp.constant(wp.uint32(0x846CA68B))
-
-    @wp.func
-    def _lowbias32(x: wp.uint32) -> wp.uint32:
-        x = x ^ (x >> wp.uint32(16))
-        x = x * _M1
-        x = x ^ (x >> wp.uint32(15))
-        x = x * _M2
-        return x ^ (x >> wp.uint32(16))
-
-    @wp.kernel
-    def _uniform_kernel(keys: wp.array(dtype=wp.int32), salts: wp.array(dtype=wp.int32), u: wp.array2d(dtype=wp.float32)):
-        i = wp.tid()
-        key = wp.uint32(keys[i])
-        flip = wp.uint32(0) - (key & wp.uint32(1))  # mirrored key: every bit of the hash flipped
-        base = key & ~wp.uint32(1)
-        for j in range(salts.shape[0]):
-            h = _lowbias32(base ^ wp.uint32(salts[j])) ^ flip
-            u[i, j] = wp.float32(h & wp.uint32(0xFFFFFF)) * (1.0 / 16777216.0)
-
-    @wp.func
-    def _point(packed: wp.array2d(dtype=wp.float32), k: wp.int64, b1: wp.float32, b2: wp.float32) -> wp.vec3:
-        """The point of triangle k at barycentrics (b1, b2): ``p0 + b1 e1 + b2 e2`` (Triangles.packed)."""
-        p0 = wp.vec3(packed[k, 0], packed[k, 1], packed[k, 2])
-        e1 = wp.vec3(packed[k, 3], packed[k, 4], packed[k, 5])
-        e2 = wp.vec3(packed[k, 6], packed[k, 7], packed[k, 8])
-        return p0 + b1 * e1 + b2 * e2
-
-    @wp.func
-    def _normal(packed: wp.array2d(dtype=wp.float32), k: wp.int64) -> wp.vec3:
-        """Triangle k's unit geometric normal (its front side)."""
-        return wp.vec3(packed[k, 9], packed[k, 10], packed[k, 11])
-
-    @wp.func
-    def _write_uv(
-        packed: wp.array2d(dtype=wp.float32), k: wp.int64, b1: wp.float32, b2: wp.float32, uv: wp.array2d(dtype=wp.float32), i: int
-    ):
-        """uv[i] = the texture coordinates of triangle k at barycentrics (b1, b2)."""
-        b0 = 1.0 - b1 - b2
-        for j in range(2):
-            uv[i, j] = b0 * packed[k, 12 + j] + b1 * packed[k, 14 + j] + b2 * packed[k, 16 + j]
-
-    @wp.kernel
-    def _hit_kernel(
-        packed: wp.array2d(dtype=wp.float32), tri: wp.array(dtype=wp.int64), bu: wp.array(dtype=wp.float32), bv: wp.array(dtype=wp.float32),
-        d: wp.array(dtype=wp.vec3), with_uv: wp.int32,
-        p: wp.array(dtype=wp.vec3), n: wp.array(dtype=wp.vec3), front: wp.array(dtype=wp.bool), cos_o: wp.array(dtype=wp.float32), uv: wp.array2d(dtype=wp.float32),
-    ):  # fmt: skip
-        i = wp.tid()
-        k = tri[i]
-        b1 = bu[i]
-        b2 = bv[i]
-        ng = _normal(packed, k)
-        p[i] = _point(packed, k, b1, b2)
-        c = -wp.dot(ng, d[i])
-        front[i] = c > 0.0
-        if c > 0.0:
-            n[i] = ng
-        else:
-            n[i] = -ng
-        cos_o[i] = wp.abs(c)
-        if with_uv != 0:
-            _write_uv(packed, k, b1, b2, uv, i)
-
-    @wp.kernel
-    def _emitter_kernel(
-        packed: wp.array2d(dtype=wp.float32), light_tri: wp.array(dtype=wp.int64), cdf: wp.array(dtype=wp.float32), pdf_area: wp.array(dtype=wp.float32),
-        u: wp.array2d(dtype=wp.float32), x: wp.array(dtype=wp.vec3), nx: wp.array(dtype=wp.vec3), offset: wp.float32, with_uv: wp.int32,
-        tri: wp.array(dtype=wp.int64), o: wp.array(dtype=wp.vec3), wl: wp.array(dtype=wp.vec3), tmax: wp.array(dtype=wp.float32),
-        facing: wp.array(dtype=wp.bool), pdf: wp.array(dtype=wp.float32), uv: wp.array2d(dtype=wp.float32),
-    ):  # fmt: skip
-        i = wp.tid()
-        # the emitter triangle: the first cdf entry above u_pick (searchsorted, right=True), clamped
-        lo = int(0)
-        hi = cdf.shape[0]
-        pick = u[i, 0]
-        while lo < hi:
-            mid = (lo + hi) // 2
-            if cdf[mid] <= pick:
-                lo = mid + 1
-            else:
-                hi = mid
-        k = light_tri[wp.min(lo, cdf.shape[0] - 1)]
-        tri[i] = k
-        su = wp.sqrt(u[i, 1])
-        b1 = su * (1.0 - u[i, 2])
-        b2 = su * u[i, 2]
-        y = _point(packed, k, b1, b2)
-        start = x[i] + offset * nx[i]
-        o[i] = start
-        to_light = y - start
-        dist = wp.max(wp.length(to_light), 1.0e-12)
-        w = to_light / dist
-        wl[i] = w
-        tmax[i] = dist - offset
-        cos_l = -wp.dot(_normal(packed, k), w)
-        facing[i] = wp.dot(nx[i], w) > 0.0 and cos_l > 0.0
-        pdf[i] = pdf_area[k] * dist * dist / wp.max(cos_l, 1.0e-12)
-        if with_uv != 0:
-            _write_uv(packed, k, b1, b2, uv, i)
-
-    @wp.kernel
-    def _cosine_kernel(
-        n: wp.array(dtype=wp.vec3), u: wp.array2d(dtype=wp.float32), wi: wp.array(dtype=wp.vec3), pdf: wp.array(dtype=wp.float32)
-    ):
-        i = wp.tid()
-        z = 1.0 - 2.0 * u[i, 0]
-        r = wp.sqrt(wp.max(1.0 - z * z, 0.0))
-        phi = (2.0 * wp.pi) * u[i, 1]
-        a = n[i] + wp.vec3(r * wp.cos(phi), r * wp.sin(phi), z)
-        w = a / wp.max(wp.length(a), 1.0e-30)
-        wi[i] = w
-        pdf[i] = wp.max(wp.dot(n[i], w), 0.0) * (1.0 / wp.pi)
-
-    @wp.kernel
-    def _spawn_kernel(
-        p: wp.array(dtype=wp.vec3), n: wp.array(dtype=wp.vec3), wi: wp.array(dtype=wp.vec3), offset: wp.float32, o: wp.array(dtype=wp.vec3)
-    ):
-        i = wp.tid()
-        if wp.dot(n[i], wi[i]) >= 0.0:
-            o[i] = p[i] + offset * n[i]
-        else:
-            o[i] = p[i] - offset * n[i]
-
-
 def hash_uniforms(keys: torch.Tensor, salts: torch.Tensor) -> torch.Tensor:
     """(N, D) float32 uniforms: lowbias32 of ``(keys & ~1) ^ salt_j`` (N,) x (D,) int32, all bits
     flipped for odd (mirrored) keys, low 24 bits / 2^24 (the kernel of ``sampler.uniform``)."""
     out = torch.empty(keys.shape[0], salts.shape[0], dtype=torch.float32, device=keys.device)
-    launch(_uniform_kernel, keys.shape[0], [keys, salts, out], keys.device)
+    launch(warp_kernels().uniform_kernel, keys.shape[0], [keys, salts, out], keys.device)
     return out
 
 
@@ -287,7 +143,7 @@ def hit_geometry(packed: torch.Tensor, tri: torch.Tensor, u: torch.Tensor, v: to
     cos_o = torch.empty(count, device=dev)
     uv = torch.empty(count, 2, device=dev) if with_uv else torch.zeros(1, 2, device=dev)
     inputs = [packed, tri, u, v, Vec3(d), int(with_uv), Vec3(p), Vec3(n), front, cos_o, uv]
-    launch(_hit_kernel, count, inputs, dev)
+    launch(warp_kernels().hit_kernel, count, inputs, dev)
     return p, n, front, cos_o, uv if with_uv else uv.expand(count, 2)
 
 
@@ -326,7 +182,7 @@ def emitter_geometry(packed, light_tri, cdf, pdf_area, u: torch.Tensor, x: torch
         pdf,
         uv,
     ]
-    launch(_emitter_kernel, count, inputs, dev)
+    launch(warp_kernels().emitter_kernel, count, inputs, dev)
     return tri, o, wl, tmax, facing, pdf, uv if with_uv else uv.expand(count, 2)
 
 
@@ -336,12 +192,12 @@ def cosine_directions(n: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, t
     (wi (N, 3), their pdf ``max(cos, 0) / pi`` (N,))."""
     count = n.shape[0]
     wi, pdf = torch.empty(count, 3, device=n.device), torch.empty(count, device=n.device)
-    launch(_cosine_kernel, count, [Vec3(n), u, Vec3(wi), pdf], n.device)
+    launch(warp_kernels().cosine_kernel, count, [Vec3(n), u, Vec3(wi), pdf], n.device)
     return wi, pdf
 
 
 def offset_origins(p: torch.Tensor, n: torch.Tensor, wi: torch.Tensor, offset: float) -> torch.Tensor:
     """Ray origins (N, 3) ``p +- offset n``, on the side of ``n`` (N, 3) that ``wi`` (N, 3) points to."""
     o = torch.empty(p.shape[0], 3, device=p.device)
-    launch(_spawn_kernel, p.shape[0], [Vec3(p), Vec3(n), Vec3(wi), float(offset), Vec3(o)], p.device)
+    launch(warp_kernels().spawn_kernel, p.shape[0], [Vec3(p), Vec3(n), Vec3(wi), float(offset), Vec3(o)], p.device)
     return o

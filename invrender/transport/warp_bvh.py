@@ -4,7 +4,8 @@ a check of the other backends (Warp compiles the same kernel for both).
 Rays and results are torch tensors shared with Warp without copies (``wp.from_torch``); on CUDA the
 kernels are launched on torch's current stream, so a query is ordered with the torch operations
 around it and nothing waits for the GPU between bounces. Imported only when the backend is asked
-for: ``warp-lang`` compiles its kernels on first use (a few seconds, then cached on disk).
+for (without ``warp-lang``, a one-line :class:`~invrender.errors.MissingPackageError`): ``warp-lang``
+compiles its kernels on first use (a few seconds, then cached on disk).
 
 Warp reports barycentrics as the weights of a triangle's first and second vertex; the backends'
 convention (Embree's) is the weights of the second and third, so the kernels convert.
@@ -14,13 +15,11 @@ from __future__ import annotations
 
 import torch
 
-from invrender.errors import ParameterError
-from invrender.transport import kernels
+from invrender.transport import kernels, packages
 from invrender.transport.kernels import Vec3, launch
 
-wp = kernels.wp
-if wp is None:  # pragma: no cover - warp-lang is a dependency; this guards broken installs
-    raise ParameterError("the warp intersection backend needs warp-lang: pip install warp-lang, or use backend 'embree' or 'torch'")
+wp = packages.require("warp", "the warp intersection backend", "use backend 'torch'")
+kernels.warp_kernels()  # wp.init(), quietly, before the first wp.Mesh
 
 
 @wp.kernel
