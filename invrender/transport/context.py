@@ -163,6 +163,6 @@ def russian_roulette(state: PathState, u: torch.Tensor, depth: int, rr_depth: in
     if depth + 1 < rr_depth:
         return state if dead is None else state.select(~dead)
     q = state.beta.detach().amax(dim=1).clamp(max=0.95)
-    alive = u < q
+    alive = (u < q).nonzero()[:, 0]  # one synchronization: the survivors' count
     state = state.select(alive)
-    return dataclasses.replace(state, beta=state.beta / q[alive][:, None])
+    return dataclasses.replace(state, beta=state.beta / q.index_select(0, alive)[:, None])

@@ -175,7 +175,9 @@ class Lights:
         self.choice = [p / total if total > 0 else 0.0 for p in power]
         self.sampled = [light for light, p in zip(self.lights, self.choice) if p > 0]
         #: cumulative choice probabilities of ``sampled``
-        self._cdf = torch.tensor([p for p in self.choice if p > 0], dtype=torch.float64).cumsum(0).float().to(device)
+        cdf = torch.tensor([p for p in self.choice if p > 0], dtype=torch.float64).cumsum(0).float()
+        self._cdf = cdf.to(device)
+        self._cdf_host = cdf.tolist()  # the same float32 values, read without a device round trip
         self.surfaces = [light for light in self.lights if light.surface]
         self.infinite = [light for light in self.lights if light.infinite]
         #: (E + 1,) int64, which of ``surfaces`` each scene emitter belongs to (last: no emitter)
@@ -202,8 +204,8 @@ class Lights:
             index = (k == i).nonzero()[:, 0]
             if not index.numel():
                 continue
-            lo = float(self._cdf[i - 1]) if i else 0.0
-            p = float(self._cdf[i]) - lo
+            lo = self._cdf_host[i - 1] if i else 0.0
+            p = self._cdf_host[i] - lo
             ui = u.index_select(0, index).clone()
             ui[:, 0] = ((ui[:, 0] - lo) / p).clamp(0.0, 1.0 - 2**-24)
             part = light.sample_from(ui, x.index_select(0, index), nx.index_select(0, index), offset).scaled_pdf(p)

@@ -17,6 +17,8 @@ faster than int64 on the CPU, where 64-bit multiplies do not vectorize.)
 
 from __future__ import annotations
 
+import functools
+
 import torch
 
 from invrender.transport import kernels
@@ -97,12 +99,20 @@ def uniform(keys: torch.Tensor, bounce: int, dims: int) -> torch.Tensor:
         (N, dims) float32, each the hash of (key, bounce, dimension): its low 24 bits / 2^24 (their
         complement for mirrored keys).
     """
-    salts = torch.tensor([_signed(_mix_int(bounce * 0x10000 + d + 0x632BE5AB)) for d in range(dims)], dtype=torch.int32, device=keys.device)
+    salts = _salts(bounce, dims, keys.device)
     if kernels.enabled(keys.device):
         return kernels.hash_uniforms(keys, salts)
     h = _mix((keys & -2)[:, None] ^ salts)
     h ^= -(keys & 1)[:, None]  # mirrored: all bits flipped, so the low 24 give 1 - 2^-24 - u
     return h.bitwise_and_(0xFFFFFF).to(torch.float32).mul_(1.0 / 16777216.0)
+
+
+@functools.lru_cache(maxsize=4096)
+def _salts(bounce: int, dims: int, device: torch.device) -> torch.Tensor:
+    """(dims,) int32 salts of one bounce's dimensions on ``device``, made once: a tensor built from
+    a list is a copy from pageable host memory, which on CUDA waits for the stream each bounce.
+    Read only (never written in place)."""
+    return torch.tensor([_signed(_mix_int(bounce * 0x10000 + d + 0x632BE5AB)) for d in range(dims)], dtype=torch.int32, device=device)
 
 
 def branch_keys(keys: torch.Tensor, branch: int) -> torch.Tensor:

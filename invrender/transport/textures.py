@@ -53,7 +53,7 @@ def gather_rgb(values: Sequence[torch.Tensor], index: torch.Tensor, uv: torch.Te
     out = table.index_select(0, torch.where(index >= 0, index, len(values)))
     for k, v in enumerate(values):
         if v.ndim == 3:
-            mask = index == k
-            if bool(mask.any()):
-                out = out.index_put((mask.nonzero()[:, 0],), lookup(v, uv[mask]))
+            at = (index == k).nonzero()[:, 0]  # one host-device synchronization (its count)
+            if at.numel():
+                out = out.index_put((at,), lookup(v, uv.index_select(0, at)))
     return out if n else out.reshape(0, 3)

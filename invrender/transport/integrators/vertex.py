@@ -87,9 +87,9 @@ def add_emitted(ctx: TransportContext, state: PathState, s: Surface | None, dept
     emits = ctx.lights.emits(s) if s is not None else torch.ones_like(state.delta)
     if nee_only:
         emits = emits & state.delta  # camera rays (delta = True) and delta lobes only
-    if not bool(emits.any()):
+    m = emits.nonzero()[:, 0]  # the one host-device synchronization here (the count of m)
+    if not m.numel():
         return
-    m = emits.nonzero()[:, 0]
     if s is not None:
         se = s.select(m)
         Le = ctx.lights.emitted(se)

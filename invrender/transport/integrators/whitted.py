@@ -58,10 +58,9 @@ class Whitted(Integrator):
             if not cfg.continues_after(depth):
                 break
             sp = ctx.shading_point(s, -state.d)
-            local = ctx.materials.has(sp, Lobe.SMOOTH)
-            if bool(local.any()):
+            i = ctx.materials.has(sp, Lobe.SMOOTH).nonzero()[:, 0]
+            if i.numel():
                 # the local model: direct light and ambient into term depth + 1; the smooth lobes end here
-                i = local.nonzero()[:, 0]
                 ls, lsp = state.select(i), sp.select(i)
                 add_direct(ctx, ls, s.select(i), lsp, uniform(ls.keys, depth + 1, DIMS), depth + 1, film, mis=False)
                 add_ambient(ctx, ls, lsp, depth + 1, film)
