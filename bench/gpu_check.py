@@ -196,7 +196,8 @@ def check_process_group(sizes: Sizes, device: torch.device) -> dict:
     backend = "nccl" if device.type == "cuda" else "gloo"
     outside = ir.render(cornell(sizes.resolution, device), spp=sizes.spp, max_depth=DEPTH, seed=4, backend="torch", progress=False)
     with tempfile.TemporaryDirectory() as tmp:
-        dist.init_process_group(backend, init_method=f"file://{tmp}/store", rank=0, world_size=1)
+        bound = {"device_id": torch.device("cuda", torch.cuda.current_device())} if backend == "nccl" else {}  # NCCL: this GPU
+        dist.init_process_group(backend, init_method=f"file://{tmp}/store", rank=0, world_size=1, **bound)
         try:
             x = torch.arange(4, dtype=torch.float32, device=device)
             dist.all_reduce(x)
