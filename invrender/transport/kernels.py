@@ -2,9 +2,11 @@
 
 A bounce in eager torch is a few hundred small operations, each a pass over megabytes of (N,) and
 (N, 3) tensors; the steps below are pure geometry and random numbers (no parameter enters them:
-sampling and hit geometry are detached by design), so each is one Warp kernel here, one pass over
-its inputs, compiled for the CPU and for CUDA from the same source and cached on disk by Warp
-(``~/.cache/warp``) after the first compile. The torch expressions they replace stay beside them as
+sampling and hit geometry are detached by design), so each is one Warp kernel
+(:mod:`invrender.transport.warp_kernels`, imported on first use: without warp-lang, ``import
+invrender`` works and the torch expressions run), one pass over its inputs, compiled for the CPU
+and for CUDA from the same source and cached on disk by Warp (``~/.cache/warp``) after the first
+compile. The torch expressions they replace stay beside them as
 the reference: they run on devices Warp has no backend for, with ``INVRENDER_KERNELS=torch``, and
 in the tests that check the two agree (the random numbers bit for bit, the geometry to float
 rounding).
