@@ -15,6 +15,7 @@ from invrender.errors import ParameterError
 from invrender.scene.camera import Camera
 from invrender.scene.scene import build_scene, scene_extent
 from invrender.scene.shapes import Mesh
+from invrender.transport import packages
 from invrender.transport.accel import check_backend, intersector_for, make_intersector
 
 FORWARD = Path(__file__).resolve().parents[2] / "forward"
@@ -64,6 +65,7 @@ def assert_same_hits(scene, o, d):
     assert (pa - pb).abs().max() < 1e-5 * scene_extent(tri)
 
 
+@pytest.mark.warp
 @pytest.mark.parametrize("name", SHIPPED, ids=lambda n: Path(n).stem)
 def test_warp_hits_equal_embree_on_shipped_scenes(name):
     scene = ir.load_scene(name, resolution=(8, 8))
@@ -71,6 +73,7 @@ def test_warp_hits_equal_embree_on_shipped_scenes(name):
     assert_same_hits(scene, o, d)
 
 
+@pytest.mark.warp
 def test_warp_hits_equal_embree_on_an_80k_triangle_mesh():
     sphere = trimesh.creation.icosphere(subdivisions=6)  # 81,920 triangles
     bumpy = sphere.vertices * (1 + 0.05 * torch.sin(torch.tensor(sphere.vertices[:, :1]) * 17).numpy())
@@ -88,6 +91,7 @@ def test_warp_hits_equal_embree_on_an_80k_triangle_mesh():
     assert 0.1 < a.float().mean() < 0.9 and (a != b).sum() <= 2  # a hit at tmax itself may fall either way
 
 
+@pytest.mark.warp
 def test_warp_occluded_equals_embree():
     scene = ir.load_scene("cornell_specular", resolution=(8, 8))
     o, d = random_rays(scene, 20000, seed=3)
@@ -97,6 +101,7 @@ def test_warp_occluded_equals_embree():
     assert 0.1 < a.float().mean() < 0.9 and (a != b).sum() <= 2
 
 
+@pytest.mark.warp
 @pytest.mark.parametrize("name", ["cornell_box", "cornell_specular"])
 def test_warp_and_embree_render_the_same_image(name):
     scene = ir.load_scene(name, resolution=(24, 24))
@@ -105,6 +110,7 @@ def test_warp_and_embree_render_the_same_image(name):
     assert torch.allclose(a, b, rtol=1e-4, atol=1e-5), (a - b).abs().max()
 
 
+@pytest.mark.warp
 def test_warp_gradients_equal_embree():
     scene = ir.load_scene("cornell_box", resolution=(16, 16))
     target = ir.render(scene, spp=16, seed=9, progress=False)
@@ -135,7 +141,7 @@ def test_backend_errors():
     with pytest.raises(ParameterError, match="embree backend runs on the CPU only"):
         check_backend("embree", torch.device("cuda"))
     assert check_backend(None, torch.device("cpu")) == "embree"
-    assert check_backend(None, torch.device("cuda")) == "warp"
+    assert check_backend(None, torch.device("cuda")) == ("warp" if packages.find("warp") else "torch")  # torch without warp-lang
 
 
 def test_repeated_queries_answer_the_adjoint_pass_from_the_primal_pass(monkeypatch):

@@ -18,6 +18,7 @@ from invrender.emitters.area import Area
 from invrender.transport.sampler import mirrored, path_keys, uniform
 from invrender.transport.surface import surface_at
 
+pytestmark = pytest.mark.warp  # every test here runs the Warp kernels
 FORWARD = Path(__file__).resolve().parents[2] / "forward"
 CPU = torch.device("cpu")
 
