@@ -57,8 +57,8 @@ class RenderSettings:
         chunk_paths: paths traced per chunk; None = sized by ``memory_mb``.
         memory_mb: memory budget for one chunk's working set, MiB.
         progress: show a progress bar (rate, ETA) on renders that take longer than a second.
-        sampler: how a pixel's samples are drawn (:data:`SAMPLERS`): ``"stratified"`` (jittered
-            on a grid over the pixel, the default), ``"independent"`` (each uniform over the pixel)
+        sampler: how a pixel's samples are drawn (:data:`SAMPLERS`): ``"stratified"``
+            (correlated multi-jittered: every count stratified on both axes and in 2-D, the default), ``"independent"`` (each uniform over the pixel)
             or ``"antithetic"`` (pairs: the second path of each pair draws ``1 - u`` for every
             number ``u`` of the first, pixel jitter, lens, light samples, BSDF samples and
             roulette; the pairs are stratified).
