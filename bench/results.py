@@ -35,6 +35,7 @@ BENCHMARKS = [
     ("fit_cornell", "the acceptance fit (Adam, lm, Mitsuba `prb` + Adam)", "python bench/fit_cornell.py", "~5 min", "fitting.md#measured"),
     ("fit_recipes", "every shipped fit recipe with both solvers", "python bench/fit_recipes.py", "~40 min", "fitting.md#every-recipe-with-both-solvers"),
     ("sampling_ablation", "the sampling-strategy ablation", "python bench/sampling_ablation.py", "~10 min", "sampling.md#measured"),
+    ("pixel_samples", "error against samples per pixel, per pixel sampler", "python bench/pixel_samples.py", "~15 min", "sampling.md#pixel-samples"),
 ]
 
 

@@ -72,7 +72,7 @@ def add_parser(sub) -> None:
     r.add_argument("--ambient", type=parse_rgb, default=None, metavar="R,G,B", help="ambient radiance eps0 for --integrator utah, whitted or distributed (one number or R,G,B; default: the scene's, else 0)")
     r.add_argument("--seed", type=int, default=0, help="random seed; the image is a pure function of it (default: 0)")
     r.add_argument("--rr-depth", type=int, default=None, help="the integrator's rr_depth: Russian roulette starts after this many terms; -1 = no roulette (path, random_walk, distributed; default: the scene file's, else 5)")
-    r.add_argument("--sampler", default="stratified", help="pixel samples: stratified (jittered on a grid, default), independent, or antithetic (pairs whose second path draws 1 - u for every number of the first)")
+    r.add_argument("--sampler", default="stratified", help="pixel samples: stratified (correlated multi-jittered: every spp stratified, default), independent, or antithetic (pairs whose second path draws 1 - u for every number of the first)")
     r.add_argument("--strategy", default=None, help="the path tracer's strategy for direct light: mis (emitter and BSDF samples by multiple importance sampling, default), bsdf (BSDF samples only) or emitter (emitter samples only)")
     r.add_argument("--hemisphere", default=None, help="the integrator's hemisphere: diffuse BSDF sampling, cosine (default) or uniform over the hemisphere (path, random_walk, distributed)")
     r.add_argument("--adaptive", action="store_true", help="adaptive sampling: --spp samples per pixel on average, spent where the estimated error is high; writes OUT_STEM.spp.png")

@@ -14,7 +14,6 @@ end in float64, so the image is the same whatever the number of workers.
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 import sys
 import threading
@@ -29,7 +28,7 @@ from invrender.scene.scene import Scene
 from invrender.transport import ranks
 from invrender.transport.context import PathState
 from invrender.transport.memory import keep_freed_blocks
-from invrender.transport.sampler import mirrored, path_keys, uniform
+from invrender.transport.sampler import mirrored, multijitter, path_keys, uniform
 from invrender.validate import MAX_SPP, check_bool, check_choice, check_float, check_int
 
 #: working-set estimate per path in a chunk (state, hits, temporaries, backend copies), bytes
@@ -58,8 +57,8 @@ class RenderSettings:
         chunk_paths: paths traced per chunk; None = sized by ``memory_mb``.
         memory_mb: memory budget for one chunk's working set, MiB.
         progress: show a progress bar (rate, ETA) on renders that take longer than a second.
-        sampler: how a pixel's samples are drawn (:data:`SAMPLERS`): ``"stratified"`` (jittered
-            on a grid over the pixel, the default), ``"independent"`` (each uniform over the pixel)
+        sampler: how a pixel's samples are drawn (:data:`SAMPLERS`): ``"stratified"``
+            (correlated multi-jittered: every count stratified on both axes and in 2-D, the default), ``"independent"`` (each uniform over the pixel)
             or ``"antithetic"`` (pairs: the second path of each pair draws ``1 - u`` for every
             number ``u`` of the first, pixel jitter, lens, light samples, BSDF samples and
             roulette; the pairs are stratified).
@@ -225,9 +224,10 @@ def camera_paths(scene: Scene, settings: RenderSettings, ids: torch.Tensor) -> P
     """Camera rays for flat path ids (N,) = ``pixel * spp + sample`` (or the ids of
     ``settings.plan``, each pixel with its own count).
 
-    ``settings.sampler`` ``"stratified"``: with n = floor(sqrt(spp)), samples 0 .. n^2 - 1 each
-    jitter in their own cell of an n x n grid over the pixel and the remaining ones are uniform, so
-    every sample's film position is uniform over the pixel on average (a box filter, unbiased);
+    ``settings.sampler`` ``"stratified"``: a pixel's spp samples are correlated multi-jittered
+    (:func:`~invrender.transport.sampler.multijitter`: every count stratified, a pattern per pixel
+    and pass), so every sample's film position is uniform over the pixel on average (a box filter,
+    unbiased);
     ``"independent"``: every sample uniform over the pixel; ``"antithetic"``: samples 2k and 2k + 1
     share their counters, the second mirrored (``sampler.mirrored``), and the pairs are stratified
     as samples are. A thin lens draws its lens point from dimensions 2 and 3 of the same counters.
@@ -248,11 +248,12 @@ def camera_paths(scene: Scene, settings: RenderSettings, ids: torch.Tensor) -> P
         keys = path_keys(settings.seed, pixel, first + sample)
     camera = scene.camera
     u = uniform(keys, 0, 2 if camera.is_pinhole else 4)
-    n = _grid_size(cells) if settings.sampler != "independent" else 0
-    grid = cell < n * n
-    n = _at_least_one(n)
-    fx = torch.where(grid, ((cell % n).float() + u[:, 0]) / n, u[:, 0])
-    fy = torch.where(grid, ((cell // n).float() + u[:, 1]) / n, u[:, 1])
+    if settings.sampler == "independent":
+        fx, fy = u[:, 0], u[:, 1]
+    else:
+        first = torch.as_tensor(first, dtype=torch.int64, device=ids.device)
+        pattern = path_keys(settings.seed ^ 0x5EED, pixel, first).long() & 0xFFFFFFFF  # one per pixel and pass
+        fx, fy = multijitter(pattern, cell, cells, u[:, :2]).unbind(1)
     film_xy = torch.stack([(pixel % scene.width).float() + fx, (pixel // scene.width).float() + fy], dim=1)
     o, d = camera.generate_rays(film_xy, scene.width, scene.height, None if camera.is_pinhole else u[:, 2:4])
     n_paths = ids.shape[0]
@@ -262,14 +263,3 @@ def camera_paths(scene: Scene, settings: RenderSettings, ids: torch.Tensor) -> P
         pdf_dir=torch.ones(n_paths, device=ids.device), delta=torch.ones(n_paths, dtype=torch.bool, device=ids.device),
     )  # fmt: skip
 
-
-def _grid_size(cells):
-    """floor(sqrt(cells)) of an int or an int64 tensor."""
-    if isinstance(cells, int):
-        return math.isqrt(cells)
-    n = cells.double().sqrt().floor().long()
-    return n - (n * n > cells).long() + ((n + 1) * (n + 1) <= cells).long()  # exact despite rounding
-
-
-def _at_least_one(n):
-    return max(n, 1) if isinstance(n, int) else n.clamp_min(1)
