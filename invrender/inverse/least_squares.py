@@ -251,9 +251,16 @@ class _Problem:
     prior: Prior | None = None
     sensor: Sensor | None = None
 
+    @property
+    def device(self) -> torch.device:
+        """Where the records are (the residual and Jacobian are computed there, handed to the
+        solver on the host)."""
+        return self.records_a[0].coefficients.device
+
     def _split(self, x):
-        """Unconstrained scene rows (N_var, 3) and sensor log variables (K,) of the solver's ``x``."""
-        flat = torch.from_numpy(np.asarray(x, dtype=np.float64)).reshape(-1)
+        """Unconstrained scene rows (N_var, 3) and sensor log variables (K,) of the solver's ``x``
+        (on the records' device)."""
+        flat = torch.from_numpy(np.asarray(x, dtype=np.float64)).reshape(-1).to(self.device)
         n = 3 * self.layout.offsets[-1]
         return flat[:n].reshape(-1, 3), flat[n:]
 
@@ -266,7 +273,7 @@ class _Problem:
         parts = [_residual(r, values, t, w, g) for r, t, w, g in zip(self.records_a, self.targets, self.weights, gains)]
         if self.prior is not None:
             parts.append(self.prior.residual(self.layout, values))
-        return torch.cat(parts).numpy()
+        return torch.cat(parts).cpu().numpy()
 
     def jacobian(self, x) -> np.ndarray:
         """(R, 3 N_var (+ K)) set B's Jacobian with respect to ``x`` (variable-major, channel-minor;
@@ -278,8 +285,8 @@ class _Problem:
             (dv_dx,) = torch.autograd.grad(rows.sum(), raw)  # elementwise reparametrizations
         values = self.layout.unflatten(self.layout.inside(rows.detach()))
         J = _full_jacobian(self.records_b, self.weights, values, self.sensor, s, self.prior, self.layout)
-        scale = torch.cat([dv_dx.reshape(-1), torch.ones(J.shape[1] - dv_dx.numel(), dtype=torch.float64)])
-        return (J * scale.reshape(1, -1)).numpy()
+        scale = torch.cat([dv_dx.reshape(-1), torch.ones(J.shape[1] - dv_dx.numel(), dtype=torch.float64, device=J.device)])
+        return (J * scale.reshape(1, -1)).cpu().numpy()
 
 
 #: problems being solved, by handle: the jitted residual reads them through ``jax.pure_callback``
@@ -354,7 +361,7 @@ def solve(
         args = {"handle": jnp.asarray(handle, dtype=jnp.int64), "r": jnp.zeros(sum(_linear(t).numel() for t in targets) + extra)}
         method = optx.LevenbergMarquardt(rtol=rtol, atol=atol) if solver == "lm" else optx.GaussNewton(rtol=rtol, atol=atol)
         raw0 = layout.to_raw(start)
-        x0 = jnp.asarray(raw0.numpy() if sensor is None else torch.cat([raw0.reshape(-1), s0]).numpy())
+        x0 = jnp.asarray(raw0.cpu().numpy() if sensor is None else torch.cat([raw0.reshape(-1), s0]).cpu().numpy())
         sol = optx.least_squares(_decorrelated_residual(), method, x0, args=args, options={"jac": "fwd"}, max_steps=max_steps, throw=False)
         x = torch.from_numpy(jax.device_get(sol.value).copy()).double()
     finally:
