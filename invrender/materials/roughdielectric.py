@@ -19,7 +19,8 @@ to ``wo``, so ``c_o = wo.z > 0``), with ``eta`` the index ratio transmitted over
   Mitsuba's does in radiance mode.
 
 G1 is Smith's masking of each direction at its angle with the normal (``|cos|``), ``k_r`` and
-``k_t`` are ``specular_reflectance`` and ``specular_transmittance`` (default 1).
+``k_t`` are ``specular_reflectance`` (a differentiable parameter, a colour or a texture) and
+``specular_transmittance`` (an RGB constant), both default 1.
 
 Sampling, as Mitsuba's with ``sample_visible``: a normal h visible from ``wo`` (density ``G1(wo)
 wo.h D(h) / c_o``), reflection about it with probability ``F(wo.h)`` (1 under total internal
@@ -59,6 +60,8 @@ from invrender.vec import dot, normalize
 INTERFACE_CONSTANTS = {
     "int_ior": Constant(NAMED_IOR["bk7"], 0.0, math.inf, True, True, names=NAMED_IOR),
     "ext_ior": Constant(NAMED_IOR["air"], 0.0, math.inf, True, True, names=NAMED_IOR),
+    # RGB, a scene constant (not differentiable: parameter names are kinds, and none is a transmittance)
+    "specular_transmittance": Constant((1.0, 1.0, 1.0), 0.0, 1.0, False, False, size=3),
 }
 
 
@@ -68,7 +71,6 @@ class RoughDielectric(BSDF):
     lobes = Lobe.GLOSSY | Lobe.GLOSSY_TRANSMISSION
     params = {
         "specular_reflectance": Param(SPECULAR_REFLECTANCE, 1.0),
-        "specular_transmittance": Param(SPECULAR_REFLECTANCE, 1.0),
         "roughness": Param(ROUGHNESS, 0.1),
     }
     constants = dict(INTERFACE_CONSTANTS)
@@ -104,7 +106,7 @@ class RoughDielectric(BSDF):
         common = d.D(h[:, 2], alpha) * d.G1(c_o, alpha) * d.G1(c_i.abs(), alpha) / c_o.clamp_min(1e-12)
         f_r = torch.where(ok & reflected, F * common / 4.0, 0.0)
         f_t = torch.where(ok & ~reflected, (1.0 - F) * common * d_o * d_i.abs() / denom, 0.0)
-        f = self.param("specular_reflectance", sp) * f_r[:, None] + self.param("specular_transmittance", sp) * f_t[:, None]
+        f = self.param("specular_reflectance", sp) * f_r[:, None] + self.constant("specular_transmittance", sp) * f_t[:, None]
         return f, pdf
 
     def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
@@ -143,7 +145,7 @@ class RoughDielectric(BSDF):
         ratio = visible_reweight(d, h[:, 2], wo_up[:, 2], attached, alpha)
         g1 = d.G1(c_i.abs(), alpha) if ratio is None else d.G1(c_i.abs(), attached) * ratio
         g1 = torch.where(ok, g1, 0.0)
-        k_r, k_t = self.param("specular_reflectance", sp), self.param("specular_transmittance", sp)
+        k_r, k_t = self.param("specular_reflectance", sp), self.constant("specular_transmittance", sp)
         weight = torch.where(reflected[:, None], k_r, k_t / (eta * eta)[:, None]) * g1[:, None]
         return BSDFSample(sp.frame.to_world(wl), weight, torch.where(ok, pdf, 0.0), torch.zeros_like(ok))
 
@@ -163,8 +165,8 @@ class RoughDielectric(BSDF):
         """Mitsuba's ``roughdielectric``: ``distribution`` beckmann (its default: type
         roughdielectric) or ggx (type roughdielectric_ggx), isotropic ``alpha`` (the roughness,
         default 0.1), ``int_ior``/``ext_ior`` (numbers or named media, default bk7 / air),
-        ``specular_reflectance`` and ``specular_transmittance`` (colours or bitmap textures,
-        default 1), ``sample_visible`` (read; invrender always samples visible normals)."""
+        ``specular_reflectance`` (a colour or a bitmap texture) and ``specular_transmittance``
+        (a colour), default 1, ``sample_visible`` (read; invrender always samples visible normals)."""
         name = (bsdf.string("distribution", allowed=("beckmann", "ggx")) or "beckmann").lower()
         target = RoughDielectric if name == "beckmann" else RoughDielectricGGX
         for key in ("alpha_u", "alpha_v"):
@@ -173,7 +175,7 @@ class RoughDielectric(BSDF):
         alpha = bsdf.number("alpha", ALPHA, f"{target.distribution.label} roughness", "a <float> (textured roughness is not supported)")
         int_ior, ext_ior = bsdf.ior("int_ior", "bk7"), bsdf.ior("ext_ior", "air")
         kr = bsdf.colour("specular_reflectance", SPECULAR_REFLECTANCE, 1.0)
-        kt = bsdf.colour("specular_transmittance", SPECULAR_REFLECTANCE, 1.0)
+        kt = bsdf.colour("specular_transmittance", SPECULAR_REFLECTANCE, 1.0, texture=False)
         bsdf.boolean("sample_visible")
         bsdf.finish(("distribution", "alpha", "int_ior", "ext_ior", "specular_reflectance", "specular_transmittance", "sample_visible"))
         return {"type": target.type_name, "roughness": alpha, "int_ior": int_ior, "ext_ior": ext_ior, "specular_reflectance": kr, "specular_transmittance": kt}
@@ -190,7 +192,7 @@ class RoughDielectric(BSDF):
             "int_ior": float(constants["int_ior"]),
             "ext_ior": float(constants["ext_ior"]),
             "specular_reflectance": values["specular_reflectance"],
-            "specular_transmittance": values["specular_transmittance"],
+            "specular_transmittance": [float(x) for x in constants["specular_transmittance"]],
             "sample_visible": True,
         }
 
