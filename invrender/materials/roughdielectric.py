@@ -43,6 +43,7 @@ from __future__ import annotations
 import math
 from typing import ClassVar
 
+import numpy as np
 import torch
 
 from invrender import registry
@@ -192,7 +193,7 @@ class RoughDielectric(BSDF):
             "int_ior": float(constants["int_ior"]),
             "ext_ior": float(constants["ext_ior"]),
             "specular_reflectance": values["specular_reflectance"],
-            "specular_transmittance": [float(x) for x in constants["specular_transmittance"]],
+            "specular_transmittance": np.asarray(constants.get("specular_transmittance", (1.0, 1.0, 1.0)), dtype=np.float64),
             "sample_visible": True,
         }
 

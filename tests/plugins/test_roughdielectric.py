@@ -217,4 +217,4 @@ def test_to_mitsuba_writes_the_plugin_back():
     values = {"roughness": torch.full((3,), 0.25), "specular_reflectance": torch.ones(3)}
     out = RoughDielectricGGX.to_mitsuba(values, {"int_ior": 1.6, "ext_ior": 1.0, "specular_transmittance": (0.5, 0.5, 0.5)})
     assert out["type"] == "roughdielectric" and out["distribution"] == "ggx" and out["alpha"] == pytest.approx(0.25)
-    assert out["int_ior"] == pytest.approx(1.6) and out["ext_ior"] == 1.0 and out["specular_transmittance"] == [0.5] * 3
+    assert out["int_ior"] == pytest.approx(1.6) and out["ext_ior"] == 1.0 and out["specular_transmittance"].tolist() == [0.5] * 3
