@@ -218,3 +218,21 @@ def test_to_mitsuba_writes_the_plugin_back():
     out = RoughDielectricGGX.to_mitsuba(values, {"int_ior": 1.6, "ext_ior": 1.0, "specular_transmittance": (0.5, 0.5, 0.5)})
     assert out["type"] == "roughdielectric" and out["distribution"] == "ggx" and out["alpha"] == pytest.approx(0.25)
     assert out["int_ior"] == pytest.approx(1.6) and out["ext_ior"] == 1.0 and out["specular_transmittance"].tolist() == [0.5] * 3
+
+
+def test_path_records_hold_specular_reflectance():
+    """k_r is one factor of the reflected lobe's weights and values, none of the transmitted ones':
+    records reweighted to another k_r give the render at it (the glass lit from both sides)."""
+    from invrender.scene.builtin import rotate
+
+    def scene(k):
+        lamp_above = primitive("rectangle", "lamp", "light").transformed(translate([0, 0.8, 1.2]) @ rotate([1, 0, 0], 150) @ scale([0.3, 0.3, 1]))
+        meshes = [primitive("rectangle", "glass").transformed(scale([1.5, 1.5, 1.0])), primitive("rectangle", "lamp", "light").transformed(translate([0.2, 0.0, -0.8]) @ scale([0.4, 0.4, 1.0])), lamp_above]
+        materials = {"glass": Material.of("roughdielectric_ggx", roughness=0.3, specular_reflectance=k), "lamp": 0.0}
+        return build_scene(meshes, materials, {"light": [20.0, 20.0, 20.0]}, Camera(origin=(0, -2.0, 2.2), target=(0, 0.2, 0), fov=50), (12, 12))
+
+    kw = dict(spp=8, max_depth=3, progress=False, seed=1)
+    records = ir.record_paths(scene([0.8, 0.8, 0.8]), ["glass.specular_reflectance"], **kw)
+    assert float(records.jacobian()["glass.specular_reflectance"].abs().sum()) > 1.0
+    other = records.image({"glass.specular_reflectance": torch.tensor([0.4, 0.5, 0.6])}).float()
+    torch.testing.assert_close(other, ir.render(scene([0.4, 0.5, 0.6]), **kw), rtol=1e-4, atol=1e-6)
