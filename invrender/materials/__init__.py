@@ -10,11 +10,12 @@ The table of types (docs/plugins.md) is generated from these declarations
 (:func:`invrender.scene.plugins.plugin_table`).
 """
 
-from invrender.materials import diffuse, mirror, dielectric, glossy, plastic  # noqa: F401  (registration order)
+from invrender.materials import diffuse, mirror, dielectric, glossy, plastic, roughdielectric  # noqa: F401  (registration order)
 from invrender.materials.dielectric import Dielectric
 from invrender.materials.diffuse import Diffuse
 from invrender.materials.glossy import Glossy
 from invrender.materials.mirror import Mirror
 from invrender.materials.plastic import Plastic, RoughPlastic, RoughPlasticGGX
+from invrender.materials.roughdielectric import RoughDielectric, RoughDielectricGGX
 
-__all__ = ["Diffuse", "Mirror", "Dielectric", "Glossy", "Plastic", "RoughPlastic", "RoughPlasticGGX"]
+__all__ = ["Diffuse", "Mirror", "Dielectric", "Glossy", "Plastic", "RoughPlastic", "RoughPlasticGGX", "RoughDielectric", "RoughDielectricGGX"]

@@ -34,6 +34,18 @@ def test_sampling_matches_pdf(name, theta_o):
     assert checks.chi_square_p(checks.instance(cls), theta_o, seed=int(theta_o * 10)) > 1e-3
 
 
+@pytest.mark.parametrize("theta_o", ANGLES)
+@pytest.mark.parametrize("name", [n for n in TYPES if MATERIALS[n].has(Lobe.GLOSSY_TRANSMISSION)])
+def test_sampling_from_inside_matches_pdf(name, theta_o):
+    """Materials that transmit through a smooth lobe, seen from inside (wo behind the surface:
+    the index ratio inverted, total internal reflection): sampling against pdf, weights against
+    eval / pdf."""
+    bsdf = checks.instance(MATERIALS[name])
+    assert checks.chi_square_p(bsdf, theta_o, seed=int(theta_o * 10), front=False) > 1e-3
+    pdf_err, weight_err, smooth = checks.weight_errors(bsdf, theta_o, front=False)
+    assert pdf_err < 2e-3 and weight_err < 2e-3 and smooth > 0.3
+
+
 @pytest.mark.parametrize("theta_o", [0.2, 1.0])
 @pytest.mark.parametrize("name", TYPES)
 def test_sample_weight_is_eval_over_pdf(name, theta_o):

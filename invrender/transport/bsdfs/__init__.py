@@ -53,6 +53,8 @@ class Materials:
         self._lobe_table = torch.tensor([int(b.lobes) for b in self.bsdfs], dtype=torch.int64, device=device)
         #: some BSDF has no smooth lobe (delta only): next-event estimation skips its hits
         self.any_delta_only = any(not b.has(Lobe.SMOOTH) for b in self.bsdfs)
+        #: some BSDF transmits through a lobe with a density: next-event estimation looks behind its hits too
+        self.any_smooth_transmission = any(b.has(Lobe.GLOSSY_TRANSMISSION) for b in self.bsdfs)
         #: every BSDF is purely Lambertian (its sample weight is rho, never zero on a flat scene)
         self.all_diffuse = all(b.lobes == Lobe.DIFFUSE for b in self.bsdfs)
 

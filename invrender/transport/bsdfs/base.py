@@ -47,25 +47,29 @@ from invrender.transport.textures import gather_rgb
 class Lobe(enum.IntFlag):
     """Kinds of lobe a BSDF has (a bitset, as pbrt-v4's ``BxDFFlags``).
 
-    ``DIFFUSE`` and ``GLOSSY`` lobes have a density: emitters can be sampled towards them and
-    ``eval`` / ``pdf`` see them. ``DELTA_REFLECTION`` and ``DELTA_TRANSMISSION`` scatter into
-    discrete directions only: ``eval`` and ``pdf`` are zero for them, ``sample`` flags them and
-    :meth:`BSDF.specular_lobes` lists them.
+    ``DIFFUSE``, ``GLOSSY`` (reflection) and ``GLOSSY_TRANSMISSION`` lobes have a density:
+    emitters can be sampled towards them and ``eval`` / ``pdf`` see them; a glossy transmission
+    lobe gathers emitter samples from behind the surface too. ``DELTA_REFLECTION`` and
+    ``DELTA_TRANSMISSION`` scatter into discrete directions only: ``eval`` and ``pdf`` are zero
+    for them, ``sample`` flags them and :meth:`BSDF.specular_lobes` lists them.
     """
 
     DIFFUSE = 1
     GLOSSY = 2
     DELTA_REFLECTION = 4
     DELTA_TRANSMISSION = 8
+    GLOSSY_TRANSMISSION = 16
     #: lobes with a density (next-event estimation and MIS apply)
-    SMOOTH = DIFFUSE | GLOSSY
+    SMOOTH = DIFFUSE | GLOSSY | GLOSSY_TRANSMISSION
     #: lobes without one
     DELTA = DELTA_REFLECTION | DELTA_TRANSMISSION
+    #: lobes that cross the surface
+    TRANSMISSION = DELTA_TRANSMISSION | GLOSSY_TRANSMISSION
     ALL = SMOOTH | DELTA
 
     def describe(self) -> str:
         """The lobes in words (``"diffuse, delta reflection"``)."""
-        single = (Lobe.DIFFUSE, Lobe.GLOSSY, Lobe.DELTA_REFLECTION, Lobe.DELTA_TRANSMISSION)
+        single = (Lobe.DIFFUSE, Lobe.GLOSSY, Lobe.GLOSSY_TRANSMISSION, Lobe.DELTA_REFLECTION, Lobe.DELTA_TRANSMISSION)
         return ", ".join(f.name.lower().replace("_", " ") for f in single if f & self)
 
 #: how diffuse lobes draw directions (:attr:`BSDFSampling.hemisphere`)

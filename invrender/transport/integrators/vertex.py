@@ -13,6 +13,7 @@ from invrender.transport.accel import Hits
 from invrender.transport.bsdfs import BSDFSample, Lobe, ShadingPoint
 from invrender.transport.context import PathState, TransportContext
 from invrender.transport.film import Film
+from invrender.transport.lights import LightSample
 from invrender.transport.surface import Surface, surface_at
 
 
@@ -113,6 +114,8 @@ def add_direct(ctx: TransportContext, state: PathState, s: Surface, sp: ShadingP
     its (possibly zero) contribution: cheaper than compacting a dozen tensors to the ones that count.
     Vertices whose BSDF has delta lobes only (mirror, glass) are skipped: no emitter sample can
     hit a delta lobe (a BSDF with a smooth lobe beside its delta ones gathers through the smooth one).
+    Vertices whose BSDF transmits through a smooth lobe (rough glass) also take samples behind
+    their surface (:func:`behind_surface`).
     """
     if not ctx.lights.count:
         return
@@ -120,6 +123,8 @@ def add_direct(ctx: TransportContext, state: PathState, s: Surface, sp: ShadingP
         keep = ctx.materials.has(sp, Lobe.SMOOTH).nonzero()[:, 0]
         state, s, sp, u = state.select(keep), s.select(keep), sp.select(keep), u.index_select(0, keep)
     ls = ctx.lights.sample_from(u[:, 2:5], s.p, s.n, ctx.ray_offset)  # detached: the direction, pdf and shadow ray
+    if ctx.materials.any_smooth_transmission:
+        ls = behind_surface(ctx, ls, s, sp, u)
     ok = ls.facing & ~ctx.accel.occluded(ls.o, ls.wl, ls.tmax)
     f_cos = ctx.materials.eval(sp, ls.wl)
     if mis:
@@ -132,6 +137,18 @@ def add_direct(ctx: TransportContext, state: PathState, s: Surface, sp: ShadingP
     if ctx.lights.infinite:
         film.arrive(state.pixel, ls.wl)
     film.add(term, state.pixel, (state.beta * weight[:, None]) * f_cos * ls.Le)  # the constant factors first: autograd saves less
+
+
+def behind_surface(ctx: TransportContext, ls: LightSample, s: Surface, sp: ShadingPoint, u: torch.Tensor) -> LightSample:
+    """``ls`` with the samples that lie behind the surface at vertices whose BSDF has a glossy
+    transmission lobe drawn again from its other side: the same emitter point or direction (the
+    same uniforms ``u``), its shadow ray offset to the side it leaves on and ``facing`` judged
+    there, so light refracted through the surface is gathered; other samples are kept as they are."""
+    i = (ctx.materials.has(sp, Lobe.GLOSSY_TRANSMISSION) & ~ls.facing).nonzero()[:, 0]
+    if not i.numel():
+        return ls
+    back = ctx.lights.sample_from(u.index_select(0, i)[:, 2:5], s.p.index_select(0, i), -s.n.index_select(0, i), ctx.ray_offset)
+    return LightSample(**{f: None if getattr(ls, f) is None else getattr(ls, f).index_put((i,), getattr(back, f)) for f in ls.__dataclass_fields__})
 
 
 def add_ambient(ctx: TransportContext, state: PathState, sp: ShadingPoint, term: int, film: Film) -> None:
