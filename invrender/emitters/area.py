@@ -8,17 +8,21 @@ differentiable eps (docs/architecture.md#detached-sampling-differentiable-evalua
 shadow rays and solid-angle pdfs come from one fused kernel where
 :mod:`~invrender.transport.kernels` runs.
 
-**Spheres by solid angle.** A triangle picked on an emitting sphere (a mesh inscribed in an
-analytic sphere, :attr:`Triangles.sphere <invrender.scene.scene.Triangles>`, with a constant eps)
-stands for the whole sphere, picked with probability ``P_s`` (the sum of its triangles' weights over
-the total): seen from a shadow-ray origin ``o`` at distance ``d > (1 + NEAR) r`` from the centre, the
-direction is drawn uniformly in the cone the analytic sphere subtends (``sin theta_max = r / d``),
-solid-angle pdf ``P_s / (2 pi (1 - cos theta_max))``, and the shadow ray ends at the analytic
-sphere's first intersection, which it reaches before the inscribed mesh; from nearer (or inside)
-the point on the picked triangle stands (area sampling). :meth:`Area.pdf_hit` gives a BSDF ray's
-hit on the mesh the same density, by the same test on its origin. The mesh being inscribed, the
-cone is a little wider than the mesh's silhouette: docs/sampling.md#spheres-by-solid-angle gives
-the radial error and what it does to an estimate.
+**Spheres by solid angle.** The triangles of an emitting sphere (a mesh inscribed in an analytic
+sphere, :attr:`Triangles.sphere <invrender.scene.scene.Triangles>`, with a constant eps) form the
+*sphere group*, picked with probability ``P_group`` (their share of ``area x mean(eps)``); the rest
+form the triangle group, sampled as above. Within the sphere group the sphere k is chosen per
+shadow-ray origin ``o``, with probability ``q_k(o)`` proportional to ``mean(eps_k) (1 - cos
+theta_max,k)`` (its radiance times the solid angle of its cone; ``1`` from near it), so that a large
+far light does not take the samples of small near ones (by power alone above :data:`MAX_CHOICE`
+spheres). From a distance ``d > (1 + NEAR) r`` the direction is then uniform in the cone the
+analytic sphere subtends (``sin theta_max = r / d``), solid-angle pdf ``P_group q_k / (2 pi (1 -
+cos theta_max))``, and the shadow ray ends at the analytic sphere's first intersection, which it
+reaches before the inscribed mesh; from nearer (or inside) a point uniformly on the sphere's mesh
+by area. :meth:`Area.pdf_hit` gives a BSDF ray's hit on the mesh the same density, by the same
+choice and test at its origin. Everything is read from detached values when the render starts.
+The mesh being inscribed, the cone is a little wider than the mesh's silhouette:
+docs/sampling.md#spheres-by-solid-angle gives the radial error and what it does to an estimate.
 """
 
 from __future__ import annotations
@@ -39,6 +43,8 @@ from invrender.vec import dot, norm
 
 #: cone sampling only from origins farther than (1 + NEAR) radii from the centre (else by area)
 NEAR = 1e-2
+#: above this many cone spheres, the sphere is chosen by power alone (not per origin)
+MAX_CHOICE = 16
 
 
 @dataclass(frozen=True)
@@ -87,34 +93,56 @@ class Area(Light):
         power[torch.tensor(emitters, device=device)] = torch.tensor([float(v["emission"].mean()) for v in self.sampling], device=device)
         emitter = torch.where(triangles.emitter < count, triangles.emitter, -1)
         weight = triangles.area * power[emitter]
-        self.tri = torch.nonzero(weight > 0)[:, 0]
         self.total = float(weight.sum())
-        self.count = int(self.tri.numel())
-        #: (T,) pdf per unit area of the point sampler on each triangle (0 where it never samples)
-        self.pdf_area = torch.where(weight > 0, weight / max(self.total, 1e-30) / triangles.area, 0.0)
-        cdf = torch.cumsum(weight[self.tri].double(), 0)
-        self.cdf = (cdf / cdf[-1]).float() if self.count else cdf.float()
         #: (T,) bool: the triangles that emit (of this type)
         self._emitting = torch.isin(triangles.emitter, torch.tensor(emitters, device=device))
-        self._spheres(weight)
+        cone = self._spheres(weight, emitter)
+        # the triangle group: every emitting triangle not standing for a cone-sampled sphere
+        tri_weight = torch.where(cone, 0.0, weight)
+        self.tri = torch.nonzero(tri_weight > 0)[:, 0]
+        self.count = int(self.tri.numel())
+        #: (T,) pdf per unit area of the point sampler on each triangle of the triangle group (0 elsewhere)
+        self.pdf_area = torch.where(tri_weight > 0, tri_weight / max(self.total, 1e-30) / triangles.area, 0.0)
+        cdf = torch.cumsum(tri_weight[self.tri].double(), 0)
+        self.cdf = (cdf / cdf[-1]).float() if self.count else cdf.float()
 
-    def _spheres(self, weight: torch.Tensor) -> None:
-        """The tables of cone sampling: per triangle the sphere it stands for (``self.cone``, -1 =
-        by area), per sphere its centre, radius and probability of being picked."""
+    def _spheres(self, weight: torch.Tensor, emitter: torch.Tensor) -> torch.Tensor:
+        """The tables of the sphere group (module docstring); returns (T,) bool, the triangles of
+        cone-sampled spheres."""
         tris = self.triangles
-        sphere = tris.sphere
-        textured = torch.tensor([e.ndim == 3 for e in self.eps] + [True], device=sphere.device)  # last: emitter -1
-        emitter = torch.where((tris.emitter >= 0) & (tris.emitter < len(self.eps)), tris.emitter, len(self.eps))
-        cone = (sphere >= 0) & (weight > 0) & ~textured[emitter]
-        #: (T,) int64: the analytic sphere a picked triangle stands for (-1: sampled by area)
-        self.cone = torch.where(cone, sphere, -1)
-        self.cones = bool(cone.any())
-        spheres = tris.spheres.double()
-        #: (S, 3), (S,) float64 centres and radii; (S,) probability of picking each sphere
-        self.sphere_c, self.sphere_r = spheres[:, :3], spheres[:, 3]
-        self.sphere_p = torch.zeros(spheres.shape[0], dtype=torch.float64, device=sphere.device)
-        if self.cones:
-            self.sphere_p.index_add_(0, sphere[cone], weight[cone].double() / max(self.total, 1e-30))
+        device = weight.device
+        textured = torch.tensor([e.ndim == 3 for e in self.eps] + [True], device=device)  # last: emitter -1
+        cone = (tris.sphere >= 0) & (weight > 0) & ~textured[torch.where(emitter >= 0, emitter, len(self.eps))]
+        ids = torch.unique(tris.sphere[cone])  # the cone spheres, as rows of tris.spheres
+        #: how many spheres are cone-sampled; the probability of the sphere group
+        self.spheres = int(ids.numel())
+        self.group = float(weight[cone].sum()) / max(self.total, 1e-30) if self.spheres else 0.0
+        #: (T,) int64 rank of each triangle's cone sphere (-1: not one)
+        self.rank = torch.full_like(tris.sphere, -1)
+        if self.spheres:
+            lookup = torch.full((tris.spheres.shape[0],), -1, dtype=torch.int64, device=device)
+            lookup[ids] = torch.arange(self.spheres, device=device)
+            self.rank = torch.where(cone, lookup[tris.sphere.clamp_min(0)], -1)
+        spheres = tris.spheres.index_select(0, ids).double()
+        #: per cone sphere (S,) float64: centre (S, 3), radius, mesh area, power (area x mean eps), mean eps
+        self.center, self.radius = spheres[:, :3], spheres[:, 3]
+        members = cone.nonzero()[:, 0]
+        order = members[torch.argsort(self.rank[members], stable=True)]
+        r = self.rank.index_select(0, order)
+        self.sphere_area = torch.zeros(self.spheres, dtype=torch.float64, device=device).index_add_(0, r, tris.area[order].double())
+        self.sphere_power = torch.zeros(self.spheres, dtype=torch.float64, device=device).index_add_(0, r, weight[order].double())
+        self.sphere_eps = self.sphere_power / self.sphere_area.clamp_min(1e-300)
+        #: (M,) the cone spheres' triangles, sphere by sphere, and their cdf: sphere k's runs from k to k + 1
+        self.cone_tri = order
+        cum = torch.cumsum(tris.area[order].double(), 0)
+        first = torch.searchsorted(r, torch.arange(self.spheres, device=device))
+        before = torch.where(first > 0, cum.index_select(0, (first - 1).clamp_min(0)), 0.0)
+        self.cone_cdf = r + (cum - before.index_select(0, r)) / self.sphere_area.index_select(0, r)
+        #: (S,) the first and last index into ``cone_tri`` of each cone sphere; a triangle of it
+        self.sphere_first = first
+        self.sphere_last = torch.cat([first[1:], first.new_tensor([order.numel()])]) - 1
+        self.sphere_tri = order.index_select(0, first)
+        return cone
 
     @property
     def power(self) -> float:
@@ -131,62 +159,119 @@ class Area(Light):
         return LightSample(g.o, g.wl, g.tmax, g.facing, g.pdf, Le)
 
     def geometry(self, u: torch.Tensor, x: torch.Tensor, nx: torch.Tensor, offset: float) -> AreaSample:
-        """The detached part of :meth:`sample_from`: the points picked and their shadow rays (one
-        fused kernel where :mod:`~invrender.transport.kernels` runs, else the torch reference)."""
-        if kernels.enabled(x.device):
-            tri, o, wl, tmax, facing, pdf, uv = kernels.emitter_geometry(self.triangles.packed, self.tri, self.cdf, self.pdf_area, u, x, nx, offset, self.textured)
+        """The detached part of :meth:`sample_from`: the points picked and their shadow rays (the
+        triangle group in one fused kernel where :mod:`~invrender.transport.kernels` runs, else
+        the torch reference; the sphere group in torch)."""
+        n = x.shape[0]
+        if self.count:
+            ut = u
+            if self.spheres:  # stretch the triangle group's share of u[:, 0] back to [0, 1)
+                ut = u.clone()
+                ut[:, 0] = ((u[:, 0] - self.group) / max(1.0 - self.group, 1e-30)).clamp(0.0, 1.0 - 2**-24)
+            tri, o, wl, tmax, facing, pdf, uv = self._triangle_points(ut, x, nx, offset)
         else:
-            tri, p, n, uv = self._points(u[:, 0], u[:, 1:3])
             o = x + offset * nx
-            to_light = p - o
-            dist = norm(to_light).clamp_min(1e-12)
-            wl = to_light / dist[:, None]
-            cos_l = -dot(n, wl)  # at the light: only its front side emits
-            facing = (dot(nx, wl) > 0) & (cos_l > 0)  # light from behind x's surface does not reach it
-            pdf = self.pdf_area.index_select(0, tri) * dist * dist / cos_l.clamp_min(1e-12)  # area -> solid angle
-            tmax = dist - offset
-        if self.cones:
-            wl, tmax, facing, pdf = self._cone(tri, u[:, 1:3], o, nx, wl, tmax, facing, pdf, offset)
+            tri = torch.zeros(n, dtype=torch.int64, device=x.device)
+            wl, tmax, pdf = x.new_zeros(n, 3), x.new_zeros(n), x.new_zeros(n)
+            facing = torch.zeros(n, dtype=torch.bool, device=x.device)
+            uv = x.new_zeros(n, 2) if self.textured else x.new_zeros(()).expand(n, 2)
+        if self.spheres:
+            i = (u[:, 0] < self.group).nonzero()[:, 0]
+            if i.numel():
+                part = self._sphere_points(u.index_select(0, i), o.index_select(0, i), nx.index_select(0, i), offset)
+                tri, wl, tmax, facing, pdf = (a.index_put((i,), b.to(a.dtype)) for a, b in zip((tri, wl, tmax, facing, pdf), part))
+                if self.textured:
+                    uv = uv.index_put((i,), uv.new_zeros(i.numel(), 2))  # constant emission: any uv
         return AreaSample(tri, uv, o, wl, tmax, facing, pdf)
 
-    def _outside(self, k: torch.Tensor, o: torch.Tensor):
-        """(far (N,) bool, w (N, 3) float64 unit directions to the centres, d (N,), h (N,) = 1 -
-        cos theta_max) of origins ``o`` (N, 3) seen against spheres ``k`` (N,) (-1 = none)."""
-        kk = k.clamp_min(0)
-        c, r = self.sphere_c.index_select(0, kk), self.sphere_r.index_select(0, kk)
+    def _triangle_points(self, u, x, nx, offset: float):
+        """The triangle group's samples: (tri, o, wl, tmax, facing, pdf, uv) as :class:`AreaSample`."""
+        if kernels.enabled(x.device):
+            return kernels.emitter_geometry(self.triangles.packed, self.tri, self.cdf, self.pdf_area, u, x, nx, offset, self.textured)
+        tri, p, n, uv = self._points(u[:, 0], u[:, 1:3])
+        o = x + offset * nx
+        to_light = p - o
+        dist = norm(to_light).clamp_min(1e-12)
+        wl = to_light / dist[:, None]
+        cos_l = -dot(n, wl)  # at the light: only its front side emits
+        facing = (dot(nx, wl) > 0) & (cos_l > 0)  # light from behind x's surface does not reach it
+        pdf = self.pdf_area.index_select(0, tri) * dist * dist / cos_l.clamp_min(1e-12)  # area -> solid angle
+        return tri, o, wl, dist - offset, facing, pdf, uv
+
+    def _choice(self, o: torch.Tensor) -> torch.Tensor:
+        """(N, S) float64: the probability of each cone sphere for origins ``o`` (N, 3), given the
+        sphere group: proportional to mean eps times the solid angle of its cone (one hemisphere
+        from near), so that a far, large emitter does not take the samples of near ones; above
+        :data:`MAX_CHOICE` spheres, by power alone."""
+        if self.spheres > MAX_CHOICE:
+            w = self.sphere_power.expand(o.shape[0], -1)
+        else:
+            w = self._solid_angles(o.double()) * self.sphere_eps
+        return w / w.sum(1, keepdim=True).clamp_min(1e-300)
+
+    def _solid_angles(self, o: torch.Tensor) -> torch.Tensor:
+        """(N, S) float64 ``1 - cos theta_max`` of each cone sphere from ``o`` (N, 3) float64, 1 from near."""
+        cols = []
+        for k in range(self.spheres):
+            d = norm(self.center[k] - o)
+            s2 = (self.radius[k] / d.clamp_min(1e-300)).clamp_max(1.0) ** 2
+            cols.append(torch.where(d > (1 + NEAR) * self.radius[k], s2 / (1 + torch.sqrt(1 - s2)), 1.0))
+        return torch.stack(cols, dim=1)
+
+    def _cone_of(self, k: torch.Tensor, o: torch.Tensor):
+        """(far (N,) bool, w (N, 3) float64 unit directions to the centres, d (N,), r (N,), h (N,) = 1 -
+        cos theta_max) of origins ``o`` (N, 3) seen against cone spheres ``k`` (N,)."""
+        c, r = self.center.index_select(0, k), self.radius.index_select(0, k)
         to_c = c - o.double()
         d = norm(to_c).clamp_min(1e-300)
-        far = (k >= 0) & (d > (1 + NEAR) * r)
         s2 = (r / d).clamp_max(1.0) ** 2
         h = s2 / (1 + torch.sqrt(1 - s2))  # 1 - cos theta_max without cancellation
-        return far, to_c / d[:, None], d, r, h
+        return d > (1 + NEAR) * r, to_c / d[:, None], d, r, h
 
-    def _cone(self, tri, u, o, nx, wl, tmax, facing, pdf, offset: float):
-        """Replace the samples of picked sphere triangles seen from far enough by directions
-        uniform in the sphere's cone (uniforms ``u`` (N, 2)), ending on the analytic sphere."""
-        k = self.cone.index_select(0, tri)
-        far, w, d, r, h = self._outside(k, o)
-        i = far.nonzero()[:, 0]
-        if not i.numel():
-            return wl, tmax, facing, pdf
-        w, d, r, h, ui = w[i], d[i], r[i], h[i], u.index_select(0, i).double()
-        hh = ui[:, 0] * h  # 1 - cos theta, uniform in [0, h]
-        cos_t = 1 - hh
-        sin_t = torch.sqrt((hh * (2 - hh)).clamp_min(0))
-        phi = 2 * torch.pi * ui[:, 1]
+    def _sphere_points(self, u: torch.Tensor, o: torch.Tensor, nx: torch.Tensor, offset: float):
+        """The sphere group's samples from origins ``o`` (N, 3), uniforms ``u`` (N, 3) (``u[:, 0]``
+        spent on the group): the sphere by ``u[:, 1]`` (:meth:`_choice`), then a direction in its cone
+        or, from near, a point on its mesh by area. Returns (tri, wl, tmax, facing, pdf)."""
+        q = self._choice(o)
+        cdf = q.cumsum(1)
+        u1 = u[:, 1].double()
+        k = (cdf < u1[:, None]).sum(1).clamp_max(self.spheres - 1)
+        qk = q.gather(1, k[:, None])[:, 0]
+        lo = torch.where(k > 0, cdf.gather(1, (k - 1).clamp_min(0)[:, None])[:, 0], 0.0)
+        v = ((u1 - lo) / qk.clamp_min(1e-300)).clamp(0.0, 1.0 - 2**-52)  # u[:, 1] stretched back to [0, 1)
+        far, w, d, r, h = self._cone_of(k, o)
+        # far: uniform in the cone, ending on the analytic sphere (which the ray reaches before the mesh)
+        hh = v * h  # 1 - cos theta, uniform in [0, h]
+        cos_t, sin_t = 1 - hh, torch.sqrt((hh * (2 - hh)).clamp_min(0))
+        phi = 2 * torch.pi * u[:, 2].double()
         a = torch.where((w[:, 0].abs() > 0.9)[:, None], w.new_tensor([0.0, 1.0, 0.0]), w.new_tensor([1.0, 0.0, 0.0]))
         a = a - dot(a, w)[:, None] * w
         a = a / norm(a)[:, None]
         b = torch.linalg.cross(w, a)
-        dirs = cos_t[:, None] * w + (sin_t * torch.cos(phi))[:, None] * a + (sin_t * torch.sin(phi))[:, None] * b
-        # first intersection with the analytic sphere: t = d cos - sqrt(r^2 - d^2 sin^2)
+        wl = cos_t[:, None] * w + (sin_t * torch.cos(phi))[:, None] * a + (sin_t * torch.sin(phi))[:, None] * b
         t = d * cos_t - torch.sqrt((r * r - (d * sin_t) ** 2).clamp_min(0))
-        dirs = dirs.to(wl.dtype)
-        wl = wl.index_put((i,), dirs)
-        tmax = tmax.index_put((i,), (t - offset).to(tmax.dtype))
-        facing = facing.index_put((i,), dot(nx.index_select(0, i), dirs) > 0)
-        pdf = pdf.index_put((i,), (self.sphere_p.index_select(0, k[i]) / (2 * torch.pi * h)).to(pdf.dtype))
-        return wl, tmax, facing, pdf
+        pdf = self.group * qk / (2 * torch.pi * h)
+        tri = self.sphere_tri.index_select(0, k)
+        facing = dot(nx.double(), wl) > 0
+        j = (~far).nonzero()[:, 0]
+        if j.numel():  # near or inside: a point on the sphere's mesh, uniform by area
+            kj, value = k[j], k[j] + v[j]
+            m = torch.searchsorted(self.cone_cdf, value, right=True)
+            m = torch.minimum(torch.maximum(m, self.sphere_first[kj]), self.sphere_last[kj])
+            base = torch.where(m > self.sphere_first[kj], self.cone_cdf.index_select(0, (m - 1).clamp_min(0)), kj.double())
+            rest = ((value - base) / (self.cone_cdf.index_select(0, m) - base).clamp_min(1e-300)).clamp(0.0, 1.0)
+            tj = self.cone_tri.index_select(0, m)
+            g = self.triangles.packed.index_select(0, tj).double()
+            su = rest.sqrt()
+            b1, b2 = (su * (1.0 - u[j, 2].double()))[:, None], (su * u[j, 2].double())[:, None]
+            to_p = g[:, 0:3] + b1 * g[:, 3:6] + b2 * g[:, 6:9] - o.index_select(0, j).double()
+            dist = norm(to_p).clamp_min(1e-12)
+            wj = to_p / dist[:, None]
+            cos_l = -dot(g[:, 9:12], wj)
+            tri, wl, t = tri.index_put((j,), tj), wl.index_put((j,), wj), t.index_put((j,), dist)
+            facing = facing.index_put((j,), (dot(nx.index_select(0, j).double(), wj) > 0) & (cos_l > 0))
+            pdf = pdf.index_put((j,), self.group * qk[j] / self.sphere_area[kj] * dist * dist / cos_l.clamp_min(1e-12))
+        return tri, wl, t - offset, facing, pdf
 
     def _points(self, u_pick: torch.Tensor, u: torch.Tensor):
         """(tri (N,) int64, p (N, 3), front normal n (N, 3), uv (N, 2)) of points picked by
@@ -229,11 +314,19 @@ class Area(Light):
 
     def pdf_hit(self, s: Surface) -> torch.Tensor:
         """``pdf_area t^2 / cos_o`` (N,): the point's area density as a solid angle at the ray's
-        origin; on a sphere sampled by its cone from that origin, ``P_s / (2 pi (1 - cos theta_max))``."""
+        origin; on a cone sphere, the density :meth:`_sphere_points` gives it from that origin
+        (``P_group q_k / (2 pi (1 - cos theta_max))``, or from near by the sphere's area)."""
         pdf = self.pdf_area.index_select(0, s.tri) * s.t * s.t / s.cos_o.clamp_min(1e-12)
-        if not self.cones:
+        if not self.spheres:
             return pdf
-        k = self.cone.index_select(0, s.tri)
-        far, _, _, _, h = self._outside(k, s.p - s.t[:, None] * s.d)
-        cone = self.sphere_p.index_select(0, k.clamp_min(0)) / (2 * torch.pi * h.clamp_min(1e-300))
-        return torch.where(far, cone.to(pdf.dtype), pdf)
+        k = self.rank.index_select(0, s.tri)
+        i = (k >= 0).nonzero()[:, 0]
+        if not i.numel():
+            return pdf
+        k, t, cos_o = k[i], s.t[i].double(), s.cos_o[i].double()
+        o = (s.p[i] - s.t[i, None] * s.d[i]).double()
+        qk = self._choice(o).gather(1, k[:, None])[:, 0]
+        far, _, _, _, h = self._cone_of(k, o)
+        cone = self.group * qk / (2 * torch.pi * h)
+        area = self.group * qk / self.sphere_area[k] * t * t / cos_o.clamp_min(1e-12)
+        return pdf.index_put((i,), torch.where(far, cone, area).to(pdf.dtype))

@@ -88,7 +88,7 @@ def test_pdf_hit_is_the_cone_density_of_the_direction():
     for origin, cone in ((torch.zeros(3), True), (torch.tensor(CENTER) - torch.tensor([0.0, 0.0, 1.005 * RADIUS]), False)):
         scene = scene_of([lamp()])
         lights = lights_of(scene)
-        n = 4000
+        n = 4000 if cone else 40_000
         u = torch.rand(n, 3, generator=torch.Generator().manual_seed(1))
         x = origin.expand(n, 3).contiguous()
         nx = torch.tensor([0.0, 0.0, 1.0]).expand(n, 3)
@@ -98,11 +98,11 @@ def test_pdf_hit_is_the_cone_density_of_the_direction():
         keep = hits.valid & ls.facing
         s = surface_at(scene.triangles, hits.select(keep.nonzero()[:, 0]), ls.wl[keep])
         torch.testing.assert_close(lights.pdf_hit(s), ls.pdf[keep], rtol=2e-3 if not cone else 1e-5, atol=0)
-        area = lights.lights[0].pdf_area.index_select(0, s.tri) * s.t**2 / s.cos_o
+        area = s.t**2 / s.cos_o / float(scene.triangles.area.double().sum())  # uniform on the mesh by area
         if cone:
             assert float((lights.pdf_hit(s) - area).abs().max()) > 0.1 * float(area.mean())  # not the area density
         else:
-            torch.testing.assert_close(lights.pdf_hit(s), area, rtol=1e-6, atol=0)
+            torch.testing.assert_close(lights.pdf_hit(s), area, rtol=1e-5, atol=0)
 
 
 def test_only_outward_similar_constant_spheres_are_cones():
@@ -111,9 +111,9 @@ def test_only_outward_similar_constant_spheres_are_cones():
     assert lamp().flipped().sphere is None
     mirrored = lamp(matrix=translate(CENTER) @ scale([-0.5, 0.5, 0.5]))
     assert mirrored.sphere == (CENTER, RADIUS)
-    assert lights_of(scene_of([mirrored])).lights[0].cones
+    assert lights_of(scene_of([mirrored])).lights[0].spheres == 1
     textured = scene_of([lamp()], emission=np.full((2, 4, 3), L))
-    assert not lights_of(textured).lights[0].cones  # textured emission: sampled by area
+    assert lights_of(textured).lights[0].spheres == 0  # textured emission: sampled by area
     # a mesh that claims a sphere it is not inscribed in is taken as a plain mesh
     wrong = dataclasses.replace(lamp(), sphere=(CENTER, 0.9 * RADIUS))
     assert int(scene_of([wrong]).triangles.sphere.max()) == -1
@@ -154,18 +154,17 @@ def floor_scene(cone: bool, resolution=(12, 12)):
     return scene_of([lamp(cone, subdivisions=4), floor], resolution)
 
 
-@pytest.mark.parametrize("max_depth", [2, 3])
-def test_renders_agree_with_area_sampling(max_depth):
+def test_renders_agree_with_area_sampling():
     """MIS with cone sampling converges to the image area sampling gives (channel means within 4
-    standard errors over seeds) and has lower per-pixel variance on the lit floor (direct light
-    alone, and with one bounce)."""
-    kw = dict(spp=4, max_depth=max_depth, progress=False)
+    standard errors over seeds) and has far lower per-pixel variance on the lit floor (measured:
+    2.2e-7 against 1.5e-4)."""
+    kw = dict(spp=4, max_depth=2, progress=False)
     runs = {c: torch.stack([ir.render(floor_scene(c), seed=s, **kw).double() for s in range(6)]) for c in (True, False)}
     means = {c: r.mean((1, 2))[:, 0] for c, r in runs.items()}
     se = math.sqrt(float(means[True].var() + means[False].var()) / 6)
     assert abs(float(means[True].mean() - means[False].mean())) < 4 * se + 1e-4, (means, se)
     var = {c: float(r[..., 0].var(0).mean()) for c, r in runs.items()}
-    assert var[True] < 0.7 * var[False], var
+    assert var[True] < 0.01 * var[False], var
 
 
 def test_sphere_radiance_gradient_and_records():
