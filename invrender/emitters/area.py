@@ -43,6 +43,8 @@ from invrender.vec import dot, norm
 
 #: cone sampling only from origins farther than (1 + NEAR) radii from the centre (else by area)
 NEAR = 1e-2
+#: the share of the uniform choice among cone spheres mixed into the choice by solid angle
+UNIFORM = 0.5
 #: above this many cone spheres, the sphere is chosen by power alone (not per origin)
 MAX_CHOICE = 16
 
@@ -207,7 +209,8 @@ class Area(Light):
             w = self.sphere_power.expand(o.shape[0], -1)
         else:
             w = self._solid_angles(o.double()) * self.sphere_eps
-        return w / w.sum(1, keepdim=True).clamp_min(1e-300)
+        q = w / w.sum(1, keepdim=True).clamp_min(1e-300)
+        return (1 - UNIFORM) * q + UNIFORM / self.spheres
 
     def _solid_angles(self, o: torch.Tensor) -> torch.Tensor:
         """(N, S) float64 ``1 - cos theta_max`` of each cone sphere from ``o`` (N, 3) float64, 1 from near."""

@@ -176,3 +176,40 @@ def test_sphere_radiance_gradient_and_records():
             assert err < 1e-3, (r.index, estimator, r.fd, r.gradients)
     rec = ir.record_paths(scene, ["lamp.emission", "floor.reflectance"], spp=4, max_depth=3, seed=5, progress=False)
     torch.testing.assert_close(rec.image().float(), ir.render(scene, spp=4, max_depth=3, seed=5, progress=False), rtol=1e-5, atol=1e-6)
+
+
+def test_two_spheres_and_a_rectangle_share_the_samples_consistently():
+    """Spheres of very different power at different distances beside an emitting rectangle: the
+    spheres' irradiance (the rectangle lies behind x) sums the two closed forms; each sample's
+    pdf is what pdf_hit gives a BSDF ray along it, for the cone, near and triangle samples alike;
+    the choice mixes radiance x solid angle at x with a uniform choice, not power. (A sphere
+    wholly above x's horizon gives ``pi L sin^2 theta_max cos alpha``, alpha its centre's angle.)"""
+    far = primitive("sphere", "black", "lamp", 3).transformed(translate([0.0, 0.0, 8.0]) @ scale(2.0))
+    near = primitive("sphere", "black", "dim", 3).transformed(translate([0.6, 0.0, 0.4]) @ scale(0.2))
+    v, f, uv = rectangle()
+    panel = Mesh(v, f, uv, "black", "panel").transformed(translate([0.0, 0.0, -1.0]))  # faces +z, below x
+    camera = Camera(origin=(0, -3, 1.0), target=(0, 0, 0), up=(0, 0, 1), fov=50)
+    scene = build_scene([far, near, panel], {"black": 0.0}, {"lamp": (40.0,) * 3, "dim": (5.0,) * 3, "panel": (1.0,) * 3}, camera, (8, 8))
+    names = ["lamp", "dim", "panel"]
+    lights = Lights(["area"] * 3, [{"emission": scene.params[f"{k}.emission"]} for k in names], [{}] * 3, scene.triangles)
+    area = lights.lights[0]
+    assert area.spheres == 2 and 0 < area.group < 1
+    exact = math.pi * (40.0 * (2.0 / 8.0) ** 2 * 1.0 + 5.0 * (0.2**2 / (0.6**2 + 0.4**2)) * 0.4 / math.sqrt(0.52))
+    n = 200_000
+    est, ls = irradiance(lights, n, seed=4)
+    g = area.geometry(torch.rand(n, 3, generator=torch.Generator().manual_seed(4)), torch.zeros(n, 3), torch.tensor([0.0, 0.0, 1.0]).expand(n, 3), 0.0)
+    spheres = area.rank.index_select(0, g.tri) >= 0
+    q = area._choice(torch.zeros(1, 3))[0]
+    h = torch.tensor([1 - math.sqrt(1 - (2 / 8) ** 2), 1 - math.sqrt(1 - 0.04 / 0.52)], dtype=torch.float64)
+    by_light = torch.tensor([40.0, 5.0], dtype=torch.float64) * h
+    torch.testing.assert_close(q, 0.5 * by_light / by_light.sum() + 0.25)  # the near one: 0.32, though 0.1% of the power
+    mean, se = float(est[spheres].sum()) / n, float(torch.where(spheres, est, 0.0).std()) / n**0.5
+    assert abs(mean - exact) < 4 * se, (mean, exact, se)
+    torch.testing.assert_close(ls.pdf[spheres].double(), (area.group * q / (2 * math.pi * h))[area.rank[g.tri[spheres]]], rtol=1e-5, atol=0)
+    hits = intersector_for(scene.triangles).intersect(torch.zeros(n, 3), ls.wl)
+    same = hits.valid  # facing or not (the panel lies behind x): the pdf is the same
+    same = same & (torch.where(same, scene.triangles.emitter[hits.prim.clamp_min(0)], -2) == scene.triangles.emitter[g.tri])
+    i = same.nonzero()[:, 0]
+    s = surface_at(scene.triangles, hits.select(i), ls.wl[i])
+    assert (~spheres[i]).any() and spheres[i].any()
+    torch.testing.assert_close(lights.pdf_hit(s), ls.pdf[i], rtol=1e-3, atol=0)
