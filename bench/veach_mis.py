@@ -31,6 +31,7 @@ import re
 import sys
 import tempfile
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -86,7 +87,9 @@ def emitters_seen(path: Path, spp: int = 64) -> np.ndarray:
     nonzero anywhere, dilated by a pixel): their variance is the pixel filter's sampling of a
     radiance edge of up to 900, the same in both renderers and no part of light sampling."""
     scene = load(path)
-    seen = ir.render(scene, "path", spp=spp, max_depth=1, seed=99, progress=False).numpy().max(axis=2) > 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # max_depth 1 overrides the file's, as meant
+        seen = ir.render(scene, "path", spp=spp, max_depth=1, seed=99, progress=False).numpy().max(axis=2) > 0
     grown = seen.copy()
     for axis in (0, 1):
         for step in (-1, 1):
@@ -95,8 +98,6 @@ def emitters_seen(path: Path, spp: int = 64) -> np.ndarray:
 
 
 def load(path: Path):
-    import warnings
-
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return ir.load_scene(str(path))

@@ -18,14 +18,12 @@ import dataclasses
 import math
 
 import numpy as np
-import pytest
 import torch
 
 import invrender as ir
 from invrender.scene.camera import Camera
 from invrender.scene.scene import build_scene
-from invrender.scene.shapes import primitive, rectangle, scale, translate
-from invrender.scene.shapes import Mesh
+from invrender.scene.shapes import Mesh, primitive, rectangle, scale, translate
 from invrender.transport.accel import intersector_for
 from invrender.transport.lights import Lights
 from invrender.transport.surface import surface_at
