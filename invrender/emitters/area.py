@@ -98,7 +98,7 @@ class Area(Light):
         self.total = float(weight.sum())
         #: (T,) bool: the triangles that emit (of this type)
         self._emitting = torch.isin(triangles.emitter, torch.tensor(emitters, device=device))
-        cone = self._spheres(weight, emitter)
+        cone = self._spheres(weight, emitter, power)
         # the triangle group: every emitting triangle not standing for a cone-sampled sphere
         tri_weight = torch.where(cone, 0.0, weight)
         self.tri = torch.nonzero(tri_weight > 0)[:, 0]
@@ -108,43 +108,56 @@ class Area(Light):
         cdf = torch.cumsum(tri_weight[self.tri].double(), 0)
         self.cdf = (cdf / cdf[-1]).float() if self.count else cdf.float()
 
-    def _spheres(self, weight: torch.Tensor, emitter: torch.Tensor) -> torch.Tensor:
+    #: the attributes :meth:`_spheres` sets (kept with the geometry, per emitter powers)
+    _SPHERE_TABLES = ("spheres", "rank", "center", "radius", "sphere_area", "cone_tri", "cone_rank", "cone_cdf", "sphere_first", "sphere_last", "sphere_tri", "_cone")
+
+    def _spheres(self, weight: torch.Tensor, emitter: torch.Tensor, power: torch.Tensor) -> torch.Tensor:
         """The tables of the sphere group (module docstring); returns (T,) bool, the triangles of
-        cone-sampled spheres."""
+        cone-sampled spheres. What depends on the geometry alone is built once per geometry and
+        set of emitting spheres (renders of one scene, and every step of a fit, share it); the
+        powers are read each time."""
+        textured = tuple(e.ndim == 3 for e in self.eps)
+        key = ("area.spheres", tuple(self.emitters), tuple((power > 0).tolist()), textured)
+        tables = self.triangles.derived(key, lambda: self._sphere_tables(weight, emitter, textured))
+        for name in self._SPHERE_TABLES:
+            setattr(self, name, tables[name])
+        #: per cone sphere (S,) float64: power (area x mean eps) and mean eps; the sphere group's probability
+        self.sphere_power = torch.zeros(self.spheres, dtype=torch.float64, device=weight.device).index_add_(0, self.cone_rank, weight[self.cone_tri].double())
+        self.sphere_eps = self.sphere_power / self.sphere_area.clamp_min(1e-300)
+        self.group = float(self.sphere_power.sum()) / max(self.total, 1e-30) if self.spheres else 0.0
+        return self._cone
+
+    def _sphere_tables(self, weight: torch.Tensor, emitter: torch.Tensor, textured: tuple) -> dict:
         tris = self.triangles
         device = weight.device
-        textured = torch.tensor([e.ndim == 3 for e in self.eps] + [True], device=device)  # last: emitter -1
-        cone = (tris.sphere >= 0) & (weight > 0) & ~textured[torch.where(emitter >= 0, emitter, len(self.eps))]
-        ids = torch.unique(tris.sphere[cone])  # the cone spheres, as rows of tris.spheres
-        #: how many spheres are cone-sampled; the probability of the sphere group
-        self.spheres = int(ids.numel())
-        self.group = float(weight[cone].sum()) / max(self.total, 1e-30) if self.spheres else 0.0
-        #: (T,) int64 rank of each triangle's cone sphere (-1: not one)
-        self.rank = torch.full_like(tris.sphere, -1)
-        if self.spheres:
-            lookup = torch.full((tris.spheres.shape[0],), -1, dtype=torch.int64, device=device)
-            lookup[ids] = torch.arange(self.spheres, device=device)
-            self.rank = torch.where(cone, lookup[tris.sphere.clamp_min(0)], -1)
+        flat = torch.tensor(list(textured) + [True], device=device)  # last: emitter -1
+        cone = (tris.sphere >= 0) & (weight > 0) & ~flat[torch.where(emitter >= 0, emitter, len(textured))]
+        # the cone spheres, as rows of tris.spheres
+        ids = (torch.bincount(tris.sphere[cone], minlength=tris.spheres.shape[0]) > 0).nonzero()[:, 0]
+        t = {"spheres": int(ids.numel()), "_cone": cone}  # how many spheres are cone-sampled
+        # (T,) int64 rank of each triangle's cone sphere (-1: not one)
+        lookup = torch.full((tris.spheres.shape[0] + 1,), -1, dtype=torch.int64, device=device)
+        lookup[ids] = torch.arange(t["spheres"], device=device)
+        t["rank"] = rank = torch.where(cone, lookup[torch.where(tris.sphere >= 0, tris.sphere, tris.spheres.shape[0])], -1)
         spheres = tris.spheres.index_select(0, ids).double()
-        #: per cone sphere (S,) float64: centre (S, 3), radius, mesh area, power (area x mean eps), mean eps
-        self.center, self.radius = spheres[:, :3], spheres[:, 3]
+        # per cone sphere (S,) float64: centre (S, 3), radius, mesh area
+        t["center"], t["radius"] = spheres[:, :3], spheres[:, 3]
         members = cone.nonzero()[:, 0]
-        order = members[torch.argsort(self.rank[members], stable=True)]
-        r = self.rank.index_select(0, order)
-        self.sphere_area = torch.zeros(self.spheres, dtype=torch.float64, device=device).index_add_(0, r, tris.area[order].double())
-        self.sphere_power = torch.zeros(self.spheres, dtype=torch.float64, device=device).index_add_(0, r, weight[order].double())
-        self.sphere_eps = self.sphere_power / self.sphere_area.clamp_min(1e-300)
-        #: (M,) the cone spheres' triangles, sphere by sphere, and their cdf: sphere k's runs from k to k + 1
-        self.cone_tri = order
-        cum = torch.cumsum(tris.area[order].double(), 0)
-        first = torch.searchsorted(r, torch.arange(self.spheres, device=device))
+        r, perm = torch.sort(rank[members], stable=True)
+        order = members[perm]
+        area = tris.area[order].double()
+        t["sphere_area"] = torch.zeros(t["spheres"], dtype=torch.float64, device=device).index_add_(0, r, area)
+        # (M,) the cone spheres' triangles, sphere by sphere, their sphere and their cdf: sphere k's runs from k to k + 1
+        t["cone_tri"], t["cone_rank"] = order, r
+        cum = torch.cumsum(area, 0)
+        first = torch.searchsorted(r, torch.arange(t["spheres"], device=device))
         before = torch.where(first > 0, cum.index_select(0, (first - 1).clamp_min(0)), 0.0)
-        self.cone_cdf = r + (cum - before.index_select(0, r)) / self.sphere_area.index_select(0, r)
-        #: (S,) the first and last index into ``cone_tri`` of each cone sphere; a triangle of it
-        self.sphere_first = first
-        self.sphere_last = torch.cat([first[1:], first.new_tensor([order.numel()])]) - 1
-        self.sphere_tri = order.index_select(0, first)
-        return cone
+        t["cone_cdf"] = r + (cum - before.index_select(0, r)) / t["sphere_area"].index_select(0, r)
+        # (S,) the first and last index into cone_tri of each cone sphere; a triangle of it
+        t["sphere_first"] = first
+        t["sphere_last"] = torch.cat([first[1:], first.new_tensor([order.numel()])]) - 1
+        t["sphere_tri"] = order.index_select(0, first)
+        return t
 
     @property
     def power(self) -> float:
