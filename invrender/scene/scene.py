@@ -60,6 +60,9 @@ class Triangles:
         vertex_normal: (T, 3, 3) unit shading normals at the three vertices, on the front side
             (the geometric normal, three times, where the mesh has none).
         smooth: (T,) bool, True where the triangle shades with interpolated vertex normals.
+        sphere: (T,) int64 index into ``spheres`` of the analytic sphere the triangle's mesh is
+            inscribed in (:attr:`Mesh.sphere <invrender.scene.shapes.Mesh.sphere>`), -1 for others.
+        spheres: (S, 4) float32 rows ``[cx, cy, cz, radius]`` of those spheres, world units.
     """
 
     p0: torch.Tensor
@@ -72,6 +75,8 @@ class Triangles:
     emitter: torch.Tensor
     vertex_normal: torch.Tensor
     smooth: torch.Tensor
+    sphere: torch.Tensor
+    spheres: torch.Tensor
 
     @property
     def count(self) -> int:
@@ -333,7 +338,7 @@ def build_scene(
     emitter_specs = {k: v if isinstance(v, Emitter) else Emitter(values={"emission": v}) for k, v in emission.items()}
     params.update({param_name(k, key): _plugin_value(e, k, key, v) for k, e in emitter_specs.items() for key, v in e.values.items()})
 
-    tris, uvs, mats, emits, normals, smooth = [], [], [], [], [], []
+    tris, uvs, mats, emits, normals, smooth, sphere_of, spheres = [], [], [], [], [], [], [], []
     for mesh in meshes:
         if mesh.material not in materials:
             raise SceneError(f"shape uses unknown material {mesh.material!r} (known: {', '.join(material_names) or 'none'})")
@@ -366,6 +371,10 @@ def build_scene(
         smooth.append(np.full(len(f), mesh.normals is not None))
         mats.append(np.full(len(f), material_names.index(mesh.material)))
         emits.append(np.full(len(f), -1 if mesh.emitter is None else emitters.index(mesh.emitter)))
+        inscribed = mesh.sphere is not None and np.linalg.norm(v - mesh.sphere[0], axis=1).max() <= mesh.sphere[1] * (1 + 1e-6)
+        sphere_of.append(np.full(len(f), len(spheres) if inscribed else -1))
+        if inscribed:
+            spheres.append([*mesh.sphere[0], mesh.sphere[1]])
     if not tris or sum(len(t) for t in tris) == 0:
         raise SceneError("scene has no triangles")
 
@@ -400,6 +409,8 @@ def build_scene(
         emitter=t(np.concatenate(emits), torch.int64),
         vertex_normal=t(vertex_normal),
         smooth=t(np.concatenate(smooth), torch.bool),
+        sphere=t(np.concatenate(sphere_of), torch.int64),
+        spheres=torch.tensor(spheres, dtype=torch.float32).reshape(-1, 4),
     )
     specs_only = tuple(Material(m.type, {}, m.constants) for m in specs.values())
     emitters_only = tuple(Emitter(e.type, {}, e.constants) for e in emitter_specs.values())

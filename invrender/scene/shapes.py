@@ -9,6 +9,7 @@ the front); emitters emit from their front side only.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -29,6 +30,10 @@ class Mesh:
         emitter: name of the emitter giving its emitted radiance eps, or None.
         normals: (V, 3) float64 unit vertex normals on the front side, interpolated over each
             triangle into its shading normal; None = flat (the geometric normal).
+        sphere: for a tessellated sphere facing outwards, the analytic sphere its vertices lie on,
+            ``((cx, cy, cz), radius)`` in world units (emitters sample it by solid angle:
+            :mod:`invrender.emitters.area`); None for any other shape, an ellipsoid (a sphere under
+            a transform that is not a similarity) and a sphere turned inside out.
     """
 
     vertices: np.ndarray
@@ -37,6 +42,7 @@ class Mesh:
     material: str
     emitter: str | None = None
     normals: np.ndarray | None = None
+    sphere: tuple[tuple[float, float, float], float] | None = None
 
     def transformed(self, matrix: np.ndarray) -> "Mesh":
         """This mesh with a 4x4 affine ``matrix`` applied to its vertices (winding kept front-facing;
@@ -48,12 +54,26 @@ class Mesh:
         if self.normals is not None:
             n = self.normals @ np.linalg.inv(linear)
             normals = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        return Mesh(v, faces, self.uvs, self.material, self.emitter, normals)
+        return Mesh(v, faces, self.uvs, self.material, self.emitter, normals, _similar_sphere(self.sphere, matrix))
 
     def flipped(self) -> "Mesh":
         """The same mesh with every triangle's front and back exchanged."""
         normals = None if self.normals is None else -self.normals
-        return Mesh(self.vertices, self.faces[:, ::-1].copy(), self.uvs, self.material, self.emitter, normals)
+        return dataclasses.replace(self, faces=self.faces[:, ::-1].copy(), normals=normals, sphere=None)  # emits inwards: no cone
+
+
+def _similar_sphere(sphere, matrix: np.ndarray):
+    """``sphere`` ((center, radius) or None) under the 4x4 affine ``matrix``: a sphere again when
+    the linear part is a similarity (a rotation, reflection and uniform scale), else None."""
+    if sphere is None:
+        return None
+    linear = matrix[:3, :3]
+    gram = linear.T @ linear
+    s2 = float(np.trace(gram)) / 3.0
+    if s2 <= 0 or np.abs(gram - s2 * np.eye(3)).max() > 1e-9 * s2:
+        return None  # an ellipsoid: sampled by area
+    center = np.asarray(sphere[0], dtype=np.float64) @ linear.T + matrix[:3, 3]
+    return tuple(float(c) for c in center), float(sphere[1]) * math.sqrt(s2)
 
 
 def rectangle() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -101,10 +121,13 @@ def primitive(kind: str, material: str, emitter: str | None = None, *args) -> Me
     """A primitive by name as a :class:`Mesh`; ``args`` go to its constructor (``subdivisions``).
 
     The sphere carries its exact normals (the unit vertex positions), so it shades smoothly
-    although it is tessellated, as Mitsuba's analytic sphere does; rectangle and cube are flat.
+    although it is tessellated, as Mitsuba's analytic sphere does, and the analytic sphere its
+    vertices lie on (:attr:`Mesh.sphere`); rectangle and cube are flat.
     """
     v, f, uv = PRIMITIVES[kind](*args)
-    return Mesh(v, f, uv, material, emitter, v.copy() if kind == "sphere" else None)
+    if kind == "sphere":
+        return Mesh(v, f, uv, material, emitter, v.copy(), ((0.0, 0.0, 0.0), 1.0))
+    return Mesh(v, f, uv, material, emitter)
 
 
 def _rotation(axis, degrees: float) -> np.ndarray:

@@ -26,6 +26,7 @@ class Surface:
         uv: (N, 2) texture coordinates (zeros when the scene has no textures).
         tri: (N,) int64 triangle index.
         t: (N,) distance from the ray origin.
+        d: (N, 3) unit direction of the ray (its origin is ``p - t d``).
     """
 
     p: torch.Tensor
@@ -36,6 +37,7 @@ class Surface:
     uv: torch.Tensor
     tri: torch.Tensor
     t: torch.Tensor
+    d: torch.Tensor
 
     def select(self, index: torch.Tensor) -> "Surface":
         """The hits at ``index`` (M,) int64 (or where a (N,) bool mask is True)."""
@@ -67,4 +69,4 @@ def surface_at(triangles: Triangles, hits: Hits, d: torch.Tensor, with_uv: bool 
         ns = normalize((1 - u - v) * vn[:, 0] + u * vn[:, 1] + v * vn[:, 2]) * side
     else:
         ns = n
-    return Surface(p, n, ns, front, cos_o, uv, tri, hits.t)
+    return Surface(p, n, ns, front, cos_o, uv, tri, hits.t, d)

@@ -129,7 +129,7 @@ def build(ctx: Context, resolution) -> Scene:
             names[key] = _unique(base, used_names | set(ctx.ids))
             used_names.add(names[key])
     materials = {names[key]: ctx.materials[key][1] for _, key in ordered}
-    shapes = [Mesh(m.vertices, m.faces, m.uvs, names[k], m.emitter, m.normals) for m, k in meshes]
+    shapes = [Mesh(m.vertices, m.faces, m.uvs, names[k], m.emitter, m.normals, m.sphere) for m, k in meshes]
 
     if camera is None:  # Mitsuba 3 cannot render such a scene either ("No sensor specified")
         raise SceneError(f"{ctx.where}:{scene.node.line}: <scene>: no <sensor>: add a <sensor type=\"perspective\"> with a fov and a to_world")

@@ -94,7 +94,7 @@ def shape(ctx: Context, obj: Obj, emitter_name) -> tuple[Mesh, int]:
     else:
         supported += ["filename", "face_normals", "flip_tex_coords"]
         mesh, mitsuba_uv, compute_normals = mesh_file(ctx, obj)
-    mesh = Mesh(mesh.vertices, mesh.faces, np.stack([mitsuba_uv[:, 0], 1.0 - mitsuba_uv[:, 1]], axis=1), "", None, mesh.normals)
+    mesh = Mesh(mesh.vertices, mesh.faces, np.stack([mitsuba_uv[:, 0], 1.0 - mitsuba_uv[:, 1]], axis=1), "", None, mesh.normals, mesh.sphere)
     if flip:
         mesh = mesh.flipped()
     if np.linalg.det(matrix[:3, :3]) == 0:
@@ -117,7 +117,7 @@ def shape(ctx: Context, obj: Obj, emitter_name) -> tuple[Mesh, int]:
     emitter = ctx.one_nested(obj, "emitter")
     if emitter is not None:
         try:
-            mesh = Mesh(mesh.vertices, mesh.faces, mesh.uvs, "", emitter_name(obj, emitter_of(ctx, emitter, in_shape=True)), mesh.normals)
+            mesh = Mesh(mesh.vertices, mesh.faces, mesh.uvs, "", emitter_name(obj, emitter_of(ctx, emitter, in_shape=True)), mesh.normals, mesh.sphere)
         except SceneError as e:
             found.append(e)
     if len(found) == 1:
