@@ -289,8 +289,9 @@ def test_path_records_take_the_smooth_plastic_and_refuse_the_others(tmp_path):
 
 
 def test_gradients_through_both_lobes_match_finite_differences(tmp_path):
-    """A box of each plastic: gradients of their reflectances within 2% of central differences for
-    both estimators, and replay = autodiff."""
+    """A box of each plastic: gradients of their reflectances and the rough one's alpha (seen
+    directly and through the box's walls, depth 4) within 2% of central differences for both
+    estimators, and replay = autodiff."""
     path = box_xml(
         tmp_path,
         '<bsdf type="roughplastic" id="rough"><rgb name="diffuse_reflectance" value="0.2, 0.4, 0.6"/><rgb name="specular_reflectance" value="0.7"/>'
@@ -298,7 +299,7 @@ def test_gradients_through_both_lobes_match_finite_differences(tmp_path):
         '<bsdf type="plastic" id="smooth"><rgb name="diffuse_reflectance" value="0.6, 0.4, 0.2"/><rgb name="specular_reflectance" value="0.8"/></bsdf>',
     )
     scene = ir.load_scene(path, resolution=(12, 12))
-    params = ["rough.reflectance", "rough.specular_reflectance", "smooth.reflectance", "smooth.specular_reflectance"]
+    params = ["rough.reflectance", "rough.specular_reflectance", "rough.roughness", "smooth.reflectance", "smooth.specular_reflectance"]
     rows = ir.gradcheck(scene, params, spp=16, max_depth=4, seed=3)
     assert {r.name for r in rows} == set(params)
     for r in rows:
