@@ -35,12 +35,22 @@ camera) and ``wi`` (towards the light) at cosines ``c_o``, ``c_i`` with the norm
     read by linear interpolation in ``c``. ``docs/rendering.md`` gives the approximation's
     measured size.
 
+    The roughness is a differentiable parameter (``NAME.roughness``, kind ``roughness``, one number
+    per material: the tables are a material's, so a map is refused). ``eval`` reads it attached in
+    ``D`` and ``G1`` (as the glossy conductors do) and in the tables, attached to first order:
+    ``T(alpha_0) + T'(alpha_0) (alpha - alpha_0)``, ``T'`` and ``R_int'`` by
+    :func:`rough_table_slopes`, exact in value (renders are bit-identical to a constant
+    roughness's). Sampling reads the detached roughness: the lobe choice (``T`` at alpha_s), the
+    visible normal and ``pdf``; a sample's weight ``f(alpha) cos / pdf(alpha_s)`` carries the
+    gradient, so every estimator stays unbiased (``docs/gradient_variance.md#roughness``).
+
 Sampling (both): the specular lobe with probability ``P_s = a w / (a w + (1 - a)(1 - w))``, else
 cosine-weighted directions, where ``a`` is ``F(c_o)`` (plastic) or ``1 - T(c_o)`` (roughplastic) and
 ``w = mean(k_s) / (mean(rho) + mean(k_s))`` is Mitsuba's specular sampling weight, computed from
 the values a scene is built with and kept as the constant ``specular_sampling_weight`` (or given),
-so sampling never depends on a differentiable parameter: finite differences with common random
-numbers stay exact, and a fit only changes how well it samples, never what it estimates. The rough lobe samples
+so sampling never depends on a differentiable parameter but through the detached roughness: finite
+differences with common random numbers stay exact, and a fit only changes how well it samples,
+never what it estimates. The rough lobe samples
 visible normals; its ``pdf`` is ``P_s D G1(wo) / (4 c_o) + (1 - P_s) c_i / pi`` and a sample's
 weight is ``f cos / pdf`` of the whole BSDF, as Mitsuba's.
 
@@ -50,6 +60,7 @@ materials (Mitsuba's ``twosided`` of them).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from typing import ClassVar
@@ -58,16 +69,21 @@ import numpy as np
 import torch
 
 from invrender import registry
-from invrender.errors import SceneError
+from invrender.errors import ParameterError, SceneError
 from invrender.materials.dielectric import fresnel_dielectric
-from invrender.materials.microfacet import BECKMANN, DISTRIBUTIONS, GGX, Distribution
+from invrender.materials.glossy import ALPHA
+from invrender.materials.microfacet import BECKMANN, DISTRIBUTIONS, GGX, Distribution, fwAD_active, roughness_at
 from invrender.materials.mirror import reflect
 from invrender.scene.formats.mitsuba.bsdfs import NAMED_IOR
-from invrender.scene.kinds import REFLECTANCE
+from invrender.scene.kinds import REFLECTANCE, ROUGHNESS
 from invrender.scene.kinds import SPECULAR_REFLECTANCE_RGB as SPECULAR_REFLECTANCE
 from invrender.scene.plugins import Constant, Param
 from invrender.transport.bsdfs.base import BSDF, BSDFSample, Lobe, ShadingPoint
 from invrender.vec import dot, normalize
+
+#: a rough plastic's roughness: the roughness kind, one number per material (its tables are a
+#: material's, not a texel's: a map is refused as for any RGB-only parameter)
+ROUGHNESS_RGB = dataclasses.replace(ROUGHNESS, texture=False)
 
 #: Mitsuba's roughplastic transmittance table size (``MI_ROUGH_TRANSMITTANCE_RES``)
 TABLE_SIZE = 64
@@ -104,13 +120,8 @@ def cosine_hemisphere(u: torch.Tensor) -> torch.Tensor:
     return torch.stack([r * torch.cos(phi), r * torch.sin(phi), (1.0 - u[:, 0]).clamp_min(0.0).sqrt()], dim=1)
 
 
-@functools.lru_cache(maxsize=64)
-def rough_tables(distribution: str, alpha: float, eta: float, nodes: tuple[int, int] = (32, 64)) -> tuple[tuple[float, ...], float]:
-    """``(T, R_int)`` of a rough interface (module docstring): the external transmittance at the
-    :data:`TABLE_SIZE` cosines and the internal diffuse reflectance, for the named distribution at
-    roughness ``alpha`` and relative index ``eta`` (float64). ``nodes``: the Gauss-Legendre
-    rules' sizes per axis for the two; Mitsuba's are 32 and 128, the internal one is 64 here (four
-    times cheaper; ``docs/rendering.md`` gives the difference)."""
+def _rough_quadrature(distribution: str, alpha: float, eta: float, nodes: tuple[int, int]) -> tuple[np.ndarray, float]:
+    """``(T, R_int)`` of :func:`rough_tables`, in float64."""
     d = DISTRIBUTIONS[distribution]
     mu = np.maximum(1e-6, np.linspace(0.0, 1.0, TABLE_SIZE))
     wi_rows = torch.tensor(np.stack([np.sqrt(1.0 - mu * mu), np.zeros_like(mu), mu], 1), dtype=torch.float64)
@@ -138,9 +149,40 @@ def rough_tables(distribution: str, alpha: float, eta: float, nodes: tuple[int, 
         wr = 2.0 * c[:, None] * m - wi
         return torch.where(wr[:, 2] > 0, d.G1(wr[:, 2], a) * F, 0.0)
 
-    T = integrate(nodes[0], transmitted)
-    R = integrate(nodes[1], reflected)
-    return tuple(float(t) for t in T), float(2.0 * np.mean(R * mu))
+    with torch.no_grad():
+        T = integrate(nodes[0], transmitted)
+        R = integrate(nodes[1], reflected)
+    return T, float(2.0 * np.mean(R * mu))
+
+
+@functools.lru_cache(maxsize=64)
+def rough_tables(distribution: str, alpha: float, eta: float, nodes: tuple[int, int] = (32, 64)) -> tuple[tuple[float, ...], float]:
+    """``(T, R_int)`` of a rough interface (module docstring): the external transmittance at the
+    :data:`TABLE_SIZE` cosines and the internal diffuse reflectance, for the named distribution at
+    roughness ``alpha`` and relative index ``eta`` (float64). ``nodes``: the Gauss-Legendre
+    rules' sizes per axis for the two; Mitsuba's are 32 and 128, the internal one is 64 here (four
+    times cheaper; ``docs/rendering.md`` gives the difference)."""
+    T, R = _rough_quadrature(distribution, alpha, eta, nodes)
+    return tuple(float(t) for t in T), R
+
+
+#: the step (in alpha) of the tables' central difference (:func:`rough_table_slopes`)
+SLOPE_STEP = 1e-2
+
+
+@functools.lru_cache(maxsize=64)
+def rough_table_slopes(distribution: str, alpha: float, eta: float, nodes: tuple[int, int] = (32, 64)) -> tuple[tuple[float, ...], float]:
+    """``(dT/dalpha, dR_int/dalpha)`` of :func:`rough_tables`, what a differentiable roughness
+    attaches its tables by: the central difference of the same rules' values at ``alpha +- h``,
+    ``h`` = :data:`SLOPE_STEP` (a quarter of alpha below 0.04). Not the rules' exact derivative:
+    Fresnel's square-root edge at total internal reflection makes the internal rule's sum ripple
+    in alpha (by about 3e-5, at scales below 2e-3), so its exact derivative wanders by 10% around
+    the slope its values follow over 1e-2 (the scale a fit or a finite difference moves alpha
+    by); the difference follows that slope. Two extra evaluations of the rules (each about 0.07 s
+    on one quiet core)."""
+    h = min(SLOPE_STEP, alpha / 4.0)
+    (Tp, Rp), (Tm, Rm) = (_rough_quadrature(distribution, alpha + k * h, eta, nodes) for k in (1, -1))
+    return tuple(float(t) for t in (Tp - Tm) / (2.0 * h)), (Rp - Rm) / (2.0 * h)
 
 
 class Coated(BSDF):
@@ -228,10 +270,10 @@ class Coated(BSDF):
             "ext_ior": float(constants["ext_ior"]),
             "nonlinear": bool(constants["nonlinear"]),
         }
-        return {"type": "twosided", "bsdf": {**inner, **cls._mitsuba_extra(constants)}}
+        return {"type": "twosided", "bsdf": {**inner, **cls._mitsuba_extra(values, constants)}}
 
     @classmethod
-    def _mitsuba_extra(cls, constants: dict) -> dict:
+    def _mitsuba_extra(cls, values: dict, constants: dict) -> dict:
         return {}
 
 
@@ -311,21 +353,48 @@ class Plastic(Coated):
 class RoughPlastic(Coated):
     type_name = "roughplastic"
     lobes = Lobe.GLOSSY | Lobe.DIFFUSE
-    constants = {"roughness": Constant(0.1, 0.0, 1.0, True, False), **COATING_CONSTANTS}
+    params = {**Coated.params, "roughness": Param(ROUGHNESS_RGB, 0.1)}
+    constants = dict(COATING_CONSTANTS)
     doc = "rough plastic: a diffuse base under a Beckmann rough dielectric coating (Mitsuba's roughplastic, its default distribution), two-sided"
     mitsuba_type = "roughplastic"
     #: the coating's microfacet distribution
     distribution: ClassVar[Distribution] = BECKMANN
 
-    def _tables(self, sp: ShadingPoint) -> tuple[torch.Tensor, torch.Tensor]:
-        """(M, 64) transmittance tables and (M,) internal reflectances of this BSDF's materials."""
-        token = ("rough_tables", sp.wo.device)
+    def _alphas(self, values: list[dict]) -> list[torch.Tensor]:
+        """Each material's roughness (a (3,) grey tensor) in ``values``."""
+        alphas = [v["roughness"] for v in values]
+        if any(a.ndim != 1 for a in alphas):
+            raise ParameterError(f"a {self.type_name} material's roughness must be an RGB triple, not a texture (its coating's tables are one per material)")
+        return alphas
+
+    def _table_rows(self, alphas: list[torch.Tensor], device, fn) -> tuple[torch.Tensor, torch.Tensor]:
+        """(M, 64) and (M,) float32 of ``fn(distribution, alpha, eta)`` over the materials."""
+        rows = [fn(self.distribution.name, float(a.detach().reshape(-1)[0]), float(c["int_ior"] / c["ext_ior"])) for a, c in zip(alphas, self.constants)]
+        T = torch.tensor([r[0] for r in rows], dtype=torch.float32, device=device)
+        R = torch.tensor([r[1] for r in rows], dtype=torch.float32, device=device)
+        return T, R
+
+    def _tables(self, sp: ShadingPoint, sampling: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+        """(M, 64) transmittance tables and (M,) internal reflectances of this BSDF's materials, at
+        the roughness ``eval`` reads (attached: to first order in alpha, by the tables' slopes) or,
+        ``sampling``, at the detached one sampling and ``pdf`` read."""
+        device = sp.wo.device
+        token = ("rough_tables", device, sampling)
+        alphas = self._alphas(self.sampling_values if sampling else self.values)
         if token not in self._constant_tables:
-            rows = [rough_tables(self.distribution.name, float(c["roughness"]), float(c["int_ior"] / c["ext_ior"])) for c in self.constants]
-            T = torch.tensor([r[0] for r in rows], dtype=torch.float32, device=sp.wo.device)
-            R = torch.tensor([r[1] for r in rows], dtype=torch.float32, device=sp.wo.device)
-            self._constant_tables[token] = (T, R)
-        return self._constant_tables[token]
+            self._constant_tables[token] = self._table_rows(alphas, device, rough_tables)
+        T, R = self._constant_tables[token]
+        if sampling or not any(a.requires_grad or fwAD_active(a) for a in alphas):
+            return T, R
+        key = (id(self), "rough_tables_attached")  # per point set: each chunk's graph its own
+        if key not in sp.cache:
+            slopes = ("rough_table_slopes", device)
+            if slopes not in self._constant_tables:
+                self._constant_tables[slopes] = self._table_rows(alphas, device, rough_table_slopes)
+            dT, dR = self._constant_tables[slopes]
+            delta = torch.stack([a.mean() - a.mean().detach() for a in alphas]).to(device, torch.float32)  # 0 in value
+            sp.cache[key] = (T + dT * delta[:, None], R + dR * delta)
+        return sp.cache[key]
 
     def _transmittance(self, sp: ShadingPoint, table: torch.Tensor, cos: torch.Tensor) -> torch.Tensor:
         """(N,) T at cosines ``cos`` (N,), linear in the table (Mitsuba's ``lerp_gather``)."""
@@ -336,25 +405,28 @@ class RoughPlastic(Coated):
         return t0 + (t1 - t0) * (x - i)
 
     def _terms(self, sp: ShadingPoint, wl: torch.Tensor, value: bool = True) -> tuple[torch.Tensor | None, torch.Tensor]:
-        """``(f cos (N, 3) or None, pdf (N,))`` at local directions ``wl`` (N, 3)."""
+        """``(f cos (N, 3) or None, pdf (N,))`` at local directions ``wl`` (N, 3): ``f`` at the
+        attached roughness, ``pdf`` (and the lobe choice in it) at the detached one."""
         wo = sp.wo_local
         d = self.distribution
-        alpha, eta = self.constant("roughness", sp), self._eta(sp)
+        alpha, alpha_s = roughness_at(self, sp)
+        eta = self._eta(sp)
         c_o, c_i = wo[:, 2], wl[:, 2]
         ok = (c_o > 0) & (c_i > 0)
         h = normalize(wo + wl)
-        g_o = d.G1(c_o, alpha)
-        D = d.D(h[:, 2], alpha)
-        T_table, R_int = self._tables(sp)
-        T_o = self._transmittance(sp, T_table, c_o)
-        p_s = self._lobe_choice(1.0 - T_o, self._spec_weight(sp))
+        g_o, D = d.G1(c_o, alpha_s), d.D(h[:, 2], alpha_s)
+        T_s, _ = self._tables(sp, sampling=True)
+        p_s = self._lobe_choice(1.0 - self._transmittance(sp, T_s, c_o), self._spec_weight(sp))
         inv_4co = 1.0 / (4.0 * c_o.clamp_min(1e-12))
         pdf = torch.where(ok, p_s * D * g_o * inv_4co + (1.0 - p_s) * c_i / math.pi, 0.0)
         if not value:
             return None, pdf
+        if alpha.requires_grad or fwAD_active(alpha) or not torch.equal(alpha, alpha_s):
+            g_o, D = d.G1(c_o, alpha), d.D(h[:, 2], alpha)
         F = fresnel_dielectric(dot(wo, h).clamp(0.0, 1.0), eta)[0]
         spec = torch.where(ok, F * D * g_o * d.G1(c_i, alpha) * inv_4co, 0.0)
-        T_i = self._transmittance(sp, T_table, c_i)
+        T_table, R_int = self._tables(sp)
+        T_o, T_i = self._transmittance(sp, T_table, c_o), self._transmittance(sp, T_table, c_i)
         diff = torch.where(ok, c_i * T_o * T_i / (math.pi * eta * eta), 0.0)
         f = self.param("specular_reflectance", sp) * spec[:, None] + self._base(sp, R_int.index_select(0, sp.material)) * diff[:, None]
         return f, pdf
@@ -364,18 +436,18 @@ class RoughPlastic(Coated):
         return self._terms(sp, sp.frame.to_local(wi))[0]
 
     def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        """``P_s D G1(wo) / (4 c_o) + (1 - P_s) c_i / pi`` (N,)."""
+        """``P_s D G1(wo) / (4 c_o) + (1 - P_s) c_i / pi`` (N,) (at the detached roughness)."""
         return self._terms(sp, sp.frame.to_local(wi), value=False)[1]
 
     def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
-        """A visible normal's reflection with probability P_s, else a cosine-weighted direction;
-        weight ``f cos / pdf`` of both lobes."""
+        """A visible normal's reflection with probability P_s, else a cosine-weighted direction
+        (both at the detached roughness); weight ``f cos / pdf`` of both lobes (``f`` attached)."""
         wo = sp.wo_local
         above = wo[:, 2] > 0
         wo_up = torch.where(above[:, None], wo, torch.tensor([0.0, 0.0, 1.0], device=wo.device))
-        T_table, _ = self._tables(sp)
-        p_s = self._lobe_choice(1.0 - self._transmittance(sp, T_table, wo_up[:, 2]), self._spec_weight(sp))
-        h = self.distribution.sample_visible(wo_up, self.constant("roughness", sp), u_dir)
+        T_s, _ = self._tables(sp, sampling=True)
+        p_s = self._lobe_choice(1.0 - self._transmittance(sp, T_s, wo_up[:, 2]), self._spec_weight(sp))
+        h = self.distribution.sample_visible(wo_up, roughness_at(self, sp)[1], u_dir)
         w_spec = 2.0 * dot(wo_up, h)[:, None] * h - wo_up
         wl = torch.where((u_lobe < p_s)[:, None], w_spec, cosine_hemisphere(u_dir))
         f, pdf = self._terms(sp, wl)
@@ -397,14 +469,14 @@ class RoughPlastic(Coated):
         for key in ("alpha_u", "alpha_v"):
             if bsdf.has(key):
                 raise bsdf.error(key, f"'{key}' (anisotropic roughness) is not supported: give one 'alpha' (Mitsuba's roughplastic is isotropic)")
-        alpha = bsdf.number("alpha", cls.constants["roughness"], f"{target.distribution.label} roughness", "a <float> (textured roughness is not supported)")
+        alpha = bsdf.number("alpha", ALPHA, f"{target.distribution.label} roughness", "a <float> (textured roughness is not supported)")
         bsdf.boolean("sample_visible")
         bsdf.finish(("diffuse_reflectance", "specular_reflectance", "int_ior", "ext_ior", "nonlinear", "distribution", "alpha", "sample_visible"))
         return {"type": target.type_name, **entries, "roughness": alpha}
 
     @classmethod
-    def _mitsuba_extra(cls, constants: dict) -> dict:
-        return {"distribution": cls.distribution.name, "alpha": float(constants["roughness"]), "sample_visible": True}
+    def _mitsuba_extra(cls, values: dict, constants: dict) -> dict:
+        return {"distribution": cls.distribution.name, "alpha": float(np.asarray(values["roughness"]).reshape(-1)[0]), "sample_visible": True}
 
 
 @registry.MATERIALS.register

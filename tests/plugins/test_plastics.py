@@ -186,22 +186,28 @@ def test_toml_plastics(tmp_path):
     assert spec.type == "plastic" and spec.constants == {"int_ior": 1.5046, "ext_ior": 1.000277, "nonlinear": 1.0, "specular_sampling_weight": pytest.approx(1 / 1.5)}
     assert scene.params["m.reflectance"].tolist() == pytest.approx([0.2, 0.5, 0.8]) and "m.specular_reflectance" in scene.params
     scene = ir.load_scene(write_toml(tmp_path, 'type = "roughplastic_ggx"\nroughness = 0.3\next_ior = "water"\nint_ior = 1.7'))
-    assert scene.material_specs[0].constants == {"roughness": 0.3, "int_ior": 1.7, "ext_ior": 1.333, "nonlinear": 0.0, "specular_sampling_weight": 1 / 1.5}
+    assert scene.material_specs[0].constants == {"int_ior": 1.7, "ext_ior": 1.333, "nonlinear": 0.0, "specular_sampling_weight": 1 / 1.5}
+    assert scene.params["m.roughness"].tolist() == pytest.approx([0.3] * 3)  # a parameter (kind roughness), as glossy's
     bad = {
         'type = "plastic"\nint_ior = -1': "'int_ior' must lie in (0, inf)",
         'type = "plastic"\nint_ior = "unobtainium"': "unknown int_ior 'unobtainium' (a number or one of vacuum",
         'type = "plastic"\nnonlinear = 2': "'nonlinear' must be true or false",
-        'type = "roughplastic"\nroughness = 0': "'roughness' must lie in (0, 1]",
-        'type = "roughplastic"\nroughness = 1.5': "'roughness' must lie in (0, 1]",
         'type = "roughplastic"\nint_ior = 1.2\next_ior = 1.2': "'int_ior' and 'ext_ior' must differ",
         'type = "plastic"\nroughness = 0.2': "unknown key 'roughness'",
         'type = "plastic"\nspecular_reflectance = { checkerboard = {} }': "'specular_reflectance' must be an RGB list or one number",
+        'type = "roughplastic_ggx"\nroughness = { checkerboard = {} }': "'roughness' must be an RGB list or one number",
     }
     for body, words in bad.items():
         with pytest.raises(SceneError) as info:
             ir.load_scene(write_toml(tmp_path, body))
         message = str(info.value)
         assert words in message and "[materials.m]" in message and "\n" not in message, message
+    # the roughness is a parameter: its range is the roughness kind's, named as the parameter
+    for value, words in (("0", "[0, 0]"), ("1.5", "[1.5, 1.5]")):
+        with pytest.raises(ParameterError) as info:
+            ir.load_scene(write_toml(tmp_path, f'type = "roughplastic"\nroughness = {value}'))
+        message = str(info.value)
+        assert f"m.roughness: roughness alpha must lie in (0, 1], got values in {words}" in message and "\n" not in message, message
 
 
 def box_xml(tmp_path, large: str, small: str) -> Path:
@@ -226,13 +232,15 @@ def test_mitsuba_xml_plastics(tmp_path):
     scene = ir.load_scene(path, resolution=(8, 8))
     by_type = {s.type: (m, s) for m, s in zip(scene.materials, scene.material_specs)}
     large, small = by_type["roughplastic"], by_type["plastic"]
-    assert large[1].constants == {"roughness": 0.1, "int_ior": 1.49, "ext_ior": 1.000277, "nonlinear": 0.0, "specular_sampling_weight": pytest.approx(1 / 1.3333333)}  # Mitsuba's defaults: Beckmann
+    assert large[1].constants == {"int_ior": 1.49, "ext_ior": 1.000277, "nonlinear": 0.0, "specular_sampling_weight": pytest.approx(1 / 1.3333333)}  # Mitsuba's defaults: Beckmann
+    assert scene.params[f"{large[0]}.roughness"].tolist() == pytest.approx([0.1] * 3)  # alpha's default, the parameter
     assert scene.params[f"{large[0]}.reflectance"].tolist() == pytest.approx([0.1, 0.3, 0.6])
     assert small[1].constants == {"int_ior": 1.9, "ext_ior": 1.333, "nonlinear": 1.0, "specular_sampling_weight": pytest.approx(0.5)}
     assert scene.params[f"{small[0]}.specular_reflectance"].tolist() == pytest.approx([0.5] * 3)
     ggx = box_xml(tmp_path, '<bsdf type="roughplastic"><string name="distribution" value="ggx"/><float name="alpha" value="0.25"/></bsdf>', '<ref id="white"/>')
-    spec = next(s for s in ir.load_scene(ggx, resolution=(8, 8)).material_specs if s.type.startswith("rough"))
-    assert spec.type == "roughplastic_ggx" and spec.constants["roughness"] == 0.25
+    scene = ir.load_scene(ggx, resolution=(8, 8))
+    name, spec = next((m, s) for m, s in zip(scene.materials, scene.material_specs) if s.type.startswith("rough"))
+    assert spec.type == "roughplastic_ggx" and scene.params[f"{name}.roughness"].tolist() == pytest.approx([0.25] * 3)
     bad = {
         '<bsdf type="roughplastic"><string name="distribution" value="phong"/></bsdf>': "distribution 'phong' is not supported (supported: beckmann, ggx)",
         '<bsdf type="roughplastic"><float name="alpha_u" value="0.2"/></bsdf>': "anisotropic roughness",
@@ -251,7 +259,7 @@ def test_mitsuba_xml_plastics(tmp_path):
 
 def test_to_mitsuba_writes_mitsubas_plugins():
     values = {"reflectance": np.array([0.1, 0.2, 0.3]), "specular_reflectance": np.ones(3)}
-    d = RoughPlasticGGX.to_mitsuba(values, {"roughness": 0.2, "int_ior": 1.5, "ext_ior": 1.0, "nonlinear": 1.0})
+    d = RoughPlasticGGX.to_mitsuba({**values, "roughness": np.full(3, 0.2)}, {"int_ior": 1.5, "ext_ior": 1.0, "nonlinear": 1.0})
     assert d["type"] == "twosided"
     inner = d["bsdf"]
     assert inner["type"] == "roughplastic" and inner["distribution"] == "ggx" and inner["alpha"] == 0.2 and inner["nonlinear"] is True
@@ -281,8 +289,9 @@ def test_path_records_take_the_smooth_plastic_and_refuse_the_others(tmp_path):
 
 
 def test_gradients_through_both_lobes_match_finite_differences(tmp_path):
-    """A box of each plastic: gradients of their reflectances within 2% of central differences for
-    both estimators, and replay = autodiff."""
+    """A box of each plastic: gradients of their reflectances and the rough one's alpha (seen
+    directly and through the box's walls, depth 4) within 2% of central differences for both
+    estimators, and replay = autodiff."""
     path = box_xml(
         tmp_path,
         '<bsdf type="roughplastic" id="rough"><rgb name="diffuse_reflectance" value="0.2, 0.4, 0.6"/><rgb name="specular_reflectance" value="0.7"/>'
@@ -290,7 +299,7 @@ def test_gradients_through_both_lobes_match_finite_differences(tmp_path):
         '<bsdf type="plastic" id="smooth"><rgb name="diffuse_reflectance" value="0.6, 0.4, 0.2"/><rgb name="specular_reflectance" value="0.8"/></bsdf>',
     )
     scene = ir.load_scene(path, resolution=(12, 12))
-    params = ["rough.reflectance", "rough.specular_reflectance", "smooth.reflectance", "smooth.specular_reflectance"]
+    params = ["rough.reflectance", "rough.specular_reflectance", "rough.roughness", "smooth.reflectance", "smooth.specular_reflectance"]
     rows = ir.gradcheck(scene, params, spp=16, max_depth=4, seed=3)
     assert {r.name for r in rows} == set(params)
     for r in rows:
