@@ -67,6 +67,7 @@ def main() -> None:
     add_json_option(parser)
     args = parser.parse_args()
     figures = Path(args.figures)
+    figures.mkdir(parents=True, exist_ok=True)
     record = Results("sampling_ablation", "Sampling-strategy ablation: RMSE at equal samples and at equal time")
     for name, scene_path, strategies in RUNS:
         scene = ir.load_scene(scene_path, resolution=(64, 64))
