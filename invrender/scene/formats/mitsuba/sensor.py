@@ -1,8 +1,13 @@
 """The Mitsuba sensor, its film, reconstruction filter and sampler onto invrender's camera.
 
 Sensor (at most one ``<sensor>``)
-    ``perspective`` and ``thinlens``: ``fov`` (degrees; required, ``focal_length`` is not
-    supported), ``fov_axis`` (x, y, smaller, larger; default x; ``diagonal`` is an error),
+    ``perspective`` and ``thinlens``: ``fov`` (degrees) with ``fov_axis`` (x, y, smaller,
+    larger; default x; ``diagonal`` is an error), or ``focal_length`` (a ``<string>`` ``"<x>mm"``,
+    x > 0; Mitsuba's default ``50mm`` when neither is given): as Mitsuba, the
+    lens of a 36 x 24 mm film, whose diagonal field of view ``2 atan(sqrt(36^2 + 24^2) / 2f)``
+    spans the film's diagonal (so its horizontal field of view depends on the film's aspect:
+    that of the ``resolution`` argument when one is given); ``fov`` and ``focal_length`` together
+    are an error, as in Mitsuba;
     ``to_world`` (lookat or any rotation and translation, optionally a uniform scale; the camera
     looks along local +z with local +y up and the image's x axis along local -x, as in Mitsuba; a
     mirrored (det < 0), non-uniformly scaled or sheared to_world is an error),
@@ -25,6 +30,7 @@ Deviations from Mitsuba
 
 from __future__ import annotations
 
+import math
 import warnings
 
 import numpy as np
@@ -43,27 +49,22 @@ RFILTER_TYPES = ("box", "tent", "gaussian", "mitchell", "catmullrom", "lanczos")
 SAMPLER_TYPES = ("independent", "stratified", "multijitter", "orthogonal", "ldsampler")
 
 
-def sensor(ctx: Context, obj: Obj) -> tuple[Camera, tuple[int, int], dict]:
-    """The camera of a ``<sensor>``, its film's (width, height) and the render settings its sampler states."""
+def sensor(ctx: Context, obj: Obj, resolution: tuple[int, int] | None = None) -> tuple[Camera, tuple[int, int], dict]:
+    """The camera of a ``<sensor>``, its film's (width, height) and the render settings its
+    sampler states; ``resolution`` (width, height), the size the scene is loaded at when it is not
+    the film's (a ``focal_length``'s field of view depends on the aspect)."""
     if obj.type not in SENSOR_TYPES:
         raise ctx.error(obj.node, f"unsupported sensor type {obj.type!r} (supported: {', '.join(SENSOR_TYPES)})", obj)
-    if "focal_length" in obj.props:
-        raise ctx.error(obj.props["focal_length"].node, "'focal_length' is not supported: give 'fov'", obj)
-    fov = ctx.get(obj, "fov", "float")
-    if fov is None:
-        raise ctx.error(obj.node, "missing <float name=\"fov\"> (the field of view in degrees)", obj)
-    if not 0 < fov < 180:
-        raise ctx.error(obj.props["fov"].node, f"'fov' must lie in (0, 180) degrees, got {fov:g}", obj)
-    axis = ctx.get(obj, "fov_axis", "string", "x").lower()
-    if axis not in FOV_AXES:
-        raise ctx.error(obj.props["fov_axis"].node, f"fov_axis {axis!r} is not supported (supported: {', '.join(FOV_AXES)})", obj)
+    film_obj = ctx.one_nested(obj, "film")
+    film = DEFAULT_FILM if film_obj is None else film_size(ctx, film_obj)
+    fov, axis = field_of_view(ctx, obj, resolution or film)
     near = ctx.get(obj, "near_clip", "float", 1e-2)
     far = ctx.get(obj, "far_clip", "float", 1e4)
     if not 0 < near < far:
         raise ctx.error(obj.node, f"need 0 < near_clip < far_clip, got near_clip {near:g}, far_clip {far:g}", obj)
     to_world = ctx.take(obj, "to_world", ("transform",), "a <transform>")
     matrix = np.eye(4) if to_world is None else to_world.value
-    supported = ["fov", "fov_axis", "near_clip", "far_clip", "to_world", "focus_distance"]
+    supported = ["fov", "fov_axis", "focal_length", "near_clip", "far_clip", "to_world", "focus_distance"]
     aperture, focus = 0.0, ctx.get(obj, "focus_distance", "float", far)
     offset = (0.0, 0.0)
     if obj.type == "perspective":
@@ -98,10 +99,6 @@ def sensor(ctx: Context, obj: Obj) -> tuple[Camera, tuple[int, int], dict]:
     except SceneError as e:
         raise ctx.error(obj.node, str(e), obj) from None
 
-    resolution = DEFAULT_FILM
-    film = ctx.one_nested(obj, "film")
-    if film is not None:
-        resolution = film_size(ctx, film)
     defaults = {}
     sampler = ctx.one_nested(obj, "sampler")
     if sampler is not None:
@@ -115,7 +112,44 @@ def sensor(ctx: Context, obj: Obj) -> tuple[Camera, tuple[int, int], dict]:
         ctx.get(sampler, "seed", "integer")
         ctx.get(sampler, "jitter", "boolean")
         ctx.finish(sampler, ("sample_count", "seed", "jitter"))
-    return camera, resolution, defaults
+    return camera, film, defaults
+
+
+#: Mitsuba's focal length when a perspective sensor gives neither ``fov`` nor ``focal_length`` (mm)
+DEFAULT_FOCAL_LENGTH = 50.0
+#: the diagonal of the 36 x 24 mm film Mitsuba's ``focal_length`` refers to (mm)
+FILM_DIAGONAL_MM = math.hypot(36.0, 24.0)
+
+
+def field_of_view(ctx: Context, obj: Obj, size: tuple[int, int]) -> tuple[float, str]:
+    """(fov in degrees, fov_axis) of a perspective sensor: its ``fov`` and ``fov_axis``, or its
+    ``focal_length`` (default 50 mm) as the horizontal field of view of a ``size`` (width, height) film."""
+    if "fov" in obj.props and "focal_length" in obj.props:
+        raise ctx.error(obj.props["focal_length"].node, "give either 'fov' or 'focal_length', not both (as Mitsuba)", obj)
+    if "fov" in obj.props:
+        fov = ctx.get(obj, "fov", "float")
+        if not 0 < fov < 180:
+            raise ctx.error(obj.props["fov"].node, f"'fov' must lie in (0, 180) degrees, got {fov:g}", obj)
+        axis = ctx.get(obj, "fov_axis", "string", "x").lower()
+        if axis not in FOV_AXES:
+            raise ctx.error(obj.props["fov_axis"].node, f"fov_axis {axis!r} is not supported (supported: {', '.join(FOV_AXES)})", obj)
+        return fov, axis
+    if "fov_axis" in obj.props:  # Mitsuba ignores it beside a focal length: the lens fixes the diagonal
+        ctx.get(obj, "fov_axis", "string")
+    focal = DEFAULT_FOCAL_LENGTH
+    prop = ctx.take(obj, "focal_length", ("string",), 'a <string> such as "50mm"')
+    if prop is not None:
+        text = str(prop.value).strip()
+        try:
+            focal = float(text[:-2] if text.endswith("mm") else text)
+        except ValueError:
+            focal = math.nan
+        if not (math.isfinite(focal) and focal > 0):
+            raise ctx.error(prop.node, f"'focal_length' {text!r} must be a positive length in millimetres such as \"50mm\"", obj)
+    width, height = size
+    aspect = width / height
+    diagonal = FILM_DIAGONAL_MM / focal  # 2 tan(half the diagonal field of view)
+    return math.degrees(2.0 * math.atan(0.5 * diagonal / math.sqrt(1.0 + 1.0 / (aspect * aspect)))), "x"
 
 
 def film_size(ctx: Context, film: Obj) -> tuple[int, int]:
