@@ -46,6 +46,7 @@ DEFAULT_FILM = (768, 576)
 SENSOR_TYPES = ("perspective", "thinlens")
 FOV_AXES = ("x", "y", "smaller", "larger")
 RFILTER_TYPES = ("box", "tent", "gaussian", "mitchell", "catmullrom", "lanczos")
+FILM_TYPES = ("hdrfilm",)
 SAMPLER_TYPES = ("independent", "stratified", "multijitter", "orthogonal", "ldsampler")
 
 
@@ -154,8 +155,8 @@ def field_of_view(ctx: Context, obj: Obj, size: tuple[int, int]) -> tuple[float,
 
 def film_size(ctx: Context, film: Obj) -> tuple[int, int]:
     """(width, height) of a ``<film>``; its ``<rfilter>`` checked (invrender's filter is a box)."""
-    if film.type != "hdrfilm":
-        raise ctx.error(film.node, f"unsupported film type {film.type!r} (supported: hdrfilm)", film)
+    if film.type not in FILM_TYPES:
+        raise ctx.error(film.node, f"unsupported film type {film.type!r} (supported: {', '.join(FILM_TYPES)})", film)
     size = []
     for key, default in zip(("width", "height"), DEFAULT_FILM):
         value = ctx.get(film, key, "integer", default)
