@@ -161,3 +161,47 @@ def test_thindielectric_takes_named_media_and_refuses_what_it_lacks(tmp_path):
         ir.load_scene(pane_scene(tmp_path, "1.5", '<rgb name="specular_transmittance" value="0.5"/>'))
     with pytest.raises(SceneError, match="'int_ior' must be positive"):
         ir.load_scene(pane_scene(tmp_path, "-1"))
+
+
+def ortho_scene(tmp_path, to_world, film=(32, 32)):
+    body = ('<shape type="rectangle"><transform name="to_world"><scale value="0.5"/></transform>'
+            '<bsdf type="diffuse"><rgb name="reflectance" value="0"/></bsdf><emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>')
+    path = tmp_path / "o.xml"
+    path.write_text(
+        '<scene version="3.0.0"><sensor type="orthographic"><float name="near_clip" value="0.1"/>'
+        f'<transform name="to_world">{to_world}</transform>'
+        f'<film type="hdrfilm"><integer name="width" value="{film[0]}"/><integer name="height" value="{film[1]}"/></film></sensor>\n{body}\n</scene>\n'
+    )
+    return path
+
+
+@pytest.mark.parametrize("distance", [2.0, 10.0])
+def test_orthographic_sees_the_same_window_at_any_distance(tmp_path, distance):
+    """A 1 x 1 emitter in a window of camera space [-1, 1]^2 (a square film): a quarter of the
+    pixels, exactly, whatever the distance (a perspective camera would see it shrink)."""
+    look = f'<lookat origin="0, 0, {distance}" target="0, 0, 0" up="0, 1, 0"/>'
+    scene = ir.load_scene(ortho_scene(tmp_path, look))
+    assert type(scene.camera).__name__ == "OrthographicCamera" and scene.camera.extent == (1.0, 1.0)
+    img = ir.render(scene, spp=4, seed=0, max_depth=1, progress=False)
+    assert float(img.double().mean()) == pytest.approx(0.25, abs=1e-6)
+    # the window scales with the to_world's x and y scales, and with the film's aspect along y (Mitsuba's [-1/aspect, 1/aspect])
+    wide = ir.load_scene(ortho_scene(tmp_path, f'<scale x="2" y="0.5"/>{look}', film=(32, 16)))
+    assert wide.camera.extent == (2.0, 0.5)  # window 4 wide, 0.5 * 16/32 * 2 = 0.5 high: the emitter fills 1/4 of the width, all the height
+    img = ir.render(wide, spp=4, seed=0, max_depth=1, progress=False)
+    assert float(img.double().mean()) == pytest.approx(0.25, abs=1e-6)
+    assert float(img[:, :12].max()) == 0.0 and float(img[:, 12:20].min()) == 1.0
+
+
+def test_bad_orthographic_sensors(tmp_path):
+    for to_world, words in [
+        ('<matrix value="1 0.5 0 0  0 1 0 0  0 0 1 0  0 0 0 1"/>', "an orthographic sensor's to_world must be a scale, a rotation and a translation: it shears"),
+        ('<scale x="-1"/>', "mirrored or singular"),
+    ]:
+        path = ortho_scene(tmp_path, to_world)
+        with pytest.raises(SceneError) as info:
+            ir.load_scene(path)
+        assert str(info.value).startswith(f"{path}:") and words in str(info.value) and "\n" not in str(info.value)
+    path = ortho_scene(tmp_path, '<lookat origin="0, 0, 2" target="0, 0, 0"/>').read_text().replace('<float name="near_clip" value="0.1"/>', '<float name="fov" value="30"/>')
+    (tmp_path / "f.xml").write_text(path)
+    with pytest.raises(SceneError, match="unsupported property 'fov'"):
+        ir.load_scene(tmp_path / "f.xml")

@@ -7,7 +7,10 @@ Sensor (at most one ``<sensor>``)
     lens of a 36 x 24 mm film, whose diagonal field of view ``2 atan(sqrt(36^2 + 24^2) / 2f)``
     spans the film's diagonal (so its horizontal field of view depends on the film's aspect:
     that of the ``resolution`` argument when one is given); ``fov`` and ``focal_length`` together
-    are an error, as in Mitsuba;
+    are an error, as in Mitsuba; ``orthographic``: parallel rays along the view direction from a
+    window of camera-space ``[-1, 1] x [-1 / aspect, 1 / aspect]`` (aspect = width / height) mapped
+    by ``to_world``, whose x and y scales size it (:class:`~invrender.scene.camera.OrthographicCamera`;
+    ``near_clip``/``far_clip`` accepted, checked, ignored; a sheared or mirrored to_world is an error);
     ``to_world`` (lookat or any rotation and translation, optionally a uniform scale; the camera
     looks along local +z with local +y up and the image's x axis along local -x, as in Mitsuba; a
     mirrored (det < 0), non-uniformly scaled or sheared to_world is an error),
@@ -36,14 +39,14 @@ import warnings
 import numpy as np
 
 from invrender.errors import SceneError
-from invrender.scene.camera import Camera
+from invrender.scene.camera import Camera, OrthographicCamera
 from invrender.scene.formats.mitsuba.context import Context
 from invrender.scene.formats.mitsuba.parser import Obj
 
 #: Mitsuba's default film size
 DEFAULT_FILM = (768, 576)
 
-SENSOR_TYPES = ("perspective", "thinlens")
+SENSOR_TYPES = ("perspective", "thinlens", "orthographic")
 FOV_AXES = ("x", "y", "smaller", "larger")
 RFILTER_TYPES = ("box", "tent", "gaussian", "mitchell", "catmullrom", "lanczos")
 FILM_TYPES = ("hdrfilm",)
@@ -58,15 +61,18 @@ def sensor(ctx: Context, obj: Obj, resolution: tuple[int, int] | None = None) ->
         raise ctx.error(obj.node, f"unsupported sensor type {obj.type!r} (supported: {', '.join(SENSOR_TYPES)})", obj)
     film_obj = ctx.one_nested(obj, "film")
     film = DEFAULT_FILM if film_obj is None else film_size(ctx, film_obj)
-    fov, axis = field_of_view(ctx, obj, resolution or film)
+    if obj.type != "orthographic":
+        fov, axis = field_of_view(ctx, obj, resolution or film)
     near = ctx.get(obj, "near_clip", "float", 1e-2)
     far = ctx.get(obj, "far_clip", "float", 1e4)
     if not 0 < near < far:
         raise ctx.error(obj.node, f"need 0 < near_clip < far_clip, got near_clip {near:g}, far_clip {far:g}", obj)
     to_world = ctx.take(obj, "to_world", ("transform",), "a <transform>")
     matrix = np.eye(4) if to_world is None else to_world.value
-    supported = ["fov", "fov_axis", "focal_length", "near_clip", "far_clip", "to_world", "focus_distance"]
-    aperture, focus = 0.0, ctx.get(obj, "focus_distance", "float", far)
+    supported = ["near_clip", "far_clip", "to_world"]
+    if obj.type != "orthographic":
+        supported += ["fov", "fov_axis", "focal_length", "focus_distance"]
+    aperture, focus = 0.0, ctx.get(obj, "focus_distance", "float", far) if obj.type != "orthographic" else 1.0
     offset = (0.0, 0.0)
     if obj.type == "perspective":
         supported += ["principal_point_offset_x", "principal_point_offset_y"]
@@ -83,6 +89,8 @@ def sensor(ctx: Context, obj: Obj, resolution: tuple[int, int] | None = None) ->
     ctx.finish(obj, tuple(supported), ("film", "sampler"))
 
     node = obj.node if to_world is None else to_world.node
+    if obj.type == "orthographic":
+        return orthographic(ctx, obj, matrix, node), film, sampler_defaults(ctx, obj)
     linear = matrix[:3, :3]
     det = np.linalg.det(linear)
     if det <= 0:
@@ -99,7 +107,30 @@ def sensor(ctx: Context, obj: Obj, resolution: tuple[int, int] | None = None) ->
             camera = Camera(tuple(origin), tuple(origin + forward), tuple(up), fov, axis, principal_point_offset=offset)
     except SceneError as e:
         raise ctx.error(obj.node, str(e), obj) from None
+    return camera, film, sampler_defaults(ctx, obj)
 
+
+def orthographic(ctx: Context, obj: Obj, matrix: np.ndarray, node) -> OrthographicCamera:
+    """The camera of an ``orthographic`` sensor: its to_world's columns give the view frame and
+    the window's extent (x and y scales); they must be orthogonal (no shear), not mirrored."""
+    linear = matrix[:3, :3]
+    det = np.linalg.det(linear)
+    if det <= 0:
+        raise ctx.error(node, f"the sensor's to_world is mirrored or singular (determinant {det:.4g}); it must be a rotation (lookat), a scale and a translation", obj)
+    gram = linear.T @ linear
+    if not np.allclose(gram, np.diag(np.diag(gram)), rtol=0, atol=1e-5 * float(np.max(np.diag(gram)))):
+        raise ctx.error(node, "an orthographic sensor's to_world must be a scale, a rotation and a translation: it shears", obj)
+    lengths = np.sqrt(np.diag(gram))
+    origin = matrix[:3, 3]
+    forward, up = linear[:, 2] / lengths[2], linear[:, 1] / lengths[1]
+    try:
+        return OrthographicCamera(tuple(origin), tuple(origin + forward), tuple(up), extent=(float(lengths[0]), float(lengths[1])))
+    except SceneError as e:
+        raise ctx.error(obj.node, str(e), obj) from None
+
+
+def sampler_defaults(ctx: Context, obj: Obj) -> dict:
+    """The render settings a sensor's ``<sampler>`` states (its ``sample_count``)."""
     defaults = {}
     sampler = ctx.one_nested(obj, "sampler")
     if sampler is not None:
@@ -113,7 +144,7 @@ def sensor(ctx: Context, obj: Obj, resolution: tuple[int, int] | None = None) ->
         ctx.get(sampler, "seed", "integer")
         ctx.get(sampler, "jitter", "boolean")
         ctx.finish(sampler, ("sample_count", "seed", "jitter"))
-    return camera, film, defaults
+    return defaults
 
 
 #: Mitsuba's focal length when a perspective sensor gives neither ``fov`` nor ``focal_length`` (mm)
