@@ -307,9 +307,9 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("folders", nargs="+", type=Path)
     p.add_argument("--resolution", type=int, default=RESOLUTION)
-    p.add_argument("--spp", type=int, default=128, help="samples per pixel of each renderer (split over the passes)")
+    p.add_argument("--spp", type=int, default=64, help="samples per pixel of each renderer (split over the passes)")
     p.add_argument("--passes", type=int, default=4, help="independent passes whose spread gives the noise")
-    p.add_argument("--noise", type=float, default=0.5, help="combined noise (%%) above which a file is rendered again at 4x spp")
+    p.add_argument("--noise", type=float, default=0.7, help="combined noise (%%) above which a file is rendered again at 4x spp")
     p.add_argument("--max-spp", type=int, default=2048)
     p.add_argument("--tolerance", type=float, default=2.0, help="pass: every channel within this many percent of Mitsuba's")
     p.add_argument("--timeout", type=float, default=300.0, help="seconds per file")
@@ -329,6 +329,7 @@ def main(argv=None) -> int:
         print(f"census: no .xml files under {', '.join(map(str, args.folders))}", file=sys.stderr)
         return 2
     names = {f: _short(f, args.folders) for f in files}
+    res = Results("census", f"Census of {len(files)} Mitsuba scene files")  # the commit and its state as the census starts
     results: dict[Path, dict] = {}
     worker = Worker(args)
     start = time.perf_counter()
@@ -336,11 +337,11 @@ def main(argv=None) -> int:
         bar = tqdm(files, unit="file", dynamic_ncols=True)
         for f in bar:
             bar.set_postfix_str(names[f][-40:])
-            results[f] = worker.run(f)
+            results[f] = r = worker.run(f)
+            bar.write(f"{names[f]}: {_one_line(r, args.tolerance)}")
     finally:
         worker.close()
 
-    res = Results("census", f"Census of {len(files)} Mitsuba scene files")
     refused = {f: r for f, r in results.items() if "mitsuba_error" in r}
     population = [f for f in files if f not in refused]
     loaded = [f for f in population if results[f].get("loaded")]
@@ -394,7 +395,7 @@ def main(argv=None) -> int:
             if "invrender" not in r:
                 rows.append([names[f], "", "", "", "", "", "", "", "crash: " + r.get("crash", "?")[:100], ""])
                 continue
-            diff = [(a - b) / b * 100 if abs(b) > 1e-9 else (0.0 if abs(a) < 1e-9 else math.inf) for a, b in zip(r["invrender"], r["mitsuba"])]
+            diff = differences(r)
             ok = all(abs(d) <= args.tolerance for d in diff)
             passed += ok
             fov = r.get("fov_check")
@@ -410,6 +411,24 @@ def main(argv=None) -> int:
     print("\n" + summary)
     res.write(args.json)
     return 0
+
+
+def differences(r: dict) -> list[float]:
+    """invrender's channel means against Mitsuba's, in % (0 where both are black, inf where only Mitsuba's is)."""
+    return [(a - b) / b * 100 if abs(b) > 1e-9 else (0.0 if abs(a) < 1e-9 else math.inf) for a, b in zip(r["invrender"], r["mitsuba"])]
+
+
+def _one_line(r: dict, tolerance: float) -> str:
+    """A file's outcome as the progress log shows it."""
+    if "mitsuba_error" in r:
+        return f"Mitsuba refuses it ({mitsuba_reason(r['mitsuba_error'])})"
+    if "blocked" in r:
+        return "blocked: " + blocker_key(problems(r["blocked"])[0])
+    if "invrender" in r:
+        diff = differences(r)
+        verdict = "pass" if all(abs(d) <= tolerance for d in diff) else "OFF"
+        return f"{verdict}: diff % {_triple(diff, 2)}, noise % {_triple(r['noise_pct'], 2)}, {r['spp']} spp"
+    return "loads" if r.get("loaded") else ("timed out" if r.get("timeout") else f"crash: {r.get('crash', '?')[:120]}")
 
 
 def mitsuba_label() -> str:
