@@ -35,6 +35,7 @@ BENCHMARKS = [
     ("fit_cornell", "the acceptance fit (Adam, lm, Mitsuba `prb` + Adam)", "python bench/fit_cornell.py", "~5 min", "fitting.md#measured"),
     ("fit_recipes", "every shipped fit recipe with both solvers", "python bench/fit_recipes.py", "~40 min", "fitting.md#every-recipe-with-both-solvers"),
     ("sampling_ablation", "the sampling-strategy ablation", "python bench/sampling_ablation.py", "~10 min", "sampling.md#measured"),
+    ("census", "a census of public Mitsuba scene files: features, loads, channel means against Mitsuba 3", "python bench/census.py /tmp/md /tmp/tut", "~15-40 min", "../forward/README.md#mitsuba-xml-scenes"),
 ]
 
 

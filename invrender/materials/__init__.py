@@ -11,7 +11,6 @@ The table of types (docs/plugins.md) is generated from these declarations
 """
 
 from invrender.materials import diffuse, mirror, dielectric, glossy, plastic  # noqa: F401  (registration order)
-from invrender.materials import thindielectric  # noqa: F401  (registration)
 from invrender.materials.dielectric import Dielectric
 from invrender.materials.diffuse import Diffuse
 from invrender.materials.glossy import Glossy
