@@ -40,6 +40,7 @@ counts as timed out. ``--no-render`` stops after loading (the census without the
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import multiprocessing as mp
 import re
@@ -62,13 +63,14 @@ RESOLUTION = 64
 
 
 def scan(path: Path) -> set[str]:
-    """The features a file uses, its includes' included (missing or unreadable ones skipped)."""
+    """The features a file uses, its includes' included (missing or unreadable ones skipped);
+    ``$name`` in a plugin type replaced by the ``<default>`` value the file gives."""
     features: set[str] = set()
-    _scan(path, features, set())
+    _scan(path, features, set(), {})
     return features
 
 
-def _scan(path: Path, features: set, seen: set) -> None:
+def _scan(path: Path, features: set, seen: set, params: dict) -> None:
     path = path.resolve()
     if path in seen or not path.is_file():
         return
@@ -81,6 +83,8 @@ def _scan(path: Path, features: set, seen: set) -> None:
     version = root.get("version", "")
     if root.tag == "scene" and version.split(".")[0].isdigit() and int(version.split(".")[0]) < 1:
         features.add("Mitsuba 0.x file (upgraded)")
+    for node in root.iter("default"):
+        params.setdefault(node.get("name", ""), node.get("value", ""))
     for node in root.iter():
         if any("$" in v for v in node.attrib.values()):
             features.add("$name parameters")
@@ -89,13 +93,14 @@ def _scan(path: Path, features: set, seen: set) -> None:
             features.add("<include>")
             name = node.get("filename", "")
             if name and "$" not in name:
-                _scan(path.parent / name, features, seen)
+                _scan(path.parent / name, features, seen, params)
         elif tag == "spectrum" and "type" not in node.attrib:
             value = node.get("value", "")
             kind = "file" if "filename" in node.attrib else "wavelength:value list" if ":" in value else "constant"
             features.add(f"<spectrum> {kind}")
         elif "type" in node.attrib and tag != "scene":
-            features.add(f'<{tag} type="{node.get("type")}">')
+            kind = re.sub(r"\$(\w+)", lambda m: params.get(m.group(1), m.group(0)), node.get("type"))
+            features.add(f'<{tag} type="{kind}">')
         elif tag in ("path", "default", "ref", "alias", "medium", "phase", "volume", "shapegroup"):
             features.add(f"<{tag}>")
 
@@ -134,7 +139,7 @@ def problems(message: str) -> list[str]:
     listed = re.split(r"; \(\d+\) |: \(1\) ", message)
     if len(listed) > 1 and re.search(r"\d+ problems stop this scene from loading", listed[0]):
         items = listed[1:]
-        items[-1] = re.sub(r"; and \d+ more.*$|, and \d+ more.*$", "", items[-1])
+        items[-1] = re.sub(r"[;,]? (\.\.\. )?and \d+ more.*$", "", items[-1])
         return items
     return [message]
 
@@ -143,7 +148,7 @@ def blocker_key(problem: str) -> str:
     """A problem without its file, line and values: what is counted across files."""
     text = re.sub(r"^\S+?:\d+: ", "", problem.strip())
     text = re.sub(r"^\S+\.xml: ", "", text)
-    text = re.sub(r" \(supported: [^)]*\)", "", text)
+    text = re.sub(r" \((supported|ids in this file|known): [^)]*\)?", "", text)
     text = re.sub(r", got .*$", "", text)
     text = re.sub(r"\s+", " ", text)
     return text[:120]
@@ -315,6 +320,8 @@ def main(argv=None) -> int:
     p.add_argument("--timeout", type=float, default=300.0, help="seconds per file")
     p.add_argument("--no-render", action="store_true", help="load only: no comparison with Mitsuba's renders")
     p.add_argument("--only", default=None, help="only the files whose path contains this string")
+    p.add_argument("--raw", type=Path, default=None, help="also write every file's measurement here (JSON), for --from-raw")
+    p.add_argument("--from-raw", type=Path, default=None, help="report the measurements of an earlier --raw file instead of measuring")
     add_json_option(p)
     args = p.parse_args(argv)
 
@@ -331,16 +338,23 @@ def main(argv=None) -> int:
     names = {f: _short(f, args.folders) for f in files}
     res = Results("census", f"Census of {len(files)} Mitsuba scene files")  # the commit and its state as the census starts
     results: dict[Path, dict] = {}
-    worker = Worker(args)
     start = time.perf_counter()
-    try:
-        bar = tqdm(files, unit="file", dynamic_ncols=True)
-        for f in bar:
-            bar.set_postfix_str(names[f][-40:])
-            results[f] = r = worker.run(f)
-            bar.write(f"{names[f]}: {_one_line(r, args.tolerance)}")
-    finally:
-        worker.close()
+    if args.from_raw is not None:
+        raw = json.loads(args.from_raw.read_text())
+        results = {f: raw[str(f)] for f in files if str(f) in raw}
+        files = [f for f in files if f in results]
+    else:
+        worker = Worker(args)
+        try:
+            bar = tqdm(files, unit="file", dynamic_ncols=True)
+            for f in bar:
+                bar.set_postfix_str(names[f][-40:])
+                results[f] = r = worker.run(f)
+                bar.write(f"{names[f]}: {_one_line(r, args.tolerance)}")
+        finally:
+            worker.close()
+        if args.raw is not None:
+            args.raw.write_text(json.dumps({str(f): r for f, r in results.items()}, indent=1))
 
     refused = {f: r for f, r in results.items() if "mitsuba_error" in r}
     population = [f for f in files if f not in refused]
