@@ -342,6 +342,7 @@ def main(argv=None) -> int:
     if args.from_raw is not None:
         raw = json.loads(args.from_raw.read_text())
         results = {f: raw[str(f)] for f in files if str(f) in raw}
+        res.note(f"The per-file measurements of an earlier run (--raw), re-reported: {args.from_raw}")
         files = [f for f in files if f in results]
     else:
         worker = Worker(args)
@@ -373,7 +374,7 @@ def main(argv=None) -> int:
                      note="Support from invrender's reader tables (invrender/scene/formats/mitsuba/subset.py) and registries; a file counts a feature its includes use.")
     for feat, n in sorted(use.items(), key=lambda t: (-t[1], t[0])):
         ok = sum(1 for f in population if feat in features[f] and results[f].get("loaded"))
-        rows.append([feat, n, "yes" if feature_supported(feat, subset) else "no", ok])
+        rows.append([_code(feat), n, "yes" if feature_supported(feat, subset) else "no", ok])
     _print_table(res.tables[-1])
 
     blocked = [f for f in population if not results[f].get("loaded")]
@@ -390,12 +391,12 @@ def main(argv=None) -> int:
             every[key] += 1
     rows = res.table(f"What blocks the other {len(blocked)}: the first blocker of each file, and files naming it at all", ["blocker", "first blocker of", "named by"])
     for key, n in sorted(every.items(), key=lambda t: (-first[t[0]], -t[1], t[0])):
-        rows.append([key, first[key], n])
+        rows.append([_code(key), first[key], n])
     _print_table(res.tables[-1])
     rows = res.table("Blocked files", ["file", "first blocker"])
     for f in blocked:
         r = results[f]
-        rows.append([names[f], blocker_key(problems(r["blocked"])[0]) if "blocked" in r else ("timed out" if r.get("timeout") else r.get("crash", "?")[:120])])
+        rows.append([names[f], _code(blocker_key(problems(r["blocked"])[0])) if "blocked" in r else ("timed out" if r.get("timeout") else r.get("crash", "?")[:120])])
     _print_table(res.tables[-1])
 
     passed = 0
@@ -458,6 +459,11 @@ def _short(f: Path, folders) -> str:
         except ValueError:
             continue
     return str(f)
+
+
+def _code(text: str) -> str:
+    """Text with XML in it as Markdown code (so that a page shows the <element> rather than swallowing it)."""
+    return f"`{text}`" if "<" in text and "`" not in text else text
 
 
 def _triple(values, digits: int) -> str:
