@@ -36,6 +36,7 @@ BENCHMARKS = [
     ("fit_recipes", "every shipped fit recipe with both solvers", "python bench/fit_recipes.py", "~40 min", "fitting.md#every-recipe-with-both-solvers"),
     ("sampling_ablation", "the sampling-strategy ablation", "python bench/sampling_ablation.py", "~10 min", "sampling.md#measured"),
     ("pixel_samples", "error against samples per pixel, per pixel sampler", "python bench/pixel_samples.py", "~15 min", "sampling.md#pixel-samples"),
+    ("census", "a census of public Mitsuba scene files: features, loads, channel means against Mitsuba 3", "python bench/census.py /tmp/md /tmp/tut", "~15-40 min", "../forward/README.md#mitsuba-xml-scenes"),
 ]
 
 

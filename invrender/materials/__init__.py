@@ -17,5 +17,6 @@ from invrender.materials.glossy import Glossy
 from invrender.materials.mirror import Mirror
 from invrender.materials.plastic import Plastic, RoughPlastic, RoughPlasticGGX
 from invrender.materials.roughdielectric import RoughDielectric, RoughDielectricGGX
+from invrender.materials.thindielectric import ThinDielectric
 
-__all__ = ["Diffuse", "Mirror", "Dielectric", "Glossy", "Plastic", "RoughPlastic", "RoughPlasticGGX", "RoughDielectric", "RoughDielectricGGX"]
+__all__ = ["Diffuse", "Mirror", "Dielectric", "Glossy", "Plastic", "RoughPlastic", "RoughPlasticGGX", "RoughDielectric", "RoughDielectricGGX", "ThinDielectric"]

@@ -16,6 +16,9 @@ units, the top-left corner at (0, 0) and pixel centres at i + 0.5 (COLMAP's conv
 lands at ``(cx + fx r / z, cy + fy d / z)``: :meth:`Camera.intrinsics` and
 :meth:`Camera.from_intrinsics` convert.
 
+The orthographic camera (Mitsuba's ``orthographic``, :class:`OrthographicCamera`): parallel rays
+along the view direction from a rectangular window around ``origin``.
+
 The thin lens (Mitsuba's ``thinlens``): with ``aperture_radius`` r > 0, each ray starts at a point
 uniformly distributed on the lens, a disk of radius r around ``origin`` in the image plane's
 orientation, and passes through the point the pinhole ray meets on the plane of focus, at
@@ -169,6 +172,40 @@ class Camera:
         lens = o + disk[:, 0:1] * right + disk[:, 1:2] * up
         focus = o + self.focus_distance * d
         return lens, normalize(focus - lens)
+
+
+@dataclass(frozen=True)
+class OrthographicCamera(Camera):
+    """A parallel projection (Mitsuba's ``orthographic``): every ray leaves a point of the image
+    window, a rectangle in the plane through ``origin`` facing ``target``, along the view direction.
+
+    Attributes:
+        extent: (ex, ey), world units: the window spans ``+-ex`` along the image's x (right) and
+            ``+-ey * height / width`` along its y (up), as Mitsuba's camera space ``[-1, 1] x
+            [-1 / aspect, 1 / aspect]`` scaled by its to_world's x and y scales. Both > 0.
+    ``fov``, ``fov_axis``, the lens and the principal point offset do not apply (the lens and the
+    offset must be left at their defaults).
+    """
+
+    extent: tuple[float, float] = (1.0, 1.0)
+
+    def __post_init__(self):
+        super().__post_init__()
+        extent = tuple(self.extent)
+        if len(extent) != 2 or not all(_is_finite(x) and x > 0 for x in extent):
+            raise SceneError(f"orthographic camera extent must be 2 positive numbers (world units), got {self.extent!r}")
+        object.__setattr__(self, "extent", tuple(float(x) for x in extent))
+        if self.aperture_radius != 0.0 or self.principal_point_offset != (0.0, 0.0) or self.pixel_aspect != 1.0:
+            raise SceneError("an orthographic camera has no lens, principal point offset or pixel aspect")
+
+    def generate_rays(self, film_xy: torch.Tensor, width: int, height: int, u_lens: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Parallel rays from the image window (see :meth:`Camera.generate_rays` for the arguments)."""
+        right, up, forward = (v.to(film_xy.device, torch.float32) for v in self.frame())
+        ex, ey = self.extent[0], self.extent[1] * height / width
+        sx = (2.0 * film_xy[:, 0] / width - 1.0) * ex
+        sy = (1.0 - 2.0 * film_xy[:, 1] / height) * ey
+        o = torch.tensor(self.origin, dtype=torch.float32, device=film_xy.device) + sx[:, None] * right + sy[:, None] * up
+        return o, forward.expand_as(o).contiguous()
 
 
 def concentric_disk(u: torch.Tensor) -> torch.Tensor:

@@ -107,7 +107,7 @@ def test_every_kind_and_type_is_registered_once():
 @pytest.mark.parametrize(
     "floor, camera, message",
     [
-        ('type = "principled"', "", r"\[materials.floor\]: unknown material type 'principled' \(known: diffuse, mirror, dielectric, glossy, glossy_beckmann, plastic, roughplastic, roughplastic_ggx, roughdielectric, roughdielectric_ggx\)"),
+        ('type = "principled"', "", r"\[materials.floor\]: unknown material type 'principled' \(known: diffuse, mirror, dielectric, glossy, glossy_beckmann, plastic, roughplastic, roughplastic_ggx, roughdielectric, roughdielectric_ggx, thindielectric\)"),
         ('type = "diffuse"\nroughness = 0.2', "", r"\[materials.floor\]: unknown key 'roughness'"),
         ('type = "glossy"\nroughness = 0', "", r"floor.roughness: roughness alpha must lie in \(0, 1\], got values in \[0, 0\]"),
         ('type = "glossy"\nroughness = 1.5', "", r"floor.roughness: roughness alpha must lie in \(0, 1\], got values in \[1.5, 1.5\]"),

@@ -381,8 +381,9 @@ SENSOR_BAD = {
     "negative aperture": ('<float name="fov" value="40"/>\n<float name="aperture_radius" value="-0.1"/>', "thinlens", "aperture_radius", "'aperture_radius' must be >= 0, got -0.1"),
     "zero focus distance": ('<float name="fov" value="40"/><float name="aperture_radius" value="0.1"/>\n<float name="focus_distance" value="0"/>', "thinlens", "focus_distance", "'focus_distance' must be positive, got 0"),
     "diagonal fov_axis": ('<float name="fov" value="40"/>\n<string name="fov_axis" value="diagonal"/>', "perspective", "diagonal", "fov_axis 'diagonal' is not supported (supported: x, y, smaller, larger)"),
-    "sensor type": ('<float name="fov" value="40"/>', "orthographic", "orthographic", "unsupported sensor type 'orthographic' (supported: perspective, thinlens)"),
-    "no fov": ('<float name="focal_length" value="50"/>', "perspective", "focal_length", "'focal_length' is not supported: give 'fov'"),
+    "sensor type": ('<float name="fov" value="40"/>', "radiancemeter", "radiancemeter", "unsupported sensor type 'radiancemeter' (supported: perspective, thinlens, orthographic)"),
+    "bad focal length": ('<string name="focal_length" value="fifty"/>', "perspective", "focal_length", "'focal_length' 'fifty' must be a positive length in millimetres"),
+    "fov and focal length": ('<float name="fov" value="40"/>\n<string name="focal_length" value="35mm"/>', "perspective", "focal_length", "give either 'fov' or 'focal_length', not both"),
     "mirrored": ('<float name="fov" value="40"/><transform name="to_world">\n<scale x="-1"/></transform>', "perspective", "<transform", "mirrored"),
     "film type": ('<float name="fov" value="40"/>\n<film type="specfilm"/>', "perspective", "specfilm", "unsupported film type 'specfilm' (supported: hdrfilm)"),
 }

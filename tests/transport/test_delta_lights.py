@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -234,10 +235,21 @@ def test_mitsubas_direct_reads_only_what_keeps_the_mean(tmp_path):
     lamp = '<emitter type="point"/>'
     ok = ir.load_scene(xml_scene(tmp_path, lamp, '<integrator type="direct"><integer name="shading_samples" value="1"/><boolean name="hide_emitters" value="true"/></integrator>'))
     assert ok.defaults == {"integrator": "path", "max_depth": 2, "hide_emitters": True}
+    # other sample counts load (the same image, another variance); where Mitsuba's own weighting
+    # of delta lights differs (emitter_samples N counts a point light N times), a warning says so
+    for prop, warning in [
+        ('<integer name="emitter_samples" value="4"/>', "emitter_samples 4 counts each point, spot or directional light 4 times; invrender counts it once"),
+        ('<integer name="shading_samples" value="2"/>', "emitter_samples 2 counts each point"),
+        ('<integer name="emitter_samples" value="0"/>', "emitter_samples 0 counts each point, spot or directional light 0 times"),
+    ]:
+        with pytest.warns(UserWarning, match=warning):
+            scene = ir.load_scene(xml_scene(tmp_path, lamp, f'<integrator type="direct">{prop}</integrator>'))
+        assert scene.defaults == {"integrator": "path", "max_depth": 2}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no mirror or glass in the scene: bsdf_samples 0 changes nothing
+        assert ir.load_scene(xml_scene(tmp_path, lamp, '<integrator type="direct"><integer name="bsdf_samples" value="0"/></integrator>')).defaults["max_depth"] == 2
     for prop, message in [
-        ('<integer name="emitter_samples" value="4"/>', "'emitter_samples' 4: Mitsuba's direct counts a point, spot or directional light once per emitter sample"),
-        ('<integer name="shading_samples" value="2"/>', "'shading_samples' 2"),
-        ('<integer name="bsdf_samples" value="0"/>', "'bsdf_samples' 0: with 0 BSDF samples"),
+        ('<integer name="bsdf_samples" value="-1"/>', "'bsdf_samples' -1: a sample count is >= 0"),
         ('<integer name="max_depth" value="3"/>', "unsupported property 'max_depth' \\(supported: hide_emitters, shading_samples, emitter_samples, bsdf_samples\\)"),
     ]:
         with pytest.raises(ir.SceneError, match=message) as info:

@@ -20,8 +20,12 @@ The subset, one module per part (each module's docstring is its reference):
 - :mod:`.bsdfs`: BSDFs onto invrender's materials (and ``twosided``).
 - :mod:`.textures`: colours and bitmap textures.
 - :mod:`.emitters`: the emitters of the registry (``area``, nested or referenced; ``point``, ...).
-- :mod:`.sensor`: ``perspective`` and ``thinlens`` sensors, the film, filter and sampler.
-- :mod:`.integrator`: ``path``, ``direct``, ``moment`` (its nested integrator).
+- :mod:`.sensor`: ``perspective`` (``fov`` or ``focal_length``), ``thinlens`` and
+  ``orthographic`` sensors, the film, filter and sampler.
+- :mod:`.integrator`: ``path``, ``direct``, ``moment`` (its nested integrator), ``volpath`` /
+  ``volpathmis`` (as ``path``: no media are read).
+- :mod:`.subset`: the above as tables (the element and plugin types read), for listings such as
+  ``bench/census.py``.
 - :mod:`.loader`: the render settings a file suggests (``scene.defaults``), how materials and
   emitters are named, and the assembled scene.
 """

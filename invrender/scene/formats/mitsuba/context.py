@@ -20,6 +20,8 @@ class Context(Document):
         materials: ``id(bsdf)`` -> (the BSDF object, its :class:`Material`, the id of the first
             shape that used it or None): each BSDF converted once, references share it.
         textures: ``id(texture)`` -> its linear RGB (h, w, 3) float64, each read once.
+        sample_counts: the sample counts an integrator alias read (Mitsuba's ``direct``:
+            ``emitter_samples``, ...) -> (value, its node), for the loader's warnings.
     """
 
     def __init__(self, path: Path, parameters: dict | None, subdivisions: int):
@@ -28,3 +30,4 @@ class Context(Document):
         self.subdivisions = subdivisions
         self.materials: dict[int, tuple[Obj, Material, str | None]] = {}
         self.textures: dict[int, np.ndarray] = {}
+        self.sample_counts: dict[str, tuple] = {}

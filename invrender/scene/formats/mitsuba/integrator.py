@@ -11,6 +11,26 @@ Integrator (at most one ``<integrator>``)
     message for an unsupported type lists the registry's aliases. Mitsuba's ``moment`` integrator
     (which also writes the second moment of each pixel's samples) is read as the one integrator
     it holds, with a warning that the moment images are not produced.
+
+    Mitsuba's defaults: an ``<integrator>`` whose integrator has a ``max_depth`` setting but which
+    states none gets Mitsuba's default, ``max_depth`` -1 (unbounded: paths end by Russian
+    roulette, from ``rr_depth``, 5 by default in both), not invrender's 8: the file is rendered as
+    Mitsuba renders it (``scene.defaults`` then holds ``"max_depth": -1``). A file without an
+    ``<integrator>`` states nothing and gets invrender's defaults.
+
+    Mitsuba's ``direct`` with other sample counts (``emitter_samples``, ``bsdf_samples``, both
+    set by ``shading_samples``; each >= 0) estimates the same image with another variance, and is
+    read as the same ``path`` at max_depth 2, except where Mitsuba's own weighting differs, which
+    invrender does not copy and says in a warning (:func:`direct_deviations`): Mitsuba adds each
+    point, spot or directional light once per emitter sample, so ``emitter_samples`` N counts it
+    N times (none with 0), and with ``bsdf_samples`` 0 it misses the emitters seen through
+    mirrors and glass; invrender counts each light once and sees those emitters.
+
+    Volumetric path tracers: Mitsuba's ``volpath`` and ``volpathmis`` in a scene without media
+    (invrender reads no ``<medium>``: one is an error of its own) compute what ``path`` computes,
+    and are read as ``path`` (``max_depth``, ``rr_depth``, ``hide_emitters``), with a warning
+    saying so (invrender's ``path`` combines emitter and BSDF samples by MIS as ``volpathmis`` does;
+    ``volpath``'s own weighting differs in the noise only).
 """
 
 from __future__ import annotations
@@ -26,6 +46,12 @@ from invrender.validate import type_names
 
 #: Mitsuba's moment integrator: its nested integrator is what is rendered
 MOMENT = "moment"
+
+#: Mitsuba's volumetric path tracers, read as ``path`` in a scene without media
+VOLUMETRIC = ("volpath", "volpathmis")
+
+#: Mitsuba's max_depth when an integrator states none (unbounded, Russian roulette ends paths)
+MITSUBA_MAX_DEPTH = -1
 
 #: a settings field's type -> the property element read for it
 _TAGS = {"int": "integer", "float": "float", "bool": "boolean", "str": "string"}
@@ -52,9 +78,17 @@ def integrator(ctx: Context, obj: Obj) -> dict:
                       "the moment images (the second moment of each pixel's samples) are not produced", stacklevel=2)
         return integrator(ctx, inner[0])
     known = plugins()
+    if obj.type in VOLUMETRIC and "path" in known:
+        warnings.warn(f"{obj.node.where or ctx.where}:{obj.node.line}: {obj.describe()}: read as <integrator type=\"path\"> (the scene has no media, "
+                      "where the two compute the same image)", stacklevel=2)
+        return _settings(ctx, obj, known["path"])
     if obj.type not in known:
         raise ctx.error(obj.node, f"unsupported integrator type {obj.type!r} (supported: {', '.join(known)})", obj)
-    cls = known[obj.type]
+    return _settings(ctx, obj, known[obj.type])
+
+
+def _settings(ctx: Context, obj: Obj, cls) -> dict:
+    """The settings an ``<integrator>`` read as registered integrator ``cls`` states (see :func:`integrator`)."""
     alias = vars(cls).get("mitsuba_aliases", {}).get(obj.type)
     fields = {f.name: f for f in dataclasses.fields(cls.Settings) if f.init}
     if alias is not None:
@@ -70,14 +104,33 @@ def integrator(ctx: Context, obj: Obj) -> dict:
         prop = ctx.take(obj, name, ("integer",), "an <integer>")
         if prop is not None and not (int(prop.value) >= low and (high is None or int(prop.value) <= high)):
             raise ctx.error(prop.node, f"'{name}' {prop.value}: {why}", obj)
+        if prop is not None:
+            ctx.sample_counts[name] = (int(prop.value), prop.node)
     ctx.finish(obj, tuple(fields) + tuple(counts))
     if alias is not None:
         settings = {**alias.settings, **settings}
+    elif "max_depth" in fields and "max_depth" not in settings:
+        settings["max_depth"] = MITSUBA_MAX_DEPTH
     try:
         cls(**settings)  # the settings check their own values
     except ParameterError as e:
         message = str(e)
         key = next((k for k in settings if message.startswith(f"{k} ")), None)
-        node = obj.props[key].node if key else obj.node
+        node = obj.props[key].node if key in obj.props else obj.node
         raise ctx.error(node, f"'{key}'{message[len(key):]}" if key else message, obj) from None
     return {"integrator": cls.name, **settings}
+
+
+def direct_deviations(ctx: Context, delta_lights: bool, delta_lobes: bool) -> list[str]:
+    """Where Mitsuba's ``direct`` with the sample counts the file gave renders another image than
+    invrender's reading of it, in a scene with point/spot/directional lights (``delta_lights``)
+    and mirrors or glass (``delta_lobes``): one line each, for a warning."""
+    counts = {k: v for k, (v, _) in ctx.sample_counts.items()}
+    shading = counts.get("shading_samples", 1)
+    emitter, bsdf = counts.get("emitter_samples", shading), counts.get("bsdf_samples", shading)
+    out = []
+    if delta_lights and emitter != 1:
+        out.append(f"Mitsuba's direct with emitter_samples {emitter} counts each point, spot or directional light {emitter} times; invrender counts it once")
+    if delta_lobes and bsdf == 0:
+        out.append("Mitsuba's direct with bsdf_samples 0 misses the emitters seen through mirrors and glass; invrender counts them")
+    return out

@@ -4,9 +4,11 @@ mapped by the plugin modules, named, and assembled.
 Render settings the file suggests go to ``scene.defaults`` (only those the file states):
 ``{"spp": sample_count, "integrator": "path", "max_depth": ..., "rr_depth": ...}``; ``ir.render``,
 ``fit``, studies and the CLI take them as their defaults where nothing is given
-(:mod:`invrender.diff.defaults`; the file's settings only with the file's integrator). Mitsuba's own
-defaults when the file is silent (4 spp, max_depth -1) are not assumed: invrender's (64 spp,
-max_depth 8) apply.
+(:mod:`invrender.diff.defaults`; the file's settings only with the file's integrator). An
+``<integrator>`` that states no ``max_depth`` gets Mitsuba's default, -1 (unbounded, Russian
+roulette from ``rr_depth``; :mod:`.integrator`), so the file renders as in Mitsuba. A file that
+states nothing (no ``<integrator>``, no ``sample_count``) gets invrender's defaults (path, 64 spp,
+max_depth 8), not Mitsuba's (4 spp, max_depth -1).
 
 Names
     A material is named by its BSDF's ``id`` (for ``twosided``, the outer one's), else by its
@@ -19,14 +21,17 @@ Names
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
+
+from invrender import registry
 
 from invrender.errors import InvRenderError, SceneError
 from invrender.scene.formats.mitsuba.bsdfs import material
 from invrender.scene.formats.mitsuba.context import Context
 from invrender.scene.formats.mitsuba.emitters import emitter
 from invrender.scene.formats.mitsuba.emitters import plugins as emitter_plugins
-from invrender.scene.formats.mitsuba.integrator import integrator
+from invrender.scene.formats.mitsuba.integrator import direct_deviations, integrator
 from invrender.scene.formats.mitsuba.parser import Obj
 from invrender.scene.formats.mitsuba.sensor import DEFAULT_FILM, sensor
 from invrender.scene.formats.mitsuba.shapes import SPHERE_SUBDIVISIONS, shape
@@ -83,7 +88,7 @@ def build(ctx: Context, resolution) -> Scene:
             elif obj.tag == "texture":
                 bitmap(ctx, obj)
             elif obj.tag == "sensor":
-                camera, film, sensor_defaults = sensor(ctx, obj)
+                camera, film, sensor_defaults = sensor(ctx, obj, resolution)
                 defaults.update(sensor_defaults)
             elif obj.tag == "integrator":
                 defaults.update(integrator(ctx, obj))
@@ -138,7 +143,18 @@ def build(ctx: Context, resolution) -> Scene:
     except InvRenderError as e:
         raise SceneError(f"{ctx.where}: {one_line(e)}") from None
     built.defaults = defaults
+    if ctx.sample_counts:
+        delta_lights = any(not (c.surface or c.infinite) for c in (registry.EMITTERS[e.type] for e in emission.values()))
+        delta_lobes = any(_has_delta_lobe(registry.MATERIALS[m.type].lobes) for m in materials.values())
+        for line in direct_deviations(ctx, delta_lights, delta_lobes):
+            warnings.warn(f"{ctx.where}: {line}", stacklevel=3)
     return built
+
+
+def _has_delta_lobe(lobes) -> bool:
+    """Do a material's lobe flags (read from the flags themselves: the scene layer imports no BSDF) include a delta lobe?"""
+    flags = type(lobes)
+    return bool(lobes & (flags.DELTA_REFLECTION | flags.DELTA_TRANSMISSION))
 
 
 def _unique(base: str, used: set) -> str:

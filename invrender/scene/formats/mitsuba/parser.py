@@ -68,6 +68,8 @@ from invrender.scene.shapes import rotate, scale, translate
 OBJECT_TAGS = ("shape", "bsdf", "emitter", "sensor", "film", "rfilter", "sampler", "integrator", "texture")
 PROPERTY_TAGS = ("float", "integer", "boolean", "string", "point", "vector", "rgb", "spectrum", "transform", "ref")
 TRANSFORM_OPS = ("translate", "rotate", "scale", "matrix", "lookat")
+#: the file-structure elements read (parameters, search paths, included files)
+STRUCTURE_TAGS = ("default", "path", "include")
 #: Mitsuba elements outside the subset (a clearer message than "unknown element")
 UNSUPPORTED_TAGS = ("alias", "medium", "phase", "volume", "shapegroup")
 #: the newest major version of the format read (Mitsuba 3's; 0.x files are upgraded)
@@ -389,7 +391,7 @@ class Document:
             raise self.error(node, f"<{tag}> is not supported by invrender's Mitsuba subset")
         if tag == "scene":
             raise self.error(node, "<scene> must be the root element")
-        raise self.error(node, f"unknown element <{tag}> (supported: {', '.join((*OBJECT_TAGS, *PROPERTY_TAGS, 'default'))})")
+        raise self.error(node, f"unknown element <{tag}> (supported: {', '.join((*OBJECT_TAGS, *PROPERTY_TAGS, *STRUCTURE_TAGS))})")
 
     def add_path(self, parent: Obj, node: Node) -> None:
         """``<path value="folder"/>`` (a child of ``<scene>``): a folder searched for files first

@@ -20,6 +20,7 @@ from invrender.scene.plugins import Constant
 AT_DEFAULT = {
     ("emitter", "*"): {"sampling_weight": 1.0},
     ("bsdf", "dielectric"): {"specular_reflectance": 1.0, "specular_transmittance": 1.0},
+    ("bsdf", "thindielectric"): {"specular_reflectance": 1.0, "specular_transmittance": 1.0},
 }
 
 

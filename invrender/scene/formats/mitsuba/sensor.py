@@ -1,8 +1,16 @@
 """The Mitsuba sensor, its film, reconstruction filter and sampler onto invrender's camera.
 
 Sensor (at most one ``<sensor>``)
-    ``perspective`` and ``thinlens``: ``fov`` (degrees; required, ``focal_length`` is not
-    supported), ``fov_axis`` (x, y, smaller, larger; default x; ``diagonal`` is an error),
+    ``perspective`` and ``thinlens``: ``fov`` (degrees) with ``fov_axis`` (x, y, smaller,
+    larger; default x; ``diagonal`` is an error), or ``focal_length`` (a ``<string>`` ``"<x>mm"``,
+    x > 0; Mitsuba's default ``50mm`` when neither is given): as Mitsuba, the
+    lens of a 36 x 24 mm film, whose diagonal field of view ``2 atan(sqrt(36^2 + 24^2) / 2f)``
+    spans the film's diagonal (so its horizontal field of view depends on the film's aspect:
+    that of the ``resolution`` argument when one is given); ``fov`` and ``focal_length`` together
+    are an error, as in Mitsuba; ``orthographic``: parallel rays along the view direction from a
+    window of camera-space ``[-1, 1] x [-1 / aspect, 1 / aspect]`` (aspect = width / height) mapped
+    by ``to_world``, whose x and y scales size it (:class:`~invrender.scene.camera.OrthographicCamera`;
+    ``near_clip``/``far_clip`` accepted, checked, ignored; a sheared or mirrored to_world is an error);
     ``to_world`` (lookat or any rotation and translation, optionally a uniform scale; the camera
     looks along local +z with local +y up and the image's x axis along local -x, as in Mitsuba; a
     mirrored (det < 0), non-uniformly scaled or sheared to_world is an error),
@@ -25,46 +33,46 @@ Deviations from Mitsuba
 
 from __future__ import annotations
 
+import math
 import warnings
 
 import numpy as np
 
 from invrender.errors import SceneError
-from invrender.scene.camera import Camera
+from invrender.scene.camera import Camera, OrthographicCamera
 from invrender.scene.formats.mitsuba.context import Context
 from invrender.scene.formats.mitsuba.parser import Obj
 
 #: Mitsuba's default film size
 DEFAULT_FILM = (768, 576)
 
-SENSOR_TYPES = ("perspective", "thinlens")
+SENSOR_TYPES = ("perspective", "thinlens", "orthographic")
 FOV_AXES = ("x", "y", "smaller", "larger")
 RFILTER_TYPES = ("box", "tent", "gaussian", "mitchell", "catmullrom", "lanczos")
+FILM_TYPES = ("hdrfilm",)
 SAMPLER_TYPES = ("independent", "stratified", "multijitter", "orthogonal", "ldsampler")
 
 
-def sensor(ctx: Context, obj: Obj) -> tuple[Camera, tuple[int, int], dict]:
-    """The camera of a ``<sensor>``, its film's (width, height) and the render settings its sampler states."""
+def sensor(ctx: Context, obj: Obj, resolution: tuple[int, int] | None = None) -> tuple[Camera, tuple[int, int], dict]:
+    """The camera of a ``<sensor>``, its film's (width, height) and the render settings its
+    sampler states; ``resolution`` (width, height), the size the scene is loaded at when it is not
+    the film's (a ``focal_length``'s field of view depends on the aspect)."""
     if obj.type not in SENSOR_TYPES:
         raise ctx.error(obj.node, f"unsupported sensor type {obj.type!r} (supported: {', '.join(SENSOR_TYPES)})", obj)
-    if "focal_length" in obj.props:
-        raise ctx.error(obj.props["focal_length"].node, "'focal_length' is not supported: give 'fov'", obj)
-    fov = ctx.get(obj, "fov", "float")
-    if fov is None:
-        raise ctx.error(obj.node, "missing <float name=\"fov\"> (the field of view in degrees)", obj)
-    if not 0 < fov < 180:
-        raise ctx.error(obj.props["fov"].node, f"'fov' must lie in (0, 180) degrees, got {fov:g}", obj)
-    axis = ctx.get(obj, "fov_axis", "string", "x").lower()
-    if axis not in FOV_AXES:
-        raise ctx.error(obj.props["fov_axis"].node, f"fov_axis {axis!r} is not supported (supported: {', '.join(FOV_AXES)})", obj)
+    film_obj = ctx.one_nested(obj, "film")
+    film = DEFAULT_FILM if film_obj is None else film_size(ctx, film_obj)
+    if obj.type != "orthographic":
+        fov, axis = field_of_view(ctx, obj, resolution or film)
     near = ctx.get(obj, "near_clip", "float", 1e-2)
     far = ctx.get(obj, "far_clip", "float", 1e4)
     if not 0 < near < far:
         raise ctx.error(obj.node, f"need 0 < near_clip < far_clip, got near_clip {near:g}, far_clip {far:g}", obj)
     to_world = ctx.take(obj, "to_world", ("transform",), "a <transform>")
     matrix = np.eye(4) if to_world is None else to_world.value
-    supported = ["fov", "fov_axis", "near_clip", "far_clip", "to_world", "focus_distance"]
-    aperture, focus = 0.0, ctx.get(obj, "focus_distance", "float", far)
+    supported = ["near_clip", "far_clip", "to_world"]
+    if obj.type != "orthographic":
+        supported += ["fov", "fov_axis", "focal_length", "focus_distance"]
+    aperture, focus = 0.0, ctx.get(obj, "focus_distance", "float", far) if obj.type != "orthographic" else 1.0
     offset = (0.0, 0.0)
     if obj.type == "perspective":
         supported += ["principal_point_offset_x", "principal_point_offset_y"]
@@ -81,6 +89,8 @@ def sensor(ctx: Context, obj: Obj) -> tuple[Camera, tuple[int, int], dict]:
     ctx.finish(obj, tuple(supported), ("film", "sampler"))
 
     node = obj.node if to_world is None else to_world.node
+    if obj.type == "orthographic":
+        return orthographic(ctx, obj, matrix, node), film, sampler_defaults(ctx, obj)
     linear = matrix[:3, :3]
     det = np.linalg.det(linear)
     if det <= 0:
@@ -97,11 +107,30 @@ def sensor(ctx: Context, obj: Obj) -> tuple[Camera, tuple[int, int], dict]:
             camera = Camera(tuple(origin), tuple(origin + forward), tuple(up), fov, axis, principal_point_offset=offset)
     except SceneError as e:
         raise ctx.error(obj.node, str(e), obj) from None
+    return camera, film, sampler_defaults(ctx, obj)
 
-    resolution = DEFAULT_FILM
-    film = ctx.one_nested(obj, "film")
-    if film is not None:
-        resolution = film_size(ctx, film)
+
+def orthographic(ctx: Context, obj: Obj, matrix: np.ndarray, node) -> OrthographicCamera:
+    """The camera of an ``orthographic`` sensor: its to_world's columns give the view frame and
+    the window's extent (x and y scales); they must be orthogonal (no shear), not mirrored."""
+    linear = matrix[:3, :3]
+    det = np.linalg.det(linear)
+    if det <= 0:
+        raise ctx.error(node, f"the sensor's to_world is mirrored or singular (determinant {det:.4g}); it must be a rotation (lookat), a scale and a translation", obj)
+    gram = linear.T @ linear
+    if not np.allclose(gram, np.diag(np.diag(gram)), rtol=0, atol=1e-5 * float(np.max(np.diag(gram)))):
+        raise ctx.error(node, "an orthographic sensor's to_world must be a scale, a rotation and a translation: it shears", obj)
+    lengths = np.sqrt(np.diag(gram))
+    origin = matrix[:3, 3]
+    forward, up = linear[:, 2] / lengths[2], linear[:, 1] / lengths[1]
+    try:
+        return OrthographicCamera(tuple(origin), tuple(origin + forward), tuple(up), extent=(float(lengths[0]), float(lengths[1])))
+    except SceneError as e:
+        raise ctx.error(obj.node, str(e), obj) from None
+
+
+def sampler_defaults(ctx: Context, obj: Obj) -> dict:
+    """The render settings a sensor's ``<sampler>`` states (its ``sample_count``)."""
     defaults = {}
     sampler = ctx.one_nested(obj, "sampler")
     if sampler is not None:
@@ -115,13 +144,50 @@ def sensor(ctx: Context, obj: Obj) -> tuple[Camera, tuple[int, int], dict]:
         ctx.get(sampler, "seed", "integer")
         ctx.get(sampler, "jitter", "boolean")
         ctx.finish(sampler, ("sample_count", "seed", "jitter"))
-    return camera, resolution, defaults
+    return defaults
+
+
+#: Mitsuba's focal length when a perspective sensor gives neither ``fov`` nor ``focal_length`` (mm)
+DEFAULT_FOCAL_LENGTH = 50.0
+#: the diagonal of the 36 x 24 mm film Mitsuba's ``focal_length`` refers to (mm)
+FILM_DIAGONAL_MM = math.hypot(36.0, 24.0)
+
+
+def field_of_view(ctx: Context, obj: Obj, size: tuple[int, int]) -> tuple[float, str]:
+    """(fov in degrees, fov_axis) of a perspective sensor: its ``fov`` and ``fov_axis``, or its
+    ``focal_length`` (default 50 mm) as the horizontal field of view of a ``size`` (width, height) film."""
+    if "fov" in obj.props and "focal_length" in obj.props:
+        raise ctx.error(obj.props["focal_length"].node, "give either 'fov' or 'focal_length', not both (as Mitsuba)", obj)
+    if "fov" in obj.props:
+        fov = ctx.get(obj, "fov", "float")
+        if not 0 < fov < 180:
+            raise ctx.error(obj.props["fov"].node, f"'fov' must lie in (0, 180) degrees, got {fov:g}", obj)
+        axis = ctx.get(obj, "fov_axis", "string", "x").lower()
+        if axis not in FOV_AXES:
+            raise ctx.error(obj.props["fov_axis"].node, f"fov_axis {axis!r} is not supported (supported: {', '.join(FOV_AXES)})", obj)
+        return fov, axis
+    if "fov_axis" in obj.props:  # Mitsuba ignores it beside a focal length: the lens fixes the diagonal
+        ctx.get(obj, "fov_axis", "string")
+    focal = DEFAULT_FOCAL_LENGTH
+    prop = ctx.take(obj, "focal_length", ("string",), 'a <string> such as "50mm"')
+    if prop is not None:
+        text = str(prop.value).strip()
+        try:
+            focal = float(text[:-2] if text.endswith("mm") else text)
+        except ValueError:
+            focal = math.nan
+        if not (math.isfinite(focal) and focal > 0):
+            raise ctx.error(prop.node, f"'focal_length' {text!r} must be a positive length in millimetres such as \"50mm\"", obj)
+    width, height = size
+    aspect = width / height
+    diagonal = FILM_DIAGONAL_MM / focal  # 2 tan(half the diagonal field of view)
+    return math.degrees(2.0 * math.atan(0.5 * diagonal / math.sqrt(1.0 + 1.0 / (aspect * aspect)))), "x"
 
 
 def film_size(ctx: Context, film: Obj) -> tuple[int, int]:
     """(width, height) of a ``<film>``; its ``<rfilter>`` checked (invrender's filter is a box)."""
-    if film.type != "hdrfilm":
-        raise ctx.error(film.node, f"unsupported film type {film.type!r} (supported: hdrfilm)", film)
+    if film.type not in FILM_TYPES:
+        raise ctx.error(film.node, f"unsupported film type {film.type!r} (supported: {', '.join(FILM_TYPES)})", film)
     size = []
     for key, default in zip(("width", "height"), DEFAULT_FILM):
         value = ctx.get(film, key, "integer", default)

@@ -40,6 +40,9 @@ from invrender.scene.formats.mitsuba.parser import Obj, Ref
 from invrender.scene.formats.values import CHECKERBOARD_RESOLUTION, checkerboard, one_line
 from invrender.scene.kinds import ParamKind
 
+#: the texture plugins read
+TEXTURE_TYPES = ("bitmap", "checkerboard")
+
 
 def colour(ctx: Context, obj: Obj, name: str, kind: ParamKind, default: float, texture: bool = True):
     """An RGB triple (3,) or a linear texture (h, w, 3) from a property of ``obj``, checked
@@ -89,7 +92,7 @@ def read_checkerboard(ctx: Context, tex: Obj) -> np.ndarray:
 def read_bitmap(ctx: Context, tex: Obj) -> np.ndarray:
     """Read a ``<texture type="bitmap">``'s file (see this module's docstring)."""
     if tex.type != "bitmap":
-        raise ctx.error(tex.node, f"unsupported texture type {tex.type!r} (supported: bitmap, checkerboard)", tex)
+        raise ctx.error(tex.node, f"unsupported texture type {tex.type!r} (supported: {', '.join(TEXTURE_TYPES)})", tex)
     filename = ctx.get(tex, "filename", "string")
     if filename is None:
         raise ctx.error(tex.node, "missing <string name=\"filename\">", tex)
