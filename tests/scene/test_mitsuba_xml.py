@@ -368,6 +368,8 @@ BAD = {
     "duplicate id": ('<bsdf type="diffuse" id="x"/>\n<bsdf type="diffuse" id="x"/><shape type="rectangle"/>', 'id="x"/><shape', "duplicate id 'x' (first used at line"),
     "two bsdfs": ('<shape type="rectangle"><bsdf type="diffuse"/>\n<bsdf type="diffuse"/></shape>', '<bsdf type="diffuse"/></shape>', "only one <bsdf> per <shape"),
     "twosided dielectric": ('<shape type="rectangle"><bsdf type="twosided">\n<bsdf type="dielectric"/></bsdf></shape>', "dielectric", "twosided cannot wrap a dielectric"),
+    "twosided roughdielectric": ('<shape type="rectangle"><bsdf type="twosided">\n<bsdf type="roughdielectric"/></bsdf></shape>', "roughdielectric", "twosided cannot wrap a roughdielectric"),
+    "twosided thindielectric": ('<shape type="rectangle"><bsdf type="twosided">\n<bsdf type="thindielectric"/></bsdf></shape>', "thindielectric", "twosided cannot wrap a thindielectric"),
     "bad number": ('<shape type="sphere">\n<float name="radius" value="big"/></shape>', "big", "could not parse a number from 'big'"),
     "zero radius": ('<shape type="sphere">\n<float name="radius" value="0"/></shape>', "radius", "'radius' must be positive"),
     "bad transform op": ('<shape type="rectangle"><transform name="to_world">\n<shear value="1"/></transform></shape>', "shear", "a <transform> holds only translate"),

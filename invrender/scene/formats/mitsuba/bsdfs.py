@@ -110,7 +110,7 @@ def convert_bsdf(ctx: Context, bsdf: Obj) -> Material:
 def _transmits(cls) -> bool:
     """Does material class ``cls`` have a transmission lobe? (Read from its own lobe flags.)"""
     lobes = cls.lobes
-    return bool(lobes & type(lobes).DELTA_TRANSMISSION)
+    return bool(lobes & type(lobes).TRANSMISSION)
 
 
 class BsdfReader(PluginReader):
