@@ -172,7 +172,9 @@ def backpropagate(scene: Scene, grad_image: torch.Tensor, integrator: Integrator
     estimator = resolve_estimator(_check_estimator(estimator), scene, integrator, settings)
     device = _device(scene, device)
     if estimator == "autodiff":
-        autodiff_render(scene, integrator, settings, device, [k for k, v in scene.params.items() if v.requires_grad]).backward(grad_image)
+        image = autodiff_render(scene, integrator, settings, device, [k for k, v in scene.params.items() if v.requires_grad])
+        if image.requires_grad:  # else no traced path depends on the parameters: their gradient is 0
+            image.backward(grad_image)
         return
     from invrender.diff.replay import replay_gradient
 

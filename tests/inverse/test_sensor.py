@@ -42,8 +42,16 @@ def errors(result, truth) -> dict:
 
 
 def check_round_trip(err):
-    bad = {k: f"{100 * v:+.2f}%" for k, v in err.items() if abs(v) > (0.025 if "reflectance" in k else 0.02)}
+    """Every albedo channel, the exposure and the white balance within 3%, and the products the
+    image determines well within 1%: a channel's gain and its albedos' scale are told apart only
+    through the interreflections (the scale is weakly determined), so both solvers can move a
+    channel's split by ~3% together (white.reflectance[B] -2.8% against white_balance[B] +2.6% in
+    one run: their product within 0.3%)."""
+    bad = {k: f"{100 * v:+.2f}%" for k, v in err.items() if abs(v) > 0.03}
     assert not bad, bad
+    for c in "RB":
+        product = (1 + err[f"white.reflectance[{c}]"]) * (1 + err[f"white_balance[{c}]"]) * (1 + err["exposure"]) - 1
+        assert abs(product) < 0.01, (c, product)
 
 
 @pytest.fixture(scope="module")
@@ -92,7 +100,7 @@ def test_garbage_under_a_mask_changes_nothing(solver, tmp_path):
     mask[2:7, 3:9] = 0.0
     mask[9:, :] = 0.5
     garbage = target.clone()
-    garbage[2:7, 3:9] = torch.rand(5, 6, 3, generator=torch.Generator().manual_seed(3)) * 50
+    garbage[2:7, 3:9] = torch.rand(5, 6, 3, generator=torch.Generator().manual_seed(3)) * 0.9  # below any clipping: it counts unless masked
     with torch.no_grad():
         scene.params["white.reflectance"].fill_(0.5)
     kw = dict(max_depth=3, progress=False, solver=solver, spp=8)
@@ -105,7 +113,8 @@ def test_garbage_under_a_mask_changes_nothing(solver, tmp_path):
         unmasked = ir.fit(scene, garbage, names, **kw)
     for n in names:
         torch.testing.assert_close(dirty.params[n], clean.params[n], rtol=1e-6, atol=1e-7)
-    assert float((unmasked.params["sensor.exposure"] - clean.params["sensor.exposure"]).abs().max()) > 1e-3  # the garbage counts without the mask
+    moved = max(float((unmasked.params[n] - clean.params[n]).abs().max()) for n in names)
+    assert moved > 1e-3  # the garbage counts without the mask
     # a mask image file (white counts) and a PNG's alpha channel do the same
     from PIL import Image
 
