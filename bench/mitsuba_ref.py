@@ -324,7 +324,10 @@ def scene_dict(scene, spp: int, max_depth: int, filter: str = "box", integrator:
     for i, name in enumerate(scene.materials):
         spec = scene.material_spec(i)
         values = {key: params[f"{name}.{key}"] for key in spec.spec.params}
-        bsdfs.append(plugin_dict(spec.spec, values, dict(spec.constants), name))
+        bsdf = plugin_dict(spec.spec, values, dict(spec.constants), name)
+        if spec.one_sided and bsdf.get("type") == "twosided":  # black from behind, as the XML file said
+            bsdf = bsdf["bsdf"]
+        bsdfs.append(bsdf)
         textured.append(any(_np(v).ndim == 3 for v in values.values()))
     emitters = []  # per scene emitter (indexed by triangles.emitter)
     for i, name in enumerate(scene.emitters):

@@ -26,7 +26,16 @@ DEFAULT_TYPE = "diffuse"
 @dataclass(frozen=True)
 class Material(PluginSpec):
     """A material of a scene being built (:class:`~invrender.scene.plugins.PluginSpec`): its type
-    (a registered material type, default ``diffuse``), parameter values and constants."""
+    (a registered material type, default ``diffuse``), parameter values and constants.
+
+    Attributes:
+        one_sided: True: a ray arriving at the back of a surface (behind its geometric normal)
+            finds a black surface, as Mitsuba's BSDFs do unless wrapped in ``twosided`` (the XML
+            reader sets it for those); False (the default): both sides reflect alike. Materials
+            that transmit are always two-sided.
+    """
+
+    one_sided: bool = False
 
     registry = registry.MATERIALS
     noun = "material"

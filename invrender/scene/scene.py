@@ -412,7 +412,7 @@ def build_scene(
         sphere=t(np.concatenate(sphere_of), torch.int64),
         spheres=torch.tensor(spheres, dtype=torch.float32).reshape(-1, 4),
     )
-    specs_only = tuple(Material(m.type, {}, m.constants) for m in specs.values())
+    specs_only = tuple(dataclasses.replace(m, values={}) for m in specs.values())
     emitters_only = tuple(Emitter(e.type, {}, e.constants) for e in emitter_specs.values())
     if all(e.type == Emitter.default_type and not e.constants for e in emitters_only):
         emitters_only = ()  # every emitter an area light: the default

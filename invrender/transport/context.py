@@ -82,7 +82,10 @@ class TransportContext:
             triangles=tris,
             accel=intersector_for(tris, backend, embree_threads),
             lights=Lights([e.type for e in emitters], light_values, [dict(e.constants) for e in emitters], tris, frozen),
-            materials=Materials([s.type for s in specs], material_values, [dict(s.constants) for s in specs], device, flat=not tris.any_smooth, sampling=sampling, sampling_values=frozen_materials),
+            materials=Materials(
+                [s.type for s in specs], material_values, [dict(s.constants) for s in specs], device, flat=not tris.any_smooth, sampling=sampling, sampling_values=frozen_materials,
+                one_sided=[s.one_sided for s in specs],
+            ),
             eps=eps,
             ambient=values[AMBIENT].to(device) if AMBIENT in values else None,
             ray_offset=1e-4 * max(scene_extent(tris), 1e-3),

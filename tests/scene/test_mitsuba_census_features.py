@@ -204,3 +204,35 @@ def test_bad_orthographic_sensors(tmp_path):
     (tmp_path / "f.xml").write_text(path)
     with pytest.raises(SceneError, match="unsupported property 'fov'"):
         ir.load_scene(tmp_path / "f.xml")
+
+
+@pytest.mark.parametrize(
+    "bsdf, flip, expected",
+    [
+        ('<bsdf type="diffuse"><rgb name="reflectance" value="0.5"/></bsdf>', False, 0.5),  # its front
+        ('<bsdf type="diffuse"><rgb name="reflectance" value="0.5"/></bsdf>', True, 0.0),  # its back: black, as Mitsuba's
+        ('<bsdf type="twosided"><bsdf type="diffuse"><rgb name="reflectance" value="0.5"/></bsdf></bsdf>', True, 0.5),
+        ('<bsdf type="plastic"><rgb name="diffuse_reflectance" value="0.5"/></bsdf>', True, 0.0),
+    ],
+    ids=["front", "back", "twosided back", "plastic back"],
+)
+def test_bsdfs_without_twosided_are_black_from_behind(tmp_path, bsdf, flip, expected):
+    """A plane filling the view under a uniform sky of radiance 1: a diffuse albedo 0.5 reflects
+    0.5 (direct light only) from its front, and from its back only inside ``twosided``."""
+    body = (
+        f'<shape type="rectangle"><transform name="to_world"><scale value="5"/></transform><boolean name="flip_normals" value="{str(flip).lower()}"/>{bsdf}</shape>\n'
+        '<emitter type="constant"><rgb name="radiance" value="1"/></emitter>'
+    )
+    scene = ir.load_scene(xml(tmp_path, '<float name="fov" value="30"/>', "", body, film=(8, 8)))
+    spec = scene.material_spec(0)
+    assert spec.one_sided == ("twosided" not in bsdf)
+    mean = ir.render(scene, "path", spp=64, seed=1, max_depth=2, progress=False).double().mean()
+    if expected == 0.0:
+        assert float(mean) == 0.0
+    elif "plastic" not in bsdf:
+        assert float(mean) == pytest.approx(expected, rel=0.02)
+
+
+def test_transmitting_bsdfs_stay_two_sided(tmp_path):
+    scene = ir.load_scene(pane_scene(tmp_path))
+    assert not scene.material_spec(scene.materials.index("material_1")).one_sided

@@ -28,11 +28,14 @@ class Materials:
         sampling: how the BSDFs draw directions (default: cosine-weighted diffuse lobes).
         sampling_values: per scene material, the values its sampling reads (detached; None = its
             own ``values``, detached).
+        one_sided: per scene material, is its back side black (``Material.one_sided``: Mitsuba's
+            BSDFs without ``twosided``)? None = every material two-sided. Ignored for types that
+            transmit.
     """
 
     def __init__(
         self, types: list[str], values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], device, flat: bool = False, sampling: BSDFSampling | None = None,
-        sampling_values: list[dict[str, torch.Tensor]] | None = None,
+        sampling_values: list[dict[str, torch.Tensor]] | None = None, one_sided: list[bool] | None = None,
     ):  # fmt: skip
         present = list(dict.fromkeys(types))  # first-seen order
         self.bsdfs: list[BSDF] = []
@@ -57,6 +60,15 @@ class Materials:
         self.any_smooth_transmission = any(b.has(Lobe.GLOSSY_TRANSMISSION) for b in self.bsdfs)
         #: every BSDF is purely Lambertian (its sample weight is rho, never zero on a flat scene)
         self.all_diffuse = all(b.lobes == Lobe.DIFFUSE for b in self.bsdfs)
+        #: (K, L) bool: is material l of BSDF slot k one-sided (black from behind)? None: none is
+        self._one_sided = None
+        if one_sided is not None and any(one_sided):
+            table = torch.zeros(len(self.bsdfs), max(local_of) + 1, dtype=torch.bool)
+            for m, flag in enumerate(one_sided):
+                table[slot_of[m], local_of[m]] = bool(flag) and not self.bsdfs[slot_of[m]].has(Lobe.TRANSMISSION)
+            if bool(table.any()):
+                self._one_sided = table.to(device)
+                self.all_diffuse = False  # a back-side hit's weight is zero
 
     def shading_point(self, material: torch.Tensor, wo, n, ng, front, uv) -> ShadingPoint:
         """The :class:`ShadingPoint` of hits on scene materials ``material`` (N,) int64."""
@@ -90,26 +102,44 @@ class Materials:
             out = _scatter(_empty_like(part, sp.count) if out is None else out, index, part)
         return out
 
+    def _lit(self, sp: ShadingPoint) -> torch.Tensor | None:
+        """(N,) float: 0 where a one-sided material is seen from behind, else 1; None when no
+        material is one-sided."""
+        if self._one_sided is None:
+            return None
+        return (~(self._one_sided[sp.slot, sp.material] & ~sp.front)).to(sp.wo.dtype)
+
     def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        """``f |cos theta_i|`` (N, 3) of each hit's BSDF."""
-        return self._dispatch(sp, lambda b, p, i: b.eval(p, wi if i is None else wi[i]))
+        """``f |cos theta_i|`` (N, 3) of each hit's BSDF (0 at the back of a one-sided material)."""
+        f = self._dispatch(sp, lambda b, p, i: b.eval(p, wi if i is None else wi[i]))
+        lit = self._lit(sp)
+        return f if lit is None else f * lit[:, None]
 
     def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        """Solid-angle pdf (N,) of each hit's BSDF sampling ``wi``."""
-        return self._dispatch(sp, lambda b, p, i: b.pdf(p, wi if i is None else wi[i]))
+        """Solid-angle pdf (N,) of each hit's BSDF sampling ``wi`` (0 at the back of a one-sided
+        material: it samples nothing there)."""
+        pdf = self._dispatch(sp, lambda b, p, i: b.pdf(p, wi if i is None else wi[i]))
+        lit = self._lit(sp)
+        return pdf if lit is None else pdf * lit
 
     def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
-        """One direction per hit from its BSDF."""
-        return self._dispatch(sp, lambda b, p, i: b.sample(p, u_lobe if i is None else u_lobe[i], u_dir if i is None else u_dir[i]))
+        """One direction per hit from its BSDF (weight and pdf 0 at the back of a one-sided
+        material: the path ends there)."""
+        s = self._dispatch(sp, lambda b, p, i: b.sample(p, u_lobe if i is None else u_lobe[i], u_dir if i is None else u_dir[i]))
+        lit = self._lit(sp)
+        return s if lit is None else BSDFSample(s.wi, s.weight * lit[:, None], s.pdf * lit, s.delta)
 
     def diffuse_reflectance(self, sp: ShadingPoint) -> torch.Tensor:
-        """k_d (N, 3) of each hit for the ambient term (0 for materials without a diffuse part)."""
+        """k_d (N, 3) of each hit for the ambient term (0 for materials without a diffuse part, and
+        at the back of a one-sided material)."""
 
         def call(b, p, i):
             value = b.diffuse_reflectance(p)
             return value if value is not None else p.wo.new_zeros(p.count, 3)
 
-        return self._dispatch(sp, call)
+        kd = self._dispatch(sp, call)
+        lit = self._lit(sp)
+        return kd if lit is None else kd * lit[:, None]
 
 
 def _empty_like(part, n: int):

@@ -30,6 +30,8 @@ Deviations from Mitsuba
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from invrender import registry
@@ -97,14 +99,16 @@ def convert_bsdf(ctx: Context, bsdf: Obj) -> Material:
             # as Mitsuba's twosided, which rejects BSDFs with a transmission component
             raise ctx.error(inner[0].node, f"twosided cannot wrap a {inner[0].type} BSDF", bsdf)
         ctx.finish(bsdf, (), ("bsdf",))
-        return convert_bsdf(ctx, inner[0])
+        return dataclasses.replace(convert_bsdf(ctx, inner[0]), one_sided=False)
     if bsdf.type not in known:
         raise ctx.error(bsdf.node, f"unsupported bsdf type {bsdf.type!r} (supported: {', '.join([*known, TWOSIDED])})", bsdf)
     cls = known[bsdf.type]
     entries = cls.from_mitsuba(BsdfReader(ctx, bsdf))
     # a plugin standing for several types names the one it read (roughconductor: its distribution)
     type_name = entries.pop("type", cls.type_name)
-    return Material.of(type_name, f"{ctx.where}:{bsdf.node.line}: {bsdf.describe()}", **entries)
+    spec = Material.of(type_name, f"{ctx.where}:{bsdf.node.line}: {bsdf.describe()}", **entries)
+    # Mitsuba's BSDFs are black from behind unless wrapped in twosided; those that transmit are two-sided
+    return dataclasses.replace(spec, one_sided=not _transmits(spec.spec))
 
 
 def _transmits(cls) -> bool:
