@@ -130,7 +130,7 @@ def direct_deviations(ctx: Context, delta_lights: bool, delta_lobes: bool) -> li
     emitter, bsdf = counts.get("emitter_samples", shading), counts.get("bsdf_samples", shading)
     out = []
     if delta_lights and emitter != 1:
-        out.append(f"Mitsuba's direct with emitter_samples {emitter} counts each point, spot or directional light {emitter} times; invrender counts it once")
+        out.append(f"Mitsuba's direct with emitter_samples {emitter} counts each point, spot or directional light {emitter} times (mitsuba3 issue #1861); invrender counts it once")
     if delta_lobes and bsdf == 0:
         out.append("Mitsuba's direct with bsdf_samples 0 misses the emitters seen through mirrors and glass; invrender counts them")
     return out
