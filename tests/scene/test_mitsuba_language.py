@@ -7,24 +7,15 @@ Reference numbers marked "Mitsuba 3.9.1" were computed once with mitsuba 3.9.1 (
 import numpy as np
 import pytest
 
+from tests.scene.conftest import write_scene
 from invrender.errors import SceneError
 from invrender.scene.formats.mitsuba import load_mitsuba_xml
 from invrender.scene.formats.mitsuba.parser import snake_case
 from invrender.scene.formats.mitsuba.spectra import spectrum_to_srgb
 
-SENSOR = """
-    <sensor type="perspective">
-        <float name="fov" value="40"/>
-        <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
-        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="6"/></film>
-    </sensor>"""
-
-
 def write(path, body, version="3.0.0", sensor=True):
     """A scene file at ``path``: ``body`` inside <scene> (line 1), after a small sensor."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(f'<scene version="{version}">' + (SENSOR if sensor else "") + body + "\n</scene>\n")
-    return path
+    return write_scene(path, body, version, sensor)
 
 
 def line_of(path, text):

@@ -10,6 +10,7 @@ import trimesh
 from PIL import Image
 
 import invrender as ir
+from tests.scene.conftest import SENSOR, write_scene
 from invrender.cli import main
 from invrender.errors import SceneError
 from invrender.scene.builtin import cornell_box
@@ -17,19 +18,9 @@ from invrender.scene.formats.mitsuba import NAMED_IOR, load_mitsuba_xml
 
 FORWARD = Path(__file__).parents[2] / "forward"
 
-SENSOR = """
-    <sensor type="perspective">
-        <float name="fov" value="40"/>
-        <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
-        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="6"/></film>
-    </sensor>"""
-
-
 def write(tmp_path, body, name="s.xml", sensor=True):
     """A scene file: ``body`` inside <scene>, after a small sensor (line 1 is <scene>)."""
-    path = tmp_path / name
-    path.write_text('<scene version="3.0.0">' + (SENSOR if sensor else "") + body + "\n</scene>\n")
-    return path
+    return write_scene(tmp_path / name, body, sensor=sensor)
 
 
 def line_of(path, text):

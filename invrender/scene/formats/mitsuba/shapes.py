@@ -129,15 +129,22 @@ def shape(ctx: Context, obj: Obj, emitter_name) -> tuple[Mesh, int]:
     return mesh, key
 
 
-def serialized_file(ctx: Context, obj: Obj) -> tuple[Mesh, np.ndarray, bool]:
-    """The mesh of a serialized shape (:mod:`.serialized`), its texture coordinates as stored
-    (Mitsuba does not flip them), and whether its vertex normals are to be computed."""
+def _mesh_path(ctx: Context, obj: Obj):
+    """(the ``filename`` property, the file it names on the search path) of a mesh-file shape; a
+    one-line error when it is missing or names no file."""
     prop = ctx.take(obj, "filename", ("string",), "a <string>")
     if prop is None:
         raise ctx.error(obj.node, "missing <string name=\"filename\">", obj)
     path = ctx.find_file(prop.node, prop.value)
     if path is None or not path.is_file():
         raise ctx.error(prop.node, f"mesh file not found: {ctx.base / prop.value}", obj)
+    return prop, path
+
+
+def serialized_file(ctx: Context, obj: Obj) -> tuple[Mesh, np.ndarray, bool]:
+    """The mesh of a serialized shape (:mod:`.serialized`), its texture coordinates as stored
+    (Mitsuba does not flip them), and whether its vertex normals are to be computed."""
+    prop, path = _mesh_path(ctx, obj)
     index = ctx.take(obj, "shape_index", ("integer",), "an <integer>")
     face_normals = ctx.get(obj, "face_normals", "boolean", False)
     try:
@@ -159,12 +166,7 @@ def mesh_file(ctx: Context, obj: Obj) -> tuple[Mesh, np.ndarray, bool]:
     its vertex normals are to be computed (the file has none, and face_normals is false)."""
     import trimesh
 
-    prop = ctx.take(obj, "filename", ("string",), "a <string>")
-    if prop is None:
-        raise ctx.error(obj.node, "missing <string name=\"filename\">", obj)
-    path = ctx.find_file(prop.node, prop.value)
-    if path is None or not path.is_file():
-        raise ctx.error(prop.node, f"mesh file not found: {ctx.base / prop.value}", obj)
+    prop, path = _mesh_path(ctx, obj)
     face_normals = ctx.get(obj, "face_normals", "boolean", False)
     flip_uv = ctx.get(obj, "flip_tex_coords", "boolean", obj.type == "obj")
     try:
