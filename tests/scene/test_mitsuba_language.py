@@ -7,11 +7,11 @@ Reference numbers marked "Mitsuba 3.9.1" were computed once with mitsuba 3.9.1 (
 import numpy as np
 import pytest
 
-from tests.scene.conftest import write_scene
 from invrender.errors import SceneError
 from invrender.scene.formats.mitsuba import load_mitsuba_xml
 from invrender.scene.formats.mitsuba.parser import snake_case
 from invrender.scene.formats.mitsuba.spectra import spectrum_to_srgb
+from tests.scene.conftest import write_scene
 
 def write(path, body, version="3.0.0", sensor=True):
     """A scene file at ``path``: ``body`` inside <scene> (line 1), after a small sensor."""

@@ -10,11 +10,11 @@ import trimesh
 from PIL import Image
 
 import invrender as ir
-from tests.scene.conftest import SENSOR, write_scene
 from invrender.cli import main
 from invrender.errors import SceneError
 from invrender.scene.builtin import cornell_box
 from invrender.scene.formats.mitsuba import NAMED_IOR, load_mitsuba_xml
+from tests.scene.conftest import SENSOR, write_scene
 
 FORWARD = Path(__file__).parents[2] / "forward"
 
