@@ -36,7 +36,7 @@ from invrender.scene.kinds import EMISSION
 from invrender.scene.plugins import Param
 from invrender.scene.scene import Triangles
 from invrender.transport import kernels
-from invrender.transport.lights import Light, LightSample
+from invrender.transport.lights import Light, LightSample, TriangleTables
 from invrender.transport.surface import Surface
 from invrender.transport.textures import gather_rgb
 from invrender.vec import dot, norm
@@ -162,6 +162,13 @@ class Area(Light):
     @property
     def power(self) -> float:
         return self.total  # sum of area x mean(eps): proportional to the power emitted
+
+    def fused_triangles(self) -> TriangleTables | None:
+        """The fused bounce's tables, when no emission is textured and no sphere is sampled by
+        solid angle (every point is picked by area, as :meth:`_triangle_points` picks them)."""
+        if self.textured or self.spheres or not self.count:
+            return None
+        return TriangleTables(self.tri, self.cdf, self.pdf_area, self._emitting, torch.stack(self.eps))
 
     def radiance(self, emitter: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
         """eps (N, 3) of scene emitters ``emitter`` (N,) int64 (-1 = none) at ``uv`` (N, 2)."""

@@ -36,6 +36,14 @@ class Diffuse(BSDF):
         rho = self.param("reflectance", sp)
         return rho if self.flat else rho * (dot(sp.n, sp.wo) > 0)[:, None].to(rho.dtype)
 
+    def fused_albedo(self) -> torch.Tensor | None:
+        """(M, 3) rho of each material, when none is textured, sampling is cosine-weighted and the
+        scene has no shading normals (the fused bounce's Lambertian lobe); else None."""
+        rho = [v["reflectance"] for v in self.values]
+        if not self.flat or self.sampling.hemisphere != "cosine" or any(r.ndim != 1 for r in rho):
+            return None
+        return torch.stack(rho)
+
     def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
         """``rho cos(theta_i) / pi`` (N, 3)."""
         cos_i = dot(sp.n, wi).clamp_min(0.0)

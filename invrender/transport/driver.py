@@ -14,6 +14,7 @@ end in float64, so the image is the same whatever the number of workers.
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import sys
 import threading
@@ -25,10 +26,10 @@ from tqdm.auto import tqdm
 
 from invrender.errors import ParameterError
 from invrender.scene.scene import Scene
-from invrender.transport import ranks
+from invrender.transport import kernels, ranks
 from invrender.transport.context import PathState
 from invrender.transport.memory import keep_freed_blocks
-from invrender.transport.sampler import mirrored, multijitter, path_keys, uniform
+from invrender.transport.sampler import bounce_salts, mirrored, multijitter, path_keys, seed_salt, uniform
 from invrender.validate import MAX_SPP, check_bool, check_choice, check_float, check_int
 
 #: working-set estimate per path in a chunk (state, hits, temporaries, backend copies), bytes
@@ -233,6 +234,39 @@ def camera_paths(scene: Scene, settings: RenderSettings, ids: torch.Tensor) -> P
     as samples are. A thin lens draws its lens point from dimensions 2 and 3 of the same counters.
     With a plan, spp is the pixel's count in the pass and sample k has the index ``first + k``.
     """
+    camera = scene.camera
+    if settings.plan is None and kernels.enabled(ids.device):
+        pixel, keys, film_xy, lens = _camera_samples(scene, settings, ids)
+    else:
+        pixel, keys, film_xy, lens = _camera_samples_torch(scene, settings, ids)
+    o, d = camera.generate_rays(film_xy, scene.width, scene.height, lens)
+    n_paths = ids.shape[0]
+    beta = torch.ones(n_paths, 3, device=ids.device)
+    return PathState(
+        keys=keys, pixel=pixel, o=o.contiguous(), d=d, beta=beta,
+        pdf_dir=torch.ones(n_paths, device=ids.device), delta=torch.ones(n_paths, dtype=torch.bool, device=ids.device),
+    )  # fmt: skip
+
+
+#: the sampler names of the camera-sample kernel's modes
+_MODES = {"stratified": 0, "independent": 1, "antithetic": 2}
+
+
+def _camera_samples(scene: Scene, settings: RenderSettings, ids: torch.Tensor):
+    """(pixel, keys, film positions, lens uniforms or None) of path ids ``ids`` (no plan) from one
+    kernel: the values of :func:`_camera_samples_torch`."""
+    spp = settings.spp
+    cells = (spp + 1) // 2 if settings.sampler == "antithetic" else spp
+    m = max(d for d in range(1, math.isqrt(cells) + 1) if cells % d == 0)  # sampler.multijitter's factors
+    lens = not scene.camera.is_pinhole
+    salts = bounce_salts(0, 4 if lens else 2, ids.device)
+    key_salt, pattern_salt = seed_salt(settings.seed), seed_salt(settings.seed ^ 0x5EED)
+    return kernels.camera_samples(ids, spp, scene.width, _MODES[settings.sampler], key_salt, pattern_salt, cells, m, salts, lens)
+
+
+def _camera_samples_torch(scene: Scene, settings: RenderSettings, ids: torch.Tensor):
+    """(pixel (N,) int64, keys (N,) int32, film positions (N, 2) in pixels, lens uniforms (N, 2) or
+    None for a pinhole camera) of path ids (N,): the torch reference (and the only way with a plan)."""
     if settings.plan is None:
         spp = settings.spp
         pixel, sample = ids // spp, ids % spp
@@ -246,8 +280,8 @@ def camera_paths(scene: Scene, settings: RenderSettings, ids: torch.Tensor) -> P
         keys = mirrored(path_keys(settings.seed, pixel, first + 2 * cell), sample % 2 == 1)
     else:
         keys = path_keys(settings.seed, pixel, first + sample)
-    camera = scene.camera
-    u = uniform(keys, 0, 2 if camera.is_pinhole else 4)
+    pinhole = scene.camera.is_pinhole
+    u = uniform(keys, 0, 2 if pinhole else 4)
     if settings.sampler == "independent":
         fx, fy = u[:, 0], u[:, 1]
     else:
@@ -255,11 +289,5 @@ def camera_paths(scene: Scene, settings: RenderSettings, ids: torch.Tensor) -> P
         pattern = path_keys(settings.seed ^ 0x5EED, pixel, first).long() & 0xFFFFFFFF  # one per pixel and pass
         fx, fy = multijitter(pattern, cell, cells, u[:, :2]).unbind(1)
     film_xy = torch.stack([(pixel % scene.width).float() + fx, (pixel // scene.width).float() + fy], dim=1)
-    o, d = camera.generate_rays(film_xy, scene.width, scene.height, None if camera.is_pinhole else u[:, 2:4])
-    n_paths = ids.shape[0]
-    beta = torch.ones(n_paths, 3, device=ids.device)
-    return PathState(
-        keys=keys, pixel=pixel, o=o.contiguous(), d=d, beta=beta,
-        pdf_dir=torch.ones(n_paths, device=ids.device), delta=torch.ones(n_paths, dtype=torch.bool, device=ids.device),
-    )  # fmt: skip
+    return pixel, keys, film_xy, None if pinhole else u[:, 2:4]
 

@@ -203,3 +203,53 @@ def offset_origins(p: torch.Tensor, n: torch.Tensor, wi: torch.Tensor, offset: f
     o = torch.empty(p.shape[0], 3, device=p.device)
     launch(warp_kernels().spawn_kernel, p.shape[0], [Vec3(p), Vec3(n), Vec3(wi), float(offset), Vec3(o)], p.device)
     return o
+
+
+def lambert_vertex(tables: list, hits: tuple, d, beta, pdf_dir, keys, salts, flags: tuple, offset: float) -> tuple:
+    """One primal bounce of N paths on Lambertian surfaces lit by emissive triangles (the kernel
+    of :mod:`invrender.transport.fused`, which documents it).
+
+    Args:
+        tables: the scene's tables, in order: packed (T, 18), material (T,), emitter (T,), emitting
+            (T,) bool, rho (M, 3), eps (E, 3), light triangles (L,), their cdf (L,), pdf_area (T,).
+        hits: (prim, u, v, t) (N,) each: the paths' closest hits, all valid.
+        d, beta: (N, 3) the rays' directions and the paths' throughputs; pdf_dir (N,) the pdf ``d``
+            was sampled with; keys (N,) int32; salts (7,) int32 of the bounce's numbers.
+        flags: (depth, mis, nee_only, nee, more, roulette) ints.
+        offset: the ray offset off surfaces.
+    Returns:
+        emitted (N, 3) (term depth), shadow rays o (N, 3), d (N, 3), tmax (N,) and the direct light
+        (N, 3) each adds if unoccluded (term depth + 1), then the continued paths' o, d, beta (N, 3),
+        pdf (N,) and alive (N,) bool. With ``more`` 0 only ``emitted`` is written.
+    """
+    n, dev = d.shape[0], d.device
+    vec = [torch.empty(n, 3, device=dev) for _ in range(7)]
+    shadow_t, pdf = torch.empty(n, device=dev), torch.empty(n, device=dev)
+    alive = torch.empty(n, dtype=torch.bool, device=dev)
+    emitted, shadow_o, shadow_d, direct, o_next, d_next, beta_next = vec
+    rho, eps = tables[4], tables[5]
+    inputs = [
+        *tables[:4], Vec3(rho), Vec3(eps), *tables[6:], *hits, Vec3(d), Vec3(beta), pdf_dir, keys, salts, *flags, float(offset),
+        Vec3(emitted), Vec3(shadow_o), Vec3(shadow_d), shadow_t, Vec3(direct), Vec3(o_next), Vec3(d_next), Vec3(beta_next), pdf, alive,
+    ]  # fmt: skip
+    launch(warp_kernels().lambert_vertex_kernel, n, inputs, dev)
+    return emitted, shadow_o, shadow_d, shadow_t, direct, o_next, d_next, beta_next, pdf, alive
+
+
+def camera_samples(ids: torch.Tensor, spp: int, width: int, mode: int, key_salt: int, pattern_salt: int, cells: int, m: int, salts, lens: bool):
+    """The camera samples of path ids ``ids`` (N,) int64 (``pixel * spp + sample``, no plan): mode 0 stratified, 1 independent, 2 antithetic; ``key_salt`` / ``pattern_salt`` the
+    hashed seeds of the path keys and the pixel patterns, ``cells`` samples (pairs) per pattern
+    factored ``m x cells / m``, ``salts`` (4,) those of the camera's numbers (bounce 0).
+
+    Returns:
+        pixel (N,) int64, keys (N,) int32, film positions (N, 2) float32 in pixels, lens uniforms
+        (N, 2) (``lens``; else None): the values of ``driver.camera_paths``'s torch expressions.
+    """
+    count, device = ids.shape[0], ids.device
+    pixel = torch.empty(count, dtype=torch.int64, device=device)
+    keys = torch.empty(count, dtype=torch.int32, device=device)
+    film = torch.empty(count, 2, device=device)
+    uv = torch.empty(count, 2 if lens else 1, device=device)
+    inputs = [ids, int(spp), int(width), int(mode), key_salt, pattern_salt, cells, m, salts, pixel, keys, film, uv]
+    launch(warp_kernels().camera_samples_kernel, count, inputs, device)
+    return pixel, keys, film, uv if lens else None

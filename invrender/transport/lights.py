@@ -73,6 +73,27 @@ class LightSample:
         return dataclasses.replace(self, pdf=self.pdf * p)
 
 
+@dataclass(frozen=True)
+class TriangleTables:
+    """Emitters that are triangles of constant radiance, sampled by area, as the fused primal
+    bounce (:mod:`invrender.transport.fused`) samples and evaluates them itself.
+
+    Attributes:
+        tri: (L,) int64 the triangles next-event estimation picks among.
+        cdf: (L,) float32 their cumulative choice probabilities (the last is 1).
+        pdf_area: (T,) float32 per scene triangle, the density per unit area of a sampled point on
+            it (0 on triangles never sampled).
+        emitting: (T,) bool per scene triangle, does its front side emit?
+        eps: (E, 3) radiance per scene emitter (rows of ``triangles.emitter``), detached.
+    """
+
+    tri: torch.Tensor
+    cdf: torch.Tensor
+    pdf_area: torch.Tensor
+    emitting: torch.Tensor
+    eps: torch.Tensor
+
+
 class Light(Declared, ABC):
     """Base class of the emitter types: one instance holds every emitter of one type in a scene.
 
@@ -135,6 +156,11 @@ class Light(Declared, ABC):
         """Solid-angle density (N,) with which :meth:`sample_from` would have sampled directions
         ``d`` (N, 3) (types that emit from infinitely far only)."""
         return d.new_zeros(d.shape[0])
+
+    def fused_triangles(self) -> TriangleTables | None:
+        """Its tables for the fused primal bounce, when it is a surface emitter of constant radiance
+        sampled by area alone (:class:`TriangleTables`); None (the default) = its own methods answer."""
+        return None
 
     #: does :meth:`texels` answer (a textured emission read through a linear filter by direction)?
     texel_lookup: ClassVar[bool] = False
@@ -215,6 +241,13 @@ class Lights:
                 out = {f: getattr(part, f).new_zeros((x.shape[0], *getattr(part, f).shape[1:])) for f in part.__dataclass_fields__}
             out = {f: out[f].index_put((index,), getattr(part, f)) for f in out}
         return LightSample(**out)
+
+    def fused_triangles(self) -> TriangleTables | None:
+        """The tables of the fused primal bounce when the scene's emitters are all of one type that
+        gives them (:meth:`Light.fused_triangles`), and some can be sampled; else None."""
+        if len(self.lights) != 1 or self.count != 1:
+            return None
+        return self.lights[0].fused_triangles()
 
     def _probability(self, light: Light) -> float:
         return self.choice[self.lights.index(light)]

@@ -72,6 +72,11 @@ def _low32(x: torch.Tensor) -> torch.Tensor:
     return (y - ((y >> 31) << 32)).to(torch.int32)
 
 
+def seed_salt(seed: int) -> int:
+    """The unsigned 32-bit word a render's seed contributes to every path key (:func:`path_keys`)."""
+    return _mix_int(seed ^ 0x9E3779B9)
+
+
 def path_keys(seed: int, pixel: torch.Tensor, sample: torch.Tensor) -> torch.Tensor:
     """One 32-bit key per path from its counters.
 
@@ -82,7 +87,7 @@ def path_keys(seed: int, pixel: torch.Tensor, sample: torch.Tensor) -> torch.Ten
     Returns:
         (N,) int32 keys (bits read as unsigned), the lowest bit clear (not mirrored).
     """
-    k = _mix(_low32(pixel) ^ _signed(_mix_int(seed ^ 0x9E3779B9)))
+    k = _mix(_low32(pixel) ^ _signed(seed_salt(seed)))
     return _mix(k ^ _low32(sample)) & -2
 
 
@@ -104,7 +109,7 @@ def uniform(keys: torch.Tensor, bounce: int, dims: int) -> torch.Tensor:
         (N, dims) float32, each the hash of (key, bounce, dimension): its low 24 bits / 2^24 (their
         complement for mirrored keys).
     """
-    salts = _salts(bounce, dims, keys.device)
+    salts = bounce_salts(bounce, dims, keys.device)
     if kernels.enabled(keys.device):
         return kernels.hash_uniforms(keys, salts)
     h = _mix((keys & -2)[:, None] ^ salts)
@@ -113,10 +118,11 @@ def uniform(keys: torch.Tensor, bounce: int, dims: int) -> torch.Tensor:
 
 
 @functools.lru_cache(maxsize=4096)
-def _salts(bounce: int, dims: int, device: torch.device) -> torch.Tensor:
+def bounce_salts(bounce: int, dims: int, device: torch.device) -> torch.Tensor:
     """(dims,) int32 salts of one bounce's dimensions on ``device``, made once: a tensor built from
     a list is a copy from pageable host memory, which on CUDA waits for the stream each bounce.
-    Read only (never written in place)."""
+    Read only (never written in place). Kernels that draw a bounce's numbers themselves take these
+    (:func:`uniform` is ``lowbias32((key & ~1) ^ salt_j)``)."""
     return torch.tensor([_signed(_mix_int(bounce * 0x10000 + d + 0x632BE5AB)) for d in range(dims)], dtype=torch.int32, device=device)
 
 

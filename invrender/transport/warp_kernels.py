@@ -55,15 +55,21 @@ def _lowbias32(x: wp.uint32) -> wp.uint32:
     return x ^ (x >> wp.uint32(16))
 
 
+@wp.func
+def _uniform(key: wp.uint32, salt: wp.int32) -> wp.float32:
+    """The uniform of path key ``key`` for one salt (bounce and dimension): lowbias32 of ``(key & ~1)
+    ^ salt``, every bit flipped for a mirrored (odd) key, low 24 bits / 2^24."""
+    flip = wp.uint32(0) - (key & wp.uint32(1))
+    h = _lowbias32((key & ~wp.uint32(1)) ^ wp.uint32(salt)) ^ flip
+    return wp.float32(h & wp.uint32(0xFFFFFF)) * (1.0 / 16777216.0)
+
+
 @wp.kernel
 def uniform_kernel(keys: wp.array(dtype=wp.int32), salts: wp.array(dtype=wp.int32), u: wp.array2d(dtype=wp.float32)):
     i = wp.tid()
     key = wp.uint32(keys[i])
-    flip = wp.uint32(0) - (key & wp.uint32(1))  # mirrored key: every bit of the hash flipped
-    base = key & ~wp.uint32(1)
     for j in range(salts.shape[0]):
-        h = _lowbias32(base ^ wp.uint32(salts[j])) ^ flip
-        u[i, j] = wp.float32(h & wp.uint32(0xFFFFFF)) * (1.0 / 16777216.0)
+        u[i, j] = _uniform(key, salts[j])
 
 
 @wp.func
@@ -114,6 +120,38 @@ def hit_kernel(
         _write_uv(packed, k, b1, b2, uv, i)
 
 
+@wp.func
+def _area_sample(
+    packed: wp.array2d(dtype=wp.float32), light_tri: wp.array(dtype=wp.int64), cdf: wp.array(dtype=wp.float32), pdf_area: wp.array(dtype=wp.float32),
+    u0: wp.float32, u1: wp.float32, u2: wp.float32, x: wp.vec3, nx: wp.vec3, offset: wp.float32,
+):  # fmt: skip
+    """A point on the emissive triangles picked by ``u0`` (by the cdf) and placed by ``u1``, ``u2``,
+    seen from ``x`` with normal ``nx``: (triangle, barycentrics b1 b2, shadow-ray origin, unit
+    direction, tmax, facing, solid-angle pdf)."""
+    # the emitter triangle: the first cdf entry above u0 (searchsorted, right=True), clamped
+    lo = int(0)
+    hi = cdf.shape[0]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if cdf[mid] <= u0:
+            lo = mid + 1
+        else:
+            hi = mid
+    k = light_tri[wp.min(lo, cdf.shape[0] - 1)]
+    su = wp.sqrt(u1)
+    b1 = su * (1.0 - u2)
+    b2 = su * u2
+    y = _point(packed, k, b1, b2)
+    start = x + offset * nx
+    to_light = y - start
+    dist = wp.max(wp.length(to_light), 1.0e-12)
+    w = to_light / dist
+    cos_l = -wp.dot(_normal(packed, k), w)
+    facing = wp.dot(nx, w) > 0.0 and cos_l > 0.0
+    pdf = pdf_area[k] * dist * dist / wp.max(cos_l, 1.0e-12)
+    return k, b1, b2, start, w, dist - offset, facing, pdf
+
+
 @wp.kernel
 def emitter_kernel(
     packed: wp.array2d(dtype=wp.float32), light_tri: wp.array(dtype=wp.int64), cdf: wp.array(dtype=wp.float32), pdf_area: wp.array(dtype=wp.float32),
@@ -122,34 +160,26 @@ def emitter_kernel(
     facing: wp.array(dtype=wp.bool), pdf: wp.array(dtype=wp.float32), uv: wp.array2d(dtype=wp.float32),
 ):  # fmt: skip
     i = wp.tid()
-    # the emitter triangle: the first cdf entry above u_pick (searchsorted, right=True), clamped
-    lo = int(0)
-    hi = cdf.shape[0]
-    pick = u[i, 0]
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if cdf[mid] <= pick:
-            lo = mid + 1
-        else:
-            hi = mid
-    k = light_tri[wp.min(lo, cdf.shape[0] - 1)]
+    k, b1, b2, start, w, t, ok, density = _area_sample(packed, light_tri, cdf, pdf_area, u[i, 0], u[i, 1], u[i, 2], x[i], nx[i], offset)
     tri[i] = k
-    su = wp.sqrt(u[i, 1])
-    b1 = su * (1.0 - u[i, 2])
-    b2 = su * u[i, 2]
-    y = _point(packed, k, b1, b2)
-    start = x[i] + offset * nx[i]
     o[i] = start
-    to_light = y - start
-    dist = wp.max(wp.length(to_light), 1.0e-12)
-    w = to_light / dist
     wl[i] = w
-    tmax[i] = dist - offset
-    cos_l = -wp.dot(_normal(packed, k), w)
-    facing[i] = wp.dot(nx[i], w) > 0.0 and cos_l > 0.0
-    pdf[i] = pdf_area[k] * dist * dist / wp.max(cos_l, 1.0e-12)
+    tmax[i] = t
+    facing[i] = ok
+    pdf[i] = density
     if with_uv != 0:
         _write_uv(packed, k, b1, b2, uv, i)
+
+
+@wp.func
+def _cosine(n: wp.vec3, u0: wp.float32, u1: wp.float32):
+    """A cosine-weighted direction about ``n``, ``normalize(n + s)`` (s uniform on the sphere), and its pdf."""
+    z = 1.0 - 2.0 * u0
+    r = wp.sqrt(wp.max(1.0 - z * z, 0.0))
+    phi = (2.0 * wp.pi) * u1
+    a = n + wp.vec3(r * wp.cos(phi), r * wp.sin(phi), z)
+    w = a / wp.max(wp.length(a), 1.0e-30)
+    return w, wp.max(wp.dot(n, w), 0.0) * (1.0 / wp.pi)
 
 
 @wp.kernel
@@ -157,13 +187,17 @@ def cosine_kernel(
     n: wp.array(dtype=wp.vec3), u: wp.array2d(dtype=wp.float32), wi: wp.array(dtype=wp.vec3), pdf: wp.array(dtype=wp.float32)
 ):
     i = wp.tid()
-    z = 1.0 - 2.0 * u[i, 0]
-    r = wp.sqrt(wp.max(1.0 - z * z, 0.0))
-    phi = (2.0 * wp.pi) * u[i, 1]
-    a = n[i] + wp.vec3(r * wp.cos(phi), r * wp.sin(phi), z)
-    w = a / wp.max(wp.length(a), 1.0e-30)
+    w, density = _cosine(n[i], u[i, 0], u[i, 1])
     wi[i] = w
-    pdf[i] = wp.max(wp.dot(n[i], w), 0.0) * (1.0 / wp.pi)
+    pdf[i] = density
+
+
+@wp.func
+def _spawn(p: wp.vec3, n: wp.vec3, wi: wp.vec3, offset: wp.float32) -> wp.vec3:
+    """The origin of a ray leaving ``p`` along ``wi``: offset to the side of ``n`` it points to."""
+    if wp.dot(n, wi) >= 0.0:
+        return p + offset * n
+    return p - offset * n
 
 
 @wp.kernel
@@ -171,7 +205,171 @@ def spawn_kernel(
     p: wp.array(dtype=wp.vec3), n: wp.array(dtype=wp.vec3), wi: wp.array(dtype=wp.vec3), offset: wp.float32, o: wp.array(dtype=wp.vec3)
 ):
     i = wp.tid()
-    if wp.dot(n[i], wi[i]) >= 0.0:
-        o[i] = p[i] + offset * n[i]
+    o[i] = _spawn(p[i], n[i], wi[i], offset)
+
+
+@wp.func
+def _power_heuristic(a: wp.float32, b: wp.float32) -> wp.float32:
+    """Veach's power heuristic: the weight of a strategy of pdf ``a`` against one of pdf ``b``."""
+    a2 = a * a
+    if a2 > 0.0:
+        return a2 / wp.max(a2 + b * b, 1.0e-30)
+    return 0.0
+
+
+@wp.kernel
+def lambert_vertex_kernel(
+    packed: wp.array2d(dtype=wp.float32), material: wp.array(dtype=wp.int64), emitter: wp.array(dtype=wp.int64), emitting: wp.array(dtype=wp.bool),
+    rho: wp.array(dtype=wp.vec3), eps: wp.array(dtype=wp.vec3), light_tri: wp.array(dtype=wp.int64), cdf: wp.array(dtype=wp.float32), pdf_area: wp.array(dtype=wp.float32),
+    prim: wp.array(dtype=wp.int64), bu: wp.array(dtype=wp.float32), bv: wp.array(dtype=wp.float32), t: wp.array(dtype=wp.float32),
+    d: wp.array(dtype=wp.vec3), beta: wp.array(dtype=wp.vec3), pdf_dir: wp.array(dtype=wp.float32), keys: wp.array(dtype=wp.int32), salts: wp.array(dtype=wp.int32),
+    depth: wp.int32, mis: wp.int32, nee_only: wp.int32, nee: wp.int32, more: wp.int32, roulette: wp.int32, offset: wp.float32,
+    emitted: wp.array(dtype=wp.vec3), shadow_o: wp.array(dtype=wp.vec3), shadow_d: wp.array(dtype=wp.vec3), shadow_t: wp.array(dtype=wp.float32), direct: wp.array(dtype=wp.vec3),
+    o_next: wp.array(dtype=wp.vec3), d_next: wp.array(dtype=wp.vec3), beta_next: wp.array(dtype=wp.vec3), pdf_next: wp.array(dtype=wp.float32), alive: wp.array(dtype=wp.bool),
+):  # fmt: skip
+    i = wp.tid()
+    k = prim[i]
+    wo = d[i]
+    b = beta[i]
+    # the hit (hit_kernel)
+    ng = _normal(packed, k)
+    p = _point(packed, k, bu[i], bv[i])
+    c = -wp.dot(ng, wo)
+    n = ng
+    if c <= 0.0:
+        n = -ng
+    # term depth: emission seen (add_emitted); only the camera's rays (depth 0) are delta rays here
+    e = wp.vec3(0.0)
+    if c > 0.0 and emitting[k] and (nee_only == 0 or depth == 0):
+        le = eps[emitter[k]]
+        if mis != 0 and depth > 0:
+            tk = t[i]
+            le = _power_heuristic(pdf_dir[i], pdf_area[k] * tk * tk / wp.max(wp.abs(c), 1.0e-12)) * le
+        e = wp.cw_mul(b, le)
+    emitted[i] = e
+    if more == 0:
+        alive[i] = False
+        return
+    key = wp.uint32(keys[i])
+    r = rho[material[k]]
+    # term depth + 1: one emitter sample (add_direct), its shadow ray cast by the caller
+    if nee != 0:
+        kl, b1, b2, so, wl, tmax, facing, pdf = _area_sample(
+            packed, light_tri, cdf, pdf_area, _uniform(key, salts[2]), _uniform(key, salts[3]), _uniform(key, salts[4]), p, n, offset
+        )
+        cos_i = wp.max(wp.dot(n, wl), 0.0)
+        f_cos = r * (cos_i * (1.0 / wp.pi))
+        weight = 0.0
+        if facing:
+            if mis != 0:
+                weight = _power_heuristic(pdf, cos_i * (1.0 / wp.pi)) / pdf
+            else:
+                weight = 1.0 / pdf
+        shadow_o[i] = so
+        shadow_d[i] = wl
+        shadow_t[i] = tmax
+        direct[i] = wp.cw_mul(wp.cw_mul(b * weight, f_cos), eps[emitter[kl]])
+    # the BSDF sample (Diffuse._sample_cosine), the new ray (spawn) and Russian roulette
+    wi, density = _cosine(n, _uniform(key, salts[0]), _uniform(key, salts[1]))
+    o_next[i] = _spawn(p, n, wi, offset)
+    d_next[i] = wi
+    pdf_next[i] = density
+    b = wp.cw_mul(b, r)
+    live = True
+    if roulette != 0:
+        q = wp.min(wp.max(wp.max(b[0], b[1]), b[2]), 0.95)
+        live = _uniform(key, salts[5]) < q
+        b = b / q
+    beta_next[i] = b
+    alive[i] = live
+
+
+#: the multipliers of Kensler's permutation hash (module constants: unsigned, above 2^31)
+_H9E501CC3 = wp.constant(wp.uint32(0x9E501CC3))
+_HA511E9B3 = wp.constant(wp.uint32(0xA511E9B3))
+_HC860A3DF = wp.constant(wp.uint32(0xC860A3DF))
+_HE170893D = wp.constant(wp.uint32(0xE170893D))
+
+
+@wp.func
+def _path_key(seed_salt: wp.uint32, pixel: wp.int64, sample: wp.int64) -> wp.uint32:
+    """``sampler.path_keys``: lowbias32(lowbias32(pixel ^ seed_salt) ^ sample), lowest bit clear."""
+    k = _lowbias32(wp.uint32(pixel) ^ seed_salt)
+    return _lowbias32(k ^ wp.uint32(sample)) & ~wp.uint32(1)
+
+
+@wp.func
+def _kensler_step(x: wp.uint32, p: wp.uint32, w: wp.uint32) -> wp.uint32:
+    """One round of the hash of ``sampler._permuted`` (Kensler 2013), on 32-bit words."""
+    x = (x ^ p) * _HE170893D
+    x = x ^ (p >> wp.uint32(16))
+    x = x ^ ((x & w) >> wp.uint32(4))
+    x = x ^ (p >> wp.uint32(8))
+    x = x * wp.uint32(0x0929EB3F)
+    x = x ^ (p >> wp.uint32(23))
+    x = x ^ ((x & w) >> wp.uint32(1))
+    x = x * (wp.uint32(1) | (p >> wp.uint32(27)))
+    x = x * wp.uint32(0x6935FA69)
+    x = x ^ ((x & w) >> wp.uint32(11))
+    x = x * wp.uint32(0x74DCB303)
+    x = x ^ ((x & w) >> wp.uint32(2))
+    x = x * _H9E501CC3
+    x = x ^ ((x & w) >> wp.uint32(2))
+    x = (x * _HC860A3DF) & w
+    return x ^ (x >> wp.uint32(5))
+
+
+@wp.func
+def _permuted(i: wp.uint32, n: wp.uint32, p: wp.uint32) -> wp.uint32:
+    """``sampler._permuted``: element ``i`` of the permutation of 0 .. n - 1 chosen by ``p``."""
+    w = n - wp.uint32(1)
+    w = w | (w >> wp.uint32(1))
+    w = w | (w >> wp.uint32(2))
+    w = w | (w >> wp.uint32(4))
+    w = w | (w >> wp.uint32(8))
+    w = w | (w >> wp.uint32(16))
+    x = _kensler_step(i, p, w)
+    while x >= n:
+        x = _kensler_step(x, p, w)
+    return wp.uint32((wp.uint64(x) + wp.uint64(p)) % wp.uint64(n))
+
+
+@wp.kernel
+def camera_samples_kernel(
+    ids: wp.array(dtype=wp.int64), spp: wp.int64, width: wp.int64, mode: wp.int32, key_salt: wp.uint32, pattern_salt: wp.uint32,
+    cells: wp.uint32, m: wp.uint32, salts: wp.array(dtype=wp.int32),
+    pixel: wp.array(dtype=wp.int64), keys: wp.array(dtype=wp.int32), film: wp.array2d(dtype=wp.float32), lens: wp.array2d(dtype=wp.float32),
+):  # fmt: skip
+    """Camera samples of path ids ``ids`` (``driver.camera_paths`` without a plan): mode 0
+    stratified, 1 independent, 2 antithetic (pairs stratified as samples)."""
+    i = wp.tid()
+    px = ids[i] // spp
+    sample = ids[i] % spp
+    cell = sample
+    key = wp.uint32(0)
+    if mode == 2:
+        cell = sample // wp.int64(2)
+        key = _path_key(key_salt, px, wp.int64(2) * cell) | wp.uint32(sample % wp.int64(2))
     else:
-        o[i] = p[i] - offset * n[i]
+        key = _path_key(key_salt, px, sample)
+    pixel[i] = px
+    keys[i] = wp.int32(key)
+    fx = _uniform(key, salts[0])
+    fy = _uniform(key, salts[1])
+    if lens.shape[1] == 2:
+        lens[i, 0] = _uniform(key, salts[2])
+        lens[i, 1] = _uniform(key, salts[3])
+    if mode != 1:  # multijitter over the cells x m grid
+        pattern = _path_key(pattern_salt, px, wp.int64(0))
+        r = cells / m
+        s = _permuted(wp.uint32(cell), cells, pattern * wp.uint32(0x51633E2D))
+        col = s % m
+        row = s / m
+        sub_col = _permuted(row, r, pattern * wp.uint32(0x63D83595))
+        sub_row = _permuted(col, m, pattern * _HA511E9B3)
+        fx = (wp.float32(col) + (wp.float32(sub_col) + fx) / wp.float32(r)) / wp.float32(m)
+        fy = (wp.float32(row) + (wp.float32(sub_row) + fy) / wp.float32(m)) / wp.float32(r)
+        fx = wp.min(fx, 1.0 - 5.9604645e-08)
+        fy = wp.min(fy, 1.0 - 5.9604645e-08)
+    film[i, 0] = wp.float32(px % width) + fx
+    film[i, 1] = wp.float32(px // width) + fy

@@ -238,7 +238,7 @@ def test_mitsubas_direct_reads_only_what_keeps_the_mean(tmp_path):
     # other sample counts load (the same image, another variance); where Mitsuba's own weighting
     # of delta lights differs (emitter_samples N counts a point light N times), a warning says so
     for prop, warning in [
-        ('<integer name="emitter_samples" value="4"/>', "emitter_samples 4 counts each point, spot or directional light 4 times \(mitsuba3 issue #1861\); invrender counts it once"),
+        ('<integer name="emitter_samples" value="4"/>', r"emitter_samples 4 counts each point, spot or directional light 4 times \(mitsuba3 issue #1861\); invrender counts it once"),
         ('<integer name="shading_samples" value="2"/>', "emitter_samples 2 counts each point"),
         ('<integer name="emitter_samples" value="0"/>', "emitter_samples 0 counts each point, spot or directional light 0 times"),
     ]:

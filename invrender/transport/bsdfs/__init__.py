@@ -129,6 +129,13 @@ class Materials:
         lit = self._lit(sp)
         return s if lit is None else BSDFSample(s.wi, s.weight * lit[:, None], s.pdf * lit, s.delta)
 
+    def fused_albedo(self) -> torch.Tensor | None:
+        """(M, 3) rho per scene material where one BSDF type holds them all, none one-sided, and
+        it gives its table (:meth:`BSDF.fused_albedo`); else None."""
+        if not self.single or self._one_sided is not None:
+            return None
+        return self.bsdfs[0].fused_albedo()
+
     def diffuse_reflectance(self, sp: ShadingPoint) -> torch.Tensor:
         """k_d (N, 3) of each hit for the ambient term (0 for materials without a diffuse part, and
         at the back of a one-sided material)."""

@@ -241,6 +241,13 @@ class BSDF(Declared, ABC):
         materials without delta lobes."""
         return []
 
+    def fused_albedo(self) -> torch.Tensor | None:
+        """(M, 3) the reflectance of each of this type's materials when every one is Lambertian
+        with an RGB constant (``rho / pi``, sampled by the cosine), for the fused primal bounce
+        (:mod:`invrender.transport.fused`), which then evaluates and samples them itself; None (the
+        default) = the BSDF is evaluated by its own methods."""
+        return None
+
     def diffuse_reflectance(self, sp: ShadingPoint) -> torch.Tensor | None:
         """The Lambertian albedo k_d (N, 3) the ambient term ``k_d eps0`` reflects; None = no
         diffuse part."""

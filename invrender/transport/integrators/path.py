@@ -88,6 +88,14 @@ class Path(RandomWalk):
     def emitter_nee_only(self) -> bool:
         return self.strategy == "emitter"
 
+    @property
+    def fused_direct(self):
+        """The strategy, for the fused primal bounce (``False`` for ``"bsdf"``: no emitter samples);
+        None where a subclass samples emitters its own way."""
+        if type(self).at_vertex is not Path.at_vertex:
+            return None
+        return False if self.strategy == "bsdf" else self.strategy
+
     def at_vertex(self, ctx, state, s, sp, u, depth, film):
         if self.strategy != "bsdf":
             add_direct(ctx, state, s, sp, u, depth + 1, film, mis=self.strategy == "mis")  # term depth + 1, light strategy

@@ -14,6 +14,7 @@ import math
 
 from invrender.errors import ParameterError
 
+from invrender.transport import fused
 from invrender.transport.context import PathState, TransportContext, russian_roulette
 from invrender.transport.film import Film
 from invrender.transport.integrators.base import Integrator, SamplingSettings
@@ -50,14 +51,26 @@ class RandomWalk(Integrator):
             )
         return ctx
 
+    @property
+    def fused_direct(self):
+        """How the fused primal bounce (:mod:`invrender.transport.fused`) estimates direct light
+        for this integrator: False (no emitter samples: the random walk); None where a subclass's
+        :meth:`at_vertex` does something of its own (the torch bounce runs)."""
+        return False if type(self).at_vertex is RandomWalk.at_vertex else None
+
     def at_vertex(self, ctx: TransportContext, state: PathState, s, sp, u, depth: int, film: Film) -> PathState | None:
         """What a vertex adds before the path scatters on (nothing here; the path tracer adds direct
         light). Returns the paths that scatter on (None = all)."""
         return None
 
     def trace(self, ctx: TransportContext, state: PathState, film: Film) -> None:
-        """Follow ``state``'s camera rays and add each term ``g(Mg)^k eps`` to ``film``."""
+        """Follow ``state``'s camera rays and add each term ``g(Mg)^k eps`` to ``film`` (by the fused
+        bounce where it applies: :mod:`invrender.transport.fused`)."""
         cfg = self.settings
+        scene = fused.tables(ctx, self.fused_direct, self.bsdf_sampling.hemisphere)
+        if scene is not None and fused.takes(film):
+            fused.trace(ctx, scene, state, film, cfg)
+            return
         rr_start = math.inf if cfg.rr_depth == -1 else cfg.rr_depth  # -1: no roulette
         depth = 0
         while state.count:

@@ -1,0 +1,124 @@
+"""The primal bounce of the random walk and the path tracer as one fused kernel, where it applies.
+
+Outside its ray queries, a bounce in eager torch is a few hundred small operations, each a pass
+over megabytes of (N,) and (N, 3) tensors. When nothing needs those operations' autograd graph
+or hooks, a bounce of a Lambertian scene lit by emissive triangles is instead:
+
+1. the closest-hit query, and the compaction to the rays that hit;
+2. one kernel (:func:`~invrender.transport.kernels.lambert_vertex`): the hit's geometry, the
+   emission seen there with its MIS weight (term k), one emitter sample, its shadow ray and the
+   direct light it carries if unoccluded (term k + 1), the cosine-weighted BSDF sample, the new ray,
+   the throughput and Russian roulette;
+3. the shadow-ray query, the two film additions, and the compaction to the surviving paths.
+
+The kernel draws the same counter-based numbers (the same salts, the same dimensions) and follows
+the same expressions as the torch bounce of :class:`~invrender.transport.integrators.random_walk.RandomWalk`
+and :func:`~invrender.transport.integrators.vertex.add_direct`, which stay the reference: the two
+give the same image within float rounding (``tests/transport/test_fused.py``; a roulette decision
+that float rounding flips changes one path), and cast the same shadow rays in the same order, so
+path replay's adjoint pass (differentiable torch) takes its primal pass's answers unchanged.
+
+It applies (:func:`tables`) where the Warp kernels run (:func:`~invrender.transport.kernels.enabled`),
+the integrator's vertex step is the random walk's or the path tracer's own (``fused_direct``) with
+cosine-weighted diffuse sampling, every material belongs to one type that gives an albedo table
+(:meth:`BSDF.fused_albedo <invrender.transport.bsdfs.base.BSDF.fused_albedo>`: ``diffuse`` with RGB
+reflectance, no shading normals, none one-sided), the emitters are of one type that gives its
+triangle tables (:meth:`Light.fused_triangles <invrender.transport.lights.Light.fused_triangles>`:
+``area`` with RGB radiance, no sphere sampled by solid angle), the camera sees emitters, there is no
+ambient term, and no parameter carries a gradient or a forward-mode tangent; and, per chunk, where
+the film has no hooks (:func:`takes`: path records' and replay's adjoint films do). Everywhere else
+the torch bounce runs. ``INVRENDER_KERNELS=torch`` switches it off with the other kernels.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+import torch.autograd.forward_ad as fwAD
+
+from invrender.transport import kernels
+from invrender.transport.context import PathState, TransportContext
+from invrender.transport.film import Film
+from invrender.transport.sampler import bounce_salts
+
+#: random numbers drawn per vertex (as the random walk draws them: 0-1 BSDF direction, 2-4 emitter
+#: sample, 5 roulette, 6 BSDF lobe)
+DIMS = 7
+
+
+@dataclass(frozen=True)
+class FusedScene:
+    """What the fused bounce reads of one render's scene.
+
+    Attributes:
+        tables: the kernel's scene tables (:func:`~invrender.transport.kernels.lambert_vertex`).
+        mis: emission hit by BSDF samples is weighted against emitter samples (power heuristic).
+        nee_only: emitter samples alone estimate direct light (emission counts on camera rays only).
+        nee: emitter samples are taken (next-event estimation).
+    """
+
+    tables: list
+    mis: bool
+    nee_only: bool
+    nee: bool
+
+
+def tables(ctx: TransportContext, direct, hemisphere: str) -> FusedScene | None:
+    """The fused bounce's view of the render ``ctx``, or None where it does not apply (module
+    docstring). ``direct``: the integrator's ``fused_direct`` (None: its vertex step is its own;
+    ``False``: no emitter samples; ``"mis"`` or ``"emitter"``: the path tracer's strategies);
+    ``hemisphere``: its diffuse sampling."""
+    if direct is None or hemisphere != "cosine" or not kernels.enabled(ctx.triangles.p0.device):
+        return None
+    if ctx.hide_emitters or ctx.ambient is not None or ctx.triangles.any_smooth:
+        return None
+    rho, lights = ctx.materials.fused_albedo(), ctx.lights.fused_triangles()
+    if rho is None or lights is None or any(_carries_derivative(x) for x in (rho, lights.eps)):
+        return None
+    t = ctx.triangles
+    packed = [t.packed, t.material, t.emitter, lights.emitting, rho.detach().float(), lights.eps.detach().float(), lights.tri, lights.cdf, lights.pdf_area]
+    return FusedScene(packed, mis=direct == "mis", nee_only=direct == "emitter", nee=direct in ("mis", "emitter"))
+
+
+def _carries_derivative(x: torch.Tensor) -> bool:
+    return (x.requires_grad and torch.is_grad_enabled()) or fwAD.unpack_dual(x).tangent is not None
+
+
+def takes(film: Film) -> bool:
+    """Does ``film`` take the fused bounce's contributions (it has none of the hooks the torch
+    bounce calls: ``visit``, ``arrive``, ``scatter``)?"""
+    cls = type(film)
+    return cls.visit is Film.visit and cls.arrive is Film.arrive and cls.scatter is Film.scatter and not film.detach_throughput
+
+
+def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film, settings) -> None:
+    """Follow ``state``'s camera rays with the fused bounce and add each term to ``film``;
+    ``settings``: the integrator's (``max_depth``, ``rr_depth``)."""
+    rr_start = math.inf if settings.rr_depth == -1 else settings.rr_depth
+    pixel, keys, o, d, beta, pdf = state.pixel, state.keys, state.o, state.d, state.beta, state.pdf_dir
+    depth = 0
+    while keys.shape[0]:
+        hits = ctx.accel.intersect(o, d)
+        hit = hits.valid.nonzero()[:, 0]  # a synchronization: the count of rays that hit
+        prim, u, v, t = hits.prim, hits.u, hits.v, hits.t
+        if hit.shape[0] < keys.shape[0]:
+            pixel, keys, d, beta, pdf, prim, u, v, t = (x.index_select(0, hit) for x in (pixel, keys, d, beta, pdf, prim, u, v, t))
+            if not hit.shape[0]:
+                break
+        more = settings.continues_after(depth)
+        flags = (depth, int(fused.mis), int(fused.nee_only), int(fused.nee), int(more), int(depth + 1 >= rr_start))
+        salts = bounce_salts(depth + 1, DIMS, d.device)
+        out = kernels.lambert_vertex(fused.tables, (prim, u, v, t), d, beta, pdf, keys, salts, flags, ctx.ray_offset)
+        emitted, shadow_o, shadow_d, shadow_t, direct, o, d, beta, pdf, alive = out
+        film.add(depth, pixel, emitted)  # term depth
+        if not more:
+            break
+        if fused.nee:
+            occluded = ctx.accel.occluded(shadow_o, shadow_d, shadow_t)
+            film.add(depth + 1, pixel, direct.masked_fill_(occluded[:, None], 0.0))  # term depth + 1
+        if depth + 1 >= rr_start:
+            live = alive.nonzero()[:, 0]  # a synchronization: the survivors' count
+            pixel, keys, o, d, beta, pdf = (x.index_select(0, live) for x in (pixel, keys, o, d, beta, pdf))
+        depth += 1

@@ -1,0 +1,127 @@
+"""The fused primal bounce and the camera-sample kernel against the torch bounce and expressions
+they stand for (kept as the reference): the same images within float rounding, the camera's
+numbers bit for bit, and the torch bounce wherever the fused one does not apply."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+import torch
+
+import invrender as ir
+from invrender.transport import driver, fused, kernels
+from invrender.transport.context import TransportContext
+from invrender.transport.driver import RenderSettings
+from invrender.transport.film import Film, PathFilm
+from invrender.transport.integrators import make_integrator
+
+pytestmark = pytest.mark.warp
+FORWARD = Path(__file__).resolve().parents[2] / "forward"
+CPU = torch.device("cpu")
+
+
+@pytest.fixture
+def unfused(monkeypatch):
+    """Call it to trace with the torch bounce (the other kernels stay on)."""
+
+    def off() -> None:
+        monkeypatch.setattr(fused, "tables", lambda *args: None)
+
+    return off
+
+
+def _fused_scene(scene, integrator="path", **options):
+    integ = make_integrator(integrator, **options)
+    ctx = integ.context(scene, RenderSettings(spp=1), CPU)
+    return fused.tables(ctx, integ.fused_direct, integ.bsdf_sampling.hemisphere)
+
+
+@pytest.mark.parametrize(
+    "integrator, options",
+    [("path", {}), ("path", {"strategy": "emitter"}), ("path", {"strategy": "bsdf"}), ("random_walk", {}), ("path", {"max_depth": 3, "rr_depth": -1})],
+)
+def test_the_fused_bounce_renders_the_torch_bounces_image(integrator, options, unfused):
+    scene = ir.load_scene("cornell_box" if options.get("strategy") != "emitter" else str(FORWARD / "mesh_in_box.toml"), resolution=(24, 24))
+    assert _fused_scene(scene, integrator, **options) is not None
+    kw = dict(spp=16, seed=5, progress=False, integrator=integrator, **options)
+    image = ir.render(scene, **kw)
+    terms = ir.render(scene, terms=True, **kw)
+    unfused()
+    expected = ir.render(scene, **kw)
+    expected_terms = ir.render(scene, terms=True, **kw)
+    assert float(expected.mean()) > 0.05
+    # float rounding (a roulette decision it flips changes one path: none did at this seed)
+    assert (image - expected).abs().max() < 1e-5 * float(expected.max())
+    assert terms.shape == expected_terms.shape and (terms - expected_terms).abs().max() < 1e-5 * float(expected.max())
+    assert float(terms[2].mean()) > 0.01  # the indirect terms were traced
+
+
+def test_the_fused_bounce_applies_only_where_nothing_needs_the_torch_bounce(tmp_path):
+    box = ir.load_scene("cornell_box", resolution=(8, 8))
+    assert _fused_scene(box) is not None
+    assert _fused_scene(box, "path", hemisphere="uniform") is None  # another diffuse sampling
+    assert _fused_scene(box, "utah") is None  # a vertex step of its own
+    assert _fused_scene(box, "path", hide_emitters=True) is None
+    assert _fused_scene(ir.load_scene(str(FORWARD / "mesh_in_box.toml"), resolution=(8, 8))) is not None  # flat meshes: yes
+    for name in ("textured_floor.toml", "glossy_plate.toml"):  # a texture, a glossy lobe
+        assert _fused_scene(ir.load_scene(str(FORWARD / name), resolution=(8, 8))) is None, name
+    assert _fused_scene(ir.load_scene("cornell_specular", resolution=(8, 8))) is None  # mirror and glass
+    # a parameter that carries a gradient: its factors must go through autograd
+    leaf = box.params["red.reflectance"].clone().requires_grad_(True)
+    ctx = TransportContext.build(box, CPU, params={"red.reflectance": leaf})
+    assert fused.tables(ctx, "mis", "cosine") is None
+    with torch.no_grad():
+        assert fused.tables(ctx, "mis", "cosine") is not None
+    # films with hooks (path records', replay's adjoint) take the torch bounce
+    from invrender.diff.records import _RecordFilm
+    from invrender.diff.replay import AdjointFilm
+
+    assert fused.takes(Film(2, 2, False, CPU)) and fused.takes(PathFilm(4, CPU))
+    assert not fused.takes(AdjointFilm.__new__(AdjointFilm)) and not fused.takes(_RecordFilm.__new__(_RecordFilm))
+
+
+def test_replay_takes_the_fused_primal_pass_shadow_rays(unfused):
+    """The forward pass of a replayed render traces with the fused bounce and keeps its shadow
+    rays' answers; the adjoint pass (torch) replays them in order, so the gradient is autodiff's."""
+    scene = ir.load_scene("cornell_box", resolution=(16, 16))
+    names = ["white.reflectance", "red.reflectance", "light.emission"]
+
+    def gradient(estimator):
+        params = {n: scene.params[n].clone().requires_grad_(True) for n in names}
+        image = ir.render(dataclasses.replace(scene, params={**scene.params, **params}), spp=8, seed=2, progress=False, estimator=estimator)
+        (image**2).sum().backward()
+        return image.detach(), [params[n].grad for n in names]
+
+    image, replayed = gradient("replay")
+    _, autodiff = gradient("autodiff")
+    unfused()
+    image_torch, replayed_torch = gradient("replay")
+    assert (image - image_torch).abs().max() < 1e-5 * float(image.max())
+    for a, b, c in zip(replayed, autodiff, replayed_torch):
+        assert (a - b).abs().max() < 1e-4 * float(b.abs().max()) and (a - c).abs().max() < 1e-4 * float(c.abs().max())
+
+
+@pytest.mark.parametrize("sampler", ["stratified", "independent", "antithetic"])
+def test_camera_samples_equal_the_torch_expressions_bit_for_bit(sampler):
+    for name, res in (("cornell_box", (24, 20)), (str(FORWARD / "cornell_far.toml"), (9, 7))):
+        scene = ir.load_scene(name, resolution=res)
+        for spp in (1, 5, 7, 16, 33):
+            settings = RenderSettings(spp=spp, sampler=sampler, seed=123)
+            ids = torch.arange(3, res[0] * res[1] * spp, 2, dtype=torch.int64)  # not consecutive, not from 0
+            got, expected = driver._camera_samples(scene, settings, ids), driver._camera_samples_torch(scene, settings, ids)
+            for a, b in zip(got, expected):
+                assert (a is None and b is None) or (a.dtype == b.dtype and torch.equal(a, b)), (name, spp)
+
+
+def test_a_thin_lens_camera_draws_its_lens_point_in_the_kernel():
+    scene = ir.load_scene("cornell_box", resolution=(8, 8))
+    lens = dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, aperture_radius=0.05, focus_distance=3.0))
+    if lens.camera.is_pinhole:
+        pytest.skip("the camera has no thin-lens fields")
+    ids = torch.arange(0, 64 * 4, dtype=torch.int64)
+    settings = RenderSettings(spp=4, seed=1)
+    got, expected = driver._camera_samples(lens, settings, ids), driver._camera_samples_torch(lens, settings, ids)
+    assert got[3] is not None and all(torch.equal(a, b) for a, b in zip(got, expected))
+    assert kernels.enabled(CPU)
