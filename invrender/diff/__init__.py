@@ -2,7 +2,8 @@
 
 - ``autodiff``: torch records the whole wavefront (memory grows with spp x depth);
 - ``replay``: path-replay backpropagation (:mod:`invrender.diff.replay`; memory flat in spp and depth);
-- ``auto``: autodiff where the recorded render fits in the memory budget, else replay
+- ``auto``: replay where the fused bounce carries the derivatives forward (one trace), else
+  autodiff where the recorded render fits in the memory budget, else replay
   (:func:`resolve_estimator`; fits use it by default);
 - decorrelated loss gradients: :func:`backpropagate` takes ``dl/dI`` from any image (an independent
   render) and differentiates the render of ``settings`` with it.
@@ -39,8 +40,10 @@ def _check_estimator(estimator: str) -> str:
     return estimator
 
 
-def resolve_estimator(estimator: str, scene: Scene, integrator: Integrator, settings: RenderSettings) -> str:
-    """The estimator ``"auto"`` stands for: ``"autodiff"`` when the recorded render of ``settings``
+def resolve_estimator(estimator: str, scene: Scene, integrator: Integrator, settings: RenderSettings, device=None, names: list[str] | None = None) -> str:
+    """The estimator ``"auto"`` stands for: ``"replay"`` where the fused bounce carries the
+    derivatives of every parameter of ``names`` forward on ``device`` (one trace, no recording:
+    :func:`invrender.diff.replay.tangent_slots`; both given), else ``"autodiff"`` when the recorded render of ``settings``
     (about :data:`AUTODIFF_BYTES_PER_PATH_TERM` bytes a camera path and term) fits in
     ``settings.memory_mb``, else ``"replay"`` (memory flat in spp and depth; also for unbounded
     depth). The two give the same gradient to float rounding; autodiff traces once, replay twice
@@ -48,6 +51,11 @@ def resolve_estimator(estimator: str, scene: Scene, integrator: Integrator, sett
     renders are faster recorded. Other names are returned as they are."""
     if estimator != "auto":
         return estimator
+    if device is not None and names:
+        from invrender.diff.replay import tangent_slots
+
+        if tangent_slots(scene, integrator, settings, torch.device(device), names) is not None:
+            return "replay"
     terms = integrator.terms_kept
     if terms == -1:
         return "replay"
@@ -138,9 +146,9 @@ def render(
     spp = scene_spp(scene, spp)
     settings = RenderSettings(spp=spp, seed=seed, terms=terms, backend=backend, chunk_paths=chunk_paths, memory_mb=memory_mb, progress=progress, sampler=sampler, sampling_params=sampling_params)
     check_paths(scene.width, scene.height, spp)  # before any work, whichever estimator runs
-    estimator = resolve_estimator(_check_estimator(estimator or "replay"), scene, model, settings)
     device = _device(scene, device)
     differentiable = [k for k, v in scene.params.items() if v.requires_grad] if torch.is_grad_enabled() else []
+    estimator = resolve_estimator(_check_estimator(estimator or "replay"), scene, model, settings, device, differentiable)
     adaptive = AdaptiveSettings.make(adaptive)
     if return_counts and adaptive is None:
         raise ParameterError("return_counts=True needs adaptive sampling (adaptive=True or its settings): without it every pixel has spp samples")
@@ -169,8 +177,9 @@ def backpropagate(scene: Scene, grad_image: torch.Tensor, integrator: Integrator
     takes ``grad_image = dl/dI`` from another render); ``autodiff`` has to record a forward render;
     ``auto`` picks one by memory (:func:`resolve_estimator`). ``grad_image``: (H, W, 3).
     """
-    estimator = resolve_estimator(_check_estimator(estimator), scene, integrator, settings)
     device = _device(scene, device)
+    names = [k for k, v in scene.params.items() if v.requires_grad]
+    estimator = resolve_estimator(_check_estimator(estimator), scene, integrator, settings, device, names)
     if estimator == "autodiff":
         image = autodiff_render(scene, integrator, settings, device, [k for k, v in scene.params.items() if v.requires_grad])
         if image.requires_grad:  # else no traced path depends on the parameters: their gradient is 0

@@ -38,7 +38,9 @@ import sys
 
 import torch
 
+from invrender.scene.kinds import param_name
 from invrender.scene.scene import Scene
+from invrender.transport import fused
 from invrender.transport.accel import RepeatedQueries
 from invrender.transport.context import PathState
 from invrender.transport.driver import BYTES_PER_REPLAYED_PATH, RenderSettings, cpu_workers, for_each_chunk, total_paths
@@ -114,8 +116,11 @@ class _ReplayRender(torch.autograd.Function):
     def forward(fctx, scene: Scene, integrator: Integrator, settings: RenderSettings, device, names: list[str], *values):
         fctx.scene, fctx.integrator, fctx.settings, fctx.device, fctx.names = scene, integrator, settings, device, names
         fctx.save_for_backward(*values)
-        fctx.kept = {} if _can_keep(scene, settings) else None
-        image = integrator.render(scene, settings, device, params=dict(zip(names, values)), keep=fctx.kept)
+        params = dict(zip(names, values))
+        fctx.slots = tangent_slots(scene, integrator, settings, device, names, params)
+        fctx.kept = {} if fctx.slots is None and _can_keep(scene, settings) else None
+        fctx.tangents = {} if fctx.slots is not None else None
+        image = integrator.render(scene, settings, device, params=params, keep=fctx.kept, tangents=fctx.tangents)
         if fctx.kept is not None:
             release_freed_memory(device)  # the forward chunks' heap, before the backward pass's
         return image
@@ -123,9 +128,41 @@ class _ReplayRender(torch.autograd.Function):
     @staticmethod
     def backward(fctx, grad_image):
         values = dict(zip(fctx.names, fctx.saved_tensors))
-        grads = replay_gradient(fctx.scene, fctx.integrator, fctx.settings, fctx.device, values, grad_image, kept=fctx.kept)
-        fctx.kept = None
+        if fctx.tangents is not None:
+            grads = contract(fctx.tangents["jacobian"], fctx.slots, grad_image)
+        else:
+            grads = replay_gradient(fctx.scene, fctx.integrator, fctx.settings, fctx.device, values, grad_image, kept=fctx.kept)
+        fctx.kept = fctx.tangents = None
         return (None, None, None, None, None, *(grads[n].to(v.device, v.dtype) for n, v in values.items()))
+
+
+def tangent_slots(scene: Scene, integrator: Integrator, settings: RenderSettings, device, names: list[str], params: dict | None = None) -> dict[str, int] | None:
+    """name -> slot of the fused bounce's per-pixel Jacobian (:class:`~invrender.transport.fused.TangentFilm`)
+    when it answers the gradient of every parameter of ``names``: the fused bounce applies to the
+    render, each name is a material's ``reflectance`` or an emitter's ``emission``, and the
+    Jacobian (8 bytes a pixel, channel and slot, per worker) fits in :data:`KEEP_SHARE` of the
+    memory budget; else None (the paths are replayed)."""
+    if settings.terms:
+        return None
+    with torch.no_grad():
+        scene_tables = integrator.fused_scene(integrator.context(scene, settings, device, params))
+    if scene_tables is None:
+        return None
+    slot_of = {param_name(m, "reflectance"): i for i, m in enumerate(scene.materials)}
+    slot_of.update({param_name(e, "emission"): len(scene.materials) + i for i, e in enumerate(scene.emitters)})
+    if any(n not in slot_of for n in names) or fused.slots(scene_tables) != len(scene.materials) + len(scene.emitters):
+        return None
+    size = scene.width * scene.height * 3 * fused.slots(scene_tables) * 8 * cpu_workers(device)
+    if size > settings.memory_mb * 2**20 * KEEP_SHARE:
+        return None
+    return {n: slot_of[n] for n in names}
+
+
+def contract(jacobian: torch.Tensor, slots: dict[str, int], grad_image: torch.Tensor) -> dict[str, torch.Tensor]:
+    """``sum_pixels <grad_image, dI/dtheta>`` per name from the per-pixel Jacobian (P, 3, S) of the
+    image (:meth:`Integrator.render` with ``tangents``): (3,) per name."""
+    g = grad_image.detach().reshape(-1, 3).to(jacobian.device, torch.float64)
+    return {n: (g * jacobian[:, :, k]).sum(0).float() for n, k in slots.items()}
 
 
 def _can_keep(scene: Scene, settings: RenderSettings) -> bool:
@@ -154,6 +191,11 @@ def replay_gradient(
     Returns:
         name -> gradient, shaped like the value.
     """
+    slots = tangent_slots(scene, integrator, settings, device, list(values), values) if kept is None else None
+    if slots is not None:  # one trace, derivatives carried forward in the fused kernels
+        tangents: dict = {}
+        integrator.render(scene, settings.replace(progress=False), device, params={k: v.detach() for k, v in values.items()}, tangents=tangents)
+        return sum_gradients(contract(tangents["jacobian"], slots, grad_image))
     leaves = {k: v.detach().to(device).requires_grad_(True) for k, v in values.items()}
     workers = cpu_workers(device)
     ctx = integrator.context(scene, settings, device, params=leaves)

@@ -131,7 +131,7 @@ class SamplePlan:
 
 def for_each_chunk(
     scene: Scene, settings: RenderSettings, device: torch.device, work, grad: bool | None = None, across_ranks: bool = False, with_start: bool = False,
-    bytes_per_path: int = BYTES_PER_PATH,
+    bytes_per_path: int = BYTES_PER_PATH, max_chunk: int | None = None,
 ) -> None:  # fmt: skip
     """Call ``work(worker, camera_paths)`` for every chunk of the (pixel, sample) paths
     (``work(worker, camera_paths, start)`` with ``with_start``: ``start`` the chunk's first path id,
@@ -144,14 +144,14 @@ def for_each_chunk(
     belongs to rank ``c mod world``; :mod:`invrender.transport.ranks`): the caller sums the ranks'
     results. Otherwise every chunk is traced here.
     ``bytes_per_path``: the working set of a path, which sizes the chunks from ``settings.memory_mb``
-    (unless ``settings.chunk_paths`` is given).
+    (unless ``settings.chunk_paths`` is given); ``max_chunk``: at most that many paths a chunk then.
     """
     if device.type == "cpu":
         keep_freed_blocks()  # chunk-sized temporaries reused, not page-faulted in anew
     workers = cpu_workers(device)
     rank, world = ranks.world() if across_ranks else (0, 1)
     total = total_paths(scene, settings)
-    chunk = settings.chunk_paths or max(1024, min(int(settings.memory_mb * 2**20 // bytes_per_path) // workers, -(-total // (workers * world))))
+    chunk = settings.chunk_paths or max(1024, min(int(settings.memory_mb * 2**20 // bytes_per_path) // workers, -(-total // (workers * world)), max_chunk or total))
     starts = range(0, total, chunk)[rank::world]
     grad = torch.is_grad_enabled() if grad is None else grad
     mine = sum(min(total, s + chunk) - s for s in starts)

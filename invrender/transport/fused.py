@@ -41,7 +41,13 @@ import torch.autograd.forward_ad as fwAD
 from invrender.transport import kernels
 from invrender.transport.context import PathState, TransportContext
 from invrender.transport.film import Film
+from invrender.transport.ranks import sum_across_ranks, world
 from invrender.transport.sampler import bounce_salts
+
+#: paths a chunk traced by the fused bounce holds at most on the CPU: its per-chunk cost (a few
+#: dozen launches and queries a bounce) is paid back well below this, and smaller chunks keep the
+#: working set small (about 400 bytes a path)
+CPU_CHUNK_PATHS = 1 << 16
 
 #: random numbers drawn per vertex (as the random walk draws them: 0-1 BSDF direction, 2-4 emitter
 #: sample, 5 roulette, 6 BSDF lobe)
@@ -93,32 +99,74 @@ def takes(film: Film) -> bool:
     return cls.visit is Film.visit and cls.arrive is Film.arrive and cls.scatter is Film.scatter and not film.detach_throughput
 
 
+class TangentFilm(Film):
+    """A film that also keeps each pixel's derivatives in the scene's constant parameters (forward
+    mode, in the fused kernels): :attr:`jacobian` (W * H, 3, S) float64, pixel by colour channel by
+    *slot*, the M materials' reflectance (:meth:`BSDF.fused_albedo` rows) then the E emitters'
+    emission (``triangles.emitter`` rows); channel c of a pixel depends on channel c of each slot
+    only. Sums over paths, as the image (divide by spp for the image's derivative).
+
+    Every factor of a Lambertian path is linear in one of them, so a contribution C with n factors
+    of rho_m has derivative ``n C / rho_m`` (0 in a channel where rho_m is 0, as path replay
+    gives there) and one with the factor eps_e the factor beside it; a path counts its throughput's
+    factors per material as it scatters (``kernels.jacobian_add``).
+    """
+
+    def __init__(self, width: int, height: int, slots: int, device):
+        super().__init__(width, height, False, device)
+        self.jacobian = torch.zeros(width * height, 3, slots, dtype=torch.float64, device=device)
+
+    @staticmethod
+    def merge(films: list[TangentFilm]) -> TangentFilm:
+        out = Film.merge(films)
+        for other in films[1:]:
+            out.jacobian += other.jacobian
+        return out
+
+    def summed_across_ranks(self) -> TangentFilm:
+        if world()[1] > 1:
+            self.jacobian = sum_across_ranks(self.jacobian)
+        return super().summed_across_ranks()
+
+
+def slots(fused: FusedScene) -> int:
+    """The Jacobian's slots of the scene: its materials, then its emitters (:class:`TangentFilm`)."""
+    return fused.tables[4].shape[0] + fused.tables[5].shape[0]
+
+
 def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film, settings) -> None:
-    """Follow ``state``'s camera rays with the fused bounce and add each term to ``film``;
-    ``settings``: the integrator's (``max_depth``, ``rr_depth``)."""
+    """Follow ``state``'s camera rays with the fused bounce and add each term to ``film`` (and,
+    into a :class:`TangentFilm`, each pixel's derivatives); ``settings``: the integrator's
+    (``max_depth``, ``rr_depth``)."""
     rr_start = math.inf if settings.rr_depth == -1 else settings.rr_depth
     pixel, keys, o, d, beta, pdf = state.pixel, state.keys, state.o, state.d, state.beta, state.pdf_dir
+    tangents = isinstance(film, TangentFilm)
+    rho = fused.tables[4]
+    counts = torch.zeros(keys.shape[0], rho.shape[0] if tangents else 0, dtype=torch.int32, device=keys.device)  # factors of each rho in beta
     depth = 0
     while keys.shape[0]:
         hits = ctx.accel.intersect(o, d)
         hit = hits.valid.nonzero()[:, 0]  # a synchronization: the count of rays that hit
         prim, u, v, t = hits.prim, hits.u, hits.v, hits.t
         if hit.shape[0] < keys.shape[0]:
-            pixel, keys, d, beta, pdf, prim, u, v, t = (x.index_select(0, hit) for x in (pixel, keys, d, beta, pdf, prim, u, v, t))
+            pixel, keys, d, beta, pdf, prim, u, v, t, counts = (x.index_select(0, hit) for x in (pixel, keys, d, beta, pdf, prim, u, v, t, counts))
             if not hit.shape[0]:
                 break
         more = settings.continues_after(depth)
         flags = (depth, int(fused.mis), int(fused.nee_only), int(fused.nee), int(more), int(depth + 1 >= rr_start))
         salts = bounce_salts(depth + 1, DIMS, d.device)
-        out = kernels.lambert_vertex(fused.tables, (prim, u, v, t), d, beta, pdf, keys, salts, flags, ctx.ray_offset)
-        emitted, shadow_o, shadow_d, shadow_t, direct, o, d, beta, pdf, alive = out
+        out = kernels.lambert_vertex(fused.tables, (prim, u, v, t), d, beta, pdf, keys, salts, flags, ctx.ray_offset, tangents)
+        emitted, shadow_o, shadow_d, shadow_t, direct, o, d, beta, pdf, alive = out[:10]
         film.add(depth, pixel, emitted)  # term depth
-        if not more:
-            break
-        if fused.nee:
+        occluded = None
+        if more and fused.nee:
             occluded = ctx.accel.occluded(shadow_o, shadow_d, shadow_t)
             film.add(depth + 1, pixel, direct.masked_fill_(occluded[:, None], 0.0))  # term depth + 1
+        if tangents:
+            kernels.jacobian_add(pixel, counts, rho, emitted, out[10:], direct, occluded, more, film.jacobian)
+        if not more:
+            break
         if depth + 1 >= rr_start:
             live = alive.nonzero()[:, 0]  # a synchronization: the survivors' count
-            pixel, keys, o, d, beta, pdf = (x.index_select(0, live) for x in (pixel, keys, o, d, beta, pdf))
+            pixel, keys, o, d, beta, pdf, counts = (x.index_select(0, live) for x in (pixel, keys, o, d, beta, pdf, counts))
         depth += 1

@@ -205,7 +205,7 @@ def offset_origins(p: torch.Tensor, n: torch.Tensor, wi: torch.Tensor, offset: f
     return o
 
 
-def lambert_vertex(tables: list, hits: tuple, d, beta, pdf_dir, keys, salts, flags: tuple, offset: float) -> tuple:
+def lambert_vertex(tables: list, hits: tuple, d, beta, pdf_dir, keys, salts, flags: tuple, offset: float, tangents: bool = False) -> tuple:
     """One primal bounce of N paths on Lambertian surfaces lit by emissive triangles (the kernel
     of :mod:`invrender.transport.fused`, which documents it).
 
@@ -220,7 +220,10 @@ def lambert_vertex(tables: list, hits: tuple, d, beta, pdf_dir, keys, salts, fla
     Returns:
         emitted (N, 3) (term depth), shadow rays o (N, 3), d (N, 3), tmax (N,) and the direct light
         (N, 3) each adds if unoccluded (term depth + 1), then the continued paths' o, d, beta (N, 3),
-        pdf (N,) and alive (N,) bool. With ``more`` 0 only ``emitted`` is written.
+        pdf (N,) and alive (N,) bool. With ``more`` 0 only ``emitted`` is written. With
+        ``tangents``, then also what :func:`jacobian_add` reads: the factors beside eps of the
+        emission (N, 3) and of the direct light (N, 3), the emitters hit (N,) int32 (-1: none) and
+        sampled (N,), and the materials hit (N,).
     """
     n, dev = d.shape[0], d.device
     vec = [torch.empty(n, 3, device=dev) for _ in range(7)]
@@ -228,12 +231,37 @@ def lambert_vertex(tables: list, hits: tuple, d, beta, pdf_dir, keys, salts, fla
     alive = torch.empty(n, dtype=torch.bool, device=dev)
     emitted, shadow_o, shadow_d, direct, o_next, d_next, beta_next = vec
     rho, eps = tables[4], tables[5]
+    count = n if tangents else 1
+    factors = [torch.zeros(count, 3, device=dev) for _ in range(2)]
+    indices = [torch.empty(count, dtype=torch.int32, device=dev) for _ in range(3)]
     inputs = [
         *tables[:4], Vec3(rho), Vec3(eps), *tables[6:], *hits, Vec3(d), Vec3(beta), pdf_dir, keys, salts, *flags, float(offset),
         Vec3(emitted), Vec3(shadow_o), Vec3(shadow_d), shadow_t, Vec3(direct), Vec3(o_next), Vec3(d_next), Vec3(beta_next), pdf, alive,
+        int(tangents), Vec3(factors[0]), indices[0], Vec3(factors[1]), indices[1], indices[2],
     ]  # fmt: skip
     launch(warp_kernels().lambert_vertex_kernel, n, inputs, dev)
-    return emitted, shadow_o, shadow_d, shadow_t, direct, o_next, d_next, beta_next, pdf, alive
+    out = (emitted, shadow_o, shadow_d, shadow_t, direct, o_next, d_next, beta_next, pdf, alive)
+    return out + (factors[0], indices[0], factors[1], indices[1], indices[2]) if tangents else out
+
+
+def jacobian_add(pixel, counts, rho, emitted, tangents: tuple, direct, occluded, scatter: bool, jacobian: torch.Tensor) -> None:
+    """Add one bounce's derivatives to ``jacobian`` (P, 3, S) float64 (pixel, channel, slot: the M
+    materials' rho, then the emitters' eps), and count each path's vertex material in ``counts``
+    (N, M) int32 (its throughput's factors of each rho) when the paths ``scatter`` on.
+
+    Args:
+        pixel: (N,) int64 film index; rho (M, 3); emitted, direct (N, 3) the bounce's contributions
+            (``direct`` before occlusion); tangents: the extra outputs of :func:`lambert_vertex`;
+        occluded: (N,) bool the shadow rays' answers (None: no emitter samples).
+    """
+    n, dev = pixel.shape[0], pixel.device
+    emitted_factor, emitter_hit, direct_factor, emitter_sampled, material_hit = tangents
+    blocked = occluded if occluded is not None else torch.ones(n, dtype=torch.bool, device=dev)
+    inputs = [
+        pixel, counts, Vec3(rho), Vec3(emitted), Vec3(emitted_factor), emitter_hit, Vec3(direct), Vec3(direct_factor), emitter_sampled, blocked, material_hit,
+        int(scatter), int(jacobian.shape[2]), jacobian.view(-1),
+    ]  # fmt: skip
+    launch(warp_kernels().jacobian_kernel, n, inputs, dev)
 
 
 def camera_samples(ids: torch.Tensor, spp: int, width: int, mode: int, key_salt: int, pattern_salt: int, cells: int, m: int, salts, lens: bool):

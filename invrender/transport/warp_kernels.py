@@ -226,6 +226,8 @@ def lambert_vertex_kernel(
     depth: wp.int32, mis: wp.int32, nee_only: wp.int32, nee: wp.int32, more: wp.int32, roulette: wp.int32, offset: wp.float32,
     emitted: wp.array(dtype=wp.vec3), shadow_o: wp.array(dtype=wp.vec3), shadow_d: wp.array(dtype=wp.vec3), shadow_t: wp.array(dtype=wp.float32), direct: wp.array(dtype=wp.vec3),
     o_next: wp.array(dtype=wp.vec3), d_next: wp.array(dtype=wp.vec3), beta_next: wp.array(dtype=wp.vec3), pdf_next: wp.array(dtype=wp.float32), alive: wp.array(dtype=wp.bool),
+    tangents: wp.int32, emitted_factor: wp.array(dtype=wp.vec3), emitter_hit: wp.array(dtype=wp.int32), direct_factor: wp.array(dtype=wp.vec3),
+    emitter_sampled: wp.array(dtype=wp.int32), material_hit: wp.array(dtype=wp.int32),
 ):  # fmt: skip
     i = wp.tid()
     k = prim[i]
@@ -240,13 +242,21 @@ def lambert_vertex_kernel(
         n = -ng
     # term depth: emission seen (add_emitted); only the camera's rays (depth 0) are delta rays here
     e = wp.vec3(0.0)
+    w = float(0.0)
+    hit_emitter = wp.int32(-1)
     if c > 0.0 and emitting[k] and (nee_only == 0 or depth == 0):
-        le = eps[emitter[k]]
+        w = 1.0
         if mis != 0 and depth > 0:
             tk = t[i]
-            le = _power_heuristic(pdf_dir[i], pdf_area[k] * tk * tk / wp.max(wp.abs(c), 1.0e-12)) * le
-        e = wp.cw_mul(b, le)
+            w = _power_heuristic(pdf_dir[i], pdf_area[k] * tk * tk / wp.max(wp.abs(c), 1.0e-12))
+        e = wp.cw_mul(b, w * eps[emitter[k]])
+        hit_emitter = wp.int32(emitter[k])
     emitted[i] = e
+    if tangents != 0:  # the factors beside eps, for the Jacobian (jacobian_kernel)
+        emitted_factor[i] = b * w
+        emitter_hit[i] = hit_emitter
+        material_hit[i] = wp.int32(material[k])
+        emitter_sampled[i] = -1
     if more == 0:
         alive[i] = False
         return
@@ -269,6 +279,9 @@ def lambert_vertex_kernel(
         shadow_d[i] = wl
         shadow_t[i] = tmax
         direct[i] = wp.cw_mul(wp.cw_mul(b * weight, f_cos), eps[emitter[kl]])
+        if tangents != 0:
+            direct_factor[i] = wp.cw_mul(b * weight, f_cos)
+            emitter_sampled[i] = wp.int32(emitter[kl])
     # the BSDF sample (Diffuse._sample_cosine), the new ray (spawn) and Russian roulette
     wi, density = _cosine(n, _uniform(key, salts[0]), _uniform(key, salts[1]))
     o_next[i] = _spawn(p, n, wi, offset)
@@ -373,3 +386,43 @@ def camera_samples_kernel(
         fy = wp.min(fy, 1.0 - 5.9604645e-08)
     film[i, 0] = wp.float32(px % width) + fx
     film[i, 1] = wp.float32(px // width) + fy
+
+
+@wp.kernel
+def jacobian_kernel(
+    pixel: wp.array(dtype=wp.int64), counts: wp.array2d(dtype=wp.int32), rho: wp.array(dtype=wp.vec3), emitted: wp.array(dtype=wp.vec3),
+    emitted_factor: wp.array(dtype=wp.vec3), emitter_hit: wp.array(dtype=wp.int32), direct: wp.array(dtype=wp.vec3), direct_factor: wp.array(dtype=wp.vec3),
+    emitter_sampled: wp.array(dtype=wp.int32), occluded: wp.array(dtype=wp.bool), material_hit: wp.array(dtype=wp.int32), scatter: wp.int32,
+    slots: wp.int32, jacobian: wp.array(dtype=wp.float64),
+):  # fmt: skip
+    """Add one vertex's contributions' derivatives to the per-pixel Jacobian (pixel, channel, slot):
+    slots 0 .. M - 1 the materials' rho (a contribution with n factors of rho_m has derivative
+    n C / rho_m; 0 in a channel where rho_m is 0), slots M .. the emitters' eps (the factor beside
+    it); then count the vertex's own rho in the path's throughput (``scatter``)."""
+    i = wp.tid()
+    materials = counts.shape[1]
+    m_k = material_hit[i]
+    e_h = emitter_hit[i]
+    e_l = emitter_sampled[i]
+    lit = e_l >= 0 and not occluded[i]
+    base = pixel[i] * wp.int64(3)
+    for c in range(3):
+        row = (base + wp.int64(c)) * wp.int64(slots)
+        ce = emitted[i][c]
+        cd = float(0.0)
+        if lit:
+            cd = direct[i][c]
+        if e_h >= 0:
+            wp.atomic_add(jacobian, row + wp.int64(materials + e_h), wp.float64(emitted_factor[i][c]))
+        if lit:
+            wp.atomic_add(jacobian, row + wp.int64(materials + e_l), wp.float64(direct_factor[i][c]))
+        for m in range(materials):
+            r = rho[m][c]
+            n = counts[i, m]
+            nd = n
+            if m == m_k:
+                nd = n + 1
+            if r > 0.0 and (n > 0 or nd > 0):
+                wp.atomic_add(jacobian, row + wp.int64(m), wp.float64((wp.float32(n) * ce + wp.float32(nd) * cd) / r))
+    if scatter != 0:
+        counts[i, m_k] = counts[i, m_k] + 1

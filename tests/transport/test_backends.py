@@ -146,7 +146,10 @@ def test_backend_errors():
 
 def test_repeated_queries_answer_the_adjoint_pass_from_the_primal_pass(monkeypatch):
     """Path replay without kept radiance traces a chunk twice; the second trace (adjoint) casts the
-    first's rays again and gets the recorded answers: the backend is asked once per ray."""
+    first's rays again and gets the recorded answers: the backend is asked once per ray. (The
+    Cornell box's gradient is otherwise carried forward by the fused bounce, one trace and no
+    replay: that is switched off here, and checked at the end.)"""
+    from invrender.diff import replay
     from invrender.diff.replay import replay_gradient
     from invrender.transport import accel
     from invrender.transport.driver import RenderSettings
@@ -162,6 +165,8 @@ def test_repeated_queries_answer_the_adjoint_pass_from_the_primal_pass(monkeypat
             return _original(self, *args)
 
         monkeypatch.setattr(accel.EmbreeIntersector, kind, counted)
+    tangent_slots = replay.tangent_slots
+    monkeypatch.setattr(replay, "tangent_slots", lambda *args, **kwargs: None)
     integrator, settings = make_integrator("path", max_depth=4), RenderSettings(spp=4, seed=1, progress=False, chunk_paths=512)
     with torch.no_grad():
         integrator.render(scene, settings, torch.device("cpu"))
@@ -181,6 +186,14 @@ def test_repeated_queries_answer_the_adjoint_pass_from_the_primal_pass(monkeypat
     image.sum().backward()
     assert calls == {"intersect": forward["intersect"], "occluded": 0}
     assert torch.allclose(p.grad, grads[name], rtol=1e-5)
+
+    # the fused bounce's forward-mode derivatives: the backward pass traces nothing
+    monkeypatch.setattr(replay, "tangent_slots", tangent_slots)
+    p.grad = None
+    image = ir.render(work, max_depth=4, spp=4, seed=1, progress=False, chunk_paths=512, estimator="replay")
+    assert calls["intersect"] == 2 * forward["intersect"]  # the forward render's own queries
+    image.sum().backward()
+    assert calls["intersect"] == 2 * forward["intersect"] and torch.allclose(p.grad, grads[name], rtol=1e-5)
 
     mask = torch.rand(1001, generator=torch.Generator().manual_seed(5)) < 0.3
     assert torch.equal(accel._unpack_bits(accel._pack_bits(mask), 1001), mask) and accel._pack_bits(mask).numel() == 126

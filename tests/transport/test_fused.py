@@ -82,25 +82,38 @@ def test_the_fused_bounce_applies_only_where_nothing_needs_the_torch_bounce(tmp_
     assert not fused.takes(AdjointFilm.__new__(AdjointFilm)) and not fused.takes(_RecordFilm.__new__(_RecordFilm))
 
 
-def test_replay_takes_the_fused_primal_pass_shadow_rays(unfused):
-    """The forward pass of a replayed render traces with the fused bounce and keeps its shadow
-    rays' answers; the adjoint pass (torch) replays them in order, so the gradient is autodiff's."""
+@pytest.mark.parametrize("strategy", ["mis", "emitter", "bsdf"])
+def test_the_fused_bounces_derivatives_are_autodiffs(strategy, unfused):
+    """Replay of a fusable render carries each pixel's derivatives forward in the fused kernels (one
+    trace, no adjoint pass): the gradient is autodiff's and the torch replay's to float rounding, in
+    a render (loss.backward) and a decorrelated gradient (backpropagate) alike."""
+    from invrender.diff import backpropagate
+    from invrender.diff.replay import tangent_slots
+
     scene = ir.load_scene("cornell_box", resolution=(16, 16))
     names = ["white.reflectance", "red.reflectance", "light.emission"]
+    integrator = make_integrator("path", strategy=strategy)
+    settings = RenderSettings(spp=8, seed=2, progress=False)
+    assert tangent_slots(scene, integrator, settings, CPU, names) == {"white.reflectance": 0, "red.reflectance": 1, "light.emission": 3}
+    assert tangent_slots(scene, integrator, settings, CPU, ["white.reflectance", "sensor.gain"]) is None
 
     def gradient(estimator):
         params = {n: scene.params[n].clone().requires_grad_(True) for n in names}
-        image = ir.render(dataclasses.replace(scene, params={**scene.params, **params}), spp=8, seed=2, progress=False, estimator=estimator)
+        work = dataclasses.replace(scene, params={**scene.params, **params})
+        image = ir.render(work, spp=8, seed=2, progress=False, estimator=estimator, strategy=strategy)
         (image**2).sum().backward()
-        return image.detach(), [params[n].grad for n in names]
+        decorrelated = {n: v.detach().clone().requires_grad_(True) for n, v in params.items()}
+        backpropagate(dataclasses.replace(scene, params={**scene.params, **decorrelated}), 2 * image.detach(), integrator, settings, estimator)
+        return image.detach(), [params[n].grad for n in names], [decorrelated[n].grad for n in names]
 
-    image, replayed = gradient("replay")
-    _, autodiff = gradient("autodiff")
+    image, replayed, decorrelated = gradient("replay")
+    _, autodiff, autodiff_decorrelated = gradient("autodiff")
     unfused()
-    image_torch, replayed_torch = gradient("replay")
+    image_torch, replayed_torch, _ = gradient("replay")
     assert (image - image_torch).abs().max() < 1e-5 * float(image.max())
-    for a, b, c in zip(replayed, autodiff, replayed_torch):
-        assert (a - b).abs().max() < 1e-4 * float(b.abs().max()) and (a - c).abs().max() < 1e-4 * float(c.abs().max())
+    for got, expected in ((replayed, autodiff), (replayed, replayed_torch), (decorrelated, autodiff_decorrelated), (decorrelated, replayed)):
+        for a, b in zip(got, expected):
+            assert float(b.abs().max()) > 0 and (a - b).abs().max() < 1e-4 * float(b.abs().max())
 
 
 @pytest.mark.parametrize("sampler", ["stratified", "independent", "antithetic"])

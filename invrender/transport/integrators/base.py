@@ -20,6 +20,7 @@ import torch
 from invrender import registry
 from invrender.errors import ParameterError
 from invrender.scene.scene import Scene
+from invrender.transport import fused
 from invrender.transport.accel import RepeatedQueries
 from invrender.transport.bsdfs import BSDFSampling
 from invrender.transport.context import PathState, TransportContext
@@ -184,7 +185,9 @@ class Integrator(ABC):
             ctx = dataclasses.replace(ctx, hide_emitters=True)
         return self.prepare(ctx)
 
-    def render(self, scene: Scene, settings: RenderSettings, device: torch.device, params: dict | None = None, keep: dict | None = None) -> torch.Tensor:
+    def render(
+        self, scene: Scene, settings: RenderSettings, device: torch.device, params: dict | None = None, keep: dict | None = None, tangents: dict | None = None
+    ) -> torch.Tensor:
         """The image: (H, W, 3), or (K, H, W, 3) per term with ``settings.terms``; records autograd
         where a parameter requires grad (``params`` overrides ``scene.params`` values).
 
@@ -199,7 +202,13 @@ class Integrator(ABC):
         check_paths(scene.width, scene.height, settings.spp)
         check_film_memory(scene.width, scene.height, device, max(self.terms_kept, 1) if settings.terms else 1)
         ctx = self.context(scene, settings, device, params)
-        films = [Film(scene.width, scene.height, settings.terms, device) for _ in range(cpu_workers(device))]
+        if tangents is not None:
+            scene_tables = self.fused_scene(ctx)
+            if scene_tables is None:
+                raise ValueError(f"tangents: the fused bounce does not apply to this render of {scene.name!r}")
+            films = [fused.TangentFilm(scene.width, scene.height, fused.slots(scene_tables), device) for _ in range(cpu_workers(device))]
+        else:
+            films = [Film(scene.width, scene.height, settings.terms, device) for _ in range(cpu_workers(device))]
 
         def chunk(worker: int, state: PathState, start: int) -> None:
             if keep is None:
@@ -212,8 +221,17 @@ class Integrator(ABC):
             keep[start] = (totals.float(), shadows)  # float32 until replay takes it up
 
         size = BYTES_PER_PATH if keep is None else BYTES_PER_REPLAYED_PATH  # kept chunks are replay's chunks
-        for_each_chunk(scene, settings, device, chunk, across_ranks=True, with_start=True, bytes_per_path=size)
-        return Film.merge(films).summed_across_ranks().develop(settings.spp, max(self.terms_kept, 1))
+        small = keep is None and device.type == "cpu" and self.fused_scene(ctx) is not None  # its chunks need not be large
+        for_each_chunk(scene, settings, device, chunk, across_ranks=True, with_start=True, bytes_per_path=size, max_chunk=fused.CPU_CHUNK_PATHS if small else None)
+        film = type(films[0]).merge(films).summed_across_ranks()
+        if tangents is not None:
+            tangents["jacobian"] = film.jacobian / settings.spp
+        return film.develop(settings.spp, max(self.terms_kept, 1))
+
+    def fused_scene(self, ctx: TransportContext):
+        """The fused primal bounce's view of the render ``ctx`` (:func:`invrender.transport.fused.tables`),
+        None where it does not apply (always for integrators without a random walk's bounce)."""
+        return fused.tables(ctx, getattr(self, "fused_direct", None), self.bsdf_sampling.hemisphere)
 
 
 def make_integrator(integrator="path", **options) -> Integrator:

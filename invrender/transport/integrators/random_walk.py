@@ -67,7 +67,7 @@ class RandomWalk(Integrator):
         """Follow ``state``'s camera rays and add each term ``g(Mg)^k eps`` to ``film`` (by the fused
         bounce where it applies: :mod:`invrender.transport.fused`)."""
         cfg = self.settings
-        scene = fused.tables(ctx, self.fused_direct, self.bsdf_sampling.hemisphere)
+        scene = self.fused_scene(ctx)
         if scene is not None and fused.takes(film):
             fused.trace(ctx, scene, state, film, cfg)
             return
