@@ -135,6 +135,15 @@ def check_kernels(sizes: Sizes, device: torch.device) -> dict:
         expected = uniform(keys, 3, 7)
     out = {"uniforms": ("exact", fused), "uniforms_vs_torch": ("self", (fused, expected, "exact"))}
     scene = cornell(sizes.resolution, device)
+    from invrender.transport import driver
+    from invrender.transport.driver import RenderSettings
+
+    ids = torch.arange(5, sizes.resolution**2 * sizes.spp, 3, device=device)
+    with Kernels("warp"):
+        camera = driver._camera_samples(scene, RenderSettings(spp=sizes.spp, seed=3), ids)
+    expected_camera = driver._camera_samples_torch(scene, RenderSettings(spp=sizes.spp, seed=3), ids)
+    out["camera_samples"] = ("exact", camera[2])
+    out["camera_samples_vs_torch"] = ("self", (camera[2], expected_camera[2], "exact"))
     images = {}
     for choice in ("warp", "torch"):
         with Kernels(choice):
@@ -144,19 +153,27 @@ def check_kernels(sizes: Sizes, device: torch.device) -> dict:
     return out
 
 
-def gradient(estimator: str):
+def gradient(estimator: str, kernel_choice: str | None = None):
+    """The L2 gradient; ``kernel_choice`` "torch": with the torch bounce (replay's adjoint pass,
+    where the fused bounce would otherwise carry the derivatives forward)."""
+
     def run(sizes: Sizes, device: torch.device) -> dict:
-        target = ir.render(cornell(sizes.resolution, CPU), spp=sizes.spp, max_depth=DEPTH, seed=99, backend="torch", progress=False).to(device)
-        scene = cornell(sizes.resolution, device, scale=0.8)
-        for name in NAMES:
-            scene.params[name].requires_grad_(True)
-        img = ir.render(scene, spp=sizes.spp, max_depth=DEPTH, seed=1, estimator=estimator, backend="torch", progress=False)
-        ((img - target) ** 2).mean().backward()
-        out = {"image": ("image", img.detach())}
-        out.update({f"grad {n}": ("grad", scene.params[n].grad) for n in NAMES})
-        return out
+        with Kernels(kernel_choice):
+            return _gradient(sizes, device, estimator)
 
     return run
+
+
+def _gradient(sizes: Sizes, device: torch.device, estimator: str) -> dict:
+    target = ir.render(cornell(sizes.resolution, CPU), spp=sizes.spp, max_depth=DEPTH, seed=99, backend="torch", progress=False).to(device)
+    scene = cornell(sizes.resolution, device, scale=0.8)
+    for name in NAMES:
+        scene.params[name].requires_grad_(True)
+    img = ir.render(scene, spp=sizes.spp, max_depth=DEPTH, seed=1, estimator=estimator, backend="torch", progress=False)
+    ((img - target) ** 2).mean().backward()
+    out = {"image": ("image", img.detach())}
+    out.update({f"grad {n}": ("grad", scene.params[n].grad) for n in NAMES})
+    return out
 
 
 def check_records(sizes: Sizes, device: torch.device) -> dict:
@@ -224,7 +241,8 @@ CHECKS = [
     Check("render_torch", "render, torch backend", render_with("torch", None)),
     Check("render_warp", "render, warp backend (Warp's BVH)", render_with("warp", None), ("warp",)),
     Check("kernels", "fused Warp kernels against their torch expressions", check_kernels, ("warp",)),
-    Check("grad_replay", "L2 gradient of 4 parameters, path replay", gradient("replay")),
+    Check("grad_replay", "L2 gradient of 4 parameters, path replay (the fused bounce's forward-mode derivatives)", gradient("replay")),
+    Check("grad_replay_torch", "L2 gradient of 4 parameters, path replay with the torch bounce (adjoint pass)", gradient("replay", "torch")),
     Check("grad_autodiff", "L2 gradient of 4 parameters, autodiff", gradient("autodiff")),
     Check("records", "path records: image and Jacobian", check_records),
     Check("fit_lm", "lm fit on records", fit("lm")),

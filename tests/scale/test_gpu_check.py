@@ -14,7 +14,7 @@ import torch
 
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = ROOT / "bench" / "gpu_check.py"
-CHECKS = ["render_torch", "render_warp", "kernels", "grad_replay", "grad_autodiff", "records", "fit_lm", "fit_adam", "process_group"]
+CHECKS = ["render_torch", "render_warp", "kernels", "grad_replay", "grad_replay_torch", "grad_autodiff", "records", "fit_lm", "fit_adam", "process_group"]
 #: a child in which warp-lang, embreex and pyrender cannot be imported (as on the GPU machine, which has no Warp)
 BLOCKED = "import runpy, sys\nfor m in ('warp', 'embreex', 'pyrender'):\n    sys.modules[m] = None\nsys.argv = sys.argv[1:]\nrunpy.run_path(sys.argv[0], run_name='__main__')"
 
@@ -38,13 +38,14 @@ def test_cpu_smoke_test_runs_every_check(tmp_path):
     for c in checks.values():  # every result compared, within its tolerance
         assert c["results"] and all(r["ok"] and r["error"] <= r["tolerance"] for r in c["results"].values() if "ok" in r), c
     assert checks["kernels"]["results"]["uniforms_vs_torch (on cpu)"]["error"] == 0  # bit for bit
+    assert checks["kernels"]["results"]["camera_samples_vs_torch (on cpu)"]["error"] == 0
     assert set(checks["grad_replay"]["results"]) >= {"grad light.emission (vs cpu)", "grad red.reflectance (vs cpu)"}
     assert checks["fit_lm"]["results"]["error vs truth"]["device"] < 0.5  # it moved towards the truth from grey 0.5 / emission 5
     rows = {r["renderer"]: r for r in summary["throughput"]["rows"]}
     assert {"invrender path (torch)", "invrender path (warp)"} <= set(rows) and all(r["mpaths_per_s"] > 0 for r in rows.values())
     assert summary["skipped"] == [{"name": "throughput Mitsuba cuda_ad_rgb", "reason": "needs --device cuda (this run: cpu)"}]
     assert summary["failed"] == [] and summary["device"] == "cpu"
-    assert "9 passed, 0 failed, 1 skipped" in done.stdout
+    assert "10 passed, 0 failed, 1 skipped" in done.stdout
 
 
 def test_without_warp_the_warp_checks_are_skipped_with_the_reason(tmp_path):
