@@ -109,7 +109,7 @@ class TangentFilm(Film):
     Every factor of a Lambertian path is linear in one of them, so a contribution C with n factors
     of rho_m has derivative ``n C / rho_m`` (0 in a channel where rho_m is 0, as path replay
     gives there) and one with the factor eps_e the factor beside it; a path counts its throughput's
-    factors per material as it scatters (``kernels.jacobian_add``).
+    factors per material as it scatters (``kernels.tangents_add``).
     """
 
     def __init__(self, width: int, height: int, slots: int, device):
@@ -163,7 +163,7 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
             occluded = ctx.accel.occluded(shadow_o, shadow_d, shadow_t)
             film.add(depth + 1, pixel, direct.masked_fill_(occluded[:, None], 0.0))  # term depth + 1
         if tangents:
-            kernels.jacobian_add(pixel, counts, rho, emitted, out[10:], direct, occluded, more, film.jacobian)
+            kernels.tangents_add(pixel, counts, rho, emitted, out[10:], direct, occluded, more, jacobian=film.jacobian)
         if not more:
             break
         if depth + 1 >= rr_start:

@@ -221,7 +221,7 @@ def lambert_vertex(tables: list, hits: tuple, d, beta, pdf_dir, keys, salts, fla
         emitted (N, 3) (term depth), shadow rays o (N, 3), d (N, 3), tmax (N,) and the direct light
         (N, 3) each adds if unoccluded (term depth + 1), then the continued paths' o, d, beta (N, 3),
         pdf (N,) and alive (N,) bool. With ``more`` 0 only ``emitted`` is written. With
-        ``tangents``, then also what :func:`jacobian_add` reads: the factors beside eps of the
+        ``tangents``, then also what :func:`tangents_add` reads: the factors beside eps of the
         emission (N, 3) and of the direct light (N, 3), the emitters hit (N,) int32 (-1: none) and
         sampled (N,), and the materials hit (N,).
     """
@@ -244,29 +244,38 @@ def lambert_vertex(tables: list, hits: tuple, d, beta, pdf_dir, keys, salts, fla
     return out + (factors[0], indices[0], factors[1], indices[1], indices[2]) if tangents else out
 
 
-def jacobian_add(pixel, counts, rho, emitted, tangents: tuple, direct, occluded, scatter: bool, jacobian: torch.Tensor) -> None:
-    """Add one bounce's derivatives to ``jacobian`` (P, 3, S) float64 (pixel, channel, slot: the M
-    materials' rho, then the emitters' eps), and count each path's vertex material in ``counts``
-    (N, M) int32 (its throughput's factors of each rho) when the paths ``scatter`` on.
+def tangents_add(pixel, counts, rho, emitted, tangents: tuple, direct, occluded, scatter: bool, jacobian: torch.Tensor | None = None, places: torch.Tensor | None = None):
+    """One bounce's contributions in the scene's constant parameters (the kernel's docstring):
+    their derivatives added to ``jacobian`` (P, 3, S) float64 (pixel, channel, slot: the M
+    materials' rho, then the emitters' eps) and/or, with ``places`` (S,) int64, their monomial
+    codes; then each path's vertex material counted in ``counts`` (N, M) int32 (its throughput's
+    factors of each rho) when the paths ``scatter`` on.
 
     Args:
         pixel: (N,) int64 film index; rho (M, 3); emitted, direct (N, 3) the bounce's contributions
             (``direct`` before occlusion); tangents: the extra outputs of :func:`lambert_vertex`;
         occluded: (N,) bool the shadow rays' answers (None: no emitter samples).
+    Returns:
+        (codes of the emission (N,), of the direct light (N,)) int64 with ``places`` (-1: no
+        contribution), else None.
     """
     n, dev = pixel.shape[0], pixel.device
     emitted_factor, emitter_hit, direct_factor, emitter_sampled, material_hit = tangents
     blocked = occluded if occluded is not None else torch.ones(n, dtype=torch.bool, device=dev)
+    none64 = torch.zeros(0, dtype=torch.float64, device=dev)
+    codes = [torch.empty(n if places is not None else 0, dtype=torch.int64, device=dev) for _ in range(2)]
     inputs = [
         pixel, counts, Vec3(rho), Vec3(emitted), Vec3(emitted_factor), emitter_hit, Vec3(direct), Vec3(direct_factor), emitter_sampled, blocked, material_hit,
-        int(scatter), int(jacobian.shape[2]), jacobian.view(-1),
+        int(scatter), int(jacobian.shape[2]) if jacobian is not None else 0, jacobian.view(-1) if jacobian is not None else none64,
+        places if places is not None else torch.zeros(0, dtype=torch.int64, device=dev), *codes,
     ]  # fmt: skip
-    launch(warp_kernels().jacobian_kernel, n, inputs, dev)
+    launch(warp_kernels().tangent_kernel, n, inputs, dev)
+    return tuple(codes) if places is not None else None
 
 
 def camera_samples(ids: torch.Tensor, spp: int, width: int, mode: int, key_salt: int, pattern_salt: int, cells: int, m: int, salts, lens: bool):
-    """The camera samples of path ids ``ids`` (N,) int64 (``pixel * spp + sample``, no plan): mode 0 stratified, 1 independent, 2 antithetic; ``key_salt`` / ``pattern_salt`` the
-    hashed seeds of the path keys and the pixel patterns, ``cells`` samples (pairs) per pattern
+    """The camera samples of path ids ``ids`` (N,) int64 (``pixel * spp + sample``, no plan): mode
+    0 stratified, 1 independent, 2 antithetic; ``key_salt`` / ``pattern_salt`` the hashed seeds of the path keys and the pixel patterns, ``cells`` samples (pairs) per pattern
     factored ``m x cells / m``, ``salts`` (4,) those of the camera's numbers (bounce 0).
 
     Returns:

@@ -252,7 +252,7 @@ def lambert_vertex_kernel(
         e = wp.cw_mul(b, w * eps[emitter[k]])
         hit_emitter = wp.int32(emitter[k])
     emitted[i] = e
-    if tangents != 0:  # the factors beside eps, for the Jacobian (jacobian_kernel)
+    if tangents != 0:  # the factors beside eps, for the Jacobian and codes (tangent_kernel)
         emitted_factor[i] = b * w
         emitter_hit[i] = hit_emitter
         material_hit[i] = wp.int32(material[k])
@@ -389,40 +389,59 @@ def camera_samples_kernel(
 
 
 @wp.kernel
-def jacobian_kernel(
+def tangent_kernel(
     pixel: wp.array(dtype=wp.int64), counts: wp.array2d(dtype=wp.int32), rho: wp.array(dtype=wp.vec3), emitted: wp.array(dtype=wp.vec3),
     emitted_factor: wp.array(dtype=wp.vec3), emitter_hit: wp.array(dtype=wp.int32), direct: wp.array(dtype=wp.vec3), direct_factor: wp.array(dtype=wp.vec3),
     emitter_sampled: wp.array(dtype=wp.int32), occluded: wp.array(dtype=wp.bool), material_hit: wp.array(dtype=wp.int32), scatter: wp.int32,
-    slots: wp.int32, jacobian: wp.array(dtype=wp.float64),
+    slots: wp.int32, jacobian: wp.array(dtype=wp.float64), places: wp.array(dtype=wp.int64), code_emitted: wp.array(dtype=wp.int64), code_direct: wp.array(dtype=wp.int64),
 ):  # fmt: skip
-    """Add one vertex's contributions' derivatives to the per-pixel Jacobian (pixel, channel, slot):
-    slots 0 .. M - 1 the materials' rho (a contribution with n factors of rho_m has derivative
-    n C / rho_m; 0 in a channel where rho_m is 0), slots M .. the emitters' eps (the factor beside
-    it); then count the vertex's own rho in the path's throughput (``scatter``)."""
+    """One vertex's contributions in terms of the scene's constant parameters (slots 0 .. M - 1 the
+    materials' rho, M .. the emitters' eps), then the vertex's own rho counted in the path's
+    throughput (``scatter``):
+
+    - with a ``jacobian`` (P * 3 * slots,): their derivatives added per pixel, channel and slot (a
+      contribution C with n factors of rho_m: ``n C / rho_m``, 0 in a channel where rho_m is 0; the
+      factor beside eps for its emitter);
+    - with ``places`` (slots,): each contribution's monomial code, ``sum_s k_s places[s]`` (k_s its
+      factors of slot s), -1 where there is none (path records' codes; a place 0 leaves a slot out).
+    """
     i = wp.tid()
     materials = counts.shape[1]
     m_k = material_hit[i]
     e_h = emitter_hit[i]
     e_l = emitter_sampled[i]
     lit = e_l >= 0 and not occluded[i]
-    base = pixel[i] * wp.int64(3)
-    for c in range(3):
-        row = (base + wp.int64(c)) * wp.int64(slots)
-        ce = emitted[i][c]
-        cd = float(0.0)
-        if lit:
-            cd = direct[i][c]
-        if e_h >= 0:
-            wp.atomic_add(jacobian, row + wp.int64(materials + e_h), wp.float64(emitted_factor[i][c]))
-        if lit:
-            wp.atomic_add(jacobian, row + wp.int64(materials + e_l), wp.float64(direct_factor[i][c]))
+    if places.shape[0] > 0:
+        at_e = wp.int64(-1)
+        at_d = wp.int64(-1)
+        base = wp.int64(0)
         for m in range(materials):
-            r = rho[m][c]
-            n = counts[i, m]
-            nd = n
-            if m == m_k:
-                nd = n + 1
-            if r > 0.0 and (n > 0 or nd > 0):
-                wp.atomic_add(jacobian, row + wp.int64(m), wp.float64((wp.float32(n) * ce + wp.float32(nd) * cd) / r))
+            base += wp.int64(counts[i, m]) * places[m]
+        if e_h >= 0:
+            at_e = base + places[materials + e_h]
+        if lit:
+            at_d = base + places[m_k] + places[materials + e_l]
+        code_emitted[i] = at_e
+        code_direct[i] = at_d
+    if jacobian.shape[0] > 0:
+        row0 = pixel[i] * wp.int64(3)
+        for c in range(3):
+            row = (row0 + wp.int64(c)) * wp.int64(slots)
+            ce = emitted[i][c]
+            cd = float(0.0)
+            if lit:
+                cd = direct[i][c]
+            if e_h >= 0:
+                wp.atomic_add(jacobian, row + wp.int64(materials + e_h), wp.float64(emitted_factor[i][c]))
+            if lit:
+                wp.atomic_add(jacobian, row + wp.int64(materials + e_l), wp.float64(direct_factor[i][c]))
+            for m in range(materials):
+                r = rho[m][c]
+                n = counts[i, m]
+                nd = n
+                if m == m_k:
+                    nd = n + 1
+                if r > 0.0 and nd > 0:
+                    wp.atomic_add(jacobian, row + wp.int64(m), wp.float64((wp.float32(n) * ce + wp.float32(nd) * cd) / r))
     if scatter != 0:
         counts[i, m_k] = counts[i, m_k] + 1
