@@ -28,6 +28,15 @@ triangle tables (:meth:`Light.fused_triangles <invrender.transport.lights.Light.
 ambient term, and no parameter carries a gradient or a forward-mode tangent; and, per chunk, where
 the film has no hooks (:func:`takes`: path records' and replay's adjoint films do). Everywhere else
 the torch bounce runs. ``INVRENDER_KERNELS=torch`` switches it off with the other kernels.
+
+**Derivatives carried forward.** Every factor of such a path is linear in one of the scene's
+constant parameters (a material's rho, an emitter's eps), so each path counts its throughput's
+factors of each rho as it scatters (``counts``), and one more kernel per bounce
+(:func:`~invrender.transport.kernels.tangents_add`) turns a contribution C into what two callers
+need: its derivatives, ``n C / rho_m`` and the factor beside eps, summed per pixel into a
+:class:`TangentFilm` (path replay's gradient is then one contraction with ``dl/dI``, no adjoint
+trace: :mod:`invrender.diff.replay`), or its monomial's code ``sum_s k_s R_s`` for a film that
+takes contributions by code (path records: :func:`places`), instead of forward-mode autodiff.
 """
 
 from __future__ import annotations
@@ -93,10 +102,20 @@ def _carries_derivative(x: torch.Tensor) -> bool:
 
 
 def takes(film: Film) -> bool:
-    """Does ``film`` take the fused bounce's contributions (it has none of the hooks the torch
-    bounce calls: ``visit``, ``arrive``, ``scatter``)?"""
+    """Does ``film`` take the fused bounce's contributions: it has none of the hooks the torch
+    bounce calls (``visit``, ``arrive``, ``scatter``), or it takes contributions by monomial code
+    (:func:`places`)?"""
+    if places(film) is not None:
+        return True
     cls = type(film)
     return cls.visit is Film.visit and cls.arrive is Film.arrive and cls.scatter is Film.scatter and not film.detach_throughput
+
+
+def places(film: Film) -> torch.Tensor | None:
+    """(S,) int64 the place of each slot's exponent in a monomial's code, for a film that takes the
+    contributions by code (``film.fused_places``; path records, which then add each contribution
+    with ``film.add_coded(term, index, code, radiance)``, code -1: none); else None."""
+    return getattr(film, "fused_places", None)
 
 
 class TangentFilm(Film):
@@ -140,7 +159,8 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
     (``max_depth``, ``rr_depth``)."""
     rr_start = math.inf if settings.rr_depth == -1 else settings.rr_depth
     pixel, keys, o, d, beta, pdf = state.pixel, state.keys, state.o, state.d, state.beta, state.pdf_dir
-    tangents = isinstance(film, TangentFilm)
+    coded = places(film)
+    tangents = isinstance(film, TangentFilm) or coded is not None
     rho = fused.tables[4]
     counts = torch.zeros(keys.shape[0], rho.shape[0] if tangents else 0, dtype=torch.int32, device=keys.device)  # factors of each rho in beta
     depth = 0
@@ -157,13 +177,21 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
         salts = bounce_salts(depth + 1, DIMS, d.device)
         out = kernels.lambert_vertex(fused.tables, (prim, u, v, t), d, beta, pdf, keys, salts, flags, ctx.ray_offset, tangents)
         emitted, shadow_o, shadow_d, shadow_t, direct, o, d, beta, pdf, alive = out[:10]
-        film.add(depth, pixel, emitted)  # term depth
         occluded = None
         if more and fused.nee:
             occluded = ctx.accel.occluded(shadow_o, shadow_d, shadow_t)
-            film.add(depth + 1, pixel, direct.masked_fill_(occluded[:, None], 0.0))  # term depth + 1
-        if tangents:
-            kernels.tangents_add(pixel, counts, rho, emitted, out[10:], direct, occluded, more, jacobian=film.jacobian)
+            direct.masked_fill_(occluded[:, None], 0.0)
+        if coded is not None:  # path records: each contribution with its monomial's code
+            code_e, code_d = kernels.tangents_add(pixel, counts, rho, emitted, out[10:], direct, occluded, more, places=coded)
+            film.add_coded(depth, pixel, code_e, emitted)  # term depth
+            if occluded is not None:
+                film.add_coded(depth + 1, pixel, code_d, direct)  # term depth + 1
+        else:
+            film.add(depth, pixel, emitted)  # term depth
+            if occluded is not None:
+                film.add(depth + 1, pixel, direct)  # term depth + 1
+            if tangents:
+                kernels.tangents_add(pixel, counts, rho, emitted, out[10:], direct, occluded, more, jacobian=film.jacobian)
         if not more:
             break
         if depth + 1 >= rr_start:
