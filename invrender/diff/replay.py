@@ -120,7 +120,8 @@ class _ReplayRender(torch.autograd.Function):
         fctx.slots = tangent_slots(scene, integrator, settings, device, names, params)
         fctx.kept = {} if fctx.slots is None and _can_keep(scene, settings) else None
         fctx.tangents = {} if fctx.slots is not None else None
-        image = integrator.render(scene, settings, device, params=params, keep=fctx.kept, tangents=fctx.tangents)
+        carried = {} if fctx.tangents is None else {"tangents": fctx.tangents}  # (integrators with a render of their own take no tangents)
+        image = integrator.render(scene, settings, device, params=params, keep=fctx.kept, **carried)
         if fctx.kept is not None:
             release_freed_memory(device)  # the forward chunks' heap, before the backward pass's
         return image

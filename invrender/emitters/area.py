@@ -165,8 +165,10 @@ class Area(Light):
 
     def fused_triangles(self) -> TriangleTables | None:
         """The fused bounce's tables, when no emission is textured and no sphere is sampled by
-        solid angle (every point is picked by area, as :meth:`_triangle_points` picks them)."""
-        if self.textured or self.spheres or not self.count:
+        solid angle (every point is picked by area, as :meth:`_triangle_points` picks them); not for
+        a subclass that changes what the emitter does."""
+        changed = any(getattr(type(self), m) is not getattr(Area, m) for m in ("sample_from", "geometry", "radiance", "emits", "emitted", "pdf_hit", "params"))
+        if changed or self.textured or self.spheres or not self.count:
             return None
         return TriangleTables(self.tri, self.cdf, self.pdf_area, self._emitting, torch.stack(self.eps))
 

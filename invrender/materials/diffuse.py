@@ -38,9 +38,11 @@ class Diffuse(BSDF):
 
     def fused_albedo(self) -> torch.Tensor | None:
         """(M, 3) rho of each material, when none is textured, sampling is cosine-weighted and the
-        scene has no shading normals (the fused bounce's Lambertian lobe); else None."""
+        scene has no shading normals (the fused bounce's Lambertian lobe); else None. Not for a
+        subclass that changes what the BSDF does (a plugin built on this one)."""
         rho = [v["reflectance"] for v in self.values]
-        if not self.flat or self.sampling.hemisphere != "cosine" or any(r.ndim != 1 for r in rho):
+        changed = any(getattr(type(self), m) is not getattr(Diffuse, m) for m in ("eval", "pdf", "sample", "_rho", "lobes", "params"))
+        if changed or not self.flat or self.sampling.hemisphere != "cosine" or any(r.ndim != 1 for r in rho):
             return None
         return torch.stack(rho)
 

@@ -2,6 +2,7 @@
 
 import dataclasses
 import shutil
+from pathlib import Path
 
 import pytest
 import torch
@@ -163,9 +164,10 @@ def test_other_losses_descend(small_target, loss):
 
 
 def test_auto_estimator_records_small_renders_and_replays_large_ones(small_target, monkeypatch):
-    """``estimator="auto"`` (the fit default): autodiff where the recorded render fits in the memory
-    budget, replay where it does not or the depth is unbounded; a fit takes the same steps either
-    way (the two give the same gradient to float rounding)."""
+    """``estimator="auto"`` (the fit default): replay where the fused bounce carries the derivatives
+    forward (one trace), else autodiff where the recorded render fits in the memory budget, replay
+    where it does not or the depth is unbounded; a fit takes the same steps either way (they give
+    the same gradient to float rounding)."""
     from invrender.diff import resolve_estimator
     from invrender.transport.driver import RenderSettings
     from invrender.transport.integrators import make_integrator
@@ -177,6 +179,10 @@ def test_auto_estimator_records_small_renders_and_replays_large_ones(small_targe
     assert resolve_estimator("auto", scene, path, RenderSettings(spp=256, memory_mb=2048)) == "autodiff"
     assert resolve_estimator("auto", scene, make_integrator("path", max_depth=-1), RenderSettings(spp=1)) == "replay"
     assert resolve_estimator("replay", scene, path, RenderSettings(spp=1)) == "replay"
+    cpu = torch.device("cpu")
+    assert resolve_estimator("auto", scene, path, RenderSettings(spp=64), cpu, ["red.reflectance"]) == "replay"  # carried forward
+    glossy = ir.load_scene(str(Path(__file__).resolve().parents[2] / "forward" / "glossy_plate.toml"), resolution=(16, 16))
+    assert resolve_estimator("auto", glossy, path, RenderSettings(spp=4), cpu, [next(iter(glossy.params))]) == "autodiff"
     with pytest.raises(ParameterError, match="unknown estimator 'fast'"):
         ir.render(scene, spp=1, estimator="fast", progress=False)
     small = ir.load_scene("cornell_box", resolution=(8, 8))
@@ -194,6 +200,6 @@ def test_auto_estimator_records_small_renders_and_replays_large_ones(small_targe
     monkeypatch.setattr(diff, "autodiff_render", lambda *a: (used.append("autodiff"), autodiff_render(*a))[1])
     monkeypatch.setattr(replay, "replay_gradient", lambda *a, **k: (used.append("replay"), replay_gradient(*a, **k))[1])
     runs = {e: ir.fit(start_scene(), small_target, ["white.reflectance"], steps=3, spp=4, spp_final=4, max_depth=3, progress=False, estimator=e) for e in ("auto", "replay")}
-    assert used == ["autodiff"] * 3 + ["replay"] * 3
+    assert used == ["replay"] * 6  # the Cornell box's derivatives are carried forward: replay's path
     a, b = (runs[e].params["white.reflectance"] for e in ("auto", "replay"))
     assert torch.allclose(a, b, rtol=1e-4)

@@ -74,6 +74,22 @@ def test_the_fused_bounce_applies_only_where_nothing_needs_the_torch_bounce(tmp_
     assert fused.tables(ctx, "mis", "cosine") is None
     with torch.no_grad():
         assert fused.tables(ctx, "mis", "cosine") is not None
+    # a plugin built on the diffuse BSDF or the area light that changes what it does: its own methods
+    from invrender.emitters.area import Area
+    from invrender.materials.diffuse import Diffuse
+
+    class Brighter(Diffuse):
+        def eval(self, sp, wi):
+            return 2 * super().eval(sp, wi)
+
+    class Dimmer(Area):
+        def emitted(self, s):
+            return 0.5 * super().emitted(s)
+
+    rho = {"reflectance": torch.tensor([0.5, 0.5, 0.5])}
+    assert Diffuse([rho], [{}], flat=True).fused_albedo() is not None and Brighter([rho], [{}], flat=True).fused_albedo() is None
+    eps = [{"emission": box.params["light.emission"]}]
+    assert Area([0], eps, [{}], box.triangles).fused_triangles() is not None and Dimmer([0], eps, [{}], box.triangles).fused_triangles() is None
     # films with hooks (path records', replay's adjoint) take the torch bounce
     from invrender.diff.records import _RecordFilm
     from invrender.diff.replay import AdjointFilm
