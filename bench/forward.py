@@ -7,8 +7,10 @@
 invrender with each intersection backend (``--backends``; default embree and warp on the CPU) and
 (when installed) Mitsuba 3 ``llvm_ad_rgb`` ``path`` render the same scene at the same settings in
 the same process, alternating, after one warm-up each; the median time of each gives the
-throughput and the ratio. One more row renders with the first backend and the bounce's fused Warp
-kernels off (their torch reference expressions, ``INVRENDER_KERNELS=torch``): what they gain. With a GPU present the same follows on CUDA (invrender's warp and torch
+throughput and the ratio. Two more rows render with the first backend without the fused bounce
+(``INVRENDER_KERNELS=steps``: the kernels of single steps on) and without any kernel (their torch
+reference expressions, ``INVRENDER_KERNELS=torch``): what each gains. ``--scenes`` times other
+scenes the same way (e.g. ``cornell_specular``, ``forward/textured_floor.toml``: the torch bounce). With a GPU present the same follows on CUDA (invrender's warp and torch
 backends, Mitsuba's ``cuda_ad_rgb``). Figures are printed, never asserted.
 """
 
@@ -56,9 +58,10 @@ def throughput(args, results: Results) -> None:
     device = torch.device(args.device)
     backends = args.backends.split(",") if args.backends else (["embree", "warp"] if device.type == "cpu" else ["warp", "torch"])
     if not args.no_torch_steps:
-        backends.append(f"{backends[0]}/torch")  # the same, with the bounce's fused kernels off (their torch reference)
+        backends.append(f"{backends[0]}/steps")  # the same without the fused bounce (the kernels of single steps on)
+        backends.append(f"{backends[0]}/torch")  # the same, with every kernel off (their torch reference)
     with_mitsuba = mitsuba_ref.available() and not args.no_mitsuba and device.type == "cpu"
-    scenes = [ir.load_scene("cornell_box", resolution=(n, n))]
+    scenes = [ir.load_scene(name, resolution=(n, n)) for name in args.scenes.split(",")]
     if args.mesh:
         scenes.append(sphere_in_box(n))
     for scene in scenes:
@@ -93,13 +96,13 @@ def throughput(args, results: Results) -> None:
         for b in backends:
             t = statistics.median(times[b])
             ratio = f"  {statistics.median(mi_times) / t:.3f}x Mitsuba" if mi_times else ""
-            label = f"{b.split('/')[0]}, torch steps" if "/" in b else b
-            print(f"  {'invrender path (' + label + '):':38s} {t:7.3f} s  {samples / t / 1e6:.3f} M path samples/s{ratio}")
+            label = {"torch": f"{b.split('/')[0]}, torch steps", "steps": f"{b.split('/')[0]}, unfused bounce"}[b.split("/")[1]] if "/" in b else b
+            print(f"  {'invrender path (' + label + '):':42s} {t:7.3f} s  {samples / t / 1e6:.3f} M path samples/s{ratio}")
             rows.append([f"invrender path ({label})", round(t, 3), f"{min(times[b]):.3f}-{max(times[b]):.3f}", round(samples / t / 1e6, 3),
                          round(statistics.median(mi_times) / t, 3) if mi_times else "n/a"])
         if mi_times:
             tm = statistics.median(mi_times)
-            print(f"  {mitsuba_ref.label() + ' path:':38s} {tm:7.3f} s  {samples / tm / 1e6:.3f} M path samples/s")
+            print(f"  {mitsuba_ref.label() + ' path:':42s} {tm:7.3f} s  {samples / tm / 1e6:.3f} M path samples/s")
             rows.append([f"{mitsuba_ref.label()} path", round(tm, 3), f"{min(mi_times):.3f}-{max(mi_times):.3f}", round(samples / tm / 1e6, 3), 1.0])
         elif device.type == "cpu":
             print("  (Mitsuba 3 not installed: no ratio; see bench/README.md)")
@@ -131,8 +134,9 @@ def main() -> int:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--no-mitsuba", action="store_true", help="skip Mitsuba even when installed")
     parser.add_argument("--backends", default=None, help="comma-separated intersection backends (default: embree,warp on the CPU; warp,torch on CUDA)")
+    parser.add_argument("--scenes", default="cornell_box", help="comma-separated scenes (names or files; default: cornell_box), e.g. cornell_box,cornell_specular,forward/textured_floor.toml")
     parser.add_argument("--mesh", action="store_true", help="also the Cornell box with an 81,920-triangle sphere")
-    parser.add_argument("--no-torch-steps", action="store_true", help="skip the row with the fused Warp kernels of a bounce off (INVRENDER_KERNELS=torch)")
+    parser.add_argument("--no-torch-steps", action="store_true", help="skip the rows without the fused bounce (INVRENDER_KERNELS=steps) and without any kernel (INVRENDER_KERNELS=torch)")
     parser.add_argument("--device", default="cpu", help="cpu or cuda (default: cpu; with a GPU present the CUDA figures follow the CPU ones)")
     parser.add_argument("--no-cuda", action="store_true", help="skip the CUDA figures even when a GPU is present")
     parser.add_argument("--memory-spp", type=int, default=0, help="instead: peak memory of a 64x64 render at this spp")

@@ -11,8 +11,9 @@ parameters are then halved (Mitsuba's ``perturb=0.5``), so the gradient is far f
 gradient is forward + backward (for invrender: ``render`` + ``mse_loss(...).backward()``).
 
 Every configuration runs in its own fresh subprocess (``--child``), which reports as JSON its peak
-RSS (``VmHWM``; see ``_measure.peak_rss_mib``) and its RSS after the imports, the scene load and
-the target load but before the first gradient. The *increment* (peak minus that baseline) is the
+RSS (``VmHWM``; see ``_measure.peak_rss_mib``) and its RSS after the imports, the scene load (for
+invrender with its Embree scene built and Warp's kernels loaded, as Mitsuba's child has loaded its
+plugins and built its scene) and the target load, but before the first gradient. The *increment* (peak minus that baseline) is the
 gradient's own memory; the absolute peak also counts torch/Dr.Jit and their libraries. Tables:
 
 1. the main problem for invrender ``autodiff`` and ``replay`` and, when installed, Mitsuba 3
@@ -68,6 +69,13 @@ def child(args) -> dict:
             scene.params[name].mul_(PERTURB)
     for name in PARAMS:
         scene.params[name].requires_grad_(True)
+    # what the Mitsuba child has done before its baseline (its plugins loaded, its scene's BVH built):
+    # Warp's kernels loaded and the Embree scene built, one-time costs of a process
+    from invrender.transport import kernels
+    from invrender.transport.accel import intersector_for
+
+    kernels.load(torch.device("cpu"))
+    intersector_for(scene.triangles)
     baseline = rss_mib()
 
     def once(seed: int):

@@ -27,7 +27,8 @@ triangle tables (:meth:`Light.fused_triangles <invrender.transport.lights.Light.
 ``area`` with RGB radiance, no sphere sampled by solid angle), the camera sees emitters, there is no
 ambient term, and no parameter carries a gradient or a forward-mode tangent; and, per chunk, where
 the film has no hooks (:func:`takes`: path records' and replay's adjoint films do). Everywhere else
-the torch bounce runs. ``INVRENDER_KERNELS=torch`` switches it off with the other kernels.
+the torch bounce runs. ``INVRENDER_KERNELS=steps`` switches it off (the kernels of single steps
+stay), ``INVRENDER_KERNELS=torch`` with the other kernels.
 
 **Derivatives carried forward.** Every factor of such a path is linear in one of the scene's
 constant parameters (a material's rho, an emitter's eps), so each path counts its throughput's
@@ -85,7 +86,7 @@ def tables(ctx: TransportContext, direct, hemisphere: str) -> FusedScene | None:
     docstring). ``direct``: the integrator's ``fused_direct`` (None: its vertex step is its own;
     ``False``: no emitter samples; ``"mis"`` or ``"emitter"``: the path tracer's strategies);
     ``hemisphere``: its diffuse sampling."""
-    if direct is None or hemisphere != "cosine" or not kernels.enabled(ctx.triangles.p0.device):
+    if direct is None or hemisphere != "cosine" or not kernels.fused_bounce(ctx.triangles.p0.device):
         return None
     if ctx.hide_emitters or ctx.ambient is not None or ctx.triangles.any_smooth:
         return None

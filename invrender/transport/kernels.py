@@ -35,8 +35,11 @@ import torch
 from invrender.errors import ParameterError
 from invrender.transport import packages
 
-#: set INVRENDER_KERNELS=torch to run the torch reference expressions instead of the Warp kernels
+#: set INVRENDER_KERNELS=torch to run the torch reference expressions instead of the Warp kernels,
+#: INVRENDER_KERNELS=steps for the kernels of single steps without the fused bounce
 ENV = "INVRENDER_KERNELS"
+#: the values INVRENDER_KERNELS takes (default: warp)
+CHOICES = ("warp", "steps", "torch")
 
 #: the module of the Warp kernels (:mod:`invrender.transport.warp_kernels`), imported on first use
 KERNELS = "invrender.transport.warp_kernels"
@@ -52,18 +55,25 @@ def warp_kernels():
 
 def enabled(device: torch.device) -> bool:
     """Do renders on ``device`` use the Warp kernels (CPU or CUDA, warp-lang importable, not
-    switched off by ``INVRENDER_KERNELS=torch``)? Another value of the variable than ``warp`` or
-    ``torch`` is a one-line :class:`~invrender.errors.ParameterError` (first met when a render's
-    context is built, before any work)."""
+    switched off by ``INVRENDER_KERNELS=torch``)? Another value of the variable than ``warp``,
+    ``steps`` (the kernels of single steps, not the fused bounce: :func:`fused_bounce`) or ``torch``
+    is a one-line :class:`~invrender.errors.ParameterError` (first met when a render's context is
+    built, before any work)."""
     choice = os.environ.get(ENV, "warp")
-    if choice not in ("warp", "torch"):
-        raise ParameterError(f"{ENV} must be 'warp' or 'torch', got {choice!r}")
-    if choice != "warp" or device.type not in ("cpu", "cuda"):
+    if choice not in CHOICES:
+        raise ParameterError(f"{ENV} must be 'warp', 'steps' or 'torch', got {choice!r}")
+    if choice == "torch" or device.type not in ("cpu", "cuda"):
         return False
     if warp_kernels() is None:
         packages.note_once(f"warp-lang is not installed: the fused kernels run as their torch expressions ({packages.install_hint('warp')} for the kernels)")
         return False
     return True
+
+
+def fused_bounce(device: torch.device) -> bool:
+    """May renders on ``device`` trace with the fused bounce (:mod:`invrender.transport.fused`):
+    the kernels are :func:`enabled` and ``INVRENDER_KERNELS`` is not ``steps``?"""
+    return enabled(device) and os.environ.get(ENV, "warp") != "steps"
 
 
 _loaded: set[tuple[str, str]] = set()

@@ -24,10 +24,10 @@ CPU = torch.device("cpu")
 
 @pytest.fixture
 def unfused(monkeypatch):
-    """Call it to trace with the torch bounce (the other kernels stay on)."""
+    """Call it to trace with the torch bounce (the kernels of single steps stay on)."""
 
     def off() -> None:
-        monkeypatch.setattr(fused, "tables", lambda *args: None)
+        monkeypatch.setenv(kernels.ENV, "steps")
 
     return off
 
@@ -58,9 +58,13 @@ def test_the_fused_bounce_renders_the_torch_bounces_image(integrator, options, u
     assert float(terms[2].mean()) > 0.01  # the indirect terms were traced
 
 
-def test_the_fused_bounce_applies_only_where_nothing_needs_the_torch_bounce(tmp_path):
+def test_the_fused_bounce_applies_only_where_nothing_needs_the_torch_bounce(tmp_path, monkeypatch):
     box = ir.load_scene("cornell_box", resolution=(8, 8))
     assert _fused_scene(box) is not None
+    for choice in ("steps", "torch"):  # switched off, with or without the kernels of single steps
+        monkeypatch.setenv(kernels.ENV, choice)
+        assert _fused_scene(box) is None and kernels.enabled(CPU) == (choice == "steps")
+    monkeypatch.delenv(kernels.ENV)
     assert _fused_scene(box, "path", hemisphere="uniform") is None  # another diffuse sampling
     assert _fused_scene(box, "utah") is None  # a vertex step of its own
     assert _fused_scene(box, "path", hide_emitters=True) is None

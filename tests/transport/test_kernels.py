@@ -39,7 +39,7 @@ def test_kernels_run_on_cpu_and_switch_off(reference, monkeypatch):
     assert not kernels.enabled(CPU)
     assert not kernels.enabled(torch.device("meta"))  # no Warp backend there: torch runs
     monkeypatch.setenv(kernels.ENV, "wrap")
-    with pytest.raises(ParameterError, match="INVRENDER_KERNELS must be 'warp' or 'torch', got 'wrap'"):
+    with pytest.raises(ParameterError, match="INVRENDER_KERNELS must be 'warp', 'steps' or 'torch', got 'wrap'"):
         ir.render(ir.load_scene("cornell_box", resolution=(4, 4)), spp=1, progress=False)
 
 
