@@ -3,6 +3,7 @@
     python bench/forward.py [--resolution 128] [--spp 64] [--max-depth 8] [--repeats 5]
     python bench/forward.py --mesh                  # also an 82k-triangle scene
     python bench/forward.py --memory-spp 65536      # peak RSS of a 64x64 render at that spp
+    python bench/forward.py --breakdown             # one worker's time: ray queries, Warp kernels, torch
 
 invrender with each intersection backend (``--backends``; default embree and warp on the CPU) and
 (when installed) Mitsuba 3 ``llvm_ad_rgb`` ``path`` render the same scene at the same settings in
@@ -116,6 +117,51 @@ def throughput(args, results: Results) -> None:
             results.note(str(line))
 
 
+def breakdown(args, results: Results) -> None:
+    """Where a render's time goes: the Cornell box rendered by one worker thread with Embree on one
+    thread, the time inside the ray queries and inside the Warp kernels' launches measured, the
+    rest being torch's operations and Python; with the fused bounce and without it."""
+    from invrender.transport import accel, context, kernels
+
+    torch.set_num_threads(1)  # one worker
+    spent = {"rays": 0.0, "kernels": 0.0}
+
+    def timed(key, call):
+        def run(*a, **k):
+            start = time.perf_counter()
+            try:
+                return call(*a, **k)
+            finally:
+                spent[key] += time.perf_counter() - start
+
+        return run
+
+    for kind in ("intersect", "occluded"):
+        setattr(accel.EmbreeIntersector, kind, timed("rays", getattr(accel.EmbreeIntersector, kind)))
+    kernels.launch = timed("kernels", kernels.launch)
+    build = context.TransportContext.build
+    context.TransportContext.build = staticmethod(lambda scene, device, backend=None, threads=None, *a, **k: build(scene, device, backend, 1, *a, **k))
+    n, spp = args.resolution, args.spp
+    scene = ir.load_scene("cornell_box", resolution=(n, n))
+    heading = f"cornell_box {n}x{n}, {spp} spp, max_depth {args.max_depth}: one worker thread, Embree on one thread, medians of {args.repeats}"
+    print(heading)
+    rows = results.table(heading, ["bounce", "total s", "ray queries s", "Warp kernels s", "torch and Python s", "share left to torch and Python"])
+    for choice, label in (("warp", "fused"), ("steps", "unfused (kernels of single steps)")):
+        os.environ[KERNELS_ENV] = choice
+        ir.render(scene, spp=4, max_depth=args.max_depth, progress=False)
+        figures = []
+        for i in range(args.repeats):
+            spent.update(rays=0.0, kernels=0.0)
+            start = time.perf_counter()
+            ir.render(scene, spp=spp, max_depth=args.max_depth, seed=i, progress=False)
+            figures.append((time.perf_counter() - start, spent["rays"], spent["kernels"]))
+        total, rays, warp = (statistics.median(f[j] for f in figures) for j in range(3))
+        rest = total - rays - warp
+        print(f"  {label:36s} {total:6.3f} s: ray queries {rays:.3f} s ({rays / total:.0%}), Warp kernels {warp:.3f} s ({warp / total:.0%}), torch and Python {rest:.3f} s ({rest / total:.0%})")
+        rows.append([label, round(total, 3), round(rays, 3), round(warp, 3), round(rest, 3), f"{rest / total:.0%}"])
+    os.environ[KERNELS_ENV] = "warp"
+
+
 def memory(args, results: Results) -> None:
     scene = ir.load_scene("cornell_box", resolution=(64, 64))
     start = time.perf_counter()
@@ -140,10 +186,12 @@ def main() -> int:
     parser.add_argument("--device", default="cpu", help="cpu or cuda (default: cpu; with a GPU present the CUDA figures follow the CPU ones)")
     parser.add_argument("--no-cuda", action="store_true", help="skip the CUDA figures even when a GPU is present")
     parser.add_argument("--memory-spp", type=int, default=0, help="instead: peak memory of a 64x64 render at this spp")
+    parser.add_argument("--breakdown", action="store_true", help="instead: where one worker's render time goes (ray queries, Warp kernels, torch), with and without the fused bounce")
     add_json_option(parser)
     args = parser.parse_args()
-    results = Results("forward", "Forward rendering: memory" if args.memory_spp else "Forward rendering throughput")
-    memory(args, results) if args.memory_spp else throughput(args, results)
+    title = "Forward rendering: memory" if args.memory_spp else "Forward rendering: where the time goes" if args.breakdown else "Forward rendering throughput"
+    results = Results("forward", title)
+    memory(args, results) if args.memory_spp else breakdown(args, results) if args.breakdown else throughput(args, results)
     results.write(args.json)
     return 0
 
