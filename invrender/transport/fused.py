@@ -94,7 +94,7 @@ def tables(ctx: TransportContext, direct, hemisphere: str) -> FusedScene | None:
     if rho is None or lights is None or any(_carries_derivative(x) for x in (rho, lights.eps)):
         return None
     t = ctx.triangles
-    packed = [t.packed, t.material, t.emitter, lights.emitting, rho.detach().float(), lights.eps.detach().float(), lights.tri, lights.cdf, lights.pdf_area]
+    packed = [t.packed.reshape(-1), t.material, t.emitter, lights.emitting, rho.detach().float(), lights.eps.detach().float(), lights.tri, lights.cdf, lights.pdf_area]
     return FusedScene(packed, mis=direct == "mis", nee_only=direct == "emitter", nee=direct in ("mis", "emitter"))
 
 

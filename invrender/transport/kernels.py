@@ -100,7 +100,7 @@ def launch(kernel, n: int, inputs: list, device: torch.device) -> None:
     """Run ``kernel`` over ``n`` threads on ``device`` (on torch's current stream on CUDA).
 
     ``inputs``: torch tensors (passed as Warp arrays of their dtype and shape, made contiguous:
-    outputs must be contiguous already, or the kernel writes into a copy), :class:`Vec3` tensors,
+    outputs must be contiguous already, or the kernel writes into a copy), :class:`Vec3` and :class:`Vec2` tensors,
     and scalars. Tensors go to Warp as launch descriptors, not ``wp.array``
     objects (which cost tens of microseconds each to build); the tensors they point to are held
     here until the launch returns (on CUDA, torch's allocator orders their reuse after the kernel).
@@ -111,9 +111,10 @@ def launch(kernel, n: int, inputs: list, device: torch.device) -> None:
     wp = wk.wp
     held, args = [], []
     for x in inputs:
-        if isinstance(x, Vec3):
+        if isinstance(x, Vec3):  # or Vec2
+            vector = getattr(wp, x.vector)
             x = x.tensor.to(torch.float32).contiguous()
-            args.append(wp.from_torch(x, dtype=wp.vec3, return_ctype=True))
+            args.append(wp.from_torch(x, dtype=vector, return_ctype=True))
         elif isinstance(x, torch.Tensor):
             x = x.contiguous()
             args.append(wp.from_torch(x, return_ctype=True))
@@ -128,9 +129,18 @@ class Vec3:
     """A (N, 3) tensor to be passed to a kernel as an array of ``wp.vec3`` (see :func:`launch`)."""
 
     __slots__ = ("tensor",)
+    #: the Warp vector type of the array
+    vector = "vec3"
 
     def __init__(self, tensor: torch.Tensor):
         self.tensor = tensor
+
+
+class Vec2(Vec3):
+    """A (N, 2) tensor to be passed to a kernel as an array of ``wp.vec2``."""
+
+    __slots__ = ()
+    vector = "vec2"
 
 
 def hash_uniforms(keys: torch.Tensor, salts: torch.Tensor) -> torch.Tensor:
@@ -154,7 +164,7 @@ def hit_geometry(packed: torch.Tensor, tri: torch.Tensor, u: torch.Tensor, v: to
     front = torch.empty(count, dtype=torch.bool, device=dev)
     cos_o = torch.empty(count, device=dev)
     uv = torch.empty(count, 2, device=dev) if with_uv else torch.zeros(1, 2, device=dev)
-    inputs = [packed, tri, u, v, Vec3(d), int(with_uv), Vec3(p), Vec3(n), front, cos_o, uv]
+    inputs = [packed.reshape(-1), tri, u, v, Vec3(d), int(with_uv), Vec3(p), Vec3(n), front, cos_o, uv]
     launch(warp_kernels().hit_kernel, count, inputs, dev)
     return p, n, front, cos_o, uv if with_uv else uv.expand(count, 2)
 
@@ -177,7 +187,7 @@ def emitter_geometry(packed, light_tri, cdf, pdf_area, u: torch.Tensor, x: torch
     facing = torch.empty(count, dtype=torch.bool, device=dev)
     uv = torch.empty(count, 2, device=dev) if with_uv else torch.zeros(1, 2, device=dev)
     inputs = [
-        packed,
+        packed.reshape(-1),
         light_tri,
         cdf,
         pdf_area,
@@ -220,7 +230,7 @@ def lambert_vertex(tables: list, hits: tuple, d, beta, pdf_dir, keys, salts, fla
     of :mod:`invrender.transport.fused`, which documents it).
 
     Args:
-        tables: the scene's tables, in order: packed (T, 18), material (T,), emitter (T,), emitting
+        tables: the scene's tables, in order: packed (T * 18,) flat, material (T,), emitter (T,), emitting
             (T,) bool, rho (M, 3), eps (E, 3), light triangles (L,), their cdf (L,), pdf_area (T,).
         hits: (prim, u, v, t) (N,) each: the paths' closest hits, all valid.
         d, beta: (N, 3) the rays' directions and the paths' throughputs; pdf_dir (N,) the pdf ``d``
@@ -275,7 +285,7 @@ def tangents_add(pixel, counts, rho, emitted, tangents: tuple, direct, occluded,
     none64 = torch.zeros(0, dtype=torch.float64, device=dev)
     codes = [torch.empty(n if places is not None else 0, dtype=torch.int64, device=dev) for _ in range(2)]
     inputs = [
-        pixel, counts, Vec3(rho), Vec3(emitted), Vec3(emitted_factor), emitter_hit, Vec3(direct), Vec3(direct_factor), emitter_sampled, blocked, material_hit,
+        pixel, counts.view(-1), Vec3(rho), Vec3(emitted), Vec3(emitted_factor), emitter_hit, Vec3(direct), Vec3(direct_factor), emitter_sampled, blocked, material_hit,
         int(scatter), int(jacobian.shape[2]) if jacobian is not None else 0, jacobian.view(-1) if jacobian is not None else none64,
         places if places is not None else torch.zeros(0, dtype=torch.int64, device=dev), *codes,
     ]  # fmt: skip
@@ -296,7 +306,7 @@ def camera_samples(ids: torch.Tensor, spp: int, width: int, mode: int, key_salt:
     pixel = torch.empty(count, dtype=torch.int64, device=device)
     keys = torch.empty(count, dtype=torch.int32, device=device)
     film = torch.empty(count, 2, device=device)
-    uv = torch.empty(count, 2 if lens else 1, device=device)
-    inputs = [ids, int(spp), int(width), int(mode), key_salt, pattern_salt, cells, m, salts, pixel, keys, film, uv]
+    uv = torch.empty(count if lens else 1, 2, device=device)
+    inputs = [ids, int(spp), int(width), int(mode), key_salt, pattern_salt, cells, m, salts, int(lens), pixel, keys, Vec2(film), Vec2(uv)]
     launch(warp_kernels().camera_samples_kernel, count, inputs, device)
     return pixel, keys, film, uv if lens else None

@@ -72,34 +72,44 @@ def uniform_kernel(keys: wp.array(dtype=wp.int32), salts: wp.array(dtype=wp.int3
         u[i, j] = _uniform(key, salts[j])
 
 
+#: floats per triangle in the packed table (``Triangles.packed``, passed flat: kernels whose arrays
+#: are all one-dimensional get Warp's contiguous CPU code)
+_ROW = wp.constant(wp.int64(18))
+
+
 @wp.func
-def _point(packed: wp.array2d(dtype=wp.float32), k: wp.int64, b1: wp.float32, b2: wp.float32) -> wp.vec3:
+def _vec(packed: wp.array(dtype=wp.float32), k: wp.int64, j: wp.int64) -> wp.vec3:
+    """Floats j .. j + 2 of triangle k's row of the flat packed table."""
+    b = k * _ROW + j
+    return wp.vec3(packed[b], packed[b + wp.int64(1)], packed[b + wp.int64(2)])
+
+
+@wp.func
+def _point(packed: wp.array(dtype=wp.float32), k: wp.int64, b1: wp.float32, b2: wp.float32) -> wp.vec3:
     """The point of triangle k at barycentrics (b1, b2): ``p0 + b1 e1 + b2 e2`` (Triangles.packed)."""
-    p0 = wp.vec3(packed[k, 0], packed[k, 1], packed[k, 2])
-    e1 = wp.vec3(packed[k, 3], packed[k, 4], packed[k, 5])
-    e2 = wp.vec3(packed[k, 6], packed[k, 7], packed[k, 8])
-    return p0 + b1 * e1 + b2 * e2
+    return _vec(packed, k, wp.int64(0)) + b1 * _vec(packed, k, wp.int64(3)) + b2 * _vec(packed, k, wp.int64(6))
 
 
 @wp.func
-def _normal(packed: wp.array2d(dtype=wp.float32), k: wp.int64) -> wp.vec3:
+def _normal(packed: wp.array(dtype=wp.float32), k: wp.int64) -> wp.vec3:
     """Triangle k's unit geometric normal (its front side)."""
-    return wp.vec3(packed[k, 9], packed[k, 10], packed[k, 11])
+    return _vec(packed, k, wp.int64(9))
 
 
 @wp.func
 def _write_uv(
-    packed: wp.array2d(dtype=wp.float32), k: wp.int64, b1: wp.float32, b2: wp.float32, uv: wp.array2d(dtype=wp.float32), i: int
+    packed: wp.array(dtype=wp.float32), k: wp.int64, b1: wp.float32, b2: wp.float32, uv: wp.array2d(dtype=wp.float32), i: int
 ):
     """uv[i] = the texture coordinates of triangle k at barycentrics (b1, b2)."""
     b0 = 1.0 - b1 - b2
-    for j in range(2):
-        uv[i, j] = b0 * packed[k, 12 + j] + b1 * packed[k, 14 + j] + b2 * packed[k, 16 + j]
+    base = k * _ROW + wp.int64(12)
+    uv[i, 0] = b0 * packed[base] + b1 * packed[base + wp.int64(2)] + b2 * packed[base + wp.int64(4)]
+    uv[i, 1] = b0 * packed[base + wp.int64(1)] + b1 * packed[base + wp.int64(3)] + b2 * packed[base + wp.int64(5)]
 
 
 @wp.kernel
 def hit_kernel(
-    packed: wp.array2d(dtype=wp.float32), tri: wp.array(dtype=wp.int64), bu: wp.array(dtype=wp.float32), bv: wp.array(dtype=wp.float32),
+    packed: wp.array(dtype=wp.float32), tri: wp.array(dtype=wp.int64), bu: wp.array(dtype=wp.float32), bv: wp.array(dtype=wp.float32),
     d: wp.array(dtype=wp.vec3), with_uv: wp.int32,
     p: wp.array(dtype=wp.vec3), n: wp.array(dtype=wp.vec3), front: wp.array(dtype=wp.bool), cos_o: wp.array(dtype=wp.float32), uv: wp.array2d(dtype=wp.float32),
 ):  # fmt: skip
@@ -122,7 +132,7 @@ def hit_kernel(
 
 @wp.func
 def _area_sample(
-    packed: wp.array2d(dtype=wp.float32), light_tri: wp.array(dtype=wp.int64), cdf: wp.array(dtype=wp.float32), pdf_area: wp.array(dtype=wp.float32),
+    packed: wp.array(dtype=wp.float32), light_tri: wp.array(dtype=wp.int64), cdf: wp.array(dtype=wp.float32), pdf_area: wp.array(dtype=wp.float32),
     u0: wp.float32, u1: wp.float32, u2: wp.float32, x: wp.vec3, nx: wp.vec3, offset: wp.float32,
 ):  # fmt: skip
     """A point on the emissive triangles picked by ``u0`` (by the cdf) and placed by ``u1``, ``u2``,
@@ -154,7 +164,7 @@ def _area_sample(
 
 @wp.kernel
 def emitter_kernel(
-    packed: wp.array2d(dtype=wp.float32), light_tri: wp.array(dtype=wp.int64), cdf: wp.array(dtype=wp.float32), pdf_area: wp.array(dtype=wp.float32),
+    packed: wp.array(dtype=wp.float32), light_tri: wp.array(dtype=wp.int64), cdf: wp.array(dtype=wp.float32), pdf_area: wp.array(dtype=wp.float32),
     u: wp.array2d(dtype=wp.float32), x: wp.array(dtype=wp.vec3), nx: wp.array(dtype=wp.vec3), offset: wp.float32, with_uv: wp.int32,
     tri: wp.array(dtype=wp.int64), o: wp.array(dtype=wp.vec3), wl: wp.array(dtype=wp.vec3), tmax: wp.array(dtype=wp.float32),
     facing: wp.array(dtype=wp.bool), pdf: wp.array(dtype=wp.float32), uv: wp.array2d(dtype=wp.float32),
@@ -219,7 +229,7 @@ def _power_heuristic(a: wp.float32, b: wp.float32) -> wp.float32:
 
 @wp.kernel
 def lambert_vertex_kernel(
-    packed: wp.array2d(dtype=wp.float32), material: wp.array(dtype=wp.int64), emitter: wp.array(dtype=wp.int64), emitting: wp.array(dtype=wp.bool),
+    packed: wp.array(dtype=wp.float32), material: wp.array(dtype=wp.int64), emitter: wp.array(dtype=wp.int64), emitting: wp.array(dtype=wp.bool),
     rho: wp.array(dtype=wp.vec3), eps: wp.array(dtype=wp.vec3), light_tri: wp.array(dtype=wp.int64), cdf: wp.array(dtype=wp.float32), pdf_area: wp.array(dtype=wp.float32),
     prim: wp.array(dtype=wp.int64), bu: wp.array(dtype=wp.float32), bv: wp.array(dtype=wp.float32), t: wp.array(dtype=wp.float32),
     d: wp.array(dtype=wp.vec3), beta: wp.array(dtype=wp.vec3), pdf_dir: wp.array(dtype=wp.float32), keys: wp.array(dtype=wp.int32), salts: wp.array(dtype=wp.int32),
@@ -351,7 +361,7 @@ def _permuted(i: wp.uint32, n: wp.uint32, p: wp.uint32) -> wp.uint32:
 def camera_samples_kernel(
     ids: wp.array(dtype=wp.int64), spp: wp.int64, width: wp.int64, mode: wp.int32, key_salt: wp.uint32, pattern_salt: wp.uint32,
     cells: wp.uint32, m: wp.uint32, salts: wp.array(dtype=wp.int32),
-    pixel: wp.array(dtype=wp.int64), keys: wp.array(dtype=wp.int32), film: wp.array2d(dtype=wp.float32), lens: wp.array2d(dtype=wp.float32),
+    with_lens: wp.int32, pixel: wp.array(dtype=wp.int64), keys: wp.array(dtype=wp.int32), film: wp.array(dtype=wp.vec2), lens: wp.array(dtype=wp.vec2),
 ):  # fmt: skip
     """Camera samples of path ids ``ids`` (``driver.camera_paths`` without a plan): mode 0
     stratified, 1 independent, 2 antithetic (pairs stratified as samples)."""
@@ -369,9 +379,8 @@ def camera_samples_kernel(
     keys[i] = wp.int32(key)
     fx = _uniform(key, salts[0])
     fy = _uniform(key, salts[1])
-    if lens.shape[1] == 2:
-        lens[i, 0] = _uniform(key, salts[2])
-        lens[i, 1] = _uniform(key, salts[3])
+    if with_lens != 0:
+        lens[i] = wp.vec2(_uniform(key, salts[2]), _uniform(key, salts[3]))
     if mode != 1:  # multijitter over the cells x m grid
         pattern = _path_key(pattern_salt, px, wp.int64(0))
         r = cells / m
@@ -384,13 +393,12 @@ def camera_samples_kernel(
         fy = (wp.float32(row) + (wp.float32(sub_row) + fy) / wp.float32(m)) / wp.float32(r)
         fx = wp.min(fx, 1.0 - 5.9604645e-08)
         fy = wp.min(fy, 1.0 - 5.9604645e-08)
-    film[i, 0] = wp.float32(px % width) + fx
-    film[i, 1] = wp.float32(px // width) + fy
+    film[i] = wp.vec2(wp.float32(px % width) + fx, wp.float32(px // width) + fy)
 
 
 @wp.kernel
 def tangent_kernel(
-    pixel: wp.array(dtype=wp.int64), counts: wp.array2d(dtype=wp.int32), rho: wp.array(dtype=wp.vec3), emitted: wp.array(dtype=wp.vec3),
+    pixel: wp.array(dtype=wp.int64), counts: wp.array(dtype=wp.int32), rho: wp.array(dtype=wp.vec3), emitted: wp.array(dtype=wp.vec3),
     emitted_factor: wp.array(dtype=wp.vec3), emitter_hit: wp.array(dtype=wp.int32), direct: wp.array(dtype=wp.vec3), direct_factor: wp.array(dtype=wp.vec3),
     emitter_sampled: wp.array(dtype=wp.int32), occluded: wp.array(dtype=wp.bool), material_hit: wp.array(dtype=wp.int32), scatter: wp.int32,
     slots: wp.int32, jacobian: wp.array(dtype=wp.float64), places: wp.array(dtype=wp.int64), code_emitted: wp.array(dtype=wp.int64), code_direct: wp.array(dtype=wp.int64),
@@ -406,7 +414,8 @@ def tangent_kernel(
       factors of slot s), -1 where there is none (path records' codes; a place 0 leaves a slot out).
     """
     i = wp.tid()
-    materials = counts.shape[1]
+    materials = rho.shape[0]
+    row_i = i * materials  # counts is (N, M) flat
     m_k = material_hit[i]
     e_h = emitter_hit[i]
     e_l = emitter_sampled[i]
@@ -416,7 +425,7 @@ def tangent_kernel(
         at_d = wp.int64(-1)
         base = wp.int64(0)
         for m in range(materials):
-            base += wp.int64(counts[i, m]) * places[m]
+            base += wp.int64(counts[row_i + m]) * places[m]
         if e_h >= 0:
             at_e = base + places[materials + e_h]
         if lit:
@@ -437,11 +446,11 @@ def tangent_kernel(
                 wp.atomic_add(jacobian, row + wp.int64(materials + e_l), wp.float64(direct_factor[i][c]))
             for m in range(materials):
                 r = rho[m][c]
-                n = counts[i, m]
+                n = counts[row_i + m]
                 nd = n
                 if m == m_k:
                     nd = n + 1
                 if r > 0.0 and nd > 0:
                     wp.atomic_add(jacobian, row + wp.int64(m), wp.float64((wp.float32(n) * ce + wp.float32(nd) * cd) / r))
     if scatter != 0:
-        counts[i, m_k] = counts[i, m_k] + 1
+        counts[row_i + m_k] = counts[row_i + m_k] + 1
