@@ -38,7 +38,6 @@ import sys
 
 import torch
 
-from invrender.scene.kinds import param_name
 from invrender.scene.scene import Scene
 from invrender.transport import fused
 from invrender.transport.accel import RepeatedQueries
@@ -149,9 +148,8 @@ def tangent_slots(scene: Scene, integrator: Integrator, settings: RenderSettings
         scene_tables = integrator.fused_scene(integrator.context(scene, settings, device, params))
     if scene_tables is None:
         return None
-    slot_of = {param_name(m, "reflectance"): i for i, m in enumerate(scene.materials)}
-    slot_of.update({param_name(e, "emission"): len(scene.materials) + i for i, e in enumerate(scene.emitters)})
-    if any(n not in slot_of for n in names) or fused.slots(scene_tables) != len(scene.materials) + len(scene.emitters):
+    slot_of = fused.slot_index(scene, scene_tables)
+    if any(n not in slot_of for n in names):
         return None
     size = scene.width * scene.height * 3 * fused.slots(scene_tables) * 8 * cpu_workers(device)
     if size > settings.memory_mb * 2**20 * KEEP_SHARE:

@@ -48,6 +48,7 @@ from dataclasses import dataclass
 import torch
 import torch.autograd.forward_ad as fwAD
 
+from invrender.scene.kinds import param_name
 from invrender.transport import kernels
 from invrender.transport.context import PathState, TransportContext
 from invrender.transport.film import Film
@@ -152,6 +153,17 @@ class TangentFilm(Film):
 def slots(fused: FusedScene) -> int:
     """The Jacobian's slots of the scene: its materials, then its emitters (:class:`TangentFilm`)."""
     return fused.tables[4].shape[0] + fused.tables[5].shape[0]
+
+
+def slot_index(scene, fused: FusedScene) -> dict[str, int]:
+    """Parameter name -> its slot (``NAME.reflectance`` of the scene's materials, then
+    ``NAME.emission`` of its emitters), the parameters whose derivatives and monomial codes the
+    fused bounce carries; empty when its tables do not have one row per material and emitter."""
+    if slots(fused) != len(scene.materials) + len(scene.emitters):
+        return {}
+    index = {param_name(m, "reflectance"): i for i, m in enumerate(scene.materials)}
+    index.update({param_name(e, "emission"): len(scene.materials) + i for i, e in enumerate(scene.emitters)})
+    return index
 
 
 def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film, settings) -> None:
