@@ -59,6 +59,9 @@ from invrender.transport.sampler import bounce_salts
 #: dozen launches and queries a bounce) is paid back well below this, and smaller chunks keep the
 #: working set small (about 400 bytes a path)
 CPU_CHUNK_PATHS = 1 << 16
+#: the same for a render that carries derivatives (path replay's gradient: its memory is what
+#: replay promises to keep small; half the chunk, about 25 MiB less, for a few % of its time)
+CPU_TANGENT_CHUNK_PATHS = 1 << 15
 
 #: random numbers drawn per vertex (as the random walk draws them: 0-1 BSDF direction, 2-4 emitter
 #: sample, 5 roulette, 6 BSDF lobe)

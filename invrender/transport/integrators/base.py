@@ -222,7 +222,8 @@ class Integrator(ABC):
 
         size = BYTES_PER_PATH if keep is None else BYTES_PER_REPLAYED_PATH  # kept chunks are replay's chunks
         small = keep is None and device.type == "cpu" and self.fused_scene(ctx) is not None  # its chunks need not be large
-        for_each_chunk(scene, settings, device, chunk, across_ranks=True, with_start=True, bytes_per_path=size, max_chunk=fused.CPU_CHUNK_PATHS if small else None)
+        cap = fused.CPU_TANGENT_CHUNK_PATHS if tangents is not None else fused.CPU_CHUNK_PATHS
+        for_each_chunk(scene, settings, device, chunk, across_ranks=True, with_start=True, bytes_per_path=size, max_chunk=cap if small else None)
         film = type(films[0]).merge(films).summed_across_ranks()
         if tangents is not None:
             tangents["jacobian"] = film.jacobian / settings.spp
