@@ -290,6 +290,7 @@ class _RecordFilm(Film):
         self.first_row = [int(r) for r in _first_rows(record, slots, len(radix))]
         self.bound = max(width * height, math.prod(radix), record.shape[0])  # of every key entry
         self.rows: dict[int, int] = {}  # monomial code -> its row of ``buffer``
+        self.row_of = torch.full((math.prod(radix),), -1, dtype=torch.int64, device=device)  # the same as a table
         self.buffer = torch.zeros(8, width * height * 3, dtype=torch.float64, device=device)
         self.tables: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}  # K -> (keys (U, 2 + K), coefficients (U, 3))
         self.pending: dict[int, list[tuple[torch.Tensor, torch.Tensor]]] = {}
@@ -346,49 +347,56 @@ class _RecordFilm(Film):
 
     def _add(self, path: torch.Tensor, radiance: torch.Tensor) -> None:
         primal, tangent = fwAD.unpack_dual(radiance)
-        c = primal.detach().double()
+        c = primal.detach().double()  # (L, 3) contributions at the record point
         if tangent is None:
             tangent = torch.zeros_like(primal)
-        ratio = tangent.detach().double() / torch.where(c != 0, c, 1.0)
-        code = torch.round(ratio)
         live = c != 0
-        if bool(((ratio - code).abs() > 0.25)[live].any()):
+        ratio = torch.where(live, tangent.detach().double() / torch.where(live, c, 1.0), 0.0)
+        code = torch.round(ratio)
+        if bool(((ratio - code).abs() > 0.25).any()):  # 0 where c == 0 (code 0, adding 0)
             raise ParameterError("a contribution is not a monomial in the recorded parameters (a recorded parameter enters non-linearly)")
-        channel = torch.arange(3, device=path.device).expand_as(live)[live]
-        path = path[:, None].expand_as(live)[live]
-        code, c = code.long()[live], c[live]
-        # the constant parameters' monomial at the record point, to turn the contribution into its weight w
-        digits = [(code // place) % radix for place, radix in zip(self.place, self.radix)]
-        mono = torch.ones_like(c)
-        for p, k in enumerate(digits):
-            if p not in self.textured:
-                mono = mono * self.record[self.first_row[p], channel] ** k
-        w = c / mono
+        code = code.long()
+        key = self.pixel_of[path][:, None] * 3 + torch.arange(3, device=path.device)  # (L, 3) film entries
         if not self.slots:
-            self._add_dense(code, self.pixel_of[path] * 3 + channel, w)
+            # every contribution is added at the record point: its monomial there is divided out
+            # once per code and channel when the record is read (sums), not per contribution
+            self._add_dense(code.reshape(-1), key.reshape(-1), c.reshape(-1), live.reshape(-1))
             return
+        channel = torch.arange(3, device=path.device).expand_as(live)[live]
+        path, key = path[:, None].expand_as(live)[live], key[live]
+        code, c = code[live], c[live]
+        digits = [(code // place) % radix for place, radix in zip(self.place, self.radix)]
         degree = sum(digits[s.p] for s in self.slots)
         plain = degree == 0
-        self._add_dense(code[plain], (self.pixel_of[path] * 3 + channel)[plain], w[plain])
+        self._add_dense(code[plain], key[plain], c[plain], None)
         textured = (~plain).nonzero()[:, 0]
         if textured.numel():
-            self._add_textured(path[textured], channel[textured], code[textured], w[textured], torch.stack([digits[s.p][textured] for s in self.slots], dim=1))
+            # the constant parameters' monomial at the record point, to turn the contribution into its weight w
+            ch = channel[textured]
+            mono = torch.ones(textured.numel(), dtype=torch.float64, device=c.device)
+            for p, k in enumerate(digits):
+                if p not in self.textured:
+                    mono = mono * self.record[self.first_row[p], ch] ** k[textured]
+            self._add_textured(path[textured], ch, code[textured], c[textured] / mono, torch.stack([digits[s.p][textured] for s in self.slots], dim=1))
 
-    def _add_dense(self, code: torch.Tensor, key: torch.Tensor, w: torch.Tensor) -> None:
-        """Add weights ``w`` (L,) to monomial ``code`` (L,) at film entries ``key`` (L,) (pixel * 3 + channel)."""
+    def _add_dense(self, code: torch.Tensor, key: torch.Tensor, c: torch.Tensor, live: torch.Tensor | None) -> None:
+        """Add contributions ``c`` (L,) at the record point to monomial ``code`` (L,) at film
+        entries ``key`` (L,) (pixel * 3 + channel); ``live`` (L,): which are nonzero (None: all;
+        a zero one adds nothing and creates no monomial)."""
         if not code.numel():
             return
-        # one index_add: each monomial has a row of the coefficient buffer (rows added as codes appear)
-        codes, inverse = torch.unique(code, return_inverse=True)
-        for value in codes.tolist():
-            if value not in self.rows:
-                self.rows[value] = len(self.rows)
+        # one index_add: each monomial has a row of the buffer (rows added as codes appear, found
+        # through a table of every possible code: no sort)
+        seen = torch.zeros_like(self.row_of).index_add_(0, code, live.long() if live is not None else torch.ones_like(code))
+        new = ((seen > 0) & (self.row_of < 0)).nonzero()[:, 0]
+        if new.numel():
+            self.row_of[new] = torch.arange(len(self.rows), len(self.rows) + new.numel(), device=self.row_of.device)
+            self.rows.update({int(v): len(self.rows) + i for i, v in enumerate(new.tolist())})
         if len(self.rows) > self.buffer.shape[0]:
             grown = self.buffer.new_zeros(max(2 * self.buffer.shape[0], len(self.rows)), self.buffer.shape[1])
             grown[: self.buffer.shape[0]] = self.buffer
             self.buffer = grown
-        row = torch.tensor([self.rows[v] for v in codes.tolist()], device=key.device)[inverse]
-        self.buffer.view(-1).index_add_(0, row * self.buffer.shape[1] + key, w)
+        self.buffer.view(-1).index_add_(0, self.row_of[code].clamp_min(0) * self.buffer.shape[1] + key, c)  # a zero c may land anywhere
 
     def _add_textured(self, path, channel, code, w, counts) -> None:
         """Contributions with texel factors: ``counts`` (L, slots) how many factors of each texture.
@@ -455,8 +463,16 @@ class _RecordFilm(Film):
 
     @property
     def sums(self) -> dict[int, torch.Tensor]:
-        """code -> (W * H * 3,) float64 sum of the weights of that monomial's contributions."""
-        return {code: self.buffer[r] for code, r in self.rows.items()}
+        """code -> (W * H * 3,) float64 sum of the weights of that monomial's contributions (the
+        buffer's sums of contributions at the record point divided by the monomial there)."""
+        out = {}
+        for code, r in self.rows.items():
+            mono = torch.ones(3, dtype=torch.float64, device=self.buffer.device)
+            for p, (place, radix) in enumerate(zip(self.place, self.radix)):
+                if p not in self.textured:
+                    mono = mono * self.record[self.first_row[p]] ** ((code // place) % radix)
+            out[code] = (self.buffer[r].reshape(-1, 3) / mono).reshape(-1)
+        return out
 
 
 def _with_lookup(slot: _TextureSlot, lights) -> _TextureSlot:
