@@ -56,7 +56,7 @@ from invrender.errors import ParameterError
 from invrender.registry import EMITTERS
 from invrender.scene.kinds import kind_of
 from invrender.scene.scene import Scene, check_names
-from invrender.transport.driver import RenderSettings, for_each_chunk
+from invrender.transport.driver import RenderSettings, SamplePlan, for_each_chunk
 from invrender.transport.film import Film
 from invrender.transport.integrators import make_integrator
 from invrender.transport.textures import bilinear
@@ -107,9 +107,10 @@ class PathRecords:
         coefficients: (S, H * W, 3) float64, per monomial the sum over a pixel's paths of their
             fixed weights w, divided by spp.
         resolution: (width, height).
-        record_values: name -> (3,) or (h, w, 3) the values the paths were traced at.
-        spp: samples per pixel traced.
-        seed: the seed of the traced paths.
+        record_values: name -> (3,) or (h, w, 3) the values the paths were traced at (of the
+            last pass, for a record that :func:`accumulate` summed).
+        spp: samples per pixel traced (of every pass summed).
+        seed: the seed of the traced paths (of the last pass).
         texel_exponents: (Q, P) int64 the constant parameters' exponents of the monomials with
             texel factors (textured columns 0), indexed by ``TexelTerms.term``.
         texel_terms: the monomials with texel factors, one table per degree K (empty without
@@ -524,6 +525,7 @@ def record_paths(
     max_record_mb: float = 1024.0,
     progress: bool = True,
     sampler: str = "stratified",
+    first_sample: int = 0,
     **options,
 ) -> PathRecords:
     """Trace ``scene`` once and keep the estimate as a polynomial in the parameters ``params``.
@@ -540,6 +542,9 @@ def record_paths(
             degree of the polynomial).
         integrator: any integrator name; ``options`` are its further settings (e.g. ``rr_depth``).
         sampler: how pixel samples are drawn, as :func:`invrender.render`.
+        first_sample: trace every pixel's samples ``first_sample .. first_sample + spp - 1`` of
+            ``seed`` (a pass, as adaptive sampling's: passes over disjoint ranges are independent,
+            and :func:`accumulate` sums them into the record of all their samples).
         max_record_mb: refuse records that would exceed this (one-line error naming the
             parameters; with textures it is checked while tracing).
     Returns:
@@ -581,8 +586,11 @@ def record_paths(
     model = make_integrator(integrator, max_depth=max_depth, **options)
     if model.not_recordable:
         raise ParameterError(f"integrator {model.name!r} cannot be recorded as path records (solver 'lm', identifiability): {model.not_recordable}; fit it with solver 'adam'")
-    settings = RenderSettings(spp=spp, seed=seed, memory_mb=memory_mb, progress=progress, sampler=sampler)
     device = torch.device(device) if device is not None else scene.device
+    if isinstance(first_sample, bool) or not isinstance(first_sample, int) or first_sample < 0:
+        raise ParameterError(f"record_paths first_sample must be an integer >= 0, got {first_sample!r}")
+    plan = SamplePlan(torch.full((w * h,), spp, dtype=torch.int64), torch.full((w * h,), first_sample, dtype=torch.int64)) if first_sample else None
+    settings = RenderSettings(spp=spp, seed=seed, memory_mb=memory_mb, progress=progress, sampler=sampler, plan=plan)
     record = torch.cat([scene.params[n].detach().to(device, torch.float64).reshape(-1, 3) for n in names])  # (N_var, 3)
     place = [math.prod(radix[:p]) for p in range(len(radix))]
     material_of = scene.triangles.material.to(device)
@@ -633,3 +641,49 @@ def record_paths(
         texel_terms = tuple(groups)
     record_values = {n: scene.params[n].detach().to(device, torch.float64).clone() for n in names}
     return PathRecords(tuple(names), exponents, coefficients, (w, h), record_values, spp, seed, texel_exponents, texel_terms)
+
+
+def accumulate(records: list[PathRecords]) -> PathRecords:
+    """The record of all the samples of ``records`` (records of the same parameters and view,
+    traced at any record points, e.g. passes of :func:`record_paths` over disjoint sample ranges
+    or with different seeds): each is an unbiased estimate of the image's polynomial, so their
+    spp-weighted mean of coefficients is one too, monomial by monomial (a monomial one record
+    lacks has coefficient 0 there). ``record_values`` and ``seed`` are the last record's, ``spp``
+    the sum."""
+    if not records:
+        raise ParameterError("accumulate needs at least one record")
+    last = records[-1]
+    for r in records:
+        if r.names != last.names or r.resolution != last.resolution or [v.shape for v in r.record_values.values()] != [v.shape for v in last.record_values.values()]:
+            raise ParameterError(f"cannot accumulate records of {', '.join(r.names)} at {r.resolution} with records of {', '.join(last.names)} at {last.resolution}")
+    if len(records) == 1:
+        return last
+    total = sum(r.spp for r in records)
+    share = [r.spp / total for r in records]
+    exponents, inverse = torch.unique(torch.cat([r.exponents for r in records]), dim=0, return_inverse=True)
+    coefficients = last.coefficients.new_zeros(exponents.shape[0], *last.coefficients.shape[1:])
+    at = 0
+    for r, f in zip(records, share):
+        coefficients.index_add_(0, inverse[at : at + r.exponents.shape[0]].to(coefficients.device), r.coefficients * f)
+        at += r.exponents.shape[0]
+    texel_exponents, texel_terms = last.texel_exponents, last.texel_terms
+    if any(r.texel_terms for r in records):
+        parts = [r for r in records if r.texel_exponents is not None]
+        texel_exponents, term_of = torch.unique(torch.cat([r.texel_exponents for r in parts]), dim=0, return_inverse=True)
+        maps, at = {}, 0
+        for r in parts:
+            maps[id(r)] = term_of[at : at + r.texel_exponents.shape[0]]
+            at += r.texel_exponents.shape[0]
+        bound = max(last.resolution[0] * last.resolution[1], texel_exponents.shape[0], last.offsets[-1]) + 1
+        groups = []
+        for K in sorted({g.texels.shape[1] for r in records for g in r.texel_terms}):
+            keys, coef = [], []
+            for r, f in zip(records, share):
+                for g in r.texel_terms:
+                    if g.texels.shape[1] == K:
+                        keys.append(torch.cat([g.pixel[:, None], maps[id(r)].to(g.term.device)[g.term][:, None], g.texels], dim=1))
+                        coef.append(g.coefficients * f)
+            unique, summed = _sum_rows(torch.cat(keys), torch.cat(coef), bound)
+            groups.append(TexelTerms(unique[:, 0].clone(), unique[:, 1].clone(), unique[:, 2:].clone(), summed))
+        texel_terms = tuple(groups)
+    return PathRecords(last.names, exponents, coefficients, last.resolution, last.record_values, total, last.seed, texel_exponents, texel_terms)
