@@ -126,3 +126,31 @@ def test_decorrelation_removes_the_fixed_sample_bias_in_the_furnace():
     decorrelated = solve([a], [b], [target], start).values["glow.emission"]
     assert (correlated / eps - 1 / (1 + rho)).abs().max() < 0.03, correlated
     assert (decorrelated / eps - 1).abs().max() < 0.03, decorrelated
+
+
+def test_rounds_accumulate_their_records_and_a_resumed_fit_re_records_them(problem, tmp_path, monkeypatch):
+    """Round r traces only its new samples (spp 4, then 12, 48, ... a pixel per set, one seed per
+    set) and solves on every sample so far; the rounds stop (the nested rounds' move test); a fit
+    stopped after two rounds and resumed re-records their passes at their record points and ends
+    exactly where the uninterrupted fit does."""
+    from invrender.diff import records
+
+    scene, target, truth = problem
+    traced = []
+    real = records.record_paths
+    monkeypatch.setattr(records, "record_paths", lambda *a, **k: traced.append((k["spp"], k["first_sample"], k["seed"])) or real(*a, **k))
+    kw = dict(truth=truth, solver="lm", max_depth=5, spp=4, rounds=6, progress=False)
+    whole = ir.fit(scene, target, NAMES, **kw)
+    rounds = len(whole.history)
+    assert whole.history[-1]["converged"] and rounds < 6, [h["moved_in_std_errors"] for h in whole.history]
+    assert max(whole.errors.values()) < 0.1, whole.errors
+    assert [h["spp"] for h in whole.history] == [4 * 4**r for r in range(rounds)]
+    passes = [(4, 0)] + [(3 * 4**r, 4**r) for r in range(1, rounds)]
+    assert traced == [(n, a, s) for n, a in passes for s in (0, 1)]  # A and B, each its own seed
+    ck = tmp_path / "ck.pt"
+    ir.fit(scene, target, NAMES, checkpoint=ck, **{**kw, "rounds": 2})
+    traced.clear()
+    again = ir.fit(scene, target, NAMES, checkpoint=ck, resume=True, **kw)
+    assert traced == [(n, a, s) for n, a in passes for s in (0, 1)]
+    for n in NAMES:
+        torch.testing.assert_close(again.params[n], whole.params[n], rtol=0, atol=0)
