@@ -46,6 +46,7 @@ texels and weights the map reads there, and a contribution with the map's factor
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass
 
@@ -165,6 +166,16 @@ class PathRecords:
         offsets = self.offsets
         return torch.stack([torch.ones(3, dtype=V.dtype, device=V.device) if tex else V[offsets[p]] for p, tex in enumerate(self.textured)])
 
+    @functools.cached_property
+    def _by_channel(self) -> torch.Tensor:
+        """(3, H * W, S) the coefficients channel-major: every evaluation is one batched
+        matrix product per channel (a BLAS call, not an einsum over a strided layout)."""
+        return self.coefficients.permute(2, 1, 0).contiguous()
+
+    def _dense(self, factors: torch.Tensor) -> torch.Tensor:
+        """(H * W, 3, K) ``sum_s coefficients[s, n, c] factors[s, c, k]`` for ``factors`` (S, 3, K)."""
+        return torch.bmm(self._by_channel, factors.permute(1, 0, 2)).permute(1, 0, 2)
+
     def monomials(self, values: dict | None = None) -> torch.Tensor:
         """(S, 3) each texel-free monomial ``prod_p v_{p,c}^k_p`` at ``values`` (differentiable)."""
         return _power_products(self._per_parameter(self.variables(values)), self.exponents)
@@ -174,7 +185,7 @@ class PathRecords:
         their record-point values), differentiable in them; no tracing."""
         V = self.variables(values)
         Vp = self._per_parameter(V)
-        flat = torch.einsum("sc,snc->nc", _power_products(Vp, self.exponents), self.coefficients)
+        flat = self._dense(_power_products(Vp, self.exponents)[:, :, None])[:, :, 0]
         if self.texel_terms:
             M = _power_products(Vp, self.texel_exponents)  # (Q, 3)
             for g in self.texel_terms:
@@ -191,6 +202,9 @@ class PathRecords:
         W, H = self.resolution
         offsets = self.offsets
         M = _power_products(Vp, self.texel_exponents) if self.texel_terms else None
+        constant = [p for p, tex in enumerate(self.textured) if not tex]
+        # every constant parameter's derivative of the texel-free part at once: (N, 3, P')
+        dense = self._dense(torch.stack([_power_derivative(Vp, self.exponents, p) for p in constant], dim=2)) if constant else None
         out = {}
         for p, name in enumerate(self.names):
             if self.textured[p]:
@@ -209,7 +223,7 @@ class PathRecords:
                         J.index_add_(0, g.pixel[on] * T + t[on], m[on] * others)
                 out[name] = J.reshape(H, W, h, w, 3)
                 continue
-            flat = torch.einsum("sc,snc->nc", _power_derivative(Vp, self.exponents, p), self.coefficients)
+            flat = dense[:, :, constant.index(p)]
             for g in self.texel_terms:
                 flat = flat.index_add(0, g.pixel, g.coefficients * _power_derivative(Vp, self.texel_exponents, p)[g.term] * V[g.texels].prod(1))
             out[name] = flat.reshape(H, W, 3)
