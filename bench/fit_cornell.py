@@ -34,10 +34,14 @@ import json
 import math
 import time
 
-import torch
+_START = time.perf_counter()
+import torch  # noqa: E402 (timed: the import is part of a fresh process's fit)
 
-import invrender as ir
-from _measure import Results, add_json_option
+import invrender as ir  # noqa: E402
+from _measure import Results, add_json_option  # noqa: E402
+
+#: seconds this process spent importing torch and invrender
+IMPORT_SECONDS = time.perf_counter() - _START
 
 PARAMS = ["white.reflectance", "red.reflectance", "green.reflectance", "light.emission"]
 SOLVER_NAMES = ("adam", "lm", "gauss_newton")
@@ -199,6 +203,30 @@ def fit_mitsuba(scene, target: torch.Tensor, truth: dict, steps: int, spp: int, 
 # ---------------------------------------------------------------------------------------------
 
 
+def print_timing(history: list[dict], tol: float) -> dict:
+    """Where each second of a least-squares fit went, per round and in all (the rounds' ``timing``:
+    records traced, JAX's import, the reduction, optimistix with its compilation, the refinement,
+    the analysis), and the same up to the first round within ``tol``; returns the totals."""
+    phases = ["records", "import", "reduce", "solver", "refine", "analyse"]
+    print(f"  where the time went (s; import of torch + invrender in this process: {IMPORT_SECONDS:.2f} s, before the fit's clock starts):")
+    print("  " + " ".join(f"{h:>8}" for h in ["round", "spp", *phases, "other", "total"]))
+    previous = 0.0
+    for h in history:
+        t = h["timing"]
+        other = h["seconds"] - previous - sum(t.get(p, 0.0) for p in phases)
+        print("  " + " ".join([f"{h['step']:>8}", f"{h['spp']:>8}"] + [f"{t.get(p, 0.0):8.3f}" for p in phases] + [f"{other:8.3f}", f"{h['seconds'] - previous:8.3f}"]))
+        previous = h["seconds"]
+    hit = first_within(history, tol)
+    upto = history[: history.index(hit) + 1] if hit else history
+    totals = {p: sum(h["timing"].get(p, 0.0) for h in upto) for p in phases}
+    totals["fit"] = upto[-1]["seconds"]
+    totals["import_invrender"] = IMPORT_SECONDS
+    label = f"to {100 * tol:g}% (round {upto[-1]['step']})" if hit else "in all (never within tolerance)"
+    print(f"  {label}: " + ", ".join(f"{p} {totals[p]:.2f} s" for p in phases) + f"; fit {totals['fit']:.2f} s, "
+          f"with the process's imports {totals['fit'] + IMPORT_SECONDS:.2f} s")  # fmt: skip
+    return totals
+
+
 def summary_row(method: str, history: list[dict], tol: float, also: list[float]) -> dict:
     hit = first_within(history, tol)
     last = history[-1]
@@ -219,7 +247,9 @@ def summary_row(method: str, history: list[dict], tol: float, also: list[float])
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--resolution", type=int, default=64)
-    parser.add_argument("--target-spp", type=int, default=4096)
+    parser.add_argument("--target", choices=("mitsuba", "invrender"), default=None,
+                        help="which renderer renders the target (default: Mitsuba 3 where installed, else invrender)")  # fmt: skip
+    parser.add_argument("--target-spp", type=int, default=2048)
     parser.add_argument("--target-seed", type=int, default=12345)
     parser.add_argument("--solvers", default="adam,lm", help="invrender solvers, comma-separated ('' for none)")
     parser.add_argument("--set", type=setting, action="append", default=[], metavar="KEY=VALUE",
@@ -252,18 +282,27 @@ def main() -> None:
     n = args.resolution
     scene = ir.load_scene("cornell_box", resolution=(n, n))
     truth = {k: scene.params[k].clone() for k in PARAMS}
+    if args.target == "mitsuba" and not mitsuba:
+        parser.error("--target mitsuba needs Mitsuba 3 (see bench/mitsuba_ref.py)")
+    renderer = args.target or ("mitsuba" if mitsuba else "invrender")
     start = time.perf_counter()
-    target = ir.render(scene, spp=args.target_spp, max_depth=8, seed=args.target_seed, progress=False)
+    if renderer == "mitsuba":
+        import mitsuba_ref
+
+        loaded = mitsuba_ref.load_scene(scene, args.target_spp, 8, filter="box", integrator="path")
+        target = torch.from_numpy(mitsuba_ref.render(loaded, args.target_spp, seed=args.target_seed).copy())
+    else:
+        target = ir.render(scene, spp=args.target_spp, max_depth=8, seed=args.target_seed, progress=False)
     target_seconds = time.perf_counter() - start
     with torch.no_grad():
         for k in PARAMS:
             scene.params[k].fill_(5.0 if k.endswith(".emission") else 0.5)
-    print(f"Cornell box {n}x{n}: invrender target {args.target_spp} spp, max_depth 8 ({target_seconds:.1f} s); "
+    print(f"Cornell box {n}x{n}: {renderer} target {args.target_spp} spp, max_depth 8 ({target_seconds:.1f} s); "
           f"every fit starts from grey 0.5 / emission 5; time to {100 * args.tol:g}% = the first step with all 12 channels within it")  # fmt: skip
 
     rows, summary = (
         [],
-        {"resolution": n, "target_spp": args.target_spp, "tol": args.tol, "truth": {k: v.tolist() for k, v in truth.items()}, "fits": {}},
+        {"resolution": n, "target": renderer, "target_spp": args.target_spp, "tol": args.tol, "import_seconds": IMPORT_SECONDS, "truth": {k: v.tolist() for k, v in truth.items()}, "fits": {}},
     )
     results = {}
     for solver in solvers:
@@ -281,6 +320,8 @@ def main() -> None:
         summary["fits"][solver] = {**row, "history": res.history, "recovered": {k: v.tolist() for k, v in res.params.items()}}
         print(f"  largest relative error {100 * row['final_max_error']:.2f}%; {row['steps']} {'steps' if solver == 'adam' else 'rounds'} "
               f"in {row['total_seconds']:.1f} s")  # fmt: skip
+        if solver != "adam" and all("timing" in h for h in res.history):
+            summary["fits"][solver]["timing"] = print_timing(res.history, args.tol)
 
     if mitsuba:
         m = fit_mitsuba(
@@ -334,6 +375,11 @@ def main() -> None:
                     )
                 print(f"time to {pct(t)}, {r['method']} / Mitsuba: {text}")
                 record.note(f"time to {pct(t)}, {r['method']} / Mitsuba: {text}")
+                if ratio is not None and t == args.tol and r["method"] != "invrender adam":
+                    fresh = (mine + IMPORT_SECONDS) / ref
+                    summary["ratios"][f"{r['method']} with this process's imports / Mitsuba, time to {pct(t)}"] = fresh
+                    print(f"time to {pct(t)}, {r['method']} counting this process's imports of torch and invrender ({IMPORT_SECONDS:.1f} s) / Mitsuba: {fresh:.3f}x")
+                    record.note(f"time to {pct(t)}, {r['method']} with the imports ({IMPORT_SECONDS:.1f} s) / Mitsuba: {fresh:.3f}x")
 
     if args.out:
         from pathlib import Path

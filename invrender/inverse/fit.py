@@ -430,7 +430,9 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
                 # independent rounds: the difference's variance is the sum of theirs
                 spread = {n: sol.std_error[n] ** 2 + (std_error[n] ** 2 if std_error else 0.0) for n in names}
             else:
+                tick = time.perf_counter()
                 passes.add(rnd, current)
+                traced = time.perf_counter() - tick
                 sol = _solve_on_records(views, passes, current, cfg, prior, sensor, ambiguities)
                 # nested rounds (round rnd holds every sample of round rnd - 1): the difference of
                 # their estimates is a weighted difference of the new samples' mean and the old ones',
@@ -444,6 +446,8 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
                 "params": {n: current[n].tolist() for n in names}, "std_error": {n: std_error[n].tolist() for n in names},
                 "moved_in_std_errors": moved, "on": "re-traced renders" if retrace else "path records",
             }  # fmt: skip
+            if not retrace:  # where the round's wall time went (least_squares.LeastSquaresSolution.seconds)
+                record["timing"] = {"records": traced, **sol.seconds}
             if truth:
                 record["errors"] = {n: P.relative_error(current[n].float(), truth[n]) for n in names if n in truth}
             record["correlation"] = {"channels": sol.identifiability.channels, "matrix": sol.identifiability.correlation.tolist()}

@@ -43,6 +43,7 @@ standard error; a near-singular ``J^T J`` names the combinations the targets can
 from __future__ import annotations
 
 import dataclasses
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -79,12 +80,17 @@ class LeastSquaresSolution:
         identifiability: standard errors, correlations and undetermined combinations there.
         loss: mean squared weighted residual of set A at the solution.
         steps: the solver's inner steps.
+        seconds: where the solve's wall time went: ``import`` (JAX and optimistix, the first
+            solve of a process only), ``reduce`` (:func:`reduce_records`), ``solver`` (optimistix,
+            with its compilation the first time a problem size is met), ``refine`` (the
+            Gauss-Newton steps after it) and ``analyse``.
     """
 
     values: dict
     identifiability: Identifiability
     loss: float
     steps: int
+    seconds: dict = field(default_factory=dict)
 
     @property
     def std_error(self) -> dict:
@@ -404,7 +410,9 @@ def solve(
     views' exposure and white balance (:mod:`invrender.inverse.sensor`), its free variables
     solved for with the rest; ``ambiguities``: its named scale ambiguities, reported in the
     solution's identifiability."""
+    clock = time.perf_counter()
     jax, jnp, optx = _jax()
+    seconds = {"import": time.perf_counter() - clock}
     dense = not any(r.texel_terms for r in list(records_a) + list(records_b))
     threads = torch.get_num_threads()
     if dense:
@@ -413,19 +421,29 @@ def solve(
         # in arithmetic (a 256x80 product 8 ms on 2 threads of a loaded 2-core machine, 0.02 ms on one)
         torch.set_num_threads(1)
     try:
-        return _solve(jax, jnp, optx, dense, records_a, records_b, targets, start, solver, max_steps, rtol, atol, prior, sensor, ambiguities)
+        return _solve(jax, jnp, optx, dense, records_a, records_b, targets, start, solver, max_steps, rtol, atol, prior, sensor, ambiguities, seconds)
     finally:
         torch.set_num_threads(threads)
 
 
-def _solve(jax, jnp, optx, dense, records_a, records_b, targets, start, solver, max_steps, rtol, atol, prior, sensor, ambiguities) -> LeastSquaresSolution:
-    """:func:`solve`, on the reduced problem where ``dense`` (no texel terms)."""
+def _solve(jax, jnp, optx, dense, records_a, records_b, targets, start, solver, max_steps, rtol, atol, prior, sensor, ambiguities, seconds: dict) -> LeastSquaresSolution:
+    """:func:`solve`, on the reduced problem where ``dense`` (no texel terms); adds its phases'
+    wall times to ``seconds``."""
+    clock = time.perf_counter()
+
+    def lap(name: str) -> None:
+        nonlocal clock
+        now = time.perf_counter()
+        seconds[name] = now - clock
+        clock = now
+
     layout = _Layout.of(records_a[0])
     weights = _weights(targets)
     sensor = sensor if sensor is not None and sensor.active else None
     # without texel terms the solver and the refinement see the problem in a few rows a view
     # (reduce_records: the same steps); the analysis below uses every pixel
     problem = _Problem(layout, *reduce_records(records_a, records_b, targets, weights), prior, sensor, 1) if dense else _Problem(layout, records_a, records_b, targets, weights, prior, sensor)
+    lap("reduce")
     handle = id(problem)
     _PROBLEMS[handle] = problem
     extra = prior.residual(layout, start).numel() if prior is not None else 0
@@ -445,6 +463,7 @@ def _solve(jax, jnp, optx, dense, records_a, records_b, targets, start, solver, 
     flat = layout.from_raw(rows)
     n = flat.numel()
     steps = int(sol.stats["num_steps"])
+    lap("solver")
     # The trust region accepts steps by the decrease of |r_A|^2, which B's Jacobian does not model
     # exactly, so it stalls a little short of J_B^T r_A = 0: finish with undamped Gauss-Newton steps
     # on that equation (near the solution the problem is almost linear; a few steps suffice).
@@ -458,10 +477,12 @@ def _solve(jax, jnp, optx, dense, records_a, records_b, targets, start, solver, 
         if float(step.abs().max()) < 1e-10:
             break
     values = layout.unflatten(flat)
+    lap("refine")
     ident = analyse(records_a, records_b, targets, values, prior=prior, sensor=sensor, sensor_raw=s, ambiguities=ambiguities)
     if sensor is not None:
         values.update({k: v.detach() for k, v in sensor.values(s).items()})
-    return LeastSquaresSolution(values, ident, ident.loss, steps)
+    lap("analyse")
+    return LeastSquaresSolution(values, ident, ident.loss, steps, seconds)
 
 
 def _weights(targets: list) -> list[torch.Tensor]:
