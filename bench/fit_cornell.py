@@ -255,10 +255,10 @@ def main() -> None:
     parser.add_argument("--set", type=setting, action="append", default=[], metavar="KEY=VALUE",
                         help="an ir.fit setting for every invrender fit, or SOLVER.KEY=VALUE for one")  # fmt: skip
     parser.add_argument("--no-mitsuba", action="store_true", help="skip the Mitsuba 3 fit")
-    parser.add_argument("--mitsuba-steps", type=int, default=300)
-    parser.add_argument("--mitsuba-spp", type=int, default=16)
+    parser.add_argument("--mitsuba-steps", type=int, default=800)
+    parser.add_argument("--mitsuba-spp", type=int, default=64)
     parser.add_argument("--mitsuba-lr", type=float, default=0.2)
-    parser.add_argument("--mitsuba-lr-final", type=float, default=0.05, help="the cosine decay's end, a fraction of --mitsuba-lr")
+    parser.add_argument("--mitsuba-lr-final", type=float, default=0.005, help="the cosine decay's end, a fraction of --mitsuba-lr")
     parser.add_argument("--tol", type=float, default=0.01, help="relative error every channel must reach (default 1%%)")
     parser.add_argument("--also-tol", default="0.05", help="further thresholds for the table, comma-separated ('' for none)")
     parser.add_argument("--out", default=None, help="folder for the reports, plots and summary.json")
