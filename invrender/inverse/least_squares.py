@@ -308,10 +308,15 @@ def _union_coefficients(records: list[PathRecords], exponents: torch.Tensor) -> 
     return out
 
 
+#: the fewest rows a channel of a view a reduced problem is padded to (reduce_records)
+MIN_BUCKET = 256
+
+
 def _bucket(n: int) -> int:
-    """``n`` rounded up to a power of two (at least 64): problem sizes the solver's compiled
-    function is reused for."""
-    return max(64, 1 << (n - 1).bit_length())
+    """``n`` rounded up to a power of two, at least :data:`MIN_BUCKET`: problem sizes the solver's
+    compiled function is reused for (the rounds' monomial counts grow a little with their samples:
+    the Cornell box's 2S + 1 goes from about 120 to 160, one bucket)."""
+    return max(MIN_BUCKET, 1 << (n - 1).bit_length())
 
 
 def reduce_records(records_a: list[PathRecords], records_b: list[PathRecords], targets: list, weights: list):
