@@ -420,6 +420,10 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
         # on path records the rounds accumulate (least_squares.py: two independent accumulations,
         # A and B); a resumed fit re-records the earlier rounds' passes at their record points
         passes = _RecordPasses(views, scene_names, cfg, model) if not retrace else None
+        if passes is not None and not done:
+            from invrender.inverse.least_squares import preload
+
+            preload()  # JAX's import overlaps with the first records
         for r in range(len(history) if passes is not None and not done else 0):
             passes.add(r, record_point if r == 0 else {n: torch.tensor(v, dtype=torch.float64) for n, v in history[r - 1]["params"].items()})
         for rnd in range(len(history), 0 if done else cfg.rounds):

@@ -111,6 +111,21 @@ def _jax():
     return jax, jnp, optx
 
 
+def preload() -> None:
+    """Start importing JAX and optimistix in a background thread (about 2 s, once a process), so
+    that it overlaps with the work before the first solve (a fit's first records); the first
+    :func:`solve` waits for it (Python's import lock). A failed import is raised there."""
+    import threading
+
+    def load():
+        try:
+            _jax()
+        except ParameterError:
+            pass  # said again by the solve that needs them
+
+    threading.Thread(target=load, name="invrender-jax-import", daemon=True).start()
+
+
 @dataclass(frozen=True)
 class _Layout:
     """How the recorded parameters map to the solver's variable rows (a constant is one row of
