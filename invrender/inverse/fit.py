@@ -213,7 +213,9 @@ class FitResult:
         params: name -> recovered value (detached tensors).
         history: one dict per step: ``step``, ``loss``, ``spp``, ``seconds`` (since the start),
             ``params`` (name -> list), and ``errors`` (name -> largest relative error) when the
-            ground truth is known.
+            ground truth is known; a least-squares round on path records also ``timing``: its
+            seconds in ``records`` (tracing the round's passes) and in the solve's phases
+            (:attr:`~invrender.inverse.least_squares.LeastSquaresSolution.seconds`).
         scene: the input scene with the recovered values in its params.
         settings: the settings used.
         initial: name -> starting value.
