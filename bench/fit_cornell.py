@@ -394,7 +394,8 @@ def main() -> None:
     if args.out:
         from pathlib import Path
 
-        from invrender.inverse.report import plot_history, report_dict, write_json
+        from invrender.inverse.report import plot_history, report_dict
+        from invrender.io.reports import write_json
 
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
