@@ -358,7 +358,7 @@ def main() -> None:
     print(f"\n| method | time to {pct(args.tol)} | " + "".join(f"time to {pct(t)} | " for t in also)
           + "final max error | best max error (step) | total time |")  # fmt: skip
     print("|---|---|" + "---|" * len(also) + "---|---|---|")
-    table = record.table(f"Cornell box {n}x{n}, target {args.target_spp} spp; the 12 channels of white, red, green and light.emission from grey 0.5 / emission 5",
+    table = record.table(f"Cornell box {n}x{n}, {renderer} target {args.target_spp} spp; the 12 channels of white, red, green and light.emission from grey 0.5 / emission 5",
                          ["method", f"time to {pct(args.tol)}", *(f"time to {pct(t)}" for t in also), "final max error", "best max error (step)", "total time"])  # fmt: skip
     for r in rows:
         hit = secs(r["time_to_tol"]) + ("" if r["time_to_tol"] is None else f" (step {r['step_to_tol']})")
