@@ -29,7 +29,8 @@ from _measure import Results, add_json_option  # bench/ is the script's director
 from fit_cornell import setting
 
 import invrender as ir
-from invrender.inverse.report import report_dict, write_json
+from invrender.inverse.report import report_dict
+from invrender.io.reports import write_json
 from invrender.recipes import apply_init, load_dataset, load_fit_recipe, make_dataset
 
 ROOT = Path(__file__).resolve().parent.parent

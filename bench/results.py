@@ -32,7 +32,7 @@ BENCHMARKS = [
     ("ladder", "the ladder of approximations (figure and channel means)", "python bench/ladder.py --out /tmp/ladder.png", "~1 min", "integrators.md#the-ladder-of-approximations"),
     ("mitsuba_compare", "channel means against Mitsuba 3 (acceptance)", "python bench/mitsuba_compare.py --acceptance --closeups", "14-25 min", "rendering.md#against-mitsuba-3"),
     ("envmap_compare", "an environment map against Mitsuba 3 (diffuse and GGX spheres)", "python bench/envmap_compare.py --resolution 64 --spp 512 --seeds 8 --max-depth 8 2", "~2 min", "environment.md#against-mitsuba-3"),
-    ("fit_cornell", "the acceptance fit (Adam, lm, Mitsuba `prb` + Adam)", "python bench/fit_cornell.py", "~5 min", "fitting.md#measured"),
+    ("fit_cornell", "the acceptance fit (Adam, lm, Mitsuba `prb` + Adam)", "python bench/fit_cornell.py", "~13 min", "fitting.md#measured"),
     ("fit_recipes", "every shipped fit recipe with both solvers", "python bench/fit_recipes.py", "~40 min", "fitting.md#every-recipe-with-both-solvers"),
     ("sampling_ablation", "the sampling-strategy ablation", "python bench/sampling_ablation.py", "~10 min", "sampling.md#measured"),
     ("pixel_samples", "error against samples per pixel, per pixel sampler", "python bench/pixel_samples.py", "~15 min", "sampling.md#pixel-samples"),

@@ -46,6 +46,7 @@ texels and weights the map reads there, and a contribution with the map's factor
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass
 
@@ -56,7 +57,7 @@ from invrender.errors import ParameterError
 from invrender.registry import EMITTERS
 from invrender.scene.kinds import kind_of
 from invrender.scene.scene import Scene, check_names
-from invrender.transport.driver import RenderSettings, for_each_chunk
+from invrender.transport.driver import RenderSettings, SamplePlan, for_each_chunk
 from invrender.transport.film import Film
 from invrender.transport.integrators import make_integrator
 from invrender.transport.textures import bilinear
@@ -107,9 +108,10 @@ class PathRecords:
         coefficients: (S, H * W, 3) float64, per monomial the sum over a pixel's paths of their
             fixed weights w, divided by spp.
         resolution: (width, height).
-        record_values: name -> (3,) or (h, w, 3) the values the paths were traced at.
-        spp: samples per pixel traced.
-        seed: the seed of the traced paths.
+        record_values: name -> (3,) or (h, w, 3) the values the paths were traced at (of the
+            last pass, for a record that :func:`accumulate` summed).
+        spp: samples per pixel traced (of every pass summed).
+        seed: the seed of the traced paths (of the last pass).
         texel_exponents: (Q, P) int64 the constant parameters' exponents of the monomials with
             texel factors (textured columns 0), indexed by ``TexelTerms.term``.
         texel_terms: the monomials with texel factors, one table per degree K (empty without
@@ -164,6 +166,16 @@ class PathRecords:
         offsets = self.offsets
         return torch.stack([torch.ones(3, dtype=V.dtype, device=V.device) if tex else V[offsets[p]] for p, tex in enumerate(self.textured)])
 
+    @functools.cached_property
+    def _by_channel(self) -> torch.Tensor:
+        """(3, H * W, S) the coefficients channel-major: every evaluation is one batched
+        matrix product per channel (a BLAS call, not an einsum over a strided layout)."""
+        return self.coefficients.permute(2, 1, 0).contiguous()
+
+    def _dense(self, factors: torch.Tensor) -> torch.Tensor:
+        """(H * W, 3, K) ``sum_s coefficients[s, n, c] factors[s, c, k]`` for ``factors`` (S, 3, K)."""
+        return torch.bmm(self._by_channel, factors.permute(1, 0, 2)).permute(1, 0, 2)
+
     def monomials(self, values: dict | None = None) -> torch.Tensor:
         """(S, 3) each texel-free monomial ``prod_p v_{p,c}^k_p`` at ``values`` (differentiable)."""
         return _power_products(self._per_parameter(self.variables(values)), self.exponents)
@@ -173,7 +185,7 @@ class PathRecords:
         their record-point values), differentiable in them; no tracing."""
         V = self.variables(values)
         Vp = self._per_parameter(V)
-        flat = torch.einsum("sc,snc->nc", _power_products(Vp, self.exponents), self.coefficients)
+        flat = self._dense(_power_products(Vp, self.exponents)[:, :, None])[:, :, 0]
         if self.texel_terms:
             M = _power_products(Vp, self.texel_exponents)  # (Q, 3)
             for g in self.texel_terms:
@@ -190,6 +202,9 @@ class PathRecords:
         W, H = self.resolution
         offsets = self.offsets
         M = _power_products(Vp, self.texel_exponents) if self.texel_terms else None
+        constant = [p for p, tex in enumerate(self.textured) if not tex]
+        # every constant parameter's derivative of the texel-free part at once: (N, 3, P')
+        dense = self._dense(torch.stack([_power_derivative(Vp, self.exponents, p) for p in constant], dim=2)) if constant else None
         out = {}
         for p, name in enumerate(self.names):
             if self.textured[p]:
@@ -208,7 +223,7 @@ class PathRecords:
                         J.index_add_(0, g.pixel[on] * T + t[on], m[on] * others)
                 out[name] = J.reshape(H, W, h, w, 3)
                 continue
-            flat = torch.einsum("sc,snc->nc", _power_derivative(Vp, self.exponents, p), self.coefficients)
+            flat = dense[:, :, constant.index(p)]
             for g in self.texel_terms:
                 flat = flat.index_add(0, g.pixel, g.coefficients * _power_derivative(Vp, self.texel_exponents, p)[g.term] * V[g.texels].prod(1))
             out[name] = flat.reshape(H, W, 3)
@@ -290,6 +305,7 @@ class _RecordFilm(Film):
         self.first_row = [int(r) for r in _first_rows(record, slots, len(radix))]
         self.bound = max(width * height, math.prod(radix), record.shape[0])  # of every key entry
         self.rows: dict[int, int] = {}  # monomial code -> its row of ``buffer``
+        self.row_of = torch.full((math.prod(radix),), -1, dtype=torch.int64, device=device)  # the same as a table
         self.buffer = torch.zeros(8, width * height * 3, dtype=torch.float64, device=device)
         self.tables: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}  # K -> (keys (U, 2 + K), coefficients (U, 3))
         self.pending: dict[int, list[tuple[torch.Tensor, torch.Tensor]]] = {}
@@ -346,49 +362,56 @@ class _RecordFilm(Film):
 
     def _add(self, path: torch.Tensor, radiance: torch.Tensor) -> None:
         primal, tangent = fwAD.unpack_dual(radiance)
-        c = primal.detach().double()
+        c = primal.detach().double()  # (L, 3) contributions at the record point
         if tangent is None:
             tangent = torch.zeros_like(primal)
-        ratio = tangent.detach().double() / torch.where(c != 0, c, 1.0)
-        code = torch.round(ratio)
         live = c != 0
-        if bool(((ratio - code).abs() > 0.25)[live].any()):
+        ratio = torch.where(live, tangent.detach().double() / torch.where(live, c, 1.0), 0.0)
+        code = torch.round(ratio)
+        if bool(((ratio - code).abs() > 0.25).any()):  # 0 where c == 0 (code 0, adding 0)
             raise ParameterError("a contribution is not a monomial in the recorded parameters (a recorded parameter enters non-linearly)")
-        channel = torch.arange(3, device=path.device).expand_as(live)[live]
-        path = path[:, None].expand_as(live)[live]
-        code, c = code.long()[live], c[live]
-        # the constant parameters' monomial at the record point, to turn the contribution into its weight w
-        digits = [(code // place) % radix for place, radix in zip(self.place, self.radix)]
-        mono = torch.ones_like(c)
-        for p, k in enumerate(digits):
-            if p not in self.textured:
-                mono = mono * self.record[self.first_row[p], channel] ** k
-        w = c / mono
+        code = code.long()
+        key = self.pixel_of[path][:, None] * 3 + torch.arange(3, device=path.device)  # (L, 3) film entries
         if not self.slots:
-            self._add_dense(code, self.pixel_of[path] * 3 + channel, w)
+            # every contribution is added at the record point: its monomial there is divided out
+            # once per code and channel when the record is read (sums), not per contribution
+            self._add_dense(code.reshape(-1), key.reshape(-1), c.reshape(-1), live.reshape(-1))
             return
+        channel = torch.arange(3, device=path.device).expand_as(live)[live]
+        path, key = path[:, None].expand_as(live)[live], key[live]
+        code, c = code[live], c[live]
+        digits = [(code // place) % radix for place, radix in zip(self.place, self.radix)]
         degree = sum(digits[s.p] for s in self.slots)
         plain = degree == 0
-        self._add_dense(code[plain], (self.pixel_of[path] * 3 + channel)[plain], w[plain])
+        self._add_dense(code[plain], key[plain], c[plain], None)
         textured = (~plain).nonzero()[:, 0]
         if textured.numel():
-            self._add_textured(path[textured], channel[textured], code[textured], w[textured], torch.stack([digits[s.p][textured] for s in self.slots], dim=1))
+            # the constant parameters' monomial at the record point, to turn the contribution into its weight w
+            ch = channel[textured]
+            mono = torch.ones(textured.numel(), dtype=torch.float64, device=c.device)
+            for p, k in enumerate(digits):
+                if p not in self.textured:
+                    mono = mono * self.record[self.first_row[p], ch] ** k[textured]
+            self._add_textured(path[textured], ch, code[textured], c[textured] / mono, torch.stack([digits[s.p][textured] for s in self.slots], dim=1))
 
-    def _add_dense(self, code: torch.Tensor, key: torch.Tensor, w: torch.Tensor) -> None:
-        """Add weights ``w`` (L,) to monomial ``code`` (L,) at film entries ``key`` (L,) (pixel * 3 + channel)."""
+    def _add_dense(self, code: torch.Tensor, key: torch.Tensor, c: torch.Tensor, live: torch.Tensor | None) -> None:
+        """Add contributions ``c`` (L,) at the record point to monomial ``code`` (L,) at film
+        entries ``key`` (L,) (pixel * 3 + channel); ``live`` (L,): which are nonzero (None: all;
+        a zero one adds nothing and creates no monomial)."""
         if not code.numel():
             return
-        # one index_add: each monomial has a row of the coefficient buffer (rows added as codes appear)
-        codes, inverse = torch.unique(code, return_inverse=True)
-        for value in codes.tolist():
-            if value not in self.rows:
-                self.rows[value] = len(self.rows)
+        # one index_add: each monomial has a row of the buffer (rows added as codes appear, found
+        # through a table of every possible code: no sort)
+        seen = torch.zeros_like(self.row_of).index_add_(0, code, live.long() if live is not None else torch.ones_like(code))
+        new = ((seen > 0) & (self.row_of < 0)).nonzero()[:, 0]
+        if new.numel():
+            self.row_of[new] = torch.arange(len(self.rows), len(self.rows) + new.numel(), device=self.row_of.device)
+            self.rows.update({int(v): len(self.rows) + i for i, v in enumerate(new.tolist())})
         if len(self.rows) > self.buffer.shape[0]:
             grown = self.buffer.new_zeros(max(2 * self.buffer.shape[0], len(self.rows)), self.buffer.shape[1])
             grown[: self.buffer.shape[0]] = self.buffer
             self.buffer = grown
-        row = torch.tensor([self.rows[v] for v in codes.tolist()], device=key.device)[inverse]
-        self.buffer.view(-1).index_add_(0, row * self.buffer.shape[1] + key, w)
+        self.buffer.view(-1).index_add_(0, self.row_of[code].clamp_min(0) * self.buffer.shape[1] + key, c)  # a zero c may land anywhere
 
     def _add_textured(self, path, channel, code, w, counts) -> None:
         """Contributions with texel factors: ``counts`` (L, slots) how many factors of each texture.
@@ -455,8 +478,16 @@ class _RecordFilm(Film):
 
     @property
     def sums(self) -> dict[int, torch.Tensor]:
-        """code -> (W * H * 3,) float64 sum of the weights of that monomial's contributions."""
-        return {code: self.buffer[r] for code, r in self.rows.items()}
+        """code -> (W * H * 3,) float64 sum of the weights of that monomial's contributions (the
+        buffer's sums of contributions at the record point divided by the monomial there)."""
+        out = {}
+        for code, r in self.rows.items():
+            mono = torch.ones(3, dtype=torch.float64, device=self.buffer.device)
+            for p, (place, radix) in enumerate(zip(self.place, self.radix)):
+                if p not in self.textured:
+                    mono = mono * self.record[self.first_row[p]] ** ((code // place) % radix)
+            out[code] = (self.buffer[r].reshape(-1, 3) / mono).reshape(-1)
+        return out
 
 
 def _with_lookup(slot: _TextureSlot, lights) -> _TextureSlot:
@@ -508,6 +539,7 @@ def record_paths(
     max_record_mb: float = 1024.0,
     progress: bool = True,
     sampler: str = "stratified",
+    first_sample: int = 0,
     **options,
 ) -> PathRecords:
     """Trace ``scene`` once and keep the estimate as a polynomial in the parameters ``params``.
@@ -524,6 +556,9 @@ def record_paths(
             degree of the polynomial).
         integrator: any integrator name; ``options`` are its further settings (e.g. ``rr_depth``).
         sampler: how pixel samples are drawn, as :func:`invrender.render`.
+        first_sample: trace every pixel's samples ``first_sample .. first_sample + spp - 1`` of
+            ``seed`` (a pass, as adaptive sampling's: passes over disjoint ranges are independent,
+            and :func:`accumulate` sums them into the record of all their samples).
         max_record_mb: refuse records that would exceed this (one-line error naming the
             parameters; with textures it is checked while tracing).
     Returns:
@@ -565,8 +600,11 @@ def record_paths(
     model = make_integrator(integrator, max_depth=max_depth, **options)
     if model.not_recordable:
         raise ParameterError(f"integrator {model.name!r} cannot be recorded as path records (solver 'lm', identifiability): {model.not_recordable}; fit it with solver 'adam'")
-    settings = RenderSettings(spp=spp, seed=seed, memory_mb=memory_mb, progress=progress, sampler=sampler)
     device = torch.device(device) if device is not None else scene.device
+    if isinstance(first_sample, bool) or not isinstance(first_sample, int) or first_sample < 0:
+        raise ParameterError(f"record_paths first_sample must be an integer >= 0, got {first_sample!r}")
+    plan = SamplePlan(torch.full((w * h,), spp, dtype=torch.int64), torch.full((w * h,), first_sample, dtype=torch.int64)) if first_sample else None
+    settings = RenderSettings(spp=spp, seed=seed, memory_mb=memory_mb, progress=progress, sampler=sampler, plan=plan)
     record = torch.cat([scene.params[n].detach().to(device, torch.float64).reshape(-1, 3) for n in names])  # (N_var, 3)
     place = [math.prod(radix[:p]) for p in range(len(radix))]
     material_of = scene.triangles.material.to(device)
@@ -617,3 +655,49 @@ def record_paths(
         texel_terms = tuple(groups)
     record_values = {n: scene.params[n].detach().to(device, torch.float64).clone() for n in names}
     return PathRecords(tuple(names), exponents, coefficients, (w, h), record_values, spp, seed, texel_exponents, texel_terms)
+
+
+def accumulate(records: list[PathRecords]) -> PathRecords:
+    """The record of all the samples of ``records`` (records of the same parameters and view,
+    traced at any record points, e.g. passes of :func:`record_paths` over disjoint sample ranges
+    or with different seeds): each is an unbiased estimate of the image's polynomial, so their
+    spp-weighted mean of coefficients is one too, monomial by monomial (a monomial one record
+    lacks has coefficient 0 there). ``record_values`` and ``seed`` are the last record's, ``spp``
+    the sum."""
+    if not records:
+        raise ParameterError("accumulate needs at least one record")
+    last = records[-1]
+    for r in records:
+        if r.names != last.names or r.resolution != last.resolution or [v.shape for v in r.record_values.values()] != [v.shape for v in last.record_values.values()]:
+            raise ParameterError(f"cannot accumulate records of {', '.join(r.names)} at {r.resolution} with records of {', '.join(last.names)} at {last.resolution}")
+    if len(records) == 1:
+        return last
+    total = sum(r.spp for r in records)
+    share = [r.spp / total for r in records]
+    exponents, inverse = torch.unique(torch.cat([r.exponents for r in records]), dim=0, return_inverse=True)
+    coefficients = last.coefficients.new_zeros(exponents.shape[0], *last.coefficients.shape[1:])
+    at = 0
+    for r, f in zip(records, share):
+        coefficients.index_add_(0, inverse[at : at + r.exponents.shape[0]].to(coefficients.device), r.coefficients * f)
+        at += r.exponents.shape[0]
+    texel_exponents, texel_terms = last.texel_exponents, last.texel_terms
+    if any(r.texel_terms for r in records):
+        parts = [r for r in records if r.texel_exponents is not None]
+        texel_exponents, term_of = torch.unique(torch.cat([r.texel_exponents for r in parts]), dim=0, return_inverse=True)
+        maps, at = {}, 0
+        for r in parts:
+            maps[id(r)] = term_of[at : at + r.texel_exponents.shape[0]]
+            at += r.texel_exponents.shape[0]
+        bound = max(last.resolution[0] * last.resolution[1], texel_exponents.shape[0], last.offsets[-1]) + 1
+        groups = []
+        for K in sorted({g.texels.shape[1] for r in records for g in r.texel_terms}):
+            keys, coef = [], []
+            for r, f in zip(records, share):
+                for g in r.texel_terms:
+                    if g.texels.shape[1] == K:
+                        keys.append(torch.cat([g.pixel[:, None], maps[id(r)].to(g.term.device)[g.term][:, None], g.texels], dim=1))
+                        coef.append(g.coefficients * f)
+            unique, summed = _sum_rows(torch.cat(keys), torch.cat(coef), bound)
+            groups.append(TexelTerms(unique[:, 0].clone(), unique[:, 1].clone(), unique[:, 2:].clone(), summed))
+        texel_terms = tuple(groups)
+    return PathRecords(last.names, exponents, coefficients, last.resolution, last.record_values, total, last.seed, texel_exponents, texel_terms)

@@ -95,10 +95,13 @@ class FitSettings:
             (Levenberg-Marquardt) or ``"gauss_newton"`` on path records (least_squares.py), or,
             when a fitted parameter is one records cannot represent (a roughness), on re-traced
             renders with forward-mode Jacobian columns (retraced.py).
-        rounds: least-squares solvers: at most this many outer rounds; round r records two
-            independent path sets at ``spp * 4^r`` at the current estimate and solves on them; the
+        rounds: least-squares solvers: at most this many outer rounds; on path records round r
+            traces two independent passes (A and B) at the current estimate and adds them to the
+            earlier rounds' (so it solves on ``spp * 4^r`` samples a pixel per set, three quarters
+            of them new); on re-traced renders it renders afresh at ``spp * 4^r``; the
             rounds end early, after at least three, once no parameter channel moved significantly
-            (by more than 2.5 standard errors of the difference of two rounds' estimates) and,
+            (by more than 2.5 standard errors of the difference of two rounds' estimates: of
+            nested estimates on records, the round's squared standard error times 3) and,
             when ``precision`` is set, every channel's standard error is below ``precision``
             times its value.
         precision: least-squares solvers: a relative standard error the rounds must reach
@@ -210,7 +213,9 @@ class FitResult:
         params: name -> recovered value (detached tensors).
         history: one dict per step: ``step``, ``loss``, ``spp``, ``seconds`` (since the start),
             ``params`` (name -> list), and ``errors`` (name -> largest relative error) when the
-            ground truth is known.
+            ground truth is known; a least-squares round on path records also ``timing``: its
+            seconds in ``records`` (tracing the round's passes) and in the solve's phases
+            (:attr:`~invrender.inverse.least_squares.LeastSquaresSolution.seconds`).
         scene: the input scene with the recovered values in its params.
         settings: the settings used.
         initial: name -> starting value.
@@ -405,6 +410,7 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
     ambiguities = sensor.ambiguities(names, scene.params)
     model = cfg.model
     current = {n: initial[n].double() if is_sensor(n) else scene.params[n].detach().double().clamp(1e-4, None) for n in names}
+    record_point = dict(current)  # round 0's
     history: list[dict] = []
     if state is not None:
         current, history = {n: v.double() for n, v in state["values"].items()}, list(state["history"])
@@ -413,24 +419,41 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
     bar = tqdm(total=cfg.rounds, initial=len(history), unit="round", disable=not progress or not is_main(), desc=f"fit ({cfg.solver})", file=sys.stderr, dynamic_ncols=True)
     with bar:
         done = bool(history) and history[-1].get("converged", False)  # a resumed fit that had converged
+        # on path records the rounds accumulate (least_squares.py: two independent accumulations,
+        # A and B); a resumed fit re-records the earlier rounds' passes at their record points
+        passes = _RecordPasses(views, scene_names, cfg, model) if not retrace else None
+        if passes is not None and not done:
+            from invrender.inverse.least_squares import preload
+
+            preload()  # JAX's import overlaps with the first records
+        for r in range(len(history) if passes is not None and not done else 0):
+            passes.add(r, record_point if r == 0 else {n: torch.tensor(v, dtype=torch.float64) for n, v in history[r - 1]["params"].items()})
         for rnd in range(len(history), 0 if done else cfg.rounds):
             spp = cfg.spp * 4**rnd
-            seeds = [(cfg.seed * 1_000_003 + 2 * (rnd * len(views) + v), cfg.seed * 1_000_003 + 2 * (rnd * len(views) + v) + 1) for v in range(len(views))]
             if retrace:
+                seeds = [(cfg.seed * 1_000_003 + 2 * (rnd * len(views) + v), cfg.seed * 1_000_003 + 2 * (rnd * len(views) + v) + 1) for v in range(len(views))]
                 sol = retraced.solve([s for s, _ in views], [t for _, t in views], {n: current[n] for n in scene_names}, model=model, spp=spp, seeds=seeds, sampler=cfg.sampler, sensor=sensor, solver=cfg.solver)
+                # independent rounds: the difference's variance is the sum of theirs
+                spread = {n: sol.std_error[n] ** 2 + (std_error[n] ** 2 if std_error else 0.0) for n in names}
             else:
-                sol = _solve_on_records(views, scene_names, current, cfg, model, spp, seeds, prior, sensor, ambiguities)
+                tick = time.perf_counter()
+                passes.add(rnd, current)
+                traced = time.perf_counter() - tick
+                sol = _solve_on_records(views, passes, current, cfg, prior, sensor, ambiguities)
+                # nested rounds (round rnd holds every sample of round rnd - 1): the difference of
+                # their estimates is a weighted difference of the new samples' mean and the old ones',
+                # with variance se^2 (spp / previous spp - 1) (docs/fitting.md)
+                spread = {n: sol.std_error[n] ** 2 * ((4 - 1) if std_error else 1) for n in names}
             # how far each channel moved, in standard errors of the difference of two rounds
-            moved = max(
-                float(((sol.values[n] - current[n]).abs() / (sol.std_error[n] ** 2 + (std_error[n] ** 2 if std_error else 0.0)).sqrt().clamp_min(1e-12)).max())
-                for n in names
-            )
+            moved = max(float(((sol.values[n] - current[n]).abs() / spread[n].sqrt().clamp_min(1e-12)).max()) for n in names)
             current, std_error = sol.values, sol.std_error
             record = {
                 "step": rnd + 1, "loss": sol.loss, "spp": spp, "seconds": time.perf_counter() - clock, "inner_steps": sol.steps,
                 "params": {n: current[n].tolist() for n in names}, "std_error": {n: std_error[n].tolist() for n in names},
                 "moved_in_std_errors": moved, "on": "re-traced renders" if retrace else "path records",
             }  # fmt: skip
+            if not retrace:  # where the round's wall time went (least_squares.LeastSquaresSolution.seconds)
+                record["timing"] = {"records": traced, **sol.seconds}
             if truth:
                 record["errors"] = {n: P.relative_error(current[n].float(), truth[n]) for n in names if n in truth}
             record["correlation"] = {"channels": sol.identifiability.channels, "matrix": sol.identifiability.correlation.tolist()}
@@ -453,22 +476,41 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
     return FitResult(recovered, history, out_scene, cfg, initial, {k: v for k, v in truth.items() if k in names}, {n: std_error[n].float() for n in names}, [t.report() for _, t in views], _pixels(views))
 
 
-def _solve_on_records(views, scene_names, current, cfg: FitSettings, model, spp: int, seeds, prior: dict, sensor: Sensor, ambiguities):
-    """One round on path records: two independent record sets (residual A, Jacobian B) at
-    ``current``, solved by least_squares.solve."""
-    from invrender.diff.records import record_paths
+class _RecordPasses:
+    """The path records of a least-squares fit's rounds, two independent accumulations per view
+    (A: the residual's, B: the Jacobian's). Round r traces samples ``spp * 4^(r-1) .. spp * 4^r - 1``
+    of each set's seed at the round's start values (round 0: ``0 .. spp - 1``) and adds them to
+    the earlier rounds' (:func:`~invrender.diff.records.accumulate`): every record is an unbiased
+    estimate of the polynomial at any values, so round r solves on all ``spp * 4^r`` samples
+    while tracing only the new three quarters."""
+
+    def __init__(self, views, scene_names, cfg: FitSettings, model):
+        self.views, self.names, self.cfg, self.model = views, scene_names, cfg, model
+        self.sets = {half: [None] * len(views) for half in (0, 1)}
+
+    def add(self, rnd: int, values: dict) -> None:
+        """Trace round ``rnd``'s passes at ``values`` and accumulate them."""
+        from invrender.diff.records import accumulate, record_paths
+
+        cfg = self.cfg
+        first = 0 if rnd == 0 else cfg.spp * 4 ** (rnd - 1)
+        for half in (0, 1):
+            for v, (view_scene, _) in enumerate(self.views):
+                rec = record_paths(
+                    view_scene.with_params({n: values[n].float() for n in self.names}),
+                    self.names, spp=cfg.spp * 4**rnd - first, first_sample=first, max_depth=self.model.terms_kept,
+                    seed=cfg.seed * 1_000_003 + 2 * v + half, integrator=self.model.name, progress=False, sampler=cfg.sampler,
+                    **_settings_besides_depth(self.model),
+                )  # fmt: skip
+                self.sets[half][v] = rec if self.sets[half][v] is None else accumulate([self.sets[half][v], rec])
+
+
+def _solve_on_records(views, passes: _RecordPasses, current, cfg: FitSettings, prior: dict, sensor: Sensor, ambiguities):
+    """One round on path records: the accumulated record sets A (residual) and B (Jacobian),
+    solved by least_squares.solve from ``current``."""
     from invrender.inverse.least_squares import Prior, solve
 
-    recs = {}
-    for half in (0, 1):  # two independent record sets: residual (A) and Jacobian (B)
-        recs[half] = [
-            record_paths(
-                view_scene.with_params({n: current[n].float() for n in scene_names}),
-                scene_names, spp=spp, max_depth=model.terms_kept, seed=seeds[v][half],
-                integrator=model.name, progress=False, sampler=cfg.sampler, **_settings_besides_depth(model),
-            )  # fmt: skip
-            for v, (view_scene, _) in enumerate(views)
-        ]
+    recs = passes.sets
     targets = [t for _, t in views]
     regularizer = Prior.by_rule(prior, recs[1], targets, current, cfg.prior_weight, cfg.smoothness) if prior and (cfg.prior_weight != 0 or cfg.smoothness != 0) else None
     return solve(recs[0], recs[1], targets, current, solver=cfg.solver, prior=regularizer, sensor=sensor, ambiguities=ambiguities)

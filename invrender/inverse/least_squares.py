@@ -42,6 +42,8 @@ standard error; a near-singular ``J^T J`` names the combinations the targets can
 
 from __future__ import annotations
 
+import dataclasses
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -78,12 +80,17 @@ class LeastSquaresSolution:
         identifiability: standard errors, correlations and undetermined combinations there.
         loss: mean squared weighted residual of set A at the solution.
         steps: the solver's inner steps.
+        seconds: where the solve's wall time went: ``import`` (JAX and optimistix, the first
+            solve of a process only), ``reduce`` (:func:`reduce_records`), ``solver`` (optimistix,
+            with its compilation the first time a problem size is met), ``refine`` (the
+            Gauss-Newton steps after it) and ``analyse``.
     """
 
     values: dict
     identifiability: Identifiability
     loss: float
     steps: int
+    seconds: dict = field(default_factory=dict)
 
     @property
     def std_error(self) -> dict:
@@ -102,6 +109,21 @@ def _jax():
     # step and cost tests are met while the normal equations are still 2% off
     jax.config.update("jax_enable_x64", True)
     return jax, jnp, optx
+
+
+def preload() -> None:
+    """Start importing JAX and optimistix in a background thread (about 2 s, once a process), so
+    that it overlaps with the work before the first solve (a fit's first records); the first
+    :func:`solve` waits for it (Python's import lock). A failed import is raised there."""
+    import threading
+
+    def load():
+        try:
+            _jax()
+        except ParameterError:
+            pass  # said again by the solve that needs them
+
+    threading.Thread(target=load, name="invrender-jax-import", daemon=True).start()
 
 
 @dataclass(frozen=True)
@@ -250,6 +272,7 @@ class _Problem:
     weights: list
     prior: Prior | None = None
     sensor: Sensor | None = None
+    threads: int | None = None  # torch's threads in the solver's callbacks (None: as they are)
 
     @property
     def device(self) -> torch.device:
@@ -289,6 +312,62 @@ class _Problem:
         return (J * scale.reshape(1, -1)).cpu().numpy()
 
 
+def _union_coefficients(records: list[PathRecords], exponents: torch.Tensor) -> list[torch.Tensor]:
+    """Each record's coefficients (S_u, N, 3) on the monomials ``exponents`` (S_u, P) (a
+    superset of each record's; a monomial a record lacks has coefficient 0 there)."""
+    out = []
+    for r in records:
+        index = {tuple(e): i for i, e in enumerate(exponents.tolist())}
+        rows = torch.tensor([index[tuple(e)] for e in r.exponents.tolist()], dtype=torch.int64, device=r.coefficients.device)
+        out.append(r.coefficients.new_zeros(exponents.shape[0], *r.coefficients.shape[1:]).index_copy_(0, rows, r.coefficients))
+    return out
+
+
+#: the fewest rows a channel of a view a reduced problem is padded to (reduce_records)
+MIN_BUCKET = 256
+
+
+def _bucket(n: int) -> int:
+    """``n`` rounded up to a power of two, at least :data:`MIN_BUCKET`: problem sizes the solver's
+    compiled function is reused for (the rounds' monomial counts grow a little with their samples:
+    the Cornell box's 2S + 1 goes from about 120 to 160, one bucket)."""
+    return max(MIN_BUCKET, 1 << (n - 1).bit_length())
+
+
+def reduce_records(records_a: list[PathRecords], records_b: list[PathRecords], targets: list, weights: list):
+    """The same least-squares problem in a few rows per view instead of one per pixel (records
+    without texel terms only): per view and channel, an orthonormal basis Q (N, K) of the span of
+    the weighted coefficient images of both sets and the weighted target, ``[w C_A, w C_B, w T]``
+    (K = 2 S + 1 columns over the union of their S monomials). Set A's weighted residual
+    ``w (g C_A m - T)`` (any gains g) lies in that span, and so does every column of set B's
+    Jacobian, so ``Q^T r_A`` has the norm of ``r_A`` and ``(Q^T J_B)^T Q^T r_A = J_B^T r_A``,
+    ``(Q^T J_B)^T Q^T J_B = J_B^T J_B``: the solver's steps, costs and stopping tests are those of
+    the full problem, each evaluation costs O(K S) instead of O(N S). Returns records whose
+    "pixels" are the K rows (coefficients ``Q^T w C``), padded to :func:`_bucket` rows with zeros,
+    their targets ``Q^T w T`` as (1, K, 3) and weights of 1."""
+    red_a, red_b, red_t, red_w = [], [], [], []
+    for a, b, t, w in zip(records_a, records_b, targets, weights):
+        exponents = torch.unique(torch.cat([a.exponents, b.exponents]), dim=0)
+        ca, cb = _union_coefficients([a, b], exponents)
+        S, N = exponents.shape[0], ca.shape[1]
+        w = w.to(ca.device, torch.float64)  # (N, 3)
+        y = _linear(t).double().reshape(-1, 3).to(ca.device) * w
+        K = _bucket(min(N, 2 * S + 1))
+        qa, qb, qt = ca.new_zeros(S, K, 3), ca.new_zeros(S, K, 3), ca.new_zeros(K, 3)
+        for c in range(3):
+            M = torch.cat([(ca[:, :, c] * w[:, c]).T, (cb[:, :, c] * w[:, c]).T, y[:, c : c + 1]], dim=1)  # (N, 2S + 1)
+            Q = torch.linalg.qr(M).Q[:, :K]  # (N, min(N, 2S + 1))
+            k = Q.shape[1]
+            qa[:, :k, c] = (Q.T @ M[:, :S]).T
+            qb[:, :k, c] = (Q.T @ M[:, S : 2 * S]).T
+            qt[:k, c] = Q.T @ y[:, c]
+        for src, dst, coef in ((a, red_a, qa), (b, red_b, qb)):
+            dst.append(dataclasses.replace(src, exponents=exponents, coefficients=coef, resolution=(K, 1), texel_exponents=None, texel_terms=()))
+        red_t.append(qt.reshape(1, K, 3))
+        red_w.append(torch.ones(K, 3, dtype=torch.float64, device=ca.device))
+    return red_a, red_b, red_t, red_w
+
+
 #: problems being solved, by handle: the jitted residual reads them through ``jax.pure_callback``
 _PROBLEMS: dict[int, _Problem] = {}
 _RESIDUAL = None
@@ -307,7 +386,10 @@ def _decorrelated_residual():
 
     def call(method, shape, x, handle):
         def host(x, handle):
-            return getattr(_PROBLEMS[int(handle)], method)(np.array(x, dtype=np.float64))
+            problem = _PROBLEMS[int(handle)]
+            if problem.threads is not None:
+                torch.set_num_threads(problem.threads)  # per thread (OpenMP): this is one of XLA's
+            return getattr(problem, method)(np.array(x, dtype=np.float64))
 
         return jax.pure_callback(host, jax.ShapeDtypeStruct(shape, jnp.float64), x, handle, vmap_method="sequential")
 
@@ -348,17 +430,46 @@ def solve(
     views' exposure and white balance (:mod:`invrender.inverse.sensor`), its free variables
     solved for with the rest; ``ambiguities``: its named scale ambiguities, reported in the
     solution's identifiability."""
+    clock = time.perf_counter()
     jax, jnp, optx = _jax()
+    seconds = {"import": time.perf_counter() - clock}
+    dense = not any(r.texel_terms for r in list(records_a) + list(records_b))
+    threads = torch.get_num_threads()
+    if dense:
+        # a reduced problem is a few thousand numbers: on several threads each operation would
+        # cost more in OpenMP's start and spin (and, on a busy machine, in waiting for cores) than
+        # in arithmetic (a 256x80 product 8 ms on 2 threads of a loaded 2-core machine, 0.02 ms on one)
+        torch.set_num_threads(1)
+    try:
+        return _solve(jax, jnp, optx, dense, records_a, records_b, targets, start, solver, max_steps, rtol, atol, prior, sensor, ambiguities, seconds)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _solve(jax, jnp, optx, dense, records_a, records_b, targets, start, solver, max_steps, rtol, atol, prior, sensor, ambiguities, seconds: dict) -> LeastSquaresSolution:
+    """:func:`solve`, on the reduced problem where ``dense`` (no texel terms); adds its phases'
+    wall times to ``seconds``."""
+    clock = time.perf_counter()
+
+    def lap(name: str) -> None:
+        nonlocal clock
+        now = time.perf_counter()
+        seconds[name] = now - clock
+        clock = now
+
     layout = _Layout.of(records_a[0])
     weights = _weights(targets)
     sensor = sensor if sensor is not None and sensor.active else None
-    problem = _Problem(layout, records_a, records_b, targets, weights, prior, sensor)
+    # without texel terms the solver and the refinement see the problem in a few rows a view
+    # (reduce_records: the same steps); the analysis below uses every pixel
+    problem = _Problem(layout, *reduce_records(records_a, records_b, targets, weights), prior, sensor, 1) if dense else _Problem(layout, records_a, records_b, targets, weights, prior, sensor)
+    lap("reduce")
     handle = id(problem)
     _PROBLEMS[handle] = problem
     extra = prior.residual(layout, start).numel() if prior is not None else 0
     s0 = sensor.to_raw(start) if sensor is not None else torch.zeros(0, dtype=torch.float64)
     try:
-        args = {"handle": jnp.asarray(handle, dtype=jnp.int64), "r": jnp.zeros(sum(_linear(t).numel() for t in targets) + extra)}
+        args = {"handle": jnp.asarray(handle, dtype=jnp.int64), "r": jnp.zeros(sum(_linear(t).numel() for t in problem.targets) + extra)}
         method = optx.LevenbergMarquardt(rtol=rtol, atol=atol) if solver == "lm" else optx.GaussNewton(rtol=rtol, atol=atol)
         raw0 = layout.to_raw(start)
         x0 = jnp.asarray(raw0.cpu().numpy() if sensor is None else torch.cat([raw0.reshape(-1), s0]).cpu().numpy())
@@ -372,23 +483,26 @@ def solve(
     flat = layout.from_raw(rows)
     n = flat.numel()
     steps = int(sol.stats["num_steps"])
+    lap("solver")
     # The trust region accepts steps by the decrease of |r_A|^2, which B's Jacobian does not model
     # exactly, so it stalls a little short of J_B^T r_A = 0: finish with undamped Gauss-Newton steps
     # on that equation (near the solution the problem is almost linear; a few steps suffice).
     for _ in range(REFINE_STEPS):
         values = layout.unflatten(flat)
-        J = _full_jacobian(records_b, weights, values, sensor, s, prior, layout)
-        ra = _all_residuals(records_a, targets, weights, values, sensor, s, prior, layout)
+        J = _full_jacobian(problem.records_b, problem.weights, values, sensor, s, prior, layout)
+        ra = _all_residuals(problem.records_a, problem.targets, problem.weights, values, sensor, s, prior, layout)
         step = torch.linalg.lstsq(J, -ra[:, None]).solution[:, 0]
         flat = layout.inside(flat + step[:n].reshape(-1, 3))
         s = s + step[n:]
         if float(step.abs().max()) < 1e-10:
             break
     values = layout.unflatten(flat)
+    lap("refine")
     ident = analyse(records_a, records_b, targets, values, prior=prior, sensor=sensor, sensor_raw=s, ambiguities=ambiguities)
     if sensor is not None:
         values.update({k: v.detach() for k, v in sensor.values(s).items()})
-    return LeastSquaresSolution(values, ident, ident.loss, steps)
+    lap("analyse")
+    return LeastSquaresSolution(values, ident, ident.loss, steps, seconds)
 
 
 def _weights(targets: list) -> list[torch.Tensor]:

@@ -15,6 +15,7 @@ import pytest
 import torch
 
 import invrender as ir
+from invrender.diff.records import accumulate
 from invrender.errors import ParameterError
 from tests.conftest import furnace
 
@@ -233,3 +234,31 @@ def test_a_sky_and_a_textured_floor_record_together(sky):
         axes = (0, 1)
         w = weights[:, :, None, None, :] if jac[n].ndim == 5 else weights
         torch.testing.assert_close((jac[n] * w).sum(axes), values[n].grad, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("scene_name, names", [("cornell_box", CORNELL), ("forward/textured_floor.toml", ["floor.reflectance", "light.emission"])])
+def test_passes_accumulate_into_the_record_of_all_their_samples(scene_name, names):
+    """Passes over disjoint sample ranges of one seed (independent sampler: sample k's numbers do
+    not depend on the pass) accumulate into the record of all the samples: the same polynomial
+    (texel tables too), to float rounding; passes at another record point are its spp-weighted mean."""
+    scene = ir.load_scene(scene_name, resolution=(12, 12))
+    kw = dict(max_depth=5, seed=7, sampler="independent", progress=False)
+    whole = ir.record_paths(scene, names, spp=12, **kw)
+    passes = [ir.record_paths(scene, names, spp=n, first_sample=a, **kw) for a, n in ((0, 2), (2, 4), (6, 6))]
+    acc = accumulate(passes)
+    assert acc.spp == 12 and acc.exponents.shape == whole.exponents.shape
+    at = {n: torch.rand(scene.params[n].shape, generator=torch.Generator().manual_seed(1), dtype=torch.float64) * 0.8 + 0.1 for n in names}
+    torch.testing.assert_close(acc.image(at), whole.image(at), rtol=1e-9, atol=1e-12)
+    for n in names:
+        torch.testing.assert_close(acc.jacobian(at)[n], whole.jacobian(at)[n], rtol=1e-9, atol=1e-12)
+    assert bool(whole.texel_terms) == (scene_name != "cornell_box")
+    assert [g.pixel.numel() for g in acc.texel_terms] == [g.pixel.numel() for g in whole.texel_terms]
+    # a pass at another record point (other values): the mean of the polynomials, weighted by spp
+    other = scene.with_params({n: at[n].float() for n in names})
+    far = ir.record_paths(other, names, spp=4, first_sample=12, **kw)
+    mixed = accumulate([whole, far])
+    assert mixed.spp == 16 and mixed.record_values[names[0]].equal(far.record_values[names[0]])
+    torch.testing.assert_close(mixed.image(at), (12 * whole.image(at) + 4 * far.image(at)) / 16, rtol=1e-9, atol=1e-12)
+    assert not torch.allclose(far.image(at), whole.image(at), rtol=1e-3)  # independent samples: a different estimate
+    with pytest.raises(ParameterError, match="cannot accumulate"):
+        accumulate([whole, ir.record_paths(scene, names[:1], spp=2, **kw)])

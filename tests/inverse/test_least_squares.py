@@ -126,3 +126,58 @@ def test_decorrelation_removes_the_fixed_sample_bias_in_the_furnace():
     decorrelated = solve([a], [b], [target], start).values["glow.emission"]
     assert (correlated / eps - 1 / (1 + rho)).abs().max() < 0.03, correlated
     assert (decorrelated / eps - 1).abs().max() < 0.03, decorrelated
+
+
+def test_rounds_accumulate_their_records_and_a_resumed_fit_re_records_them(problem, tmp_path, monkeypatch):
+    """Round r traces only its new samples (spp 4, then 12, 48, ... a pixel per set, one seed per
+    set) and solves on every sample so far; the rounds stop (the nested rounds' move test); a fit
+    stopped after two rounds and resumed re-records their passes at their record points and ends
+    exactly where the uninterrupted fit does."""
+    from invrender.diff import records
+
+    scene, target, truth = problem
+    traced = []
+    real = records.record_paths
+    monkeypatch.setattr(records, "record_paths", lambda *a, **k: traced.append((k["spp"], k["first_sample"], k["seed"])) or real(*a, **k))
+    kw = dict(truth=truth, solver="lm", max_depth=5, spp=4, rounds=6, progress=False)
+    whole = ir.fit(scene, target, NAMES, **kw)
+    rounds = len(whole.history)
+    assert whole.history[-1]["converged"] and rounds < 6, [h["moved_in_std_errors"] for h in whole.history]
+    assert max(whole.errors.values()) < 0.1, whole.errors
+    assert [h["spp"] for h in whole.history] == [4 * 4**r for r in range(rounds)]
+    passes = [(4, 0)] + [(3 * 4**r, 4**r) for r in range(1, rounds)]
+    assert traced == [(n, a, s) for n, a in passes for s in (0, 1)]  # A and B, each its own seed
+    ck = tmp_path / "ck.pt"
+    ir.fit(scene, target, NAMES, checkpoint=ck, **{**kw, "rounds": 2})
+    traced.clear()
+    again = ir.fit(scene, target, NAMES, checkpoint=ck, resume=True, **kw)
+    assert traced == [(n, a, s) for n, a in passes for s in (0, 1)]
+    for n in NAMES:
+        torch.testing.assert_close(again.params[n], whole.params[n], rtol=0, atol=0)
+
+
+def test_the_reduced_problem_has_the_normal_equations_of_every_pixel():
+    """reduce_records: at any values, set A's residual keeps its norm and set B's Jacobian gives
+    the same J_B^T r_A and J_B^T J_B as the full per-pixel problem (with a sensor's gains too), in
+    a few rows a channel."""
+    from invrender.diff.records import record_paths
+    from invrender.inverse.least_squares import _full_jacobian, _Layout, _residual, _weights, reduce_records
+
+    scene = ir.load_scene("cornell_box", resolution=(12, 12))
+    target = ir.render(scene, spp=32, max_depth=7, seed=5, progress=False)
+    a = record_paths(scene, NAMES, spp=1, max_depth=7, seed=1, progress=False)
+    b = record_paths(scene, NAMES, spp=6, max_depth=7, seed=2, progress=False)
+    assert a.exponents.shape != b.exponents.shape or not a.exponents.equal(b.exponents)  # the union is needed
+    w = _weights([target])
+    ra_, rb_, rt, rw = reduce_records([a], [b], [target], w)
+    assert ra_[0].coefficients.shape[1] == 256 and rt[0].shape == (1, 256, 3)
+    layout = _Layout.of(a)
+    g = torch.tensor([1.3, 0.9, 1.1], dtype=torch.float64)
+    for seed in range(2):
+        values = {n: torch.rand(3, generator=torch.Generator().manual_seed(seed), dtype=torch.float64) * 0.8 + 0.1 for n in NAMES}
+        full_r, red_r = _residual(a, values, target, w[0], g), _residual(ra_[0], values, rt[0], rw[0], g)
+        full_J = _full_jacobian([b], w, values, None, None, None, layout)
+        red_J = _full_jacobian(rb_, rw, values, None, None, None, layout)
+        torch.testing.assert_close(red_r.norm(), full_r.norm(), rtol=1e-10, atol=0)
+        torch.testing.assert_close(red_J.T @ _residual(ra_[0], values, rt[0], rw[0]), full_J.T @ _residual(a, values, target, w[0]), rtol=1e-9, atol=1e-12)
+        torch.testing.assert_close(red_J.T @ red_J, full_J.T @ full_J, rtol=1e-9, atol=1e-12)
