@@ -107,6 +107,18 @@ def _write_uv(
     uv[i, 1] = b0 * packed[base + wp.int64(1)] + b1 * packed[base + wp.int64(3)] + b2 * packed[base + wp.int64(5)]
 
 
+@wp.func
+def _hit(packed: wp.array(dtype=wp.float32), k: wp.int64, b1: wp.float32, b2: wp.float32, d: wp.vec3):
+    """A ray's hit on triangle k at barycentrics (b1, b2): (point, geometric normal turned towards
+    the ray's origin, the cosine ``-ng . d``: > 0 on the front side)."""
+    ng = _normal(packed, k)
+    c = -wp.dot(ng, d)
+    n = ng
+    if c <= 0.0:
+        n = -ng
+    return _point(packed, k, b1, b2), n, c
+
+
 @wp.kernel
 def hit_kernel(
     packed: wp.array(dtype=wp.float32), tri: wp.array(dtype=wp.int64), bu: wp.array(dtype=wp.float32), bv: wp.array(dtype=wp.float32),
@@ -117,14 +129,10 @@ def hit_kernel(
     k = tri[i]
     b1 = bu[i]
     b2 = bv[i]
-    ng = _normal(packed, k)
-    p[i] = _point(packed, k, b1, b2)
-    c = -wp.dot(ng, d[i])
+    point, normal, c = _hit(packed, k, b1, b2, d[i])
+    p[i] = point
+    n[i] = normal
     front[i] = c > 0.0
-    if c > 0.0:
-        n[i] = ng
-    else:
-        n[i] = -ng
     cos_o[i] = wp.abs(c)
     if with_uv != 0:
         _write_uv(packed, k, b1, b2, uv, i)
@@ -241,15 +249,8 @@ def lambert_vertex_kernel(
 ):  # fmt: skip
     i = wp.tid()
     k = prim[i]
-    wo = d[i]
     b = beta[i]
-    # the hit (hit_kernel)
-    ng = _normal(packed, k)
-    p = _point(packed, k, bu[i], bv[i])
-    c = -wp.dot(ng, wo)
-    n = ng
-    if c <= 0.0:
-        n = -ng
+    p, n, c = _hit(packed, k, bu[i], bv[i], d[i])  # the hit (hit_kernel)
     # term depth: emission seen (add_emitted); only the camera's rays (depth 0) are delta rays here
     e = wp.vec3(0.0)
     w = float(0.0)
