@@ -194,7 +194,7 @@ def replay_gradient(
     if slots is not None:  # one trace, derivatives carried forward in the fused kernels
         tangents: dict = {}
         integrator.render(scene, settings.replace(progress=False), device, params={k: v.detach() for k, v in values.items()}, tangents=tangents)
-        return sum_gradients(contract(tangents["jacobian"], slots, grad_image))
+        return contract(tangents["jacobian"], slots, grad_image)  # the Jacobian is summed across ranks already
     leaves = {k: v.detach().to(device).requires_grad_(True) for k, v in values.items()}
     workers = cpu_workers(device)
     ctx = integrator.context(scene, settings, device, params=leaves)

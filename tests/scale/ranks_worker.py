@@ -1,6 +1,6 @@
 """Run under torchrun by tests/scale/test_ranks.py: the Python API inside an initialized process
 group. Writes (rank 0 only, through invrender's own writer) the image and gradients of each
-estimator, and whether a gradient study refused to run."""
+estimator, a decorrelated gradient, and whether a gradient study refused to run."""
 
 import sys
 
@@ -10,6 +10,20 @@ import invrender as ir
 from invrender.errors import ParameterError
 from invrender.io.atomic import atomic_file
 from invrender.study import gradient_study
+
+
+def decorrelated(scene) -> torch.Tensor:
+    """A decorrelated gradient (``backpropagate``: a fit's step) of red's reflectance."""
+    from invrender.diff import backpropagate
+    from invrender.transport.driver import RenderSettings
+    from invrender.transport.integrators import make_integrator
+
+    rho = scene.params["red.reflectance"].requires_grad_(True)
+    backpropagate(scene, torch.ones(scene.height, scene.width, 3), make_integrator("path"), RenderSettings(spp=8, seed=1, progress=False), "replay")
+    grad = rho.grad.clone()
+    rho.grad = None
+    rho.requires_grad_(False)
+    return grad
 
 
 def main(out: str) -> None:
@@ -26,6 +40,7 @@ def main(out: str) -> None:
         rho.grad = eps.grad = None
         rho.requires_grad_(False)
         eps.requires_grad_(False)
+    results["backpropagate"] = decorrelated(scene)
     try:
         gradient_study(scene, ["red.reflectance"], spp=[2], trials=2, progress=False)
         results["study"] = "ran"

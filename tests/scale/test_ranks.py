@@ -39,8 +39,8 @@ def test_two_process_render_equals_one_process_render(tmp_path):
 
 
 def test_python_api_inside_a_process_group(tmp_path):
-    """Images, replay and autodiff gradients inside an initialized group equal one process's;
-    a gradient study refuses with one line."""
+    """Images, replay and autodiff gradients and a decorrelated gradient inside an initialized group
+    equal one process's; a gradient study refuses with one line."""
     torchrun(str(WORKER), str(tmp_path / "ranks.pt"), cwd=tmp_path)
     got = torch.load(tmp_path / "ranks.pt", weights_only=False)
     scene = ir.load_scene("cornell_box", resolution=(16, 16))
@@ -59,6 +59,11 @@ def test_python_api_inside_a_process_group(tmp_path):
         rho.grad = eps.grad = None
         rho.requires_grad_(False)
         eps.requires_grad_(False)
+    sys.path.insert(0, str(WORKER.parent))
+    from ranks_worker import decorrelated
+
+    # the fused bounce's Jacobian is summed across the ranks once (not once more as a gradient)
+    assert torch.allclose(got["backpropagate"], decorrelated(scene), rtol=1e-5, atol=1e-9)
     assert "runs in one process" in got["study"]
 
 
