@@ -197,13 +197,13 @@ class Integrator(ABC):
         and casting their shadow rays, chunked as replay chunks them; the image is the same (not
         with ``terms``).
         """
-        if keep is not None and settings.terms:
-            raise ValueError("keep: per-path radiance is kept for full images only, not per term")
+        if (keep is not None or tangents is not None) and settings.terms:
+            raise ValueError("keep, tangents: kept for full images only, not per term")
         check_paths(scene.width, scene.height, settings.spp)
         check_film_memory(scene.width, scene.height, device, max(self.terms_kept, 1) if settings.terms else 1)
         ctx = self.context(scene, settings, device, params)
+        scene_tables = self.fused_scene(ctx)
         if tangents is not None:
-            scene_tables = self.fused_scene(ctx)
             if scene_tables is None:
                 raise ValueError(f"tangents: the fused bounce does not apply to this render of {scene.name!r}")
             films = [fused.TangentFilm(scene.width, scene.height, fused.slots(scene_tables), device) for _ in range(cpu_workers(device))]
@@ -221,7 +221,7 @@ class Integrator(ABC):
             keep[start] = (totals.float(), shadows)  # float32 until replay takes it up
 
         size = BYTES_PER_PATH if keep is None else BYTES_PER_REPLAYED_PATH  # kept chunks are replay's chunks
-        small = keep is None and device.type == "cpu" and self.fused_scene(ctx) is not None  # its chunks need not be large
+        small = keep is None and device.type == "cpu" and scene_tables is not None  # fused chunks need not be large
         cap = fused.CPU_TANGENT_CHUNK_PATHS if tangents is not None else fused.CPU_CHUNK_PATHS
         for_each_chunk(scene, settings, device, chunk, across_ranks=True, with_start=True, bytes_per_path=size, max_chunk=cap if small else None)
         film = type(films[0]).merge(films).summed_across_ranks()
