@@ -4,13 +4,15 @@
     python bench/forward.py --mesh                  # also an 82k-triangle scene
     python bench/forward.py --memory-spp 65536      # peak RSS of a 64x64 render at that spp
     python bench/forward.py --breakdown             # one worker's time: ray queries, Warp kernels, torch
+    python bench/forward.py --rays                  # one render's ray queries: Embree's packets against embreex
 
 invrender with each intersection backend (``--backends``; default embree and warp on the CPU) and
 (when installed) Mitsuba 3 ``llvm_ad_rgb`` ``path`` render the same scene at the same settings in
 the same process, alternating, after one warm-up each; the median time of each gives the
 throughput and the ratio. Two more rows render with the first backend without the fused bounce
 (``INVRENDER_KERNELS=steps``: the kernels of single steps on) and without any kernel (their torch
-reference expressions, ``INVRENDER_KERNELS=torch``): what each gains. ``--scenes`` times other
+reference expressions, ``INVRENDER_KERNELS=torch``): what each gains; with ``embree``, one more with
+embreex's single rays instead of Embree's 16-ray packets (``INVRENDER_EMBREE=embreex``). ``--scenes`` times other
 scenes the same way (e.g. ``cornell_specular``, ``forward/textured_floor.toml``: the torch bounce). With a GPU present the same follows on CUDA (invrender's warp and torch
 backends, Mitsuba's ``cuda_ad_rgb``). Figures are printed, never asserted.
 """
@@ -32,6 +34,8 @@ import mitsuba_ref  # noqa: E402
 from _measure import Results, add_json_option, peak_rss_mib  # noqa: E402
 
 import invrender as ir  # noqa: E402
+from invrender.transport import embree_native  # noqa: E402
+from invrender.transport.embree_native import ENV as EMBREE_ENV  # noqa: E402
 from invrender.transport.kernels import ENV as KERNELS_ENV  # noqa: E402
 
 
@@ -61,6 +65,8 @@ def throughput(args, results: Results) -> None:
     if not args.no_torch_steps:
         backends.append(f"{backends[0]}/steps")  # the same without the fused bounce (the kernels of single steps on)
         backends.append(f"{backends[0]}/torch")  # the same, with every kernel off (their torch reference)
+    if "embree" in backends and embree_native.library()[0] is not None:
+        backends.append("embree/embreex")  # Embree's single rays through embreex instead of its 16-ray packets
     with_mitsuba = mitsuba_ref.available() and not args.no_mitsuba and device.type == "cpu"
     scenes = [ir.load_scene(name, resolution=(n, n)) for name in args.scenes.split(",")]
     if args.mesh:
@@ -72,7 +78,8 @@ def throughput(args, results: Results) -> None:
 
         def ours(seed, variant):
             backend, kernels = variant.split("/") if "/" in variant else (variant, "warp")
-            os.environ[KERNELS_ENV] = kernels
+            os.environ[EMBREE_ENV] = "embreex" if kernels == "embreex" else "packets"
+            os.environ[KERNELS_ENV] = "warp" if kernels == "embreex" else kernels
             if device.type == "cuda":
                 torch.cuda.synchronize()
             start = time.perf_counter()
@@ -97,7 +104,7 @@ def throughput(args, results: Results) -> None:
         for b in backends:
             t = statistics.median(times[b])
             ratio = f"  {statistics.median(mi_times) / t:.3f}x Mitsuba" if mi_times else ""
-            label = {"torch": f"{b.split('/')[0]}, torch steps", "steps": f"{b.split('/')[0]}, unfused bounce"}[b.split("/")[1]] if "/" in b else b
+            label = {"torch": f"{b.split('/')[0]}, torch steps", "steps": f"{b.split('/')[0]}, unfused bounce", "embreex": "embree, single rays (embreex)"}[b.split("/")[1]] if "/" in b else b
             print(f"  {'invrender path (' + label + '):':42s} {t:7.3f} s  {samples / t / 1e6:.3f} M path samples/s{ratio}")
             rows.append([f"invrender path ({label})", round(t, 3), f"{min(times[b]):.3f}-{max(times[b]):.3f}", round(samples / t / 1e6, 3),
                          round(statistics.median(mi_times) / t, 3) if mi_times else "n/a"])
@@ -162,6 +169,47 @@ def breakdown(args, results: Results) -> None:
     os.environ[KERNELS_ENV] = "warp"
 
 
+def rays(args, results: Results) -> None:
+    """The ray queries alone: the batches of one render (Cornell box, closest hits and shadow rays of
+    every bounce) traced again on one thread by Embree's 16-ray packets and by embreex's single
+    rays, alternating, 5 times each; nanoseconds per ray (minimum and median)."""
+    from invrender.transport import accel
+
+    n, spp = args.resolution, args.spp
+    scene = ir.load_scene("cornell_box", resolution=(n, n))
+    batches = []
+    cls = accel.EmbreeIntersector
+    intersect, occluded = cls.intersect, cls.occluded
+    cls.intersect = lambda self, o, d: batches.append(("closest hits", o, d, None)) or intersect(self, o, d)
+    cls.occluded = lambda self, o, d, tmax: batches.append(("shadow rays", o, d, tmax)) or occluded(self, o, d, tmax)
+    ir.render(scene, spp=spp, max_depth=args.max_depth, seed=0, progress=False)
+    cls.intersect, cls.occluded = intersect, occluded
+    engines = {}
+    for mode in ("packets", "embreex"):
+        os.environ[EMBREE_ENV] = mode
+        engines[mode] = accel.make_intersector(scene.triangles, "embree", 1)
+    os.environ[EMBREE_ENV] = "packets"
+    if not engines["packets"].packets:
+        print(f"  Embree's packets do not build here ({embree_native.library()[1]}): nothing to compare")
+        return
+    heading = f"ray queries of one render: cornell_box {n}x{n}, {spp} spp, max_depth {args.max_depth}, one thread"
+    print(heading)
+    rows = results.table(heading, ["query", "rays", "packets ns/ray (min, median)", "embreex ns/ray (min, median)", "embreex / packets"])
+    for kind in ("closest hits", "shadow rays"):
+        mine = [b for b in batches if b[0] == kind]
+        count = sum(b[1].shape[0] for b in mine)
+        spent = {mode: [] for mode in engines}
+        for _ in range(5):
+            for mode, engine in engines.items():
+                start = time.perf_counter()
+                for _, o, d, tmax in mine:
+                    engine.intersect(o, d) if tmax is None else engine.occluded(o, d, tmax)
+                spent[mode].append((time.perf_counter() - start) / count * 1e9)
+        p, e = (sorted(spent[m]) for m in ("packets", "embreex"))
+        print(f"  {kind:13s} {count:9d} rays: packets {p[0]:6.1f} ns ({p[2]:.1f}), embreex {e[0]:6.1f} ns ({e[2]:.1f}): {e[2] / p[2]:.2f}x")
+        rows.append([kind, count, f"{p[0]:.1f}, {p[2]:.1f}", f"{e[0]:.1f}, {e[2]:.1f}", round(e[2] / p[2], 2)])
+
+
 def memory(args, results: Results) -> None:
     scene = ir.load_scene("cornell_box", resolution=(64, 64))
     start = time.perf_counter()
@@ -187,11 +235,12 @@ def main() -> int:
     parser.add_argument("--no-cuda", action="store_true", help="skip the CUDA figures even when a GPU is present")
     parser.add_argument("--memory-spp", type=int, default=0, help="instead: peak memory of a 64x64 render at this spp")
     parser.add_argument("--breakdown", action="store_true", help="instead: where one worker's render time goes (ray queries, Warp kernels, torch), with and without the fused bounce")
+    parser.add_argument("--rays", action="store_true", help="instead: one render's ray queries traced by Embree's packets and by embreex's single rays, ns per ray")
     add_json_option(parser)
     args = parser.parse_args()
-    title = "Forward rendering: memory" if args.memory_spp else "Forward rendering: where the time goes" if args.breakdown else "Forward rendering throughput"
+    title = "Forward rendering: memory" if args.memory_spp else "Forward rendering: where the time goes" if args.breakdown else "Forward rendering: ray queries" if args.rays else "Forward rendering throughput"
     results = Results("forward", title)
-    memory(args, results) if args.memory_spp else breakdown(args, results) if args.breakdown else throughput(args, results)
+    memory(args, results) if args.memory_spp else breakdown(args, results) if args.breakdown else rays(args, results) if args.rays else throughput(args, results)
     results.write(args.json)
     return 0
 

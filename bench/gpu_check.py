@@ -47,7 +47,7 @@ from pathlib import Path
 import torch
 
 import invrender as ir
-from invrender.transport import kernels, packages
+from invrender.transport import accel, kernels, packages
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _measure import machine  # noqa: E402
@@ -321,9 +321,9 @@ def throughput(sizes: Sizes, device: torch.device) -> dict:
     rows, skipped = [], []
     backends = ["torch", "warp"] if device.type == "cuda" else ["torch", "warp", "embree"]
     for backend in backends:
-        need = {"warp": "warp", "embree": "embreex"}.get(backend)
-        if need and packages.find(need) is None:
-            skipped.append({"name": f"throughput {backend}", "reason": f"{packages.PIP_NAMES[need]} is not installed ({packages.install_hint(need)})"})
+        why = accel.missing(backend)
+        if why is not None:
+            skipped.append({"name": f"throughput {backend}", "reason": why})
             continue
         times = []
         for seed in range(sizes.repeats + 1):  # the first: a warm-up (BVH, kernels, caches)

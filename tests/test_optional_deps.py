@@ -1,4 +1,5 @@
-"""invrender without its optional accelerators: warp-lang, embreex and pyrender blocked.
+"""invrender without its optional accelerators: warp-lang, embreex and pyrender blocked, and no C++
+compiler for Embree's packets.
 
 A child process makes every import of ``warp``, ``embreex`` and ``pyrender`` fail (``sys.modules[name]
 = None`` before ``import invrender``, as on a machine where they are not installed) and then renders
@@ -70,7 +71,8 @@ print("RESULT " + json.dumps(out))
 
 
 def test_invrender_works_without_warp_embree_and_pyrender(tmp_path):
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "PYOPENGL_PLATFORM": "egl", "OMP_NUM_THREADS": "1"}
+    # no compiler either: the embree backend's packets (invrender.transport.embree_native) do not build
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "PYOPENGL_PLATFORM": "egl", "OMP_NUM_THREADS": "1", "CXX": "/nonexistent/c++"}
     env.pop("INVRENDER_KERNELS", None)
     run = subprocess.run([sys.executable, "-c", CHILD, str(tmp_path / "x.exr")], capture_output=True, text=True, env=env, cwd=tmp_path, timeout=600)
     assert run.returncode == 0, run.stderr[-3000:]

@@ -3,10 +3,12 @@ docs/architecture.md#geometry-is-never-differentiated).
 
 A backend answers two queries for a batch of rays and returns plain, non-differentiable tensors:
 ``intersect`` (closest hit: distance, triangle id, barycentrics) and ``occluded`` (any hit before a
-given distance). The backends give the same answers up to float rounding:
+given distance; False, and not traced, where that distance is not positive). The backends give the
+same answers up to float rounding:
 
-- ``embree``: Intel Embree through embreex, on the CPU (the fast default there), rays split across
-  threads;
+- ``embree``: Intel Embree on the CPU (the fast default there), 16-ray packets through the compiled
+  wrapper of :mod:`~invrender.transport.embree_native` (embreex's single rays where it does not
+  build), rays split across threads;
 - ``warp``: NVIDIA Warp's BVH (:mod:`invrender.transport.warp_bvh`), on CUDA (the default there)
   and on the CPU, rays and results shared with torch without copies;
 - ``torch``: Moller-Trumbore against every triangle in blocks sized to a memory budget, on any
@@ -33,7 +35,7 @@ import torch
 
 from invrender.errors import ParameterError
 from invrender.scene.scene import Triangles
-from invrender.transport import packages
+from invrender.transport import embree_native, packages
 
 
 @dataclass(frozen=True)
@@ -64,36 +66,52 @@ class Hits:
 
 
 class EmbreeIntersector:
-    """Embree (embreex) on the CPU; results are moved to the rays' device."""
+    """Intel Embree on the CPU: 16-ray packets through the compiled wrapper of
+    :mod:`~invrender.transport.embree_native` where it builds, else embreex's single rays (the same
+    answers up to float rounding); each batch split across threads, results moved to the rays' device."""
 
     name = "embree"
 
     def __init__(self, triangles: Triangles, threads: int | None = None):
-        packages.require("embreex", "the embree intersection backend", "use backend 'torch'")
-        from embreex import rtcore_scene
-        from embreex.mesh_construction import TriangleMesh
+        lib, why = embree_native.library() if embree_native.mode() == "packets" else (None, "")
+        self._packets = self._scene = None
+        if lib is not None:
+            self._packets = embree_native.PacketScene(lib, triangles.corners())
+        else:
+            packages.require("embreex", "the embree intersection backend", f"{embree_native.INSTALL_HINT} for Embree's packets, or use backend 'torch'")
+            if why:
+                packages.note_once(f"the embree backend traces single rays through embreex: {why} ({embree_native.INSTALL_HINT} for 16-ray packets)")
+            from embreex import rtcore_scene
+            from embreex.mesh_construction import TriangleMesh
 
-        self._scene = rtcore_scene.EmbreeScene()
-        corners = triangles.corners().detach().cpu().numpy().astype(np.float32)
-        self._mesh = TriangleMesh(self._scene, corners)  # keep a reference: Embree does not own the buffer
+            self._scene = rtcore_scene.EmbreeScene()
+            corners = triangles.corners().detach().cpu().numpy().astype(np.float32)
+            self._mesh = TriangleMesh(self._scene, corners)  # keep a reference: Embree does not own the buffer
         self._threads = embree_threads(threads)
         self._pool = ThreadPoolExecutor(self._threads) if self._threads > 1 else None
 
-    def _run(self, o: np.ndarray, d: np.ndarray, **kwargs):
-        """Split the batch across threads (embreex releases the GIL inside Embree)."""
-        n = len(o)
+    @property
+    def packets(self) -> bool:
+        """True when queries go through Embree's packets, False for embreex's single rays."""
+        return self._packets is not None
+
+    def _split(self, n: int, job) -> list:
+        """``job(a, b)`` over a split of ``range(n)`` across threads (Embree runs without the GIL)."""
         if self._pool is None or n < 4096:
-            return [self._scene.run(o, d, **kwargs)]
+            return [job(0, n)]
         bounds = np.linspace(0, n, self._threads + 1).astype(int)
-        jobs = []
-        for a, b in zip(bounds[:-1], bounds[1:]):
-            kw = {k: (v[a:b] if isinstance(v, np.ndarray) else v) for k, v in kwargs.items()}
-            jobs.append(self._pool.submit(self._scene.run, o[a:b], d[a:b], **kw))
-        return [j.result() for j in jobs]
+        return [f.result() for f in [self._pool.submit(job, a, b) for a, b in zip(bounds[:-1], bounds[1:])]]
 
     def intersect(self, o: torch.Tensor, d: torch.Tensor) -> Hits:
         """Closest hits of rays with origins ``o`` (N, 3) and unit directions ``d`` (N, 3)."""
-        parts = self._run(_numpy(o), _numpy(d), output=1)
+        n, dev = o.shape[0], o.device
+        if self._packets is not None:
+            o, d = _cpu32(o), _cpu32(d)
+            out = (torch.empty(n), torch.empty(n, dtype=torch.int64), torch.empty(n), torch.empty(n))
+            self._split(n, lambda a, b: self._packets.intersect(o[a:b], d[a:b], tuple(x[a:b] for x in out)))
+            return Hits(*(x.to(dev) for x in out))
+        o, d = _numpy(o), _numpy(d)
+        parts = self._split(n, lambda a, b: self._scene.run(o[a:b], d[a:b], output=1))
 
         def joined(key: str) -> torch.Tensor:  # Embree's arrays, shared (no copy for one part)
             return torch.from_numpy(parts[0][key] if len(parts) == 1 else np.concatenate([p[key] for p in parts]))
@@ -101,14 +119,21 @@ class EmbreeIntersector:
         miss = joined("geomID") < 0
         prim = joined("primID").long().masked_fill_(miss, -1)
         t = joined("tfar").masked_fill_(miss, math.inf)
-        dev = o.device
         return Hits(*(a.to(dev) for a in (t, prim, joined("u"), joined("v"))))
 
     def occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
-        """(N,) bool: does anything lie along each ray strictly before ``tmax`` (N,)?"""
-        parts = self._run(_numpy(o), _numpy(d), dists=_numpy(tmax), query="OCCLUDED")
+        """(N,) bool: does anything lie along each ray strictly before ``tmax`` (N,)? (False where
+        ``tmax`` is not positive.)"""
+        n, dev = o.shape[0], o.device
+        if self._packets is not None:
+            o, d, tmax = _cpu32(o), _cpu32(d), _cpu32(tmax)
+            hit = torch.empty(n, dtype=torch.bool)
+            self._split(n, lambda a, b: self._packets.occluded(o[a:b], d[a:b], tmax[a:b], hit[a:b]))
+            return hit.to(dev)
+        o, d, tmax = _numpy(o), _numpy(d), _numpy(tmax)
+        parts = self._split(n, lambda a, b: self._scene.run(o[a:b], d[a:b], dists=tmax[a:b], query="OCCLUDED"))
         hit = torch.from_numpy(parts[0] if len(parts) == 1 else np.concatenate(parts)) != -1
-        return hit.to(o.device)
+        return (hit & torch.from_numpy(tmax > 0)).to(dev)
 
 
 class WarpIntersector:
@@ -185,15 +210,26 @@ class TorchIntersector:
 BACKENDS = {"embree": EmbreeIntersector, "warp": WarpIntersector, "torch": TorchIntersector}
 
 
-#: the package each backend needs (torch needs none)
+#: the package each backend needs (torch needs none; embree needs embreex only where its packets do not build)
 PACKAGES = {"embree": "embreex", "warp": "warp"}
 
 
+def missing(backend: str) -> str | None:
+    """Why ``backend`` cannot run in this process (its package is not installed: a sentence with its
+    install command), or None when it can."""
+    if backend == "embree" and embree_native.mode() == "packets" and embree_native.library()[0] is not None:
+        return None
+    module = PACKAGES.get(backend)
+    if module is None or packages.find(module) is not None:
+        return None
+    return f"{packages.PIP_NAMES[module]} is not installed ({packages.install_hint(module)})"
+
+
 def default_backend(device: torch.device) -> str:
-    """``embree`` on the CPU, ``warp`` elsewhere (CUDA); ``torch`` when that backend's package
-    (embreex, warp-lang) cannot be imported, said once on stderr."""
+    """``embree`` on the CPU, ``warp`` elsewhere (CUDA); ``torch`` when that backend cannot run
+    (:func:`missing`), said once on stderr."""
     backend = "embree" if torch.device(device).type == "cpu" else "warp"
-    if packages.find(PACKAGES[backend]) is None:
+    if missing(backend) is not None:
         module = PACKAGES[backend]
         packages.note_once(
             f"{packages.PIP_NAMES[module]} is not installed: intersecting with the torch backend, not {backend} ({packages.install_hint(module)} for {backend})"
@@ -233,11 +269,16 @@ def intersector_for(triangles: Triangles, backend: str | None = None, threads: i
     geometry (:meth:`Triangles.derived`), so that renders of one scene share it."""
     backend = check_backend(backend, triangles.p0.device)
     threads = embree_threads(threads) if backend == "embree" else None
-    return triangles.derived(("accel", backend, threads), lambda: make_intersector(triangles, backend, threads))
+    queries = embree_native.mode() if backend == "embree" else None
+    return triangles.derived(("accel", backend, threads, queries), lambda: make_intersector(triangles, backend, threads))
 
 
 def _numpy(x: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(x.detach().to("cpu", torch.float32).numpy())
+
+
+def _cpu32(x: torch.Tensor) -> torch.Tensor:
+    return x.detach().to("cpu", torch.float32).contiguous()
 
 
 class RepeatedQueries:

@@ -239,7 +239,8 @@ def lambert_vertex(tables: list, hits: tuple, d, beta, pdf_dir, keys, salts, fla
         offset: the ray offset off surfaces.
     Returns:
         emitted (N, 3) (term depth), shadow rays o (N, 3), d (N, 3), tmax (N,) and the direct light
-        (N, 3) each adds if unoccluded (term depth + 1), then the continued paths' o, d, beta (N, 3),
+        (N, 3) each adds if unoccluded (term depth + 1; tmax 0, a ray no backend traces, where the
+        light sample adds nothing whatever the parameters: facing away or below the surface), then the continued paths' o, d, beta (N, 3),
         pdf (N,) and alive (N,) bool. With ``more`` 0 only ``emitted`` is written. With
         ``tangents``, then also what :func:`tangents_add` reads: the factors beside eps of the
         emission (N, 3) and of the direct light (N, 3), the emitters hit (N,) int32 (-1: none) and

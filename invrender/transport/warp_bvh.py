@@ -49,7 +49,9 @@ def _closest_kernel(
 @wp.kernel
 def _occluded_kernel(mesh: wp.uint64, o: wp.array(dtype=wp.vec3), d: wp.array(dtype=wp.vec3), tmax: wp.array(dtype=wp.float32), hit: wp.array(dtype=wp.bool)):
     i = wp.tid()
-    hit[i] = wp.mesh_query_ray_anyhit(mesh, o[i], d[i], tmax[i])
+    hit[i] = False
+    if tmax[i] > 0.0:  # else not traced (Intersector.occluded)
+        hit[i] = wp.mesh_query_ray_anyhit(mesh, o[i], d[i], tmax[i])
 
 
 class WarpBVH:

@@ -289,6 +289,8 @@ def lambert_vertex_kernel(
         shadow_o[i] = so
         shadow_d[i] = wl
         shadow_t[i] = tmax
+        if not facing or cos_i <= 0.0:
+            shadow_t[i] = 0.0  # adds nothing whatever the parameters: not traced
         direct[i] = wp.cw_mul(wp.cw_mul(b * weight, f_cos), eps[emitter[kl]])
         if tangents != 0:
             direct_factor[i] = wp.cw_mul(b * weight, f_cos)

@@ -15,12 +15,15 @@ import torch
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = ROOT / "bench" / "gpu_check.py"
 CHECKS = ["render_torch", "render_warp", "kernels", "grad_replay", "grad_replay_torch", "grad_autodiff", "records", "fit_lm", "fit_adam", "process_group"]
-#: a child in which warp-lang, embreex and pyrender cannot be imported (as on the GPU machine, which has no Warp)
+#: a child in which warp-lang, embreex and pyrender cannot be imported (as on the GPU machine, which has no Warp;
+#: run() also takes its compiler away, so that Embree's packets do not build)
 BLOCKED = "import runpy, sys\nfor m in ('warp', 'embreex', 'pyrender'):\n    sys.modules[m] = None\nsys.argv = sys.argv[1:]\nrunpy.run_path(sys.argv[0], run_name='__main__')"
 
 
 def run(tmp_path: Path, *args: str, blocked: bool = False) -> tuple[subprocess.CompletedProcess, dict]:
     env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
+    if blocked:
+        env["CXX"] = "/nonexistent/c++"  # and no compiler for Embree's packets: no Embree at all
     env.pop("INVRENDER_KERNELS", None)
     head = [sys.executable, "-c", BLOCKED] if blocked else [sys.executable]
     done = subprocess.run([*head, str(SCRIPT), "--out", str(tmp_path), *args], capture_output=True, text=True, env=env, timeout=600)

@@ -32,9 +32,10 @@ def random_rays(scene, n: int, seed: int):
     return o.contiguous(), d.contiguous()
 
 
-def assert_same_hits(scene, o, d):
-    a = make_intersector(scene.triangles, "embree", 1).intersect(o, d)
-    b = make_intersector(scene.triangles, "warp").intersect(o, d)
+def assert_same_hits(scene, o, d, a=None, b=None):
+    """Hits ``a`` and ``b`` (default: embree's and warp's) of rays ``o``, ``d`` are the same."""
+    a = a or make_intersector(scene.triangles, "embree", 1).intersect(o, d)
+    b = b or make_intersector(scene.triangles, "warp").intersect(o, d)
     differ = a.prim != b.prim
     # the only licit difference: a tie between coplanar triangles at the same distance (the
     # Cornell boxes' bottom faces lie on the floor, seen by rays starting inside the boxes)

@@ -1,0 +1,131 @@
+// Embree's packet queries for the embree intersection backend (invrender/transport/embree_native.py).
+//
+// A ray batch arrives as flat float32 arrays (origins and unit directions (N, 3), distances (N,));
+// each query packs 16 rays at a time into Embree's structure-of-arrays packet and writes its answers
+// straight into the caller's (torch) arrays: closest hits as (t, triangle, u, v) with t = inf and
+// triangle = -1 for a miss, shadow rays as one byte each. A shadow ray whose distance is not
+// positive (or NaN) is not traced and answers "not occluded": nothing lies strictly before it.
+//
+// Built on first use against the system's Embree 3 (Debian's libembree-dev) and loaded by ctypes,
+// which releases the GIL for the call, so Python threads can split a batch.
+
+#include <embree3/rtcore.h>
+
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+
+namespace {
+
+constexpr int K = 16;  // rays per packet
+
+struct Accel {
+    RTCDevice device;
+    RTCScene scene;
+};
+
+void say(char* error, int64_t size, const char* what, RTCError code) {
+    std::snprintf(error, size_t(size), "Embree: %s (error %d)", what, int(code));
+}
+
+}  // namespace
+
+extern "C" {
+
+// A scene of `count` triangles from their corners (count, 3, 3); null with `error` set on failure.
+void* ir_embree_new(const float* corners, int64_t count, char* error, int64_t error_size) {
+    RTCDevice device = rtcNewDevice(nullptr);
+    if (!device) {
+        say(error, error_size, "no device", rtcGetDeviceError(nullptr));
+        return nullptr;
+    }
+    RTCScene scene = rtcNewScene(device);
+    RTCGeometry mesh = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
+    auto* vertices = static_cast<float*>(rtcSetNewGeometryBuffer(mesh, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), size_t(3 * count)));
+    auto* index = static_cast<unsigned*>(rtcSetNewGeometryBuffer(mesh, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(unsigned), size_t(count)));
+    if (!vertices || !index) {
+        say(error, error_size, "cannot allocate the triangles", rtcGetDeviceError(device));
+        rtcReleaseGeometry(mesh);
+        rtcReleaseScene(scene);
+        rtcReleaseDevice(device);
+        return nullptr;
+    }
+    for (int64_t i = 0; i < 9 * count; ++i) vertices[i] = corners[i];
+    for (int64_t i = 0; i < 3 * count; ++i) index[i] = unsigned(i);
+    rtcCommitGeometry(mesh);
+    rtcAttachGeometry(scene, mesh);
+    rtcReleaseGeometry(mesh);
+    rtcCommitScene(scene);
+    RTCError code = rtcGetDeviceError(device);
+    if (code != RTC_ERROR_NONE) {
+        say(error, error_size, "cannot build the scene", code);
+        rtcReleaseScene(scene);
+        rtcReleaseDevice(device);
+        return nullptr;
+    }
+    return new Accel{device, scene};
+}
+
+void ir_embree_free(void* accel) {
+    auto* a = static_cast<Accel*>(accel);
+    rtcReleaseScene(a->scene);
+    rtcReleaseDevice(a->device);
+    delete a;
+}
+
+// Closest hits of n rays: t (n,) float32, prim (n,) int64, u, v (n,) float32.
+void ir_embree_intersect(void* accel, const float* o, const float* d, int64_t n, float* t, int64_t* prim, float* u, float* v) {
+    RTCScene scene = static_cast<Accel*>(accel)->scene;
+    RTCIntersectContext context;
+    rtcInitIntersectContext(&context);
+    RTCRayHit16 packet;
+    alignas(64) int valid[K];
+    for (int64_t start = 0; start < n; start += K) {
+        const int lanes = int(n - start < K ? n - start : K);
+        for (int k = 0; k < K; ++k) {
+            const int64_t i = start + (k < lanes ? k : 0);
+            valid[k] = k < lanes ? -1 : 0;
+            packet.ray.org_x[k] = o[3 * i], packet.ray.org_y[k] = o[3 * i + 1], packet.ray.org_z[k] = o[3 * i + 2];
+            packet.ray.dir_x[k] = d[3 * i], packet.ray.dir_y[k] = d[3 * i + 1], packet.ray.dir_z[k] = d[3 * i + 2];
+            packet.ray.tnear[k] = 0.0f, packet.ray.tfar[k] = INFINITY, packet.ray.time[k] = 0.0f;
+            packet.ray.mask[k] = ~0u, packet.ray.id[k] = 0, packet.ray.flags[k] = 0;
+            packet.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID, packet.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
+        }
+        rtcIntersect16(valid, scene, &context, &packet);
+        for (int k = 0; k < lanes; ++k) {
+            const int64_t i = start + k;
+            const bool hit = packet.hit.geomID[k] != RTC_INVALID_GEOMETRY_ID;
+            t[i] = hit ? packet.ray.tfar[k] : INFINITY;
+            prim[i] = hit ? int64_t(packet.hit.primID[k]) : -1;
+            u[i] = hit ? packet.hit.u[k] : 0.0f;
+            v[i] = hit ? packet.hit.v[k] : 0.0f;
+        }
+    }
+}
+
+// Shadow rays: hit[i] = 1 when something lies along ray i strictly before tmax[i], else 0.
+void ir_embree_occluded(void* accel, const float* o, const float* d, const float* tmax, int64_t n, uint8_t* hit) {
+    RTCScene scene = static_cast<Accel*>(accel)->scene;
+    RTCIntersectContext context;
+    rtcInitIntersectContext(&context);
+    RTCRay16 packet;
+    alignas(64) int valid[K];
+    for (int64_t start = 0; start < n; start += K) {
+        const int lanes = int(n - start < K ? n - start : K);
+        int traced = 0;
+        for (int k = 0; k < K; ++k) {
+            const int64_t i = start + (k < lanes ? k : 0);
+            const bool live = k < lanes && tmax[i] > 0.0f;  // false for NaN too
+            valid[k] = live ? -1 : 0;
+            traced += live;
+            packet.org_x[k] = o[3 * i], packet.org_y[k] = o[3 * i + 1], packet.org_z[k] = o[3 * i + 2];
+            packet.dir_x[k] = d[3 * i], packet.dir_y[k] = d[3 * i + 1], packet.dir_z[k] = d[3 * i + 2];
+            packet.tnear[k] = 0.0f, packet.tfar[k] = live ? tmax[i] : 0.0f, packet.time[k] = 0.0f;
+            packet.mask[k] = ~0u, packet.id[k] = 0, packet.flags[k] = 0;
+        }
+        if (traced) rtcOccluded16(valid, scene, &context, &packet);
+        for (int k = 0; k < lanes; ++k) hit[start + k] = valid[k] && packet.tfar[k] < 0.0f;  // Embree sets tfar = -inf on a hit
+    }
+}
+
+}  // extern "C"

@@ -1,0 +1,140 @@
+"""The embree backend's 16-ray packets (the compiled wrapper of ``invrender.transport.embree_native``)
+against embreex's single rays and the torch backend: the same hits and shadow-ray answers on every
+shipped scene and an 80k-triangle mesh, at batch sizes that leave partial packets, with rays that are
+not traced (distance not positive or NaN); the same image; the fallback to embreex said once."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+import torch
+import trimesh
+
+import invrender as ir
+from invrender.errors import ParameterError
+from invrender.scene.camera import Camera
+from invrender.scene.scene import build_scene
+from invrender.scene.shapes import Mesh
+from invrender.transport import accel, embree_native, packages
+from invrender.transport.accel import make_intersector
+from tests.transport.test_backends import SHIPPED, assert_same_hits, random_rays
+
+built, why_not = embree_native.library()
+needs_packets = pytest.mark.skipif(built is None, reason=f"Embree's packets do not build here: {why_not} ({embree_native.INSTALL_HINT})")
+
+
+def both(triangles, monkeypatch):
+    """(packets, embreex) intersectors of the same triangles."""
+    packets = make_intersector(triangles, "embree", 1)
+    monkeypatch.setenv(embree_native.ENV, "embreex")
+    single = make_intersector(triangles, "embree", 1)
+    monkeypatch.delenv(embree_native.ENV)
+    assert packets.packets and not single.packets
+    return packets, single
+
+
+def test_the_packets_build_in_ci():
+    """CI installs a compiler and Embree 3 (.ci/run): there the fast path must be the one tested."""
+    if os.environ.get("CI"):
+        assert built is not None, why_not
+
+
+@needs_packets
+@pytest.mark.parametrize("name", [*SHIPPED, "mesh"], ids=lambda n: os.path.basename(n).removesuffix(".toml"))
+def test_packets_answer_as_embreex_does(name, monkeypatch):
+    if name == "mesh":
+        sphere = trimesh.creation.icosphere(subdivisions=6)  # 81,920 triangles
+        box = trimesh.creation.box(extents=(4, 4, 4))
+        scene = build_scene(
+            [Mesh(sphere.vertices, sphere.faces, None, "grey"), Mesh(box.vertices, box.faces[:, ::-1], None, "grey", emitter="light")],
+            {"grey": 0.5}, {"light": 1.0}, Camera(origin=(0, 0, 1.9)), (8, 8),
+        )  # fmt: skip
+    else:
+        scene = ir.load_scene(name, resolution=(8, 8))
+    packets, single = both(scene.triangles, monkeypatch)
+    o, d = random_rays(scene, 5003, seed=4)  # 312 packets and a partial one of 11
+    a, b = packets.intersect(o, d), single.intersect(o, d)
+    assert a.t.dtype == torch.float32 and a.prim.dtype == torch.int64 and a.t.shape == (5003,)
+    assert torch.isinf(a.t[~a.valid]).all() and (a.prim[~a.valid] == -1).all()
+    assert_same_hits(scene, o, d, a, b)  # two Embree versions: ties between coplanar triangles may fall either way
+    tmax = torch.rand(len(o), generator=torch.Generator().manual_seed(5)) * 2
+    hit_a, hit_b = packets.occluded(o, d, tmax), single.occluded(o, d, tmax)
+    assert 0.05 < hit_a.float().mean() < 0.95 and int((hit_a != hit_b).sum()) <= 2  # a hit at tmax itself may fall either way
+
+
+@needs_packets
+@pytest.mark.parametrize("n", [0, 1, 15, 16, 17, 4095, 4097])
+def test_partial_packets_and_thread_splits(n, monkeypatch):
+    """Batches of any size, on one thread and split across two (from 4096 rays)."""
+    scene = ir.load_scene("cornell_box", resolution=(8, 8))
+    o, d = random_rays(scene, n, seed=n)
+    reference = make_intersector(scene.triangles, "torch")
+    want = reference.intersect(o, d)
+    for threads in (1, 2):
+        got = make_intersector(scene.triangles, "embree", threads).intersect(o, d)
+        if n > 1000:
+            assert_same_hits(scene, o, d, got, want)  # the Cornell box's coplanar ties may fall either way
+        else:
+            assert torch.equal(got.prim, want.prim)
+            torch.testing.assert_close(got.t, want.t, rtol=1e-5, atol=1e-6)
+        tmax = want.t.nan_to_num(posinf=3.0) * torch.where(torch.arange(n) % 2 == 0, 0.8, 1.2)  # before or past the closest hit
+        assert torch.equal(make_intersector(scene.triangles, "embree", threads).occluded(o, d, tmax), reference.occluded(o, d, tmax))
+
+
+@pytest.mark.parametrize("backend", ["embree", "torch", pytest.param("warp", marks=pytest.mark.warp)])
+def test_a_shadow_ray_with_no_length_is_not_occluded(backend, monkeypatch):
+    """Every backend answers False for a distance that is not positive (the fused bounce sets 0
+    where a light sample adds nothing) or NaN, and traces the others as usual."""
+    scene = ir.load_scene("cornell_box", resolution=(8, 8))
+    o = torch.tensor([[0.0, 0.0, 0.0]]).repeat(20, 1)
+    d = torch.tensor([[0.0, 1.0, 0.0]]).repeat(20, 1)  # up, towards the ceiling ~1 away
+    tmax = torch.tensor([5.0, 0.0, -1.0, float("nan"), 5.0] * 4)
+    for mode in ("packets", "embreex") if backend == "embree" else ("",):
+        if mode:
+            monkeypatch.setenv(embree_native.ENV, mode)
+        hit = make_intersector(scene.triangles, backend, 1).occluded(o, d, tmax)
+        assert hit.tolist() == [True, False, False, False, True] * 4, (backend, mode)
+
+
+def test_the_embree_query_switch(monkeypatch, capsys):
+    monkeypatch.setenv(embree_native.ENV, "sse")
+    with pytest.raises(ParameterError, match="INVRENDER_EMBREE='sse' is not one of packets, embreex"):
+        embree_native.mode()
+    monkeypatch.setenv(embree_native.ENV, "embreex")
+    scene = ir.load_scene("cornell_box", resolution=(8, 8))
+    assert not make_intersector(scene.triangles, "embree", 1).packets
+    assert capsys.readouterr().err == ""  # asked for: no note
+
+
+def test_without_a_compiler_the_backend_keeps_embreex_and_says_so_once(monkeypatch, capsys):
+    monkeypatch.setattr(embree_native, "_loaded", [None, "no C++ compiler found"])
+    monkeypatch.setattr(packages, "_noted", set())
+    scene = ir.load_scene("cornell_box", resolution=(8, 8))
+    first = make_intersector(scene.triangles, "embree", 1)
+    make_intersector(scene.triangles, "embree", 1)
+    assert not first.packets and accel.missing("embree") is None
+    err = capsys.readouterr().err.splitlines()
+    assert err == [f"invrender: note: the embree backend traces single rays through embreex: no C++ compiler found ({embree_native.INSTALL_HINT} for 16-ray packets)"]
+
+
+def test_a_wrapper_that_does_not_compile_is_reported_not_raised(monkeypatch, tmp_path):
+    bad = tmp_path / "broken.cpp"
+    bad.write_text("this is not C++\n")
+    monkeypatch.setattr(embree_native, "SOURCE", bad)
+    monkeypatch.setenv("INVRENDER_CACHE", str(tmp_path / "cache"))
+    lib, why = embree_native._build_and_load()
+    if built is None:
+        assert lib is None  # no compiler or no Embree here: said before compiling
+    else:
+        assert lib is None and why.startswith("the wrapper does not compile (") and "\n" not in why
+    assert not list((tmp_path / "cache").rglob("*.so"))  # nothing half-written is left to load
+
+
+@needs_packets
+def test_packets_render_the_image_embreex_renders(monkeypatch):
+    scene = ir.load_scene("cornell_box", resolution=(16, 16))
+    a = ir.render(scene, spp=8, seed=3, backend="embree", progress=False)
+    monkeypatch.setenv(embree_native.ENV, "embreex")
+    b = ir.render(scene, spp=8, seed=3, backend="embree", progress=False)
+    torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
