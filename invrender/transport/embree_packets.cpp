@@ -24,6 +24,14 @@ struct Accel {
     RTCScene scene;
 };
 
+// Lane k of a packet: ray i of the batch (origin o[3i..], direction d[3i..]) from 0 to tfar.
+inline void pack(RTCRay16& ray, int k, const float* o, const float* d, int64_t i, float tfar) {
+    ray.org_x[k] = o[3 * i], ray.org_y[k] = o[3 * i + 1], ray.org_z[k] = o[3 * i + 2];
+    ray.dir_x[k] = d[3 * i], ray.dir_y[k] = d[3 * i + 1], ray.dir_z[k] = d[3 * i + 2];
+    ray.tnear[k] = 0.0f, ray.tfar[k] = tfar, ray.time[k] = 0.0f;
+    ray.mask[k] = ~0u, ray.id[k] = 0, ray.flags[k] = 0;
+}
+
 void say(char* error, int64_t size, const char* what, RTCError code) {
     std::snprintf(error, size_t(size), "Embree: %s (error %d)", what, int(code));
 }
@@ -85,10 +93,7 @@ void ir_embree_intersect(void* accel, const float* o, const float* d, int64_t n,
         for (int k = 0; k < K; ++k) {
             const int64_t i = start + (k < lanes ? k : 0);
             valid[k] = k < lanes ? -1 : 0;
-            packet.ray.org_x[k] = o[3 * i], packet.ray.org_y[k] = o[3 * i + 1], packet.ray.org_z[k] = o[3 * i + 2];
-            packet.ray.dir_x[k] = d[3 * i], packet.ray.dir_y[k] = d[3 * i + 1], packet.ray.dir_z[k] = d[3 * i + 2];
-            packet.ray.tnear[k] = 0.0f, packet.ray.tfar[k] = INFINITY, packet.ray.time[k] = 0.0f;
-            packet.ray.mask[k] = ~0u, packet.ray.id[k] = 0, packet.ray.flags[k] = 0;
+            pack(packet.ray, k, o, d, i, INFINITY);
             packet.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID, packet.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
         }
         rtcIntersect16(valid, scene, &context, &packet);
@@ -118,10 +123,7 @@ void ir_embree_occluded(void* accel, const float* o, const float* d, const float
             const bool live = k < lanes && tmax[i] > 0.0f;  // false for NaN too
             valid[k] = live ? -1 : 0;
             traced += live;
-            packet.org_x[k] = o[3 * i], packet.org_y[k] = o[3 * i + 1], packet.org_z[k] = o[3 * i + 2];
-            packet.dir_x[k] = d[3 * i], packet.dir_y[k] = d[3 * i + 1], packet.dir_z[k] = d[3 * i + 2];
-            packet.tnear[k] = 0.0f, packet.tfar[k] = live ? tmax[i] : 0.0f, packet.time[k] = 0.0f;
-            packet.mask[k] = ~0u, packet.id[k] = 0, packet.flags[k] = 0;
+            pack(packet, k, o, d, i, live ? tmax[i] : 0.0f);
         }
         if (traced) rtcOccluded16(valid, scene, &context, &packet);
         for (int k = 0; k < lanes; ++k) hit[start + k] = valid[k] && packet.tfar[k] < 0.0f;  // Embree sets tfar = -inf on a hit
