@@ -5,6 +5,16 @@ file, key or value at fault and what was expected, on one line. The CLI prints t
 with status 2.
 """
 
+import difflib
+
+
+def did_you_mean(name: str, choices) -> str:
+    """`` (did you mean 'x'?)`` for the choice closest to the unknown ``name`` (difflib's ratio,
+    as argparse and Python's own NameError suggest), or ``""`` when nothing is close. Appended to
+    the one-line message of an unknown scene, parameter, integrator, plugin or command name."""
+    close = difflib.get_close_matches(str(name), [str(c) for c in choices], n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
 
 class InvRenderError(Exception):
     """Base class of every error invrender raises on bad input."""
