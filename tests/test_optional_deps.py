@@ -16,6 +16,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import torch
 
 import invrender as ir
@@ -70,6 +71,7 @@ print("RESULT " + json.dumps(out))
 """
 
 
+@pytest.mark.slow
 def test_invrender_works_without_warp_embree_and_pyrender(tmp_path):
     # no compiler either: the embree backend's packets (invrender.transport.embree_native) do not build
     env = {**os.environ, "PYTHONPATH": str(ROOT), "PYOPENGL_PLATFORM": "egl", "OMP_NUM_THREADS": "1", "CXX": "/nonexistent/c++"}

@@ -8,6 +8,7 @@ from invrender.baseline.compare import compare, fit_ambient, format_table
 from invrender.cli import main
 
 
+@pytest.mark.slow
 def test_fit_ambient_recovers_the_eps0_of_a_utah_image(cbox32):
     """utah is affine in eps0, so the least-squares eps0 of a utah image (same seed) is its own."""
     eps0 = torch.tensor([0.12, 0.05, 0.3])

@@ -139,6 +139,7 @@ def test_fit_recipe_writes_report_plot_render_checkpoint_and_resumes(recipe, tmp
     assert resumed["recovered"] == report["recovered"]
 
 
+@pytest.mark.slow
 def test_lm_fit_of_a_texture_writes_the_correlation_figure(tmp_path, capsys):
     """``--solver lm`` on a textured parameter: per-texel values and standard errors in the report,
     one correlation matrix channel per texel and colour, and correlation.png beside loss.png."""

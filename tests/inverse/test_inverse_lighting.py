@@ -55,6 +55,7 @@ def problem():
     return lighting_scene(torch.full((4, 8, 3), PRIOR)), targets, views, truth
 
 
+@pytest.mark.slow
 def test_lm_recovers_the_seen_texels_and_keeps_the_unseen_at_the_prior(problem):
     start, targets, views, truth = problem
     with pytest.warns(UserWarning, match=r"do not determine.*sky\.emission\[3,"):

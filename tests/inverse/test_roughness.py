@@ -192,6 +192,7 @@ def test_plastic_tables_follow_alpha(type):
     assert math.isfinite(float(grad.sum())) and not bs.pdf.requires_grad
 
 
+@pytest.mark.slow
 def test_adam_and_lm_recover_a_plastic_roughness():
     """roughplastic_ggx with a blue base (forward/plastic_plate.toml's): alpha 0.3 from 0.1 (rho and
     k_s known) on a 16 x 16 image, with Adam (32 spp a step: a step's cost is mostly the tables')
@@ -229,6 +230,7 @@ def textured_plate():
     return plate(0.3).with_params({"plate.roughness": ROUGHNESS_MAP, "plate.specular_reflectance": KS_MAP}, detach=True)
 
 
+@pytest.mark.slow
 def test_textured_roughness_and_specular_reflectance_gradients():
     """Per texel (a roughness texel's three channels together): within 2% of central differences,
     replay = autodiff."""

@@ -87,6 +87,7 @@ def test_round_trip_lm(photo):
     assert worst > 0.2 and biased.targets[0]["excluded_saturated"] == 0
 
 
+@pytest.mark.slow
 def test_round_trip_adam(photo):
     """The same photograph fitted by Adam."""
     scene, truth, path = photo

@@ -31,6 +31,7 @@ def run(tmp_path: Path, *args: str, blocked: bool = False) -> tuple[subprocess.C
     return done, summary
 
 
+@pytest.mark.slow
 @pytest.mark.warp
 def test_cpu_smoke_test_runs_every_check(tmp_path):
     done, summary = run(tmp_path, "--device", "cpu", "--quick")

@@ -26,6 +26,7 @@ def torchrun(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     return done
 
 
+@pytest.mark.slow
 def test_two_process_render_equals_one_process_render(tmp_path):
     args = ["cornell_box", "--resolution", "24x20", "--spp", "16", "--seed", "3"]
     one = subprocess.run([sys.executable, "-m", "invrender", "render", *args, "--out", "one.exr", "--quiet"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
@@ -38,6 +39,7 @@ def test_two_process_render_equals_one_process_render(tmp_path):
     assert not list(tmp_path.glob(".*.tmp"))
 
 
+@pytest.mark.slow
 def test_python_api_inside_a_process_group(tmp_path):
     """Images, replay and autodiff gradients and a decorrelated gradient inside an initialized group
     equal one process's; a gradient study refuses with one line."""
@@ -67,6 +69,7 @@ def test_python_api_inside_a_process_group(tmp_path):
     assert "runs in one process" in got["study"]
 
 
+@pytest.mark.slow
 def test_two_process_fit_follows_the_one_process_trajectory(tmp_path):
     """fit's default estimator, replay (autodiff's gradients across ranks: the test above)."""
     scene = ir.load_scene("cornell_box", resolution=(16, 16))

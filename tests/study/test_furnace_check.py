@@ -17,6 +17,7 @@ def check():
     return furnace_check(configs, spp=(1, 4), trials=120, resolution=(16, 16), progress=False)
 
 
+@pytest.mark.slow
 def test_correlated_bias_and_variance_of_the_analog_walk(check):
     """Bias 2 eps rho/((1-rho)^2 N) of dl/deps (4 and 1 at N = 1, 4), its rho analogue, and the
     variances, each within 3.5 standard errors."""
@@ -29,6 +30,7 @@ def test_correlated_bias_and_variance_of_the_analog_walk(check):
         assert abs(r.variance_z) < 3.5, r
 
 
+@pytest.mark.slow
 def test_decorrelated_bias_is_zero(check):
     for r in check.rows:
         if r.config == ANALOG.format("decorrelated"):
@@ -37,6 +39,7 @@ def test_decorrelated_bias_is_zero(check):
             assert abs(r.variance_z) < 3.5, r
 
 
+@pytest.mark.slow
 def test_path_defaults_are_far_less_biased_than_the_textbook_form(check):
     """path at max_depth 8, rr_depth 5: no closed form, its bias is measured only: over 10x below."""
     for r in check.rows:

@@ -23,6 +23,7 @@ def run(env_value: str | None) -> str:
     return subprocess.run([sys.executable, "-c", SNIPPET], env=env, capture_output=True, text=True, check=True).stdout.strip()
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
 def test_heap_thresholds_are_set_once_and_can_be_left_alone():
     assert run(None) == "True True"  # set (mallopt accepted both), then already set
