@@ -92,9 +92,11 @@ def test_install_and_test_commands_are_the_ones_ci_runs():
     ci = _ci_commands()
     ci_install = [c for c in ci if c.startswith("python -m pip install")]
     ci_tests = [c for c in ci if c.startswith("python -m pytest")]
-    assert len(ci_install) == 1 and len(ci_tests) == 1, f".ci/run: expected one install and one test command, got {ci}"
+    assert len(ci_install) == 2 and len(ci_tests) == 1, f".ci/run: expected two install commands (torch's CPU build, the package) and one test command, got {ci}"
+    assert "--extra-index-url https://download.pytorch.org/whl/cpu" in ci_install[0], f"torch comes from PyTorch's CPU index: {ci_install[0]!r}"
     install = _bash_lines(_section(text, "Install"))
-    assert install == [ci_install[0].replace(" --quiet", "")], f"README's install {install} is not .ci/run's {ci_install[0]!r}"
+    expected = [c.replace(" --quiet", "") for c in ci_install]
+    assert install == expected, f"README's install {install} is not .ci/run's {expected}"
     quick = _bash_lines(_section(text, "Quick start"))
     assert len(quick) == 2, f"the quick start is two commands, not {quick}"
     assert quick[1] == ci_tests[0], f"README's test command {quick[1]!r} is not .ci/run's {ci_tests[0]!r}"
