@@ -14,6 +14,10 @@ Public API::
     sh = ir.lighting.fit_sh(scene, targets, emitter="sky", order=2, cameras=cams)   # SH lighting coefficients
     study = ir.gradient_study(scene, ["red.reflectance", "light.emission"])   # gradient variance and bias
     base = ir.baseline.pyrender_render(scene)               # the rasterized Utah baseline
+
+Each name is imported on first use (PEP 562), so ``import invrender`` itself imports no torch and
+the command line's ``--help`` answers at once; the plugin registries import the built-in plugins
+on their first use (:mod:`invrender.registry`).
 """
 
 import importlib
@@ -61,13 +65,25 @@ _API = {
 def __getattr__(name):
     target = _API.get(name)
     if target is None:
-        raise AttributeError(f"module 'invrender' has no attribute {name!r}")
+        return _submodule(name)
     module, _, attribute = target.partition(":")
     value = importlib.import_module(module)
     if attribute:
         value = getattr(value, attribute)
     globals()[name] = value  # the next access is a plain attribute
     return value
+
+
+def _submodule(name):
+    """``invrender.NAME``, a subpackage or module (``ir.io``, ``ir.scene``, ...), imported as the
+    eager package had them."""
+    if not name.startswith("_"):
+        try:
+            return importlib.import_module(f"{__name__}.{name}")
+        except ModuleNotFoundError as e:
+            if e.name != f"{__name__}.{name}":
+                raise  # the module exists but needs a package that is missing
+    raise AttributeError(f"module 'invrender' has no attribute {name!r}")
 
 
 def __dir__():

@@ -84,6 +84,7 @@ mine = type("Mine", (), {"type_name": "diffuse"})
 MATERIALS.register(mine)                   # the built-ins are imported first: a user's plugin shadows one
 assert MATERIALS["diffuse"] is mine and "glossy" in MATERIALS and "envmap" in EMITTERS and "whitted" in INTEGRATORS
 from invrender import fit, Camera
+assert ir.io.read_image is ir.read_image   # the subpackages, as attributes, as before
 assert callable(fit) and ir.integrators.Whitted is INTEGRATORS["whitted"] and ir.materials.Glossy is MATERIALS["glossy"]
 print("OK")
 """
