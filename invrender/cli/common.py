@@ -165,7 +165,7 @@ def integrators_epilog() -> str:
     """The help text listing every built-in integrator with its settings, for ``--integrator``
     and ``--set`` (generated from the registry and the settings dataclasses into
     :mod:`invrender.cli.catalog`)."""
-    return "integrators and their settings (--integrator NAME --set KEY=VALUE; 'invrender plugins' lists every registered one):\n" + catalog.INTEGRATORS_HELP
+    return "integrators and their settings (--integrator NAME --set KEY=VALUE; all registered: 'invrender plugins'):\n" + catalog.INTEGRATORS_HELP
 
 
 def integrator_spec(args, base=None, flags: dict | None = None, default: str = "path") -> dict:
