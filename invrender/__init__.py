@@ -14,37 +14,80 @@ Public API::
     sh = ir.lighting.fit_sh(scene, targets, emitter="sky", order=2, cameras=cams)   # SH lighting coefficients
     study = ir.gradient_study(scene, ["red.reflectance", "light.emission"])   # gradient variance and bias
     base = ir.baseline.pyrender_render(scene)               # the rasterized Utah baseline
+
+Each name is imported on first use (PEP 562), so ``import invrender`` itself imports no torch and
+the command line's ``--help`` answers at once; the plugin registries import the built-in plugins
+on their first use (:mod:`invrender.registry`).
 """
 
-from invrender import emitters, materials  # noqa: F401  (registers the built-in emitters and materials)
-from invrender.errors import BaselineError, ImageError, InvRenderError, ParameterError, SceneError
-from invrender.inverse.fit import FitResult, fit
-from invrender.inverse.identifiability import identifiability
-from invrender.inverse.gradcheck import gradcheck
-from invrender.inverse import lighting
-from invrender.io import read_image, write_image
-from invrender.diff import render
-from invrender.diff.records import PathRecords, record_paths
-from invrender.scene import load_scene
-from invrender.scene.camera import Camera
-from invrender.scene.formats.cameras import load_cameras
-from invrender.scene.materials import Material
-from invrender.study import GradientConfig, GradientStudy, gradient_study
-from invrender.transport import integrators
-from invrender.transport.adaptive import AdaptiveResult, AdaptiveSettings
-from invrender.transport.integrators.radiosity import radiosity
-from invrender.transport.radiosity import RadiositySolution
+import importlib
 
 __version__ = "0.1.0"
 
+#: the public API: name -> "module:attribute" (or "module" for a module), imported on first use
+#: (PEP 562), so that ``import invrender`` (and the command line's --help) imports no torch;
+#: ``import invrender as ir; ir.render(...)`` and ``from invrender import fit`` work as if eager
+_API = {
+    "load_scene": "invrender.scene:load_scene",
+    "render": "invrender.diff:render",
+    "fit": "invrender.inverse.fit:fit",
+    "FitResult": "invrender.inverse.fit:FitResult",
+    "gradcheck": "invrender.inverse.gradcheck:gradcheck",
+    "identifiability": "invrender.inverse.identifiability:identifiability",
+    "read_image": "invrender.io:read_image",
+    "write_image": "invrender.io:write_image",
+    "record_paths": "invrender.diff.records:record_paths",
+    "PathRecords": "invrender.diff.records:PathRecords",
+    "Camera": "invrender.scene.camera:Camera",
+    "load_cameras": "invrender.scene.formats.cameras:load_cameras",
+    "Material": "invrender.scene.materials:Material",
+    "gradient_study": "invrender.study:gradient_study",
+    "GradientStudy": "invrender.study:GradientStudy",
+    "GradientConfig": "invrender.study:GradientConfig",
+    "AdaptiveSettings": "invrender.transport.adaptive:AdaptiveSettings",
+    "AdaptiveResult": "invrender.transport.adaptive:AdaptiveResult",
+    "radiosity": "invrender.transport.integrators.radiosity:radiosity",
+    "RadiositySolution": "invrender.transport.radiosity:RadiositySolution",
+    "InvRenderError": "invrender.errors:InvRenderError",
+    "SceneError": "invrender.errors:SceneError",
+    "ImageError": "invrender.errors:ImageError",
+    "ParameterError": "invrender.errors:ParameterError",
+    "BaselineError": "invrender.errors:BaselineError",
+    # modules
+    "integrators": "invrender.transport.integrators",
+    "lighting": "invrender.inverse.lighting",
+    "emitters": "invrender.emitters",
+    "materials": "invrender.materials",
+    "baseline": "invrender.baseline",  # pyrender picks its OpenGL platform when imported
+}
+
 
 def __getattr__(name):
-    # ir.baseline is imported on first use: pyrender picks its OpenGL platform when imported
-    if name == "baseline":
-        import importlib
+    target = _API.get(name)
+    if target is None:
+        return _submodule(name)
+    module, _, attribute = target.partition(":")
+    value = importlib.import_module(module)
+    if attribute:
+        value = getattr(value, attribute)
+    globals()[name] = value  # the next access is a plain attribute
+    return value
 
-        return importlib.import_module("invrender.baseline")
+
+def _submodule(name):
+    """``invrender.NAME``, a subpackage or module (``ir.io``, ``ir.scene``, ...), imported as the
+    eager package had them."""
+    if not name.startswith("_"):
+        try:
+            return importlib.import_module(f"{__name__}.{name}")
+        except ModuleNotFoundError as e:
+            if e.name != f"{__name__}.{name}":
+                raise  # the module exists but needs a package that is missing
     raise AttributeError(f"module 'invrender' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted({*globals(), *_API})
 
 
 __all__ = [

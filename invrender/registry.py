@@ -6,9 +6,11 @@ Everything that needs to know the plugins (loaders, format mappings, the CLI's h
 messages, the docs' tables) reads these registries instead of keeping a list of its own, so adding
 a plugin is one new file plus its registration.
 
-This module sits at the bottom of the package's layers: it stores classes and never imports one.
-The plugins register when their modules are imported (``import invrender`` imports every built-in
-one; a user's plugin registers when the user's module is imported).
+This module sits at the bottom of the package's layers: it stores classes and imports none at
+module level. The plugins register when their modules are imported: each registry imports its
+package of built-in plugins (by name, as an entry point would be loaded) the first time it is
+used, so a lookup always sees them and a user's plugin, registered after them, may shadow one;
+``import invrender`` itself imports no plugin (nor torch) until the API is used.
 
 The configuration spec of an integrator has three spellings, accepted everywhere a render is
 configured (``render``, ``fit``, studies, ablations, recipes, the CLI)::
@@ -20,6 +22,7 @@ configured (``render``, ``fit``, studies, ablations, recipes, the CLI)::
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Iterator, Mapping
 from typing import Generic, TypeVar
 
@@ -35,11 +38,32 @@ class Registry(Generic[T]):
         what: what a name names, for messages (``"material type"``).
         error: the :class:`~invrender.errors.InvRenderError` subclass an unknown name raises.
         attribute: the class attribute holding a plugin's name (``"type_name"``, ``"name"``).
+        builtins: the package whose import registers the built-in plugins, imported on first use
+            of the registry (None: none).
     """
 
-    def __init__(self, what: str, error: type[InvRenderError], attribute: str):
+    def __init__(self, what: str, error: type[InvRenderError], attribute: str, builtins: str | None = None):
         self.what, self.error, self.attribute = what, error, attribute
-        self._classes: dict[str, type[T]] = {}
+        self._builtins = builtins
+        self._by_name: dict[str, type[T]] = {}
+
+    @property
+    def _classes(self) -> dict[str, type[T]]:
+        """The classes by name, the built-in plugins' package imported first (once: a lookup made
+        while it is being imported sees those registered so far)."""
+        if self._builtins is not None:
+            package, self._builtins = self._builtins, None
+            try:
+                importlib.import_module(package)
+            except BaseException:
+                self._builtins = package  # tried again at the next use
+                raise
+        return self._by_name
+
+    def loaded_names(self) -> list[str]:
+        """The names registered so far, without importing the built-in plugins (the command line's
+        early checks: its static list of built-in names plus these)."""
+        return list(self._by_name)
 
     def register(self, cls: type[T]) -> type[T]:
         """Register ``cls`` under its name (usable as a class decorator); registering another
@@ -87,11 +111,11 @@ class Registry(Generic[T]):
 
 
 #: material type name -> its plugin class (:mod:`invrender.materials`)
-MATERIALS: Registry = Registry("material type", SceneError, "type_name")
+MATERIALS: Registry = Registry("material type", SceneError, "type_name", builtins="invrender.materials")
 #: emitter type name -> its plugin class (:mod:`invrender.emitters`)
-EMITTERS: Registry = Registry("emitter type", SceneError, "type_name")
+EMITTERS: Registry = Registry("emitter type", SceneError, "type_name", builtins="invrender.emitters")
 #: integrator name -> its class (:mod:`invrender.transport.integrators`; registered by subclassing)
-INTEGRATORS: Registry = Registry("integrator", ParameterError, "name")
+INTEGRATORS: Registry = Registry("integrator", ParameterError, "name", builtins="invrender.transport.integrators")
 
 
 def integrator_spec(spec, where: str = "integrator") -> tuple[str, dict]:

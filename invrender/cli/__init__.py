@@ -5,6 +5,10 @@ written atomically, so a failed or interrupted run leaves no half-written file. 
 (:mod:`invrender.cli.render`, ``fit``, ``gradcheck``, ``dataset``, ``baseline``, ``compare``,
 ``variance``, ``ablation``, ``hdr``, ``plugins``) has ``add_parser(sub)`` and ``run(args)``; what they share is in
 :mod:`invrender.cli.common`.
+
+The parser, the help texts and the checks of names import no torch (the command modules import
+the standard library at module level, the library inside ``run``; what the help texts list of the
+library comes from :mod:`invrender.cli.catalog`), so ``--help`` and a mistyped name answer at once.
 """
 
 from __future__ import annotations
@@ -14,7 +18,7 @@ import sys
 import warnings
 
 from invrender.cli import ablation, baseline, compare, dataset, fit, gradcheck, hdr, plugins, render, variance
-from invrender.cli.common import EXIT_BAD_INPUT, EXIT_INTERRUPTED, OneLineParser, join_process_group, leave_process_group, one_line_warning
+from invrender.cli.common import EXIT_BAD_INPUT, EXIT_INTERRUPTED, OneLineParser, check_names, join_process_group, leave_process_group, one_line_warning
 from invrender.cli.fit import FIT_OPTIONS
 from invrender.errors import InvRenderError
 
@@ -72,7 +76,10 @@ def main(argv=None) -> int:
         return EXIT_BAD_INPUT
     warnings.showwarning = one_line_warning
     prefix = "invrender: error: "
+    started = False
     try:
+        check_names(args)  # before torch is imported
+        started = True
         if getattr(args, "group", False):  # commands that split their work across a torchrun group
             prefix = join_process_group(args) or prefix
         return args.run(args)
@@ -83,7 +90,8 @@ def main(argv=None) -> int:
         print("invrender: interrupted; nothing was written", file=sys.stderr)
         return EXIT_INTERRUPTED
     finally:
-        leave_process_group()
+        if started:
+            leave_process_group()
 
 
 def entry() -> None:

@@ -55,9 +55,11 @@ def add_parser(sub) -> None:
 
 
 def ablation_names() -> list[str]:
-    from invrender.ablation.variants import VARIANTS
+    """The variants of :mod:`invrender.ablation.variants` besides the defaults (by way of
+    :mod:`invrender.cli.catalog`)."""
+    from invrender.cli.catalog import ABLATION_VARIANTS
 
-    return [v.name for v in VARIANTS if v.name != "default"]
+    return list(ABLATION_VARIANTS)
 
 
 def run(args) -> int:

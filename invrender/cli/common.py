@@ -1,7 +1,11 @@
-"""What every command of the command line shares: argument types, the integrator options, output
-checks, one-line errors and warnings, and the process group under ``torchrun``.
+"""What every command of the command line shares: argument types, the integrator options, the
+early checks of names, output checks, one-line errors and warnings, and the process group under
+``torchrun``.
 
-Bad input ends with one line ``invrender: error: ...`` on stderr and exit status 2.
+Bad input ends with one line ``invrender: error: ...`` on stderr and exit status 2. This module
+imports only the standard library and torch-free modules (:mod:`invrender.cli.catalog`,
+:mod:`invrender.errors`): the help texts and the checks of names answer before torch is imported;
+everything heavy is imported where a command runs.
 """
 
 from __future__ import annotations
@@ -12,8 +16,8 @@ import os
 import sys
 from pathlib import Path
 
-from invrender.errors import ImageError, ParameterError
-from invrender.scene.builtin import BUILTIN_SCENES
+from invrender.cli import catalog
+from invrender.errors import ImageError, ParameterError, SceneError, did_you_mean
 
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
@@ -24,6 +28,14 @@ class OneLineParser(argparse.ArgumentParser):
 
     def error(self, message):
         self.exit(EXIT_BAD_INPUT, f"invrender: error: {message} (see '{self.prog} --help')\n")
+
+    def _check_value(self, action, value):
+        # argparse's check of choices (and of the command's name), with the closest one suggested
+        if action.choices is not None and value not in action.choices:
+            choices = ", ".join(map(str, action.choices))
+            if action.dest == "command":
+                raise argparse.ArgumentError(None, f"unknown command {value!r}{did_you_mean(value, action.choices)} (the commands: {choices})")
+            raise argparse.ArgumentError(action, f"invalid choice: {value!r}{did_you_mean(value, action.choices)} (choose from {choices})")
 
 
 def parse_bool(text: str) -> bool:
@@ -92,24 +104,57 @@ def add_scene_argument(parser: argparse.ArgumentParser) -> None:
     """The optional positional SCENE every rendering command takes."""
     parser.add_argument(
         "scene", nargs="?", default="cornell_box",
-        help=f"built-in name ({', '.join(BUILTIN_SCENES)}) or a scene file: .toml, Mitsuba 3 .xml (a subset), or a mesh .gltf/.glb/.obj/.ply/.stl (in a default studio when it has no emitter) (default: cornell_box)",
+        help=f"built-in name ({', '.join(catalog.BUILTIN_SCENES)}) or a scene file: .toml, Mitsuba 3 .xml (a subset), or a mesh .gltf/.glb/.obj/.ply/.stl (in a default studio when it has no emitter) (default: cornell_box)",
     )  # fmt: skip
 
 
 # --- the integrator: --integrator NAME and --set KEY=VALUE ---------------------------------------
 
 
+def check_names(args) -> None:
+    """The names a command was given, checked before anything heavy is imported: its scene (a
+    built-in name or an existing scene file) and its ``--integrator``; a one-line error suggesting
+    the closest known name otherwise."""
+    if getattr(args, "scene", None) is not None:
+        check_scene(args.scene)
+    if getattr(args, "integrator", None) is not None:
+        check_integrator(args.integrator)
+
+
+def check_scene(source: str) -> None:
+    """``source`` names a built-in scene or a scene file that exists (its contents are read by
+    :func:`invrender.load_scene`, which words its errors as these)."""
+    if source in catalog.BUILTIN_SCENES:
+        return
+    path = Path(source)
+    if path.suffix.lower() not in catalog.SCENE_SUFFIXES:
+        raise SceneError(f"unknown scene {source!r}{did_you_mean(source, catalog.BUILTIN_SCENES)}: not a built-in ({', '.join(catalog.BUILTIN_SCENES)}) nor a {'/'.join(catalog.SCENE_SUFFIXES)} file")
+    if not path.is_file():
+        folder = path.parent if path.parent.is_dir() else None
+        files = [p.name for p in folder.iterdir() if p.suffix.lower() in catalog.SCENE_SUFFIXES] if folder is not None else []
+        raise SceneError(f"scene file not found: {source}{did_you_mean(path.name, files)}")
+
+
+def check_integrator(name: str) -> None:
+    """``name`` is a built-in integrator or one registered in this process (a plugin)."""
+    known = integrator_names()
+    if name not in known:
+        raise ParameterError(f"--integrator: unknown integrator {name!r}{did_you_mean(name, known)} (known: {', '.join(known)})")
+
+
 def integrator_names() -> list[str]:
+    """The built-in integrators (:mod:`invrender.cli.catalog`) and the plugins registered so far
+    in this process, without importing the built-in ones."""
     from invrender.registry import INTEGRATORS
 
-    return list(INTEGRATORS)
+    return list(dict.fromkeys([*catalog.INTEGRATORS, *INTEGRATORS.loaded_names()]))
 
 
 def add_integrator_arguments(parser: argparse.ArgumentParser, default: str | None = "path", what: str = "the integrator") -> None:
     """``--integrator NAME`` and the repeatable ``--set KEY=VALUE`` (any of its settings; the
     settings of each integrator are listed in the command's help, :func:`integrators_epilog`)."""
     shown = f" (default: {default})" if default else " (default: path, or the recipe's)"
-    parser.add_argument("--integrator", default=None, metavar="NAME", help=f"{what}: {', '.join(integrator_names())}{shown}; its settings are listed below")
+    parser.add_argument("--integrator", default=None, metavar="NAME", help=f"{what}: {', '.join(catalog.INTEGRATORS)}{shown}; its settings are listed below")
     parser.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE", dest="set",
         help="an integrator setting, e.g. --set rr_depth=3 --set strategy=emitter (repeatable; the value is read as the setting's type: int, float, true/false or text)",
@@ -117,11 +162,10 @@ def add_integrator_arguments(parser: argparse.ArgumentParser, default: str | Non
 
 
 def integrators_epilog() -> str:
-    """The help text listing every registered integrator with its settings (from the registry
-    and the settings dataclasses), for ``--integrator`` and ``--set``."""
-    from invrender.transport.integrators.base import integrators_help
-
-    return "integrators and their settings (--integrator NAME --set KEY=VALUE):\n" + integrators_help()
+    """The help text listing every built-in integrator with its settings, for ``--integrator``
+    and ``--set`` (generated from the registry and the settings dataclasses into
+    :mod:`invrender.cli.catalog`)."""
+    return "integrators and their settings (--integrator NAME --set KEY=VALUE; all registered: 'invrender plugins'):\n" + catalog.INTEGRATORS_HELP
 
 
 def integrator_spec(args, base=None, flags: dict | None = None, default: str = "path") -> dict:

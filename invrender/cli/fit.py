@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from invrender.cli import catalog
 from invrender.cli.common import (
     EXIT_INTERRUPTED, add_integrator_arguments, check_out_dir, fmt, integrator_spec, integrators_epilog, parse_bool, parse_init, parse_resolution,
 )  # fmt: skip
@@ -41,22 +42,9 @@ OUT/study.json: each parameter channel's relative error under each variant.
 """
 
 
-def _fit_options() -> list[tuple[str, object, str]]:
-    """(field, argparse type, help) of every FitSettings field, from the dataclass and its docstring."""
-    from invrender.inverse.fit import FitSettings
-    from invrender.transport.integrators.base import setting_docs
-
-    kinds = {"int": int, "float": float, "bool": "bool", "str": str}
-    options = []
-    for d in setting_docs(FitSettings):
-        kind = kinds.get(next(k.strip() for k in d.kind.split("|") if k.strip() != "None"), str)
-        default = "none" if d.default is None else str(d.default).lower() if isinstance(d.default, bool) else d.default
-        options.append((d.name, kind, f"{d.doc} (default: {default})".replace("%", "%%")))
-    return options
-
-
-#: every FitSettings field as a flag: (name, type, help); ``integrator`` is --integrator (and --set)
-FIT_OPTIONS = _fit_options()
+#: every FitSettings field as a flag: (name, kind: int, float, bool or str, help), from the dataclass
+#: and its docstring (:mod:`invrender.cli.catalog`); ``integrator`` is --integrator (and --set)
+FIT_OPTIONS = catalog.FIT_OPTIONS
 
 
 def add_parser(sub) -> None:
@@ -82,7 +70,7 @@ def add_parser(sub) -> None:
     add_integrator_arguments(f, default=None, what="the model fitted")
     for name, kind, doc in FIT_OPTIONS:
         if name != "integrator":
-            f.add_argument(f"--{name.replace('_', '-')}", dest=name, type=parse_bool if kind == "bool" else kind, default=None, metavar=name.upper() if kind != "bool" else "true|false", help=doc)
+            f.add_argument(f"--{name.replace('_', '-')}", dest=name, type={"int": int, "float": float, "bool": parse_bool, "str": str}[kind], default=None, metavar=name.upper() if kind != "bool" else "true|false", help=doc)
     f.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     f.set_defaults(run=run, group=True)
 

@@ -11,7 +11,7 @@ from fractions import Fraction
 from pathlib import Path
 
 from invrender.cli.common import check_outputs
-from invrender.io.hdr import DEFAULT_SAMPLES, DEFAULT_SMOOTHNESS
+from invrender.cli.catalog import HDR_SAMPLES as DEFAULT_SAMPLES, HDR_SMOOTHNESS as DEFAULT_SMOOTHNESS  # invrender.io.hdr's
 
 DOC = """\
 Merge P >= 2 aligned 8-bit photographs of one still scene, taken at different exposure times, into

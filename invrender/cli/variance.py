@@ -78,10 +78,11 @@ def add_parser(sub) -> None:
 
 
 def study_defaults() -> tuple:
-    from invrender.study import DEFAULT_CONFIGS, DEFAULT_SPP
-    from invrender.study.fits import DEFAULT_FIT_CONFIGS
+    """(a study's default configurations, its spp, a fit study's configurations): the defaults of
+    :mod:`invrender.study`, by way of :mod:`invrender.cli.catalog`."""
+    from invrender.cli.catalog import FIT_STUDY_CONFIGS, STUDY_CONFIGS, STUDY_SPP
 
-    return DEFAULT_CONFIGS, DEFAULT_SPP, DEFAULT_FIT_CONFIGS
+    return STUDY_CONFIGS, STUDY_SPP, FIT_STUDY_CONFIGS
 
 
 def run(args) -> int:

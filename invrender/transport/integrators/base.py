@@ -343,13 +343,16 @@ def integrators_table() -> str:
     return "\n".join(rows) + "\n"
 
 
-def integrators_help(width: int = 100) -> str:
-    """Every registered integrator with its summary and its settings (name, default, doc), for
-    the command line's ``--help``; generated from the registry and the settings dataclasses."""
+def integrators_help(width: int = 100, names=None) -> str:
+    """Every registered integrator (or those of ``names``) with its summary and its settings
+    (name, default, doc), for the command line's ``--help``; generated from the registry and the
+    settings dataclasses (into :mod:`invrender.cli.catalog`)."""
     import textwrap
 
     lines = []
     for name, cls in INTEGRATORS.items():
+        if names is not None and name not in names:
+            continue
         summary = cls.summary.removeprefix(f"{name}: ")  # some summaries start with their name
         lines.append(f"  {name}: {summary}" if summary else f"  {name}")
         for d in setting_docs(cls):
