@@ -142,6 +142,22 @@ def texel_filter(h: int, w: int, uv: torch.Tensor) -> tuple[torch.Tensor, torch.
     return index, weight
 
 
+def texel_solid_angles(h: int, w: int) -> torch.Tensor:
+    """(h w,) float64: the integral over the sphere of each texel's bilinear hat (its weight in the
+    envmap's lookup), so ``sum(weights * texels)`` is the exact integral of the bilinear map; they
+    add up to 4 pi."""
+    theta = torch.arange(h, dtype=torch.float64) * (math.pi / (h - 1))
+    weights = torch.zeros(h, dtype=torch.float64)
+    for i in range(h):
+        if i > 0:  # rising from theta_{i-1}: int (t - a) / (b - a) sin t dt
+            a, b = float(theta[i - 1]), float(theta[i])
+            weights[i] += (-(b - a) * math.cos(b) + math.sin(b) - math.sin(a)) / (b - a)
+        if i < h - 1:  # falling to theta_{i+1}: int (c - t) / (c - b) sin t dt
+            b, c = float(theta[i]), float(theta[i + 1])
+            weights[i] += ((c - b) * math.cos(b) + math.sin(b) - math.sin(c)) / (c - b)
+    return (weights * (2.0 * math.pi / w))[:, None].expand(h, w).reshape(-1).clone()
+
+
 class Distribution:
     """The detached sampling density of one map (h x w after padding): piecewise constant over the
     w x (h - 1) cells between texel centres, cell (i, j) spanning ``u in [(j + 0.5) / w, (j + 1.5)

@@ -33,7 +33,7 @@ import torch
 import torch.autograd.forward_ad as fwAD
 
 from invrender.diff import render
-from invrender.emitters.envmap import rotation_of, uv_to_direction
+from invrender.emitters.envmap import rotation_of, texel_solid_angles, uv_to_direction
 from invrender.errors import ParameterError
 from invrender.inverse.fit import load_views
 from invrender.scene.scene import Scene
@@ -106,22 +106,6 @@ def texel_directions(h: int, w: int, rotation=None) -> torch.Tensor:
     local, _ = uv_to_direction(uv)
     R = torch.eye(3, dtype=torch.float64) if rotation is None else torch.as_tensor(np.asarray(rotation), dtype=torch.float64)
     return local @ R.T
-
-
-def texel_solid_angles(h: int, w: int) -> torch.Tensor:
-    """(h w,) float64: the integral over the sphere of each texel's bilinear hat (its weight in the
-    envmap's lookup), so ``sum(weights * texels)`` is the exact integral of the bilinear map; they
-    add up to 4 pi."""
-    theta = torch.arange(h, dtype=torch.float64) * (math.pi / (h - 1))
-    weights = torch.zeros(h, dtype=torch.float64)
-    for i in range(h):
-        if i > 0:  # rising from theta_{i-1}: int (t - a) / (b - a) sin t dt
-            a, b = float(theta[i - 1]), float(theta[i])
-            weights[i] += (-(b - a) * math.cos(b) + math.sin(b) - math.sin(a)) / (b - a)
-        if i < h - 1:  # falling to theta_{i+1}: int (c - t) / (c - b) sin t dt
-            b, c = float(theta[i]), float(theta[i + 1])
-            weights[i] += ((c - b) * math.cos(b) + math.sin(b) - math.sin(c)) / (c - b)
-    return (weights * (2.0 * math.pi / w))[:, None].expand(h, w).reshape(-1).clone()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -359,3 +343,8 @@ def fit_sh(
         weak.update(int(i) for i in torch.nonzero(P.diagonal() > 0.5).reshape(-1).tolist())
     names = basis.labels
     return SHFit(coeffs, se, sv, nv, det, dirs, [names[i] for i in sorted(weak)], basis)
+
+
+# the texel route: the transport matrix of the map and its regularized non-negative solve
+from invrender.diff.transport_matrix import TransportMatrix, transport_matrix  # noqa: E402, F401
+from invrender.inverse.map_fit import MapFit, fit_map, solve_map, sphere_smoothness  # noqa: E402, F401

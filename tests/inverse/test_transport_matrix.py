@@ -1,0 +1,157 @@
+"""Inverse lighting by the transport matrix (``ir.lighting.transport_matrix``, ``fit_map``).
+
+Every image is exactly linear in an envmap's texels: the matrix rendered into a TexelFilm must
+give the render of the same seed back to float rounding; its halves' ``sym(A1^T A2)`` must be an
+unbiased estimate of ``A^T A`` where the halves' mean's Gram is not; the regularized non-negative
+solve with the discrepancy principle's weight must recover a map that relights a held-out view, at
+a weight whose held-out error is within 1.5x of the best of a sweep; bad inputs are one-line errors.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+import invrender as ir
+from invrender.errors import InvRenderError, ParameterError
+from invrender.scene.builtin import sky_map, sky_spheres
+from invrender.scene.camera import Camera
+
+HIDDEN = {"type": "path", "hide_emitters": True}
+MAP = (4, 8)
+
+
+def view(azimuth: float) -> Camera:
+    a = math.radians(azimuth)
+    return Camera(origin=(4.2 * math.sin(a), 0.35, 4.2 * math.cos(a)), target=(0, -0.35, 0), up=(0, 1, 0), fov=40.0, fov_axis="smaller")
+
+
+CAMERAS = [view(0.0), view(120.0), view(240.0)]
+
+
+def scene(resolution=16, sky=None):
+    return sky_spheres((resolution, resolution), MAP, subdivisions=2, sky=sky)
+
+
+def test_matrix_times_map_is_the_render_of_the_same_seed():
+    s = scene(12)
+    tm = ir.lighting.transport_matrix(s, "sky", cameras=CAMERAS[:2], integrator=HIDDEN, spp=4, max_depth=3, seed=3)
+    assert tm.halves[0].shape == (3, 2 * 144, MAP[0] * MAP[1])
+    L = s.params["sky.emission"].detach()
+    for v, cam in enumerate(CAMERAS[:2]):
+        for half in (0, 1):
+            img = ir.render(s.with_camera(cam), HIDDEN, spp=4, max_depth=3, seed=tm.seeds[v][half], progress=False)
+            mine = tm.images(L, half)[v]
+            assert float(img.abs().max()) > 0.1
+            torch.testing.assert_close(mine, img, rtol=1e-5, atol=1e-6)
+    # another map of the same sampling: the matrix predicts its render as well
+    other = L.flip(1).contiguous()
+    img = ir.render(s.with_params({"sky.emission": other}).with_camera(CAMERAS[0]), HIDDEN, spp=4, max_depth=3, seed=tm.seeds[0][0], progress=False, sampling_params={"sky.emission": L})
+    torch.testing.assert_close(tm.images(other, 0)[0], img, rtol=1e-5, atol=1e-6)
+
+
+def test_halves_cross_product_is_unbiased_where_the_mean_gram_is_not():
+    s = scene(6)
+    cams = CAMERAS[:1]
+    reference = ir.lighting.transport_matrix(s, "sky", cameras=cams, integrator=HIDDEN, spp=256, max_depth=2, seed=99)
+    truth = sum(torch.trace(reference.halves[0][c].double().T @ reference.halves[1][c].double()) for c in range(3))
+    cross, plain = [], []
+    for seed in range(12):
+        tm = ir.lighting.transport_matrix(s, "sky", cameras=cams, integrator=HIDDEN, spp=2, max_depth=2, seed=seed)
+        A1, A2 = (a.double() for a in tm.halves)
+        cross.append(sum(float(torch.trace(A1[c].T @ A2[c])) for c in range(3)))
+        mean = 0.5 * (A1 + A2)
+        plain.append(sum(float(torch.trace(mean[c].T @ mean[c])) for c in range(3)))
+    cross, plain = torch.tensor(cross), torch.tensor(plain)
+    spread = float(cross.std() / math.sqrt(len(cross)))
+    assert abs(float(cross.mean()) - float(truth)) < 3 * spread + 0.02 * float(truth)
+    assert float(plain.mean()) > 1.2 * float(truth)  # E^T E: the noise adds to every diagonal entry
+
+
+@pytest.fixture(scope="module")
+def problem():
+    """A 4 x 8 map from three 16 x 16 views (targets at 256 spp), the matrix at 2 x 32 spp, and a
+    held-out view's matrix (64 spp) to measure relighting by."""
+    truth = sky_map(*MAP)
+    true_scene = scene(16, truth)
+    targets = [ir.render(true_scene.with_camera(c), HIDDEN, spp=256, max_depth=3, seed=100 + i, progress=False) for i, c in enumerate(CAMERAS)]
+    start = scene(16, torch.ones(*MAP, 3))
+    fit = ir.lighting.fit_map(start, targets, "sky", cameras=CAMERAS, integrator=HIDDEN, spp=32, max_depth=3)
+    held = ir.lighting.transport_matrix(start, "sky", cameras=[view(60.0)], integrator=HIDDEN, spp=64, max_depth=3, seed=7)
+    return truth, targets, fit, held
+
+
+def relit_error(held, truth, texels) -> tuple[torch.Tensor, float]:
+    true_img, relit = held.images(truth)[0], held.images(texels)[0]
+    means = (relit.mean((0, 1)) - true_img.mean((0, 1))) / true_img.mean((0, 1))
+    return means, float((relit - true_img).norm() / true_img.norm())
+
+
+def test_fit_map_recovers_a_map_that_relights_a_held_out_view(problem):
+    truth, _, fit, held = problem
+    assert fit.rule == "discrepancy" and fit.texels.shape == (*MAP, 3)
+    assert bool((fit.texels >= 0).all()) and bool(torch.isfinite(fit.stderr).all())
+    means, rmse = relit_error(held, truth, fit.texels)
+    assert float(means.abs().max()) < 0.02, means
+    assert rmse < 0.08, rmse
+    # the flat start relights far worse: the fit did the work
+    flat = torch.full((*MAP, 3), float(truth.mean()))
+    assert relit_error(held, truth, flat)[1] > 2 * rmse
+    # the residual sits at the noise (the discrepancy principle; the targets' own noise above it),
+    # and the report says so
+    assert bool((fit.residual >= 0.95 * fit.noise).all()) and bool((fit.residual < 1.3 * fit.noise).all()), (fit.residual, fit.noise)
+    assert "discrepancy" in fit.describe()
+    # the bottom row (below the floor: no path reaches it) is left to the prior
+    assert bool(fit.undetermined[-1].all())
+    assert float(fit.resolution[-1].max()) < 0.1
+
+
+def test_the_weight_rule_is_within_1_5x_of_the_best_swept_weight(problem):
+    truth, targets, fit, held = problem
+    _, chosen = relit_error(held, truth, fit.texels)
+    swept = []
+    for e in torch.arange(-2.0, 4.01, 0.5).tolist():
+        try:
+            fixed = ir.lighting.solve_map(fit.matrix, targets, weight=10.0**e, stderr=False)
+        except ParameterError:  # below the weight at which the regularized matrix is definite
+            continue
+        swept.append(relit_error(held, truth, fixed.texels)[1])
+    assert len(swept) >= 4
+    assert chosen <= 1.5 * min(swept), (chosen, swept)
+
+
+def test_bad_inputs_are_one_line_errors(problem):
+    truth, targets, fit, _ = problem
+    start = scene(16, torch.ones(*MAP, 3))
+    with pytest.raises(ParameterError, match=r"needs .* GiB \(24 x pixels x texels") as e:
+        ir.lighting.fit_map(start, targets, "sky", cameras=CAMERAS, integrator=HIDDEN, spp=4, memory_mb=0.1)
+    assert "\n" not in str(e.value)
+    with pytest.raises(ParameterError, match="3 target\\(s\\) but 2 camera\\(s\\)"):
+        ir.lighting.fit_map(start, targets, "sky", cameras=CAMERAS[:2], spp=4)
+    with pytest.raises(ParameterError, match="2 target\\(s\\) for a transport matrix of 3 view\\(s\\)"):
+        ir.lighting.solve_map(fit.matrix, targets[:2])
+    bad = targets[0].clone()
+    bad[3, 4, 1] = float("nan")
+    with pytest.raises(InvRenderError, match="NaN"):
+        ir.lighting.fit_map(start, [bad, *targets[1:]], "sky", cameras=CAMERAS, spp=4)
+    with pytest.raises(ParameterError, match="NaN"):
+        ir.lighting.solve_map(fit.matrix, [bad, *targets[1:]])
+    with pytest.raises(ParameterError, match="no emitter 'skye'.*did you mean 'sky'"):
+        ir.lighting.fit_map(start, targets, "skye", cameras=CAMERAS, spp=4)
+    with pytest.raises(ParameterError, match="weight must be a number > 0"):
+        ir.lighting.solve_map(fit.matrix, targets, weight=-1.0)
+
+
+def test_sphere_smoothness_is_the_dirichlet_energy():
+    S = torch.from_numpy(ir.lighting.sphere_smoothness(5, 8))
+    ones = torch.ones(40, dtype=torch.float64)
+    assert float((S @ ones).abs().max()) < 1e-9  # a constant map has no gradient
+    torch.testing.assert_close(S, S.T)
+    assert float(torch.linalg.eigvalsh(S)[0]) > -1e-9
+    # a map varying in longitude only wraps: cos(phi) costs the same wherever the seam lies
+    phi = (torch.arange(8, dtype=torch.float64) + 0.5) * (2 * math.pi / 8)
+    a = torch.cos(phi).repeat(5)
+    b = torch.cos(phi + 2 * math.pi / 8).repeat(5)
+    assert abs(float(a @ S @ a) - float(b @ S @ b)) < 1e-9 * float(a @ S @ a)
