@@ -43,7 +43,7 @@ class RoundsBar:
     def __init__(self, rounds: int, done: int, solver: str, enabled: bool):
         self.rounds, self.solver, self.done = rounds, solver, done  # done: counted here, as a disabled tqdm does not
         self.bar = tqdm(
-            total=rounds, initial=done, disable=not enabled, desc=f"fit ({solver}, up to {rounds} rounds)", file=sys.stderr, dynamic_ncols=True,
+            total=rounds, initial=done, disable=not enabled, desc=f"fit ({solver}, up to {rounds} round{'s' if rounds != 1 else ''})", file=sys.stderr, dynamic_ncols=True,
             bar_format="{desc}: {n_fmt}/{total_fmt} |{bar}| {elapsed}{postfix}",
         )  # fmt: skip
         self.numbers: dict = {}
