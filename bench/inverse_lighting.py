@@ -45,6 +45,11 @@ def view(azimuth: float) -> Camera:
     return Camera(origin=(4.2 * math.sin(a), 0.35, 4.2 * math.cos(a)), target=(0, -0.35, 0), up=(0, 1, 0), fov=40.0, fov_axis="smaller")
 
 
+def say(step: str) -> None:
+    """What the script does next, on stderr at once (the fit's and renders' bars follow)."""
+    print(step, file=sys.stderr, flush=True)
+
+
 def upsample(img: torch.Tensor, k: int) -> torch.Tensor:
     return img.repeat_interleave(k, 0).repeat_interleave(k, 1)
 
@@ -78,6 +83,7 @@ def main() -> int:
     parser.add_argument("--out", default="bench/out/inverse_lighting.png", help="the PNG (bench/out/ is git-ignored)")
     parser.add_argument("--docs", action="store_true", help="also write docs/images/inverse_lighting.png")
     args = parser.parse_args()
+    say(f"inverse lighting on sky_spheres: {args.map[0]} x {args.map[1]} map, {args.solver} (about 30-80 s on 2 cores at the defaults)")
 
     h, w = args.map
     res = (args.resolution, args.resolution)
@@ -85,17 +91,20 @@ def main() -> int:
     scene = sky_spheres(resolution=res, map_size=(h, w))
     views = [view(a) for a in (0.0, 120.0, 240.0)]
     held_out = view(60.0)
-    targets = [ir.render(scene.with_camera(c), HIDDEN, spp=args.spp, max_depth=args.max_depth, seed=100 + i, progress=False) for i, c in enumerate(views)]
+    say(f"rendering the three targets ({args.resolution} x {args.resolution}, {args.spp} spp) ...")
+    targets = [ir.render(scene.with_camera(c), HIDDEN, spp=args.spp, max_depth=args.max_depth, seed=100 + i) for i, c in enumerate(views)]
+    say(f"fitting the {h} x {w} map from a flat start ({args.solver}) ...")
 
     start = sky_spheres(resolution=res, map_size=(h, w), sky=torch.ones(h, w, 3))
     clock = time.perf_counter()
     fit = ir.fit(start, targets, ["sky.emission"], cameras=views, solver=args.solver, integrator=HIDDEN, max_depth=args.max_depth,
                  spp=args.fit_spp, spp_final=4 * args.fit_spp, steps=args.steps, rounds=args.rounds, prior_weight=args.prior_weight,
-                 smoothness=None if args.smoothness < 0 else args.smoothness, progress=False, truth={"sky.emission": truth})
+                 smoothness=None if args.smoothness < 0 else args.smoothness, truth={"sky.emission": truth})
     seconds = time.perf_counter() - clock
     recovered = fit.params["sky.emission"]
 
     big = (2 * args.resolution, 2 * args.resolution)
+    say("relighting the held-out view ...")
     true_view = ir.render(sky_spheres(big, (h, w)).with_camera(held_out), HIDDEN, spp=args.spp, max_depth=args.max_depth, seed=7, progress=False)
     relit_scene = sky_spheres(big, (h, w), sky=recovered).with_camera(held_out)
     relit = ir.render(relit_scene, HIDDEN, spp=args.spp, max_depth=args.max_depth, seed=7, progress=False)

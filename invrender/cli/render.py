@@ -89,6 +89,7 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     import invrender as ir
     from invrender.diff.defaults import DEFAULT_INTEGRATOR, file_integrator, scene_spp
+    from invrender.transport import first_use
 
     outputs = check_outputs(args.out)
     scene = ir.load_scene(args.scene, resolution=args.resolution, ambient=args.ambient)
@@ -100,12 +101,14 @@ def run(args) -> int:
     flags = {"max_depth": args.max_depth, "rr_depth": args.rr_depth, "strategy": args.strategy, "hemisphere": args.hemisphere}
     spec = integrator_spec(args, base, flags)
     adaptive = adaptive_settings(args)
-    start = time.perf_counter()
+    start, compiling = time.perf_counter(), first_use.seconds()
     result = ir.render(
         scene, integrator=spec, spp=spp, seed=args.seed, terms=args.terms, backend=args.backend, device=args.device, memory_mb=args.memory_mb,
         progress=not args.quiet, sampler=args.sampler, adaptive=adaptive, return_counts=adaptive is not None,
     )  # fmt: skip
-    seconds = time.perf_counter() - start
+    # a first use's compiles and kernel loads (first_use.py) are not rendering: reported apart
+    compiling = first_use.seconds() - compiling
+    seconds = time.perf_counter() - start - compiling
     image = result.image if adaptive is not None else result
     full = image.sum(0) if args.terms else image
     written = []
@@ -120,7 +123,8 @@ def run(args) -> int:
         paths = scene.width * scene.height * spp
         file_spp = scene.defaults.get("spp")
         overridden = f"; --spp overrides the file's {file_spp} spp" if file_spp is not None and file_spp != spp else ""
-        print(f"{scene.name}: {scene.width}x{scene.height}, {spp} spp, {seconds:.2f} s ({paths / seconds / 1e6:.3g} M paths/s); mean RGB {mean_rgb(full)}{overridden}", file=sys.stderr)
+        setup = f" + {compiling:.1f} s compiling kernels on first use" if compiling >= 0.5 else ""
+        print(f"{scene.name}: {scene.width}x{scene.height}, {spp} spp, {seconds:.2f} s ({paths / seconds / 1e6:.3g} M paths/s){setup}; mean RGB {mean_rgb(full)}{overridden}", file=sys.stderr)
         if adaptive is not None:
             counts = result.spp.float()
             print(f"adaptive: pilot {result.pilot_spp} spp + {len(result.passes)} rounds; samples per pixel {int(counts.min())} to {int(counts.max())} (mean {counts.mean():.4g}); "

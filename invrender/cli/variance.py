@@ -29,7 +29,7 @@ examples:
   invrender variance cornell_box --params red.reflectance,light.emission --out runs/variance
   invrender variance cornell_box --params white.reflectance --configs path/replay/correlated,random_walk/replay/correlated/rr_depth=1 --spp 4,16,64 --out runs/rw
   invrender variance cornell_box --params red.reflectance --configs path/replay/decorrelated,path/replay/decorrelated/sampler=antithetic,path/replay/control_variate --at 0.95 --out runs/vr
-  invrender variance furnace --out runs/furnace --tolerance 4
+  invrender variance furnace                                 # -> runs/variance/furnace; add --tolerance 4 to exit 1 on a miss
   invrender variance cornell_box --fits --params red.reflectance,green.reflectance,white.reflectance,light.emission --repeats 3 --out runs/fits
 
 A configuration spec names its parts with '/', in any order: an integrator (path, random_walk, ...),
@@ -49,7 +49,7 @@ def add_parser(sub) -> None:
     v = sub.add_parser("variance", help="gradient-variance study of gradient estimators", description=DOC, epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_scene_argument(v)
     v.add_argument("--params", default=None, help="comma-separated parameter names (required, except for furnace: glow.emission,wall.reflectance)")
-    v.add_argument("--out", required=True, help="output folder: results.csv, results.json, samples.pt, variance.png, bias.png, pixel_variance.png (with --fits: fits.csv, fits_summary.csv, fits.json, fits.png)")
+    v.add_argument("--out", default=None, help="output folder (default: runs/variance/SCENE, SCENE the scene's name or file stem): results.csv, results.json, samples.pt, variance.png, bias.png, pixel_variance.png (with --fits: fits.csv, fits_summary.csv, fits.json, fits.png)")
     v.add_argument("--configs", default=None, metavar="SPEC,SPEC", help="configurations INTEGRATOR/ESTIMATOR/PAIRING[/KEY=VALUE...], comma-separated (default: " + ",".join(study_defaults()[0]) + "; --fits: " + ",".join(study_defaults()[2]) + "; furnace: the closed-form checks)")
     v.add_argument("--spp", default=None, metavar="N,N", help="comma-separated samples per pixel (default: " + ",".join(map(str, study_defaults()[1])) + "; furnace: 1,4,16)")
     v.add_argument("--trials", type=int, default=None, help="independent gradients per configuration and spp, >= 2 (default: 200, ~10%% error on a variance)")
@@ -92,7 +92,7 @@ def run(args) -> int:
     from invrender.study.output import summary_text, write_study
     from invrender.study.plots import plot_study
 
-    out = check_out_dir(args.out)
+    out = check_out_dir(args.out if args.out is not None else str(Path("runs", "variance", Path(args.scene).stem)))
     fit_flags = (("--repeats", args.repeats), ("--steps", args.steps), ("--fit-spp", args.fit_spp))
     study_flags = (("--spp", args.spp), ("--trials", args.trials), ("--reference-spp", args.reference_spp), ("--reference-repeats", args.reference_repeats),
                    ("--pixel-param", args.pixel_param), ("--pixel-spp", args.pixel_spp), ("--no-pixel-maps", args.no_pixel_maps), ("--workers", args.workers))  # fmt: skip

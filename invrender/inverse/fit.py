@@ -32,6 +32,7 @@ from invrender.errors import ParameterError
 from invrender.inverse import params as P
 from invrender.inverse.control_variates import RecursiveControlVariate
 from invrender.inverse.least_squares import SOLVERS
+from invrender.inverse.rounds_bar import RoundsBar
 from invrender.inverse.losses import LOSSES, loss_and_gradient, loss_gradient
 from invrender.inverse.sensor import NAMES as SENSOR_NAMES, Sensor, is_sensor
 from invrender.inverse.targets import Target, make_targets
@@ -416,8 +417,7 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
         current, history = {n: v.double() for n, v in state["values"].items()}, list(state["history"])
     clock = time.perf_counter() - (history[-1]["seconds"] if history else 0.0)
     std_error = {n: torch.tensor(v, dtype=torch.float64) for n, v in history[-1]["std_error"].items()} if history else {}
-    bar = tqdm(total=cfg.rounds, initial=len(history), unit="round", disable=not progress or not is_main(), desc=f"fit ({cfg.solver})", file=sys.stderr, dynamic_ncols=True)
-    with bar:
+    with RoundsBar(cfg.rounds, len(history), cfg.solver, progress and is_main()) as bar:
         done = bool(history) and history[-1].get("converged", False)  # a resumed fit that had converged
         # on path records the rounds accumulate (least_squares.py: two independent accumulations,
         # A and B); a resumed fit re-records the earlier rounds' passes at their record points
@@ -430,6 +430,8 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
             passes.add(r, record_point if r == 0 else {n: torch.tensor(v, dtype=torch.float64) for n, v in history[r - 1]["params"].items()})
         for rnd in range(len(history), 0 if done else cfg.rounds):
             spp = cfg.spp * 4**rnd
+            bar.start(rnd, spp)
+            round_clock = time.perf_counter()
             if retrace:
                 seeds = [(cfg.seed * 1_000_003 + 2 * (rnd * len(views) + v), cfg.seed * 1_000_003 + 2 * (rnd * len(views) + v) + 1) for v in range(len(views))]
                 sol = retraced.solve([s for s, _ in views], [t for _, t in views], {n: current[n] for n in scene_names}, model=model, spp=spp, seeds=seeds, sampler=cfg.sampler, sensor=sensor, solver=cfg.solver)
@@ -463,11 +465,15 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
                 cfg.precision is None or all(bool((std_error[n] <= cfg.precision * current[n].abs()).all()) for n in names)
             )
             history.append(record)
-            bar.set_postfix(loss=f"{sol.loss:.4g}", lm_steps=sol.steps, moved=f"{moved:.2g} se", refresh=False)
-            bar.update(1)
+            # the round's seconds that grow with its samples (tracing; all of them when re-traced) and
+            # those that do not (the solve, less the one-off imports): the bar's time left
+            solving = 0.0 if retrace else sum(v for k, v in sol.seconds.items() if k != "import")
+            bar.finish(time.perf_counter() - round_clock if retrace else traced, solving, loss=f"{sol.loss:.4g}", lm_steps=sol.steps, moved=f"{moved:.2g} se")
             if checkpoint is not None:
                 _save_checkpoint(checkpoint, scene, names, cfg, len(history), history, values=current)
             if record["converged"]:
+                if rnd + 1 < cfg.rounds:
+                    bar.converged()
                 break
     if history and history[-1].get("undetermined"):
         warnings.warn(f"the targets do not determine these parameter combinations: {history[-1]['undetermined']}", stacklevel=3)

@@ -2,7 +2,8 @@
 
 Every image in invrender is a float tensor of shape (H, W, 3): linear RGB radiance (W sr^-1 m^-2 per
 channel, unitless scale), row 0 at the top. EXR files hold those values exactly (float32); PNG and
-JPEG files hold sRGB-encoded 8-bit values in [0, 1] and are converted to and from linear on the way.
+JPEG files hold sRGB-encoded 8-bit values in [0, 1] and are converted to and from linear on the way
+(written as a camera would store them: :func:`write_image`'s ``quality``).
 Radiance ``.hdr`` (RGBE) files are read as linear (through OpenCV), for environment maps.
 :func:`read_photo` reads a file as a camera stored it (a fit target that is a photograph): its
 encoded values, bit depth, default camera response and alpha channel (:class:`Photo`), 8- and
@@ -27,19 +28,23 @@ from PIL import Image
 from invrender.errors import ImageError
 from invrender.io.atomic import atomic_file
 
-WRITE_SUFFIXES = (".exr", ".png")
+WRITE_SUFFIXES = (".exr", ".png", ".jpg", ".jpeg")
 READ_SUFFIXES = (".exr", ".hdr", ".png", ".jpg", ".jpeg")
 
 
-def write_image(path: str | os.PathLike, image: torch.Tensor) -> None:
+def write_image(path: str | os.PathLike, image: torch.Tensor, quality: int = 95) -> None:
     """Write a linear-radiance image to ``path``, atomically.
 
     Args:
         path: target file; ``.exr`` stores float32 R, G, B channels exactly, ``.png`` stores the
-            image sRGB-encoded, clipped to [0, 1], 8 bits per channel. Missing parent directories
-            are created.
+            image sRGB-encoded, clipped to [0, 1], 8 bits per channel, and ``.jpg``/``.jpeg`` the
+            same 8-bit sRGB values JPEG-compressed, as a camera stores a photograph (Pillow's
+            encoder, no chroma subsampling). Missing parent directories are created.
         image: (H, W, 3) or (H, W) float tensor of linear radiance, row 0 at the top, on any device;
             gradients are ignored. A (H, W) image is written as grey.
+        quality: JPEG quality, 1 (smallest file) to 100 (Pillow's scale); other formats ignore it.
+            For a camera's exposure, white balance and response applied first, see
+            :func:`invrender.inverse.sensor.photograph` and :func:`write_photo`.
 
     The image goes to a temporary file in the target's directory which then replaces the target, so a
     failed write leaves any existing target untouched and no partial file behind.
@@ -51,6 +56,8 @@ def write_image(path: str | os.PathLike, image: torch.Tensor) -> None:
     suffix = path.suffix.lower()
     if suffix not in WRITE_SUFFIXES:
         raise ImageError(f"cannot write image {path}: unknown suffix {suffix!r}, expected one of {', '.join(WRITE_SUFFIXES)}")
+    if isinstance(quality, bool) or not isinstance(quality, int) or not 1 <= quality <= 100:
+        raise ImageError(f"cannot write image {path}: quality must be an integer from 1 to 100, got {quality!r}")
     rgb = _to_rgb_array(image, path)
 
     parent = path.parent
@@ -62,7 +69,10 @@ def write_image(path: str | os.PathLike, image: torch.Tensor) -> None:
         raise ImageError(f"cannot write image {path}: cannot create directory {parent}: {e.strerror or e}") from None
     try:
         with atomic_file(path) as f:
-            (_write_exr if suffix == ".exr" else _write_png)(f, rgb)
+            if suffix == ".exr":
+                _write_exr(f, rgb)
+            else:
+                _write_srgb8(f, rgb, "PNG" if suffix == ".png" else "JPEG", quality)
     except Exception as e:  # OSError, or OpenEXR's RuntimeError; atomic_file left no temporary file
         raise ImageError(f"cannot write image {path}: {_reason(e)}") from None
 
@@ -141,10 +151,12 @@ def to_srgb(image: torch.Tensor) -> torch.Tensor:
     return kornia.color.linear_rgb_to_rgb(linear).clamp(0.0, 1.0).permute(1, 2, 0)
 
 
-def _write_png(f, rgb: np.ndarray) -> None:
-    """Write (H, W, 3) linear ``rgb`` to the binary file ``f`` as an 8-bit sRGB PNG."""
+def _write_srgb8(f, rgb: np.ndarray, format: str, quality: int) -> None:
+    """Write (H, W, 3) linear ``rgb`` to the binary file ``f`` as 8-bit sRGB codes, ``format``
+    ``"PNG"`` or ``"JPEG"`` (at ``quality``, chroma not subsampled: 4:4:4)."""
     srgb = to_srgb(torch.from_numpy(rgb)).numpy()
-    Image.fromarray(np.round(srgb * 255.0).astype(np.uint8), mode="RGB").save(f, format="PNG")
+    codes = Image.fromarray(np.round(srgb * 255.0).astype(np.uint8), mode="RGB")
+    codes.save(f, format=format, **({"quality": quality, "subsampling": "4:4:4"} if format == "JPEG" else {}))
 
 
 def _read_exr(path: Path) -> torch.Tensor:

@@ -27,6 +27,7 @@ from pathlib import Path
 import torch
 
 from invrender.errors import ParameterError
+from invrender.transport import first_use
 
 #: the environment variable choosing the embree backend's queries: ``packets`` (default) or ``embreex``
 ENV = "INVRENDER_EMBREE"
@@ -78,7 +79,7 @@ def _build_and_load() -> tuple[ctypes.CDLL | None, str]:
     if not target.exists():
         try:
             target.parent.mkdir(parents=True, exist_ok=True)
-            with tempfile.TemporaryDirectory(dir=target.parent) as tmp:
+            with tempfile.TemporaryDirectory(dir=target.parent) as tmp, first_use.compiling("the Embree packet wrapper", cached=False):
                 built = Path(tmp) / target.name
                 run = subprocess.run([compiler, *flags, str(SOURCE), "-o", str(built), "-lembree3"], capture_output=True, text=True, timeout=300)
                 if run.returncode != 0:

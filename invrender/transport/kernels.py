@@ -33,7 +33,7 @@ import threading
 import torch
 
 from invrender.errors import ParameterError
-from invrender.transport import packages
+from invrender.transport import first_use, packages
 
 #: set INVRENDER_KERNELS=torch to run the torch reference expressions instead of the Warp kernels,
 #: INVRENDER_KERNELS=steps for the kernels of single steps without the fused bounce
@@ -83,7 +83,8 @@ _loading = threading.Lock()  # one thread at a time redirects stderr and compile
 def load(device: torch.device, module: str = KERNELS) -> None:
     """Compile (or load from Warp's cache) the kernels of ``module`` (default: the fused kernels',
     when they are :func:`enabled`) for ``device``, once per process, before render threads launch
-    them. Nothing is printed, compiler warnings included."""
+    them. Warp's own output, compiler warnings included, is silenced; a compile (not a load from
+    the cache) is announced in one line and its time counted (:mod:`invrender.transport.first_use`)."""
     key = (module, str(device))
     if key in _loaded or (module == KERNELS and not enabled(device)):
         return
@@ -91,9 +92,23 @@ def load(device: torch.device, module: str = KERNELS) -> None:
     with _loading:
         if key in _loaded:
             return
-        with wk.quiet_stderr():
-            wk.wp.load_module(sys.modules[module], device=wk.wp.device_from_torch(device))
+        wp_device = wk.wp.device_from_torch(device)
+        what = f"the {'render' if module == KERNELS else module.rsplit('.', 1)[-1]} kernels (Warp, {device.type})"
+        with first_use.compiling(what, _cached(wk.wp, module, wp_device)):
+            with wk.quiet_stderr():
+                wk.wp.load_module(sys.modules[module], device=wp_device)
         _loaded.add(key)
+
+
+def _cached(wp, module: str, device) -> bool:
+    """Is ``module`` compiled for ``device`` in Warp's kernel cache already? Warp keeps each build
+    in a folder named by the module's identifier (a hash of its code and its block size, 1 on the
+    CPU); True where that cannot be told (nothing is announced then)."""
+    try:
+        identifier = wp.get_module(module).get_module_identifier(block_dim=1 if device.is_cpu else None)
+        return os.path.isdir(os.path.join(wp.config.kernel_cache_dir, identifier))
+    except Exception:  # another Warp's internals: say nothing rather than something false
+        return True
 
 
 def launch(kernel, n: int, inputs: list, device: torch.device) -> None:

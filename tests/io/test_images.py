@@ -82,6 +82,33 @@ def test_jpeg_is_read_as_linear(tmp_path):
     assert torch.allclose(read_image(tmp_path / "w.jpg"), torch.ones(2, 3, 3))
 
 
+@pytest.mark.parametrize("name", ["p.jpg", "p.JPEG"])
+def test_jpeg_is_written_as_srgb_8_bit_at_its_quality(tmp_path, name):
+    """A smooth linear ramp written as a camera stores it: sRGB codes (0.5 -> 188), JPEG-compressed;
+    a higher quality gives a larger file closer to the image."""
+    ramp = torch.linspace(0, 1, 64)
+    img = torch.stack([ramp[None, :].expand(32, 64), ramp[:, None].expand(64, 64)[:32], torch.full((32, 64), 0.5)], -1)
+    sizes, errors = [], []
+    for quality in (30, 95):
+        path = tmp_path / f"q{quality}" / name
+        write_image(path, img, quality=quality)
+        with Image.open(path) as im:
+            assert im.format == "JPEG" and im.mode == "RGB" and im.size == (64, 32)
+            codes = np.asarray(im).astype(int)
+        assert abs(codes[..., 2].mean() - 188) < 1.5  # 0.5 linear is sRGB code 188
+        sizes.append(path.stat().st_size)
+        errors.append(float((read_image(path) - img).abs().mean()))
+    assert sizes[1] > sizes[0] and errors[1] < errors[0] < 0.05
+    assert errors[1] < 0.005
+
+
+@pytest.mark.parametrize("quality", [0, 101, 9.5, True])
+def test_jpeg_quality_out_of_range_raises(tmp_path, quality):
+    with pytest.raises(ImageError, match=rf"a\.jpg.*quality must be an integer from 1 to 100, got {quality!r}"):
+        write_image(tmp_path / "a.jpg", torch.ones(2, 2, 3), quality=quality)
+    assert _leftovers(tmp_path, set()) == []
+
+
 def test_missing_parent_directories_are_created(tmp_path):
     write_image(tmp_path / "runs" / "x" / "img.exr", torch.ones(2, 2, 3))
     assert (tmp_path / "runs" / "x" / "img.exr").is_file()
@@ -148,12 +175,12 @@ def test_read_only_directory_raises(tmp_path):
         ro.chmod(0o755)
 
 
-@pytest.mark.parametrize("name,writer", [("t.exr", "_write_exr"), ("t.png", "_write_png")])
+@pytest.mark.parametrize("name,writer", [("t.exr", "_write_exr"), ("t.png", "_write_srgb8"), ("t.jpg", "_write_srgb8")])
 def test_failing_write_leaves_existing_target_untouched(tmp_path, monkeypatch, name, writer):
     target = tmp_path / name
     target.write_bytes(b"precious")
 
-    def fail(f, rgb):
+    def fail(f, rgb, *args):
         f.write(b"partial")
         raise OSError(28, "No space left on device")
 

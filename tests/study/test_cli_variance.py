@@ -38,6 +38,15 @@ def test_furnace_check_writes_its_table(tmp_path, capsys):
     assert {"check.md", "check.json", "results.csv", "variance.png", "bias.png"} <= {p.name for p in out.iterdir()}
 
 
+def test_out_defaults_to_runs_variance_scene(tmp_path, capsys, monkeypatch):
+    """``invrender variance furnace`` as the README writes it, without --out: into runs/variance/furnace."""
+    monkeypatch.chdir(tmp_path)
+    args = ["variance", "furnace", "--resolution", "4x4", "--spp", "1", "--trials", "3", "--configs", "path/replay/correlated", "--params", "glow.emission", "--quiet"]
+    code, _, err = run(args, capsys)
+    assert code == 0, err
+    assert {"check.md", "results.csv"} <= {p.name for p in (tmp_path / "runs" / "variance" / "furnace").iterdir()}
+
+
 @pytest.mark.parametrize(
     "extra, words",
     [

@@ -20,7 +20,7 @@ import torch
 from invrender import registry
 from invrender.errors import ParameterError
 from invrender.scene.scene import Scene
-from invrender.transport import fused
+from invrender.transport import first_use, fused
 from invrender.transport.accel import RepeatedQueries
 from invrender.transport.bsdfs import BSDFSampling
 from invrender.transport.context import PathState, TransportContext
@@ -180,7 +180,8 @@ class Integrator(ABC):
     def context(self, scene: Scene, settings: RenderSettings, device: torch.device, params: dict | None = None) -> TransportContext:
         """The prepared :class:`TransportContext` of one render."""
         threads = 1 if cpu_workers(device) > 1 else None
-        ctx = TransportContext.build(scene, device, settings.backend, threads, params, self.bsdf_sampling, settings.sampling_params)
+        with first_use.announcing(settings.progress):  # a first use's compiles say so where progress shows
+            ctx = TransportContext.build(scene, device, settings.backend, threads, params, self.bsdf_sampling, settings.sampling_params)
         if getattr(self.settings, "hide_emitters", False):  # settings without it (a plugin's own) show emitters
             ctx = dataclasses.replace(ctx, hide_emitters=True)
         return self.prepare(ctx)
