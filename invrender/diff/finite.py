@@ -52,5 +52,5 @@ def check_image(image: torch.Tensor) -> torch.Tensor:
     nan, inf = int(torch.isnan(values).any(-1).sum()), int(torch.isinf(values).any(-1).sum())
     raise NonFiniteError(
         f"the render has {int((~finite).sum())} of {finite.numel()} pixels not finite ({nan} with NaN, {inf} with inf) although every parameter is finite: "
-        "a degenerate triangle, a material or emitter plugin, or the integrator produced them"
+        "radiance beyond float32's range, a degenerate triangle, a material or emitter plugin, or the integrator produced them"
     )
