@@ -20,10 +20,11 @@ Barycentrics follow Embree: the hit point is ``p0 + u e1 + v e2``.
 Rays that cannot be traced are misses, on every backend: a ray with a component of its origin or
 direction that is NaN, infinite or larger in magnitude than :data:`RAY_LIMIT` has no closest hit
 (``t = inf``, ``prim = -1``) and is not occluded. :class:`Intersector`, the base of every backend,
-answers them before the backend's own query sees them (Embree built with assertions, as Debian's
-Embree 3 is, aborts the whole process on such a ray; Warp reports hits at ``t = 0`` for infinite
-directions), so a NaN from a parameter, a degenerate triangle or a plugin costs those paths, not
-the process. A shadow ray whose distance is not positive (or is NaN) is not traced: not occluded.
+answers them before the backend's own query sees them, unless the backend checks its lanes itself
+(Embree's packet wrapper and Warp's kernels do, at no cost). Embree built with assertions, as
+Debian's Embree 3 is, aborts the whole process on such a ray, and Warp reported hits at ``t = 0``
+for infinite directions; so a NaN from a parameter, a degenerate triangle or a plugin costs those
+paths, not the process. A shadow ray whose distance is not positive (or is NaN) is not traced: not occluded.
 
 Geometry never changes once a scene is built, so :func:`intersector_for` builds each backend's
 acceleration structure once per geometry and keeps it with the triangles
@@ -108,14 +109,25 @@ def _stand_ins(o: torch.Tensor, d: torch.Tensor, ok: torch.Tensor) -> tuple[torc
 class Intersector:
     """The base of every backend: the two queries, with untraceable rays (:func:`traceable`)
     answered as misses before the backend's own ``_intersect`` / ``_occluded`` is asked, so no
-    backend can be handed one. ``name``: the backend's name."""
+    backend can be handed one unless it says it checks its rays itself.
+
+    Attributes:
+        name: the backend's name.
+        checks_rays: True where the backend's own queries answer untraceable rays as misses in
+            the lanes that trace them (Embree's packets, Warp's kernels), where the check costs
+            nothing, while this class's costs a pass over the rays and, off the CPU, elementwise
+            masking (a render of the Cornell box spent 6% of its time in it with Embree's
+            packets). The test of every backend (tests/transport/test_nonfinite.py) holds those
+            that say so to it.
+    """
 
     name = ""
+    checks_rays = False
 
     def intersect(self, o: torch.Tensor, d: torch.Tensor) -> Hits:
         """Closest hits of rays with origins ``o`` (N, 3) and unit directions ``d`` (N, 3); a miss
         (``t = inf``, ``prim = -1``, ``u = v = 0``) where the ray cannot be traced."""
-        ok = _untraceable_lanes(o, d)
+        ok = None if self.checks_rays else _untraceable_lanes(o, d)
         if ok is None:
             return self._intersect(o, d)
         hits = self._intersect(*_stand_ins(o, d, ok))
@@ -125,7 +137,7 @@ class Intersector:
     def occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
         """(N,) bool: does anything lie along each ray strictly before ``tmax`` (N,)? False where
         ``tmax`` is not positive or NaN (not traced) and where the ray cannot be traced."""
-        ok = _untraceable_lanes(o, d)
+        ok = None if self.checks_rays else _untraceable_lanes(o, d)
         if ok is None:
             return self._occluded(o, d, tmax)
         o, d = _stand_ins(o, d, ok)
@@ -150,6 +162,7 @@ class EmbreeIntersector(Intersector):
         self._packets = self._scene = None
         if lib is not None:
             self._packets = embree_native.PacketScene(lib, triangles.corners())
+            self.checks_rays = True  # the wrapper's lanes (embree_packets.cpp: traceable)
         else:
             packages.require("embreex", "the embree intersection backend", f"{embree_native.INSTALL_HINT} for Embree's packets, or use backend 'torch'")
             if why:
@@ -210,6 +223,7 @@ class WarpIntersector(Intersector):
     """NVIDIA Warp's BVH on the triangles' device (CUDA or CPU); rays must be on that device."""
 
     name = "warp"
+    checks_rays = True  # its kernels (warp_bvh.traceable)
 
     def __init__(self, triangles: Triangles):
         from invrender.transport.warp_bvh import WarpBVH
