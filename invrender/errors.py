@@ -38,3 +38,8 @@ class MissingPackageError(InvRenderError):
 
 class BaselineError(InvRenderError):
     """A baseline renderer (pyrender) or an OpenGL context for it is not available."""
+
+
+class NonFiniteError(InvRenderError):
+    """A render or a fit produced a non-finite value (NaN or inf radiance, loss or parameter); the
+    message names where: the pixel count, the parameter, the step."""

@@ -19,6 +19,7 @@ import torch
 
 from invrender.diff.autodiff import autodiff_render
 from invrender.diff.defaults import report, scene_integrator, scene_spp
+from invrender.diff.finite import check_image, check_params
 from invrender.errors import ParameterError
 from invrender.scene.scene import Scene
 from invrender.transport.adaptive import AdaptiveSettings
@@ -136,7 +137,13 @@ def render(
         float32 linear radiance, (H, W, 3) with row 0 at the top; (K, H, W, 3) with ``terms``.
         Differentiable in any ``scene.params`` entry that requires grad. With ``return_counts``
         an :class:`~invrender.transport.adaptive.AdaptiveResult`.
+    Raises:
+        ParameterError: a ``scene.params`` (or ``sampling_params``) value holds a NaN or inf (named;
+            checked before any work).
+        NonFiniteError: the image has pixels that are not finite (their count; docs/rendering.md).
     """
+    check_params(scene.params)
+    check_params(sampling_params or {}, "sampling parameter")
     for key, value in (("max_depth", max_depth), ("rr_depth", rr_depth)):
         if value is not None:
             options[key] = value
@@ -156,16 +163,17 @@ def render(
         from invrender.diff.adaptive import render_adaptive
 
         result = render_adaptive(scene, model, settings, adaptive, device, differentiable, estimator)
+        check_image(result.image)
         return result if return_counts else result.image
     if differentiable and estimator == "replay":
         if terms:
             raise ParameterError("terms=True is not available with estimator='replay'; use estimator='autodiff'")
         from invrender.diff.replay import replay_render
 
-        return replay_render(scene, model, settings, device, differentiable)
+        return check_image(replay_render(scene, model, settings, device, differentiable))
     if differentiable:
-        return autodiff_render(scene, model, settings, device, differentiable)
-    return model.render(scene, settings, device)
+        return check_image(autodiff_render(scene, model, settings, device, differentiable))
+    return check_image(model.render(scene, settings, device))
 
 
 def backpropagate(scene: Scene, grad_image: torch.Tensor, integrator: Integrator, settings: RenderSettings, estimator: str = "replay", device=None) -> None:
@@ -177,6 +185,7 @@ def backpropagate(scene: Scene, grad_image: torch.Tensor, integrator: Integrator
     takes ``grad_image = dl/dI`` from another render); ``autodiff`` has to record a forward render;
     ``auto`` picks one by memory (:func:`resolve_estimator`). ``grad_image``: (H, W, 3).
     """
+    check_params(scene.params)
     device = _device(scene, device)
     names = [k for k, v in scene.params.items() if v.requires_grad]
     estimator = resolve_estimator(_check_estimator(estimator), scene, integrator, settings, device, names)

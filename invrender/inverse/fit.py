@@ -14,6 +14,7 @@ parameters fitted when named (``sensor.exposure``, ``sensor.white_balance``); do
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 import os
@@ -28,7 +29,8 @@ from tqdm.auto import tqdm
 
 from invrender.diff import ESTIMATOR_CHOICES, backpropagate, render
 from invrender.diff.defaults import fit_settings
-from invrender.errors import ParameterError
+from invrender.diff.finite import check_params, nonfinite_params
+from invrender.errors import NonFiniteError, ParameterError
 from invrender.inverse import params as P
 from invrender.inverse.control_variates import RecursiveControlVariate
 from invrender.inverse.least_squares import SOLVERS
@@ -299,6 +301,7 @@ def fit(
     if unknown:
         raise ParameterError(f"unknown fit setting {sorted(unknown)[0]!r} (known: {', '.join(sorted(known))})")
     names = _check_fit_names(scene, params)
+    check_params(scene.params)  # the starting values (and the fixed ones): a NaN would be every step's
     checkpoint = Path(checkpoint) if checkpoint is not None else None
     state = None
     if resume:
@@ -341,14 +344,32 @@ def fit(
                 for group, lr in zip(optimizer.param_groups, base_lr):
                     group["lr"] = lr * cfg.lr_factor(step)
                 optimizer.zero_grad(set_to_none=True)
-                loss = sum(
-                    _view_loss(view_scene, {n: P.from_raw(n, raw[n]) for n in scene_names}, view_target, cfg, step, v, len(views), variates[v], _gain(raw, sensor, v))  # a fresh graph per view
-                    for v, (view_scene, view_target) in enumerate(views)
-                )
-                if step == 0:
-                    P.warn_unused({n: raw[n].grad for n in scene_names})
-                optimizer.step()
-                record = _record(step, float(loss), cfg.spp_at(step), time.perf_counter() - clock, _values(raw, scene_names, sensor, names), truth)
+                try:
+                    loss = float(
+                        sum(
+                            _view_loss(view_scene, {n: P.from_raw(n, raw[n]) for n in scene_names}, view_target, cfg, step, v, len(views), variates[v], _gain(raw, sensor, v))  # a fresh graph per view
+                            for v, (view_scene, view_target) in enumerate(views)
+                        )
+                    )
+                    what = _nonfinite_step(loss, {n: raw[n].grad for n in raw if raw[n].grad is not None}, names)
+                except NonFiniteError as e:  # a render with non-finite pixels
+                    what = str(e)
+                if what is None:
+                    if step == 0:
+                        P.warn_unused({n: raw[n].grad for n in scene_names})
+                    before = copy.deepcopy((_leaves(raw), optimizer.state_dict())) if checkpoint is not None else None
+                    optimizer.step()
+                    values = _values(raw, scene_names, sensor, names)
+                    bad = nonfinite_params(values) or nonfinite_params(raw)  # a value exp() overflowed, or a leaf
+                    if bad:  # the update itself overflowed (a learning rate far too large): undo it
+                        what = f"Adam's step made {_named(bad, names)} not finite (learning rate too large?)"
+                        if before is not None:
+                            _load_adam(*before, raw, optimizer)
+                if what is not None:  # the state after the last step, which was good, is kept
+                    if checkpoint is not None:
+                        _save_checkpoint(checkpoint, scene, names, cfg, len(history), history, **_adam_state(raw, optimizer, variates))
+                    raise _stopped(step, what, checkpoint, len(history))
+                record = _record(step, loss, cfg.spp_at(step), time.perf_counter() - clock, values, truth)
                 history.append(record)
                 bar.set_postfix(loss=f"{record['loss']:.4g}", refresh=False)
                 bar.update(1)
@@ -368,6 +389,39 @@ def fit(
 
 #: the key of the sensor's free log variables among Adam's leaves (and in checkpoints)
 SENSOR_RAW = "sensor"
+
+
+def _named(bad: dict, names: list[str]) -> str:
+    """The parameters of ``bad`` (Adam's leaf name -> count of non-finite entries) by their fitted
+    names: the sensor's leaf stands for the sensor parameters fitted."""
+    out = []
+    for leaf, count in bad.items():
+        label = ", ".join(repr(n) for n in names if is_sensor(n)) if leaf == SENSOR_RAW else repr(leaf)
+        out.append(f"{label} ({count} value{'s' if count > 1 else ''})")
+    return ("parameters " if len(out) > 1 else "parameter ") + ", ".join(out)
+
+
+def _nonfinite_step(loss: float, grads: dict, names: list[str]) -> str | None:
+    """What is not finite in a step before Adam's update (the loss, then the gradients by
+    parameter), or None when both are."""
+    if not math.isfinite(loss):
+        return f"the loss is {loss}"
+    bad = nonfinite_params(grads)
+    return f"the gradient of {_named(bad, names)} is not finite" if bad else None
+
+
+def _stopped(step: int, what: str, checkpoint: Path | None, saved: int | None, unit: str = "step") -> NonFiniteError:
+    """The one-line error that stops a fit at step (or round: ``unit``) ``step`` (0-based) because
+    ``what`` is not finite, saying which checkpoint holds the last good state (after ``saved``
+    steps; None: none was written)."""
+    if checkpoint is None:
+        kept = " (no checkpoint: give one to keep the last good state)"
+    elif saved is None:
+        kept = f"; no {unit} had finished, so no checkpoint was written ({checkpoint} is left as it was)"
+    else:
+        state = f"after {unit} {saved}" if saved else "the starting values"
+        kept = f"; the last good state ({state}) is kept in checkpoint {checkpoint}"
+    return NonFiniteError(f"fit stopped at {unit} {step + 1}: {what}{kept}")
 
 
 def _check_fit_names(scene: Scene, params) -> list[str]:
@@ -441,7 +495,10 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
                 tick = time.perf_counter()
                 passes.add(rnd, current)
                 traced = time.perf_counter() - tick
-                sol = _solve_on_records(views, passes, current, cfg, prior, sensor, ambiguities)
+                try:
+                    sol = _solve_on_records(views, passes, current, cfg, prior, sensor, ambiguities)
+                except NonFiniteError as e:  # the round's solve diverged: the rounds before it stand
+                    raise _stopped(rnd, str(e), checkpoint, len(history) if history else None, "round") from None
                 # nested rounds (round rnd holds every sample of round rnd - 1): the difference of
                 # their estimates is a weighted difference of the new samples' mean and the old ones',
                 # with variance se^2 (spp / previous spp - 1) (docs/fitting.md)
@@ -625,8 +682,13 @@ def _save_checkpoint(path: Path, scene, names, cfg, step: int, history: list[dic
         torch.save(state, f)
 
 
+def _leaves(raw: dict) -> dict:
+    """Copies of Adam's leaves (name -> tensor), detached."""
+    return {n: v.detach().clone() for n, v in raw.items()}
+
+
 def _adam_state(raw, optimizer, variates) -> dict:
-    state = {"raw": {n: v.detach().clone() for n, v in raw.items()}, "optimizer": optimizer.state_dict()}
+    state = {"raw": _leaves(raw), "optimizer": optimizer.state_dict()}
     if any(cv is not None for cv in variates):
         state["control_variates"] = [cv.state() for cv in variates]
     return state
@@ -634,11 +696,16 @@ def _adam_state(raw, optimizer, variates) -> dict:
 
 def _restore(state: dict, names, raw, optimizer) -> tuple[int, list[dict]]:
     """Adam's state from a checkpoint: the leaves and moments; returns (steps done, history)."""
-    with torch.no_grad():
-        for n in names:
-            raw[n].copy_(state["raw"][n])
-    optimizer.load_state_dict(state["optimizer"])
+    _load_adam({n: state["raw"][n] for n in names}, state["optimizer"], raw, optimizer)
     return int(state["step"]), list(state["history"])
+
+
+def _load_adam(leaves: dict, optimizer_state: dict, raw: dict, optimizer) -> None:
+    """Set Adam's leaves ``raw`` to ``leaves`` (name -> tensor) and its moments to ``optimizer_state``."""
+    with torch.no_grad():
+        for n, v in leaves.items():
+            raw[n].copy_(v)
+    optimizer.load_state_dict(optimizer_state)
 
 
 def _read_checkpoint(path: Path, scene, names) -> dict:

@@ -50,7 +50,7 @@ import numpy as np
 import torch
 
 from invrender.diff.records import PathRecords
-from invrender.errors import ParameterError
+from invrender.errors import NonFiniteError, ParameterError
 from invrender.inverse.sensor import Sensor
 from invrender.inverse.targets import Target
 from invrender.scene.kinds import kind_of
@@ -114,7 +114,8 @@ def _jax():
 def preload() -> None:
     """Start importing JAX and optimistix in a background thread (about 2 s, once a process), so
     that it overlaps with the work before the first solve (a fit's first records); the first
-    :func:`solve` waits for it (Python's import lock). A failed import is raised there."""
+    :func:`solve` waits for it (Python's import lock), and so does the interpreter's exit. A
+    failed import is raised there."""
     import threading
 
     def load():
@@ -123,7 +124,11 @@ def preload() -> None:
         except ParameterError:
             pass  # said again by the solve that needs them
 
-    threading.Thread(target=load, name="invrender-jax-import", daemon=True).start()
+    # not a daemon: the interpreter waits for the import at exit. A daemon thread still inside
+    # jaxlib's C++ when a failed fit ends the process is unwound by the interpreter's shutdown
+    # through frames that do not allow it, and the process aborts ("FATAL: exception not
+    # rethrown", exit 134) after the fit's own error message
+    threading.Thread(target=load, name="invrender-jax-import", daemon=False).start()
 
 
 @dataclass(frozen=True)
@@ -477,9 +482,10 @@ def _solve(jax, jnp, optx, dense, records_a, records_b, targets, start, solver, 
         x = torch.from_numpy(jax.device_get(sol.value).copy()).double()
     finally:
         del _PROBLEMS[handle]
-    if not bool(torch.isfinite(x).all()):
-        raise ParameterError(f"solver {solver!r} diverged (non-finite parameters); start closer or use 'lm', whose damping bounds its steps")
     rows, s = problem._split(x.numpy())
+    if not bool(torch.isfinite(x).all()):
+        bad = [repr(n) for n, a, b in layout._rows() if not bool(torch.isfinite(rows[a:b]).all())] + (["the sensor's values"] if not bool(torch.isfinite(s).all()) else [])
+        raise NonFiniteError(f"solver {solver!r} diverged: {', '.join(bad)} not finite after {int(sol.stats['num_steps'])} steps; start closer or use 'lm', whose damping bounds its steps")
     flat = layout.from_raw(rows)
     n = flat.numel()
     steps = int(sol.stats["num_steps"])

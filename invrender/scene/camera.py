@@ -72,6 +72,8 @@ class Camera:
             value = tuple(float(x) for x in getattr(self, name))
             if len(value) != 3:
                 raise SceneError(f"camera {name} must have 3 components, got {len(value)}")
+            if not all(math.isfinite(x) for x in value):
+                raise SceneError(f"camera {name} must be 3 finite numbers, got {list(value)}")
             object.__setattr__(self, name, value)
         object.__setattr__(self, "fov", float(self.fov))
         if not (0.0 < self.fov < 180.0):

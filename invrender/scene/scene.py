@@ -40,6 +40,10 @@ from invrender.scene.shapes import Mesh
 
 _DERIVED_LOCK = threading.RLock()
 
+#: largest magnitude of a vertex coordinate: triangles are float32, whose edges and normals overflow
+#: or lose every digit far sooner, and Embree traces no ray beyond about 1.8e18 (FLT_LARGE)
+MAX_COORDINATE = 1e18
+
 #: the parameter holding the ambient radiance eps0 of the Utah approximation ("ambient" is reserved)
 AMBIENT = "ambient.emission"
 
@@ -354,6 +358,8 @@ def build_scene(
             raise SceneError(f"mesh arrays must be vertices (V, 3) and faces (F, 3), got {v.shape} and {f.shape}")
         if not np.isfinite(v).all():
             raise SceneError("mesh has non-finite vertex positions")
+        if v.size and np.abs(v).max() > MAX_COORDINATE:
+            raise SceneError(f"mesh of material {mesh.material!r} has vertex coordinates up to {np.abs(v).max():.3g}, beyond +-{MAX_COORDINATE:g} (float32 geometry)")
         if f.size and (f.min() < 0 or f.max() >= len(v)):
             raise SceneError(f"mesh face index out of range: indices must be in [0, {len(v) - 1}], got [{f.min()}, {f.max()}]")
         uv = np.zeros((len(v), 2)) if mesh.uvs is None else np.asarray(mesh.uvs, dtype=np.float64)

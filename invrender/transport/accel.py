@@ -17,6 +17,15 @@ same answers up to float rounding:
 
 Barycentrics follow Embree: the hit point is ``p0 + u e1 + v e2``.
 
+Rays that cannot be traced are misses, on every backend: a ray with a component of its origin or
+direction that is NaN, infinite or larger in magnitude than :data:`RAY_LIMIT` has no closest hit
+(``t = inf``, ``prim = -1``) and is not occluded. :class:`Intersector`, the base of every backend,
+answers them before the backend's own query sees them, unless the backend checks its lanes itself
+(Embree's packet wrapper and Warp's kernels do, at no cost). Embree built with assertions, as
+Debian's Embree 3 is, aborts the whole process on such a ray, and Warp reported hits at ``t = 0``
+for infinite directions; so a NaN from a parameter, a degenerate triangle or a plugin costs those
+paths, not the process. A shadow ray whose distance is not positive (or is NaN) is not traced: not occluded.
+
 Geometry never changes once a scene is built, so :func:`intersector_for` builds each backend's
 acceleration structure once per geometry and keeps it with the triangles
 (:meth:`~invrender.scene.scene.Triangles.derived`): renders, fit steps and gradient trials of one
@@ -65,7 +74,83 @@ class Hits:
         return Hits(*(x.index_select(0, index) for x in (self.t, self.prim, self.u, self.v)))
 
 
-class EmbreeIntersector:
+#: the largest magnitude of a ray's origin or direction components that is traced: Embree's
+#: ``FLT_LARGE`` (its ``RayK::valid``), mirrored in ``embree_packets.cpp``; rays beyond it are misses
+RAY_LIMIT = 1.844e18
+
+
+def traceable(o: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
+    """(N,) bool: True where every component of origin ``o`` (N, 3) and direction ``d`` (N, 3) is
+    finite and at most :data:`RAY_LIMIT` in magnitude (False for NaN: the comparison fails)."""
+    return (o.abs() <= RAY_LIMIT).all(1) & (d.abs() <= RAY_LIMIT).all(1)
+
+
+def _untraceable_lanes(o: torch.Tensor, d: torch.Tensor) -> torch.Tensor | None:
+    """None when every ray of ``o``, ``d`` (N, 3) is traceable, else :func:`traceable`'s (N,) mask.
+
+    On the CPU one dot product a tensor says so (about 1 ns a ray, 1-2% of an Embree query): the
+    sum of squares is at most ``RAY_LIMIT**2`` only when every component is finite and within the
+    limit (NaN compares false; a sum that overflows only sends the batch to the exact test). On
+    other devices that answer would wait for the device, so the mask is always computed and applied
+    there (elementwise, no synchronization)."""
+    if o.device.type == "cpu":
+        a, b = o.reshape(-1), d.reshape(-1)
+        if bool(torch.dot(a, a) + torch.dot(b, b) <= RAY_LIMIT**2):
+            return None
+    return traceable(o, d)
+
+
+def _stand_ins(o: torch.Tensor, d: torch.Tensor, ok: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``o``, ``d`` with the rays where ``ok`` (N,) is False replaced by a finite one (from the
+    world origin along +z), whose answer is then discarded."""
+    return torch.where(ok[:, None], o, 0.0), torch.where(ok[:, None], d, d.new_tensor((0.0, 0.0, 1.0)))
+
+
+class Intersector:
+    """The base of every backend: the two queries, with untraceable rays (:func:`traceable`)
+    answered as misses before the backend's own ``_intersect`` / ``_occluded`` is asked, so no
+    backend can be handed one unless it says it checks its rays itself.
+
+    Attributes:
+        name: the backend's name.
+        checks_rays: True where the backend's own queries answer untraceable rays as misses in
+            the lanes that trace them (Embree's packets, Warp's kernels), where the check costs
+            nothing, while this class's costs a pass over the rays and, off the CPU, elementwise
+            masking (a render of the Cornell box spent 6% of its time in it with Embree's
+            packets). The test of every backend (tests/transport/test_nonfinite.py) holds those
+            that say so to it.
+    """
+
+    name = ""
+    checks_rays = False
+
+    def intersect(self, o: torch.Tensor, d: torch.Tensor) -> Hits:
+        """Closest hits of rays with origins ``o`` (N, 3) and unit directions ``d`` (N, 3); a miss
+        (``t = inf``, ``prim = -1``, ``u = v = 0``) where the ray cannot be traced."""
+        ok = None if self.checks_rays else _untraceable_lanes(o, d)
+        if ok is None:
+            return self._intersect(o, d)
+        hits = self._intersect(*_stand_ins(o, d, ok))
+        miss = ~ok.to(hits.t.device)
+        return Hits(hits.t.masked_fill(miss, math.inf), hits.prim.masked_fill(miss, -1), hits.u.masked_fill(miss, 0.0), hits.v.masked_fill(miss, 0.0))
+
+    def occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
+        """(N,) bool: does anything lie along each ray strictly before ``tmax`` (N,)? False where
+        ``tmax`` is not positive or NaN (not traced) and where the ray cannot be traced."""
+        ok = None if self.checks_rays else _untraceable_lanes(o, d)
+        if ok is None:
+            return self._occluded(o, d, tmax)
+        o, d = _stand_ins(o, d, ok)
+        return self._occluded(o, d, torch.where(ok, tmax, 0.0)) & ok.to(tmax.device)
+
+    def _intersect(self, o: torch.Tensor, d: torch.Tensor) -> Hits:
+        raise NotImplementedError
+
+    def _occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
+        raise NotImplementedError
+
+
+class EmbreeIntersector(Intersector):
     """Intel Embree on the CPU: 16-ray packets through the compiled wrapper of
     :mod:`~invrender.transport.embree_native` where it builds, else embreex's single rays (the same
     answers up to float rounding); each batch split across threads, results moved to the rays' device."""
@@ -77,6 +162,7 @@ class EmbreeIntersector:
         self._packets = self._scene = None
         if lib is not None:
             self._packets = embree_native.PacketScene(lib, triangles.corners())
+            self.checks_rays = True  # the wrapper's lanes (embree_packets.cpp: traceable)
         else:
             packages.require("embreex", "the embree intersection backend", f"{embree_native.INSTALL_HINT} for Embree's packets, or use backend 'torch'")
             if why:
@@ -102,8 +188,7 @@ class EmbreeIntersector:
         bounds = np.linspace(0, n, self._threads + 1).astype(int)
         return [f.result() for f in [self._pool.submit(job, a, b) for a, b in zip(bounds[:-1], bounds[1:])]]
 
-    def intersect(self, o: torch.Tensor, d: torch.Tensor) -> Hits:
-        """Closest hits of rays with origins ``o`` (N, 3) and unit directions ``d`` (N, 3)."""
+    def _intersect(self, o: torch.Tensor, d: torch.Tensor) -> Hits:
         n, dev = o.shape[0], o.device
         if self._packets is not None:
             o, d = _cpu32(o), _cpu32(d)
@@ -121,9 +206,7 @@ class EmbreeIntersector:
         t = joined("tfar").masked_fill_(miss, math.inf)
         return Hits(*(a.to(dev) for a in (t, prim, joined("u"), joined("v"))))
 
-    def occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
-        """(N,) bool: does anything lie along each ray strictly before ``tmax`` (N,)? (False where
-        ``tmax`` is not positive.)"""
+    def _occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
         n, dev = o.shape[0], o.device
         if self._packets is not None:
             o, d, tmax = _cpu32(o), _cpu32(d), _cpu32(tmax)
@@ -136,26 +219,25 @@ class EmbreeIntersector:
         return (hit & torch.from_numpy(tmax > 0)).to(dev)
 
 
-class WarpIntersector:
+class WarpIntersector(Intersector):
     """NVIDIA Warp's BVH on the triangles' device (CUDA or CPU); rays must be on that device."""
 
     name = "warp"
+    checks_rays = True  # its kernels (warp_bvh.traceable)
 
     def __init__(self, triangles: Triangles):
         from invrender.transport.warp_bvh import WarpBVH
 
         self._bvh = WarpBVH(triangles.corners())
 
-    def intersect(self, o: torch.Tensor, d: torch.Tensor) -> Hits:
-        """Closest hits of rays with origins ``o`` (N, 3) and unit directions ``d`` (N, 3)."""
+    def _intersect(self, o: torch.Tensor, d: torch.Tensor) -> Hits:
         return Hits(*self._bvh.closest(o, d))
 
-    def occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
-        """(N,) bool: does anything lie along each ray strictly before ``tmax`` (N,)?"""
+    def _occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
         return self._bvh.occluded(o, d, tmax)
 
 
-class TorchIntersector:
+class TorchIntersector(Intersector):
     """Brute-force Moller-Trumbore in torch, on any device, blocked to bound memory."""
 
     name = "torch"
@@ -198,12 +280,10 @@ class TorchIntersector:
                 v_best[rs] = torch.where(better, v.gather(1, arg[:, None])[:, 0], v_best[rs])
         return Hits(t_best, prim, u_best, v_best)
 
-    def intersect(self, o: torch.Tensor, d: torch.Tensor) -> Hits:
-        """Closest hits of rays with origins ``o`` (N, 3) and unit directions ``d`` (N, 3)."""
+    def _intersect(self, o: torch.Tensor, d: torch.Tensor) -> Hits:
         return self._closest(o, d, None)
 
-    def occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
-        """(N,) bool: does anything lie along each ray strictly before ``tmax`` (N,)?"""
+    def _occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
         return self._closest(o, d, tmax).valid
 
 

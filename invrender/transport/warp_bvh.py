@@ -7,6 +7,10 @@ around it and nothing waits for the GPU between bounces. Imported only when the 
 for (without ``warp-lang``, a one-line :class:`~invrender.errors.MissingPackageError`): ``warp-lang``
 compiles its kernels on first use (a few seconds, then cached on disk).
 
+Rays with a NaN, infinite or huge component are not traced (a miss, not occluded), in the kernels
+themselves (:func:`traceable`, the rule of :func:`invrender.transport.accel.traceable`): Warp
+alone answered an infinite direction with a hit at ``t = 0``.
+
 Warp reports barycentrics as the weights of a triangle's first and second vertex; the backends'
 convention (Embree's) is the weights of the second and third, so the kernels convert.
 """
@@ -22,6 +26,20 @@ wp = packages.require("warp", "the warp intersection backend", "use backend 'tor
 kernels.warp_kernels()  # wp.init(), quietly, before the first wp.Mesh
 
 
+#: accel.RAY_LIMIT: rays with a component beyond it (or NaN, or infinite) are not traced
+RAY_LIMIT = wp.constant(1.844e18)
+
+
+@wp.func
+def traceable(o: wp.vec3, d: wp.vec3) -> bool:
+    """Every component of origin ``o`` and direction ``d`` finite and within RAY_LIMIT (false for NaN)."""
+    ok = True
+    for j in range(3):
+        if not (wp.abs(o[j]) <= RAY_LIMIT and wp.abs(d[j]) <= RAY_LIMIT):
+            ok = False
+    return ok
+
+
 @wp.kernel
 def _closest_kernel(
     mesh: wp.uint64,
@@ -33,24 +51,24 @@ def _closest_kernel(
     v: wp.array(dtype=wp.float32),
 ):
     i = wp.tid()
-    q = wp.mesh_query_ray(mesh, o[i], d[i], 3.0e38)
-    if q.result:
-        t[i] = q.t
-        prim[i] = wp.int64(q.face)
-        u[i] = q.v  # weight of the second vertex
-        v[i] = 1.0 - q.u - q.v  # weight of the third
-    else:
-        t[i] = wp.inf
-        prim[i] = wp.int64(-1)
-        u[i] = 0.0
-        v[i] = 0.0
+    t[i] = wp.inf  # a miss, unless the ray is traced and hits
+    prim[i] = wp.int64(-1)
+    u[i] = 0.0
+    v[i] = 0.0
+    if traceable(o[i], d[i]):
+        q = wp.mesh_query_ray(mesh, o[i], d[i], 3.0e38)
+        if q.result:
+            t[i] = q.t
+            prim[i] = wp.int64(q.face)
+            u[i] = q.v  # weight of the second vertex
+            v[i] = 1.0 - q.u - q.v  # weight of the third
 
 
 @wp.kernel
 def _occluded_kernel(mesh: wp.uint64, o: wp.array(dtype=wp.vec3), d: wp.array(dtype=wp.vec3), tmax: wp.array(dtype=wp.float32), hit: wp.array(dtype=wp.bool)):
     i = wp.tid()
     hit[i] = False
-    if tmax[i] > 0.0:  # else not traced (Intersector.occluded)
+    if tmax[i] > 0.0 and traceable(o[i], d[i]):  # else not traced (accel.Intersector)
         hit[i] = wp.mesh_query_ray_anyhit(mesh, o[i], d[i], tmax[i])
 
 

@@ -83,6 +83,7 @@ another error class (recipes raise ParameterError) convert it.
 
 from __future__ import annotations
 
+import math
 import tomllib
 from pathlib import Path
 
@@ -349,6 +350,8 @@ def number(doc: dict, key: str, where: str, required: bool = False) -> float:
     value = doc.get(key)
     if not is_number(value):
         raise SceneError(f"{where}: '{key}' must be a number, got {show(value)}")
+    if not math.isfinite(value):
+        raise SceneError(f"{where}: '{key}' must be a finite number, got {show(value)}")
     return float(value)
 
 
@@ -375,7 +378,11 @@ def vector(doc: dict, key: str, where: str, length: int = 3, required: bool = Fa
         raise SceneError(f"{where}: missing required key '{key}' ({expected})")
     value = doc.get(key)
     if scalar_ok and is_number(value):
+        if not math.isfinite(value):
+            raise SceneError(f"{where}: '{key}' must be finite, got {show(value)}")
         return float(value)
     if not isinstance(value, list) or len(value) != length or not all(is_number(x) for x in value):
         raise SceneError(f"{where}: '{key}' must be {expected}, got {show(value)}")
+    if not all(math.isfinite(x) for x in value):
+        raise SceneError(f"{where}: '{key}' must be {length} finite numbers, got {show(value)}")
     return [float(x) for x in value]
