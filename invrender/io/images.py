@@ -12,8 +12,6 @@ Every failure raises :class:`~invrender.errors.ImageError` with a one-line messa
 
 from __future__ import annotations
 
-import contextlib
-import io
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +24,7 @@ from PIL import Image
 
 from invrender.errors import ImageError
 from invrender.io.atomic import atomic_file
+from invrender.io.native import last_line, native_output
 
 WRITE_SUFFIXES = (".exr", ".png")
 READ_SUFFIXES = (".exr", ".hdr", ".png", ".jpg", ".jpeg")
@@ -149,36 +148,49 @@ def _write_png(f, rgb: np.ndarray) -> None:
 
 def _read_exr(path: Path) -> torch.Tensor:
     """Read an EXR file's first part as a (H, W, 3) float32 tensor."""
-    # On bad pixel data (e.g. a truncated file) OpenEXR prints a "Warning: ..." line to sys.stdout and
-    # returns a File with no parts; catch that line so it becomes the error message, not stray output.
-    printed = io.StringIO()
-    with contextlib.redirect_stdout(printed), OpenEXR.File(str(path), separate_channels=True) as f:
-        if not f.parts:
-            reason = printed.getvalue().strip().splitlines()[-1:] or ["no readable parts"]
-            raise ImageError(f"cannot read image {path}: corrupt or truncated EXR pixel data ({reason[0]})")
-        channels = f.channels()
-        if all(c in channels for c in "RGB"):
-            planes = [channels[c].pixels for c in "RGB"]
-        elif "Y" in channels:
-            planes = [channels["Y"].pixels] * 3
+    # On bad pixel data (e.g. a truncated file) OpenEXR's C core writes a line to descriptor 2 and its
+    # binding a "Warning: ..." line to sys.stdout, and it returns a File with no parts: both lines
+    # are caught, the last becomes the error's reason.
+    with native_output() as printed:
+        try:
+            with OpenEXR.File(str(path), separate_channels=True) as f:
+                channels = {name: c.pixels for name, c in f.channels().items()} if f.parts else None
+        except Exception as e:
+            error = e
         else:
-            raise ImageError(f"cannot read image {path}: no R, G, B or Y channels (found {', '.join(sorted(channels)) or 'none'})")
-        rgb = np.stack([np.asarray(p, dtype=np.float32) for p in planes], axis=-1)
+            error = None
+    if error is not None:
+        raise ImageError(f"cannot read image {path}: not a valid EXR file ({last_line(printed, _reason(error))})")
+    if channels is None:
+        raise ImageError(f"cannot read image {path}: corrupt or truncated EXR pixel data ({last_line(printed, 'no readable parts')})")
+    if all(c in channels for c in "RGB"):
+        planes = [channels[c] for c in "RGB"]
+    elif "Y" in channels:
+        planes = [channels["Y"]] * 3
+    else:
+        raise ImageError(f"cannot read image {path}: no R, G, B or Y channels (found {', '.join(sorted(channels)) or 'none'})")
+    rgb = np.stack([np.asarray(p, dtype=np.float32) for p in planes], axis=-1)
     return torch.from_numpy(rgb)
+
+
+def _cv2_read(path: Path, flags: int, what: str) -> np.ndarray:
+    """``cv2.imread(path, flags)`` with OpenCV's and libpng's own messages caught (not printed):
+    the array, or an :class:`ImageError` naming the file, with the library's last message."""
+    import cv2  # lazily: only .hdr files and photographs read as codes need it
+
+    with native_output() as printed:
+        data = cv2.imread(str(path), flags)
+    if data is None:
+        raise ImageError(f"cannot read image {path}: not a valid {what} file" + (f" ({printed[-1]})" if printed else ""))
+    return data
 
 
 def _read_hdr(path: Path) -> torch.Tensor:
     """Read a Radiance RGBE (.hdr) file as a (H, W, 3) float32 linear tensor (OpenCV's reader, which
     gives BGR)."""
-    import cv2  # lazily: only .hdr files need it
+    import cv2
 
-    log = cv2.utils.logging
-    level = log.getLogLevel()
-    log.setLogLevel(log.LOG_LEVEL_SILENT)  # a bad file: our one-line error, not OpenCV's log lines
-    try:
-        bgr = cv2.imread(str(path), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_COLOR)
-    finally:
-        log.setLogLevel(level)
+    bgr = _cv2_read(path, cv2.IMREAD_ANYDEPTH | cv2.IMREAD_COLOR, "HDR (Radiance RGBE)")
     if bgr is None or bgr.ndim != 3 or bgr.shape[2] != 3:
         raise ImageError(f"cannot read image {path}: not a valid HDR (Radiance RGBE) file")
     return torch.from_numpy(np.ascontiguousarray(bgr[..., ::-1], dtype=np.float32))
@@ -261,9 +273,7 @@ def _read_png_codes(path: Path) -> Photo:
     """A PNG's codes through OpenCV (8 or 16 bits, grey, grey + alpha, RGB or RGBA)."""
     import cv2
 
-    data = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if data is None:
-        raise ImageError(f"cannot read image {path}: not a valid PNG file")
+    data = _cv2_read(path, cv2.IMREAD_UNCHANGED, "PNG")
     if data.dtype not in (np.uint8, np.uint16):
         raise ImageError(f"cannot read image {path}: expected 8 or 16 bits per channel, got {data.dtype}")
     bits = 8 if data.dtype == np.uint8 else 16
