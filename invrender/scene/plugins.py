@@ -18,6 +18,7 @@ from typing import ClassVar, NamedTuple
 from invrender.errors import SceneError
 from invrender.registry import Registry
 from invrender.scene.kinds import ParamKind
+from invrender.validate import FLOAT32_MAX
 
 
 class Param(NamedTuple):
@@ -65,6 +66,8 @@ class Constant:
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(float(value)):
             raise SceneError(f"{where}: '{key}' must be a finite number, got {value!r}")
         v = float(value)
+        if abs(v) > FLOAT32_MAX:
+            raise SceneError(f"{where}: '{key}' is {v:g}, beyond float32's range (|x| <= {FLOAT32_MAX:.4g}): a render would compute with infinity")
         below = v <= self.low if self.low_open else v < self.low
         above = v >= self.high if self.high_open else v > self.high
         if below or above:

@@ -246,9 +246,12 @@ def check_param_value(name: str, value) -> torch.Tensor:
     """Validate one parameter value: shape (3,) or (h, w, 3), finite, in its kind's range. Returns
     it as a new float32 tensor (one number becomes an RGB triple)."""
     try:
-        t = torch.as_tensor(value, dtype=torch.float32).detach().clone()
+        exact = torch.as_tensor(value, dtype=torch.float64).detach()
     except (TypeError, ValueError, RuntimeError):
         raise ParameterError(f"{name}: expected an RGB triple or an (h, w, 3) texture, got {_short(value)}") from None
+    if bool(torch.isfinite(exact).all()) and exact.numel() and float(exact.abs().max()) > validate.FLOAT32_MAX:
+        raise ParameterError(f"{name}: value {float(exact.abs().max()):g} is beyond float32's range (|x| <= {validate.FLOAT32_MAX:.4g}): a render would compute with infinity")
+    t = exact.to(torch.float32)
     if t.ndim == 0:
         t = t.expand(3).clone()
     t = _grey_map(name, t).clone()
