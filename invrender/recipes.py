@@ -347,6 +347,48 @@ def load_fit_recipe(path) -> FitRecipe:
     return FitRecipe(**choices, path=path, dataset=dataset, variants=variants, photo=_photo(doc, path, where))
 
 
+def check_fit_recipe(recipe: FitRecipe, init: dict | None = None, settings: dict | None = None) -> None:
+    """Everything the fits of ``recipe`` will check that is known before its dataset is rendered:
+    each fit's settings (``settings`` over the recipe's ``[fit]``, a variant's over both), the
+    dataset's ``[randomize]`` and ``[set]`` names and values, each fit's parameter names and
+    starting values (``init`` over the recipe's ``[init]``, a variant's over both), and the
+    ``[photo]`` table (sensor options, responses, masks: readable, of the dataset's size). A
+    one-line :class:`ParameterError` (or the :class:`ImageError` of a mask) naming the recipe, so
+    that a bad recipe leaves nothing behind in the output folder."""
+    from invrender.inverse.fit import FitSettings, check_fit_names
+    from invrender.inverse.sensor import Sensor
+    from invrender.inverse.targets import make_targets
+
+    where = str(recipe.path)
+
+    def named(what: str, check):
+        try:
+            return check()
+        except InvRenderError as e:
+            raise type(e)(f"{where}{what}: {e}") from None
+
+    fits = [(None, recipe.params, {}, {})] + [(v, recipe.params + [p for p in v.params if p not in recipe.params], v.init, v.settings) for v in recipe.variants]
+    for variant, _, _, own in fits:
+        label = f" variant {variant.label!r}" if variant is not None else " [fit]"
+        named(label, lambda: FitSettings(**{**recipe.settings, **(settings or {}), **own}))
+    scene = named(f" (its dataset {recipe.dataset.path})", lambda: dataset_scene(recipe.dataset))
+    views = max(len(recipe.dataset.views), 1)
+    photo = recipe.photo
+    for variant, names, own_init, _ in fits:
+        label = f" variant {variant.label!r}" if variant is not None else ""
+        started = scene.with_params(detach=True)  # an [init] may add the ambient eps0 a variant fits
+        known = [n for n in names if n in scene.params]
+        named(f"{label} [init]", lambda: apply_init(started, known, {**recipe.init, **(init or {}), **own_init}))
+        named(f"{label} params", lambda: check_fit_names(started, names))
+        named(" [photo] sensor", lambda: Sensor.make(views, names, photo.get("sensor")))
+    # the targets will be the dataset's views: the masks and responses checked against stand-ins
+    # of the dataset's size, as the fit checks them against the files
+    width, height = recipe.dataset.resolution
+    grey = [torch.full((height, width, 3), 0.5)] * views
+    labels = [f"view {i} of the dataset" for i in range(views)]
+    named(" [photo]", lambda: make_targets(grey, labels, [(width, height)] * views, photo.get("mask"), photo.get("response"), exclude=False))
+
+
 def _photo(doc: dict, path: Path, where: str) -> dict:
     """A fit recipe's ``[photo]`` table as fit's keyword arguments (mask paths relative to the
     recipe), checked for its keys and types."""

@@ -297,7 +297,7 @@ def fit(
     unknown = set(settings) - known
     if unknown:
         raise ParameterError(f"unknown fit setting {sorted(unknown)[0]!r} (known: {', '.join(sorted(known))})")
-    names = _check_fit_names(scene, params)
+    names = check_fit_names(scene, params)
     checkpoint = Path(checkpoint) if checkpoint is not None else None
     state = None
     if resume:
@@ -369,7 +369,7 @@ def fit(
 SENSOR_RAW = "sensor"
 
 
-def _check_fit_names(scene: Scene, params) -> list[str]:
+def check_fit_names(scene: Scene, params) -> list[str]:
     """``params`` checked against the scene's parameters and the sensor's (:func:`check_names`)."""
     return check_names({**scene.params, **{n: None for n in SENSOR_NAMES}}, params)
 

@@ -13,12 +13,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from invrender.errors import ParameterError
-from invrender.inverse.fit import FitSettings
 from invrender.inverse.fit_output import FitOutput, fit_into
 from invrender.inverse.report import study_table
 from invrender.io.reports import write_json, write_text
-from invrender.recipes import FitRecipe, apply_init, load_dataset, load_fit_recipe, make_dataset
+from invrender.recipes import FitRecipe, apply_init, check_fit_recipe, load_dataset, load_fit_recipe, make_dataset
 from invrender.transport.ranks import barrier
 
 
@@ -65,12 +63,7 @@ def fit_recipe(
     """
     recipe = recipe if isinstance(recipe, FitRecipe) else load_fit_recipe(recipe)
     out, log = Path(out), log or (lambda line: None)
-    for variant in recipe.variants or [None]:  # every fit's settings valid before any work
-        own = variant.settings if variant is not None else {}
-        try:
-            FitSettings(**{**recipe.settings, **(settings or {}), **own})
-        except ParameterError as e:
-            raise ParameterError(f"{recipe.path}{f' variant {variant.label!r}' if variant is not None else ''}: {e}") from None
+    check_fit_recipe(recipe, init, settings)  # every fit's inputs valid before the dataset is written
     data = out / "dataset"
     if not (data / "manifest.json").is_file():
         log(f"rendering the dataset {recipe.dataset.path} into {data}")
