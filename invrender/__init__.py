@@ -17,7 +17,7 @@ Public API::
 """
 
 from invrender import emitters, materials  # noqa: F401  (registers the built-in emitters and materials)
-from invrender.errors import BaselineError, ImageError, InvRenderError, ParameterError, SceneError
+from invrender.errors import BaselineError, ImageError, InvRenderError, ParameterError, SceneError, UnknownParameterError
 from invrender.inverse.fit import FitResult, fit
 from invrender.inverse.identifiability import identifiability
 from invrender.inverse.gradcheck import gradcheck
@@ -50,5 +50,5 @@ def __getattr__(name):
 __all__ = [
     "load_scene", "render", "fit", "gradcheck", "read_image", "write_image", "FitResult", "Camera", "load_cameras", "Material", "integrators",
     "radiosity", "RadiositySolution", "AdaptiveSettings", "AdaptiveResult", "record_paths", "PathRecords", "identifiability", "lighting", "gradient_study", "GradientStudy", "GradientConfig",
-    "InvRenderError", "SceneError", "ImageError", "ParameterError", "BaselineError",
+    "InvRenderError", "SceneError", "ImageError", "ParameterError", "UnknownParameterError", "BaselineError",
 ]  # fmt: skip

@@ -76,7 +76,7 @@ from invrender.scene.camera import Camera
 from invrender.scene.kinds import KINDS as PARAM_KINDS
 from invrender.scene.kinds import kind_of
 from invrender.scene.formats.toml import camera_from_table, check_keys, integer, read_toml, table, vector
-from invrender.scene.scene import AMBIENT, Scene, check_param_value
+from invrender.scene.scene import AMBIENT, Scene, check_param_value, unknown_parameter
 
 DATASET_KEYS = {"scene", "resolution", "spp", "max_depth", "seed", "randomize", "set", "views", "photograph"}
 PHOTOGRAPH_KEYS = {"exposure", "white_balance", "response", "format", "bits", "quality"}
@@ -235,7 +235,7 @@ def dataset_scene(recipe: DatasetRecipe) -> Scene:
     names = set(recipe.randomize) | set(recipe.fixed)
     unknown = sorted(names - set(scene.params))
     if unknown:
-        raise ParameterError(f"{recipe.path}: unknown parameter {unknown[0]!r} (known: {', '.join(scene.params)})")
+        raise unknown_parameter(unknown[0], scene.params, f"{recipe.path}: unknown parameter")
     generator = torch.Generator().manual_seed(recipe.seed)
     with torch.no_grad():
         for name, (low, high) in recipe.randomize.items():
@@ -456,6 +456,6 @@ def apply_init(scene: Scene, names: list[str], init: dict) -> None:
         if name == AMBIENT and name not in scene.params:
             scene.params[AMBIENT] = scene.with_ambient(value).params[AMBIENT]  # checked as eps0 is
         elif name not in scene.params:
-            raise ParameterError(f"initial value for unknown parameter {name!r} (known: {', '.join(scene.params)})")
+            raise unknown_parameter(name, scene.params, "initial value for unknown parameter")
         else:
             set_param(scene, name, value)

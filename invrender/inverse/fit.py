@@ -28,7 +28,7 @@ from tqdm.auto import tqdm
 
 from invrender.diff import ESTIMATOR_CHOICES, backpropagate, render
 from invrender.diff.defaults import fit_settings
-from invrender.errors import ParameterError
+from invrender.errors import ParameterError, did_you_mean
 from invrender.inverse import params as P
 from invrender.inverse.control_variates import RecursiveControlVariate
 from invrender.inverse.least_squares import SOLVERS
@@ -296,7 +296,7 @@ def fit(
     known = {f.name for f in dataclasses.fields(FitSettings)}
     unknown = set(settings) - known
     if unknown:
-        raise ParameterError(f"unknown fit setting {sorted(unknown)[0]!r} (known: {', '.join(sorted(known))})")
+        raise ParameterError(f"unknown fit setting {sorted(unknown)[0]!r}{did_you_mean(sorted(unknown)[0], known)} (known: {', '.join(sorted(known))})")
     names = check_fit_names(scene, params)
     checkpoint = Path(checkpoint) if checkpoint is not None else None
     state = None

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import torch
 
-from invrender.errors import ParameterError
+from invrender.errors import ParameterError, did_you_mean
 from invrender.scene.kinds import SENSOR, kind_of
 
 EXPOSURE = f"{SENSOR}.exposure"
@@ -64,7 +64,7 @@ class Sensor:
         options = dict(options or {})
         unknown = set(options) - set(OPTION_KEYS)
         if unknown:
-            raise ParameterError(f"unknown sensor option {sorted(unknown)[0]!r} (known: {', '.join(OPTION_KEYS)})")
+            raise ParameterError(f"unknown sensor option {sorted(unknown)[0]!r}{did_you_mean(sorted(unknown)[0], OPTION_KEYS)} (known: {', '.join(OPTION_KEYS)})")
         shared = options.get("shared", ())
         shared = [shared] if isinstance(shared, str) else list(shared)
         for s in shared:

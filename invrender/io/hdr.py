@@ -129,7 +129,7 @@ def _stored_mode(img: Image.Image) -> str:
 
 def _depth_of(img: Image.Image, stored: str) -> str:
     """What a refused image is, for the message: 16 bits per channel, or another PIL mode."""
-    return "it has 16 bits per channel" if "16" in stored or "16" in img.mode else f"not an 8-bit image (PIL mode {img.mode})"
+    return "not an 8-bit image (16 bits per channel)" if "16" in stored or "16" in img.mode else f"not an 8-bit image (PIL mode {img.mode})"
 
 
 def _exif_exposure(img: Image.Image) -> float | None:

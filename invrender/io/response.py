@@ -28,7 +28,7 @@ from pathlib import Path
 
 import torch
 
-from invrender.errors import ImageError
+from invrender.errors import ImageError, did_you_mean
 
 NAMES = ("linear", "srgb", "gamma:G", "a CSV file")
 CSV_HEADER = ["value", "red", "green", "blue"]
@@ -130,7 +130,7 @@ def response(spec) -> Response:
         if not (math.isfinite(g) and g > 0):
             raise ImageError(f"response {spec!r}: gamma:G needs a positive number G (e.g. gamma:2.2)")
         return Response(f"gamma:{g:g}", gamma=g)
-    raise ImageError(f"unknown response {spec!r} (known: {', '.join(NAMES)})")
+    raise ImageError(f"unknown response {spec!r}{did_you_mean(spec, NAMES)} (known: {', '.join(NAMES)})")
 
 
 def read_response_csv(path) -> Response:

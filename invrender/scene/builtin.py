@@ -151,10 +151,8 @@ def furnace(resolution=(32, 32), rho=0.5, eps=1.0, subdivisions: int = 3) -> Sce
 
 
 def _rgb(x):
-    try:
-        return [float(x)] * 3
-    except TypeError:
-        return x
+    """One number as an RGB triple; a triple or a texture as it is."""
+    return [float(x)] * 3 if isinstance(x, numbers.Real) else x
 
 
 #: sky_spheres: the sky's colours (linear RGB) at the zenith, at the horizon and below it, and the sun

@@ -31,7 +31,7 @@ import numpy as np
 import torch
 
 from invrender import validate
-from invrender.errors import ParameterError, SceneError
+from invrender.errors import ParameterError, SceneError, UnknownParameterError, did_you_mean
 from invrender.scene.camera import Camera
 from invrender.scene.kinds import kind_of, param_name
 from invrender.scene.emitters import Emitter
@@ -127,7 +127,8 @@ class Scene:
         emitters: emitter names; ``triangles.emitter`` indexes this tuple.
         camera: the camera (pinhole or thin lens).
         resolution: (width, height) in pixels.
-        params: ``{"<material>.reflectance": rho, "<emitter>.emission": eps, ...}``, leaf tensors.
+        params: ``{"<material>.reflectance": rho, "<emitter>.emission": eps, ...}``, leaf tensors
+            (a :class:`Params`: an unknown name raises a ParameterError naming the known ones).
         name: a label for messages and reports.
         material_specs: one :class:`~invrender.scene.materials.Material` per material (type and
             constants; its values live in ``params``); empty = every material diffuse.
@@ -147,6 +148,11 @@ class Scene:
     material_specs: tuple[Material, ...] = ()
     defaults: dict = field(default_factory=dict)
     emitter_specs: tuple[Emitter, ...] = ()
+
+    def __setattr__(self, name, value):
+        if name == "params" and not isinstance(value, Params):
+            value = Params(value)  # an unknown name's lookup names the closest known one
+        super().__setattr__(name, value)
 
     @property
     def device(self) -> torch.device:
@@ -289,6 +295,21 @@ def _short(value) -> str:
     return text if len(text) <= 80 else text[:77] + "..."
 
 
+def unknown_parameter(name, known, what: str = "unknown parameter") -> UnknownParameterError:
+    """The one-line error of a parameter name not among ``known``: the closest known name and the
+    list of them."""
+    return UnknownParameterError(f"{what} {name!r}{did_you_mean(name, known)} (known: {', '.join(known)})")
+
+
+class Params(dict):
+    """A scene's parameters: name -> tensor. A plain dict, except that looking up a name it does
+    not have raises :class:`~invrender.errors.UnknownParameterError` (a ``ParameterError`` and a
+    ``KeyError``) naming the closest known name and all of them, not a bare ``KeyError``."""
+
+    def __missing__(self, key):
+        raise unknown_parameter(key, self)
+
+
 def check_names(params, names) -> list[str]:
     """Validate parameter names against ``params`` (a scene's dict): a list or a comma-separated
     string of names, each known, none twice, at least one. Returns the names as a list."""
@@ -301,7 +322,7 @@ def check_names(params, names) -> list[str]:
     if AMBIENT in unknown:
         raise ParameterError(f"the scene has no {AMBIENT} to fit: give it a starting value (--init {AMBIENT}=0.05, a recipe's [init], or load_scene(..., ambient=0.05))")
     if unknown:
-        raise ParameterError(f"unknown parameter {unknown[0]!r} (known: {', '.join(params)})")
+        raise unknown_parameter(unknown[0], params)
     if len(set(names)) != len(names):
         raise ParameterError("a parameter is named twice")
     return names
