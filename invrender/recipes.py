@@ -378,9 +378,10 @@ def check_fit_recipe(recipe: FitRecipe, init: dict | None = None, settings: dict
         label = f" variant {variant.label!r}" if variant is not None else ""
         started = scene.with_params(detach=True)  # an [init] may add the ambient eps0 a variant fits
         known = [n for n in names if n in scene.params]
-        named(f"{label} [init]", lambda: apply_init(started, known, {**recipe.init, **(init or {}), **own_init}))
+        start, sensor = split_init({**recipe.init, **(init or {}), **own_init}, photo.get("sensor"))
+        named(f"{label} [init]", lambda: apply_init(started, known, start))
         named(f"{label} params", lambda: check_fit_names(started, names))
-        named(" [photo] sensor", lambda: Sensor.make(views, names, photo.get("sensor")))
+        named(" [photo] sensor", lambda: Sensor.make(views, names, sensor))
     # the targets will be the dataset's views: the masks and responses checked against stand-ins
     # of the dataset's size, as the fit checks them against the files
     width, height = recipe.dataset.resolution
@@ -441,6 +442,18 @@ def _setting_names() -> set[str]:
     from invrender.inverse.fit import FitSettings  # lazily: the fitting machinery is not needed to read a recipe
 
     return {f.name for f in dataclasses.fields(FitSettings)}
+
+
+def split_init(init: dict, sensor: dict | None = None) -> tuple[dict, dict]:
+    """``(the scene's starting values, the fit's sensor options)`` of ``init``: a sensor
+    parameter's value (``sensor.exposure``, ``sensor.white_balance``: every name a fit's params
+    accept) is not a scene parameter but the sensor option of that name, its starting value
+    (the fixed value when it is not fitted), merged over ``sensor``."""
+    from invrender.inverse.sensor import NAMES as SENSOR_NAMES  # lazily: reading a recipe needs no fitting machinery
+
+    scene = {k: v for k, v in init.items() if k not in SENSOR_NAMES}
+    options = {**(sensor or {}), **{k.partition(".")[2]: v for k, v in init.items() if k in SENSOR_NAMES}}
+    return scene, options
 
 
 def apply_init(scene: Scene, names: list[str], init: dict) -> None:
