@@ -2,7 +2,8 @@
 
 Every image in invrender is a float tensor of shape (H, W, 3): linear RGB radiance (W sr^-1 m^-2 per
 channel, unitless scale), row 0 at the top. EXR files hold those values exactly (float32); PNG and
-JPEG files hold sRGB-encoded 8-bit values in [0, 1] and are converted to and from linear on the way.
+JPEG files hold sRGB-encoded values in [0, 1] (8 bits; a PNG read may have 16, every code kept) and
+are converted to and from linear on the way.
 Radiance ``.hdr`` (RGBE) files are read as linear (through OpenCV), for environment maps.
 :func:`read_photo` reads a file as a camera stored it (a fit target that is a photograph): its
 encoded values, bit depth, default camera response and alpha channel (:class:`Photo`), 8- and
@@ -72,7 +73,7 @@ def read_image(path: str | os.PathLike, device: torch.device | str | None = None
     Args:
         path: ``.exr`` (R, G, B channels; a Y-only file is replicated to grey, alpha is dropped),
             ``.hdr`` (Radiance RGBE, linear), or
-            ``.png`` / ``.jpg`` / ``.jpeg`` (decoded from sRGB to linear; alpha dropped).
+            ``.png`` (8 or 16 bits) / ``.jpg`` / ``.jpeg`` (decoded from sRGB to linear; alpha dropped).
         device: device of the returned tensor (default CPU).
 
     Returns:
@@ -197,7 +198,11 @@ def _read_hdr(path: Path) -> torch.Tensor:
 
 
 def _read_srgb(path: Path) -> torch.Tensor:
-    """Read an 8-bit PNG/JPEG (or 16-bit grey PNG) as a (H, W, 3) float32 linear tensor."""
+    """Read a PNG (8 or 16 bits, every code kept: OpenCV's reader) or a JPEG as a (H, W, 3)
+    float32 linear tensor."""
+    if path.suffix.lower() == ".png":
+        codes = _read_png_codes(path).values.permute(2, 0, 1)
+        return kornia.color.rgb_to_linear_rgb(codes).permute(1, 2, 0).contiguous()
     with Image.open(path) as img:
         img.load()
         return decode_srgb(img)
