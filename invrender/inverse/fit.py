@@ -166,7 +166,7 @@ class FitSettings:
         if self.control_variate and not (self.decorrelate and self.solver == "adam"):
             raise ParameterError("control_variate needs solver 'adam' with decorrelate (it replaces the render dl/dI is taken at)")
         if self.solver not in SOLVERS:
-            raise ParameterError(f"unknown solver {self.solver!r} (known: {', '.join(SOLVERS)})")
+            raise ParameterError(f"unknown solver {self.solver!r}{did_you_mean(self.solver, SOLVERS)} (known: {', '.join(SOLVERS)})")
         if self.solver != "adam" and (model.terms_kept < 1 or self.loss != "relative_l2"):
             raise ParameterError(f"solver {self.solver!r} needs a finite max_depth >= 1 and the relative_l2 loss (got max_depth {model.terms_kept}, loss {self.loss!r})")
         for name in ("lr", "lr_emission", "lr_sensor", "lr_final", "precision"):
@@ -179,9 +179,9 @@ class FitSettings:
                 check_float("fit setting ", name, getattr(self, name), 0.0, math.inf)
         RenderSettings(sampler=self.sampler)  # validates the sampler
         if self.loss not in LOSSES:
-            raise ParameterError(f"unknown loss {self.loss!r} (known: {', '.join(LOSSES)})")
+            raise ParameterError(f"unknown loss {self.loss!r}{did_you_mean(self.loss, LOSSES)} (known: {', '.join(LOSSES)})")
         if self.estimator not in ESTIMATOR_CHOICES:
-            raise ParameterError(f"unknown estimator {self.estimator!r} (known: {', '.join(ESTIMATOR_CHOICES)})")
+            raise ParameterError(f"unknown estimator {self.estimator!r}{did_you_mean(self.estimator, ESTIMATOR_CHOICES)} (known: {', '.join(ESTIMATOR_CHOICES)})")
 
     @property
     def model(self) -> Integrator:
