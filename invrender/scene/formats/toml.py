@@ -36,7 +36,7 @@ allowed keys). Out-of-range colours (rho outside [0, 1], eps < 0) are
 
     [materials.glass]
     type = "dielectric"                # smooth glass: Fresnel reflection and refraction (Mitsuba's dielectric)
-    ior = 1.5                          # interior index over the exterior's (1.0), > 0 (default 1.5); a constant
+    ior = 1.5                          # interior index over the exterior's (1.0), in [0.01, 100] (default 1.5); a constant
 
     [materials.brushed]
     type = "glossy"                    # GGX rough conductor, two-sided (Mitsuba's roughconductor, distribution ggx);
