@@ -175,12 +175,18 @@ def _read_exr(path: Path) -> torch.Tensor:
 
 
 def _cv2_read(path: Path, flags: int, what: str) -> np.ndarray:
-    """``cv2.imread(path, flags)`` with OpenCV's and libpng's own messages caught (not printed):
-    the array, or an :class:`ImageError` naming the file, with the library's last message."""
+    """``cv2.imread(path, flags)`` with OpenCV's logger silenced and what libpng prints caught:
+    the array, or an :class:`ImageError` naming the file, with libpng's last word if it had one."""
     import cv2  # lazily: only .hdr files and photographs read as codes need it
 
-    with native_output() as printed:
-        data = cv2.imread(str(path), flags)
+    log = cv2.utils.logging
+    level = log.getLogLevel()
+    log.setLogLevel(log.LOG_LEVEL_SILENT)  # OpenCV's own logger: its long lines say no more than ours
+    try:
+        with native_output() as printed:  # what libpng prints itself ("libpng error: ...")
+            data = cv2.imread(str(path), flags)
+    finally:
+        log.setLogLevel(level)
     if data is None:
         raise ImageError(f"cannot read image {path}: not a valid {what} file" + (f" ({printed[-1]})" if printed else ""))
     return data
