@@ -38,7 +38,7 @@ from invrender.inverse.targets import Target, make_targets
 from invrender.io.atomic import atomic_file
 from invrender.scene.camera import Camera
 from invrender.scene.kinds import kind_of
-from invrender.scene.scene import Scene, check_names
+from invrender.scene.scene import Scene, check_names, unknown_parameter
 from invrender.transport.driver import RenderSettings
 from invrender.registry import INTEGRATORS, integrator_spec
 from invrender.transport.integrators import Integrator, make_integrator
@@ -308,7 +308,7 @@ def fit(
     cfg = FitSettings(**(settings if state is not None else fit_settings(scene, settings)))  # the scene file's integrator unless given
     views = load_targets(scene, target, cameras, mask=mask, response=response, exclude_clipped=exclude_clipped)
     sensor = Sensor.make(len(views), names, sensor)
-    truth = {k: torch.as_tensor(v, dtype=torch.float32) for k, v in (truth or {}).items()}
+    truth = _checked_truth(scene, truth)
     if state is not None and ("raw" in state) != (cfg.solver == "adam"):
         raise ParameterError(f"checkpoint {checkpoint} was written by another solver than {cfg.solver!r}")
     if cfg.solver != "adam":
@@ -372,6 +372,34 @@ SENSOR_RAW = "sensor"
 def check_fit_names(scene: Scene, params) -> list[str]:
     """``params`` checked against the scene's parameters and the sensor's (:func:`check_names`)."""
     return check_names({**scene.params, **{n: None for n in SENSOR_NAMES}}, params)
+
+
+def _checked_truth(scene: Scene, truth) -> dict[str, torch.Tensor]:
+    """``truth`` (name -> ground-truth value) as float32 tensors, each name a parameter of the
+    scene or the sensor and each value finite and, for a scene parameter, of its shape (one number
+    or an RGB triple broadcast over it): one-line ParameterErrors before any work, not at the
+    end of the fit where the errors are computed."""
+    out = {}
+    known = [*scene.params, *SENSOR_NAMES]
+    for name, value in dict(truth or {}).items():
+        if name not in known:
+            raise unknown_parameter(name, known, "truth of unknown parameter")
+        try:
+            t = torch.as_tensor(value, dtype=torch.float32).detach()
+        except (TypeError, ValueError, RuntimeError):
+            raise ParameterError(f"truth of {name}: expected numbers, got {value!r:.60}") from None
+        if not bool(torch.isfinite(t).all()):
+            raise ParameterError(f"truth of {name}: values must be finite")
+        if not is_sensor(name):
+            shape = tuple(scene.params[name].shape)
+            try:
+                fits = torch.broadcast_shapes(t.shape, shape) == shape
+            except RuntimeError:
+                fits = False
+            if not fits:
+                raise ParameterError(f"truth of {name}: a value of shape {tuple(t.shape)} does not fit the parameter's shape {shape}")
+        out[name] = t
+    return out
 
 
 def _values(raw: dict, scene_names, sensor: Sensor, names) -> dict:
@@ -591,6 +619,8 @@ def load_targets(scene: Scene, target, cameras, *, mask=None, response=None, exc
     """(scene seen by each camera, its :class:`~invrender.inverse.targets.Target`) per view, with
     ``mask``, ``response`` and ``exclude_clipped`` as :func:`fit` takes them."""
     targets = list(target) if isinstance(target, (list, tuple)) else [target]
+    if not targets:
+        raise ParameterError("no target was given: an (H, W, 3) image, a file, or a list of them (one per camera)")
     if cameras is not None and len(cameras) != len(targets):
         raise ParameterError(f"{len(targets)} target(s) but {len(cameras)} camera(s): give one camera per target")
     if cameras is None and len(targets) > 1:

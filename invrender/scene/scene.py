@@ -315,7 +315,12 @@ def check_names(params, names) -> list[str]:
     string of names, each known, none twice, at least one. Returns the names as a list."""
     if isinstance(names, str):
         names = [n.strip() for n in names.split(",") if n.strip()]
-    names = list(names)
+    try:
+        names = list(names)
+    except TypeError:
+        names = None
+    if names is None or not all(isinstance(n, str) for n in names):
+        raise ParameterError(f"parameter names must be a list of names or a comma-separated string, got {names!r:.60}")
     if not names:
         raise ParameterError("no parameters to fit were given")
     unknown = [n for n in names if n not in params]
