@@ -381,8 +381,8 @@ def build_scene(
         f = np.asarray(mesh.faces)
         if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
             raise SceneError(f"mesh arrays must be vertices (V, 3) and faces (F, 3), got {v.shape} and {f.shape}")
-        if not np.isfinite(v).all():
-            raise SceneError("mesh has non-finite vertex positions")
+        if not np.isfinite(v).all() or (v.size and np.abs(v).max() > validate.FLOAT32_MAX):
+            raise SceneError(f"mesh has vertex positions that are not finite in float32 (|x| <= {validate.FLOAT32_MAX:.4g}; triangles are float32)")
         if f.size and (f.min() < 0 or f.max() >= len(v)):
             raise SceneError(f"mesh face index out of range: indices must be in [0, {len(v) - 1}], got [{f.min()}, {f.max()}]")
         uv = np.zeros((len(v), 2)) if mesh.uvs is None else np.asarray(mesh.uvs, dtype=np.float64)
