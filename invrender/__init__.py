@@ -52,6 +52,7 @@ _API = {
     "SceneError": "invrender.errors:SceneError",
     "ImageError": "invrender.errors:ImageError",
     "ParameterError": "invrender.errors:ParameterError",
+    "UnknownParameterError": "invrender.errors:UnknownParameterError",
     "BaselineError": "invrender.errors:BaselineError",
     # modules
     "integrators": "invrender.transport.integrators",
@@ -93,5 +94,5 @@ def __dir__():
 __all__ = [
     "load_scene", "render", "fit", "gradcheck", "read_image", "write_image", "FitResult", "Camera", "load_cameras", "Material", "integrators",
     "radiosity", "RadiositySolution", "AdaptiveSettings", "AdaptiveResult", "record_paths", "PathRecords", "identifiability", "lighting", "gradient_study", "GradientStudy", "GradientConfig",
-    "InvRenderError", "SceneError", "ImageError", "ParameterError", "BaselineError",
+    "InvRenderError", "SceneError", "ImageError", "ParameterError", "UnknownParameterError", "BaselineError",
 ]  # fmt: skip

@@ -32,6 +32,14 @@ class ParameterError(InvRenderError):
     """A parameter name, value or render setting is unknown or out of range."""
 
 
+class UnknownParameterError(ParameterError, KeyError):
+    """A parameter name a scene does not have: a :class:`ParameterError` and, as the lookup of a
+    missing key in ``scene.params``, a ``KeyError`` too (``except KeyError`` still catches it)."""
+
+    def __str__(self) -> str:  # the message as given (KeyError's own quotes it)
+        return str(self.args[0]) if self.args else ""
+
+
 class MissingPackageError(InvRenderError):
     """An optional package (warp-lang, embreex, pyrender) that a path needs is not installed."""
 

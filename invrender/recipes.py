@@ -76,7 +76,7 @@ from invrender.scene.camera import Camera
 from invrender.scene.kinds import KINDS as PARAM_KINDS
 from invrender.scene.kinds import kind_of
 from invrender.scene.formats.toml import camera_from_table, check_keys, integer, read_toml, table, vector
-from invrender.scene.scene import AMBIENT, Scene, check_param_value
+from invrender.scene.scene import AMBIENT, Scene, check_param_value, unknown_parameter
 
 DATASET_KEYS = {"scene", "resolution", "spp", "max_depth", "seed", "randomize", "set", "views", "photograph"}
 PHOTOGRAPH_KEYS = {"exposure", "white_balance", "response", "format", "bits", "quality"}
@@ -235,7 +235,7 @@ def dataset_scene(recipe: DatasetRecipe) -> Scene:
     names = set(recipe.randomize) | set(recipe.fixed)
     unknown = sorted(names - set(scene.params))
     if unknown:
-        raise ParameterError(f"{recipe.path}: unknown parameter {unknown[0]!r} (known: {', '.join(scene.params)})")
+        raise unknown_parameter(unknown[0], scene.params, f"{recipe.path}: unknown parameter")
     generator = torch.Generator().manual_seed(recipe.seed)
     with torch.no_grad():
         for name, (low, high) in recipe.randomize.items():
@@ -347,6 +347,49 @@ def load_fit_recipe(path) -> FitRecipe:
     return FitRecipe(**choices, path=path, dataset=dataset, variants=variants, photo=_photo(doc, path, where))
 
 
+def check_fit_recipe(recipe: FitRecipe, init: dict | None = None, settings: dict | None = None) -> None:
+    """Everything the fits of ``recipe`` will check that is known before its dataset is rendered:
+    each fit's settings (``settings`` over the recipe's ``[fit]``, a variant's over both), the
+    dataset's ``[randomize]`` and ``[set]`` names and values, each fit's parameter names and
+    starting values (``init`` over the recipe's ``[init]``, a variant's over both), and the
+    ``[photo]`` table (sensor options, responses, masks: readable, of the dataset's size). A
+    one-line :class:`ParameterError` (or the :class:`ImageError` of a mask) naming the recipe, so
+    that a bad recipe leaves nothing behind in the output folder."""
+    from invrender.inverse.fit import FitSettings, check_fit_names
+    from invrender.inverse.sensor import Sensor
+    from invrender.inverse.targets import make_targets
+
+    where = str(recipe.path)
+
+    def named(what: str, check):
+        try:
+            return check()
+        except InvRenderError as e:
+            raise type(e)(f"{where}{what}: {e}") from None
+
+    fits = [(None, recipe.params, {}, {})] + [(v, recipe.params + [p for p in v.params if p not in recipe.params], v.init, v.settings) for v in recipe.variants]
+    for variant, _, _, own in fits:
+        label = f" variant {variant.label!r}" if variant is not None else " [fit]"
+        named(label, lambda: FitSettings(**{**recipe.settings, **(settings or {}), **own}))
+    scene = named(f" (its dataset {recipe.dataset.path})", lambda: dataset_scene(recipe.dataset))
+    views = max(len(recipe.dataset.views), 1)
+    photo = recipe.photo
+    for variant, names, own_init, _ in fits:
+        label = f" variant {variant.label!r}" if variant is not None else ""
+        started = scene.with_params(detach=True)  # an [init] may add the ambient eps0 a variant fits
+        known = [n for n in names if n in scene.params]
+        start, sensor = split_init({**recipe.init, **(init or {}), **own_init}, photo.get("sensor"))
+        named(f"{label} [init]", lambda: apply_init(started, known, start))
+        named(f"{label} params", lambda: check_fit_names(started, names))
+        named(" [photo] sensor", lambda: Sensor.make(views, names, sensor))
+    # the targets will be the dataset's views: the masks and responses checked against stand-ins
+    # of the dataset's size, as the fit checks them against the files
+    width, height = recipe.dataset.resolution
+    grey = [torch.full((height, width, 3), 0.5)] * views
+    labels = [f"view {i} of the dataset" for i in range(views)]
+    named(" [photo]", lambda: make_targets(grey, labels, [(width, height)] * views, photo.get("mask"), photo.get("response"), exclude=False))
+
+
 def _photo(doc: dict, path: Path, where: str) -> dict:
     """A fit recipe's ``[photo]`` table as fit's keyword arguments (mask paths relative to the
     recipe), checked for its keys and types."""
@@ -401,6 +444,18 @@ def _setting_names() -> set[str]:
     return {f.name for f in dataclasses.fields(FitSettings)}
 
 
+def split_init(init: dict, sensor: dict | None = None) -> tuple[dict, dict]:
+    """``(the scene's starting values, the fit's sensor options)`` of ``init``: a sensor
+    parameter's value (``sensor.exposure``, ``sensor.white_balance``: every name a fit's params
+    accept) is not a scene parameter but the sensor option of that name, its starting value
+    (the fixed value when it is not fitted), merged over ``sensor``."""
+    from invrender.inverse.sensor import NAMES as SENSOR_NAMES  # lazily: reading a recipe needs no fitting machinery
+
+    scene = {k: v for k, v in init.items() if k not in SENSOR_NAMES}
+    options = {**(sensor or {}), **{k.partition(".")[2]: v for k, v in init.items() if k in SENSOR_NAMES}}
+    return scene, options
+
+
 def apply_init(scene: Scene, names: list[str], init: dict) -> None:
     """Set starting values in place: keys are parameter names, or a kind (``reflectance``,
     ``specular_reflectance``, ``emission``) for every fitted parameter of that kind (but not the ambient eps0); a parameter's own value
@@ -414,6 +469,6 @@ def apply_init(scene: Scene, names: list[str], init: dict) -> None:
         if name == AMBIENT and name not in scene.params:
             scene.params[AMBIENT] = scene.with_ambient(value).params[AMBIENT]  # checked as eps0 is
         elif name not in scene.params:
-            raise ParameterError(f"initial value for unknown parameter {name!r} (known: {', '.join(scene.params)})")
+            raise unknown_parameter(name, scene.params, "initial value for unknown parameter")
         else:
             set_param(scene, name, value)

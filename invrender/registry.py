@@ -26,7 +26,7 @@ import importlib
 from collections.abc import Iterator, Mapping
 from typing import Generic, TypeVar
 
-from invrender.errors import InvRenderError, ParameterError, SceneError
+from invrender.errors import InvRenderError, ParameterError, SceneError, did_you_mean
 
 T = TypeVar("T")
 
@@ -82,7 +82,7 @@ class Registry(Generic[T]):
         """The class called ``name``; a one-line error naming ``where`` and the known names otherwise."""
         if not isinstance(name, str) or name not in self._classes:
             prefix = f"{where}: " if where else ""
-            raise self.error(f"{prefix}unknown {self.what} {name!r} (known: {', '.join(self._classes)})")
+            raise self.error(f"{prefix}unknown {self.what} {name!r}{did_you_mean(name, self._classes) if isinstance(name, str) else ''} (known: {', '.join(self._classes)})")
         return self._classes[name]
 
     def __getitem__(self, name: str) -> type[T]:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import typing
 
-from invrender.errors import ParameterError
+from invrender.errors import ParameterError, did_you_mean
 
 #: most samples one pixel may take: the counter-based sampler's sample index is 32 bits
 MAX_SPP = 2**32 - 1
@@ -22,6 +22,9 @@ MAX_PIXELS = 2**32 - 1
 MAX_SIDE = 2**16
 #: most camera paths one render may trace (about 10^12: days of work on any machine today)
 MAX_PATHS = 2**40
+#: the largest finite float32: every value a render computes with is a float32, so a number beyond
+#: it (a light's scale of 1e39) is an infinity there, whatever it was in the scene file
+FLOAT32_MAX = 3.4028234663852886e38
 #: largest finite depth (Neumann terms kept); deeper truncations are indistinguishable from -1
 MAX_DEPTH = 10_000
 
@@ -68,7 +71,8 @@ def check_float(owner: str, name: str, value, low: float | None = None, high: fl
 def check_choice(owner: str, name: str, value, choices) -> None:
     """A :class:`ParameterError` unless ``value`` is one of ``choices`` (strings)."""
     if not isinstance(value, str) or value not in choices:
-        raise ParameterError(f"unknown {owner}{name} {value!r} (known: {', '.join(choices)})")
+        hint = did_you_mean(value, choices) if isinstance(value, str) else ""
+        raise ParameterError(f"unknown {owner}{name} {value!r}{hint} (known: {', '.join(choices)})")
 
 
 def check_bool(owner: str, name: str, value) -> None:

@@ -28,3 +28,20 @@ def cbox32():
 
 def furnace(rho=0.5, eps=1.0, resolution=(16, 16)):
     return ir.load_scene("furnace", resolution=resolution, rho=rho, eps=eps)
+
+
+def refused(tmp_path, *args: str, out: str = "out"):
+    """Run ``python -m invrender *args --out tmp_path/out`` in a child process (so that what native
+    libraries write to descriptor 2 is seen too) and check a refusal: exit status 2, stderr exactly
+    one line ``invrender: error: ...``, nothing on stdout and nothing left at ``out``. Returns
+    that line."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[1]
+    done = subprocess.run([sys.executable, "-m", "invrender", *args, "--out", str(tmp_path / out)], cwd=repo, capture_output=True, text=True, timeout=300)
+    lines = done.stderr.splitlines()
+    assert done.returncode == 2 and len(lines) == 1 and lines[0].startswith("invrender: error: "), (done.returncode, done.stderr)
+    assert done.stdout == "" and not (tmp_path / out).exists(), (done.stdout, list((tmp_path / out).rglob("*")) if (tmp_path / out).exists() else None)
+    return lines[0]

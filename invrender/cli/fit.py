@@ -58,7 +58,7 @@ def add_parser(sub) -> None:
     f.add_argument("--target", nargs="+", metavar="IMAGE", help="target image(s): EXR or HDR (linear), PNG (8/16-bit) or JPEG (photographs: sRGB unless --response); one per view")
     f.add_argument("--cameras", metavar="FILE", help="the views: a NeRF transforms.json, a COLMAP cameras.txt/images.txt or a folder holding them (docs/cameras.md); every view is fitted at once, its image the target unless --target is given")
     f.add_argument("--params", help="comma-separated parameter names, e.g. red.reflectance,light.emission")
-    f.add_argument("--init", action="append", default=[], metavar="KEY=VALUE", help="starting value: NAME=v or NAME=r,g,b; NAME may be a kind (reflectance, specular_reflectance, emission) for all fitted ones of it (repeatable)")
+    f.add_argument("--init", action="append", default=[], metavar="KEY=VALUE", help="starting value: NAME=v or NAME=r,g,b; NAME is any name --params takes (sensor.exposure, sensor.white_balance too), or a kind (reflectance, specular_reflectance, emission) for all fitted ones of it (repeatable)")
     f.add_argument("--resolution", type=parse_resolution, default=None, metavar="WxH", help="render size (default: the target's)")
     f.add_argument("--out", required=True, help="output folder: report.json, loss.png, final.exr, final.png, checkpoint.pt (correlation.png for lm, pixels.png where pixels were left out)")
     f.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt with the settings stored in it, except those given anew")
@@ -78,7 +78,7 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     import invrender as ir
     from invrender.inverse.fit_output import fit_into
-    from invrender.recipes import apply_init, load_fit_recipe
+    from invrender.recipes import apply_init, load_fit_recipe, split_init
     from invrender.study.recipe_fits import fit_recipe
 
     out = check_out_dir(args.out)
@@ -110,12 +110,14 @@ def run(args) -> int:
             size = (width, height)
         scene = ir.load_scene(args.scene, resolution=args.resolution or size)
         names = [n.strip() for n in args.params.split(",") if n.strip()]
-        apply_init(scene, names, init)
         if cameras is not None:
             targets = targets or [str(f.image) for f in cameras]
         views = None if cameras is None else [f.camera for f in cameras]
         report = {"targets": targets, **({"cameras": str(args.cameras)} if cameras is not None else {})}
         photo = _photo_options(args, len(targets))
+        init, sensor = split_init(init, photo.get("sensor"))  # --init takes every name --params does
+        photo |= {"sensor": sensor} if sensor else {}
+        apply_init(scene, names, init)
         _summary(args, fit_into(out, scene, targets, names, cameras=views, resume=args.resume, progress=not args.quiet, report=report, **photo, **settings))
     except KeyboardInterrupt:
         print("invrender: interrupted; checkpoint saved (continue with --resume)", file=sys.stderr)

@@ -20,7 +20,7 @@ import torch
 from invrender.diff.autodiff import autodiff_render
 from invrender.diff.defaults import report, scene_integrator, scene_spp
 from invrender.diff.finite import check_image, check_params
-from invrender.errors import ParameterError
+from invrender.errors import ParameterError, did_you_mean
 from invrender.scene.scene import Scene
 from invrender.transport.adaptive import AdaptiveSettings
 from invrender.transport.driver import RenderSettings, total_paths
@@ -37,7 +37,7 @@ AUTODIFF_BYTES_PER_PATH_TERM = 128
 
 def _check_estimator(estimator: str) -> str:
     if estimator not in ESTIMATOR_CHOICES:
-        raise ParameterError(f"unknown estimator {estimator!r} (known: {', '.join(ESTIMATOR_CHOICES)})")
+        raise ParameterError(f"unknown estimator {estimator!r}{did_you_mean(estimator, ESTIMATOR_CHOICES)} (known: {', '.join(ESTIMATOR_CHOICES)})")
     return estimator
 
 

@@ -560,6 +560,39 @@ def _fused_places(scene: Scene, model, settings: RenderSettings, device, names: 
     return places
 
 
+def record_obstacle(scene: Scene, names) -> str | None:
+    """Why path records cannot represent the scene parameters ``names`` (the first reason, one
+    line naming the parameter), or None when they can:
+
+    - a kind that is not a polynomial factor of a path's weight (a roughness);
+    - a material's parameter that is not one monomial factor of its weights (its type's
+      ``not_polynomial``: a rough plastic's two lobes);
+    - the emission of an emitter infinitely far away when the scene has more than one: a ray that
+      leaves the scene sees their radiances added (``Lights.escaped``), so each such contribution
+      is a sum of the maps' values, not one monomial in any of them.
+    """
+    infinite = [e for i, e in enumerate(scene.emitters) if EMITTERS[scene.emitter_spec(i).type].infinite]
+    for n in names:
+        kind = kind_of(n)
+        if not kind.polynomial:
+            return f"{n} is a {kind.key}, not a polynomial factor of a path's weight"
+        owner, _, key = n.rpartition(".")
+        if owner in scene.materials:
+            spec = scene.material_spec(scene.materials.index(owner))
+            why = spec.spec.not_polynomial(key, spec.constants)
+            if why:
+                return f"{n}: {why}"
+        if kind.key == "emission" and owner in infinite and len(infinite) > 1:
+            others = ", ".join(e for e in infinite if e != owner)
+            return (f"{n}: emitter {owner!r} shares the rays that leave the scene with the other emitter(s) infinitely far away ({others}), "
+                    f"whose radiance adds to its own, so a contribution is a sum, not one monomial in {n}")
+    return None
+
+
+#: what a refusal of :func:`record_paths` suggests instead
+INSTEAD = "ir.fit fits it with solver 'lm' or 'gauss_newton' on re-traced renders (forward-mode Jacobians), as ir.identifiability analyses it, or with solver 'adam'"
+
+
 def record_paths(
     scene: Scene,
     params,
@@ -600,16 +633,11 @@ def record_paths(
         up to float rounding.
     """
     names = check_names(scene.params, params)
-    for n in names:
-        if not kind_of(n).polynomial:
-            raise ParameterError(f"{n}: path records (solver 'lm', identifiability) cannot represent a {kind_of(n).key}, which is not a polynomial factor of a path's weight; fit it with solver 'adam'")
+    why = record_obstacle(scene, names)
+    if why:
+        raise ParameterError(f"{why}: path records cannot represent it; {INSTEAD}")
     if isinstance(max_depth, bool) or not isinstance(max_depth, int) or max_depth < 1:
         raise ParameterError(f"record_paths needs a finite max_depth >= 1 (it bounds the polynomial's degree), got {max_depth!r}")
-    for n in names:  # a material's parameter that is not a monomial factor of its weights (a plastic's two lobes)
-        owner, _, key = n.rpartition(".")
-        spec = scene.material_spec(scene.materials.index(owner)) if owner in scene.materials else None
-        if spec is not None and (why := spec.spec.not_polynomial(key, spec.constants)):
-            raise ParameterError(f"{n} cannot be recorded as path records: {why}; fit it with solver 'adam'")
     slots, offset = [], 0
     for p, n in enumerate(names):
         v = scene.params[n]

@@ -37,6 +37,7 @@ from invrender.scene.kinds import EMISSION
 from invrender.scene.plugins import Constant, Param
 from invrender.scene.scene import scene_extent
 from invrender.transport.lights import Light, LightSample
+from invrender.validate import FLOAT32_MAX
 from invrender.vec import dot
 
 #: Mitsuba's luminance weights of linear RGB (Rec. 709)
@@ -330,6 +331,11 @@ class Envmap(Light):
             t = torch.as_tensor(e, dtype=torch.float32) if not isinstance(e, torch.Tensor) else e.detach()
             if t.numel() and bool(torch.isfinite(t).all()) and float(t.abs().max()) == 0.0:
                 raise SceneError(f"{where}: the envmap's emission is zero everywhere (an all-black map lights nothing; remove the emitter)")
+            brightest = float(t.abs().max()) if t.numel() and bool(torch.isfinite(t).all()) else 0.0
+            scale = float(constants.get("scale", 1.0))
+            if brightest * scale > FLOAT32_MAX:
+                raise SceneError(f"{where}: 'scale' {scale:g} times the map's brightest texel {brightest:g} is beyond float32's range "
+                                 f"(|x| <= {FLOAT32_MAX:.4g}): the radiance would be infinite")
         q = [float(constants.get(k, 0.0)) for k in QUATERNION]
         if abs(math.sqrt(sum(c * c for c in q)) - 1.0) > ROTATION_TOLERANCE:
             raise SceneError(f"{where}: rotation_w, rotation_x, rotation_y, rotation_z must be a unit quaternion, got {q}")

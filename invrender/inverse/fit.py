@@ -30,7 +30,7 @@ from tqdm.auto import tqdm
 from invrender.diff import ESTIMATOR_CHOICES, backpropagate, render
 from invrender.diff.defaults import fit_settings
 from invrender.diff.finite import check_params, nonfinite_params
-from invrender.errors import NonFiniteError, ParameterError
+from invrender.errors import NonFiniteError, ParameterError, did_you_mean
 from invrender.inverse import params as P
 from invrender.inverse.control_variates import RecursiveControlVariate
 from invrender.inverse.least_squares import SOLVERS
@@ -41,7 +41,7 @@ from invrender.inverse.targets import Target, make_targets
 from invrender.io.atomic import atomic_file
 from invrender.scene.camera import Camera
 from invrender.scene.kinds import kind_of
-from invrender.scene.scene import Scene, check_names
+from invrender.scene.scene import Scene, check_names, unknown_parameter
 from invrender.transport.driver import RenderSettings
 from invrender.registry import INTEGRATORS, integrator_spec
 from invrender.transport.integrators import Integrator, make_integrator
@@ -169,7 +169,7 @@ class FitSettings:
         if self.control_variate and not (self.decorrelate and self.solver == "adam"):
             raise ParameterError("control_variate needs solver 'adam' with decorrelate (it replaces the render dl/dI is taken at)")
         if self.solver not in SOLVERS:
-            raise ParameterError(f"unknown solver {self.solver!r} (known: {', '.join(SOLVERS)})")
+            raise ParameterError(f"unknown solver {self.solver!r}{did_you_mean(self.solver, SOLVERS)} (known: {', '.join(SOLVERS)})")
         if self.solver != "adam" and (model.terms_kept < 1 or self.loss != "relative_l2"):
             raise ParameterError(f"solver {self.solver!r} needs a finite max_depth >= 1 and the relative_l2 loss (got max_depth {model.terms_kept}, loss {self.loss!r})")
         for name in ("lr", "lr_emission", "lr_sensor", "lr_final", "precision"):
@@ -182,9 +182,9 @@ class FitSettings:
                 check_float("fit setting ", name, getattr(self, name), 0.0, math.inf)
         RenderSettings(sampler=self.sampler)  # validates the sampler
         if self.loss not in LOSSES:
-            raise ParameterError(f"unknown loss {self.loss!r} (known: {', '.join(LOSSES)})")
+            raise ParameterError(f"unknown loss {self.loss!r}{did_you_mean(self.loss, LOSSES)} (known: {', '.join(LOSSES)})")
         if self.estimator not in ESTIMATOR_CHOICES:
-            raise ParameterError(f"unknown estimator {self.estimator!r} (known: {', '.join(ESTIMATOR_CHOICES)})")
+            raise ParameterError(f"unknown estimator {self.estimator!r}{did_you_mean(self.estimator, ESTIMATOR_CHOICES)} (known: {', '.join(ESTIMATOR_CHOICES)})")
 
     @property
     def model(self) -> Integrator:
@@ -299,8 +299,8 @@ def fit(
     known = {f.name for f in dataclasses.fields(FitSettings)}
     unknown = set(settings) - known
     if unknown:
-        raise ParameterError(f"unknown fit setting {sorted(unknown)[0]!r} (known: {', '.join(sorted(known))})")
-    names = _check_fit_names(scene, params)
+        raise ParameterError(f"unknown fit setting {sorted(unknown)[0]!r}{did_you_mean(sorted(unknown)[0], known)} (known: {', '.join(sorted(known))})")
+    names = check_fit_names(scene, params)
     check_params(scene.params)  # the starting values (and the fixed ones): a NaN would be every step's
     checkpoint = Path(checkpoint) if checkpoint is not None else None
     state = None
@@ -312,7 +312,7 @@ def fit(
     cfg = FitSettings(**(settings if state is not None else fit_settings(scene, settings)))  # the scene file's integrator unless given
     views = load_targets(scene, target, cameras, mask=mask, response=response, exclude_clipped=exclude_clipped)
     sensor = Sensor.make(len(views), names, sensor)
-    truth = {k: torch.as_tensor(v, dtype=torch.float32) for k, v in (truth or {}).items()}
+    truth = _checked_truth(scene, truth)
     if state is not None and ("raw" in state) != (cfg.solver == "adam"):
         raise ParameterError(f"checkpoint {checkpoint} was written by another solver than {cfg.solver!r}")
     if cfg.solver != "adam":
@@ -424,9 +424,37 @@ def _stopped(step: int, what: str, checkpoint: Path | None, saved: int | None, u
     return NonFiniteError(f"fit stopped at {unit} {step + 1}: {what}{kept}")
 
 
-def _check_fit_names(scene: Scene, params) -> list[str]:
+def check_fit_names(scene: Scene, params) -> list[str]:
     """``params`` checked against the scene's parameters and the sensor's (:func:`check_names`)."""
     return check_names({**scene.params, **{n: None for n in SENSOR_NAMES}}, params)
+
+
+def _checked_truth(scene: Scene, truth) -> dict[str, torch.Tensor]:
+    """``truth`` (name -> ground-truth value) as float32 tensors, each name a parameter of the
+    scene or the sensor and each value finite and, for a scene parameter, of its shape (one number
+    or an RGB triple broadcast over it): one-line ParameterErrors before any work, not at the
+    end of the fit where the errors are computed."""
+    out = {}
+    known = [*scene.params, *SENSOR_NAMES]
+    for name, value in dict(truth or {}).items():
+        if name not in known:
+            raise unknown_parameter(name, known, "truth of unknown parameter")
+        try:
+            t = torch.as_tensor(value, dtype=torch.float32).detach()
+        except (TypeError, ValueError, RuntimeError):
+            raise ParameterError(f"truth of {name}: expected numbers, got {value!r:.60}") from None
+        if not bool(torch.isfinite(t).all()):
+            raise ParameterError(f"truth of {name}: values must be finite")
+        if not is_sensor(name):
+            shape = tuple(scene.params[name].shape)
+            try:
+                fits = torch.broadcast_shapes(t.shape, shape) == shape
+            except RuntimeError:
+                fits = False
+            if not fits:
+                raise ParameterError(f"truth of {name}: a value of shape {tuple(t.shape)} does not fit the parameter's shape {shape}")
+        out[name] = t
+    return out
 
 
 def _values(raw: dict, scene_names, sensor: Sensor, names) -> dict:
@@ -654,6 +682,8 @@ def load_targets(scene: Scene, target, cameras, *, mask=None, response=None, exc
     """(scene seen by each camera, its :class:`~invrender.inverse.targets.Target`) per view, with
     ``mask``, ``response`` and ``exclude_clipped`` as :func:`fit` takes them."""
     targets = list(target) if isinstance(target, (list, tuple)) else [target]
+    if not targets:
+        raise ParameterError("no target was given: an (H, W, 3) image, a file, or a list of them (one per camera)")
     if cameras is not None and len(cameras) != len(targets):
         raise ParameterError(f"{len(targets)} target(s) but {len(cameras)} camera(s): give one camera per target")
     if cameras is None and len(targets) > 1:

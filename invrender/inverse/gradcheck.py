@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import torch
 
-from invrender.errors import ParameterError
+from invrender.errors import ParameterError, did_you_mean
 from invrender.scene.scene import check_names
 from invrender.scene.scene import Scene
 from invrender.diff import ESTIMATORS, render
@@ -76,7 +76,7 @@ def gradcheck(
     names = check_names(scene.params, params)
     unknown = [e for e in estimators if e not in ESTIMATORS]
     if unknown:
-        raise ParameterError(f"unknown estimator {unknown[0]!r} (known: {', '.join(ESTIMATORS)})")
+        raise ParameterError(f"unknown estimator {unknown[0]!r}{did_you_mean(unknown[0], ESTIMATORS)} (known: {', '.join(ESTIMATORS)})")
     if not h > 0:
         raise ParameterError(f"finite-difference step h must be positive, got {h}")
     weights = torch.rand(scene.height, scene.width, 3, generator=torch.Generator().manual_seed(seed)).to(scene.device)

@@ -13,7 +13,7 @@ from __future__ import annotations
 from invrender.diff.records import record_paths
 from invrender.errors import ParameterError
 from invrender.inverse import lighting
-from invrender.inverse.fit import _check_fit_names, load_targets
+from invrender.inverse.fit import check_fit_names, load_targets
 from invrender.inverse import retraced
 from invrender.inverse.least_squares import analyse
 from invrender.inverse.sensor import Sensor, is_sensor
@@ -43,7 +43,7 @@ def identifiability(
     (coefficients with standard errors, ``undetermined`` coefficient labels such as
     ``"Y[3,-1]"``, :meth:`~invrender.inverse.lighting.SHFit.undetermined_orders`), at ``spp``
     (``max_depth`` as given; 2 suits a convex object, whose light arrives in one bounce)."""
-    names = _check_fit_names(scene, params)
+    names = check_fit_names(scene, params)
     if order is not None:
         return _sh_identifiability(scene, target, names, order, cameras=cameras, spp=spp, max_depth=max_depth, seed=seed, integrator=integrator, sampler=sampler)
     views = load_targets(scene, target, cameras, mask=mask, response=response, exclude_clipped=exclude_clipped)

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import torch
 
-from invrender.errors import ParameterError
+from invrender.errors import ParameterError, did_you_mean
 
 LOSSES = ("l2", "l1", "relative_l2", "ssim")
 
@@ -47,7 +47,7 @@ def image_loss(name: str, image: torch.Tensor, target) -> torch.Tensor:
         a, b = image.permute(2, 0, 1)[None], target.permute(2, 0, 1)[None]
         scale = max(float(target.detach().max()), 1e-6)  # SSIM's constants assume a [0, 1] range
         return kornia.losses.ssim_loss(a / scale, b / scale, window_size=min(11, _odd(min(image.shape[:2]))), reduction="mean")
-    raise ParameterError(f"unknown loss {name!r} (known: {', '.join(LOSSES)})")
+    raise ParameterError(f"unknown loss {name!r}{did_you_mean(name, LOSSES)} (known: {', '.join(LOSSES)})")
 
 
 def _weighted_loss(name: str, image: torch.Tensor, target) -> torch.Tensor:
@@ -62,7 +62,7 @@ def _weighted_loss(name: str, image: torch.Tensor, target) -> torch.Tensor:
     if name == "ssim":
         m = target.mask[..., None]
         return image_loss("ssim", image * m, target.linear * m)
-    raise ParameterError(f"unknown loss {name!r} (known: {', '.join(LOSSES)})")
+    raise ParameterError(f"unknown loss {name!r}{did_you_mean(name, LOSSES)} (known: {', '.join(LOSSES)})")
 
 
 def _odd(n: int) -> int:

@@ -1,10 +1,12 @@
 """Least squares on re-traced renders: Levenberg-Marquardt for parameters path records cannot represent.
 
-**Which path a least-squares fit takes** (:func:`record_obstacle`): on path records
-(:mod:`invrender.inverse.least_squares`) when every fitted scene parameter is a polynomial factor
-of the path weights (its kind's ``polynomial``, and its material's ``not_polynomial`` gives no
-reason); otherwise, when any one is not (a ``roughness``; a rough plastic's ``reflectance`` or
-``specular_reflectance``, whose value sums two lobes), the whole fit runs here, every unknown's
+**Which path a least-squares fit takes** (:func:`~invrender.diff.records.record_obstacle`): on
+path records (:mod:`invrender.inverse.least_squares`) when every fitted scene parameter is a
+polynomial factor of the path weights (its kind's ``polynomial``, and its material's
+``not_polynomial`` gives no reason); otherwise, when any one is not (a ``roughness``; a rough
+plastic's ``reflectance`` or ``specular_reflectance``, whose value sums two lobes; the emission of
+an environment map or constant sky beside another emitter infinitely far away, whose radiances add
+along every ray that leaves the scene), the whole fit runs here, every unknown's
 Jacobian column from forward-mode renders. There is no mixing: one rule, one path per fit.
 
 **The residual and its Jacobian.** Round r of a fit traces at ``spp``; at the round's start values
@@ -55,6 +57,7 @@ import torch
 import torch.autograd.forward_ad as fwAD
 
 from invrender.diff import render
+from invrender.diff.records import record_obstacle
 from invrender.errors import ParameterError
 from invrender.inverse.least_squares import Identifiability, LeastSquaresSolution, _gains, _linear, _weights, sandwich, weak_combinations
 from invrender.inverse.sensor import Sensor
@@ -75,22 +78,6 @@ MAX_FACTOR = 4.0
 GROWTH = 4.0
 #: a round's iteration ends when no unknown moved by more than this fraction of itself
 XTOL = 5e-3
-
-
-def record_obstacle(scene: Scene, names) -> str | None:
-    """Why path records cannot represent the scene parameters ``names`` (the first reason), or
-    None when they can: the rule of which path a least-squares fit takes (module docstring)."""
-    for n in names:
-        kind = kind_of(n)
-        if not kind.polynomial:
-            return f"{n} is a {kind.key}, not a polynomial factor of a path's weight"
-        owner, _, key = n.rpartition(".")
-        if owner in scene.materials:
-            spec = scene.material_spec(scene.materials.index(owner))
-            why = spec.spec.not_polynomial(key, spec.constants)
-            if why:
-                return f"{n}: {why}"
-    return None
 
 
 @dataclasses.dataclass(frozen=True)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import torch
 
-from invrender.errors import ParameterError
+from invrender.errors import ParameterError, did_you_mean
 from invrender.scene.kinds import SENSOR, kind_of
 
 EXPOSURE = f"{SENSOR}.exposure"
@@ -61,12 +61,16 @@ class Sensor:
         ``sensor`` options: ``exposure`` (a number, or one per view), ``white_balance`` (RGB, or one
         RGB per view; green must be 1) and ``shared`` (a list of ``"exposure"``,
         ``"white_balance"``). Every key is checked; a ParameterError names the bad one."""
+        if options is not None and not isinstance(options, dict):
+            raise ParameterError(f"sensor options must be a mapping of {', '.join(OPTION_KEYS)}, got {options!r:.60}")
         options = dict(options or {})
         unknown = set(options) - set(OPTION_KEYS)
         if unknown:
-            raise ParameterError(f"unknown sensor option {sorted(unknown)[0]!r} (known: {', '.join(OPTION_KEYS)})")
+            raise ParameterError(f"unknown sensor option {sorted(unknown)[0]!r}{did_you_mean(sorted(unknown)[0], OPTION_KEYS)} (known: {', '.join(OPTION_KEYS)})")
         shared = options.get("shared", ())
-        shared = [shared] if isinstance(shared, str) else list(shared)
+        shared = [shared] if isinstance(shared, str) else shared
+        if not isinstance(shared, (list, tuple)):
+            raise ParameterError(f"sensor option shared must be a list of 'exposure', 'white_balance', got {shared!r:.60}")
         for s in shared:
             if s not in ("exposure", "white_balance"):
                 raise ParameterError(f"sensor option shared: {s!r} is not 'exposure' or 'white_balance'")

@@ -27,6 +27,7 @@ residuals and Jacobians, identifiability), so what they hold changes nothing.
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 
@@ -35,7 +36,11 @@ import torch
 from invrender.errors import ImageError, ParameterError
 from invrender.io.images import read_mask, read_photo
 from invrender.io.response import Response, response as make_response
+from invrender.validate import FLOAT32_MAX
 
+#: the largest target value a fit takes: the square root of float32's largest, so that a residual's
+#: square stays finite
+LARGEST_TARGET = math.sqrt(FLOAT32_MAX)
 #: an integer file's pixel is saturated when a channel is at or above this fraction of the top code
 #: (250 of 255: the codes just below the top are where clipping and JPEG ringing meet)
 SATURATION = 0.98
@@ -133,6 +138,9 @@ def make_target(t, label: str, size: tuple[int, int], mask=None, response=None, 
         raise ImageError(f"{label} must be an (H, W, 3) RGB image, got shape {tuple(values.shape)}")
     if not torch.isfinite(values).all():
         raise ImageError(f"{label} contains NaN or Inf values")
+    if values.numel() and float(values.abs().max()) > LARGEST_TARGET:
+        raise ImageError(f"{label} has a value of {float(values.abs().max()):.4g}, beyond {LARGEST_TARGET:.4g}: its residual's square would overflow float32 "
+                         f"(a corrupt file, or radiance in other units)")
     if bool((values < 0).any()):
         raise ImageError(f"{label} has negative radiance (minimum {float(values.min()):.4g}); a target is linear radiance >= 0")
     W, H = size

@@ -103,15 +103,33 @@ def _read_8bit(path: Path) -> tuple[np.ndarray, float | None]:
         raise ImageError(f"cannot read image {path}: not a regular file")
     try:
         with Image.open(path) as img:
+            stored = _stored_mode(img)
+            if img.mode not in EIGHT_BIT_MODES or "16" in stored:
+                raise ImageError(f"cannot read image {path}: {_depth_of(img, stored)}; a bracket's images have 8 bits per channel "
+                                 f"(OpenCV's Debevec calibration and merge take 8-bit codes only)")
             img.load()
-            if img.mode not in EIGHT_BIT_MODES:
-                raise ImageError(f"cannot read image {path}: not an 8-bit image (PIL mode {img.mode}); a bracket's images have 8 bits per channel")
             return np.asarray(img.convert("RGB"), dtype=np.uint8), _exif_exposure(img)
     except ImageError:
         raise
     except (UnidentifiedImageError, Image.DecompressionBombError, OSError, SyntaxError, ValueError) as e:
         reason = (str(e).strip().splitlines() or [type(e).__name__])[0]
         raise ImageError(f"cannot read image {path}: not a valid image file ({reason})") from None
+
+
+def _stored_mode(img: Image.Image) -> str:
+    """The raw mode the file's pixels are stored in, before PIL converts them to ``img.mode`` (a
+    16-bit RGB PNG or TIFF opens as mode ``RGB`` with raw mode ``RGB;16B``/``RGB;16N``); read from
+    the decoder's tile, so only before ``img.load()``. ``""`` when the decoder does not say."""
+    if not img.tile:
+        return ""
+    args = img.tile[0].args
+    raw = args if isinstance(args, str) else args[0] if isinstance(args, tuple) and args and isinstance(args[0], str) else ""
+    return raw
+
+
+def _depth_of(img: Image.Image, stored: str) -> str:
+    """What a refused image is, for the message: 16 bits per channel, or another PIL mode."""
+    return "not an 8-bit image (16 bits per channel)" if "16" in stored or "16" in img.mode else f"not an 8-bit image (PIL mode {img.mode})"
 
 
 def _exif_exposure(img: Image.Image) -> float | None:

@@ -2,8 +2,9 @@
 
 Every image in invrender is a float tensor of shape (H, W, 3): linear RGB radiance (W sr^-1 m^-2 per
 channel, unitless scale), row 0 at the top. EXR files hold those values exactly (float32); PNG and
-JPEG files hold sRGB-encoded 8-bit values in [0, 1] and are converted to and from linear on the way
-(written as a camera would store them: :func:`write_image`'s ``quality``).
+JPEG files hold sRGB-encoded values in [0, 1] (8 bits; a PNG read may have 16, every code kept) and
+are converted to and from linear on the way (written as a camera would store them: :func:`write_image`'s
+``quality``).
 Radiance ``.hdr`` (RGBE) files are read as linear (through OpenCV), for environment maps.
 :func:`read_photo` reads a file as a camera stored it (a fit target that is a photograph): its
 encoded values, bit depth, default camera response and alpha channel (:class:`Photo`), 8- and
@@ -13,8 +14,6 @@ Every failure raises :class:`~invrender.errors.ImageError` with a one-line messa
 
 from __future__ import annotations
 
-import contextlib
-import io
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +26,7 @@ from PIL import Image
 
 from invrender.errors import ImageError
 from invrender.io.atomic import atomic_file
+from invrender.io.native import last_line, native_output
 
 WRITE_SUFFIXES = (".exr", ".png", ".jpg", ".jpeg")
 READ_SUFFIXES = (".exr", ".hdr", ".png", ".jpg", ".jpeg")
@@ -83,7 +83,7 @@ def read_image(path: str | os.PathLike, device: torch.device | str | None = None
     Args:
         path: ``.exr`` (R, G, B channels; a Y-only file is replicated to grey, alpha is dropped),
             ``.hdr`` (Radiance RGBE, linear), or
-            ``.png`` / ``.jpg`` / ``.jpeg`` (decoded from sRGB to linear; alpha dropped).
+            ``.png`` (8 or 16 bits) / ``.jpg`` / ``.jpeg`` (decoded from sRGB to linear; alpha dropped).
         device: device of the returned tensor (default CPU).
 
     Returns:
@@ -161,43 +161,66 @@ def _write_srgb8(f, rgb: np.ndarray, format: str, quality: int) -> None:
 
 def _read_exr(path: Path) -> torch.Tensor:
     """Read an EXR file's first part as a (H, W, 3) float32 tensor."""
-    # On bad pixel data (e.g. a truncated file) OpenEXR prints a "Warning: ..." line to sys.stdout and
-    # returns a File with no parts; catch that line so it becomes the error message, not stray output.
-    printed = io.StringIO()
-    with contextlib.redirect_stdout(printed), OpenEXR.File(str(path), separate_channels=True) as f:
-        if not f.parts:
-            reason = printed.getvalue().strip().splitlines()[-1:] or ["no readable parts"]
-            raise ImageError(f"cannot read image {path}: corrupt or truncated EXR pixel data ({reason[0]})")
-        channels = f.channels()
-        if all(c in channels for c in "RGB"):
-            planes = [channels[c].pixels for c in "RGB"]
-        elif "Y" in channels:
-            planes = [channels["Y"].pixels] * 3
+    # On bad pixel data (e.g. a truncated file) OpenEXR's C core writes a line to descriptor 2 and its
+    # binding a "Warning: ..." line to sys.stdout, and it returns a File with no parts: both lines
+    # are caught, the last becomes the error's reason.
+    with native_output() as printed:
+        try:
+            with OpenEXR.File(str(path), separate_channels=True) as f:
+                channels = {name: c.pixels for name, c in f.channels().items()} if f.parts else None
+        except Exception as e:
+            error = e
         else:
-            raise ImageError(f"cannot read image {path}: no R, G, B or Y channels (found {', '.join(sorted(channels)) or 'none'})")
-        rgb = np.stack([np.asarray(p, dtype=np.float32) for p in planes], axis=-1)
+            error = None
+    if error is not None:
+        raise ImageError(f"cannot read image {path}: not a valid EXR file ({last_line(printed, _reason(error))})")
+    if channels is None:
+        raise ImageError(f"cannot read image {path}: corrupt or truncated EXR pixel data ({last_line(printed, 'no readable parts')})")
+    if all(c in channels for c in "RGB"):
+        planes = [channels[c] for c in "RGB"]
+    elif "Y" in channels:
+        planes = [channels["Y"]] * 3
+    else:
+        raise ImageError(f"cannot read image {path}: no R, G, B or Y channels (found {', '.join(sorted(channels)) or 'none'})")
+    rgb = np.stack([np.asarray(p, dtype=np.float32) for p in planes], axis=-1)
     return torch.from_numpy(rgb)
+
+
+def _cv2_read(path: Path, flags: int, what: str) -> np.ndarray:
+    """``cv2.imread(path, flags)`` with OpenCV's logger silenced and what libpng prints caught:
+    the array, or an :class:`ImageError` naming the file, with libpng's last word if it had one."""
+    import cv2  # lazily: only .hdr files and photographs read as codes need it
+
+    log = cv2.utils.logging
+    level = log.getLogLevel()
+    log.setLogLevel(log.LOG_LEVEL_SILENT)  # OpenCV's own logger: its long lines say no more than ours
+    try:
+        with native_output() as printed:  # what libpng prints itself ("libpng error: ...")
+            data = cv2.imread(str(path), flags)
+    finally:
+        log.setLogLevel(level)
+    if data is None:
+        raise ImageError(f"cannot read image {path}: not a valid {what} file" + (f" ({printed[-1]})" if printed else ""))
+    return data
 
 
 def _read_hdr(path: Path) -> torch.Tensor:
     """Read a Radiance RGBE (.hdr) file as a (H, W, 3) float32 linear tensor (OpenCV's reader, which
     gives BGR)."""
-    import cv2  # lazily: only .hdr files need it
+    import cv2
 
-    log = cv2.utils.logging
-    level = log.getLogLevel()
-    log.setLogLevel(log.LOG_LEVEL_SILENT)  # a bad file: our one-line error, not OpenCV's log lines
-    try:
-        bgr = cv2.imread(str(path), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_COLOR)
-    finally:
-        log.setLogLevel(level)
+    bgr = _cv2_read(path, cv2.IMREAD_ANYDEPTH | cv2.IMREAD_COLOR, "HDR (Radiance RGBE)")
     if bgr is None or bgr.ndim != 3 or bgr.shape[2] != 3:
         raise ImageError(f"cannot read image {path}: not a valid HDR (Radiance RGBE) file")
     return torch.from_numpy(np.ascontiguousarray(bgr[..., ::-1], dtype=np.float32))
 
 
 def _read_srgb(path: Path) -> torch.Tensor:
-    """Read an 8-bit PNG/JPEG (or 16-bit grey PNG) as a (H, W, 3) float32 linear tensor."""
+    """Read a PNG (8 or 16 bits, every code kept: OpenCV's reader) or a JPEG as a (H, W, 3)
+    float32 linear tensor."""
+    if path.suffix.lower() == ".png":
+        codes = _read_png_codes(path).values.permute(2, 0, 1)
+        return kornia.color.rgb_to_linear_rgb(codes).permute(1, 2, 0).contiguous()
     with Image.open(path) as img:
         img.load()
         return decode_srgb(img)
@@ -273,9 +296,7 @@ def _read_png_codes(path: Path) -> Photo:
     """A PNG's codes through OpenCV (8 or 16 bits, grey, grey + alpha, RGB or RGBA)."""
     import cv2
 
-    data = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if data is None:
-        raise ImageError(f"cannot read image {path}: not a valid PNG file")
+    data = _cv2_read(path, cv2.IMREAD_UNCHANGED, "PNG")
     if data.dtype not in (np.uint8, np.uint16):
         raise ImageError(f"cannot read image {path}: expected 8 or 16 bits per channel, got {data.dtype}")
     bits = 8 if data.dtype == np.uint8 else 16

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import torch
 
-from invrender.errors import ImageError
+from invrender.errors import ImageError, did_you_mean
 
 NAMES = ("linear", "srgb", "gamma:G", "a CSV file")
 CSV_HEADER = ["value", "red", "green", "blue"]
@@ -130,7 +130,11 @@ def response(spec) -> Response:
         if not (math.isfinite(g) and g > 0):
             raise ImageError(f"response {spec!r}: gamma:G needs a positive number G (e.g. gamma:2.2)")
         return Response(f"gamma:{g:g}", gamma=g)
-    raise ImageError(f"unknown response {spec!r} (known: {', '.join(NAMES)})")
+    raise ImageError(f"unknown response {spec!r}{did_you_mean(spec, NAMES)} (known: {', '.join(NAMES)})")
+
+
+def _first_line(e: Exception) -> str:
+    return (str(e).strip().splitlines() or [""])[0]
 
 
 def read_response_csv(path) -> Response:
@@ -139,10 +143,12 @@ def read_response_csv(path) -> Response:
     channel increasing and ending at 1.0."""
     path = Path(path)
     try:
-        with open(path, newline="") as f:
+        with open(path, newline="", encoding="utf-8") as f:
             rows = list(csv.reader(f))
     except OSError as e:
         raise ImageError(f"cannot read response curve {path}: {e.strerror or e}") from None
+    except (UnicodeDecodeError, csv.Error) as e:  # a binary file, a NUL byte
+        raise ImageError(f"response curve {path}: not a CSV text file ({e.__class__.__name__}: {_first_line(e)})") from None
     if not rows or [h.strip().lower() for h in rows[0]] != CSV_HEADER:
         raise ImageError(f"response curve {path}: the header must be {','.join(CSV_HEADER)}")
     body = [r for r in rows[1:] if any(c.strip() for c in r)]

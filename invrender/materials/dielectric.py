@@ -15,15 +15,31 @@ leaving a closed object cancel. No parameter is differentiable (``ior`` is a sce
 
 from __future__ import annotations
 
-import math
 
 import torch
 
 from invrender import registry
+from invrender.errors import SceneError
 from invrender.materials.mirror import reflect
 from invrender.scene.plugins import Constant
 from invrender.transport.bsdfs.base import BSDFSample, DeltaBSDF, Lobe, ShadingPoint
 from invrender.vec import dot
+
+
+#: the widest relative index of refraction (interior over exterior) a material accepts, and its
+#: inverse the narrowest: real media lie between 1 (vacuum) and about 4 (germanium, in the
+#: infrared), so a ratio beyond it is a slip, and far beyond it the Fresnel terms' ``eta^2``
+#: leaves float32's range (a render of NaN)
+MAX_RELATIVE_IOR = 100.0
+
+
+def check_relative_ior(where: str, int_ior: float, ext_ior: float) -> None:
+    """A :class:`SceneError` naming ``where`` and both indices unless ``int_ior / ext_ior`` lies in
+    ``[1 / MAX_RELATIVE_IOR, MAX_RELATIVE_IOR]``."""
+    eta = int_ior / ext_ior
+    if not 1.0 / MAX_RELATIVE_IOR <= eta <= MAX_RELATIVE_IOR:
+        raise SceneError(f"{where}: 'int_ior' / 'ext_ior' = {int_ior:g} / {ext_ior:g} = {eta:g}; expected a relative index of refraction in "
+                         f"[{1.0 / MAX_RELATIVE_IOR:g}, {MAX_RELATIVE_IOR:g}] (real media lie between 1 and about 4)")
 
 
 def fresnel_dielectric(cos_i: torch.Tensor, eta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -42,7 +58,7 @@ def fresnel_dielectric(cos_i: torch.Tensor, eta: torch.Tensor) -> tuple[torch.Te
 class Dielectric(DeltaBSDF):
     type_name = "dielectric"
     lobes = Lobe.DELTA_REFLECTION | Lobe.DELTA_TRANSMISSION
-    constants = {"ior": Constant(1.5, 0.0, math.inf, True, True)}
+    constants = {"ior": Constant(1.5, 1.0 / MAX_RELATIVE_IOR, MAX_RELATIVE_IOR, False, False)}
     doc = "smooth glass: Fresnel reflection and refraction"
 
     def _interface(self, sp: ShadingPoint):

@@ -70,7 +70,7 @@ import torch
 
 from invrender import registry
 from invrender.errors import ParameterError, SceneError
-from invrender.materials.dielectric import fresnel_dielectric
+from invrender.materials.dielectric import check_relative_ior, fresnel_dielectric
 from invrender.materials.glossy import ALPHA
 from invrender.materials.microfacet import BECKMANN, DISTRIBUTIONS, GGX, Distribution, fwAD_active, roughness_at
 from invrender.materials.mirror import reflect
@@ -240,9 +240,11 @@ class Coated(BSDF):
     def resolve(cls, where: str, values: dict, constants: dict, given: set) -> dict:
         """Mitsuba's specular sampling weight ``mean(k_s) / (mean(rho) + mean(k_s))`` (over channels
         and texels; 0.5 when both are 0) from the values the scene is built with, unless given;
-        the rough plastic's indices must differ (as Mitsuba's)."""
+        the rough plastic's indices must differ (as Mitsuba's); the coating's ratio of indices must
+        be one real media have (:func:`~invrender.materials.dielectric.check_relative_ior`)."""
         if constants["int_ior"] == constants["ext_ior"] and cls.has(Lobe.GLOSSY):
             raise SceneError(f"{where}: 'int_ior' and 'ext_ior' must differ (both {constants['int_ior']:g}), as Mitsuba's roughplastic requires")
+        check_relative_ior(where, constants["int_ior"], constants["ext_ior"])
         if "specular_sampling_weight" not in given:
             d, s = (_mean(values[k]) for k in ("reflectance", "specular_reflectance"))
             constants = {**constants, "specular_sampling_weight": s / (d + s) if d + s > 0 else 0.5}

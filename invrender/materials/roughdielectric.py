@@ -48,7 +48,7 @@ import torch
 
 from invrender import registry
 from invrender.errors import SceneError
-from invrender.materials.dielectric import fresnel_dielectric
+from invrender.materials.dielectric import check_relative_ior, fresnel_dielectric
 from invrender.materials.glossy import ALPHA
 from invrender.materials.microfacet import BECKMANN, GGX, Distribution, roughness_at, visible_reweight
 from invrender.scene.formats.mitsuba.bsdfs import NAMED_IOR
@@ -152,9 +152,11 @@ class RoughDielectric(BSDF):
 
     @classmethod
     def resolve(cls, where: str, values: dict, constants: dict, given: set) -> dict:
-        """The indices must differ (an index-matched interface has no half-vector to refract about)."""
+        """The indices must differ (an index-matched interface has no half-vector to refract about), and
+        their ratio be one real media have (:func:`~invrender.materials.dielectric.check_relative_ior`)."""
         if constants["int_ior"] == constants["ext_ior"]:
             raise SceneError(f"{where}: 'int_ior' and 'ext_ior' must differ (both {constants['int_ior']:g}): an index-matched interface is not a {cls.type_name}")
+        check_relative_ior(where, constants["int_ior"], constants["ext_ior"])
         return constants
 
     # ---- its aliases in the scene formats (read through the registry)

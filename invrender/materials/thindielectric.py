@@ -15,12 +15,11 @@ is differentiable (``ior`` is a scene constant).
 
 from __future__ import annotations
 
-import math
 
 import torch
 
 from invrender import registry
-from invrender.materials.dielectric import fresnel_dielectric
+from invrender.materials.dielectric import MAX_RELATIVE_IOR, fresnel_dielectric
 from invrender.materials.mirror import reflect
 from invrender.scene.plugins import Constant
 from invrender.transport.bsdfs.base import BSDFSample, DeltaBSDF, Lobe, ShadingPoint
@@ -31,7 +30,7 @@ from invrender.vec import dot
 class ThinDielectric(DeltaBSDF):
     type_name = "thindielectric"
     lobes = Lobe.DELTA_REFLECTION | Lobe.DELTA_TRANSMISSION
-    constants = {"ior": Constant(1.5, 0.0, math.inf, True, True)}
+    constants = {"ior": Constant(1.5, 1.0 / MAX_RELATIVE_IOR, MAX_RELATIVE_IOR, False, False)}
     doc = "a thin pane of glass: reflection, and transmission straight through"
 
     def _pane(self, sp: ShadingPoint) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

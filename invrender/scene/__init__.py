@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from invrender.errors import SceneError
+from invrender.errors import SceneError, did_you_mean
 from invrender.scene import formats
 from invrender.scene.builtin import BUILTIN_SCENES, builtin_scene
 from invrender.scene.camera import Camera
@@ -39,7 +39,7 @@ def load_scene(source, resolution=None, device=None, ambient=None, studio: bool 
     else:
         path = Path(source_str)
         if path.suffix.lower() not in formats.SUFFIXES:
-            raise SceneError(f"unknown scene {source_str!r}: not a built-in ({', '.join(BUILTIN_SCENES)}) nor a {'/'.join(formats.SUFFIXES)} file")
+            raise SceneError(f"unknown scene {source_str!r}{did_you_mean(source_str, BUILTIN_SCENES)}: not a built-in ({', '.join(BUILTIN_SCENES)}) nor a {'/'.join(formats.SUFFIXES)} file")
         if kwargs:
             raise SceneError(f"scene options {', '.join(kwargs)} apply to built-in scenes only")
         if not path.is_file():

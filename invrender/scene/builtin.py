@@ -3,11 +3,13 @@
 
 from __future__ import annotations
 
+import inspect
 import math
+import numbers
 
 import torch
 
-from invrender.errors import SceneError
+from invrender.errors import SceneError, did_you_mean
 from invrender.scene.camera import Camera
 from invrender.scene.emitters import Emitter
 from invrender.scene.materials import Material
@@ -149,10 +151,8 @@ def furnace(resolution=(32, 32), rho=0.5, eps=1.0, subdivisions: int = 3) -> Sce
 
 
 def _rgb(x):
-    try:
-        return [float(x)] * 3
-    except TypeError:
-        return x
+    """One number as an RGB triple; a triple or a texture as it is."""
+    return [float(x)] * 3 if isinstance(x, numbers.Real) else x
 
 
 #: sky_spheres: the sky's colours (linear RGB) at the zenith, at the horizon and below it, and the sun
@@ -184,8 +184,7 @@ def sky_map(h: int = 16, w: int = 32) -> torch.Tensor:
     horizon a gradient from ``SKY_HORIZON`` to ``SKY_ZENITH`` (in sqrt of the height), below it a
     uniform ``SKY_GROUND``, plus a sun: a Gaussian blob of ``SUN_WIDTH`` degrees peaking at
     ``SUN_PEAK`` x ``SUN_RGB``, ``SUN_ELEVATION`` degrees above the horizon at ``u = SUN_U``."""
-    if h < 3 or w < 4:
-        raise SceneError(f"sky_spheres: map_size must be at least (3, 4), got ({h}, {w})")
+    _map_size("sky_spheres", "map_size", (h, w))
     d = map_directions(h, w)
     up = d[..., 1:2]
     zenith, horizon, ground = (torch.tensor(c, dtype=torch.float64) for c in (SKY_ZENITH, SKY_HORIZON, SKY_GROUND))
@@ -203,8 +202,8 @@ def sky_spheres(resolution=(64, 64), map_size=(16, 32), subdivisions: int = 4, s
     ``bench/envmap_compare.py`` without its map's rotation and scale: the example of inverse
     lighting (docs/environment.md#inverse-lighting).
     """
-    h, w = map_size
-    texture = sky_map(int(h), int(w)) if sky is None else torch.as_tensor(sky, dtype=torch.float32)
+    h, w = _map_size("sky_spheres", "map_size", map_size)
+    texture = sky_map(h, w) if sky is None else _texture("sky_spheres", "sky", sky)
     ball = lambda x, material: primitive("sphere", material, None, subdivisions).transformed(translate([x, -0.5, 0]) @ scale(0.5))  # noqa: E731
     shapes = [_shape("rectangle", translate([0, -1, 0]) @ rotate([1, 0, 0], -90) @ scale(3.0), "floor"), ball(-0.65, "diffuse"), ball(0.65, "glossy")]
     materials = {
@@ -218,13 +217,70 @@ def sky_spheres(resolution=(64, 64), map_size=(16, 32), subdivisions: int = 4, s
 BUILTIN_SCENES = {"cornell_box": cornell_box, "cornell_specular": cornell_specular, "cornell_materials": cornell_materials, "furnace": furnace, "sky_spheres": sky_spheres}
 
 
+#: sky_spheres: the most texels its map may have (h * w; 2^24 texels are 192 MiB of float32 RGB)
+MAX_MAP_TEXELS = 2**24
+
+
+def _map_size(scene: str, key: str, value) -> tuple[int, int]:
+    """``(h, w)``: two integers, at least 3 rows and 4 columns, at most :data:`MAX_MAP_TEXELS`."""
+    ok = isinstance(value, (tuple, list)) and len(value) == 2 and all(isinstance(v, numbers.Integral) and not isinstance(v, bool) for v in value)
+    if not ok:
+        raise SceneError(f"{scene}: {key!r} must be two integers (rows, columns), got {value!r}")
+    h, w = (int(v) for v in value)
+    if h < 3 or w < 4:
+        raise SceneError(f"{scene}: {key!r} must be at least (3, 4), got ({h}, {w})")
+    if h * w > MAX_MAP_TEXELS:
+        raise SceneError(f"{scene}: {key!r} ({h}, {w}) is {h * w} texels, more than {MAX_MAP_TEXELS}")
+    return h, w
+
+
+def _subdivisions(scene: str, key: str, value) -> int:
+    """An icosphere's subdivisions: an integer in [0, 7] (20 * 4^n triangles)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not 0 <= value <= 7:
+        raise SceneError(f"{scene}: {key!r} must be an integer in [0, 7] (an icosphere of 20 * 4^n triangles), got {value!r}")
+    return int(value)
+
+
+def _rgb_option(scene: str, key: str, value):
+    """A number, an RGB triple or an (h, w, 3) texture (its range is the parameter's, checked when
+    the scene is built)."""
+    try:
+        t = None if isinstance(value, (bool, str)) else torch.as_tensor(value, dtype=torch.float32)
+    except (TypeError, ValueError, RuntimeError):
+        t = None
+    if t is None or not (t.ndim == 0 or tuple(t.shape) == (3,) or (t.ndim == 3 and t.shape[2] == 3)):
+        raise SceneError(f"{scene}: {key!r} must be a number, an RGB triple or an (h, w, 3) texture, got {value!r:.60}")
+    return value
+
+
+def _texture(scene: str, key: str, value) -> torch.Tensor:
+    """An (h, w, 3) texture as float32 (its values are the parameter's, checked when the scene is built)."""
+    try:
+        t = torch.as_tensor(value, dtype=torch.float32)
+    except (TypeError, ValueError, RuntimeError):
+        t = None
+    if t is None or t.ndim != 3 or t.shape[2] != 3 or t.shape[0] < 1 or t.shape[1] < 1:
+        raise SceneError(f"{scene}: {key!r} must be an (h, w, 3) texture, got {value!r:.60}")
+    return t
+
+
+#: how each keyword option of the built-in scenes is checked before the scene is made (resolution:
+#: by build_scene)
+OPTION_CHECKS = {"subdivisions": _subdivisions, "map_size": _map_size, "rho": _rgb_option, "eps": _rgb_option, "sky": _texture}
+
+
 def builtin_scene(name: str, **kwargs) -> Scene:
-    """A built-in scene by name; ``kwargs`` go to its constructor (e.g. ``resolution``, ``rho``)."""
+    """A built-in scene by name; ``kwargs`` go to its constructor (e.g. ``resolution``, ``rho``),
+    each checked first (:data:`OPTION_CHECKS`): an unknown name or a bad value is a one-line
+    :class:`SceneError` naming the scene, the option and the value."""
     try:
         make = BUILTIN_SCENES[name]
     except KeyError:
-        raise SceneError(f"unknown built-in scene {name!r} (built-in: {', '.join(BUILTIN_SCENES)})") from None
-    try:
-        return make(**kwargs)
-    except TypeError as e:
-        raise SceneError(f"built-in scene {name!r}: {e}") from None
+        raise SceneError(f"unknown built-in scene {name!r}{did_you_mean(name, BUILTIN_SCENES)} (built-in: {', '.join(BUILTIN_SCENES)})") from None
+    options = list(inspect.signature(make).parameters)
+    for key, value in kwargs.items():
+        if key not in options:
+            raise SceneError(f"built-in scene {name!r} has no option {key!r}{did_you_mean(key, options)} (options: {', '.join(options)})")
+        if key in OPTION_CHECKS:
+            kwargs[key] = OPTION_CHECKS[key](name, key, value)
+    return make(**kwargs)

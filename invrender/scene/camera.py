@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import torch
 
 from invrender.errors import SceneError
+from invrender.validate import FLOAT32_MAX
 from invrender.vec import normalize
 
 FOV_AXES = ("x", "y", "smaller", "larger")
@@ -72,8 +73,8 @@ class Camera:
             value = tuple(float(x) for x in getattr(self, name))
             if len(value) != 3:
                 raise SceneError(f"camera {name} must have 3 components, got {len(value)}")
-            if not all(math.isfinite(x) for x in value):
-                raise SceneError(f"camera {name} must be 3 finite numbers, got {list(value)}")
+            if not all(_is_finite(x) for x in value):  # rays are float32: beyond its range is infinity too
+                raise SceneError(f"camera {name} must be 3 finite numbers (|x| <= {FLOAT32_MAX:.4g}), got {value}")
             object.__setattr__(self, name, value)
         object.__setattr__(self, "fov", float(self.fov))
         if not (0.0 < self.fov < 180.0):
@@ -225,7 +226,8 @@ def concentric_disk(u: torch.Tensor) -> torch.Tensor:
 
 
 def _is_finite(value) -> bool:
-    return not isinstance(value, bool) and isinstance(value, numbers.Real) and math.isfinite(value)
+    """A real number (not a bool) that is finite in float32, the rays' precision."""
+    return not isinstance(value, bool) and isinstance(value, numbers.Real) and math.isfinite(value) and abs(value) <= FLOAT32_MAX
 
 
 def _cross(a, b):

@@ -15,9 +15,10 @@ import math
 from dataclasses import dataclass, field
 from typing import ClassVar, NamedTuple
 
-from invrender.errors import SceneError
+from invrender.errors import SceneError, did_you_mean
 from invrender.registry import Registry
 from invrender.scene.kinds import ParamKind
+from invrender.validate import FLOAT32_MAX
 
 
 class Param(NamedTuple):
@@ -65,6 +66,8 @@ class Constant:
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(float(value)):
             raise SceneError(f"{where}: '{key}' must be a finite number, got {value!r}")
         v = float(value)
+        if abs(v) > FLOAT32_MAX:
+            raise SceneError(f"{where}: '{key}' is {v:g}, beyond float32's range (|x| <= {FLOAT32_MAX:.4g}): a render would compute with infinity")
         below = v <= self.low if self.low_open else v < self.low
         above = v >= self.high if self.high_open else v > self.high
         if below or above:
@@ -140,7 +143,7 @@ class PluginSpec:
         unknown = sorted(set(entries) - set(spec.params) - set(spec.constants))
         if unknown:
             allowed = ", ".join(sorted({"type", *spec.params, *spec.constants}))
-            raise SceneError(f"{where}: unknown key {unknown[0]!r} for a {type} {cls.noun} (allowed: {allowed})")
+            raise SceneError(f"{where}: unknown key {unknown[0]!r}{did_you_mean(unknown[0], {*spec.params, *spec.constants})} for a {type} {cls.noun} (allowed: {allowed})")
         values = {k: entries.get(k, p.default) for k, p in spec.params.items()}
         constants = {k: c.check(where, k, entries.get(k, c.default)) for k, c in spec.constants.items()}
         constants = spec.resolve(where, values, constants, {k for k in spec.constants if k in entries})

@@ -31,7 +31,7 @@ import numpy as np
 import torch
 
 from invrender import validate
-from invrender.errors import ParameterError, SceneError
+from invrender.errors import ParameterError, SceneError, UnknownParameterError, did_you_mean
 from invrender.scene.camera import Camera
 from invrender.scene.kinds import kind_of, param_name
 from invrender.scene.emitters import Emitter
@@ -131,7 +131,8 @@ class Scene:
         emitters: emitter names; ``triangles.emitter`` indexes this tuple.
         camera: the camera (pinhole or thin lens).
         resolution: (width, height) in pixels.
-        params: ``{"<material>.reflectance": rho, "<emitter>.emission": eps, ...}``, leaf tensors.
+        params: ``{"<material>.reflectance": rho, "<emitter>.emission": eps, ...}``, leaf tensors
+            (a :class:`Params`: an unknown name raises a ParameterError naming the known ones).
         name: a label for messages and reports.
         material_specs: one :class:`~invrender.scene.materials.Material` per material (type and
             constants; its values live in ``params``); empty = every material diffuse.
@@ -151,6 +152,11 @@ class Scene:
     material_specs: tuple[Material, ...] = ()
     defaults: dict = field(default_factory=dict)
     emitter_specs: tuple[Emitter, ...] = ()
+
+    def __setattr__(self, name, value):
+        if name == "params" and not isinstance(value, Params):
+            value = Params(value)  # an unknown name's lookup names the closest known one
+        super().__setattr__(name, value)
 
     @property
     def device(self) -> torch.device:
@@ -250,9 +256,12 @@ def check_param_value(name: str, value) -> torch.Tensor:
     """Validate one parameter value: shape (3,) or (h, w, 3), finite, in its kind's range. Returns
     it as a new float32 tensor (one number becomes an RGB triple)."""
     try:
-        t = torch.as_tensor(value, dtype=torch.float32).detach().clone()
+        exact = torch.as_tensor(value, dtype=torch.float64).detach()
     except (TypeError, ValueError, RuntimeError):
         raise ParameterError(f"{name}: expected an RGB triple or an (h, w, 3) texture, got {_short(value)}") from None
+    if bool(torch.isfinite(exact).all()) and exact.numel() and float(exact.abs().max()) > validate.FLOAT32_MAX:
+        raise ParameterError(f"{name}: value {float(exact.abs().max()):g} is beyond float32's range (|x| <= {validate.FLOAT32_MAX:.4g}): a render would compute with infinity")
+    t = exact.to(torch.float32)
     if t.ndim == 0:
         t = t.expand(3).clone()
     t = _grey_map(name, t).clone()
@@ -290,19 +299,39 @@ def _short(value) -> str:
     return text if len(text) <= 80 else text[:77] + "..."
 
 
+def unknown_parameter(name, known, what: str = "unknown parameter") -> UnknownParameterError:
+    """The one-line error of a parameter name not among ``known``: the closest known name and the
+    list of them."""
+    return UnknownParameterError(f"{what} {name!r}{did_you_mean(name, known)} (known: {', '.join(known)})")
+
+
+class Params(dict):
+    """A scene's parameters: name -> tensor. A plain dict, except that looking up a name it does
+    not have raises :class:`~invrender.errors.UnknownParameterError` (a ``ParameterError`` and a
+    ``KeyError``) naming the closest known name and all of them, not a bare ``KeyError``."""
+
+    def __missing__(self, key):
+        raise unknown_parameter(key, self)
+
+
 def check_names(params, names) -> list[str]:
     """Validate parameter names against ``params`` (a scene's dict): a list or a comma-separated
     string of names, each known, none twice, at least one. Returns the names as a list."""
     if isinstance(names, str):
         names = [n.strip() for n in names.split(",") if n.strip()]
-    names = list(names)
+    try:
+        names = list(names)
+    except TypeError:
+        names = None
+    if names is None or not all(isinstance(n, str) for n in names):
+        raise ParameterError(f"parameter names must be a list of names or a comma-separated string, got {names!r:.60}")
     if not names:
         raise ParameterError("no parameters to fit were given")
     unknown = [n for n in names if n not in params]
     if AMBIENT in unknown:
         raise ParameterError(f"the scene has no {AMBIENT} to fit: give it a starting value (--init {AMBIENT}=0.05, a recipe's [init], or load_scene(..., ambient=0.05))")
     if unknown:
-        raise ParameterError(f"unknown parameter {unknown[0]!r} (known: {', '.join(params)})")
+        raise unknown_parameter(unknown[0], params)
     if len(set(names)) != len(names):
         raise ParameterError("a parameter is named twice")
     return names

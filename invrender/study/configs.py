@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 from invrender.diff import ESTIMATORS
 from invrender.diff.defaults import scene_integrator
-from invrender.errors import ParameterError
+from invrender.errors import ParameterError, did_you_mean
 from invrender.registry import integrator_spec
 from invrender.study.loss_gradients import LOSS_GRADIENTS
 from invrender.transport.driver import RenderSettings
@@ -80,11 +80,11 @@ class GradientConfig:
             object.__setattr__(self, "integrator", name)
             object.__setattr__(self, "options", tuple({**given, **settings}.items()))
         if self.integrator not in INTEGRATORS:
-            raise ParameterError(f"unknown integrator {self.integrator!r} in a configuration (known: {', '.join(INTEGRATORS)})")
+            raise ParameterError(f"unknown integrator {self.integrator!r}{did_you_mean(self.integrator, INTEGRATORS)} in a configuration (known: {', '.join(INTEGRATORS)})")
         if self.estimator not in ESTIMATORS:
-            raise ParameterError(f"unknown estimator {self.estimator!r} in a configuration (known: {', '.join(ESTIMATORS)})")
+            raise ParameterError(f"unknown estimator {self.estimator!r}{did_you_mean(self.estimator, ESTIMATORS)} in a configuration (known: {', '.join(ESTIMATORS)})")
         if self.gradient not in LOSS_GRADIENTS:
-            raise ParameterError(f"unknown loss gradient {self.gradient!r} in a configuration (known: {', '.join(LOSS_GRADIENTS)})")
+            raise ParameterError(f"unknown loss gradient {self.gradient!r}{did_you_mean(self.gradient, LOSS_GRADIENTS)} in a configuration (known: {', '.join(LOSS_GRADIENTS)})")
         object.__setattr__(self, "options", tuple(sorted(dict(self.options).items())))
         clash = [k for k, _ in self.options if k in STUDY_SETTINGS or k in ("integrator", "estimator")]
         if clash:

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import torch
 from tqdm.auto import tqdm
 
-from invrender.errors import ParameterError
+from invrender.errors import ParameterError, did_you_mean
 from invrender.scene.scene import check_names
 from invrender.scene.scene import Scene
 from invrender.study.configs import GradientConfig, parse_configs
@@ -359,7 +359,7 @@ def gradient_study(
     if trials < 2:
         raise ParameterError(f"trials must be >= 2 (a variance needs two samples), got {trials}")
     if loss not in LOSSES:
-        raise ParameterError(f"unknown loss {loss!r} for a gradient study (known: {', '.join(LOSSES)})")
+        raise ParameterError(f"unknown loss {loss!r}{did_you_mean(loss, LOSSES)} for a gradient study (known: {', '.join(LOSSES)})")
     check_int("", "reference_spp", reference_spp, 0, MAX_SPP)
     check_int("", "reference_repeats", reference_repeats)
     if reference_repeats < 2:

@@ -13,12 +13,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from invrender.errors import ParameterError
-from invrender.inverse.fit import FitSettings
 from invrender.inverse.fit_output import FitOutput, fit_into
 from invrender.inverse.report import study_table
 from invrender.io.reports import write_json, write_text
-from invrender.recipes import FitRecipe, apply_init, load_dataset, load_fit_recipe, make_dataset
+from invrender.recipes import FitRecipe, apply_init, check_fit_recipe, load_dataset, load_fit_recipe, make_dataset, split_init
 from invrender.transport.ranks import barrier
 
 
@@ -65,22 +63,17 @@ def fit_recipe(
     """
     recipe = recipe if isinstance(recipe, FitRecipe) else load_fit_recipe(recipe)
     out, log = Path(out), log or (lambda line: None)
-    for variant in recipe.variants or [None]:  # every fit's settings valid before any work
-        own = variant.settings if variant is not None else {}
-        try:
-            FitSettings(**{**recipe.settings, **(settings or {}), **own})
-        except ParameterError as e:
-            raise ParameterError(f"{recipe.path}{f' variant {variant.label!r}' if variant is not None else ''}: {e}") from None
+    check_fit_recipe(recipe, init, settings)  # every fit's inputs valid before the dataset is written
     data = out / "dataset"
     if not (data / "manifest.json").is_file():
         log(f"rendering the dataset {recipe.dataset.path} into {data}")
         make_dataset(recipe.dataset, data, progress=progress)
     barrier()  # in a process group rank 0 writes the dataset; the others read it
     scene, targets, cameras, truth = load_dataset(data)
-    init = {**recipe.init, **(init or {})}
+    init, sensor = split_init({**recipe.init, **(init or {})}, recipe.photo.get("sensor"))
     settings = {**recipe.settings, **(settings or {})}
     report = {"recipe": str(recipe.path)}
-    common = dict(cameras=cameras, truth=truth, resume=resume, progress=progress, **recipe.photo)
+    common = dict(cameras=cameras, truth=truth, resume=resume, progress=progress, **{**recipe.photo, **({"sensor": sensor} if sensor else {})})
     if not recipe.variants:
         apply_init(scene, recipe.params, init)
         output = fit_into(out, scene, targets, recipe.params, report=report, **common, **settings)
@@ -92,8 +85,10 @@ def fit_recipe(
         log(f"variant {variant.label!r}")
         own = scene.with_params(detach=True)
         names = recipe.params + [p for p in variant.params if p not in recipe.params]
-        apply_init(own, names, {**init, **variant.init})
-        output = fit_into(out / variant.slug, own, targets, names, report={**report, "variant": variant.label}, **common, **{**settings, **variant.settings})
+        start, own_sensor = split_init({**init, **variant.init}, sensor)
+        apply_init(own, names, start)
+        output = fit_into(out / variant.slug, own, targets, names, report={**report, "variant": variant.label}, **{**common, **({"sensor": own_sensor} if own_sensor else {})},
+                          **{**settings, **variant.settings})
         if on_fit:
             on_fit(variant.label, output)
         fits[variant.label] = output

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from invrender.errors import ParameterError
+from invrender.errors import ParameterError, did_you_mean
 from invrender.scene.scene import Triangles
 from invrender.transport import embree_native, packages
 
@@ -323,7 +323,7 @@ def check_backend(backend: str | None, device: torch.device) -> str:
     :class:`ParameterError` for an unknown name or one that cannot run there (Embree: CPU only)."""
     backend = backend or default_backend(device)
     if backend not in BACKENDS:
-        raise ParameterError(f"unknown intersection backend {backend!r} (known: {', '.join(BACKENDS)})")
+        raise ParameterError(f"unknown intersection backend {backend!r}{did_you_mean(backend, BACKENDS)} (known: {', '.join(BACKENDS)})")
     if backend == "embree" and torch.device(device).type != "cpu":
         raise ParameterError(f"the embree backend runs on the CPU only, not on {device}: use backend 'warp' or 'torch'")
     return backend

@@ -205,7 +205,7 @@ def test_every_shipped_recipe_parses_and_names_real_parameters():
     parameter of the dataset's scene (with its initial values applied) or of the sensor."""
     from pathlib import Path
 
-    from invrender.recipes import apply_init, dataset_scene, load_fit_recipe
+    from invrender.recipes import apply_init, check_fit_recipe, dataset_scene, load_fit_recipe
 
     root = Path(__file__).resolve().parents[2]
     recipes = sorted((root / "optimize").glob("*.toml"))
@@ -219,6 +219,7 @@ def test_every_shipped_recipe_parses_and_names_real_parameters():
         from invrender.inverse.sensor import is_sensor
 
         assert {n for n in recipe.params if not is_sensor(n)} <= set(scene.params), path
+        check_fit_recipe(recipe)  # what a fit checks before its dataset is rendered passes too
 
 
 def test_every_fit_setting_has_a_flag():
@@ -237,3 +238,78 @@ def test_gradcheck_command_with_another_integrator(capsys):
     code = main(args + ["--params", "mirror.specular_reflectance,ambient.emission", "--tolerance", "0.02"])
     out = capsys.readouterr().out
     assert code == 0 and "mirror.specular_reflectance" in out and "ambient.emission" in out
+
+
+def test_a_fit_recipe_with_a_bad_sensor_is_refused_before_its_dataset_is_rendered(recipe, tmp_path):
+    """An invalid ``[photo] sensor`` white balance: one line naming the recipe, exit 2, and no
+    dataset (nor anything else) written to the output folder (it used to be refused only after
+    the dataset was rendered into it)."""
+    from tests.conftest import refused
+
+    recipe.write_text(RECIPE + '[photo]\nsensor = { white_balance = [1, 2, 3] }\n')
+    line = refused(tmp_path, "fit", str(recipe), "--quiet")
+    assert line == f"invrender: error: {recipe} [photo] sensor: sensor option white_balance: the green gain is fixed at 1 (the common scale is the exposure's)"
+
+
+@pytest.mark.parametrize(
+    "extra, words",
+    [
+        ('[photo]\nsensor = { shared = ["gain"] }\n', "[photo] sensor: sensor option shared: 'gain' is not 'exposure' or 'white_balance'"),
+        ('[photo]\nmask = "small.png"\n', "[photo]: mask " + "{tmp}/small.png is 5x5 but the target view 0 of the dataset is 12x12"),
+        ('[photo]\nmask = "nope.png"\n', "[photo]: cannot read image {tmp}/nope.png: file not found"),
+        ('[photo]\nresponse = "gama:2"\n', "[photo]: view 0 of the dataset: unknown response 'gama:2'"),
+        ('[[variants]]\nlabel = "more"\nparams = ["red.reflectanse"]\n', "variant 'more' params: unknown parameter 'red.reflectanse' (did you mean 'red.reflectance'?)"),
+        ('[[variants]]\nlabel = "hot"\ninit = { "light.emission" = -1 }\n', "variant 'hot' [init]: light.emission: emission eps must be >= 0"),
+    ],
+)
+def test_every_fit_recipe_input_is_checked_before_anything_is_written(recipe, tmp_path, capsys, extra, words):
+    from PIL import Image
+
+    Image.new("L", (5, 5), 255).save(tmp_path / "small.png")
+    body = RECIPE.replace("[init]", extra + "[init]") if extra.startswith("[photo]") else RECIPE + extra
+    recipe.write_text(body)
+    code = main(["fit", str(recipe), "--out", str(tmp_path / "run"), "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and err[0].startswith(f"invrender: error: {recipe}") and words.format(tmp=tmp_path) in err[0], err
+    assert not (tmp_path / "run").exists()
+
+
+def test_init_takes_the_sensor_names_params_takes(tmp_path, capsys):
+    """``--init sensor.exposure=0.5``: the sensor's starting value (it used to be refused as an
+    unknown parameter although --params takes the name); a recipe's [init] likewise."""
+    target = tmp_path / "t.png"
+    ir.write_image(target, torch.full((8, 8, 3), 0.2))
+    code = main(["fit", "--scene", "cornell_box", "--target", str(target), "--params", "white.reflectance,sensor.exposure", "--init", "sensor.exposure=0.5",
+                 "--init", "sensor.white_balance=0.9,1,1.1", "--steps", "1", "--spp", "1", "--max-depth", "1", "--out", str(tmp_path / "o"), "--quiet"])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    report = json.loads((tmp_path / "o" / "report.json").read_text())
+    assert report["initial"]["sensor.exposure"] == pytest.approx([0.5])
+    from invrender.recipes import split_init
+
+    assert split_init({"sensor.exposure": 0.5, "reflectance": 0.3}, {"shared": ["exposure"]}) == ({"reflectance": 0.3}, {"shared": ["exposure"], "exposure": 0.5})
+
+
+def test_a_target_whose_square_overflows_is_refused(tmp_path, capsys):
+    """A finite target too large for a float32 loss (a corrupt EXR's 1e24): one line naming it."""
+    ir.write_image(tmp_path / "huge.exr", torch.full((8, 8, 3), 1e24))
+    code = main(["fit", "--scene", "cornell_box", "--target", str(tmp_path / "huge.exr"), "--params", "light.emission", "--out", str(tmp_path / "o"), "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and f"{tmp_path / 'huge.exr'} has a value of 1e+24, beyond 1.845e+19" in err[0], err
+    assert not (tmp_path / "o").exists()
+
+
+def test_lm_on_one_of_two_skies_is_refused_before_tracing_naming_both(tmp_path):
+    """``fit --solver lm`` of one envmap beside another: the radiances add along escaping rays, so
+    path records cannot hold the map and the fit takes re-traced renders, whose Jacobian needs one
+    render per texel: refused before any tracing, naming the parameter and the other sky."""
+    from tests.conftest import refused
+
+    ir.write_image(tmp_path / "a.exr", torch.full((8, 16, 3), 0.5))
+    ir.write_image(tmp_path / "b.exr", torch.full((4, 8, 3), 0.2))
+    ir.write_image(tmp_path / "t.exr", torch.full((8, 8, 3), 0.3))
+    scene = tmp_path / "skies.toml"
+    scene.write_text('[camera]\norigin = [3, 2.5, 3.5]\n[materials.m]\nreflectance = 0.5\n[[shapes]]\ntype = "cube"\nmaterial = "m"\n'
+                     '[emitters.sky]\ntype = "envmap"\nemission_texture = "a.exr"\n[emitters.sky2]\ntype = "envmap"\nemission_texture = "b.exr"\n')  # fmt: skip
+    line = refused(tmp_path, "fit", "--scene", str(scene), "--target", str(tmp_path / "t.exr"), "--params", "sky.emission", "--solver", "lm", "--quiet")
+    assert "sky.emission: emitter 'sky' shares the rays that leave the scene with the other emitter(s) infinitely far away (sky2)" in line
+    assert "takes one forward-mode render per texel: sky.emission need 128 per Jacobian, at most 64" in line

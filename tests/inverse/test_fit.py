@@ -99,7 +99,10 @@ def test_resume_reuses_the_stored_settings_unless_given_anew(small_target, tmp_p
         (torch.zeros(16, 16, 4), ["light.emission"], ImageError, r"\(H, W, 3\)"),
         (torch.full((16, 16, 3), float("nan")), ["light.emission"], ImageError, "NaN"),
         (torch.full((16, 16, 3), -0.5), ["light.emission"], ImageError, "negative radiance"),
-        (torch.zeros(16, 16, 3), ["lamp.emission"], ParameterError, "unknown parameter 'lamp.emission'"),
+        (torch.zeros(16, 16, 3), ["lamp.emission"], ParameterError, r"unknown parameter 'lamp.emission' \(did you mean 'light.emission'\?\)"),
+        (torch.full((16, 16, 3), 1e24), ["light.emission"], ImageError, r"target 0 has a value of 1e\+24, beyond 1.845e\+19"),
+        ([], ["light.emission"], ParameterError, "no target was given"),
+        (torch.zeros(16, 16, 3), None, ParameterError, "parameter names must be a list of names or a comma-separated string, got None"),
     ],
 )
 def test_bad_fit_input(target, params, error, words):
@@ -107,6 +110,29 @@ def test_bad_fit_input(target, params, error, words):
         ir.fit(start_scene(), target, params, steps=1, progress=False)
     with pytest.raises(ParameterError, match="unknown fit setting"):
         ir.fit(start_scene(), torch.zeros(16, 16, 3), ["light.emission"], stpes=3)
+
+
+@pytest.mark.parametrize(
+    "options, words",
+    [
+        (dict(truth={"light.emision": [1, 1, 1]}), r"^truth of unknown parameter 'light.emision' \(did you mean 'light.emission'\?\)"),
+        (dict(truth={"light.emission": [1, 1]}), r"^truth of light.emission: a value of shape \(2,\) does not fit the parameter's shape \(3,\)$"),
+        (dict(truth={"light.emission": float("inf")}), r"^truth of light.emission: values must be finite$"),
+        (dict(sensor=5), r"^sensor options must be a mapping of exposure, white_balance, shared, got 5$"),
+        (dict(sensor={"shared": 5}), r"^sensor option shared must be a list of 'exposure', 'white_balance', got 5$"),
+        (dict(sensor={"exposur": 2}), r"^unknown sensor option 'exposur' \(did you mean 'exposure'\?\)"),
+    ],
+)
+def test_bad_fit_options_are_refused_before_any_work(options, words, monkeypatch):
+    """The ground truth and the sensor options: one-line ParameterErrors before tracing (a truth of
+    the wrong shape used to fail with a RuntimeError after the fit, when its errors were taken)."""
+    from invrender.inverse import fit as fit_module
+
+    monkeypatch.setattr(fit_module, "_fit_least_squares", lambda *a, **k: pytest.fail("worked before checking"))
+    monkeypatch.setattr(fit_module.Integrator, "context", lambda *a, **k: pytest.fail("worked before checking"), raising=False)
+    with pytest.raises(ParameterError, match=words) as e:
+        ir.fit(start_scene(), torch.zeros(16, 16, 3), ["light.emission"], steps=1, progress=False, **options)
+    assert "\n" not in str(e.value)
 
 
 def test_parameter_no_pixel_depends_on_warns(tmp_path):

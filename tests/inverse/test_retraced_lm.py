@@ -103,3 +103,22 @@ def test_identifiability_of_a_roughness_on_re_traced_renders():
     for c in "RGB":
         assert f"plate.specular_reflectance[{c}]" in described and f"light.emission[{c}]" in described
     assert abs(float(scale.correlation[1, 4])) > 0.9  # k_s[R] against eps[R]
+
+
+def test_a_sky_beside_another_goes_to_re_traced_renders():
+    """Two emitters infinitely far away add their radiance along every ray that leaves the scene:
+    path records refuse to record either before tracing, naming the parameter and the other
+    emitter, and the rule sends a least-squares fit of one to re-traced renders."""
+    from invrender.scene.emitters import Emitter
+
+    floor = primitive("rectangle", "floor").transformed(scale([2.0, 2.0, 1.0]))
+    skies = {"sky": Emitter.of("envmap", emission=torch.full((2, 3, 3), 0.5)), "glow": Emitter.of("constant", emission=[0.2, 0.2, 0.2])}
+    scene = build_scene([floor], {"floor": 0.5}, skies, Camera(origin=(0, -2.0, 2.0), target=(0, 0, 0), fov=50), (4, 4))
+    why = retraced.record_obstacle(scene, ["sky.emission"])
+    assert why.startswith("sky.emission: emitter 'sky' shares the rays that leave the scene with the other emitter(s) infinitely far away (glow)")
+    assert retraced.record_obstacle(scene, ["floor.reflectance"]) is None  # a reflectance under two skies is still one factor
+    with pytest.raises(ParameterError, match=r"^glow.emission: emitter 'glow' .* \(sky\), .*path records cannot represent it; ir.fit fits it with solver 'lm'") as info:
+        ir.record_paths(scene, ["glow.emission"], spp=1, max_depth=1, progress=False)
+    assert "\n" not in str(info.value)
+    one = build_scene([floor], {"floor": 0.5}, {"sky": skies["sky"]}, Camera(origin=(0, -2.0, 2.0), target=(0, 0, 0), fov=50), (4, 4))
+    assert retraced.record_obstacle(one, ["sky.emission"]) is None  # one map alone records per texel

@@ -195,11 +195,21 @@ def _sixteen_bit(tmp_path, paths):
     return [paths[0], str(deep)], "deep.png: not an 8-bit image"
 
 
+def _sixteen_bit_rgb(tmp_path, paths):
+    """A 16-bit RGB PNG, which PIL opens as mode RGB (its codes cut to 8 bits) unless asked."""
+    import cv2
+
+    deep = tmp_path / "deep_rgb.png"
+    cv2.imwrite(str(deep), np.full((12, 18, 3), 30000, np.uint16))
+    return [paths[0], str(deep)], "deep_rgb.png: not an 8-bit image (16 bits per channel)"
+
+
 BAD = {
     "missing file": (lambda tmp, p: ([p[0], str(tmp / "nope.png")], ["--exposures", "1,2"]), "nope.png: file not found"),
     "corrupt file": (lambda tmp, p: (_corrupt(tmp, p)[0], ["--exposures", "1,2"]), "broken.png: not a valid image"),
     "different sizes": (lambda tmp, p: (_resized(tmp, p)[0], ["--exposures", "1,2"]), "10x8"),
     "16-bit image": (lambda tmp, p: (_sixteen_bit(tmp, p)[0], ["--exposures", "1,2"]), "deep.png: not an 8-bit image"),
+    "16-bit RGB image": (lambda tmp, p: (_sixteen_bit_rgb(tmp, p)[0], ["--exposures", "1,2"]), "deep_rgb.png: not an 8-bit image (16 bits per channel)"),
     "count mismatch": (lambda tmp, p: (p, ["--exposures", "1,2"]), "2 exposure times for 3 images"),
     "zero time": (lambda tmp, p: (p, ["--exposures", "1,0,2"]), "exposure time 0.0; expected a finite number > 0"),
     "negative time": (lambda tmp, p: (p, ["--exposures", "1,-2,4"]), "exposure time -2.0"),
@@ -268,3 +278,14 @@ def test_the_recovered_curve_is_a_response_fit_accepts(tmp_path):
     mid = slice(16, 251)
     ratio = decoded[mid] / truth[mid]
     assert float((ratio / ratio.median(0).values - 1).abs().max()) < 0.03
+
+
+def test_cli_refuses_a_16_bit_bracket_in_a_child_process(tmp_path):
+    """As the docs say: a 16-bit PNG in a bracket is refused (not reduced to 8 bits), in one line
+    naming the file, before anything is written."""
+    from tests.conftest import refused
+
+    images, expected = _sixteen_bit_rgb(tmp_path, _bracket(tmp_path))
+    line = refused(tmp_path, "hdr", *images, "--exposures", "1,2", out="out/m.exr")
+    assert expected in line and "(OpenCV's Debevec calibration and merge take 8-bit codes only)" in line
+    assert not (tmp_path / "out").exists()

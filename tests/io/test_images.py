@@ -2,6 +2,7 @@
 
 import os
 
+import kornia
 import numpy as np
 import OpenEXR
 import pytest
@@ -245,3 +246,69 @@ def test_read_photo_keeps_codes_bit_depth_and_alpha(tmp_path):
         read_photo(tmp_path / "p.gif")
     with pytest.raises(ImageError, match="16-bit .png"):
         write_photo(tmp_path / "x.jpg", values, bits=16)
+
+
+def _bad_filter_png(path):
+    """A PNG whose signature and header are valid but whose pixel rows are not (libpng complains on
+    stderr itself: 'libpng error: bad adaptive filter value')."""
+    write_image(path, torch.rand(16, 16, 3))
+    data = bytearray(path.read_bytes())
+    for i in range(len(data) // 2, len(data) - 20):
+        data[i] ^= 0x5A
+    path.write_bytes(bytes(data))
+
+
+def _truncated_exr(path):
+    """An EXR cut in half: OpenEXR's C core and its binding each print a line of their own."""
+    write_image(path, torch.rand(64, 64, 3))
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+
+
+@pytest.mark.parametrize("make, name, reason", [(_truncated_exr, "cut.exr", "corrupt or truncated EXR pixel data"), (_bad_filter_png, "rows.png", "not a valid PNG file")])
+def test_native_libraries_print_nothing_their_words_end_up_in_the_error(tmp_path, capfd, make, name, reason):
+    """OpenEXR's and libpng's own lines on descriptor 2 are caught (capfd sees the descriptor, not
+    only sys.stderr): the one-line ImageError names the file and folds in the library's reason;
+    read_photo (OpenCV) and read_image (PIL / OpenEXR) alike."""
+    from invrender.io.images import read_photo
+
+    make(tmp_path / name)
+    for read in (read_image, read_photo):
+        with pytest.raises(ImageError) as error:
+            read(tmp_path / name)
+        message = str(error.value)
+        assert message.startswith(f"cannot read image {tmp_path / name}: {reason}") and "\n" not in message, message
+        assert capfd.readouterr() == ("", "")
+
+
+def test_native_output_restores_descriptor_2_after_an_error(capfd):
+    from invrender.io.native import native_output
+
+    with pytest.raises(RuntimeError):
+        with native_output() as printed:
+            os.write(2, b"a library's complaint\n")
+            raise RuntimeError("the read failed")
+    assert printed == ["a library's complaint"]
+    os.write(2, b"after\n")
+    assert capfd.readouterr().err == "after\n"
+
+
+def test_a_16_bit_png_is_read_at_16_bits(tmp_path):
+    """read_image of a 16-bit RGB PNG keeps every code (PIL alone would give 8 bits)."""
+    import cv2
+
+    codes = np.arange(4 * 5 * 3, dtype=np.uint16).reshape(4, 5, 3) * 1000 + 7
+    cv2.imwrite(str(tmp_path / "deep.png"), codes[..., ::-1])
+    expected = kornia.color.rgb_to_linear_rgb(torch.from_numpy(codes / 65535.0).permute(2, 0, 1)).permute(1, 2, 0)
+    torch.testing.assert_close(read_image(tmp_path / "deep.png").double(), expected, atol=1e-6, rtol=0)
+
+
+@pytest.mark.parametrize("make, name", [(_truncated_exr, "cut.exr"), (_bad_filter_png, "rows.png")])
+def test_cli_a_corrupt_target_is_one_line_naming_it(tmp_path, make, name):
+    """``invrender fit --target`` a corrupt EXR or PNG: exit 2, one line naming the file (no
+    OpenEXR or libpng line before it), no output folder."""
+    from tests.conftest import refused
+
+    make(tmp_path / name)
+    line = refused(tmp_path, "fit", "--scene", "cornell_box", "--target", str(tmp_path / name), "--params", "red.reflectance", "--resolution", "16x16")
+    assert line.startswith(f"invrender: error: cannot read image {tmp_path / name}: ")

@@ -53,7 +53,7 @@ def test_a_tabulated_response_reproduces_a_known_curve(tmp_path):
 
 @pytest.mark.parametrize(
     "spec, message",
-    [("sepia", "unknown response 'sepia'"), ("gamma:-1", "positive number"), ("gamma:x", "positive number")],
+    [("sepia", "unknown response 'sepia'"), ("srbg", r"unknown response 'srbg' \(did you mean 'srgb'\?\)"), ("gamma:-1", "positive number"), ("gamma:x", "positive number")],
 )
 def test_bad_response_names(spec, message):
     with pytest.raises(ImageError, match=message):
@@ -75,3 +75,7 @@ def test_bad_response_curves_name_the_file(tmp_path):
         response(str(top))
     with pytest.raises(ImageError, match=r"missing\.csv"):
         response(str(tmp_path / "missing.csv"))
+    binary = tmp_path / "binary.csv"
+    binary.write_bytes(b"\xff\xfe\x00 not text")
+    with pytest.raises(ImageError, match=r"^response curve .*binary\.csv: not a CSV text file \(UnicodeDecodeError: "):
+        response(str(binary))

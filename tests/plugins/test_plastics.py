@@ -193,6 +193,11 @@ def test_toml_plastics(tmp_path):
         'type = "plastic"\nint_ior = "unobtainium"': "unknown int_ior 'unobtainium' (a number or one of vacuum",
         'type = "plastic"\nnonlinear = 2': "'nonlinear' must be true or false",
         'type = "roughplastic"\nint_ior = 1.2\next_ior = 1.2': "'int_ior' and 'ext_ior' must differ",
+        # absurd indices: beyond float32, or a ratio no media have (whose eta^2 would make the render NaN)
+        'type = "plastic"\nint_ior = 1e39': "'int_ior' is 1e+39, beyond float32's range (|x| <= 3.403e+38)",
+        'type = "plastic"\nint_ior = 1e-30': "'int_ior' / 'ext_ior' = 1e-30 / 1.00028 = 9.99723e-31; expected a relative index of refraction in [0.01, 100]",
+        'type = "roughplastic_ggx"\next_ior = 1e30': "'int_ior' / 'ext_ior' = 1.49 / 1e+30 = 1.49e-30; expected a relative index of refraction in [0.01, 100]",
+        'type = "plastic"\nint_ior = 1e6': "= 999723; expected a relative index of refraction in [0.01, 100] (real media lie between 1 and about 4)",
         'type = "plastic"\nroughness = 0.2': "unknown key 'roughness'",
         'type = "plastic"\nspecular_reflectance = { checkerboard = {} }': "'specular_reflectance' must be an RGB list or one number",
         'type = "roughplastic_ggx"\nroughness = { checkerboard = {} }': "'roughness' must be an RGB list or one number",

@@ -200,6 +200,7 @@ def test_toml_and_mitsuba_xml(tmp_path):
         ('<float name="alpha" value="1.5"/>', "alpha"),
         ('<float name="int_ior" value="-1"/>', "int_ior"),
         ('<float name="int_ior" value="1.2"/><float name="ext_ior" value="1.2"/>', "'int_ior' and 'ext_ior' must differ"),
+        ('<float name="int_ior" value="500"/>', "expected a relative index of refraction in \\[0.01, 100\\]"),
     ],
 )
 def test_bad_input_is_a_one_line_error(tmp_path, bsdf, message):

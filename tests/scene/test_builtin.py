@@ -47,7 +47,7 @@ def test_furnace_arguments_and_validation():
         ir.load_scene("furnace", rho=1.5)
     with pytest.raises(ParameterError, match="eps must be >= 0"):
         ir.load_scene("furnace", eps=-1.0)
-    with pytest.raises(SceneError, match="unknown scene .cornel_box."):
+    with pytest.raises(SceneError, match=r"^unknown scene 'cornel_box' \(did you mean 'cornell_box'\?\): not a built-in"):
         ir.load_scene("cornel_box")
     with pytest.raises(SceneError, match="resolution"):
         ir.load_scene("cornell_box", resolution=(0, 4))
@@ -113,3 +113,30 @@ def test_cornell_materials_params_and_its_materials_show():
     # the tall block is left of centre, the sphere right of centre near the bottom
     assert float(metal[:, :12].sum()) > 3 * float(metal[:, 12:].sum()) > 0
     assert float(plastic[12:, 12:].sum()) > 3 * float(plastic[:12, :12].sum()) > 0
+
+
+@pytest.mark.parametrize(
+    "name, options, message",
+    [
+        ("sky_spheres", {"map_size": (4,)}, "sky_spheres: 'map_size' must be two integers (rows, columns), got (4,)"),
+        ("sky_spheres", {"map_size": 4}, "sky_spheres: 'map_size' must be two integers (rows, columns), got 4"),
+        ("sky_spheres", {"map_size": (3.5, 8)}, "sky_spheres: 'map_size' must be two integers (rows, columns), got (3.5, 8)"),
+        ("sky_spheres", {"map_size": ("4", 8)}, "sky_spheres: 'map_size' must be two integers (rows, columns), got ('4', 8)"),
+        ("sky_spheres", {"map_size": (2, 2)}, "sky_spheres: 'map_size' must be at least (3, 4), got (2, 2)"),
+        ("sky_spheres", {"map_size": (100000, 100000)}, "sky_spheres: 'map_size' (100000, 100000) is 10000000000 texels, more than 16777216"),
+        ("sky_spheres", {"sky": "blue"}, "sky_spheres: 'sky' must be an (h, w, 3) texture, got 'blue'"),
+        ("sky_spheres", {"subdivisions": 2.5}, "sky_spheres: 'subdivisions' must be an integer in [0, 7] (an icosphere of 20 * 4^n triangles), got 2.5"),
+        ("cornell_specular", {"subdivisions": True}, "cornell_specular: 'subdivisions' must be an integer in [0, 7] (an icosphere of 20 * 4^n triangles), got True"),
+        ("cornell_materials", {"subdivisions": 9}, "cornell_materials: 'subdivisions' must be an integer in [0, 7] (an icosphere of 20 * 4^n triangles), got 9"),
+        ("furnace", {"rho": "grey"}, "furnace: 'rho' must be a number, an RGB triple or an (h, w, 3) texture, got 'grey'"),
+        ("furnace", {"eps": [1, 2]}, "furnace: 'eps' must be a number, an RGB triple or an (h, w, 3) texture, got [1, 2]"),
+        ("cornell_box", {"resolutoin": (8, 8)}, "built-in scene 'cornell_box' has no option 'resolutoin' (did you mean 'resolution'?) (options: resolution)"),
+        ("furnace", {"map_size": (4, 8)}, "built-in scene 'furnace' has no option 'map_size' (options: resolution, rho, eps, subdivisions)"),
+    ],
+)
+def test_builtin_options_are_checked_before_the_scene_is_made(name, options, message):
+    """Every keyword option of a built-in scene: a one-line SceneError naming the scene, the option
+    and the value (a short map_size used to be a bare ValueError from unpacking)."""
+    with pytest.raises(SceneError) as info:
+        ir.load_scene(name, **options)
+    assert str(info.value) == message

@@ -111,13 +111,16 @@ def test_every_kind_and_type_is_registered_once():
         ('type = "diffuse"\nroughness = 0.2', "", r"\[materials.floor\]: unknown key 'roughness'"),
         ('type = "glossy"\nroughness = 0', "", r"floor.roughness: roughness alpha must lie in \(0, 1\], got values in \[0, 0\]"),
         ('type = "glossy"\nroughness = 1.5', "", r"floor.roughness: roughness alpha must lie in \(0, 1\], got values in \[1.5, 1.5\]"),
-        ('type = "dielectric"\nior = 0', "", r"'ior' must lie in \(0, inf\), got 0"),
-        ('type = "dielectric"\nior = -1.5', "", r"'ior' must lie in \(0, inf\), got -1.5"),
+        ('type = "dielectric"\nior = 0', "", r"'ior' must lie in \[0.01, 100\], got 0"),
+        ('type = "dielectric"\nior = -1.5', "", r"'ior' must lie in \[0.01, 100\], got -1.5"),
+        ('type = "dielectric"\nior = 1e6', "", r"'ior' must lie in \[0.01, 100\], got 1e\+06"),
         ('type = "dielectric"\nior = "glass"', "", r"'ior' must be a finite number, got 'glass'"),
         ('type = "mirror"\nspecular_reflectance = [1.2, 0.5, 0.5]', "", r"floor.specular_reflectance: specular_reflectance k_s must lie in \[0, 1\], got values in \[0.5, 1.2\]"),
         ('type = "mirror"\nspecular_reflectance_texture = "x.png"', "", r"unknown key 'specular_reflectance_texture'"),
         ("", "aperture_radius = -0.1", r"\[camera\]: camera aperture_radius must be >= 0 \(0 = pinhole\), got -0.1"),
         ("", "focus_distance = 0", r"\[camera\]: camera focus_distance must be positive, got 0"),
+        ("", "target = [0, nan, 0]", r"\[camera\]: camera target must be 3 finite numbers \(\|x\| <= 3.403e\+38\), got \(0.0, nan, 0.0\)"),
+        ("", "up = [0, 1e39, 0]", r"\[camera\]: camera up must be 3 finite numbers \(\|x\| <= 3.403e\+38\), got \(0.0, 1e\+39, 0.0\)"),
     ],
 )
 def test_bad_materials_and_lenses_give_one_line_errors(tmp_path, floor, camera, message):

@@ -111,6 +111,7 @@ def test_cli_renders_a_mesh_file(tmp_path, capsys):
         ("corrupt.ply", "ply\nformat binary_little_endian 1.0\nelement vertex 9\nproperty float x\nend_header\n\x01\x02", "corrupt.ply"),
         ("garbage.stl", "\x00\x01garbage", "garbage.stl"),
         ("bunny.off3", "whatever", "unknown scene"),
+        ("far.obj", "v 0 0 0\nv 1 0 1e39\nv 0 1 0\nf 1 2 3\n", "vertex positions must be finite numbers within float32's range (|x| <= 3.403e+38), got up to 1e+39"),
     ],
 )
 def test_bad_mesh_files_fail_in_one_line(tmp_path, capsys, name, content, words):

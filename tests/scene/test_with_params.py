@@ -48,11 +48,12 @@ def test_detached_copies_share_no_parameter_tensor(cbox):
 @pytest.mark.parametrize(
     ("values", "message"),
     [
-        ({"blue.reflectance": 0.5}, r"^unknown parameter 'blue.reflectance' \(known: white.reflectance, red.reflectance, green.reflectance, light.emission\)$"),
+        ({"blue.reflectance": 0.5}, r"^unknown parameter 'blue.reflectance' \(did you mean 'red.reflectance'\?\) \(known: white.reflectance, red.reflectance, green.reflectance, light.emission\)$"),
         ({"ambient.emission": 0.1}, r"^the scene has no ambient.emission"),
         ({"red.reflectance": [1.5, 0.1, 0.1]}, r"^red.reflectance: reflectance rho must lie in \[0, 1\], got values in \[0.1, 1.5\]$"),
         ({"red.reflectance": torch.tensor([0.5, -0.1, 0.1], requires_grad=True)}, r"^red.reflectance: reflectance rho must lie in \[0, 1\]"),
         ({"light.emission": [1.0, float("nan"), 1.0]}, r"^light.emission: values must be finite$"),
+        ({"light.emission": [1.0, 1e39, 1.0]}, r"^light.emission: value 1e\+39 is beyond float32's range \(\|x\| <= 3.403e\+38\): a render would compute with infinity$"),
         ({"light.emission": torch.ones(2)}, r"^light.emission: expected shape \(3,\) or \(h, w, 3\), got \(2,\)$"),
         ({"light.emission": "bright"}, r"^light.emission: expected an RGB triple or an \(h, w, 3\) texture, got 'bright'$"),
     ],
@@ -61,3 +62,18 @@ def test_a_bad_name_or_value_is_a_one_line_error(cbox, values, message):
     with pytest.raises(ParameterError, match=message) as error:
         cbox.with_params(values)
     assert "\n" not in str(error.value)
+
+
+def test_looking_up_an_unknown_name_in_params_names_the_closest_and_all(cbox):
+    """``scene.params[name]`` of a misspelt name: a one-line ParameterError with the closest known
+    name and the list, which ``except KeyError`` still catches; ``get`` and ``in`` stay a dict's."""
+    from invrender.errors import UnknownParameterError
+
+    with pytest.raises(KeyError) as error:
+        cbox.params["red.reflectence"]
+    assert isinstance(error.value, UnknownParameterError) and isinstance(error.value, ParameterError)
+    assert str(error.value) == "unknown parameter 'red.reflectence' (did you mean 'red.reflectance'?) (known: white.reflectance, red.reflectance, green.reflectance, light.emission)"
+    assert cbox.params.get("red.reflectence") is None and "red.reflectence" not in cbox.params
+    for scene in (cbox.with_params(detach=True), cbox.to("cpu"), cbox.with_ambient(0.1)):  # every copy keeps the behaviour
+        with pytest.raises(UnknownParameterError, match=r"^unknown parameter 'nothing' \(known: "):
+            scene.params["nothing"]

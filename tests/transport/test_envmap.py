@@ -330,6 +330,8 @@ def test_bad_maps_and_rotations_are_one_line_errors(tmp_path):
         'emission_texture = "sky.exr"\nto_world = 5\n': "'to_world' must be a list of steps",
         'emission_texture = "sky.exr"\nto_world = [{ shear = 1 }]\n': "to_world[0]: unknown transform step 'shear'",
         'emission_texture = "black.exr"\n': "zero everywhere",
+        'emission_texture = "sky.exr"\nscale = 1e39\n': "'scale' is 1e+39, beyond float32's range (|x| <= 3.403e+38)",
+        'emission_texture = "sky.exr"\nscale = 1e38\n': "'scale' 1e+38 times the map's brightest texel",
     }
     for body, match in cases.items():
         p = tmp_path / "bad.toml"
@@ -341,6 +343,7 @@ def test_bad_maps_and_rotations_are_one_line_errors(tmp_path):
         '<string name="filename" value="black.exr"/>': "black.exr: the map is zero everywhere",
         '<string name="filename" value="nope.exr"/>': "file not found",
         '<string name="filename" value="sky.exr"/><float name="scale" value="-1"/>': "'scale' (the radiance's scale factor) must lie in (0, inf)",
+        '<string name="filename" value="sky.exr"/><float name="scale" value="1e39"/>': "'scale' (the radiance's scale factor) is 1e+39, beyond float32's range",
     }
     for body, match in xml_cases.items():
         p = tmp_path / "bad.xml"
@@ -361,3 +364,15 @@ def test_a_radiance_hdr_map_loads(tmp_path):
     (tmp_path / "s.toml").write_text((tmp_path / "s.toml").read_text().replace("sky.hdr", "bad.hdr"))
     with pytest.raises(ir.SceneError, match=r"emitters.sky\]: cannot read image .*bad.hdr: not a valid HDR \(Radiance RGBE\) file$"):
         ir.load_scene(str(tmp_path / "s.toml"))
+
+
+def test_cli_a_scale_beyond_float32_is_refused_before_rendering(tmp_path):
+    """``invrender render`` of a scene whose envmap scale is 1e39: one line naming the file, the
+    key and the value, exit 2, no image written (it used to render, then fail at the write)."""
+    from tests.conftest import refused
+
+    write_image(tmp_path / "sky.exr", sky_map())
+    scene = tmp_path / "bright.toml"
+    scene.write_text('[camera]\norigin = [3, 2.5, 3.5]\n[[shapes]]\ntype = "cube"\n[emitters.sky]\ntype = "envmap"\nemission_texture = "sky.exr"\nscale = 1e39\n')
+    line = refused(tmp_path, "render", str(scene), "--spp", "1", "--resolution", "8x8", out="out/image.exr")
+    assert line == f"invrender: error: {scene} [emitters.sky]: 'scale' is 1e+39, beyond float32's range (|x| <= 3.403e+38): a render would compute with infinity"

@@ -36,7 +36,7 @@ allowed keys). Out-of-range colours (rho outside [0, 1], eps < 0) are
 
     [materials.glass]
     type = "dielectric"                # smooth glass: Fresnel reflection and refraction (Mitsuba's dielectric)
-    ior = 1.5                          # interior index over the exterior's (1.0), > 0 (default 1.5); a constant
+    ior = 1.5                          # interior index over the exterior's (1.0), in [0.01, 100] (default 1.5); a constant
 
     [materials.brushed]
     type = "glossy"                    # GGX rough conductor, two-sided (Mitsuba's roughconductor, distribution ggx);
@@ -89,7 +89,7 @@ from pathlib import Path
 
 import numpy as np
 
-from invrender.errors import InvRenderError, SceneError
+from invrender.errors import InvRenderError, SceneError, did_you_mean
 from invrender.scene.camera import FOV_AXES, Camera
 from invrender.scene.formats.trimesh import mesh_arrays
 from invrender.scene.formats.values import CHECKERBOARD_RESOLUTION, checkerboard, is_number, one_line, show
@@ -173,7 +173,7 @@ def _shape(doc: dict, where: str, base: Path) -> Mesh:
     check_keys(doc, SHAPE_KEYS, where)
     kind = string(doc, "type", where, required=True)
     if kind not in SHAPE_TYPES:
-        raise SceneError(f"{where}: unknown shape type {kind!r} (known: {', '.join(SHAPE_TYPES)})")
+        raise SceneError(f"{where}: unknown shape type {kind!r}{did_you_mean(kind, SHAPE_TYPES)} (known: {', '.join(SHAPE_TYPES)})")
     material = string(doc, "material", where, required=True)
     emitter = string(doc, "emitter", where) if "emitter" in doc else None
     if kind != "sphere" and "subdivisions" in doc:
@@ -334,7 +334,7 @@ def read_toml(path: Path, what: str) -> dict:
 def check_keys(doc: dict, allowed: set, where: str) -> None:
     unknown = sorted(str(k) for k in set(doc) - allowed)
     if unknown:
-        raise SceneError(f"{where}: unknown key {unknown[0]!r} (allowed: {', '.join(sorted(allowed))})")
+        raise SceneError(f"{where}: unknown key {unknown[0]!r}{did_you_mean(unknown[0], allowed)} (allowed: {', '.join(sorted(allowed))})")
 
 
 def table(doc: dict, key: str, where: str) -> dict:

@@ -74,6 +74,7 @@ from invrender.errors import SceneError
 from invrender.scene.camera import Camera
 from invrender.scene.formats.studio import studio_camera, studio_parts
 from invrender.scene.formats.values import is_number, one_line, show
+from invrender.validate import FLOAT32_MAX
 from invrender.scene.materials import Material
 from invrender.scene.scene import Scene, build_scene
 from invrender.scene.shapes import Mesh
@@ -122,6 +123,8 @@ def load_mesh_file(path, resolution=None, studio: bool | None = False) -> Scene:
         meshes.append(Mesh(v, f, _uv(mesh), name, emitter, normals))
 
     vertices = np.concatenate([m.vertices for m in meshes])
+    if not (np.isfinite(vertices).all() and np.abs(vertices).max() <= FLOAT32_MAX):  # before a camera is framed on them
+        raise SceneError(f"{path}: vertex positions must be finite numbers within float32's range (|x| <= {FLOAT32_MAX:.4g}), got up to {np.abs(vertices).max():g}")
     if studio is None:
         studio = not emission
     camera, aspect = _gltf_camera(gltf, path) if is_gltf else (None, None)

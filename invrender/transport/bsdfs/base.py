@@ -38,7 +38,7 @@ from typing import ClassVar
 
 import torch
 
-from invrender.errors import ParameterError
+from invrender.errors import ParameterError, did_you_mean
 from invrender.scene.plugins import Declared
 from invrender.transport.frame import Frame
 from invrender.transport.textures import gather_rgb
@@ -90,7 +90,7 @@ class BSDFSampling:
 
     def __post_init__(self):
         if self.hemisphere not in HEMISPHERES:
-            raise ParameterError(f"unknown hemisphere sampling {self.hemisphere!r} (known: {', '.join(HEMISPHERES)})")
+            raise ParameterError(f"unknown hemisphere sampling {self.hemisphere!r}{did_you_mean(self.hemisphere, HEMISPHERES)} (known: {', '.join(HEMISPHERES)})")
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ from typing import ClassVar
 import torch
 
 from invrender import registry
-from invrender.errors import ParameterError
+from invrender.errors import ParameterError, did_you_mean
 from invrender.scene.scene import Scene
 from invrender.transport import first_use, fused
 from invrender.transport.accel import RepeatedQueries
@@ -150,7 +150,7 @@ class Integrator(ABC):
         known = {f.name for f in dataclasses.fields(self.Settings)}
         unknown = sorted(set(options) - known)
         if unknown:
-            raise ParameterError(f"integrator {self.name!r} has no setting {unknown[0]!r} (its settings: {', '.join(sorted(known)) or 'none'})")
+            raise ParameterError(f"integrator {self.name!r} has no setting {unknown[0]!r}{did_you_mean(unknown[0], known)} (its settings: {', '.join(sorted(known)) or 'none'})")
         self.settings = self.Settings(**options)
 
     def __repr__(self) -> str:

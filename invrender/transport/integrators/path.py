@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from invrender.errors import ParameterError
+from invrender.errors import ParameterError, did_you_mean
 from invrender.transport.integrators.base import MitsubaAlias, SamplingSettings
 from invrender.transport.integrators.random_walk import RandomWalk
 from invrender.transport.integrators.vertex import add_direct
@@ -42,7 +42,7 @@ class PathSettings(SamplingSettings):
     def __post_init__(self):
         super().__post_init__()
         if self.strategy not in STRATEGIES:
-            raise ParameterError(f"unknown strategy {self.strategy!r} (known: {', '.join(STRATEGIES)})")
+            raise ParameterError(f"unknown strategy {self.strategy!r}{did_you_mean(self.strategy, STRATEGIES)} (known: {', '.join(STRATEGIES)})")
 
 
 class Path(RandomWalk):

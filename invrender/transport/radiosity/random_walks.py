@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import torch
 
-from invrender.errors import ParameterError
+from invrender.errors import ParameterError, did_you_mean
 
 ESTIMATORS = ("collision", "absorption")
 TRANSITIONS = ("analog", "uniform")
@@ -74,7 +74,7 @@ def transition_matrix(M: torch.Tensor, transition="analog") -> torch.Tensor:
     C, n, _ = M.shape
     if isinstance(transition, str):
         if transition not in TRANSITIONS:
-            raise ParameterError(f"unknown transition {transition!r} (known: {', '.join(TRANSITIONS)}, or a matrix)")
+            raise ParameterError(f"unknown transition {transition!r}{did_you_mean(transition, TRANSITIONS)} (known: {', '.join(TRANSITIONS)}, or a matrix)")
         m = M.abs()
         if transition == "analog":
             return m
@@ -156,7 +156,7 @@ def check_walk(M: torch.Tensor, a: torch.Tensor, P: torch.Tensor, estimator: str
             with its value and channel); ``t_i = 0`` where ``a_i != 0`` for the absorption estimator.
     """
     if estimator not in ESTIMATORS:
-        raise ParameterError(f"unknown random-walk estimator {estimator!r} (known: {', '.join(ESTIMATORS)})")
+        raise ParameterError(f"unknown random-walk estimator {estimator!r}{did_you_mean(estimator, ESTIMATORS)} (known: {', '.join(ESTIMATORS)})")
     missing = (M != 0) & (P <= 0)
     if bool(missing.any()):
         c, i, j = (int(x) for x in missing.nonzero()[0])

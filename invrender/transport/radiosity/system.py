@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import torch
 
-from invrender.errors import ParameterError
+from invrender.errors import ParameterError, did_you_mean
 from invrender.validate import check_int
 
 #: most iterations an iterative solve may take (each costs a matrix-vector product)
@@ -61,7 +61,7 @@ class SolverSettings:
 
     def __post_init__(self):
         if self.method not in METHODS:
-            raise ParameterError(f"unknown radiosity solver method {self.method!r} (known: {', '.join(METHODS)})")
+            raise ParameterError(f"unknown radiosity solver method {self.method!r}{did_you_mean(self.method, METHODS)} (known: {', '.join(METHODS)})")
         if isinstance(self.tolerance, bool) or not isinstance(self.tolerance, (int, float)) or not 0 < self.tolerance < 1:
             raise ParameterError(f"radiosity tolerance must be a number in (0, 1), got {self.tolerance!r}")
         check_int("radiosity ", "max_iterations", self.max_iterations, 1, MAX_ITERATIONS)
