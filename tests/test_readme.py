@@ -30,8 +30,7 @@ SECTIONS = ["Render from Python", "Fit materials and lights to images", "Study a
 #: smaller numbers for the test: (section, the README's text, the text run instead)
 SMALLER = [
     ("Render from Python", "resolution=(64, 64)", "resolution=(16, 16)"),
-    ("Fit materials and lights to images", 'resolution=(24, 24), map_size=(4, 8)', 'resolution=(16, 16), map_size=(4, 8)'),
-    ("Fit materials and lights to images", "max_depth=3, spp=16, rounds=3)", "max_depth=3, spp=16, rounds=2)"),
+    ("Fit materials and lights to images", 'resolution=(32, 32), map_size=(16, 32)', 'resolution=(16, 16), map_size=(16, 32)'),
     ("Study a gradient estimator", "spp=[4, 16], trials=50)", "spp=[1, 4], trials=4, reference_spp=8, reference_repeats=2, pixel_maps=False)"),
     ("Study a gradient estimator", 'study.summary("path/replay/correlated", 4,', 'study.summary("path/replay/correlated", 1,'),
     ("Study a gradient estimator", "--spp 4,16 --trials 50 --out", "--spp 1,2 --trials 4 --resolution 4x4 --target-spp 16 --reference-spp 8 --reference-repeats 2 --no-pixel-maps --out"),
@@ -47,7 +46,7 @@ CHECKS = {
     ],
     "print(relit.mean((0, 1)) / true.mean((0, 1)) - 1)": [
         'assert (start.params["sky.emission"] == 1).all() and not (sky.params["sky.emission"] == 1).all()',
-        "assert float((relit.mean((0, 1)) / true.mean((0, 1)) - 1).abs().max()) < 0.1, relit.mean((0, 1)) / true.mean((0, 1))",
+        "assert float((relit.mean((0, 1)) / true.mean((0, 1)) - 1).abs().max()) < 0.03, relit.mean((0, 1)) / true.mean((0, 1))",
     ],
     "synthetic_photograph(": [
         'assert (start.params["white.reflectance"] == 0.5).all()',

@@ -74,7 +74,7 @@ class Camera:
             if len(value) != 3:
                 raise SceneError(f"camera {name} must have 3 components, got {len(value)}")
             if not all(_is_finite(x) for x in value):  # rays are float32: beyond its range is infinity too
-                raise SceneError(f"camera {name} must be 3 finite numbers (|x| <= {FLOAT32_MAX:.4g}), got {value}")
+                raise SceneError(f"camera {name} must be 3 finite numbers (|x| <= {FLOAT32_MAX:.4g}), got {list(value)}")
             object.__setattr__(self, name, value)
         object.__setattr__(self, "fov", float(self.fov))
         if not (0.0 < self.fov < 180.0):

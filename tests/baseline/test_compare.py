@@ -71,5 +71,5 @@ def test_baseline_command_writes_the_rasterized_image(tmp_path, capsys):
     image = ir.read_image(out)
     assert image.shape == (16, 20, 3) and (tmp_path / "b.png").is_file()
     assert image[..., 0].mean() > image[..., 2].mean() > 0  # the Cornell box's warm light
-    assert main(["baseline", "cornell_box", "--out", str(tmp_path / "b.jpg")]) == 2
+    assert main(["baseline", "cornell_box", "--out", str(tmp_path / "b.tif")]) == 2
     assert "unknown image suffix" in capsys.readouterr().err

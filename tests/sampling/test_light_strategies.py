@@ -142,7 +142,7 @@ def test_path_records_follow_each_strategy(cbox16, name):
     "kwargs, message",
     [
         ({"strategy": "nee"}, "unknown strategy 'nee' \\(known: mis, bsdf, emitter\\)"),
-        ({"hemisphere": "cos"}, "unknown hemisphere sampling 'cos' \\(known: cosine, uniform\\)"),
+        ({"hemisphere": "cos"}, "unknown hemisphere sampling 'cos' \\(did you mean 'cosine'\\?\\) \\(known: cosine, uniform\\)"),
         ({"rr_depth": 0}, "rr_depth must be >= 1, or -1 for no Russian roulette, got 0"),
         ({"rr_depth": -1, "max_depth": -1}, "max_depth -1 \\(unbounded\\) needs Russian roulette"),
         ({"integrator": "random_walk", "strategy": "bsdf"}, "integrator 'random_walk' has no setting 'strategy'"),
