@@ -641,8 +641,8 @@ class Identifiability:
     def describe_loose(self) -> str:
         """The :attr:`loose` directions in one line (empty when there are none)."""
         return "; ".join(
-            f"{100 * d['std_error']:.1f}% along " + " ".join(f"{w:+.2f} {c}" for c, w in d["weights"].items())
-            + " (standard errors " + ", ".join(f"{c} {100 * e:.1f}%" for c, e in d["channel_std_error"].items()) + ")"
+            f"{100 * d['std_error']:.3g}% along " + " ".join(f"{w:+.2f} {c}" for c, w in d["weights"].items())
+            + " (standard errors " + ", ".join(f"{c} {100 * e:.3g}%" for c, e in d["channel_std_error"].items()) + ")"
             for d in self.loose
         )  # fmt: skip
 

@@ -40,7 +40,8 @@ from invrender.scene.scene import Scene
 #: every solver name ``FitSettings.solver`` takes
 SOLVERS = ("auto", "adam", "lm", "gauss_newton", "transport_matrix")
 #: settings only Adam reads: one given (without a least-squares one) asks for Adam
-ADAM_SETTINGS = ("steps", "lr", "lr_emission", "lr_sensor", "lr_final", "beta2", "spp_final", "estimator", "plateau_window")
+#: (not ``spp_final``: the transport matrix's samples too)
+ADAM_SETTINGS = ("steps", "lr", "lr_emission", "lr_sensor", "lr_final", "beta2", "estimator", "plateau_window")
 #: settings only the least-squares solvers read: one given rules out the transport matrix and
 #: Adam's own settings choosing Adam
 LEAST_SQUARES_SETTINGS = ("rounds", "precision", "prior_weight", "smoothness")
