@@ -99,7 +99,7 @@ INTEGRATORS_HELP = """\
                                  hide_emitters): black where it would see an environment, what lies
                                  behind where it would see an emitting shape; emitters still light
                                  the scene and show in reflections."""
-FIT_OPTIONS = (('steps', 'int', 'optimizer steps. (default: 200)'),
+FIT_OPTIONS = (('steps', 'int', "Adam's steps, at most (it stops earlier on a plateau of the loss: plateau_window). (default: 200)"),
  ('lr',
   'float',
   'Adam step size for [0, 1] parameters (reflectance, specular reflectance), in logit units (about a relative step for '
@@ -114,7 +114,10 @@ FIT_OPTIONS = (('steps', 'int', 'optimizer steps. (default: 200)'),
   "Adam's second-moment decay. Shorter than the usual 0.999 so that the step size does not stay scaled down by the "
   'large gradients of the first steps (a fit is a few hundred steps, not tens of thousands). (default: 0.95)'),
  ('spp', 'int', 'samples per pixel of each render in the first half of the steps. (default: 16)'),
- ('spp_final', 'int', 'samples per pixel in the second half (less noise where the steps are small). (default: 64)'),
+ ('spp_final',
+  'int',
+  'samples per pixel in the second half (less noise where the steps are small); the transport-matrix solve traces each '
+  'of its two halves at this count. (default: 64)'),
  ('max_depth',
   'int',
   "a shortcut for the integrator spec's max_depth (Neumann terms kept by the renders, Mitsuba's count); None = the "
@@ -136,9 +139,13 @@ FIT_OPTIONS = (('steps', 'int', 'optimizer steps. (default: 200)'),
  ('checkpoint_every', 'int', 'steps between checkpoints (when a checkpoint path is given). (default: 20)'),
  ('solver',
   'str',
-  '"adam" (gradient steps on re-traced renders, the default), "lm" (Levenberg-Marquardt) or "gauss_newton" on path '
-  'records (least_squares.py), or, when a fitted parameter is one records cannot represent (a roughness), on re-traced '
-  'renders with forward-mode Jacobian columns (retraced.py). (default: adam)'),
+  '"auto" (the default: chosen from what the parameters are and the settings given, solver_choice.py: '
+  '"transport_matrix" for one environment map alone, "lm" for parameters that are polynomial factors of the path '
+  'weights or a roughness, else "adam"; the result says which and why), "adam" (gradient steps on re-traced renders), '
+  '"lm" (Levenberg-Marquardt) or "gauss_newton" on path records (least_squares.py), or, when a fitted parameter is one '
+  'records cannot represent (a roughness), on re-traced renders with forward-mode Jacobian columns (retraced.py), or '
+  '"transport_matrix" (one environment map\'s texels: one non-negative regularized linear solve, map_fit.py). '
+  '(default: auto)'),
  ('rounds',
   'int',
   'least-squares solvers: at most this many outer rounds; on path records round r traces two independent passes (A and '
@@ -172,7 +179,13 @@ FIT_OPTIONS = (('steps', 'int', 'optimizer steps. (default: 200)'),
   'bool',
   "Adam with decorrelate: take dl/dI at the recursive control-variate estimate of each view's image "
   '(control_variates.py: one more render per view and step, at the previous parameters with the same numbers) instead '
-  'of at a plain render. (default: false)'))
+  'of at a plain render. (default: false)'),
+ ('plateau_window',
+  'int',
+  'Adam: steps in each of the two windows the plateau rule compares (the mean loss at spp_final of the last window '
+  "against the one before: the fit stops once it fell by less than twice its noise, measured from the loss's "
+  'step-to-step fluctuation, or 0.1%%; convergence.py); when the steps run out first it warns. 0: no rule, no warning. '
+  '(default: 20)'))
 ABLATION_VARIANTS = ('independent', 'antithetic', 'uniform_hemisphere', 'bsdf_only', 'emitter_only', 'no_roulette', 'adaptive')
 STUDY_CONFIGS = ('path/autodiff/correlated/sampler=independent',
  'path/autodiff/decorrelated/sampler=independent',

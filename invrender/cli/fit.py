@@ -27,9 +27,13 @@ examples:
   torchrun --standalone --nproc-per-node 2 -m invrender fit optimize/cornell_views.toml --out runs/views
                                                 # renders and gradients split across 2 processes
 
-Defaults: 200 Adam steps on rho = sigmoid(x), eps = exp(x) (step 0.15, cosine decay), 16 then 64
-spp, the path tracer at max_depth 8, relative L2 loss, path-replay gradients decorrelated from the
-loss's image. --integrator and --set choose the model every render of the fit uses (any setting of
+Defaults: --solver auto, which picks the solver from the parameters and says which and why: the
+transport-matrix solve for one environment map alone, lm on path records (albedos, k_s, emissions,
+the sensor) or on re-traced renders (a roughness), else Adam; settings only Adam has (--steps,
+--lr, --loss other than relative_l2, --control-variate, ...) choose Adam. Adam: up to 200 steps on
+rho = sigmoid(x), eps = exp(x) (step 0.15, cosine decay), 16 then 64 spp, stopping on the loss's
+plateau; lm: up to 5 rounds from 16 spp, 4x more each. The path tracer at max_depth 8, relative L2
+loss. A fit that did not converge says so (a warning, and "converged": false in report.json). --integrator and --set choose the model every render of the fit uses (any setting of
 any integrator, listed below); with a recipe they change the recipe's integrator (a variant that
 names an integrator of its own keeps it).
 
@@ -159,7 +163,8 @@ def _summary(args, output) -> None:
     if args.quiet:
         return
     report, result = output.report, output.result
-    print(f"{report['steps']} steps in {report['seconds']:.1f} s, final loss {report['final_loss']:.4g}", file=sys.stderr)
+    state = {True: "converged", False: "NOT converged", None: "convergence not checked"}[result.converged]
+    print(f"{result.solver}: {report['steps']} {'steps' if result.solver == 'adam' else 'rounds'} in {report['seconds']:.1f} s, final loss {report['final_loss']:.4g}, {state}", file=sys.stderr)
     for name, value in result.params.items():
         err = f"  (rel. error {result.errors[name]:.2%})" if name in result.errors else ""
         print(f"  {name}: {fmt(value)}{err}", file=sys.stderr)

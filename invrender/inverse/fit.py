@@ -1,6 +1,12 @@
-"""fit(): recover emission eps and reflectance rho from target images by gradient descent.
+"""fit(): recover emission eps and reflectance rho from target images.
 
-Each step renders every view, back-propagates the loss through the Monte Carlo estimate (estimator
+The solver (``solver="auto"``, the default) is chosen from what the parameters are
+(solver_choice.py): the transport-matrix solve for an environment map alone (map_fit.py),
+Levenberg-Marquardt on path records (least_squares.py) or on re-traced renders (retraced.py), or
+Adam; the result says which and why (:attr:`FitResult.solver_reason`) and whether it converged
+(:attr:`FitResult.converged`; a fit that did not warns, :class:`~invrender.inverse.convergence.ConvergenceWarning`).
+
+With Adam each step renders every view, back-propagates the loss through the Monte Carlo estimate (estimator
 ``auto`` by default: autodiff where the recorded render fits in memory, else path replay,
 ``diff.resolve_estimator``; decorrelated by default: see losses.py) and takes an Adam step on reparametrized
 values: rho = sigmoid(x), eps = exp(x) (params.py). Every random number is a
@@ -16,6 +22,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import importlib
 import math
 import os
 import sys
@@ -33,7 +40,8 @@ from invrender.diff.finite import check_params, nonfinite_params
 from invrender.errors import NonFiniteError, ParameterError, did_you_mean
 from invrender.inverse import params as P
 from invrender.inverse.control_variates import RecursiveControlVariate
-from invrender.inverse.least_squares import SOLVERS
+from invrender.inverse.convergence import adam_losses, check_adam, check_least_squares, plateau
+from invrender.inverse.solver_choice import SOLVERS, choose_solver
 from invrender.inverse.rounds_bar import RoundsBar
 from invrender.inverse.losses import LOSSES, loss_and_gradient, loss_gradient
 from invrender.inverse.sensor import NAMES as SENSOR_NAMES, Sensor, is_sensor
@@ -66,7 +74,7 @@ class FitSettings:
     """How to fit.
 
     Attributes:
-        steps: optimizer steps.
+        steps: Adam's steps, at most (it stops earlier on a plateau of the loss: ``plateau_window``).
         lr: Adam step size for [0, 1] parameters (reflectance, specular reflectance), in logit
             units (about a relative step for dark channels: 0.05 = 5% per step).
         lr_emission: Adam step size for emissions, in log(eps) units (0.05 = 5% per step).
@@ -77,7 +85,8 @@ class FitSettings:
             not stay scaled down by the large gradients of the first steps (a fit is a few hundred
             steps, not tens of thousands).
         spp: samples per pixel of each render in the first half of the steps.
-        spp_final: samples per pixel in the second half (less noise where the steps are small).
+        spp_final: samples per pixel in the second half (less noise where the steps are small);
+            the transport-matrix solve traces each of its two halves at this count.
         max_depth: a shortcut for the integrator spec's ``max_depth`` (Neumann terms kept by the
             renders, Mitsuba's count); None = the spec's, else :data:`FIT_MAX_DEPTH` (8) for an
             integrator with a depth. Giving both, different, is an error.
@@ -94,10 +103,15 @@ class FitSettings:
         decorrelate: take ``dl/dI`` from an independent render (unbiased gradient; losses.py).
         seed: seed of every render's random numbers.
         checkpoint_every: steps between checkpoints (when a checkpoint path is given).
-        solver: ``"adam"`` (gradient steps on re-traced renders, the default), ``"lm"``
-            (Levenberg-Marquardt) or ``"gauss_newton"`` on path records (least_squares.py), or,
-            when a fitted parameter is one records cannot represent (a roughness), on re-traced
-            renders with forward-mode Jacobian columns (retraced.py).
+        solver: ``"auto"`` (the default: chosen from what the parameters are and the settings
+            given, solver_choice.py: ``"transport_matrix"`` for one environment map alone, ``"lm"``
+            for parameters that are polynomial factors of the path weights or a roughness, else
+            ``"adam"``; the result says which and why), ``"adam"`` (gradient steps on re-traced
+            renders), ``"lm"`` (Levenberg-Marquardt) or ``"gauss_newton"`` on path records
+            (least_squares.py), or, when a fitted parameter is one records cannot represent (a
+            roughness), on re-traced renders with forward-mode Jacobian columns (retraced.py), or
+            ``"transport_matrix"`` (one environment map's texels: one non-negative regularized
+            linear solve, map_fit.py).
         rounds: least-squares solvers: at most this many outer rounds; on path records round r
             traces two independent passes (A and B) at the current estimate and adds them to the
             earlier rounds' (so it solves on ``spp * 4^r`` samples a pixel per set, three quarters
@@ -126,6 +140,10 @@ class FitSettings:
         control_variate: Adam with ``decorrelate``: take ``dl/dI`` at the recursive control-variate
             estimate of each view's image (control_variates.py: one more render per view and step,
             at the previous parameters with the same numbers) instead of at a plain render.
+        plateau_window: Adam: steps in each of the two windows the plateau rule compares (the mean
+            loss at ``spp_final`` of the last window against the one before: the fit stops once it
+            fell by less than twice its noise, measured from the loss's step-to-step fluctuation,
+            or 0.1%; convergence.py); when the steps run out first it warns. 0: no rule, no warning.
     """
 
     steps: int = 200
@@ -143,15 +161,17 @@ class FitSettings:
     decorrelate: bool = True
     seed: int = 0
     checkpoint_every: int = 20
-    solver: str = "adam"
+    solver: str = "auto"
     rounds: int = 5
     precision: float | None = None
     prior_weight: float | None = None
     smoothness: float | None = 0.0
     sampler: str = "stratified"
     control_variate: bool = False
+    plateau_window: int = 20
 
     def __post_init__(self):
+        check_int("fit setting ", "plateau_window", self.plateau_window, 0, MAX_STEPS)
         for name in ("steps", "spp", "spp_final", "seed", "checkpoint_every", "rounds") + (("max_depth",) if self.max_depth is not None else ()):
             check_int("fit setting ", name, getattr(self, name))
         if self.steps <= 0 or self.spp <= 0 or self.spp_final <= 0 or self.checkpoint_every <= 0 or self.rounds <= 0:
@@ -166,11 +186,11 @@ class FitSettings:
             name, options = integrator_spec(self.integrator, "fit setting integrator")
             object.__setattr__(self, "integrator", {"type": name, **options})
         model = self.model  # validates the spec and max_depth together
-        if self.control_variate and not (self.decorrelate and self.solver == "adam"):
+        if self.control_variate and not (self.decorrelate and self.solver in ("adam", "auto")):
             raise ParameterError("control_variate needs solver 'adam' with decorrelate (it replaces the render dl/dI is taken at)")
         if self.solver not in SOLVERS:
             raise ParameterError(f"unknown solver {self.solver!r}{did_you_mean(self.solver, SOLVERS)} (known: {', '.join(SOLVERS)})")
-        if self.solver != "adam" and (model.terms_kept < 1 or self.loss != "relative_l2"):
+        if self.solver not in ("adam", "auto") and (model.terms_kept < 1 or self.loss != "relative_l2"):
             raise ParameterError(f"solver {self.solver!r} needs a finite max_depth >= 1 and the relative_l2 loss (got max_depth {model.terms_kept}, loss {self.loss!r})")
         for name in ("lr", "lr_emission", "lr_sensor", "lr_final", "precision"):
             if name == "precision" and self.precision is None:
@@ -229,6 +249,13 @@ class FitResult:
         pixels: per view, the (H, W, 3) image of which pixels counted
             (:meth:`~invrender.inverse.targets.Target.pixels_image`), where a mask or the automatic
             exclusion left any out; None for a view where every pixel counted.
+        solver: the solver that ran (``"adam"``, ``"lm"``, ``"gauss_newton"``,
+            ``"transport_matrix"``; ``settings.solver`` too).
+        solver_reason: why, in one line (solver_choice.py).
+        converged: whether the fit reached its stopping rule (Adam: a plateau of the loss; the
+            least-squares rounds: no significant move, and ``precision``; the transport matrix: a
+            direct solve, always) rather than its cap of steps or rounds; None where Adam's rule
+            was switched off (``plateau_window=0``). A fit that did not converge warns.
     """
 
     params: dict[str, torch.Tensor]
@@ -240,6 +267,9 @@ class FitResult:
     std_error: dict[str, torch.Tensor] = field(default_factory=dict)
     targets: list[dict] = field(default_factory=list)
     pixels: list = field(default_factory=list)
+    solver: str = ""
+    solver_reason: str = ""
+    converged: bool | None = None
 
     @property
     def errors(self) -> dict[str, float]:
@@ -301,6 +331,7 @@ def fit(
     if unknown:
         raise ParameterError(f"unknown fit setting {sorted(unknown)[0]!r}{did_you_mean(sorted(unknown)[0], known)} (known: {', '.join(sorted(known))})")
     names = check_fit_names(scene, params)
+    given = set(settings)  # the settings the call gave (the solver's choice reads them)
     check_params(scene.params)  # the starting values (and the fixed ones): a NaN would be every step's
     checkpoint = Path(checkpoint) if checkpoint is not None else None
     state = None
@@ -310,13 +341,19 @@ def fit(
         state = _read_checkpoint(checkpoint, scene, names)
         settings = {**{k: v for k, v in state["settings"].items() if k in known}, **settings}  # stored, unless given anew
     cfg = FitSettings(**(settings if state is not None else fit_settings(scene, settings)))  # the scene file's integrator unless given
+    choice = choose_solver(scene, names, cfg, given)
+    cfg = dataclasses.replace(cfg, solver=choice.solver)
     views = load_targets(scene, target, cameras, mask=mask, response=response, exclude_clipped=exclude_clipped)
     sensor = Sensor.make(len(views), names, sensor)
     truth = _checked_truth(scene, truth)
     if state is not None and ("raw" in state) != (cfg.solver == "adam"):
         raise ParameterError(f"checkpoint {checkpoint} was written by another solver than {cfg.solver!r}")
+    if progress and is_main():
+        print(f"fit: solver {choice.solver}: {choice.reason}", file=sys.stderr)
+    if cfg.solver == "transport_matrix":
+        return _chosen(_fit_transport_matrix(scene, views, names, cfg, truth, checkpoint, state, progress, sensor, cameras), choice)
     if cfg.solver != "adam":
-        return _fit_least_squares(scene, views, names, cfg, truth, checkpoint, state, progress, sensor)
+        return _chosen(_fit_least_squares(scene, views, names, cfg, truth, checkpoint, state, progress, sensor), choice)
 
     scene_names = [n for n in names if not is_sensor(n)]
     raw = {n: P.to_raw(n, scene.params[n]).requires_grad_(True) for n in scene_names}
@@ -341,6 +378,9 @@ def fit(
     try:
         with bar:
             for step in range(start, cfg.steps):
+                reached = plateau(adam_losses(history, cfg.steps), cfg.plateau_window)
+                if reached is not None and reached.reached:  # the loss's plateau (a resumed fit's too)
+                    break
                 for group, lr in zip(optimizer.param_groups, base_lr):
                     group["lr"] = lr * cfg.lr_factor(step)
                 optimizer.zero_grad(set_to_none=True)
@@ -357,6 +397,7 @@ def fit(
                 if what is None:
                     if step == 0:
                         P.warn_unused({n: raw[n].grad for n in scene_names})
+                    grad_norm = math.sqrt(sum(float(raw[n].grad.double().pow(2).sum()) for n in raw if raw[n].grad is not None))
                     before = copy.deepcopy((_leaves(raw), optimizer.state_dict())) if checkpoint is not None else None
                     optimizer.step()
                     values = _values(raw, scene_names, sensor, names)
@@ -370,6 +411,7 @@ def fit(
                         _save_checkpoint(checkpoint, scene, names, cfg, len(history), history, **_adam_state(raw, optimizer, variates))
                     raise _stopped(step, what, checkpoint, len(history))
                 record = _record(step, loss, cfg.spp_at(step), time.perf_counter() - clock, values, truth)
+                record["grad_norm"] = grad_norm  # of the unconstrained values, before the step
                 history.append(record)
                 bar.set_postfix(loss=f"{record['loss']:.4g}", refresh=False)
                 bar.update(1)
@@ -384,7 +426,58 @@ def fit(
 
     recovered = {n: v.detach().clone() for n, v in _values(raw, scene_names, sensor, names).items()}
     out_scene = scene.with_params({n: recovered[n] for n in scene_names}, detach=True)
-    return FitResult(recovered, history, out_scene, cfg, initial, {k: v for k, v in truth.items() if k in names}, targets=[t.report() for _, t in views], pixels=_pixels(views))
+    result = FitResult(recovered, history, out_scene, cfg, initial, {k: v for k, v in truth.items() if k in names}, targets=[t.report() for _, t in views], pixels=_pixels(views))
+    result.converged = check_adam(history, cfg.steps, cfg.plateau_window)
+    return _chosen(result, choice)
+
+
+def _chosen(result: FitResult, choice) -> FitResult:
+    """``result`` with the solver's choice (:func:`~invrender.inverse.solver_choice.choose_solver`) in it."""
+    result.solver, result.solver_reason = choice.solver, choice.reason
+    return result
+
+
+def _fit_transport_matrix(scene: Scene, views, names, cfg: FitSettings, truth, checkpoint: Path | None, state: dict | None, progress: bool, sensor: Sensor, cameras) -> FitResult:
+    """One environment map's texels by one non-negative regularized linear solve on its transport
+    matrix (:func:`invrender.inverse.map_fit.fit_map`, two halves of ``spp_final`` samples a
+    pixel, the prior's weight by the discrepancy principle): one history entry. The targets are
+    passed linear, divided by a fixed sensor's gains, with their masks (clipped pixels excluded)."""
+    name = names[0]
+    initial = {name: scene.params[name].detach().clone()}
+    if state is not None:  # a resumed fit that had solved: its result stands
+        history, values = list(state["history"]), {name: state["values"][name].float()}
+    else:
+        # map_fit imports this module's load_targets: looked up at call time, not a cycle of imports
+        fit_map = importlib.import_module("invrender.inverse.map_fit").fit_map
+        gains = sensor.gains(sensor.to_raw()).float() if sensor.active else torch.ones(len(views), 3)
+        targets = [t.linear / gains[v].to(t.linear.device) for v, (_, t) in enumerate(views)]
+        masks = None if all(bool((t.mask == 1).all()) for _, t in views) else [t.mask for _, t in views]
+        model = cfg.model
+        clock = time.perf_counter()
+        found = fit_map(
+            scene, targets, name.rpartition(".")[0], cameras=cameras, integrator={"type": model.name, **dataclasses.asdict(model.settings)},
+            spp=cfg.spp_final, max_depth=None, seed=cfg.seed, mask=masks, progress=progress,
+        )  # fmt: skip
+        values = {name: found.texels.float()}
+        record = {
+            "step": 1, "loss": float((found.residual.double() ** 2).mean()), "spp": cfg.spp_final, "seconds": time.perf_counter() - clock,
+            "params": {name: values[name].tolist()}, "std_error": {name: found.stderr.tolist()}, "on": "transport matrix",
+            "transport_matrix": found.describe(), "converged": True,
+        }  # fmt: skip
+        if truth and name in truth:
+            record["errors"] = {name: P.relative_error(values[name], truth[name])}
+        if bool(found.undetermined.any()):
+            record["undetermined"] = f"{int(found.undetermined.sum())} of {found.undetermined.numel()} texels of {name} (resolution under 0.5: the prior holds them)"
+        history = [record]
+        if checkpoint is not None:
+            _save_checkpoint(checkpoint, scene, names, cfg, 1, history, values=values)
+    if history[-1].get("undetermined"):
+        warnings.warn(f"the targets do not determine {history[-1]['undetermined']}", stacklevel=3)
+    std_error = {name: torch.tensor(history[-1]["std_error"][name], dtype=torch.float32)}
+    out_scene = scene.with_params(values, detach=True)
+    result = FitResult(values, history, out_scene, cfg, initial, {k: v for k, v in truth.items() if k in names}, std_error, [t.report() for _, t in views], _pixels(views))
+    result.converged = True
+    return result
 
 
 #: the key of the sensor's free log variables among Adam's leaves (and in checkpoints)
@@ -530,7 +623,9 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
                 # nested rounds (round rnd holds every sample of round rnd - 1): the difference of
                 # their estimates is a weighted difference of the new samples' mean and the old ones',
                 # with variance se^2 (spp / previous spp - 1) (docs/fitting.md)
-                spread = {n: sol.std_error[n] ** 2 * ((4 - 1) if std_error else 1) for n in names}
+                # (the Monte Carlo standard errors: the targets' own error is common to both rounds)
+                mc = sol.identifiability.monte_carlo_std_error or sol.std_error
+                spread = {n: mc[n] ** 2 * ((4 - 1) if std_error else 1) for n in names}
             # how far each channel moved, in standard errors of the difference of two rounds
             moved = max(float(((sol.values[n] - current[n]).abs() / spread[n].sqrt().clamp_min(1e-12)).max()) for n in names)
             current, std_error = sol.values, sol.std_error
@@ -546,6 +641,8 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
             record["correlation"] = {"channels": sol.identifiability.channels, "matrix": sol.identifiability.correlation.tolist()}
             if sol.identifiability.undetermined:
                 record["undetermined"] = sol.identifiability.describe()
+            if sol.identifiability.loose:
+                record["loose"] = sol.identifiability.describe_loose()
             record["converged"] = rnd >= MIN_ROUNDS - 1 and moved < CONVERGED_MOVE and (
                 cfg.precision is None or all(bool((std_error[n] <= cfg.precision * current[n].abs()).all()) for n in names)
             )
@@ -564,7 +661,9 @@ def _fit_least_squares(scene: Scene, views, names, cfg: FitSettings, truth, chec
         warnings.warn(f"the targets do not determine these parameter combinations: {history[-1]['undetermined']}", stacklevel=3)
     recovered = {n: current[n].float().clone() for n in names}
     out_scene = scene.with_params({n: recovered[n] for n in scene_names}, detach=True)
-    return FitResult(recovered, history, out_scene, cfg, initial, {k: v for k, v in truth.items() if k in names}, {n: std_error[n].float() for n in names}, [t.report() for _, t in views], _pixels(views))
+    result = FitResult(recovered, history, out_scene, cfg, initial, {k: v for k, v in truth.items() if k in names}, {n: std_error[n].float() for n in names}, [t.report() for _, t in views], _pixels(views))
+    result.converged = check_least_squares(history, cfg.solver, cfg.rounds, cfg.precision, CONVERGED_MOVE)
+    return result
 
 
 class _RecordPasses:

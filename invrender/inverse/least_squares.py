@@ -62,6 +62,10 @@ REFINE_STEPS = 4
 PRIOR_FRACTION = 1e-3
 #: the default smoothness weight, the same way
 SMOOTHNESS_FRACTION = 1e-2
+#: a direction of the parameters whose standard error is above this (relative) is reported loose
+LOOSE = 0.02
+#: loose directions reported, at most
+MAX_LOOSE = 3
 
 
 def _inside(kind, value: torch.Tensor) -> torch.Tensor:
@@ -608,6 +612,16 @@ class Identifiability:
             vector in relative units, largest weights only), for every direction along which the
             column-scaled ``J^T J`` has an eigenvalue below ``threshold`` times its largest.
         loss: mean squared weighted residual of record set A at the evaluated values.
+        sensor: the sensor's named scale ambiguities.
+        loose: the combinations of two channels or more the standard errors leave loosest, where
+            their spread is above :data:`LOOSE` of the values (relative units; sensor channels in log units), loosest
+            first, at most :data:`MAX_LOOSE` (the covariance's eigenvectors): each a dict of
+            ``std_error`` (along the direction), ``weights`` (channel label -> weight of the unit
+            vector, largest weights only) and ``channel_std_error`` (those channels' relative
+            standard errors).
+        monte_carlo_std_error: name -> the standard errors of the Monte Carlo noise alone (the
+            targets' own error left out; None: the same as ``std_error``): the spread of two
+            rounds' estimates against the same targets.
     """
 
     std_error: dict
@@ -616,11 +630,21 @@ class Identifiability:
     weak: list[dict]
     loss: float
     sensor: list[str] = ()
+    loose: list = ()
+    monte_carlo_std_error: dict | None = None
 
     def describe(self) -> str:
         """One line per undetermined combination (empty when everything is determined): the
         sensor's scale ambiguities first (named, with what resolves them), then the numerical ones."""
         return "; ".join(list(self.sensor) + [" + ".join(f"{w:+.2f} {c}" for c, w in combo.items()) for combo in self.weak])
+
+    def describe_loose(self) -> str:
+        """The :attr:`loose` directions in one line (empty when there are none)."""
+        return "; ".join(
+            f"{100 * d['std_error']:.3g}% along " + " ".join(f"{w:+.2f} {c}" for c, w in d["weights"].items())
+            + " (standard errors " + ", ".join(f"{c} {100 * e:.3g}%" for c, e in d["channel_std_error"].items()) + ")"
+            for d in self.loose
+        )  # fmt: skip
 
     @property
     def undetermined(self) -> bool:
@@ -666,12 +690,22 @@ def analyse(
         Jp, rp = prior.jacobian(layout), prior.residual(layout, values)
         Jp = torch.cat([Jp, torch.zeros(Jp.shape[0], J.shape[1] - Jp.shape[1], dtype=torch.float64)], dim=1)
         J, J_a, ra, rb = torch.cat([J, Jp]), torch.cat([J_a, Jp]), torch.cat([ra, rp]), torch.cat([rb, rp])
-    se, corr = sandwich(J, J_a, ra, rb)
+    # the targets' own error (a photograph's quantization, a render's noise) is in the residual's
+    # mean square, (r_A^2 + r_B^2) / 2 = the Monte Carlo variance + r_A r_B, on the image rows
+    images = torch.zeros_like(ra, dtype=torch.bool)
+    images[: len(ra) - (len(rp) if prior is not None else 0)] = True
+    se, corr = sandwich(J, J_a, ra, rb, torch.where(images, (ra**2 + rb**2) / 2, (ra - rb) ** 2 / 2))
+    se_mc, _ = sandwich(J, J_a, ra, rb)
     n = 3 * layout.offsets[-1]
-    std_error = layout.unflatten(se[:n].reshape(-1, 3))
-    if sensor is not None:
-        std_error.update(sensor.std_error(sensor.values(s), se[n:]))
-    return Identifiability(std_error, corr, labels, weak, loss, tuple(ambiguities))
+
+    def by_name(se: torch.Tensor) -> dict:
+        out = layout.unflatten(se[:n].reshape(-1, 3))
+        if sensor is not None:
+            out.update(sensor.std_error(sensor.values(s), se[n:]))
+        return out
+
+    loose = loose_directions(se / scale, corr, labels)
+    return Identifiability(by_name(se), corr, labels, weak, loss, tuple(ambiguities), loose, by_name(se_mc))
 
 
 def weak_combinations(Js: torch.Tensor, labels: list[str], groups: list[torch.Tensor], threshold: float = 1e-6) -> list[dict]:
@@ -691,15 +725,36 @@ def weak_combinations(Js: torch.Tensor, labels: list[str], groups: list[torch.Te
     return weak
 
 
-def sandwich(J: torch.Tensor, J_a: torch.Tensor, ra: torch.Tensor, rb: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def sandwich(J: torch.Tensor, J_a: torch.Tensor, ra: torch.Tensor, rb: torch.Tensor, s2: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """Standard errors (P,) and correlations (P, P) of the solution of ``J^T r_A = 0`` from two
     independent sets' Jacobians ``J`` (B's, the one solved with) and ``J_a`` (R, P) and residuals
     ``ra``, ``rb`` (R,): the sandwich ``(J^T J)^-1 (J^T diag(s^2) J + dJ^T diag(r_A^2) dJ)
-    (J^T J)^-1`` with ``s^2 = (r_A - r_B)^2 / 2`` and ``dJ = (J_A - J_B) / sqrt 2`` (see
-    :func:`analyse`)."""
-    s2 = (ra - rb) ** 2 / 2
+    (J^T J)^-1`` with ``s^2`` (R,) each residual's variance (default ``(r_A - r_B)^2 / 2``, the
+    Monte Carlo noise alone) and ``dJ = (J_A - J_B) / sqrt 2`` (see :func:`analyse`)."""
+    if s2 is None:
+        s2 = (ra - rb) ** 2 / 2
     dJ = (J_a - J) / 2**0.5
     inv = torch.linalg.pinv(J.T @ J)
     cov = inv @ ((J.T * s2) @ J + (dJ.T * ra**2) @ dJ) @ inv
     se = cov.diagonal().clamp_min(0).sqrt()
     return se, cov / (se[:, None] * se[None, :]).clamp_min(1e-300)
+
+
+def loose_directions(rel_se: torch.Tensor, corr: torch.Tensor, labels: list[str]) -> list:
+    """The directions of the relative covariance ``diag(rel_se) corr diag(rel_se)`` (P channels)
+    whose standard error is above :data:`LOOSE` and that combine two channels or more, loosest
+    first, at most :data:`MAX_LOOSE` (:attr:`Identifiability.loose`: the unit vector's weights
+    above 0.2, its sign such that the largest is positive)."""
+    cov = torch.nan_to_num(rel_se[:, None] * corr * rel_se[None, :])
+    eigenvalues, vectors = torch.linalg.eigh(cov)
+    out = []
+    for lam, v in zip(reversed(eigenvalues.tolist()), reversed(list(vectors.T))):
+        if lam <= LOOSE**2 or len(out) == MAX_LOOSE:
+            break
+        v = v * torch.sign(v[v.abs().argmax()])
+        order = torch.argsort(v.abs(), descending=True)
+        big = [int(i) for i in order.tolist() if abs(float(v[i])) > 0.2]
+        if len(big) < 2:  # one channel's own imprecision (its standard error says it), not a combination
+            continue
+        out.append({"std_error": lam**0.5, "weights": {labels[i]: float(v[i]) for i in big}, "channel_std_error": {labels[i]: float(rel_se[i]) for i in big}})
+    return out

@@ -35,11 +35,12 @@ def test_fit_recovers_emission_and_white_albedo(small_target):
     with torch.no_grad():
         scene.params["white.reflectance"].fill_(0.5)
     names = ["light.emission", "white.reflectance"]
-    res = ir.fit(scene, small_target, names, steps=100, spp=16, spp_final=64, lr=0.15, lr_emission=0.15, max_depth=2, progress=False, truth={k: truth[k] for k in names})
+    res = ir.fit(scene, small_target, names, solver="adam", steps=100, spp=16, spp_final=64, lr=0.15, lr_emission=0.15, max_depth=2, progress=False, truth={k: truth[k] for k in names})
     assert res.errors["light.emission"] < 0.05
     assert res.errors["white.reflectance"] < 0.05
     assert res.history[-1]["loss"] < 0.05 * res.history[0]["loss"]
-    assert len(res.history) == 100 and set(res.history[0]) >= {"step", "loss", "spp", "seconds", "params", "errors"}
+    # stopped on the loss's plateau (94 steps), or ran all 100
+    assert res.converged is not None and 80 <= len(res.history) <= 100 and set(res.history[0]) >= {"step", "loss", "spp", "seconds", "params", "errors", "grad_norm"}
     assert torch.equal(scene.params["light.emission"], torch.full((3,), 5.0))  # the input scene is untouched
 
 

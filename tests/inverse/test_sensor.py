@@ -11,6 +11,7 @@ import torch
 
 import invrender as ir
 from invrender.errors import ImageError, ParameterError
+from invrender.inverse.convergence import ConvergenceWarning
 from invrender.inverse.sensor import Sensor, synthetic_photograph
 from invrender.io.response import write_response_csv
 
@@ -66,16 +67,32 @@ def photo(tmp_path_factory):
 
 
 def test_round_trip_lm(photo):
-    """The JPEG fitted back by Levenberg-Marquardt with the sensor free: within the bounds of
-    :func:`check_round_trip`; the light's saturated pixels excluded and counted;
-    without the exclusion the same fit is far off (the clipped light reads as a dim one)."""
+    """The JPEG fitted back with ir.fit's defaults (the model's depth the photograph's): solver
+    "auto" takes lm on path records, within the bounds of :func:`check_round_trip`; every albedo
+    within 2.5% and every channel's gain (exposure x white balance) within 2%, or named in the
+    warning of loosely determined directions with a standard error (the targets' own error, the
+    8-bit quantization, included) that covers the truth within two; the light's saturated pixels
+    excluded and counted; without the exclusion the same fit is far off (the clipped light reads
+    as a dim one)."""
     scene, truth, path = photo
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # the albedo-exposure scale is weakly determined: said, not an error
-        res = ir.fit(scene, path, ALBEDOS + SENSOR, solver="lm", max_depth=5, spp=16, rounds=3, progress=False)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = ir.fit(scene, path, ALBEDOS + SENSOR, max_depth=5, progress=False)
     err = errors(res, truth)
-    print("lm", {k: f"{100 * v:+.2f}%" for k, v in err.items()})
+    print("auto", res.solver, len(res.history), "rounds", {k: f"{100 * v:+.2f}%" for k, v in err.items()})
+    assert res.solver == "lm" and res.converged and len(res.history) == 3
     check_round_trip(err)
+    loose = " ".join(str(w.message) for w in caught if issubclass(w.category, ConvergenceWarning) and "loosely" in str(w.message))
+    se = {f"{n}[{c}]": float(res.std_error[n][i] / res.params[n][i]) for n in ALBEDOS for i, c in enumerate("RGB")}
+    for i, c in enumerate("RGB"):
+        gain = (1 + err["exposure"]) * (1 + err.get(f"white_balance[{c}]", 0.0)) - 1
+        wb = float(res.std_error["sensor.white_balance"][0, i] / res.params["sensor.white_balance"][0, i])
+        err[f"gain[{c}]"], se[f"gain[{c}]"] = gain, (float(res.std_error["sensor.exposure"][0] / res.params["sensor.exposure"][0]) ** 2 + wb**2) ** 0.5
+    for key, e in err.items():
+        if key.startswith(("exposure", "white_balance")) or abs(e) <= (0.02 if key.startswith("gain") else 0.025):
+            continue
+        named = key.replace("gain", "sensor.white_balance") if key != "gain[G]" else "sensor.exposure"
+        assert named in loose and abs(e) < 2 * se[key], (key, e, se[key], loose)
     report = res.targets[0]
     assert report["response"] == "srgb" and report["excluded_saturated"] >= 6 and report["pixels"] == 1024
     assert res.params["sensor.white_balance"][0, 1] == 1.0 and set(res.std_error) == set(ALBEDOS + SENSOR)
@@ -91,7 +108,7 @@ def test_round_trip_lm(photo):
 def test_round_trip_adam(photo):
     """The same photograph fitted by Adam."""
     scene, truth, path = photo
-    res = ir.fit(scene, path, ALBEDOS + SENSOR, max_depth=5, steps=300, spp=16, spp_final=64, lr=0.1, lr_sensor=0.1, progress=False)
+    res = ir.fit(scene, path, ALBEDOS + SENSOR, solver="adam", max_depth=5, steps=300, spp=16, spp_final=64, lr=0.1, lr_sensor=0.1, progress=False)
     err = errors(res, truth)
     print("adam", {k: f"{100 * v:+.2f}%" for k, v in err.items()})
     check_round_trip(err)
