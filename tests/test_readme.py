@@ -38,9 +38,10 @@ SMALLER = [
 ]
 #: what the examples must have computed, checked after the block whose text holds the key
 CHECKS = {
-    'res = ir.fit(scene, target, ["red.reflectance", "light.emission"], solver="lm")': [
+    'res = ir.fit(scene, target, ["red.reflectance", "light.emission"])': [
         # the fit started away from the truth and came back to it
         'assert (scene.params["red.reflectance"] - truth.params["red.reflectance"]).abs().max() > 0.2',
+        'assert res.solver == "lm" and res.converged, (res.solver, res.solver_reason)',
         'assert (res.params["red.reflectance"] - truth.params["red.reflectance"]).abs().max() < 0.05, res.params',
         'assert ((res.params["light.emission"] / truth.params["light.emission"]) - 1).abs().max() < 0.1, res.params',
     ],
