@@ -37,7 +37,7 @@ def check_int(owner: str, name: str, value, low: int | None = None, high: int | 
     if low is not None and value < low:
         raise ParameterError(f"{owner}{name} must be {'positive' if low == 1 else f'>= {low}'}, got {value}")
     if high is not None and value > high:
-        raise ParameterError(f"{owner}{name} must be <= {high}, got {value}")
+        raise ParameterError(f"{owner}{name} must be <= {high}, got {value if value < 10**15 else f'{value:.3g}'}")
 
 
 def check_depth(owner: str, name: str, value, minus_one: str | None = "unbounded") -> None:

@@ -81,3 +81,34 @@ def test_console_script_help_and_bad_resolution():
     for args in (["render", "--resolution", "64by64"], ["render", "--resolution", "0x4"], ["render", "--spp", "many"], ["paint"]):
         bad = subprocess.run([sys.executable, "-m", "invrender.cli", *args], capture_output=True, text=True)
         assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and bad.stderr.startswith("invrender"), bad.stderr
+
+
+def test_an_unexpected_exception_is_one_line_exit_1(capsys, monkeypatch):
+    """A bug (an exception that is not an InvRenderError) still ends in one line, exit 1, naming
+    its type; INVRENDER_TRACEBACK=1 lets it through for a developer."""
+    import invrender.cli.render as render_cmd
+
+    def broken(args):
+        raise ValueError("could not convert string to float: 'abc'\nsecond line")
+
+    monkeypatch.setattr(render_cmd, "run", broken)
+    assert main(["render", "cornell_box", "--quiet"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("invrender: internal error: ValueError: could not convert string to float: 'abc' (a bug")
+    monkeypatch.setenv("INVRENDER_TRACEBACK", "1")
+    with pytest.raises(ValueError):
+        main(["render", "cornell_box", "--quiet"])
+
+
+def test_old_mitsuba_texture_offsets_that_are_not_numbers(tmp_path, capsys):
+    """A Mitsuba 0.x file's uscale/uoffset (upgraded to a to_uv transform) that is not a number."""
+    xml = tmp_path / "old.xml"
+    xml.write_text(
+        '<scene version="0.5.0"><bsdf type="diffuse" id="m"><texture type="bitmap" name="reflectance">'
+        '<string name="filename" value="x.png"/><float name="uscale" value="abc"/></texture></bsdf>'
+        '<shape type="sphere"><ref id="m"/></shape><emitter type="constant"/></scene>'
+    )
+    assert main(["render", str(xml), "--resolution", "8x8", "--out", str(tmp_path / "o.png")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"invrender: error: {xml}:1: <float name=\"uscale\">: could not parse a number from 'abc'"]
+    assert not (tmp_path / "o.png").exists()

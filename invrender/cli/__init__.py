@@ -14,11 +14,12 @@ library comes from :mod:`invrender.cli.catalog`), so ``--help`` and a mistyped n
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import warnings
 
 from invrender.cli import ablation, baseline, compare, dataset, fit, gradcheck, hdr, plugins, render, variance
-from invrender.cli.common import EXIT_BAD_INPUT, EXIT_INTERRUPTED, OneLineParser, check_names, join_process_group, leave_process_group, one_line_warning
+from invrender.cli.common import EXIT_BAD_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, OneLineParser, check_names, join_process_group, leave_process_group, one_line_warning
 from invrender.cli.fit import FIT_OPTIONS
 from invrender.errors import InvRenderError
 
@@ -89,6 +90,13 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("invrender: interrupted; nothing was written", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except Exception as e:  # a bug, not bad input: still one line, unless asked for the traceback
+        if os.environ.get("INVRENDER_TRACEBACK") == "1":
+            raise
+        first = str(e).strip().splitlines()[0] if str(e).strip() else ""
+        print(f"invrender: internal error: {type(e).__name__}: {first} (a bug in invrender, please report it; "
+              "INVRENDER_TRACEBACK=1 shows where)", file=sys.stderr)  # fmt: skip
+        return EXIT_INTERNAL
     finally:
         if started:
             leave_process_group()

@@ -20,6 +20,8 @@ from invrender.cli import catalog
 from invrender.errors import ImageError, ParameterError, SceneError, did_you_mean
 
 EXIT_BAD_INPUT = 2
+#: an unexpected exception (a bug): one line on stderr all the same (INVRENDER_TRACEBACK=1 re-raises it)
+EXIT_INTERNAL = 1
 EXIT_INTERRUPTED = 130
 
 

@@ -318,7 +318,7 @@ class Document:
         if major > NEWEST_MAJOR:
             raise self.error(node, f"version {text} is newer than the format invrender reads (Mitsuba {NEWEST_MAJOR}: versions up to {NEWEST_MAJOR}.x; 0.x files are upgraded)")
         if major < 2:
-            upgrade_tree(node)
+            upgrade_tree(node, self.number)
 
     def substitute(self, node: Node) -> None:
         """Replace ``$name`` in ``node``'s attributes by the parameters known so far (Mitsuba's order:
@@ -728,11 +728,12 @@ def snake_case(name: str) -> str:
     return name
 
 
-def upgrade_tree(root: Node) -> None:
+def upgrade_tree(root: Node, number) -> None:
     """Upgrade a Mitsuba 0.x element tree in place, as Mitsuba 3's ``upgrade_tree`` does: every
     ``name`` (except a ``<default>``'s) to snake_case, ``<lookAt>`` to ``<lookat>``, ids starting
     with ``_`` to ``ID_...__UPGR``, a diffuse BSDF's ``diffuse_reflectance`` to ``reflectance``,
-    and ``uoffset``/``voffset``/``uscale``/``vscale`` floats to a ``to_uv`` transform."""
+    and ``uoffset``/``voffset``/``uscale``/``vscale`` floats to a ``to_uv`` transform, their values
+    read by ``number(node, text)`` (the parser's: a one-line error for what is not a finite number)."""
     nodes, stack = [], [root]
     while stack:
         node = stack.pop()
@@ -754,7 +755,7 @@ def upgrade_tree(root: Node) -> None:
         found = {c.attrs["name"]: c for c in node.children if c.tag == "float" and c.attrs.get("name") in keys}
         if found:
             node.children = [c for c in node.children if not any(c is f for f in found.values())]
-            get = {k: float(found[k].attrs.get("value", "0")) for k in found}
+            get = {k: number(found[k], found[k].attrs.get("value", "0")) for k in found}  # a one-line error for text
             ops = []
             if get.get("uoffset", 0.0) or get.get("voffset", 0.0):
                 ops.append(Node("translate", {"x": repr(get.get("uoffset", 0.0)), "y": repr(get.get("voffset", 0.0))}, node.line, where=node.where))
