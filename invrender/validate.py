@@ -113,3 +113,18 @@ def type_names(annotation) -> list[str]:
     if args:
         return [name for arg in args for name in type_names(arg)]
     return [getattr(annotation, "__name__", str(annotation))]
+
+
+#: the torch device types invrender renders on
+DEVICE_TYPES = ("cpu", "cuda")
+
+
+def check_device(device) -> None:
+    """A :class:`ParameterError` unless ``device`` (a string; torch.device objects pass) names a
+    device invrender renders on: ``cpu``, ``cuda`` or ``cuda:N`` (torch's own error for other
+    strings is a long list of every device type it knows)."""
+    if not isinstance(device, str):
+        return
+    kind, sep, index = device.partition(":")
+    if kind not in DEVICE_TYPES or (sep and (kind != "cuda" or not index.isdigit())):
+        raise ParameterError(f"unknown device {device!r}{did_you_mean(kind, DEVICE_TYPES)} (cpu, cuda or cuda:N)")

@@ -46,6 +46,7 @@ def test_render_terms(tmp_path, capsys):
         (["render", "--max-depth", "0"], "max_depth"),
         (["render", "--out", "x.jpg2"], "suffix"),
         (["render", "--backend", "optix"], "unknown intersection backend"),
+        (["render", "--device", "tpu"], "unknown device 'tpu' (did you mean 'cpu'?)"),
     ],
 )
 def test_bad_input_is_one_line_exit_2(args, words, capsys, tmp_path, monkeypatch):

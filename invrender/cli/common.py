@@ -65,6 +65,17 @@ def parse_resolution(text: str) -> tuple[int, int]:
     return w, h
 
 
+def parse_device(text: str) -> str:
+    """``cpu``, ``cuda`` or ``cuda:N`` (:func:`invrender.validate.check_device`; torch-free)."""
+    from invrender.validate import check_device
+
+    try:
+        check_device(text)
+    except ParameterError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+    return text
+
+
 def parse_rgb(text: str) -> list[float]:
     """``"v"`` or ``"r,g,b"`` -> [r, g, b] (finite, >= 0)."""
     values = one_or_three_numbers(text)

@@ -8,7 +8,7 @@ import time
 from pathlib import Path
 
 from invrender.cli.common import (
-    add_integrator_arguments, add_scene_argument, check_outputs, integrator_spec, integrators_epilog, mean_rgb, parse_resolution, parse_rgb,
+    add_integrator_arguments, add_scene_argument, check_outputs, integrator_spec, integrators_epilog, mean_rgb, parse_device, parse_resolution, parse_rgb,
 )  # fmt: skip
 from invrender.errors import ParameterError
 
@@ -79,7 +79,7 @@ def add_parser(sub) -> None:
     for name, kind, doc in ADAPTIVE_OPTIONS:
         r.add_argument(f"--{name.replace('_', '-')}", dest=name, type=kind, default=None, metavar=name.upper(), help=doc)
     r.add_argument("--terms", action="store_true", help="also write one image per Neumann term (OUT_STEM.termK.SUFFIX)")
-    r.add_argument("--device", default="cpu", help="torch device: cpu or cuda (default: cpu)")
+    r.add_argument("--device", default="cpu", type=parse_device, help="torch device: cpu, cuda or cuda:N (default: cpu)")
     r.add_argument("--backend", default=None, help="intersection backend: embree (CPU only; its default), warp (NVIDIA Warp BVH, CUDA or CPU; the default on CUDA) or torch (brute force, any device: the reference)")
     r.add_argument("--memory-mb", type=float, default=512.0, help="memory budget of one chunk of paths, MiB (default: 512)")
     r.add_argument("--quiet", action="store_true", help="no progress bar or summary")

@@ -25,7 +25,7 @@ from invrender.scene.scene import Scene
 from invrender.transport.adaptive import AdaptiveSettings
 from invrender.transport.driver import RenderSettings, total_paths
 from invrender.transport.integrators import Integrator, make_integrator
-from invrender.validate import check_paths
+from invrender.validate import check_device, check_paths
 
 ESTIMATORS = ("autodiff", "replay")
 #: what ``render``, ``backpropagate`` and fits accept: the estimators, or ``"auto"`` (:func:`resolve_estimator`)
@@ -202,6 +202,7 @@ def backpropagate(scene: Scene, grad_image: torch.Tensor, integrator: Integrator
 
 
 def _device(scene: Scene, device) -> torch.device:
+    check_device(device)
     device = torch.device(device) if device is not None else scene.device
     if device.type == "cuda" and not torch.cuda.is_available():
         raise ParameterError("device 'cuda' requested but torch has no CUDA device here")

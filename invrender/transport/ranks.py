@@ -23,6 +23,7 @@ import torch
 
 from invrender.errors import ParameterError
 from invrender.io.ranks import distributed, is_main, world
+from invrender.validate import check_device
 
 
 class _SumAcrossRanks(torch.autograd.Function):
@@ -99,6 +100,7 @@ def init_from_environment(device: str | None) -> torch.device | None:
     environment (a single process: nothing to do)."""
     if int(os.environ.get("WORLD_SIZE", "1")) <= 1 or "RANK" not in os.environ:
         return None
+    check_device(device)
     cuda = device is not None and torch.device(device).type == "cuda"
     if cuda and not torch.cuda.is_available():
         raise ParameterError("device 'cuda' requested but torch has no CUDA device here")
