@@ -11,7 +11,10 @@ from invrender.cli import main
 
 
 def run(args, capsys):
-    code = main(args)
+    try:
+        code = main(args)
+    except SystemExit as e:  # argparse's own refusals (an argument's type)
+        code = e.code
     out = capsys.readouterr()
     return code, out.out, out.err
 
