@@ -48,6 +48,7 @@ the texels under 0.5 marked undetermined. One inverse of ``M`` and one product p
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import time
@@ -75,6 +76,21 @@ UNDETERMINED = 0.5
 DEFAULT_UNKNOWNS = 3072
 #: fit_map's ``rounds="auto"`` takes a second round when the first map's peak is this many times its median
 SUN_RATIO = 100.0
+
+
+@contextlib.contextmanager
+def one_thread():
+    """torch's intra-op threads set to 1 inside: the solve is a chain of many small LAPACK calls
+    (triangular solves, the inverse of a factor), each of which synchronizes the whole OpenMP team;
+    on a machine shared with other work a descheduled thread stalls every one (measured on 2 loaded
+    cores, n = 1300: a triangular solve 0.2 s with 2 threads, 0.8 ms with 1; ``cholesky_inverse``
+    2.3 s against 0.05 s)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
 
 
 def solver_bytes(n: int) -> int:
@@ -437,51 +453,52 @@ def solve_map(
     bound = torch.zeros(3, dtype=torch.int64)
     evaluations = torch.zeros(3, dtype=torch.int64)
     hint = None
-    for c in range(3):
-        p = prior.pull(x0[:, c])
-        Hc = normal.H(c)
-        scale = float(Hc.diagonal().sum()) / n
-        if scale <= 0 or not a.numel():  # no pixel sees the map in this channel: the prior alone
-            x_all[:, c] = prior.extend(torch.zeros(a.numel(), dtype=torch.float64), p) if a.numel() else torch.from_numpy(x0[:, c])
-            weights[c] = math.inf
-            continue
-        H = Hc[a][:, a]
-        del Hc
-        D = normal.D[c][a][:, a].double()
-        rows = int(normal.rows[c])
-        solve = _Solve(H, prior.Q, normal.g[c][a], prior.reduced(p), float(normal.bb[c]), scale, rows * target_noise**2)
-        if weight is not None:
-            point = solve.at(weight)
-            if point is None:
-                raise ParameterError(f"the regularized normal matrix is not positive definite at prior weight {weight:.3g}: raise the weight or the samples per pixel")
-        elif rule == "gcv":
-            point = _gcv(solve, D, rows)
-        else:
-            point = _discrepancy(solve, hint)
-            hint = math.log10(point.lam)
-        evaluations[c] = solve.evaluations
-        M = solve.matrix(point.lam)
-        xa = bounded_quadratic(M, solve.g + (point.lam * scale) * solve.p, point.L, x=point.x)
-        x_all[:, c] = prior.extend(xa, p)
-        weights[c] = point.lam
-        d2 = float(xa @ (D @ xa))
-        bb = max(float(normal.bb[c]), 1e-300)
-        residual[c] = math.sqrt(max(solve.residual(xa) + d2, 0.0) / bb)
-        noise[c] = math.sqrt(d2 / bb)
-        bound[c] = int((x_all[:, c] <= 0).sum())
-        if stderr:
-            Minv = torch.cholesky_inverse(point.L)
-            R = (Minv.float() @ H.float()).double()  # the resolution matrix M^-1 H
-            s2 = (d2 + rows * target_noise**2) / max(rows, 1)  # per-pixel variance of the residual
-            se[a, c] = (s2 * (R * Minv).sum(1)).clamp_min(0.0).sqrt()  # diag(M^-1 H M^-1), M symmetric
-            res[a, c] = R.diagonal()
-            dof[c] = float(R.diagonal().sum())
-            if prior.i.size and prior.border.size:  # the eliminated unknowns: x_I = ... - F x_border
-                bo = torch.from_numpy(prior.border)
-                cov = s2 * (R[bo] @ Minv[:, bo])
-                F = torch.from_numpy(prior.F)
-                se[torch.from_numpy(prior.i), c] = ((F @ cov) * F).sum(1).clamp_min(0.0).sqrt()
-        del D
+    with one_thread():
+        for c in range(3):
+            p = prior.pull(x0[:, c])
+            Hc = normal.H(c)
+            scale = float(Hc.diagonal().sum()) / n
+            if scale <= 0 or not a.numel():  # no pixel sees the map in this channel: the prior alone
+                x_all[:, c] = prior.extend(torch.zeros(a.numel(), dtype=torch.float64), p) if a.numel() else torch.from_numpy(x0[:, c])
+                weights[c] = math.inf
+                continue
+            H = Hc[a][:, a]
+            del Hc
+            D = normal.D[c][a][:, a].double()
+            rows = int(normal.rows[c])
+            solve = _Solve(H, prior.Q, normal.g[c][a], prior.reduced(p), float(normal.bb[c]), scale, rows * target_noise**2)
+            if weight is not None:
+                point = solve.at(weight)
+                if point is None:
+                    raise ParameterError(f"the regularized normal matrix is not positive definite at prior weight {weight:.3g}: raise the weight or the samples per pixel")
+            elif rule == "gcv":
+                point = _gcv(solve, D, rows)
+            else:
+                point = _discrepancy(solve, hint)
+                hint = math.log10(point.lam)
+            evaluations[c] = solve.evaluations
+            M = solve.matrix(point.lam)
+            xa = bounded_quadratic(M, solve.g + (point.lam * scale) * solve.p, point.L, x=point.x)
+            x_all[:, c] = prior.extend(xa, p)
+            weights[c] = point.lam
+            d2 = float(xa @ (D @ xa))
+            bb = max(float(normal.bb[c]), 1e-300)
+            residual[c] = math.sqrt(max(solve.residual(xa) + d2, 0.0) / bb)
+            noise[c] = math.sqrt(d2 / bb)
+            bound[c] = int((x_all[:, c] <= 0).sum())
+            if stderr:
+                Minv = torch.cholesky_inverse(point.L)
+                R = (Minv.float() @ H.float()).double()  # the resolution matrix M^-1 H
+                s2 = (d2 + rows * target_noise**2) / max(rows, 1)  # per-pixel variance of the residual
+                se[a, c] = (s2 * (R * Minv).sum(1)).clamp_min(0.0).sqrt()  # diag(M^-1 H M^-1), M symmetric
+                res[a, c] = R.diagonal()
+                dof[c] = float(R.diagonal().sum())
+                if prior.i.size and prior.border.size:  # the eliminated unknowns: x_I = ... - F x_border
+                    bo = torch.from_numpy(prior.border)
+                    cov = s2 * (R[bo] @ Minv[:, bo])
+                    F = torch.from_numpy(prior.F)
+                    se[torch.from_numpy(prior.i), c] = ((F @ cov) * F).sum(1).clamp_min(0.0).sqrt()
+            del D
     resolution = basis.expand(res).float().reshape(h, w, 3)
     return MapFit(
         texels=basis.expand(x_all).float().reshape(h, w, 3),
