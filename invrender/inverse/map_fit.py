@@ -328,7 +328,9 @@ def _discrepancy(solve: _Solve, hint: float | None = None, tol: float = 0.02) ->
     is above the target already, the largest where it never gets there."""
     lo, hi = LOG_WEIGHT_RANGE
     best: _Point | None = None  # the point of the smallest t known to reach the target
-    t = min(max(0.0 if hint is None else hint, lo), hi)
+    # another channel's answer, a little above: the root often lies just above the weight where M
+    # stops being definite, and a start on the definite side keeps Newton's steps in the bracket
+    t = min(max(0.0 if hint is None else hint + 2 * tol, lo), hi)
     for _ in range(60):
         point = solve.at(10.0**t)
         if point is None or point.f < 0:
@@ -342,7 +344,12 @@ def _discrepancy(solve: _Solve, hint: float | None = None, tol: float = 0.02) ->
                 return point
         if hi - lo < tol:
             break
-        t = t + step if step is not None and lo < t + step < hi else 0.5 * (lo + hi)
+        if step is not None and lo < t + step < hi:
+            t = t + step
+        elif best is None:  # nothing reaches the target yet: climb, no bisection toward the range's end
+            t = min(t + 0.5, 0.5 * (t + hi) if hi - t < 1.0 else t + 0.5)
+        else:
+            t = 0.5 * (lo + hi)
     if best is not None:
         return best
     point = solve.at(10.0 ** LOG_WEIGHT_RANGE[1])  # the residual stays under the target: the largest weight

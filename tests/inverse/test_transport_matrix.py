@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -70,6 +71,50 @@ def test_halves_cross_product_is_unbiased_where_the_mean_gram_is_not():
     assert float(plain.mean()) > 1.2 * float(truth)  # E^T E: the noise adds to every diagonal entry
 
 
+def test_streamed_normal_equations_are_those_of_the_halves():
+    s = scene(10)
+    cams = CAMERAS[:2]
+    targets = [torch.rand(10, 10, 3, generator=torch.Generator().manual_seed(v)) for v in range(2)]
+    tm = ir.lighting.transport_matrix(s, "sky", cameras=cams, integrator=HIDDEN, spp=4, max_depth=3, seed=3)
+    streamed = ir.lighting.normal_equations(s, "sky", targets, cameras=cams, integrator=HIDDEN, spp=4, max_depth=3, seed=3)
+    A1, A2 = (a.double() for a in tm.halves)
+    b = torch.cat([t.reshape(-1, 3) for t in targets]).double()
+    for c in range(3):
+        H = 0.5 * (A1[c].T @ A2[c] + A2[c].T @ A1[c])
+        D = 0.25 * (A1[c] - A2[c]).T @ (A1[c] - A2[c])
+        g = 0.5 * (A1[c] + A2[c]).T @ b[:, c]
+        scale = float(H.abs().max())
+        assert float((streamed.H(c) - H).abs().max()) < 1e-5 * scale
+        assert float((streamed.D[c].double() - D).abs().max()) < 1e-5 * scale
+        torch.testing.assert_close(streamed.g[c], g, rtol=1e-5, atol=1e-9)
+        seen = b[(A1 + A2 != 0).any(0).any(1), c]  # pixels no path links to the map carry nothing
+        assert 0 < seen.numel() < b.shape[0]
+        assert abs(float(streamed.bb[c]) - float(seen.square().sum())) < 1e-6 * float(seen.square().sum())
+    # the same seeds' kept matrix gives the same equations
+    kept = ir.lighting.solve_map(tm, targets, weight=10.0, stderr=False).normal
+    torch.testing.assert_close(kept.Gm, streamed.Gm)
+    torch.testing.assert_close(kept.D, streamed.D)
+
+
+def test_a_basis_matrix_is_the_texel_matrix_times_its_membership():
+    s = scene(10)
+    basis = ir.lighting.MapBasis.uniform(*MAP, 8)  # 2 x 2 blocks
+    assert basis.n == 8 and not basis.is_texels
+    texel = ir.lighting.transport_matrix(s, "sky", cameras=CAMERAS[:1], integrator=HIDDEN, spp=4, max_depth=3, seed=5)
+    leaves = ir.lighting.transport_matrix(s, "sky", cameras=CAMERAS[:1], integrator=HIDDEN, spp=4, max_depth=3, seed=5, basis=basis)
+    B = torch.from_numpy(basis.matrix().toarray()).float()
+    for half in (0, 1):
+        torch.testing.assert_close(leaves.halves[half], texel.halves[half] @ B, rtol=1e-4, atol=1e-6)
+    # refined by a map with one bright texel: that texel's block is split first, down to the texel
+    bright = torch.full((MAP[0] * MAP[1], 3), 0.1)
+    bright[1 * MAP[1] + 5] = 100.0
+    fine = basis.refined(bright, 11)
+    assert fine.n == 11
+    col = fine.columns()
+    assert int((col == col[1 * MAP[1] + 5]).sum()) == 1  # the bright texel is a leaf of its own
+    assert basis.refined(bright, 10).n == 8  # no split fits in 10
+
+
 @pytest.fixture(scope="module")
 def problem():
     """A 4 x 8 map from three 16 x 16 views (targets at 256 spp), the matrix at 2 x 32 spp, and a
@@ -120,6 +165,40 @@ def test_the_weight_rule_is_within_1_5x_of_the_best_swept_weight(problem):
         swept.append(relit_error(held, truth, fixed.texels)[1])
     assert len(swept) >= 4
     assert chosen <= 1.5 * min(swept), (chosen, swept)
+
+
+def test_the_solution_is_optimal_over_every_unknown_and_the_search_is_short(problem):
+    from invrender.inverse.map_fit import _Prior
+
+    _, _, fit, _ = problem
+    normal = fit.normal
+    n = normal.n
+    assert bool(fit.undetermined[-1].all())  # unreached texels: eliminated by the prior's extension
+    # the full problem's gradient at the returned map (all unknowns, none eliminated): >= 0 where
+    # a texel is at its bound 0, 0 where it is not (the KKT conditions of the non-negative solve)
+    prior = _Prior(normal.basis, 1e-2, 1.0, np.ones(n, dtype=bool))
+    for c in range(3):
+        H = normal.H(c)
+        lam_s = float(fit.weight[c]) * float(H.diagonal().sum()) / n
+        x = fit.texels.reshape(-1, 3)[:, c].double()
+        r = normal.g[c] + lam_s * torch.from_numpy(prior.pull(np.full(n, float(normal.flat[c]))))
+        y = (H + lam_s * prior.Q) @ x - r
+        tol = 1e-5 * float(r.abs().max())
+        assert float(y.min()) > -tol
+        assert float(y[x > 1e-6 * float(x.max())].abs().max()) < tol
+    # Newton's search: a few factorizations (bisection to 0.05 decades took ~25 per channel), fewer
+    # where the last channel's weight is the start, and
+    # the weight is the discrepancy's root: residual below the noise a fifth of a decade lower, above it higher
+    assert int(fit.evaluations.sum()) <= 16 and int(fit.evaluations[1:].max()) <= 4, fit.evaluations
+    # (or, below, M no longer definite: the root often lies just above that weight)
+    for factor, sign in ((10**-0.2, -1), (10**0.2, 1)):
+        try:
+            other = ir.lighting.solve_map(normal, weight=float(fit.weight[0]) * factor, stderr=False)
+        except ParameterError as e:
+            assert sign < 0 and "not positive definite" in str(e)
+            continue
+        excess = float(other.residual[0] ** 2 - other.noise[0] ** 2)
+        assert excess * sign > 0, (factor, excess)
 
 
 def test_bad_inputs_are_one_line_errors(problem):
