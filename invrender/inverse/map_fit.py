@@ -52,6 +52,7 @@ import contextlib
 import dataclasses
 import math
 import time
+from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
@@ -64,6 +65,9 @@ from invrender.emitters.envmap import texel_solid_angles
 from invrender.errors import ParameterError, did_you_mean
 from invrender.inverse.fit import load_targets
 from invrender.inverse.map_normal import NormalEquations, from_matrix, normal_equations
+from invrender.io.images import write_image
+from invrender.io.maps import write_count_map
+from invrender.io.reports import write_json
 from invrender.scene.scene import Scene
 
 #: the rules that choose the prior's weight (``weight=None``)
@@ -168,6 +172,25 @@ class MapFit:
     normal: NormalEquations | None = None
     rounds: int = 1
     evaluations: torch.Tensor | None = None
+
+    def write(self, folder) -> list[Path]:
+        """Write the relighting product into ``folder`` (created): ``map.exr`` the recovered map,
+        ``stderr.exr`` its standard errors, ``resolution.png`` the identifiability map (each
+        texel's smallest resolution over the channels, viridis: 0 dark blue, set by the prior, to
+        1 yellow, set by the images) and ``fit.json`` (the weights, the rule, residual, noise,
+        degrees of freedom, unknowns, rounds, seconds). Returns the paths."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        paths = [folder / "map.exr", folder / "stderr.exr", folder / "resolution.png", folder / "fit.json"]
+        write_image(paths[0], self.texels)
+        write_image(paths[1], self.stderr)
+        write_count_map(paths[2], self.resolution.amin(2), top=1.0)
+        floats = lambda t: [float(x) for x in t]  # noqa: E731
+        write_json(paths[3], {
+            "describe": self.describe(), "weight": floats(self.weight), "rule": self.rule, "residual": floats(self.residual), "noise": floats(self.noise), "dof": floats(self.dof),
+            "unknowns": None if self.basis is None else self.basis.n, "texels": list(self.texels.shape[:2]), "rounds": self.rounds, "seconds": self.seconds,
+        })  # fmt: skip
+        return paths
 
     def describe(self) -> str:
         """One line: rule, weights, residual against noise, determined degrees of freedom."""

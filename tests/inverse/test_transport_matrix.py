@@ -9,6 +9,7 @@ a weight whose held-out error is within 1.5x of the best of a sweep; bad inputs 
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -134,7 +135,7 @@ def relit_error(held, truth, texels) -> tuple[torch.Tensor, float]:
     return means, float((relit - true_img).norm() / true_img.norm())
 
 
-def test_fit_map_recovers_a_map_that_relights_a_held_out_view(problem):
+def test_fit_map_recovers_a_map_that_relights_a_held_out_view(problem, tmp_path):
     truth, _, fit, held = problem
     assert fit.rule == "discrepancy" and fit.texels.shape == (*MAP, 3)
     assert bool((fit.texels >= 0).all()) and bool(torch.isfinite(fit.stderr).all())
@@ -151,6 +152,14 @@ def test_fit_map_recovers_a_map_that_relights_a_held_out_view(problem):
     # the bottom row (below the floor: no path reaches it) is left to the prior
     assert bool(fit.undetermined[-1].all())
     assert float(fit.resolution[-1].max()) < 0.1
+    # the relighting product: the map and its standard errors as EXR, the identifiability as PNG
+    paths = fit.write(tmp_path / "product")
+    torch.testing.assert_close(ir.read_image(paths[0]), fit.texels)
+    torch.testing.assert_close(ir.read_image(paths[1]), fit.stderr)
+    from PIL import Image
+
+    assert Image.open(paths[2]).size == (MAP[1], MAP[0])
+    assert json.loads(paths[3].read_text())["rule"] == "discrepancy"
 
 
 def test_the_weight_rule_is_within_1_5x_of_the_best_swept_weight(problem):
