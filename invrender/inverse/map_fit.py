@@ -486,14 +486,12 @@ def solve_map(
     with one_thread():
         for c in range(3):
             p = prior.pull(x0[:, c])
-            Hc = normal.H(c)
-            scale = float(Hc.diagonal().sum()) / n
+            H = normal.H(c, a)
+            scale = float((normal.Gm[c].diagonal().double() - normal.D[c].diagonal().double()).sum()) / n
             if scale <= 0 or not a.numel():  # no pixel sees the map in this channel: the prior alone
                 x_all[:, c] = prior.extend(torch.zeros(a.numel(), dtype=torch.float64), p) if a.numel() else torch.from_numpy(x0[:, c])
                 weights[c] = math.inf
                 continue
-            H = Hc[a][:, a]
-            del Hc
             D = normal.D[c][a][:, a].double()
             rows = int(normal.rows[c])
             solve = _Solve(H, prior.Q, normal.g[c][a], prior.reduced(p), float(normal.bb[c]), scale, rows * target_noise**2)

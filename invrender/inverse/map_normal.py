@@ -91,11 +91,12 @@ class NormalEquations:
         delta = (A1.index_select(1, rows)[:, :, span] if span else A1.index_select(1, rows)[:, :, cols]) * r - mean
         if span:
             cols = torch.arange(first, last)
-        bw = b.index_select(0, rows).T.double() * r[:, :, 0].double()  # (3, rows)
+        bw = (b.index_select(0, rows).T * r[:, :, 0]).contiguous()  # (3, rows)
+        counted = (weight.index_select(0, rows) > 0).sum(0)  # (3,) the rows that count per channel
         for c in range(3):
-            self.g[c].index_add_(0, cols, mean[c].T.double() @ bw[c])
-            self.bb[c] += float(bw[c].square().sum())
-            self.rows[c] += int(((weight.index_select(0, rows)[:, c] > 0) & ((mean[c] != 0).any(1) | (delta[c] != 0).any(1))).sum())
+            self.g[c].index_add_(0, cols, (bw[c] @ mean[c]).double())
+            self.bb[c] += float(bw[c].double().square().sum())
+            self.rows[c] += int(counted[c])
             for gram, part in ((self.Gm, mean[c]), (self.D, delta[c])):
                 upper = torch.from_numpy(blas.ssyrk(1.0, part.numpy().T, trans=0))  # part^T part, upper triangle
                 if span:
@@ -109,14 +110,17 @@ class NormalEquations:
         if not self._finished:
             for gram in (self.Gm, self.D):
                 for c in range(3):
-                    gram[c] = gram[c].triu() + gram[c].triu(1).T
+                    gram[c] += gram[c].triu(1).T  # syrk wrote the upper triangle only
             self.flat = self._sums[0] / self._sums[1].clamp_min(1e-30)
             self._finished = True
         return self
 
-    def H(self, c: int) -> torch.Tensor:
-        """(n, n) float64 ``sym(A1^T A2) = Gm - D`` of channel c."""
-        return self.Gm[c].double() - self.D[c].double()
+    def H(self, c: int, index: torch.Tensor | None = None) -> torch.Tensor:
+        """(n, n) float64 ``sym(A1^T A2) = Gm - D`` of channel c (rows and columns ``index`` only)."""
+        Gm, D = self.Gm[c], self.D[c]
+        if index is not None:
+            Gm, D = Gm[index][:, index], D[index][:, index]
+        return Gm.double() - D.double()
 
 
 def normal_bytes(pixels_per_view: int, columns: int) -> int:
