@@ -210,6 +210,24 @@ def test_the_solution_is_optimal_over_every_unknown_and_the_search_is_short(prob
         assert excess * sign > 0, (factor, excess)
 
 
+def test_a_sun_takes_a_second_round_sampled_by_the_first_in_a_refined_quadtree():
+    h, w = 8, 16
+    truth = sky_map(h, w)
+    lum = truth.mean(2)
+    i, j = divmod(int(lum.flatten().argmax()), w)
+    truth[i, j] *= 1000 * float(lum.median()) / float(lum[i, j])  # a one-texel sun 1000x the median
+    true_scene = sky_spheres((12, 12), (h, w), subdivisions=2, sky=truth)
+    targets = [ir.render(true_scene.with_camera(c), HIDDEN, spp=128, max_depth=2, seed=50 + k, progress=False) for k, c in enumerate(CAMERAS)]
+    start = sky_spheres((12, 12), (h, w), subdivisions=2, sky=torch.ones(h, w, 3))
+    fit = ir.lighting.fit_map(start, targets, "sky", cameras=CAMERAS, integrator=HIDDEN, spp=16, max_depth=2, unknowns=40)
+    assert fit.rounds == 2 and fit.basis.n <= 40 and not fit.basis.is_texels  # 2 x 2 blocks (32), refined
+    column = fit.basis.columns()
+    assert int((column == column[i * w + j]).sum()) == 1  # the sun's texel is an unknown of its own
+    bi, bj = divmod(int(fit.texels.mean(2).flatten().argmax()), w)
+    assert abs(bi - i) <= 1 and min(abs(bj - j), w - abs(bj - j)) <= 1, ((bi, bj), (i, j))
+    assert "2 rounds" in fit.describe() and f"{fit.basis.n} unknowns for {h * w} texels" in fit.describe()
+
+
 def test_bad_inputs_are_one_line_errors(problem):
     truth, targets, fit, held = problem
     start = scene(16, torch.ones(*MAP, 3))
@@ -228,6 +246,10 @@ def test_bad_inputs_are_one_line_errors(problem):
         ir.lighting.solve_map(held, [bad])
     with pytest.raises(ParameterError, match="no emitter 'skye'.*did you mean 'sky'"):
         ir.lighting.fit_map(start, targets, "skye", cameras=CAMERAS, spp=4)
+    with pytest.raises(ParameterError, match="the unknowns' budget must be an integer >= 1, got 0"):
+        ir.lighting.fit_map(start, targets, "sky", cameras=CAMERAS, spp=4, unknowns=0)
+    with pytest.raises(ParameterError, match="rounds must be 1, 2 or 'auto', got 3"):
+        ir.lighting.fit_map(start, targets, "sky", cameras=CAMERAS, spp=4, rounds=3)
     with pytest.raises(ParameterError, match="weight must be a number > 0"):
         ir.lighting.solve_map(fit.normal, weight=-1.0)
     with pytest.raises(ParameterError, match="rule must be one of discrepancy, gcv, got 'gvc' \\(did you mean 'gcv'\\?\\)"):
