@@ -2,7 +2,7 @@
 
     python bench/transport_matrix.py [--maps 16x32 32x64] [--views 3] [--resolution 64] [--spp 64]
                                      [--target-spp 1024] [--max-depth 3] [--sun] [--unknowns 3072]
-                                     [--rounds auto] [--sweep] [--json PATH]
+                                     [--rounds auto] [--sweep] [--out DIR] [--json PATH]
 
 For each map size: ``--views`` views of ``sky_spheres`` evenly spaced around the spheres (the
 background hidden: ``{"type": "path", "hide_emitters": True}``) rendered with the true map
@@ -18,6 +18,10 @@ are seen along the same paths and their difference is the map's: channel-mean di
 pooled relative RMSE ``||relit - true|| / ||true||``; with ``--sun`` also the angle between the
 brightest recovered texel and the sun.
 
+``--out DIR`` writes, per map, the relighting product (``fit.write``: map.exr, stderr.exr,
+resolution.png, fit.json) into ``DIR/HxW`` and a figure ``DIR/HxW/figure.png``: the true and the
+recovered map, the standard errors, the identifiability, the held-out view true and relit.
+
 ``--sweep`` solves the same normal equations at fixed weights 10^-1 .. 10^3 (quarter decades) and
 with generalized cross-validation (``rule="gcv"``) and prints each one's held-out error against
 the discrepancy principle's. The machine (CPU model, vector width, load average) is printed first.
@@ -28,6 +32,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+import textwrap
 import time
 from pathlib import Path
 
@@ -98,6 +103,42 @@ def sun_angle(truth: torch.Tensor, recovered: torch.Tensor) -> float:
     return math.degrees(math.acos(max(-1.0, min(1.0, float(a @ b)))))
 
 
+def figure(path: Path, truth: torch.Tensor, fit, held: HeldOut, title: str) -> None:
+    """Six labelled panels: true / recovered map (log luminance, one scale), the standard errors
+    (relative to the recovered map), the identifiability (resolution), the held-out view true and
+    relit (sRGB)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from invrender.io.images import to_srgb
+    from invrender.io.reports import save_figure
+
+    log = lambda m: torch.log10(m.mean(2).clamp_min(1e-4))  # noqa: E731
+    lo, hi = float(log(truth).min()), float(log(truth).max())
+    relit = held.tm.images(fit.texels.clamp_min(0))[0]
+    exposure = 0.8 / float(held.true_img.mean(2).quantile(0.95))
+    fig, axes = plt.subplots(2, 3, figsize=(13, 6.5))
+    panels = [
+        ("true map, log10 luminance", log(truth), dict(vmin=lo, vmax=hi, cmap="magma")),
+        ("recovered map, log10 luminance", log(fit.texels), dict(vmin=lo, vmax=hi, cmap="magma")),
+        ("standard error / recovered", (fit.stderr.mean(2) / fit.texels.mean(2).clamp_min(1e-6)).clamp(0, 1), dict(vmin=0, vmax=1, cmap="viridis")),
+        ("identifiability (resolution, min over channels)", fit.resolution.amin(2), dict(vmin=0, vmax=1, cmap="viridis")),
+        ("held-out view, true map", to_srgb(held.true_img * exposure), {}),
+        ("held-out view, recovered map", to_srgb(relit * exposure), {}),
+    ]
+    for ax, (label, image, style) in zip(axes.flat, panels):
+        shown = ax.imshow(image.numpy(), **style)
+        ax.set_title(label, fontsize=9)
+        ax.set_xticks([])
+        ax.set_yticks([])
+        if style:
+            fig.colorbar(shown, ax=ax, fraction=0.03)
+    fig.suptitle(textwrap.fill(title, 140), fontsize=9)
+    save_figure(fig, path)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--maps", nargs="+", default=["16x32", "32x64"], help="map sizes HxW")
@@ -109,6 +150,7 @@ def main() -> int:
     parser.add_argument("--sun", action="store_true", help="a one-texel sun 1000x the map's median")
     parser.add_argument("--unknowns", type=int, default=3072, help="fit_map's budget of unknowns")
     parser.add_argument("--rounds", default="auto", help="fit_map's rounds: 1, 2 or auto")
+    parser.add_argument("--out", default=None, metavar="DIR", help="write each map's relighting product and figure under DIR/HxW")
     parser.add_argument("--sweep", action="store_true", help="also solve at fixed weights and by GCV, and print their held-out errors")
     add_json_option(parser)
     args = parser.parse_args()
@@ -138,6 +180,11 @@ def main() -> int:
         print(f"{h}x{w} map: {seconds:.1f} s (render {s['render']:.1f} s, normal equations {s['gram']:.1f} s, solve {s['solve']:.1f} s), peak RSS {peak:.0f} MiB")
         print(f"  {fit.describe()}; Cholesky factorizations in the weight's search {fit.evaluations.tolist()}")
         print(f"  held-out view: channel means {' '.join(f'{100 * float(x):+.2f}%' for x in means)}, pooled relative RMSE {100 * rmse:.2f}%" + (f"; brightest texel {angle:.1f} deg from the sun" if angle is not None else ""))
+        if args.out:
+            folder = Path(args.out) / size
+            fit.write(folder)
+            figure(folder / "figure.png", truth, fit, held, f"{size} map from {args.views} views: held-out pooled RMSE {100 * rmse:.2f}%; {fit.describe()}")
+            print(f"  wrote {folder}")
         rows.append({"map": size, "views": args.views, "spp": args.spp, "unknowns": fit.basis.n, "rounds": fit.rounds, "seconds": round(seconds, 2), "render_s": round(s["render"], 2), "normal_s": round(s["gram"], 2), "solve_s": round(s["solve"], 2),
                      "peak_mib": round(peak), "weight": [round(float(x), 3) for x in fit.weight], "means_pct": [round(100 * float(x), 3) for x in means], "rmse_pct": round(100 * rmse, 3), "sun_deg": None if angle is None else round(angle, 2)})  # fmt: skip
         if args.sweep:
