@@ -347,4 +347,6 @@ def fit_sh(
 
 # the texel route: the transport matrix of the map and its regularized non-negative solve
 from invrender.diff.transport_matrix import TransportMatrix, transport_matrix  # noqa: E402, F401
+from invrender.diff.map_basis import MapBasis  # noqa: E402, F401
 from invrender.inverse.map_fit import MapFit, fit_map, solve_map, sphere_smoothness  # noqa: E402, F401
+from invrender.inverse.map_normal import NormalEquations, normal_equations  # noqa: E402, F401

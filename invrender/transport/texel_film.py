@@ -12,7 +12,9 @@ columns of its four texels of a dense matrix
 
 per colour channel c, pixel p (of the film's rows) and texel t, so that the image under any map L
 of the same sampling is ``I[p, c] = sum_t A[c, p, t] L[t, c]`` (divided by spp), equal to a render
-of the same seed to float rounding.
+of the same seed to float rounding. With a piecewise-constant basis of the map (``columns``: the
+basis function each texel belongs to, ``L = B x``) the film scatters into the basis' columns
+instead, ``A B``: the same images for every map of the basis, in fewer columns.
 
 The integrators tell the film the direction of every contribution that may end on an emitter
 infinitely far away just before adding it (``Film.arrive``, then ``Film.add`` with the same film
@@ -31,24 +33,26 @@ from invrender.transport.film import Film
 
 
 class TexelFilm(Film):
-    """Accumulates ``A`` (3, P, T) float32 (channel, pixel row, texel), shared by the render's
-    workers (additions under a lock).
+    """Accumulates ``A`` (3, P, n) float32 (channel, pixel row, column: a texel or a basis
+    function), shared by the render's workers (additions under a lock).
 
     Args:
-        rows: P, the pixel rows of the matrix (the film's width x height, or more: ``offset``).
-        texels: T = h w, the map's texel count.
+        matrix: (3, P, n), P the pixel rows (the film's width x height, or more: ``offset``).
         lookup: ``lookup(d) -> (index (N, 4) int64 into the T texels, weights (N, 4))`` of the
             map's bilinear filter along world directions ``d`` (N, 3).
         offset: the row of pixel 0 (views stacked in one matrix).
         width, height: the image's size (its pixels are ``offset .. offset + width * height - 1``).
+        columns: (T,) int64 the column of each texel (a piecewise-constant basis); None: texel t
+            is column t (n = T).
     """
 
-    def __init__(self, matrix: torch.Tensor, lookup, width: int, height: int, offset: int = 0):
+    def __init__(self, matrix: torch.Tensor, lookup, width: int, height: int, offset: int = 0, columns: torch.Tensor | None = None):
         super().__init__(width, height, False, matrix.device)
         if matrix.ndim != 3 or matrix.shape[0] != 3 or matrix.shape[1] < offset + width * height:
             raise ValueError(f"TexelFilm: the matrix must be (3, >= {offset + width * height}, T), got {tuple(matrix.shape)}")
         self.matrix, self.lookup, self.offset = matrix, lookup, offset
-        self.texels = matrix.shape[2]
+        self.texels = matrix.shape[2]  # n, the columns
+        self.columns = columns
         self._flat = matrix.view(3, -1)
         self._lock = threading.Lock()
         self._pending = threading.local()  # per worker thread: the last arrival's (film indices, texels, weights)
@@ -73,7 +77,9 @@ class TexelFilm(Film):
         if not keep.numel():
             return
         pixel, index, weight, c = pixel.index_select(0, keep), index.index_select(0, keep), weight.index_select(0, keep), c.index_select(0, keep)
-        flat = ((pixel + self.offset)[:, None] * self.texels + index).reshape(-1)  # (N * 4,) entries of a channel's P x T
+        if self.columns is not None:
+            index = self.columns[index]
+        flat = ((pixel + self.offset)[:, None] * self.texels + index).reshape(-1)  # (N * 4,) entries of a channel's P x n
         value = (c[:, None, :] * weight.float()[:, :, None]).reshape(-1, 3).T  # (3, N * 4)
         with self._lock:
             self._flat.index_add_(1, flat, value.contiguous())

@@ -9,8 +9,10 @@ a weight whose held-out error is within 1.5x of the best of a sweep; bad inputs 
 
 from __future__ import annotations
 
+import json
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -70,6 +72,50 @@ def test_halves_cross_product_is_unbiased_where_the_mean_gram_is_not():
     assert float(plain.mean()) > 1.2 * float(truth)  # E^T E: the noise adds to every diagonal entry
 
 
+def test_streamed_normal_equations_are_those_of_the_halves():
+    s = scene(10)
+    cams = CAMERAS[:2]
+    targets = [torch.rand(10, 10, 3, generator=torch.Generator().manual_seed(v)) for v in range(2)]
+    tm = ir.lighting.transport_matrix(s, "sky", cameras=cams, integrator=HIDDEN, spp=4, max_depth=3, seed=3)
+    streamed = ir.lighting.normal_equations(s, "sky", targets, cameras=cams, integrator=HIDDEN, spp=4, max_depth=3, seed=3)
+    A1, A2 = (a.double() for a in tm.halves)
+    b = torch.cat([t.reshape(-1, 3) for t in targets]).double()
+    for c in range(3):
+        H = 0.5 * (A1[c].T @ A2[c] + A2[c].T @ A1[c])
+        D = 0.25 * (A1[c] - A2[c]).T @ (A1[c] - A2[c])
+        g = 0.5 * (A1[c] + A2[c]).T @ b[:, c]
+        scale = float(H.abs().max())
+        assert float((streamed.H(c) - H).abs().max()) < 1e-5 * scale
+        assert float((streamed.D[c].double() - D).abs().max()) < 1e-5 * scale
+        torch.testing.assert_close(streamed.g[c], g, rtol=1e-5, atol=1e-9)
+        seen = b[(A1 + A2 != 0).any(0).any(1), c]  # pixels no path links to the map carry nothing
+        assert 0 < seen.numel() < b.shape[0]
+        assert abs(float(streamed.bb[c]) - float(seen.square().sum())) < 1e-6 * float(seen.square().sum())
+    # the same seeds' kept matrix gives the same equations
+    kept = ir.lighting.solve_map(tm, targets, weight=10.0, stderr=False).normal
+    torch.testing.assert_close(kept.Gm, streamed.Gm)
+    torch.testing.assert_close(kept.D, streamed.D)
+
+
+def test_a_basis_matrix_is_the_texel_matrix_times_its_membership():
+    s = scene(10)
+    basis = ir.lighting.MapBasis.uniform(*MAP, 8)  # 2 x 2 blocks
+    assert basis.n == 8 and not basis.is_texels
+    texel = ir.lighting.transport_matrix(s, "sky", cameras=CAMERAS[:1], integrator=HIDDEN, spp=4, max_depth=3, seed=5)
+    leaves = ir.lighting.transport_matrix(s, "sky", cameras=CAMERAS[:1], integrator=HIDDEN, spp=4, max_depth=3, seed=5, basis=basis)
+    B = torch.from_numpy(basis.matrix().toarray()).float()
+    for half in (0, 1):
+        torch.testing.assert_close(leaves.halves[half], texel.halves[half] @ B, rtol=1e-4, atol=1e-6)
+    # refined by a map with one bright texel: that texel's block is split first, down to the texel
+    bright = torch.full((MAP[0] * MAP[1], 3), 0.1)
+    bright[1 * MAP[1] + 5] = 100.0
+    fine = basis.refined(bright, 11)
+    assert fine.n == 11
+    col = fine.columns()
+    assert int((col == col[1 * MAP[1] + 5]).sum()) == 1  # the bright texel is a leaf of its own
+    assert basis.refined(bright, 10).n == 8  # no split fits in 10
+
+
 @pytest.fixture(scope="module")
 def problem():
     """A 4 x 8 map from three 16 x 16 views (targets at 256 spp), the matrix at 2 x 32 spp, and a
@@ -89,7 +135,7 @@ def relit_error(held, truth, texels) -> tuple[torch.Tensor, float]:
     return means, float((relit - true_img).norm() / true_img.norm())
 
 
-def test_fit_map_recovers_a_map_that_relights_a_held_out_view(problem):
+def test_fit_map_recovers_a_map_that_relights_a_held_out_view(problem, tmp_path):
     truth, _, fit, held = problem
     assert fit.rule == "discrepancy" and fit.texels.shape == (*MAP, 3)
     assert bool((fit.texels >= 0).all()) and bool(torch.isfinite(fit.stderr).all())
@@ -106,6 +152,14 @@ def test_fit_map_recovers_a_map_that_relights_a_held_out_view(problem):
     # the bottom row (below the floor: no path reaches it) is left to the prior
     assert bool(fit.undetermined[-1].all())
     assert float(fit.resolution[-1].max()) < 0.1
+    # the relighting product: the map and its standard errors as EXR, the identifiability as PNG
+    paths = fit.write(tmp_path / "product")
+    torch.testing.assert_close(ir.read_image(paths[0]), fit.texels)
+    torch.testing.assert_close(ir.read_image(paths[1]), fit.stderr)
+    from PIL import Image
+
+    assert Image.open(paths[2]).size == (MAP[1], MAP[0])
+    assert json.loads(paths[3].read_text())["rule"] == "discrepancy"
 
 
 def test_the_weight_rule_is_within_1_5x_of_the_best_swept_weight(problem):
@@ -114,7 +168,7 @@ def test_the_weight_rule_is_within_1_5x_of_the_best_swept_weight(problem):
     swept = []
     for e in torch.arange(-2.0, 4.01, 0.5).tolist():
         try:
-            fixed = ir.lighting.solve_map(fit.matrix, targets, weight=10.0**e, stderr=False)
+            fixed = ir.lighting.solve_map(fit.normal, weight=10.0**e, stderr=False)
         except ParameterError:  # below the weight at which the regularized matrix is definite
             continue
         swept.append(relit_error(held, truth, fixed.texels)[1])
@@ -122,30 +176,88 @@ def test_the_weight_rule_is_within_1_5x_of_the_best_swept_weight(problem):
     assert chosen <= 1.5 * min(swept), (chosen, swept)
 
 
+def test_the_solution_is_optimal_over_every_unknown_and_the_search_is_short(problem):
+    from invrender.inverse.map_fit import _Prior
+
+    _, _, fit, _ = problem
+    normal = fit.normal
+    n = normal.n
+    assert bool(fit.undetermined[-1].all())  # unreached texels: eliminated by the prior's extension
+    # the full problem's gradient at the returned map (all unknowns, none eliminated): >= 0 where
+    # a texel is at its bound 0, 0 where it is not (the KKT conditions of the non-negative solve)
+    prior = _Prior(normal.basis, 1e-2, 1.0, np.ones(n, dtype=bool))
+    for c in range(3):
+        H = normal.H(c)
+        lam_s = float(fit.weight[c]) * float(H.diagonal().sum()) / n
+        x = fit.texels.reshape(-1, 3)[:, c].double()
+        r = normal.g[c] + lam_s * torch.from_numpy(prior.pull(np.full(n, float(normal.flat[c]))))
+        y = (H + lam_s * prior.Q) @ x - r
+        tol = 1e-5 * float(r.abs().max())
+        assert float(y.min()) > -tol
+        assert float(y[x > 1e-6 * float(x.max())].abs().max()) < tol
+    # Newton's search: a few factorizations (bisection to 0.05 decades took ~25 per channel), fewer
+    # where the last channel's weight is the start, and
+    # the weight is the discrepancy's root: residual below the noise a fifth of a decade lower, above it higher
+    assert int(fit.evaluations.sum()) <= 16 and int(fit.evaluations[1:].max()) <= 4, fit.evaluations
+    # (or, below, M no longer definite: the root often lies just above that weight)
+    for factor, sign in ((10**-0.2, -1), (10**0.2, 1)):
+        try:
+            other = ir.lighting.solve_map(normal, weight=float(fit.weight[0]) * factor, stderr=False)
+        except ParameterError as e:
+            assert sign < 0 and "not positive definite" in str(e)
+            continue
+        excess = float(other.residual[0] ** 2 - other.noise[0] ** 2)
+        assert excess * sign > 0, (factor, excess)
+
+
+def test_a_sun_takes_a_second_round_sampled_by_the_first_in_a_refined_quadtree():
+    h, w = 8, 16
+    truth = sky_map(h, w)
+    lum = truth.mean(2)
+    i, j = divmod(int(lum.flatten().argmax()), w)
+    truth[i, j] *= 1000 * float(lum.median()) / float(lum[i, j])  # a one-texel sun 1000x the median
+    true_scene = sky_spheres((12, 12), (h, w), subdivisions=2, sky=truth)
+    targets = [ir.render(true_scene.with_camera(c), HIDDEN, spp=128, max_depth=2, seed=50 + k, progress=False) for k, c in enumerate(CAMERAS)]
+    start = sky_spheres((12, 12), (h, w), subdivisions=2, sky=torch.ones(h, w, 3))
+    fit = ir.lighting.fit_map(start, targets, "sky", cameras=CAMERAS, integrator=HIDDEN, spp=16, max_depth=2, unknowns=40)
+    assert fit.rounds == 2 and fit.basis.n <= 40 and not fit.basis.is_texels  # 2 x 2 blocks (32), refined
+    column = fit.basis.columns()
+    assert int((column == column[i * w + j]).sum()) == 1  # the sun's texel is an unknown of its own
+    bi, bj = divmod(int(fit.texels.mean(2).flatten().argmax()), w)
+    assert abs(bi - i) <= 1 and min(abs(bj - j), w - abs(bj - j)) <= 1, ((bi, bj), (i, j))
+    assert "2 rounds" in fit.describe() and f"{fit.basis.n} unknowns for {h * w} texels" in fit.describe()
+
+
 def test_bad_inputs_are_one_line_errors(problem):
-    truth, targets, fit, _ = problem
+    truth, targets, fit, held = problem
     start = scene(16, torch.ones(*MAP, 3))
-    with pytest.raises(ParameterError, match=r"needs .* GiB \(24 x pixels x texels") as e:
+    with pytest.raises(ParameterError, match=r"needs .* GiB \(24 x pixels x unknowns .* \+ 72 x unknowns\^2") as e:
         ir.lighting.fit_map(start, targets, "sky", cameras=CAMERAS, integrator=HIDDEN, spp=4, memory_mb=0.1)
     assert "\n" not in str(e.value)
     with pytest.raises(ParameterError, match="3 target\\(s\\) but 2 camera\\(s\\)"):
         ir.lighting.fit_map(start, targets, "sky", cameras=CAMERAS[:2], spp=4)
-    with pytest.raises(ParameterError, match="2 target\\(s\\) for a transport matrix of 3 view\\(s\\)"):
-        ir.lighting.solve_map(fit.matrix, targets[:2])
+    with pytest.raises(ParameterError, match="3 target\\(s\\) for a transport matrix of 1 view\\(s\\)"):
+        ir.lighting.solve_map(held, targets)
     bad = targets[0].clone()
     bad[3, 4, 1] = float("nan")
     with pytest.raises(InvRenderError, match="NaN"):
         ir.lighting.fit_map(start, [bad, *targets[1:]], "sky", cameras=CAMERAS, spp=4)
     with pytest.raises(ParameterError, match="NaN"):
-        ir.lighting.solve_map(fit.matrix, [bad, *targets[1:]])
+        ir.lighting.solve_map(held, [bad])
     with pytest.raises(ParameterError, match="no emitter 'skye'.*did you mean 'sky'"):
         ir.lighting.fit_map(start, targets, "skye", cameras=CAMERAS, spp=4)
+    with pytest.raises(ParameterError, match="the unknowns' budget must be an integer >= 1, got 0"):
+        ir.lighting.fit_map(start, targets, "sky", cameras=CAMERAS, spp=4, unknowns=0)
+    with pytest.raises(ParameterError, match="rounds must be 1, 2 or 'auto', got 3"):
+        ir.lighting.fit_map(start, targets, "sky", cameras=CAMERAS, spp=4, rounds=3)
     with pytest.raises(ParameterError, match="weight must be a number > 0"):
-        ir.lighting.solve_map(fit.matrix, targets, weight=-1.0)
+        ir.lighting.solve_map(fit.normal, weight=-1.0)
+    with pytest.raises(ParameterError, match="rule must be one of discrepancy, gcv, got 'gvc' \\(did you mean 'gcv'\\?\\)"):
+        ir.lighting.solve_map(fit.normal, rule="gvc")
 
 
 def test_sphere_smoothness_is_the_dirichlet_energy():
-    S = torch.from_numpy(ir.lighting.sphere_smoothness(5, 8))
+    S = torch.from_numpy(ir.lighting.sphere_smoothness(5, 8).toarray())
     ones = torch.ones(40, dtype=torch.float64)
     assert float((S @ ones).abs().max()) < 1e-9  # a constant map has no gradient
     torch.testing.assert_close(S, S.T)
