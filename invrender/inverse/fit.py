@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import importlib
 import math
 import os
 import sys
@@ -44,8 +43,9 @@ from invrender.inverse.convergence import adam_losses, check_adam, check_least_s
 from invrender.inverse.solver_choice import SOLVERS, choose_solver
 from invrender.inverse.rounds_bar import RoundsBar
 from invrender.inverse.losses import LOSSES, loss_and_gradient, loss_gradient
+from invrender.inverse.map_fit import fit_map
 from invrender.inverse.sensor import NAMES as SENSOR_NAMES, Sensor, is_sensor
-from invrender.inverse.targets import Target, make_targets
+from invrender.inverse.targets import Target, load_targets, load_views, make_targets  # noqa: F401  (load_views: fit's targets, as lighting and studies load them)
 from invrender.io.atomic import atomic_file
 from invrender.scene.camera import Camera
 from invrender.scene.kinds import kind_of
@@ -447,8 +447,6 @@ def _fit_transport_matrix(scene: Scene, views, names, cfg: FitSettings, truth, c
     if state is not None:  # a resumed fit that had solved: its result stands
         history, values = list(state["history"]), {name: state["values"][name].float()}
     else:
-        # map_fit imports this module's load_targets: looked up at call time, not a cycle of imports
-        fit_map = importlib.import_module("invrender.inverse.map_fit").fit_map
         gains = sensor.gains(sensor.to_raw()).float() if sensor.active else torch.ones(len(views), 3)
         targets = [t.linear / gains[v].to(t.linear.device) for v, (_, t) in enumerate(views)]
         masks = None if all(bool((t.mask == 1).all()) for _, t in views) else [t.mask for _, t in views]
@@ -768,29 +766,6 @@ def _record(step, loss, spp, seconds, values, truth) -> dict:
     if truth:
         record["errors"] = {n: P.relative_error(values[n], truth[n]) for n in values if n in truth}
     return record
-
-
-def load_views(scene: Scene, target, cameras) -> list[tuple[Scene, torch.Tensor]]:
-    """(scene seen by each camera, its linear target image (H, W, 3)) per view, every target checked
-    as ``fit`` checks them (file readable, finite, non-negative, the scene's size; one camera each;
-    files decoded by their default response)."""
-    return [(view_scene, t.linear) for view_scene, t in load_targets(scene, target, cameras)]
-
-
-def load_targets(scene: Scene, target, cameras, *, mask=None, response=None, exclude_clipped: bool = True) -> list[tuple[Scene, Target]]:
-    """(scene seen by each camera, its :class:`~invrender.inverse.targets.Target`) per view, with
-    ``mask``, ``response`` and ``exclude_clipped`` as :func:`fit` takes them."""
-    targets = list(target) if isinstance(target, (list, tuple)) else [target]
-    if not targets:
-        raise ParameterError("no target was given: an (H, W, 3) image, a file, or a list of them (one per camera)")
-    if cameras is not None and len(cameras) != len(targets):
-        raise ParameterError(f"{len(targets)} target(s) but {len(cameras)} camera(s): give one camera per target")
-    if cameras is None and len(targets) > 1:
-        raise ParameterError("several targets need one camera each (cameras=[...])")
-    view_scenes = [scene.with_camera(cameras[i]) if cameras is not None else scene for i in range(len(targets))]
-    labels = [str(t) if isinstance(t, (str, os.PathLike)) else f"target {i}" for i, t in enumerate(targets)]
-    made = make_targets(targets, labels, [(v.width, v.height) for v in view_scenes], mask=mask, response=response, exclude=exclude_clipped)
-    return [(v, t.to(scene.device)) for v, t in zip(view_scenes, made)]
 
 
 def _signature(scene: Scene, names: list[str]) -> dict:

@@ -13,7 +13,8 @@ from __future__ import annotations
 from invrender.diff.records import record_paths
 from invrender.errors import ParameterError
 from invrender.inverse import lighting
-from invrender.inverse.fit import check_fit_names, load_targets
+from invrender.inverse.fit import check_fit_names
+from invrender.inverse.targets import load_targets
 from invrender.inverse import retraced
 from invrender.inverse.least_squares import analyse
 from invrender.inverse.sensor import Sensor, is_sensor

@@ -35,7 +35,7 @@ import torch.autograd.forward_ad as fwAD
 from invrender.diff import render
 from invrender.emitters.envmap import rotation_of, texel_solid_angles, uv_to_direction
 from invrender.errors import ParameterError
-from invrender.inverse.fit import load_views
+from invrender.inverse.targets import load_views
 from invrender.scene.scene import Scene
 
 #: the highest order accepted: (l_max + 1)^2 coefficients per channel, 289 at 16; a diffuse

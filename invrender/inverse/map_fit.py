@@ -63,7 +63,7 @@ from invrender.diff.map_basis import MapBasis
 from invrender.diff.transport_matrix import TransportMatrix, envmap_of
 from invrender.emitters.envmap import texel_solid_angles
 from invrender.errors import ParameterError, did_you_mean
-from invrender.inverse.fit import load_targets
+from invrender.inverse.targets import load_targets
 from invrender.inverse.map_normal import NormalEquations, from_matrix, normal_equations
 from invrender.io.images import write_image
 from invrender.io.maps import write_count_map

@@ -36,6 +36,7 @@ import torch
 from invrender.errors import ImageError, ParameterError
 from invrender.io.images import read_mask, read_photo
 from invrender.io.response import Response, response as make_response
+from invrender.scene.scene import Scene
 from invrender.validate import FLOAT32_MAX
 
 #: the largest target value a fit takes: the square root of float32's largest, so that a residual's
@@ -198,3 +199,26 @@ def make_targets(targets: list, labels: list[str], sizes: list[tuple[int, int]],
     n = len(targets)
     masks, responses = _per_view(mask, n, "mask"), _per_view(response, n, "response")
     return [make_target(t, lab, size, m, r, exclude) for t, lab, size, m, r in zip(targets, labels, sizes, masks, responses)]
+
+
+def load_views(scene: Scene, target, cameras) -> list[tuple[Scene, torch.Tensor]]:
+    """(scene seen by each camera, its linear target image (H, W, 3)) per view, every target checked
+    as ``fit`` checks them (file readable, finite, non-negative, the scene's size; one camera each;
+    files decoded by their default response)."""
+    return [(view_scene, t.linear) for view_scene, t in load_targets(scene, target, cameras)]
+
+
+def load_targets(scene: Scene, target, cameras, *, mask=None, response=None, exclude_clipped: bool = True) -> list[tuple[Scene, Target]]:
+    """(scene seen by each camera, its :class:`~invrender.inverse.targets.Target`) per view, with
+    ``mask``, ``response`` and ``exclude_clipped`` as :func:`fit` takes them."""
+    targets = list(target) if isinstance(target, (list, tuple)) else [target]
+    if not targets:
+        raise ParameterError("no target was given: an (H, W, 3) image, a file, or a list of them (one per camera)")
+    if cameras is not None and len(cameras) != len(targets):
+        raise ParameterError(f"{len(targets)} target(s) but {len(cameras)} camera(s): give one camera per target")
+    if cameras is None and len(targets) > 1:
+        raise ParameterError("several targets need one camera each (cameras=[...])")
+    view_scenes = [scene.with_camera(cameras[i]) if cameras is not None else scene for i in range(len(targets))]
+    labels = [str(t) if isinstance(t, (str, os.PathLike)) else f"target {i}" for i, t in enumerate(targets)]
+    made = make_targets(targets, labels, [(v.width, v.height) for v in view_scenes], mask=mask, response=response, exclude=exclude_clipped)
+    return [(v, t.to(scene.device)) for v, t in zip(view_scenes, made)]

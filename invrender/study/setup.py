@@ -16,7 +16,7 @@ from invrender.study.configs import GradientConfig
 def study_target(scene: Scene, target, target_spp: int, seed: int, config: GradientConfig) -> tuple[torch.Tensor, str]:
     """The target image (H, W, 3) and how it was made."""
     if target is not None:
-        from invrender.inverse.fit import load_views  # the checks fit applies to its targets
+        from invrender.inverse.targets import load_views  # the checks fit applies to its targets
 
         return load_views(scene, target, None)[0][1], "given"
     model = config.model  # the configuration's expected image
