@@ -274,5 +274,7 @@ def test_adam_recovers_a_roughness_map():
 
     truth = scene([[0.2, 0.4]])
     target = ir.render(truth, spp=512, max_depth=2, seed=9, progress=False)
-    res = ir.fit(scene([[0.1, 0.1]]), target, ["plate.roughness"], steps=120, spp=4, spp_final=16, lr=0.1, max_depth=2, progress=False, truth={"plate.roughness": truth.params["plate.roughness"]})
+    # all 120 steps (plateau_window=0): the plateau rule may stop at ~2.1% where the last steps reach < 2%
+    res = ir.fit(scene([[0.1, 0.1]]), target, ["plate.roughness"], steps=120, spp=4, spp_final=16, lr=0.1, max_depth=2, progress=False,
+                 plateau_window=0, truth={"plate.roughness": truth.params["plate.roughness"]})  # fmt: skip
     assert res.errors["plate.roughness"] < 0.02, res.params["plate.roughness"][..., 0]
