@@ -65,6 +65,7 @@ def fit_into(
     cameras: list[Camera] | None = None,
     truth: dict | None = None,
     held_out: list[tuple[Camera, object]] | None = None,
+    labels: list[str] | None = None,
     resume: bool = False,
     progress: bool = True,
     report: dict | None = None,
@@ -78,6 +79,8 @@ def fit_into(
         out: the output folder (made if absent).
         held_out: (camera, target: an (H, W, 3) tensor or image path) per view left out of the
             fit, relit under the recovered map (a fit of one environment map's texels only).
+        labels: the views' names in relighting.png and the report, the fitted ones then the
+            held-out ones (default ``"training view i"``, ``"held-out view i"``).
         report: further entries of ``report.json`` (e.g. ``recipe``, ``targets``, ``variant``).
         settings: :class:`~invrender.inverse.fit.FitSettings` fields.
     Returns:
@@ -88,6 +91,9 @@ def fit_into(
     if held_out and environment is None:
         raise ParameterError(f"held-out views are relit under a recovered environment map: fit one environment map's texels alone, not {params!r}")
     held = load_targets(scene, [t for _, t in held_out], [c for c, _ in held_out]) if held_out else []  # bad input fails before the fit
+    fitted = len(cameras) if cameras else 1
+    if labels is not None and len(labels) != fitted + len(held):
+        raise ParameterError(f"fit_into: {len(labels)} labels for {fitted} fitted and {len(held)} held-out views")
     result = fit(scene, target, params, cameras=cameras, truth=truth, checkpoint=out / "checkpoint.pt", resume=resume, progress=progress, **settings)
     s = result.settings
     written = []
@@ -114,7 +120,7 @@ def fit_into(
         written += write_environment(out, result.params[environment], result.std_error.get(environment), result.resolution.get(environment))
         relit = finals + rendered("heldout", [v.camera for v, _ in held], s.seed + 2)
         trained = [t.linear for _, t in load_targets(scene, target, cameras)]
-        labels = [f"training view {i}" for i in range(len(trained))] + [f"held-out view {i}" for i in range(len(held))]
+        labels = labels or [f"training view {i}" for i in range(len(trained))] + [f"held-out view {i}" for i in range(len(held))]
         pairs = list(zip(labels, trained + [t.linear for _, t in held], relit))
         extra["relighting"] = {}
         for label, goal, image in pairs:
