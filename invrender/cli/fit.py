@@ -10,7 +10,7 @@ from invrender.cli import catalog
 from invrender.cli.common import (
     EXIT_INTERRUPTED, add_integrator_arguments, check_out_dir, fmt, integrator_spec, integrators_epilog, one_or_three_numbers, parse_bool, parse_init, parse_resolution,
 )  # fmt: skip
-from invrender.errors import ParameterError
+from invrender.errors import InvRenderError, ParameterError
 
 EPILOG = """\
 examples:
@@ -184,7 +184,13 @@ def _truth(items: list[str], read_image) -> dict:
         if not sep or not key.strip() or not text:
             raise ParameterError(f"--truth expects NAME=VALUE, NAME=R,G,B or NAME=IMAGE, got {item!r}")
         values = one_or_three_numbers(text)
-        truth[key.strip()] = read_image(text) if values is None else (values[0] if len(values) == 1 else values)
+        if values is None:  # an image file: a map
+            try:
+                truth[key.strip()] = read_image(text)
+            except InvRenderError as e:
+                raise ParameterError(f"--truth {key.strip()}: {e}") from None
+        else:
+            truth[key.strip()] = values[0] if len(values) == 1 else values
     return truth
 
 
