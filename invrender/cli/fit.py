@@ -21,7 +21,7 @@ examples:
       --integrator path --set rr_depth=3 --set strategy=emitter --out runs/nee
   invrender fit --scene scene.xml --cameras capture/transforms.json --params white.reflectance --out runs/capture
                                                 # every view of a dataset; its images the targets
-  invrender fit --scene sky_spheres --cameras views/transforms.json --held-out 3 --params sky.emission \
+  invrender fit --scene sky_spheres --cameras views/transforms.json --held-out 3 --params sky.emission \\
       --init sky.emission=1 --integrator path --set hide_emitters=true --truth sky.emission=true_sky.exr --out runs/sky
                                                 # an environment map: the relighting product, view 3 held out
   invrender fit optimize/cornell_random.toml --out runs/cornell_random
