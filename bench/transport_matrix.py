@@ -19,8 +19,9 @@ pooled relative RMSE ``||relit - true|| / ||true||``; with ``--sun`` also the an
 brightest recovered texel and the sun.
 
 ``--out DIR`` writes, per map, the relighting product (``fit.write``: map.exr, stderr.exr,
-resolution.png, fit.json) into ``DIR/HxW`` and a figure ``DIR/HxW/figure.png``: the true and the
-recovered map, the standard errors, the identifiability, the held-out view true and relit.
+resolution.png, fit.json) into ``DIR/HxW`` and a figure ``DIR/HxW/figure.png``
+(``ir.lighting.relighting_figure``, as ``invrender fit`` writes it): the true and the recovered map,
+the standard errors, the identifiability, the held-out view under the true map and relit.
 
 ``--sweep`` solves the same normal equations at fixed weights 10^-1 .. 10^3 (quarter decades) and
 with generalized cross-validation (``rule="gcv"``) and prints each one's held-out error against
@@ -32,7 +33,6 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-import textwrap
 import time
 from pathlib import Path
 
@@ -44,6 +44,7 @@ import invrender as ir  # noqa: E402
 from _measure import Results, add_json_option, machine, peak_rss_mib  # noqa: E402
 from invrender.errors import ParameterError  # noqa: E402
 from invrender.inverse.map_fit import fit_map, solve_map  # noqa: E402
+from invrender.inverse.relighting import relighting_error, relighting_figure  # noqa: E402
 from invrender.scene.builtin import map_directions, sky_map, sky_spheres  # noqa: E402
 from invrender.scene.camera import Camera  # noqa: E402
 
@@ -88,11 +89,13 @@ class HeldOut:
         self.tm = ir.lighting.transport_matrix(scene, "sky", cameras=[view(60.0)], integrator=HIDDEN, spp=half, max_depth=max_depth, seed=7, sampling_map=truth)
         self.true_img = self.tm.images(truth)[0]
 
+    def relit(self, recovered: torch.Tensor) -> torch.Tensor:
+        """(H, W, 3) the held-out view under the map ``recovered``."""
+        return self.tm.images(recovered.clamp_min(0))[0]
+
     def error(self, recovered: torch.Tensor) -> tuple[torch.Tensor, float]:
         """(channel-mean differences (3,), pooled relative RMSE) of the held-out view relit."""
-        relit = self.tm.images(recovered.clamp_min(0))[0]
-        t = self.true_img
-        return (relit.mean((0, 1)) - t.mean((0, 1))) / t.mean((0, 1)), float((relit - t).norm() / t.norm())
+        return relighting_error(self.true_img, self.relit(recovered))
 
 
 def sun_angle(truth: torch.Tensor, recovered: torch.Tensor) -> float:
@@ -101,42 +104,6 @@ def sun_angle(truth: torch.Tensor, recovered: torch.Tensor) -> float:
     d = map_directions(h, w).reshape(-1, 3)
     a, b = d[int(truth.mean(2).flatten().argmax())], d[int(recovered.mean(2).flatten().argmax())]
     return math.degrees(math.acos(max(-1.0, min(1.0, float(a @ b)))))
-
-
-def figure(path: Path, truth: torch.Tensor, fit, held: HeldOut, title: str) -> None:
-    """Six labelled panels: true / recovered map (log luminance, one scale), the standard errors
-    (relative to the recovered map), the identifiability (resolution), the held-out view true and
-    relit (sRGB)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from invrender.io.images import to_srgb
-    from invrender.io.reports import save_figure
-
-    log = lambda m: torch.log10(m.mean(2).clamp_min(1e-4))  # noqa: E731
-    lo, hi = float(log(truth).min()), float(log(truth).max())
-    relit = held.tm.images(fit.texels.clamp_min(0))[0]
-    exposure = 0.8 / float(held.true_img.mean(2).quantile(0.95))
-    fig, axes = plt.subplots(2, 3, figsize=(13, 6.5))
-    panels = [
-        ("true map, log10 luminance", log(truth), dict(vmin=lo, vmax=hi, cmap="magma")),
-        ("recovered map, log10 luminance", log(fit.texels), dict(vmin=lo, vmax=hi, cmap="magma")),
-        ("standard error / recovered", (fit.stderr.mean(2) / fit.texels.mean(2).clamp_min(1e-6)).clamp(0, 1), dict(vmin=0, vmax=1, cmap="viridis")),
-        ("identifiability (resolution, min over channels)", fit.resolution.amin(2), dict(vmin=0, vmax=1, cmap="viridis")),
-        ("held-out view, true map", to_srgb(held.true_img * exposure), {}),
-        ("held-out view, recovered map", to_srgb(relit * exposure), {}),
-    ]
-    for ax, (label, image, style) in zip(axes.flat, panels):
-        shown = ax.imshow(image.numpy(), **style)
-        ax.set_title(label, fontsize=9)
-        ax.set_xticks([])
-        ax.set_yticks([])
-        if style:
-            fig.colorbar(shown, ax=ax, fraction=0.03)
-    fig.suptitle(textwrap.fill(title, 140), fontsize=9)
-    save_figure(fig, path)
 
 
 def main() -> int:
@@ -183,7 +150,8 @@ def main() -> int:
         if args.out:
             folder = Path(args.out) / size
             fit.write(folder)
-            figure(folder / "figure.png", truth, fit, held, f"{size} map from {args.views} views: held-out pooled RMSE {100 * rmse:.2f}%; {fit.describe()}")
+            title = f"{size} map from {args.views} views: held-out pooled RMSE {100 * rmse:.2f}%; {fit.describe()}"
+            relighting_figure(folder / "figure.png", fit.texels, stderr=fit.stderr, resolution=fit.resolution, truth=truth, views=[("held-out view", held.true_img, held.relit(fit.texels))], title=title)
             print(f"  wrote {folder}")
         rows.append({"map": size, "views": args.views, "spp": args.spp, "unknowns": fit.basis.n, "rounds": fit.rounds, "seconds": round(seconds, 2), "render_s": round(s["render"], 2), "normal_s": round(s["gram"], 2), "solve_s": round(s["solve"], 2),
                      "peak_mib": round(peak), "weight": [round(float(x), 3) for x in fit.weight], "means_pct": [round(100 * float(x), 3) for x in means], "rmse_pct": round(100 * rmse, 3), "sun_deg": None if angle is None else round(angle, 2)})  # fmt: skip

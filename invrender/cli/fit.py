@@ -8,9 +8,9 @@ import sys
 
 from invrender.cli import catalog
 from invrender.cli.common import (
-    EXIT_INTERRUPTED, add_integrator_arguments, check_out_dir, fmt, integrator_spec, integrators_epilog, parse_bool, parse_init, parse_resolution,
+    EXIT_INTERRUPTED, add_integrator_arguments, check_out_dir, fmt, integrator_spec, integrators_epilog, one_or_three_numbers, parse_bool, parse_init, parse_resolution,
 )  # fmt: skip
-from invrender.errors import ParameterError
+from invrender.errors import InvRenderError, ParameterError
 
 EPILOG = """\
 examples:
@@ -21,6 +21,9 @@ examples:
       --integrator path --set rr_depth=3 --set strategy=emitter --out runs/nee
   invrender fit --scene scene.xml --cameras capture/transforms.json --params white.reflectance --out runs/capture
                                                 # every view of a dataset; its images the targets
+  invrender fit --scene sky_spheres --cameras views/transforms.json --held-out 3 --params sky.emission \\
+      --init sky.emission=1 --integrator path --set hide_emitters=true --truth sky.emission=true_sky.exr --out runs/sky
+                                                # an environment map: the relighting product, view 3 held out
   invrender fit optimize/cornell_random.toml --out runs/cornell_random
   invrender fit optimize/cornell_random.toml --out runs/cornell_random --resume     # after Ctrl-C
   invrender fit optimize/utah_bias.toml --out runs/utah_bias    # a model study: path vs utah
@@ -40,6 +43,12 @@ names an integrator of its own keeps it).
 Writes OUT/report.json (initial, recovered and, when a recipe knows it, true values with errors),
 OUT/loss.png (loss and parameter error per step), OUT/final.exr (the recovered scene rendered) and
 OUT/checkpoint.pt (every few steps and on Ctrl-C; --resume continues to the same result).
+A fit of one environment map's texels alone also writes the relighting product: OUT/map.exr (the
+recovered map), OUT/stderr.exr (its standard errors), OUT/resolution.png (its identifiability: 1
+set by the images, 0 by the prior), OUT/heldout*.exr/png (the --held-out views relit) and
+OUT/relighting.png (true map with --truth, recovered map, standard errors, identifiability, and
+each training and held-out view's target beside its relit render, labelled); each view's errors
+are in report.json under "relighting".
 A recipe with [[variants]] runs one fit per variant into OUT/<label>/ and writes OUT/study.md and
 OUT/study.json: each parameter channel's relative error under each variant.
 
@@ -65,6 +74,8 @@ def add_parser(sub) -> None:
     f.add_argument("--init", action="append", default=[], metavar="KEY=VALUE", help="starting value: NAME=v or NAME=r,g,b; NAME is any name --params takes (sensor.exposure, sensor.white_balance too), or a kind (reflectance, specular_reflectance, emission) for all fitted ones of it (repeatable)")
     f.add_argument("--resolution", type=parse_resolution, default=None, metavar="WxH", help="render size (default: the target's)")
     f.add_argument("--out", required=True, help="output folder: report.json, loss.png, final.exr, final.png, checkpoint.pt (correlation.png for lm, pixels.png where pixels were left out)")
+    f.add_argument("--truth", action="append", default=[], metavar="KEY=VALUE", help="ground truth of a fitted parameter, where known: NAME=v, NAME=r,g,b or NAME=IMAGE (an EXR/HDR map, e.g. an environment map's): its errors in report.json, its panel in relighting.png (repeatable)")
+    f.add_argument("--held-out", nargs="+", type=int, default=None, metavar="N", help="views of --cameras (0-based, in the file's order) left out of the fit and relit under the recovered environment map, each against its image (or its --target: then one per view, the held-out ones too)")
     f.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt with the settings stored in it, except those given anew")
     # photographs (docs/photographs.md): masks, the camera response, the sensor
     f.add_argument("--mask", nargs="+", metavar="IMAGE", help="pixel weights: one mask image for every target or one per target (white counts, black does not; default: a PNG target's alpha)")
@@ -89,8 +100,8 @@ def run(args) -> int:
     settings = {name: getattr(args, name) for name, _, _ in FIT_OPTIONS if name != "integrator" and getattr(args, name) is not None}
     recipe = None
     if args.recipe:
-        if args.scene or args.target or args.params or args.cameras:
-            raise ParameterError("give either a recipe or --scene/--target/--params, not both")
+        if args.scene or args.target or args.params or args.cameras or args.held_out or args.truth:
+            raise ParameterError("give either a recipe or --scene/--target/--params (and --cameras, --held-out, --truth), not both")
         recipe = load_fit_recipe(args.recipe)
         if args.mask or args.response or args.shared_sensor or args.keep_clipped:
             raise ParameterError("--mask, --response, --shared-sensor and --keep-clipped go with --target, not with a recipe")
@@ -117,12 +128,19 @@ def run(args) -> int:
         if cameras is not None:
             targets = targets or [str(f.image) for f in cameras]
         views = None if cameras is None else [f.camera for f in cameras]
+        views, targets, held_out = _held_out(args, views, targets)
         report = {"targets": targets, **({"cameras": str(args.cameras)} if cameras is not None else {})}
+        if held_out:
+            report["held_out"] = {"views": args.held_out, "targets": [str(t) for _, t in held_out]}
         photo = _photo_options(args, len(targets))
         init, sensor = split_init(init, photo.get("sensor"))  # --init takes every name --params does
         photo |= {"sensor": sensor} if sensor else {}
         apply_init(scene, names, init)
-        _summary(args, fit_into(out, scene, targets, names, cameras=views, resume=args.resume, progress=not args.quiet, report=report, **photo, **settings))
+        truth = _truth(args.truth, ir.read_image)
+        labels = None
+        if held_out:  # the views by their numbers in the --cameras file
+            labels = [f"view {i} (fitted)" for i in range(len(cameras)) if i not in args.held_out] + [f"view {i} (held out)" for i in sorted(set(args.held_out))]
+        _summary(args, fit_into(out, scene, targets, names, cameras=views, truth=truth, held_out=held_out, labels=labels, resume=args.resume, progress=not args.quiet, report=report, **photo, **settings))
     except KeyboardInterrupt:
         print("invrender: interrupted; checkpoint saved (continue with --resume)", file=sys.stderr)
         return EXIT_INTERRUPTED
@@ -137,6 +155,43 @@ def _cameras(args):
 
     frames = load_cameras(args.cameras, require_images=not args.target)
     return frames, common_resolution(frames, args.cameras)
+
+
+def _held_out(args, views, targets):
+    """(the views fitted, their targets, [(camera, target)] of the --held-out views) from the
+    --cameras views and their targets; one-line errors for held-out views that are not there."""
+    if not args.held_out:
+        return views, targets, None
+    if views is None:
+        raise ParameterError("--held-out names views of --cameras (0-based, in the file's order): give --cameras")
+    if len(targets) != len(views):
+        raise ParameterError(f"--target: {len(targets)} image(s) for the {len(views)} views of {args.cameras}: give one per view, the held-out ones too")
+    bad = [i for i in args.held_out if not 0 <= i < len(views)]
+    if bad:
+        raise ParameterError(f"--held-out {bad[0]}: {args.cameras} has {len(views)} views (0 to {len(views) - 1})")
+    left = sorted(set(args.held_out))
+    if len(left) == len(views):
+        raise ParameterError(f"--held-out leaves none of the {len(views)} views of {args.cameras} to fit")
+    kept = [i for i in range(len(views)) if i not in left]
+    return [views[i] for i in kept], [targets[i] for i in kept], [(views[i], targets[i]) for i in left]
+
+
+def _truth(items: list[str], read_image) -> dict:
+    """``["NAME=v", "NAME=r,g,b", "NAME=map.exr"]`` -> {NAME: value or image}."""
+    truth = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        if not sep or not key.strip() or not text:
+            raise ParameterError(f"--truth expects NAME=VALUE, NAME=R,G,B or NAME=IMAGE, got {item!r}")
+        values = one_or_three_numbers(text)
+        if values is None:  # an image file: a map
+            try:
+                truth[key.strip()] = read_image(text)
+            except InvRenderError as e:
+                raise ParameterError(f"--truth {key.strip()}: {e}") from None
+        else:
+            truth[key.strip()] = values[0] if len(values) == 1 else values
+    return truth
 
 
 def _photo_options(args, views: int) -> dict:
@@ -172,4 +227,8 @@ def _summary(args, output) -> None:
     names = {p.name for p in output.written}
     figures = ", ".join(n for n in ("loss.png", "correlation.png") if n in names)
     pixels = ", pixels*.png (the pixels that counted)" if any(n.startswith("pixels") for n in names) else ""
-    print(f"wrote {folder}/report.json, {figures}, final EXR and PNG{pixels}, checkpoint.pt", file=sys.stderr)
+    product = ", " + ", ".join(n for n in ("map.exr", "stderr.exr", "resolution.png", "relighting.png") if n in names) if "map.exr" in names else ""
+    held = ", held-out views relit (heldout*.exr, .png)" if any(n.startswith("heldout") for n in names) else ""
+    print(f"wrote {folder}/report.json, {figures}, final EXR and PNG{pixels}{product}{held}, checkpoint.pt", file=sys.stderr)
+    for label, error in output.report.get("relighting", {}).items():
+        print(f"  {label} relit: channel means {' '.join(f'{100 * m:+.2f}%' for m in error['channel_means'])}, pooled relative RMSE {100 * error['rmse']:.2f}%", file=sys.stderr)

@@ -244,6 +244,8 @@ class FitResult:
         initial: name -> starting value.
         truth: name -> ground truth, when given.
         std_error: name -> standard error of each recovered channel (least-squares solvers).
+        resolution: name -> how much of each recovered channel the images set, ``diag(M^-1 H)``
+            (the transport matrix: 1 set by the images, 0 by the prior; map_fit.py).
         targets: per view what the fit used of its target (targets.py): response, pixels
             excluded as saturated or dark, pixels counting.
         pixels: per view, the (H, W, 3) image of which pixels counted
@@ -270,6 +272,7 @@ class FitResult:
     solver: str = ""
     solver_reason: str = ""
     converged: bool | None = None
+    resolution: dict[str, torch.Tensor] = field(default_factory=dict)
 
     @property
     def errors(self) -> dict[str, float]:
@@ -459,7 +462,7 @@ def _fit_transport_matrix(scene: Scene, views, names, cfg: FitSettings, truth, c
         values = {name: found.texels.float()}
         record = {
             "step": 1, "loss": float((found.residual.double() ** 2).mean()), "spp": cfg.spp_final, "seconds": time.perf_counter() - clock,
-            "params": {name: values[name].tolist()}, "std_error": {name: found.stderr.tolist()}, "on": "transport matrix",
+            "params": {name: values[name].tolist()}, "std_error": {name: found.stderr.tolist()}, "resolution": {name: found.resolution.tolist()}, "on": "transport matrix",
             "transport_matrix": found.describe(), "converged": True,
         }  # fmt: skip
         if truth and name in truth:
@@ -475,6 +478,8 @@ def _fit_transport_matrix(scene: Scene, views, names, cfg: FitSettings, truth, c
     out_scene = scene.with_params(values, detach=True)
     result = FitResult(values, history, out_scene, cfg, initial, {k: v for k, v in truth.items() if k in names}, std_error, [t.report() for _, t in views], _pixels(views))
     result.converged = True
+    if "resolution" in history[-1]:  # (checkpoints written before it was recorded have none)
+        result.resolution = {name: torch.tensor(history[-1]["resolution"][name], dtype=torch.float32)}
     return result
 
 

@@ -350,3 +350,5 @@ from invrender.diff.transport_matrix import TransportMatrix, transport_matrix  #
 from invrender.diff.map_basis import MapBasis  # noqa: E402, F401
 from invrender.inverse.map_fit import MapFit, fit_map, solve_map, sphere_smoothness  # noqa: E402, F401
 from invrender.inverse.map_normal import NormalEquations, normal_equations  # noqa: E402, F401
+# relighting: a recovered map put into another scene, compared and shown
+from invrender.inverse.relighting import relight, relighting_error, relighting_figure  # noqa: E402, F401

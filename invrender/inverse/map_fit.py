@@ -65,8 +65,7 @@ from invrender.emitters.envmap import texel_solid_angles
 from invrender.errors import ParameterError, did_you_mean
 from invrender.inverse.targets import load_targets
 from invrender.inverse.map_normal import NormalEquations, from_matrix, normal_equations
-from invrender.io.images import write_image
-from invrender.io.maps import write_count_map
+from invrender.io.maps import write_environment
 from invrender.io.reports import write_json
 from invrender.scene.scene import Scene
 
@@ -179,12 +178,7 @@ class MapFit:
         texel's smallest resolution over the channels, viridis: 0 dark blue, set by the prior, to
         1 yellow, set by the images) and ``fit.json`` (the weights, the rule, residual, noise,
         degrees of freedom, unknowns, rounds, seconds). Returns the paths."""
-        folder = Path(folder)
-        folder.mkdir(parents=True, exist_ok=True)
-        paths = [folder / "map.exr", folder / "stderr.exr", folder / "resolution.png", folder / "fit.json"]
-        write_image(paths[0], self.texels)
-        write_image(paths[1], self.stderr)
-        write_count_map(paths[2], self.resolution.amin(2), top=1.0)
+        paths = write_environment(folder, self.texels, self.stderr, self.resolution) + [Path(folder) / "fit.json"]
         floats = lambda t: [float(x) for x in t]  # noqa: E731
         write_json(paths[3], {
             "describe": self.describe(), "weight": floats(self.weight), "rule": self.rule, "residual": floats(self.residual), "noise": floats(self.noise), "dof": floats(self.dof),
