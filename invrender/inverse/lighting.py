@@ -350,3 +350,4 @@ from invrender.diff.transport_matrix import TransportMatrix, transport_matrix  #
 from invrender.diff.map_basis import MapBasis  # noqa: E402, F401
 from invrender.inverse.map_fit import MapFit, fit_map, solve_map, sphere_smoothness  # noqa: E402, F401
 from invrender.inverse.map_normal import NormalEquations, normal_equations  # noqa: E402, F401
+from invrender.inverse.joint_fit import JointFit, fit_joint, scale_anchor  # noqa: E402, F401
