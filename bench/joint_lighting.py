@@ -1,8 +1,8 @@
 """Joint lighting and materials on ``sky_spheres``: an environment map and two objects' albedos
 from a few views, the floor's albedo known (``ir.lighting.fit_joint``).
 
-    python bench/joint_lighting.py [--map 16x32] [--views 4] [--resolution 64] [--spp 128]
-                                   [--target-spp 1024] [--max-depth 3] [--rounds 8]
+    PYTHONPATH=. python bench/joint_lighting.py [--map 16x32] [--views 4] [--resolution 64] [--spp 128]
+                                   [--target-spp 1024] [--max-depth 3] [--rounds 10]
 
 ``--views`` views around the spheres (background hidden: ``{"type": "path", "hide_emitters":
 True}``) rendered with the true map and albedos at ``--target-spp`` are the targets. The fit starts
@@ -48,7 +48,7 @@ def main() -> None:
     ap.add_argument("--spp", type=int, default=128)
     ap.add_argument("--target-spp", type=int, default=1024)
     ap.add_argument("--max-depth", type=int, default=3)
-    ap.add_argument("--rounds", type=int, default=8)
+    ap.add_argument("--rounds", type=int, default=10)
     args = ap.parse_args()
     m = machine()
     print(f"machine: {m.get('cpu')} ({m.get('vector')}), {m.get('cores')} cores, load {m.get('load')}")

@@ -54,7 +54,7 @@ from invrender.scene.scene import Scene, check_names
 #: the rounds stop once no reflectance channel moved by more than this many of its standard errors
 MOVE = 1.0
 #: the rounds the alternation may take by default
-ROUNDS = 8
+ROUNDS = 10
 
 
 @dataclasses.dataclass
@@ -195,7 +195,7 @@ def fit_joint(
         clock = time.perf_counter()
         # (a) the map given the reflectances; the scene's starting map keeps the sampling fixed
         found = fit_map(scene.with_params({n: v.float() for n, v in at.items()}, detach=True), linear, emitter, cameras=cameras, integrator=spec,
-                        spp=spp, max_depth=None, seed=seed, mask=masks, rounds=1, progress=progress, **map_settings)  # fmt: skip
+                        spp=spp, max_depth=None, seed=seed, mask=masks, rounds=1, progress=False, **map_settings)  # fmt: skip
         seconds["map"] += time.perf_counter() - clock
         # (b) the reflectances given the map: two independent record sets per view, common seeds every round
         clock = time.perf_counter()
