@@ -140,12 +140,13 @@ FIT_OPTIONS = (('steps', 'int', "Adam's steps, at most (it stops earlier on a pl
  ('solver',
   'str',
   '"auto" (the default: chosen from what the parameters are and the settings given, solver_choice.py: '
-  '"transport_matrix" for one environment map alone, "lm" for parameters that are polynomial factors of the path '
-  'weights or a roughness, else "adam"; the result says which and why), "adam" (gradient steps on re-traced renders), '
-  '"lm" (Levenberg-Marquardt) or "gauss_newton" on path records (least_squares.py), or, when a fitted parameter is one '
-  'records cannot represent (a roughness), on re-traced renders with forward-mode Jacobian columns (retraced.py), or '
-  '"transport_matrix" (one environment map\'s texels: one non-negative regularized linear solve, map_fit.py). '
-  '(default: auto)'),
+  '"transport_matrix" for one environment map alone, "joint" for one environment map with material reflectances, "lm" '
+  'for parameters that are polynomial factors of the path weights or a roughness, else "adam"; the result says which '
+  'and why), "adam" (gradient steps on re-traced renders), "lm" (Levenberg-Marquardt) or "gauss_newton" on path '
+  'records (least_squares.py), or, when a fitted parameter is one records cannot represent (a roughness), on re-traced '
+  'renders with forward-mode Jacobian columns (retraced.py), or "transport_matrix" (one environment map\'s texels: one '
+  'non-negative regularized linear solve, map_fit.py), or "joint" (one environment map\'s texels and material '
+  "reflectances: the map's solve alternated with lm on records, joint_fit.py). (default: auto)"),
  ('rounds',
   'int',
   'least-squares solvers: at most this many outer rounds; on path records round r traces two independent passes (A and '

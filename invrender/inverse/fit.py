@@ -39,7 +39,7 @@ from invrender.diff.finite import check_params, nonfinite_params
 from invrender.errors import NonFiniteError, ParameterError, did_you_mean
 from invrender.inverse import params as P
 from invrender.inverse.control_variates import RecursiveControlVariate
-from invrender.inverse.convergence import adam_losses, check_adam, check_least_squares, plateau
+from invrender.inverse.convergence import ConvergenceWarning, adam_losses, check_adam, check_least_squares, plateau
 from invrender.inverse.solver_choice import SOLVERS, choose_solver
 from invrender.inverse.rounds_bar import RoundsBar
 from invrender.inverse.losses import LOSSES, loss_and_gradient, loss_gradient
@@ -104,14 +104,16 @@ class FitSettings:
         seed: seed of every render's random numbers.
         checkpoint_every: steps between checkpoints (when a checkpoint path is given).
         solver: ``"auto"`` (the default: chosen from what the parameters are and the settings
-            given, solver_choice.py: ``"transport_matrix"`` for one environment map alone, ``"lm"``
+            given, solver_choice.py: ``"transport_matrix"`` for one environment map alone,
+            ``"joint"`` for one environment map with material reflectances, ``"lm"``
             for parameters that are polynomial factors of the path weights or a roughness, else
             ``"adam"``; the result says which and why), ``"adam"`` (gradient steps on re-traced
             renders), ``"lm"`` (Levenberg-Marquardt) or ``"gauss_newton"`` on path records
             (least_squares.py), or, when a fitted parameter is one records cannot represent (a
             roughness), on re-traced renders with forward-mode Jacobian columns (retraced.py), or
             ``"transport_matrix"`` (one environment map's texels: one non-negative regularized
-            linear solve, map_fit.py).
+            linear solve, map_fit.py), or ``"joint"`` (one environment map's texels and material
+            reflectances: the map's solve alternated with lm on records, joint_fit.py).
         rounds: least-squares solvers: at most this many outer rounds; on path records round r
             traces two independent passes (A and B) at the current estimate and adds them to the
             earlier rounds' (so it solves on ``spp * 4^r`` samples a pixel per set, three quarters
@@ -355,6 +357,8 @@ def fit(
         print(f"fit: solver {choice.solver}: {choice.reason}", file=sys.stderr)
     if cfg.solver == "transport_matrix":
         return _chosen(_fit_transport_matrix(scene, views, names, cfg, truth, checkpoint, state, progress, sensor, cameras), choice)
+    if cfg.solver == "joint":
+        return _chosen(_fit_joint(scene, views, names, cfg, truth, checkpoint, state, progress, sensor, cameras), choice)
     if cfg.solver != "adam":
         return _chosen(_fit_least_squares(scene, views, names, cfg, truth, checkpoint, state, progress, sensor), choice)
 
@@ -437,6 +441,50 @@ def fit(
 def _chosen(result: FitResult, choice) -> FitResult:
     """``result`` with the solver's choice (:func:`~invrender.inverse.solver_choice.choose_solver`) in it."""
     result.solver, result.solver_reason = choice.solver, choice.reason
+    return result
+
+
+def _fit_joint(scene: Scene, views, names, cfg: FitSettings, truth, checkpoint: Path | None, state: dict | None, progress: bool, sensor: Sensor, cameras) -> FitResult:
+    """One environment map's texels and material reflectances by the alternation of
+    :func:`invrender.inverse.joint_fit.fit_joint` (``spp_final`` samples a pixel per half and
+    record set): one history entry per round, the last with the scale's anchor. The targets are
+    passed linear, divided by a fixed sensor's gains, with their masks."""
+    from invrender.inverse.joint_fit import fit_joint, joint_names
+
+    map_name, materials = joint_names(scene, names)
+    initial = {n: scene.params[n].detach().clone() for n in names}
+    if state is not None:  # a resumed fit that had solved: its result stands
+        history, values = list(state["history"]), {n: v.float() for n, v in state["values"].items()}
+    else:
+        gains = sensor.gains(sensor.to_raw()).float() if sensor.active else torch.ones(len(views), 3)
+        targets = [t.linear / gains[v].to(t.linear.device) for v, (_, t) in enumerate(views)]
+        masks = None if all(bool((t.mask == 1).all()) for _, t in views) else [t.mask for _, t in views]
+        model = cfg.model
+        clock = time.perf_counter()
+        found = fit_joint(
+            scene, targets, map_name.rpartition(".")[0], materials, cameras=cameras, integrator={"type": model.name, **{k: v for k, v in dataclasses.asdict(model.settings).items() if k != "max_depth"}},
+            spp=cfg.spp_final, max_depth=model.terms_kept, seed=cfg.seed, mask=masks, progress=progress,
+        )  # fmt: skip
+        values = {map_name: found.texels.float(), **found.values}
+        std_error = {map_name: found.map.stderr, **found.std_error}
+        history = []
+        for entry in found.history:
+            last = entry is found.history[-1]
+            record = {"step": entry["round"], "loss": entry["loss"], "spp": cfg.spp_final, "seconds": entry["seconds"],
+                      "params": {**({map_name: values[map_name].tolist()} if last else {}), **entry["values"]}, "moved_in_std_errors": entry["moved"], "on": "transport matrix + path records"}  # fmt: skip
+            if last:
+                record.update({"std_error": {n: v.tolist() for n, v in std_error.items()}, "transport_matrix": found.map.describe(), "scale": found.scale, "converged": found.converged})
+                if truth:
+                    record["errors"] = {n: P.relative_error(values[n], truth[n]) for n in names if n in truth}
+            history.append(record)
+        if checkpoint is not None:
+            _save_checkpoint(checkpoint, scene, names, cfg, len(history), history, values=values)
+    std_error = {n: torch.tensor(v, dtype=torch.float32) for n, v in history[-1]["std_error"].items()}
+    out_scene = scene.with_params(values, detach=True)
+    result = FitResult(values, history, out_scene, cfg, initial, {k: v for k, v in truth.items() if k in names}, std_error, [t.report() for _, t in views], _pixels(views))
+    result.converged = bool(history[-1]["converged"])
+    if not result.converged:
+        warnings.warn(f"the joint fit did not converge in {len(history)} rounds: the last moved a reflectance by {history[-1]['moved_in_std_errors']:.2g} standard errors (converged below 1)", ConvergenceWarning, stacklevel=3)
     return result
 
 

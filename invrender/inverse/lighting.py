@@ -352,3 +352,5 @@ from invrender.inverse.map_fit import MapFit, fit_map, solve_map, sphere_smoothn
 from invrender.inverse.map_normal import NormalEquations, normal_equations  # noqa: E402, F401
 # relighting: a recovered map put into another scene, compared and shown
 from invrender.inverse.relighting import relight, relighting_error, relighting_figure  # noqa: E402, F401
+# joint lighting and materials: the map and reflectances by alternating exact solves
+from invrender.inverse.joint_fit import JointFit, fit_joint, scale_anchor  # noqa: E402, F401

@@ -15,15 +15,20 @@ The rule (:func:`choose_solver`), first match wins; its one-line reason is
    nothing else fitted, no least-squares setting given) -> ``"transport_matrix"``: every image is
    linear in the texels, one non-negative regularized linear solve on the transport matrix
    (:func:`invrender.inverse.map_fit.fit_map`) recovers them.
-4. **Every parameter a polynomial factor of the path weights** (albedos, k_s, emissions, the
+4. **One environment map's texels and material reflectances** (RGB triples path records represent;
+   no least-squares setting given) -> ``"joint"``: the images are bilinear, the transport-matrix
+   solve of the map alternates with lm on path records of the reflectances
+   (:func:`invrender.inverse.joint_fit.fit_joint`; refused when nothing known fixes the scale
+   between them).
+5. **Every parameter a polynomial factor of the path weights** (albedos, k_s, emissions, the
    sensor's gains beside them) -> ``"lm"`` on path records, unless a texture has more than
    :data:`LM_MAX_TEXELS` texels (the records and the dense normal equations grow with them; an
    8 x 16 map took lm longer than Adam) -> ``"adam"``.
-5. **A parameter records cannot represent** (a roughness) -> ``"lm"`` on re-traced renders, unless
+6. **A parameter records cannot represent** (a roughness) -> ``"lm"`` on re-traced renders, unless
    that cannot fit it (the sensor fitted beside it, or more forward-mode renders per Jacobian than
    :data:`~invrender.inverse.retraced.MAX_RENDERS`) -> ``"adam"``.
 
-A solver named explicitly is taken as given (``"transport_matrix"`` checked to apply).
+A solver named explicitly is taken as given (``"transport_matrix"`` and ``"joint"`` checked to apply).
 """
 
 from __future__ import annotations
@@ -33,12 +38,13 @@ from dataclasses import dataclass
 
 from invrender.errors import ParameterError
 from invrender.inverse import retraced
+from invrender.inverse.joint_fit import joint_names
 from invrender.inverse.sensor import Sensor, is_sensor
 from invrender.registry import EMITTERS
 from invrender.scene.scene import Scene
 
 #: every solver name ``FitSettings.solver`` takes
-SOLVERS = ("auto", "adam", "lm", "gauss_newton", "transport_matrix")
+SOLVERS = ("auto", "adam", "lm", "gauss_newton", "transport_matrix", "joint")
 #: settings only Adam reads: one given (without a least-squares one) asks for Adam
 #: (not ``spp_final``: the transport matrix's samples too)
 ADAM_SETTINGS = ("steps", "lr", "lr_emission", "lr_sensor", "lr_final", "beta2", "estimator", "plateau_window")
@@ -65,6 +71,8 @@ def choose_solver(scene: Scene, names: list[str], settings, given=()) -> SolverC
         why = _not_a_lone_map(scene, names)
         if why:
             raise ParameterError(f"solver 'transport_matrix' fits one environment map's texels alone: {why}")
+    if settings.solver == "joint" and joint_names(scene, names) is None:
+        raise ParameterError(f"solver 'joint' fits one environment map's texels with material reflectances (RGB triples), got {', '.join(names)}")
     if settings.solver != "auto":
         return SolverChoice(settings.solver, f"solver {settings.solver!r} asked for")
     given = set(given)
@@ -78,6 +86,10 @@ def choose_solver(scene: Scene, names: list[str], settings, given=()) -> SolverC
     if _not_a_lone_map(scene, names) is None and not lsq:
         h, w = scene.params[names[0]].shape[:2]
         return SolverChoice("transport_matrix", f"{names[0]} is an environment map ({h}x{w} texels) fitted alone: the images are linear in it, one solve on the transport matrix")
+    joint = joint_names(scene, names)
+    if joint is not None and not lsq:
+        h, w = scene.params[joint[0]].shape[:2]
+        return SolverChoice("joint", f"{joint[0]} is an environment map ({h}x{w} texels) fitted with {', '.join(joint[1])}: the images are bilinear, the transport-matrix solve of the map alternates with lm on path records")
     obstacle = retraced.record_obstacle(scene, scene_names)
     if obstacle is None:
         big = [(n, _texels(scene, n)) for n in scene_names if _texels(scene, n) > LM_MAX_TEXELS]

@@ -42,8 +42,11 @@ SENSOR = ["sensor.exposure", "sensor.white_balance"]
         (SPECULAR, ["glossy.roughness"] + SENSOR, {}, "adam", "lm on re-traced renders (glossy.roughness is a roughness"),
         (SKY, ["sky.emission"], {}, "transport_matrix", "sky.emission is an environment map (4x8 texels) fitted alone"),
         (SKY, ["sky.emission"], {"prior_weight": 1e-3}, "lm", "lm on path records"),
-        (SKY, ["sky.emission", "floor.reflectance"], {}, "lm", "lm on path records"),
-        (BIG_SKY, ["sky.emission", "floor.reflectance"], {}, "adam", "sky.emission has 512 texels: lm's path records"),
+        (SKY, ["sky.emission", "floor.reflectance"], {}, "joint", "sky.emission is an environment map (4x8 texels) fitted with floor.reflectance: the images are bilinear"),
+        (BIG_SKY, ["sky.emission", "floor.reflectance", "diffuse.reflectance"], {}, "joint", "the transport-matrix solve of the map alternates with lm on path records"),
+        (SKY, ["sky.emission", "floor.reflectance"], {"rounds": 3}, "lm", "lm on path records"),
+        (BIG_SKY, ["sky.emission", "floor.reflectance"], {"rounds": 3}, "adam", "sky.emission has 512 texels: lm's path records"),
+        (SKY, ["sky.emission", "glossy.roughness"], {}, "lm", "lm on re-traced renders"),
         (SKY, ["sky.emission"], {"loss": "l2"}, "adam", "loss 'l2'"),
     ],
 )
