@@ -1,9 +1,9 @@
 """Inverse lighting on the built-in ``sky_spheres``: its sky recovered from three views, a held-out view relit.
 
-    python bench/inverse_lighting.py [--map 4 8] [--resolution 24] [--spp 256] [--fit-spp 16]
-                                     [--rounds 3] [--prior-weight W] [--smoothness MU]
-                                     [--solver lm|gauss_newton|adam] [--steps 200]
-                                     [--out bench/out/inverse_lighting.png] [--docs]
+    python bench/lighting_fit.py [--map 4 8] [--resolution 24] [--spp 256] [--fit-spp 16]
+                                [--rounds 3] [--prior-weight W] [--smoothness MU]
+                                [--solver lm|gauss_newton|adam] [--steps 200]
+                                [--out bench/out/inverse_lighting.png] [--docs]
 
 Three views of ``sky_spheres`` (a diffuse and a glossy GGX sphere on a floor) 120 degrees apart
 around the spheres, rendered with the true map (``sky_map``, h x w) and the background hidden
