@@ -456,14 +456,10 @@ def _fit_joint(scene: Scene, views, names, cfg: FitSettings, truth, checkpoint: 
     if state is not None:  # a resumed fit that had solved: its result stands
         history, values = list(state["history"]), {n: v.float() for n, v in state["values"].items()}
     else:
-        gains = sensor.gains(sensor.to_raw()).float() if sensor.active else torch.ones(len(views), 3)
-        targets = [t.linear / gains[v].to(t.linear.device) for v, (_, t) in enumerate(views)]
-        masks = None if all(bool((t.mask == 1).all()) for _, t in views) else [t.mask for _, t in views]
-        model = cfg.model
-        clock = time.perf_counter()
+        targets, masks = _linear_targets(views, sensor)
         found = fit_joint(
-            scene, targets, map_name.rpartition(".")[0], materials, cameras=cameras, integrator={"type": model.name, **{k: v for k, v in dataclasses.asdict(model.settings).items() if k != "max_depth"}},
-            spp=cfg.spp_final, max_depth=model.terms_kept, seed=cfg.seed, mask=masks, progress=progress,
+            scene, targets, map_name.rpartition(".")[0], materials, cameras=cameras, integrator=_integrator_spec(cfg.model, without_depth=True),
+            spp=cfg.spp_final, max_depth=cfg.model.terms_kept, seed=cfg.seed, mask=masks, progress=progress,
         )  # fmt: skip
         values = {map_name: found.texels.float(), **found.values}
         std_error = {map_name: found.map.stderr, **found.std_error}
@@ -488,6 +484,24 @@ def _fit_joint(scene: Scene, views, names, cfg: FitSettings, truth, checkpoint: 
     return result
 
 
+def _linear_targets(views, sensor: Sensor) -> tuple[list[torch.Tensor], list[torch.Tensor] | None]:
+    """The linear solves' targets: each view's linear image (H, W, 3) divided by a fixed sensor's
+    gains (per view and channel), and the views' masks (H, W) (None where every pixel counts)."""
+    gains = sensor.gains(sensor.to_raw()).float() if sensor.active else torch.ones(len(views), 3)
+    targets = [t.linear / gains[v].to(t.linear.device) for v, (_, t) in enumerate(views)]
+    masks = None if all(bool((t.mask == 1).all()) for _, t in views) else [t.mask for _, t in views]
+    return targets, masks
+
+
+def _integrator_spec(model: Integrator, without_depth: bool = False) -> dict:
+    """The spec of the fit's integrator ``model`` (its name and settings), for the solvers that
+    build their own renders; ``without_depth``: max_depth left out (given to them apart)."""
+    settings = dataclasses.asdict(model.settings)
+    if without_depth:
+        settings.pop("max_depth", None)
+    return {"type": model.name, **settings}
+
+
 def _fit_transport_matrix(scene: Scene, views, names, cfg: FitSettings, truth, checkpoint: Path | None, state: dict | None, progress: bool, sensor: Sensor, cameras) -> FitResult:
     """One environment map's texels by one non-negative regularized linear solve on its transport
     matrix (:func:`invrender.inverse.map_fit.fit_map`, two halves of ``spp_final`` samples a
@@ -498,13 +512,10 @@ def _fit_transport_matrix(scene: Scene, views, names, cfg: FitSettings, truth, c
     if state is not None:  # a resumed fit that had solved: its result stands
         history, values = list(state["history"]), {name: state["values"][name].float()}
     else:
-        gains = sensor.gains(sensor.to_raw()).float() if sensor.active else torch.ones(len(views), 3)
-        targets = [t.linear / gains[v].to(t.linear.device) for v, (_, t) in enumerate(views)]
-        masks = None if all(bool((t.mask == 1).all()) for _, t in views) else [t.mask for _, t in views]
-        model = cfg.model
+        targets, masks = _linear_targets(views, sensor)
         clock = time.perf_counter()
         found = fit_map(
-            scene, targets, name.rpartition(".")[0], cameras=cameras, integrator={"type": model.name, **dataclasses.asdict(model.settings)},
+            scene, targets, name.rpartition(".")[0], cameras=cameras, integrator=_integrator_spec(cfg.model),
             spp=cfg.spp_final, max_depth=None, seed=cfg.seed, mask=masks, progress=progress,
         )  # fmt: skip
         values = {name: found.texels.float()}

@@ -34,6 +34,7 @@ scene share it.
 
 from __future__ import annotations
 
+import abc
 import math
 import os
 from concurrent.futures import ThreadPoolExecutor
@@ -106,7 +107,7 @@ def _stand_ins(o: torch.Tensor, d: torch.Tensor, ok: torch.Tensor) -> tuple[torc
     return torch.where(ok[:, None], o, 0.0), torch.where(ok[:, None], d, d.new_tensor((0.0, 0.0, 1.0)))
 
 
-class Intersector:
+class Intersector(abc.ABC):
     """The base of every backend: the two queries, with untraceable rays (:func:`traceable`)
     answered as misses before the backend's own ``_intersect`` / ``_occluded`` is asked, so no
     backend can be handed one unless it says it checks its rays itself.
@@ -143,11 +144,13 @@ class Intersector:
         o, d = _stand_ins(o, d, ok)
         return self._occluded(o, d, torch.where(ok, tmax, 0.0)) & ok.to(tmax.device)
 
+    @abc.abstractmethod
     def _intersect(self, o: torch.Tensor, d: torch.Tensor) -> Hits:
-        raise NotImplementedError
+        """The backend's closest-hit query on rays it can trace (:meth:`intersect`'s shapes)."""
 
+    @abc.abstractmethod
     def _occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
-        raise NotImplementedError
+        """The backend's shadow query on rays it can trace (:meth:`occluded`'s shapes)."""
 
 
 class EmbreeIntersector(Intersector):
