@@ -110,7 +110,7 @@ def lookup_check(record: Results, triangles, n: int = 20000) -> float:
     them none) and on a 1 x 1 map (padded); printed and recorded."""
     import numpy as np
 
-    from invrender.emitters.envmap import Envmap, quaternion_of
+    from invrender.plugins.emitters.envmap import Envmap, quaternion_of
     from invrender.scene.shapes import rotate
 
     mi, dr = mitsuba_ref._require()

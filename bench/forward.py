@@ -34,9 +34,9 @@ import mitsuba_ref  # noqa: E402
 from _measure import Results, add_json_option, peak_rss_mib  # noqa: E402
 
 import invrender as ir  # noqa: E402
-from invrender.transport import embree_native  # noqa: E402
-from invrender.transport.embree_native import ENV as EMBREE_ENV  # noqa: E402
-from invrender.transport.kernels import ENV as KERNELS_ENV  # noqa: E402
+from invrender.backends import embree_native# noqa: E402
+from invrender.backends.embree_native import ENV as EMBREE_ENV  # noqa: E402
+from invrender.backends.kernels import ENV as KERNELS_ENV  # noqa: E402
 
 
 def sphere_in_box(n: int):
@@ -128,7 +128,8 @@ def breakdown(args, results: Results) -> None:
     """Where a render's time goes: the Cornell box rendered by one worker thread with Embree on one
     thread, the time inside the ray queries and inside the Warp kernels' launches measured, the
     rest being torch's operations and Python; with the fused bounce and without it."""
-    from invrender.transport import accel, context, kernels
+    from invrender.backends import accel, kernels
+from invrender.core import context
 
     torch.set_num_threads(1)  # one worker
     spent = {"rays": 0.0, "kernels": 0.0}
@@ -173,7 +174,7 @@ def rays(args, results: Results) -> None:
     """The ray queries alone: the batches of one render (Cornell box, closest hits and shadow rays of
     every bounce) traced again on one thread by Embree's 16-ray packets and by embreex's single
     rays, alternating, 5 times each; nanoseconds per ray (minimum and median)."""
-    from invrender.transport import accel
+    from invrender.backends import accel
 
     n, spp = args.resolution, args.spp
     scene = ir.load_scene("cornell_box", resolution=(n, n))

@@ -47,7 +47,7 @@ from pathlib import Path
 import torch
 
 import invrender as ir
-from invrender.transport import accel, kernels, packages
+from invrender.backends import accel, kernels, packages
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _measure import machine  # noqa: E402
@@ -125,7 +125,7 @@ def render_with(backend: str, kernel_choice: str | None):
 
 def check_kernels(sizes: Sizes, device: torch.device) -> dict:
     """The fused kernels against their torch expressions on ``device``; their image for the CPU's."""
-    from invrender.transport.sampler import mirrored, path_keys, uniform
+    from invrender.core.sampler import mirrored, path_keys, uniform
 
     pixel = torch.arange(200_000, device=device)
     keys = mirrored(path_keys(7, pixel, pixel % 13), pixel % 3 == 0)
@@ -135,8 +135,8 @@ def check_kernels(sizes: Sizes, device: torch.device) -> dict:
         expected = uniform(keys, 3, 7)
     out = {"uniforms": ("exact", fused), "uniforms_vs_torch": ("self", (fused, expected, "exact"))}
     scene = cornell(sizes.resolution, device)
-    from invrender.transport import driver
-    from invrender.transport.driver import RenderSettings
+    from invrender.core import driver
+    from invrender.core.driver import RenderSettings
 
     ids = torch.arange(5, sizes.resolution**2 * sizes.spp, 3, device=device)
     with Kernels("warp"):

@@ -71,8 +71,8 @@ def child(args) -> dict:
         scene.params[name].requires_grad_(True)
     # what the Mitsuba child has done before its baseline (its plugins loaded, its scene's BVH built):
     # Warp's kernels loaded and the Embree scene built, one-time costs of a process
-    from invrender.transport import kernels
-    from invrender.transport.accel import intersector_for
+    from invrender.backends import kernels
+    from invrender.backends.accel import intersector_for
 
     kernels.load(torch.device("cpu"))
     intersector_for(scene.triangles)

@@ -128,7 +128,7 @@ def child_invrender(folder: Path, case: dict) -> dict:
     targets = [torch.from_numpy(t) for t in np.load(folder / "targets.npy")]
     before, cpu = rss_mib(), cpu_seconds()
     clock = time.perf_counter()
-    fit = ir.lighting.fit_map(start, targets, "sky", cameras=cams, integrator=HIDDEN, spp=case["spp"], max_depth=case["max_depth"], unknowns=case["unknowns"], rounds="auto")
+    fit = ir.lighting.fit_map(start, targets, "sky", cameras=cams, integrator=HIDDEN, spp=case["spp"], max_depth=case["max_depth"], unknowns=case["unknowns"], rounds=case.get("rounds", "auto"))
     seconds, cpu = time.perf_counter() - clock, cpu_seconds() - cpu
     peak = peak_rss_mib()
     np.save(folder / "invrender.npy", fit.texels.numpy())
@@ -256,7 +256,7 @@ def run_case(case: dict, args, mitsuba: bool) -> dict:
     with tempfile.TemporaryDirectory(prefix="inverse_lighting_") as tmp:
         folder = Path(tmp)
         np.save(folder / "targets.npy", torch.stack(targets).numpy())
-        (folder / "case.json").write_text(json.dumps({**case, **{k: getattr(args, k) for k in ("resolution", "max_depth", "spp", "unknowns", "mitsuba_spp", "mitsuba_steps", "mitsuba_seconds", "eval_every")}}))
+        (folder / "case.json").write_text(json.dumps({**case, **{k: getattr(args, k) for k in ("resolution", "max_depth", "spp", "unknowns", "rounds", "mitsuba_spp", "mitsuba_steps", "mitsuba_seconds", "eval_every")}}))
 
         def invrender_side() -> dict | str:
             say(f"[{case['name']}] invrender: ir.lighting.fit_map ...")
@@ -343,6 +343,7 @@ def main() -> int:
     parser.add_argument("--max-depth", type=int, default=3)
     parser.add_argument("--spp", type=int, default=64, help="invrender: samples per pixel of each half of the matrix")
     parser.add_argument("--unknowns", type=int, default=3072, help="invrender: fit_map's budget of unknowns")
+    parser.add_argument("--rounds", type=lambda s: s if s == "auto" else int(s), default="auto", help="invrender: fit_map's rounds (1, 2 or auto)")
     parser.add_argument("--lrs", type=float, nargs="+", default=[0.03, 0.1, 0.3, 1.0], help="Mitsuba: Adam's learning rates (the sweep)")
     parser.add_argument("--mitsuba-spp", type=int, default=16, help="Mitsuba: samples per pixel of each step's renders")
     parser.add_argument("--mitsuba-steps", type=int, default=400, help="Mitsuba: Adam steps per learning rate")

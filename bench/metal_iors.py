@@ -1,4 +1,4 @@
-"""Writes invrender/materials/metal_iors.py: the RGB complex indices of refraction (eta, k) of the
+"""Writes invrender/plugins/bsdfs/metal_iors.py: the RGB complex indices of refraction (eta, k) of the
 named conductors Mitsuba 3 ships, as Mitsuba 3's RGB variants compute them.
 
 Source of the numbers: Mitsuba 3's spectral tables ``data/ior/<name>.eta.spd`` and ``.k.spd``
@@ -22,7 +22,7 @@ it also loads each metal in Mitsuba (``scalar_rgb`` ``conductor``) and compares 
 built with these (they agree to float32 rounding).
 Needs Mitsuba 3 (bench/README.md); run from the repository root::
 
-    python bench/metal_iors.py [--check] [--data DIR] [--out invrender/materials/metal_iors.py]
+    python bench/metal_iors.py [--check] [--data DIR] [--out invrender/plugins/bsdfs/metal_iors.py]
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ def to_srgb(wavelengths: np.ndarray, values: np.ndarray) -> np.ndarray:
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=None, help="folder of <name>.eta.spd / <name>.k.spd (default: the mitsuba wheel's data/ior)")
-    parser.add_argument("--out", type=Path, default=Path("invrender/materials/metal_iors.py"))
+    parser.add_argument("--out", type=Path, default=Path("invrender/plugins/bsdfs/metal_iors.py"))
     parser.add_argument("--check", action="store_true", help="compare with the values Mitsuba's scalar_rgb conductor builds")
     args = parser.parse_args(argv)
 

@@ -39,7 +39,7 @@ Command line (from the repository root)::
     python bench/mitsuba_ref.py grad [--integrator prb|path --resolution 128 --spp 64 --max-depth 8]
 
 The converter (``scene_dict``) maps each invrender material by its type's ``to_mitsuba`` (in the
-material's module of ``invrender/materials/``: the two-sided ones wrapped in ``twosided``, colours
+material's module of ``invrender/plugins/bsdfs/``: the two-sided ones wrapped in ``twosided``, colours
 as ``rgb``, textures as linear ``bitmap`` (raw, bilinear, repeat)), and the rest as follows:
 
     emitter     -> area(radiance = rgb) on the mesh (one-sided, the front = counter-clockwise side);

@@ -21,8 +21,8 @@ import torch
 import invrender as ir
 from invrender.scene.scene import build_scene
 from invrender.scene.shapes import primitive, rotate, scale, translate
-from invrender.transport.accel import make_intersector
-from invrender.transport.radiosity import FormFactorSettings, SolverSettings, form_factors, mesh_patches, neumann_ulam, solve
+from invrender.backends.accel import make_intersector
+from invrender.radiosity_solver import FormFactorSettings, SolverSettings, form_factors, mesh_patches, neumann_ulam, solve
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root, for the tests' scenes
 sys.path.insert(0, str(Path(__file__).resolve().parent))

@@ -262,7 +262,7 @@ def make_dataset(recipe, out, progress: bool = True) -> dict:
     """Render a dataset recipe (a :class:`DatasetRecipe` or its path) into ``out``; returns the manifest."""
     from invrender.io.reports import write_json
     from invrender.io import write_image
-    from invrender.diff import render
+    from invrender.estimators import render
 
     recipe = recipe if isinstance(recipe, DatasetRecipe) else load_dataset_recipe(recipe)
     scene = dataset_scene(recipe)

@@ -110,12 +110,12 @@ class Registry(Generic[T]):
         return self._classes.pop(name, default)
 
 
-#: material type name -> its plugin class (:mod:`invrender.materials`)
-MATERIALS: Registry = Registry("material type", SceneError, "type_name", builtins="invrender.materials")
-#: emitter type name -> its plugin class (:mod:`invrender.emitters`)
-EMITTERS: Registry = Registry("emitter type", SceneError, "type_name", builtins="invrender.emitters")
-#: integrator name -> its class (:mod:`invrender.transport.integrators`; registered by subclassing)
-INTEGRATORS: Registry = Registry("integrator", ParameterError, "name", builtins="invrender.transport.integrators")
+#: material type name -> its plugin class (:mod:`invrender.plugins.bsdfs`)
+MATERIALS: Registry = Registry("material type", SceneError, "type_name", builtins="invrender.plugins.bsdfs")
+#: emitter type name -> its plugin class (:mod:`invrender.plugins.emitters`)
+EMITTERS: Registry = Registry("emitter type", SceneError, "type_name", builtins="invrender.plugins.emitters")
+#: integrator name -> its class (:mod:`invrender.plugins.integrators`; registered by subclassing)
+INTEGRATORS: Registry = Registry("integrator", ParameterError, "name", builtins="invrender.plugins.integrators")
 
 
 def integrator_spec(spec, where: str = "integrator") -> tuple[str, dict]:

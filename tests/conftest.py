@@ -11,7 +11,7 @@ torch.set_num_threads(1)  # pytest -n 2 runs two workers on the two cores
 def pytest_collection_modifyitems(config, items):
     """Tests marked ``cuda`` are skipped where torch sees no CUDA device, those marked ``warp``
     where warp-lang cannot be imported (a GPU machine without Warp)."""
-    from invrender.transport import packages
+    from invrender.backends import packages
 
     missing = {"cuda": None if torch.cuda.is_available() else "needs a CUDA device",
                "warp": None if packages.find("warp") else "needs warp-lang (pip install warp-lang)"}  # fmt: skip

@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
 
 #: what the help and the checks of names must not import
-HEAVY = ("torch", "numpy", "warp", "trimesh", "cv2", "matplotlib", "PIL", "invrender.scene", "invrender.transport")
+HEAVY = ("torch", "numpy", "warp", "trimesh", "cv2", "matplotlib", "PIL", "invrender.scene", "invrender.core", "invrender.backends", "invrender.plugins", "invrender.estimators")
 
 #: runs invrender.cli.main on each argv of sys.argv[1] (JSON) and reports exit codes, outputs and heavy modules
 DRIVER = r"""

@@ -128,3 +128,13 @@ def test_quick_start_render_runs(tmp_path):
     assert done.returncode == 0, f"{' '.join(small)}: {done.stderr.strip()[-500:]}"
     for o in outputs:
         assert (tmp_path / Path(o).name).stat().st_size > 0
+
+
+def test_architecture_layout_is_generated_and_current():
+    """docs/architecture.md lists the modules by their own docstrings: a moved, added or renamed
+    module makes this fail until ``python tools/generate_layout.py`` is run."""
+    done = subprocess.run([sys.executable, str(REPO / "tools" / "generate_layout.py"), "--check"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    text = (REPO / "docs" / "architecture.md").read_text()
+    for module in ("core/", "plugins/", "backends/", "estimators/", "  driver.py", "  accel.py"):
+        assert module in text

@@ -13,7 +13,7 @@ import torch
 import invrender as ir
 from invrender.cli import main
 from invrender.errors import ParameterError
-from invrender.transport.integrators.path import Path as PathTracer
+from invrender.plugins.integrators.path import Path as PathTracer
 
 SPEC = {"type": "path", "rr_depth": 3, "strategy": "emitter"}
 FIT = dict(steps=2, spp=2, spp_final=2, progress=False)
@@ -137,7 +137,7 @@ def test_bad_fit_specs_are_one_line_errors_before_any_work(settings, words, monk
     ],
 )
 def test_bad_render_settings_are_one_line_errors(kwargs, words, monkeypatch):
-    from invrender.transport.integrators import base
+    from invrender.plugins.integrators import base
 
     monkeypatch.setattr(base.Integrator, "context", lambda *a, **k: pytest.fail("worked before checking the settings"))
     scene = ir.load_scene("cornell_box", resolution=(64, 64)) if kwargs.get("spp") == 2**30 else ir.load_scene("cornell_box", resolution=(4, 4))
@@ -147,7 +147,7 @@ def test_bad_render_settings_are_one_line_errors(kwargs, words, monkeypatch):
 
 
 def test_a_resolution_no_machine_holds_is_refused_before_rendering(monkeypatch):
-    from invrender.transport.integrators import base
+    from invrender.plugins.integrators import base
 
     monkeypatch.setattr(base.Integrator, "context", lambda *a, **k: pytest.fail("worked before checking the resolution"))
     with pytest.raises(ParameterError, match="resolution width must be <= 65536"):

@@ -73,7 +73,7 @@ print("RESULT " + json.dumps(out))
 
 @pytest.mark.slow
 def test_invrender_works_without_warp_embree_and_pyrender(tmp_path):
-    # no compiler either: the embree backend's packets (invrender.transport.embree_native) do not build
+    # no compiler either: the embree backend's packets (invrender.backends.embree_native) do not build
     env = {**os.environ, "PYTHONPATH": str(ROOT), "PYOPENGL_PLATFORM": "egl", "OMP_NUM_THREADS": "1", "CXX": "/nonexistent/c++"}
     env.pop("INVRENDER_KERNELS", None)
     run = subprocess.run([sys.executable, "-c", CHILD, str(tmp_path / "x.exr")], capture_output=True, text=True, env=env, cwd=tmp_path, timeout=600)

@@ -136,7 +136,7 @@ def ablation(
             ``"path"``), whose settings each variant changes; every spec is checked before any work.
     """
     variants = select_variants(strategies)
-    from invrender.transport.integrators import make_integrator
+    from invrender.plugins.integrators import make_integrator
 
     base = variants[0].integrator_spec(integrator)
     if max_depth is not None:
@@ -150,7 +150,7 @@ def ablation(
         raise ParameterError(f"trials must be a positive integer, got {trials!r}")
     if isinstance(reference_spp, bool) or not isinstance(reference_spp, int) or reference_spp < REFERENCE_PARTS * max(spp):
         raise ParameterError(f"reference_spp must be an integer >= {REFERENCE_PARTS} x the largest spp ({REFERENCE_PARTS * max(spp)}), got {reference_spp!r}")
-    from invrender.diff import render
+    from invrender.estimators import render
 
     renders = REFERENCE_PARTS + 1 + len(variants) * len(spp) * trials
     with tqdm(total=renders, desc=f"ablation {scene.name}", unit="render", disable=not progress, file=sys.stderr) as bar:

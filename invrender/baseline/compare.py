@@ -22,9 +22,9 @@ import torch
 
 from invrender.errors import BaselineError
 from invrender.scene.scene import AMBIENT, Scene
-from invrender.diff import render
-from invrender.transport.driver import RenderSettings
-from invrender.transport.integrators import make_integrator
+from invrender.estimators import render
+from invrender.core.driver import RenderSettings
+from invrender.plugins.integrators import make_integrator
 
 FULL = "path"
 

@@ -62,8 +62,8 @@ import torch
 from invrender.errors import BaselineError, ParameterError
 from invrender.io.images import to_srgb
 from invrender.scene.scene import AMBIENT, Scene, scene_extent
-from invrender.transport.bsdfs import Lobe
-from invrender.transport.textures import lookup
+from invrender.core.bsdfs import Lobe
+from invrender.core.textures import lookup
 from invrender.vec import dot, normalize
 
 #: Debian (bookworm) packages for headless rendering through EGL with Mesa's llvmpipe

@@ -187,7 +187,7 @@ def integrator_spec(args, base=None, flags: dict | None = None, default: str = "
     flags given (``flags``: setting -> value, None = not given), then ``--set KEY=VALUE`` read as
     the settings dataclass's field types say. A setting given twice, differently, is an error."""
     from invrender.registry import integrator_spec as parse
-    from invrender.transport.integrators.base import setting_from_text
+    from invrender.plugins.integrators.base import setting_from_text
 
     base_name, base_settings = parse(base) if base is not None else (default, {})
     name = args.integrator or base_name
@@ -264,7 +264,7 @@ def join_process_group(args) -> str | None:
     """Under ``torchrun`` (docs/scale.md): join the process group, put a CUDA render on this rank's
     GPU, and leave the summaries and progress bars to rank 0 (its outputs are the only ones
     written). Returns the error prefix of this rank (None outside a group)."""
-    from invrender.transport import ranks
+    from invrender.core import ranks
 
     device = ranks.init_from_environment(getattr(args, "device", None))
     rank, world = ranks.world()
@@ -278,6 +278,6 @@ def join_process_group(args) -> str | None:
 
 
 def leave_process_group() -> None:
-    from invrender.transport.ranks import leave_process_group as leave
+    from invrender.core.ranks import leave_process_group as leave
 
     leave()  # a group left alive at exit aborts the process (gloo's threads)

@@ -41,7 +41,7 @@ def catalog() -> dict[str, object]:
     from invrender.scene import formats
     from invrender.scene.builtin import BUILTIN_SCENES
     from invrender.study import DEFAULT_CONFIGS, DEFAULT_FIT_CONFIGS, DEFAULT_SPP
-    from invrender.transport.integrators.base import integrators_help, setting_docs
+    from invrender.plugins.integrators.base import integrators_help, setting_docs
 
     integrators = builtin(INTEGRATORS)
     return {

@@ -15,7 +15,7 @@ def tables() -> dict[str, str]:
     """Region name -> its Markdown table, for every kind of plugin."""
     from invrender.registry import EMITTERS, MATERIALS
     from invrender.scene.plugins import plugin_table
-    from invrender.transport.integrators.base import integrators_table
+    from invrender.plugins.integrators.base import integrators_table
 
     return {
         "materials": plugin_table(MATERIALS, ("lobes", lambda cls: cls.lobes.describe())),

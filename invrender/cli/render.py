@@ -88,8 +88,8 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     import invrender as ir
-    from invrender.diff.defaults import DEFAULT_INTEGRATOR, file_integrator, scene_spp
-    from invrender.transport import first_use
+    from invrender.estimators.defaults import DEFAULT_INTEGRATOR, file_integrator, scene_spp
+    from invrender import first_use
 
     outputs = check_outputs(args.out)
     scene = ir.load_scene(args.scene, resolution=args.resolution, ambient=args.ambient)
@@ -135,7 +135,7 @@ def run(args) -> int:
 
 def adaptive_settings(args):
     """The AdaptiveSettings of ``render --adaptive`` (None without it; its options alone are an error)."""
-    from invrender.transport.adaptive import AdaptiveSettings
+    from invrender.core.adaptive import AdaptiveSettings
 
     given = {name: getattr(args, name) for name, _, _ in ADAPTIVE_OPTIONS if getattr(args, name) is not None}
     if not args.adaptive:

@@ -33,9 +33,9 @@ from pathlib import Path
 import torch
 from tqdm.auto import tqdm
 
-from invrender.diff import ESTIMATOR_CHOICES, backpropagate, render
-from invrender.diff.defaults import fit_settings
-from invrender.diff.finite import check_params, nonfinite_params
+from invrender.estimators import ESTIMATOR_CHOICES, backpropagate, render
+from invrender.estimators.defaults import fit_settings
+from invrender.estimators.finite import check_params, nonfinite_params
 from invrender.errors import NonFiniteError, ParameterError, did_you_mean
 from invrender.inverse import params as P
 from invrender.inverse.control_variates import RecursiveControlVariate
@@ -50,10 +50,10 @@ from invrender.io.atomic import atomic_file
 from invrender.scene.camera import Camera
 from invrender.scene.kinds import kind_of
 from invrender.scene.scene import Scene, check_names, unknown_parameter
-from invrender.transport.driver import RenderSettings
+from invrender.core.driver import RenderSettings
 from invrender.registry import INTEGRATORS, integrator_spec
-from invrender.transport.integrators import Integrator, make_integrator
-from invrender.transport.ranks import is_main
+from invrender.plugins.integrators import Integrator, make_integrator
+from invrender.core.ranks import is_main
 from invrender.validate import MAX_SPP, check_float, check_int
 
 CHECKPOINT_FORMAT = 1
@@ -329,7 +329,7 @@ def fit(
             ``integrator={"type": "path", "rr_depth": 3, "strategy": "emitter"}``; all are checked
             (one-line :class:`ParameterError`) before any target is read or any render starts.
             The scene file's integrator and its settings are the default of ``integrator``
-            (:func:`invrender.diff.defaults.fit_settings`; not its sample count).
+            (:func:`invrender.estimators.defaults.fit_settings`; not its sample count).
     """
     known = {f.name for f in dataclasses.fields(FitSettings)}
     unknown = set(settings) - known
@@ -732,7 +732,7 @@ class _RecordPasses:
     """The path records of a least-squares fit's rounds, two independent accumulations per view
     (A: the residual's, B: the Jacobian's). Round r traces samples ``spp * 4^(r-1) .. spp * 4^r - 1``
     of each set's seed at the round's start values (round 0: ``0 .. spp - 1``) and adds them to
-    the earlier rounds' (:func:`~invrender.diff.records.accumulate`): every record is an unbiased
+    the earlier rounds' (:func:`~invrender.estimators.records.accumulate`): every record is an unbiased
     estimate of the polynomial at any values, so round r solves on all ``spp * 4^r`` samples
     while tracing only the new three quarters."""
 
@@ -742,7 +742,7 @@ class _RecordPasses:
 
     def add(self, rnd: int, values: dict) -> None:
         """Trace round ``rnd``'s passes at ``values`` and accumulate them."""
-        from invrender.diff.records import accumulate, record_paths
+        from invrender.estimators.records import accumulate, record_paths
 
         cfg = self.cfg
         first = 0 if rnd == 0 else cfg.spp * 4 ** (rnd - 1)

@@ -25,7 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from invrender.diff import render
+from invrender.estimators import render
 from invrender.inverse.fit import FitResult, fit
 from invrender.errors import ParameterError
 from invrender.inverse.relighting import fitted_environment, relighting_error, relighting_figure

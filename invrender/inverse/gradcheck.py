@@ -25,7 +25,7 @@ import torch
 from invrender.errors import ParameterError, did_you_mean
 from invrender.scene.scene import check_names
 from invrender.scene.scene import Scene
-from invrender.diff import ESTIMATORS, render
+from invrender.estimators import ESTIMATORS, render
 from invrender.scene.kinds import kind_of
 
 

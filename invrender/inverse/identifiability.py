@@ -10,7 +10,7 @@ sensor's scale ambiguities named; or, for an environment map, in spherical harmo
 
 from __future__ import annotations
 
-from invrender.diff.records import record_paths
+from invrender.estimators.records import record_paths
 from invrender.errors import ParameterError
 from invrender.inverse import lighting
 from invrender.inverse.fit import check_fit_names
@@ -20,7 +20,7 @@ from invrender.inverse.least_squares import analyse
 from invrender.inverse.sensor import Sensor, is_sensor
 from invrender.scene.camera import Camera
 from invrender.scene.scene import Scene
-from invrender.transport.integrators import make_integrator
+from invrender.plugins.integrators import make_integrator
 
 
 def identifiability(

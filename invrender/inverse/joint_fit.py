@@ -4,7 +4,7 @@ the fitted parameters are one envmap's texels plus reflectances).
 
 **The problem is bilinear.** For a fixed sampling every image is linear in the map's texels ``L``
 (the transport matrix, :mod:`invrender.inverse.map_fit`) and a polynomial in the reflectances
-``rho`` (path records, :mod:`invrender.diff.records`): ``I_v = A_v(rho) L``. Neither part alone is
+``rho`` (path records, :mod:`invrender.estimators.records`): ``I_v = A_v(rho) L``. Neither part alone is
 hard, so the fit alternates the two exact sub-solves, each on its own estimator:
 
 (a) with ``rho`` fixed, the map by the non-negative regularized linear solve of the transport
@@ -41,9 +41,9 @@ import time
 
 import torch
 
-from invrender.diff import render
-from invrender.diff.records import record_paths, record_obstacle
-from invrender.diff.transport_matrix import envmap_of
+from invrender.estimators import render
+from invrender.estimators.records import record_paths, record_obstacle
+from invrender.estimators.transport_matrix import envmap_of
 from invrender.errors import ParameterError
 from invrender.inverse.map_fit import MapFit, fit_map
 from invrender.inverse.targets import load_targets

@@ -1,6 +1,6 @@
 """Second-order fitting on path records: Levenberg-Marquardt / Gauss-Newton through optimistix.
 
-The recorded images are explicit polynomials in the parameters (:mod:`invrender.diff.records`), so
+The recorded images are explicit polynomials in the parameters (:mod:`invrender.estimators.records`), so
 the weighted residual ``r(theta) = (I(theta) - T) / sqrt(T^2 + 0.01)`` over all views (the
 ``relative_l2`` weighting of ``fit``) and its exact Jacobian cost milliseconds and no tracing. The
 polynomial and its Jacobian are evaluated by torch (:meth:`PathRecords.image` and
@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from invrender.diff.records import PathRecords
+from invrender.estimators.records import PathRecords
 from invrender.errors import NonFiniteError, ParameterError
 from invrender.inverse.sensor import Sensor
 from invrender.inverse.targets import Target

@@ -32,8 +32,8 @@ import numpy as np
 import torch
 import torch.autograd.forward_ad as fwAD
 
-from invrender.diff import render
-from invrender.emitters.envmap import rotation_of, texel_solid_angles, uv_to_direction
+from invrender.estimators import render
+from invrender.plugins.emitters.envmap import rotation_of, texel_solid_angles, uv_to_direction
 from invrender.errors import ParameterError
 from invrender.inverse.targets import load_views
 from invrender.scene.scene import Scene
@@ -346,8 +346,8 @@ def fit_sh(
 
 
 # the texel route: the transport matrix of the map and its regularized non-negative solve
-from invrender.diff.transport_matrix import TransportMatrix, transport_matrix  # noqa: E402, F401
-from invrender.diff.map_basis import MapBasis  # noqa: E402, F401
+from invrender.estimators.transport_matrix import TransportMatrix, transport_matrix  # noqa: E402, F401
+from invrender.estimators.map_basis import MapBasis  # noqa: E402, F401
 from invrender.inverse.map_fit import MapFit, fit_map, solve_map, sphere_smoothness  # noqa: E402, F401
 from invrender.inverse.map_normal import NormalEquations, normal_equations  # noqa: E402, F401
 # relighting: a recovered map put into another scene, compared and shown

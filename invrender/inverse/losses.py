@@ -11,7 +11,7 @@ image supplies both factors, their noise is correlated and the product is biased
 ``dl/deps`` is biased by ``eps rho / ((1 - rho)^2 N)`` at N samples per pixel for the analog random walk; docs/closed_forms.md#correlated-gradient-bias).
 Taking ``dl/dI`` from one image (:func:`loss_gradient`) and differentiating an independent one
 (another seed; :func:`loss_and_gradient` with two images, or
-:func:`invrender.diff.backpropagate`, which ``fit`` uses) makes the gradient unbiased.
+:func:`invrender.estimators.backpropagate`, which ``fit`` uses) makes the gradient unbiased.
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@ linear least-squares problem (``ir.lighting.fit_map``).
 
 **The problem.** Per colour channel, the views' pixels are ``b = A B x`` (+ the light that does not
 end on the map), ``A`` (P, T) the transport matrix of the map's T texels and ``B`` (T, n) a
-piecewise-constant basis of n unknowns (:class:`~invrender.diff.map_basis.MapBasis`: the texels
+piecewise-constant basis of n unknowns (:class:`~invrender.estimators.map_basis.MapBasis`: the texels
 themselves, or the leaves of a quadtree within a budget), estimated in two independent halves.
 The fit minimizes, over ``x >= 0``,
 
@@ -59,9 +59,9 @@ import scipy.sparse as sp
 import torch
 from scipy.sparse.linalg import splu
 
-from invrender.diff.map_basis import MapBasis
-from invrender.diff.transport_matrix import TransportMatrix, envmap_of
-from invrender.emitters.envmap import texel_solid_angles
+from invrender.estimators.map_basis import MapBasis
+from invrender.estimators.transport_matrix import TransportMatrix, envmap_of
+from invrender.plugins.emitters.envmap import texel_solid_angles
 from invrender.errors import ParameterError, did_you_mean
 from invrender.inverse.targets import load_targets
 from invrender.inverse.map_normal import NormalEquations, from_matrix, normal_equations
@@ -145,10 +145,10 @@ class MapFit:
         dof: (3,) the degrees of freedom the images determine (the resolution's sum over unknowns).
         undetermined: (h, w) bool, texels whose resolution is under 0.5 in some channel.
         active: (3,) unknowns held at 0 by the bound.
-        matrix: the :class:`~invrender.diff.transport_matrix.TransportMatrix` it solved on (None
+        matrix: the :class:`~invrender.estimators.transport_matrix.TransportMatrix` it solved on (None
             when streamed).
         seconds: {"render": ..., "gram": ..., "solve": ...} (all rounds).
-        basis: the unknowns' :class:`~invrender.diff.map_basis.MapBasis`.
+        basis: the unknowns' :class:`~invrender.estimators.map_basis.MapBasis`.
         normal: the :class:`~invrender.inverse.map_normal.NormalEquations` (solve again at other
             settings with :func:`solve_map`).
         rounds: 1, or 2 when a second transport matrix was sampled by the first round's map.
@@ -431,7 +431,7 @@ def solve_map(
     stderr: bool = True,
 ) -> MapFit:
     """The non-negative regularized least-squares map (module docstring) of ``source``: a
-    :class:`~invrender.diff.transport_matrix.TransportMatrix` with its ``targets`` (one (H, W, 3)
+    :class:`~invrender.estimators.transport_matrix.TransportMatrix` with its ``targets`` (one (H, W, 3)
     linear image per view) and ``masks`` (per view (H, W) pixel weights in [0, 1]; None: every
     pixel counts), or :class:`~invrender.inverse.map_normal.NormalEquations` (a fit's ``normal``:
     the targets are in them already).
@@ -572,7 +572,7 @@ def fit_map(
     (:func:`solve_map`: ``weight`` None chooses the prior's weight by ``rule``).
 
     The unknowns are the map's texels when there are at most ``unknowns`` of them, else the blocks
-    of a quadtree (:class:`~invrender.diff.map_basis.MapBasis`). ``rounds``: 2 renders the matrix
+    of a quadtree (:class:`~invrender.estimators.map_basis.MapBasis`). ``rounds``: 2 renders the matrix
     again sampled by the first round's map (plus a tenth of its mean, so no direction is left
     unsampled), with the quadtree refined where that map has its power (a sun); ``"auto"`` does so
     when the basis is coarser than the texels or the first map's peak is over

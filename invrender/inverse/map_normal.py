@@ -22,8 +22,8 @@ import time
 import torch
 from scipy.linalg import blas
 
-from invrender.diff.map_basis import MapBasis
-from invrender.diff.transport_matrix import TransportMatrix, matrix_views, memory_budget, view_halves
+from invrender.estimators.map_basis import MapBasis
+from invrender.estimators.transport_matrix import TransportMatrix, matrix_views, memory_budget, view_halves
 from invrender.errors import ParameterError
 
 #: bytes of the accumulated normal equations per n^2: Gm and D, 3 channels, float32
@@ -35,7 +35,7 @@ class NormalEquations:
     """The accumulated normal equations of one map (module docstring).
 
     Attributes:
-        basis: the columns' :class:`~invrender.diff.map_basis.MapBasis` (n unknowns).
+        basis: the columns' :class:`~invrender.estimators.map_basis.MapBasis` (n unknowns).
         Gm, D: (3, n, n) float32 (symmetric once :meth:`finish` ran).
         g: (3, n) float64.
         bb: (3,) float64.
@@ -173,7 +173,7 @@ def normal_equations(
     extra_bytes: int = 0,
     **render,
 ) -> NormalEquations:
-    """The normal equations streamed: each view's halves rendered (:func:`~invrender.diff.
+    """The normal equations streamed: each view's halves rendered (:func:`~invrender.estimators.
     transport_matrix.view_halves`, ``render``: integrator, spp, max_depth, seed, sampling_map,
     progress), added and dropped. Refused before any work, in one line with the figure, when
     :func:`normal_bytes` of the largest view plus ``extra_bytes`` exceeds ``memory_mb``."""

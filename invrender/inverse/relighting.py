@@ -14,7 +14,7 @@ from pathlib import Path
 
 import torch
 
-from invrender.diff.transport_matrix import envmap_of
+from invrender.estimators.transport_matrix import envmap_of
 from invrender.errors import InvRenderError, ParameterError, did_you_mean
 from invrender.inverse.fit import FitResult
 from invrender.inverse.map_fit import MapFit

@@ -1,6 +1,6 @@
 """Least squares on re-traced renders: Levenberg-Marquardt for parameters path records cannot represent.
 
-**Which path a least-squares fit takes** (:func:`~invrender.diff.records.record_obstacle`): on
+**Which path a least-squares fit takes** (:func:`~invrender.estimators.records.record_obstacle`): on
 path records (:mod:`invrender.inverse.least_squares`) when every fitted scene parameter is a
 polynomial factor of the path weights (its kind's ``polynomial``, and its material's
 ``not_polynomial`` gives no reason); otherwise, when any one is not (a ``roughness``; a rough
@@ -56,8 +56,8 @@ import math
 import torch
 import torch.autograd.forward_ad as fwAD
 
-from invrender.diff import render
-from invrender.diff.records import record_obstacle
+from invrender.estimators import render
+from invrender.estimators.records import record_obstacle
 from invrender.errors import ParameterError
 from invrender.inverse.least_squares import Identifiability, LeastSquaresSolution, _gains, _linear, _weights, sandwich, weak_combinations
 from invrender.inverse.sensor import Sensor

@@ -224,7 +224,7 @@ def synthetic_photograph(scene, path, exposure: float = 1.0, white_balance=(1.0,
     quantized file ``path`` (:func:`invrender.io.images.write_photo`: JPEG or PNG). Returns the
     (H, W, 3) linear render it was made from. For round trips: a fit of the file with the
     sensor free should recover ``exposure`` and ``white_balance``."""
-    from invrender.diff import render
+    from invrender.estimators import render
     from invrender.io.images import write_photo
 
     radiance = render(scene, spp=spp, max_depth=max_depth, seed=seed, progress=False)

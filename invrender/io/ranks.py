@@ -2,7 +2,7 @@
 
 Inside a process group of several ranks every rank holds the same results and only rank 0 writes
 files (:func:`invrender.io.atomic.atomic_file`) and shows progress. The collectives that split a
-render across the ranks are in :mod:`invrender.transport.ranks`, which builds on these.
+render across the ranks are in :mod:`invrender.core.ranks`, which builds on these.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Emitters as a scene declares them: a type name, parameter values and constants.
 
 An emitter is one of the registered emitter types (:data:`invrender.registry.EMITTERS`; the
-built-in ones are in :mod:`invrender.emitters`, one module each). ``area`` (the default) emits from
+built-in ones are in :mod:`invrender.plugins.emitters`, one module each). ``area`` (the default) emits from
 the front side of the shapes that name it; other types emit from outside the scene (rays that leave
 it). Its differentiable values (``emission``) become entries of ``scene.params``
 (``"<emitter>.emission"``).

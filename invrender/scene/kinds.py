@@ -41,7 +41,7 @@ class ParamKind:
         doc: one line for messages and docs.
         positive: values must be > 0 (the range is ``(0, upper]``), not merely >= 0.
         polynomial: a path's weight is a polynomial in it (each BSDF or emitter factor linear in
-            it), so path records (:mod:`invrender.diff.records`) can represent it; False for
+            it), so path records (:mod:`invrender.estimators.records`) can represent it; False for
             parameters that enter non-linearly (roughness).
         grey: one number stored as three equal channels (the RGB form every parameter shares);
             the BSDF reads their mean.

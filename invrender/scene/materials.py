@@ -1,7 +1,7 @@
 """Materials as a scene declares them: a type name, parameter values and constants.
 
 A material is one of the registered material types (:data:`invrender.registry.MATERIALS`; the
-built-in ones are in :mod:`invrender.materials`, one module each), named in scene files by
+built-in ones are in :mod:`invrender.plugins.bsdfs`, one module each), named in scene files by
 ``type =`` (TOML) or by the Mitsuba plugin it stands for (XML). Its differentiable values
 (reflectance-like factors) become entries of ``scene.params`` (``"<material>.<kind>"``, kinds in
 :mod:`invrender.scene.kinds`); its constants (index of refraction, roughness) are fixed properties

@@ -1,6 +1,6 @@
 """What a plugin declares about itself, and a plugin instance as a scene declares it.
 
-Materials (:mod:`invrender.materials`) and emitters (:mod:`invrender.emitters`) are plugins: each
+Materials (:mod:`invrender.plugins.bsdfs`) and emitters (:mod:`invrender.plugins.emitters`) are plugins: each
 type is a class that declares, in its own module, its type name, its differentiable parameters
 (:class:`Param`: a kind of :mod:`invrender.scene.kinds` and a default) and its scalar constants
 (:class:`Constant`: a default and a range), through :class:`Declared`. A scene holds one

@@ -32,7 +32,7 @@ class Mesh:
             triangle into its shading normal; None = flat (the geometric normal).
         sphere: for a tessellated sphere facing outwards, the analytic sphere its vertices lie on,
             ``((cx, cy, cz), radius)`` in world units (emitters sample it by solid angle:
-            :mod:`invrender.emitters.area`); None for any other shape, an ellipsoid (a sphere under
+            :mod:`invrender.plugins.emitters.area`); None for any other shape, an ellipsoid (a sphere under
             a transform that is not a similarity) and a sphere turned inside out.
     """
 

@@ -77,7 +77,7 @@ def furnace_walk(rho: float, eps: float, max_depth: int = -1, rr_depth: int = 1)
     """Enumerate the furnace's ``random_walk`` paths under the renderer's rules: vertex k emits
     ``eps beta_k``; after it (if ``k + 1 < max_depth`` or unbounded) beta is multiplied by rho and,
     once ``k + 1 >= rr_depth``, the path survives with ``q = min(beta, 0.95)`` and beta is divided by q
-    (``invrender.transport.context.russian_roulette``); ``rr_depth = -1``: no roulette."""
+    (``invrender.core.context.russian_roulette``); ``rr_depth = -1``: no roulette."""
     if not 0 < rho < 1:
         raise ParameterError(f"the furnace's closed forms need 0 < rho < 1, got {rho}")
     if max_depth == -1 and (rr_depth == -1 or rr_depth > 1000):

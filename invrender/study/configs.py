@@ -33,13 +33,13 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-from invrender.diff import ESTIMATORS
-from invrender.diff.defaults import scene_integrator
+from invrender.estimators import ESTIMATORS
+from invrender.estimators.defaults import scene_integrator
 from invrender.errors import ParameterError, did_you_mean
 from invrender.registry import integrator_spec
 from invrender.study.loss_gradients import LOSS_GRADIENTS
-from invrender.transport.driver import RenderSettings
-from invrender.transport.integrators import INTEGRATORS, Integrator, make_integrator
+from invrender.core.driver import RenderSettings
+from invrender.plugins.integrators import INTEGRATORS, Integrator, make_integrator
 
 #: RenderSettings fields a study sets itself; a configuration may not
 STUDY_SETTINGS = ("spp", "seed", "terms", "progress")
@@ -119,7 +119,7 @@ class GradientConfig:
         return {"integrator": self.integrator, "estimator": self.estimator, **self.render_options}
 
     def integrator_and_settings(self, spp: int, seed: int, scene=None) -> tuple[Integrator, RenderSettings]:
-        """What :func:`invrender.diff.backpropagate` takes: the options split into the integrator's
+        """What :func:`invrender.estimators.backpropagate` takes: the options split into the integrator's
         settings and the render settings (:class:`RenderSettings` fields such as ``backend``);
         with ``scene``, its file's integrator settings fill in as :func:`invrender.render`'s do."""
         render_fields = {f.name for f in dataclasses.fields(RenderSettings)}

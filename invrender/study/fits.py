@@ -43,7 +43,7 @@ from invrender.scene.scene import Scene
 from invrender.study.configs import GradientConfig, parse_configs
 from invrender.study.loss_gradients import LOSS_GRADIENTS
 from invrender.study.setup import move_to, study_target
-from invrender.transport.driver import RenderSettings
+from invrender.core.driver import RenderSettings
 from invrender.validate import MAX_SPP, check_int
 
 #: the fit studies' configurations: fit's defaults (decorrelated replay, stratified samples), then

@@ -49,7 +49,7 @@ from invrender.study.setup import move_to, study_target
 from invrender.study.statistics import Moments, log_slope, moments
 from invrender.study.trials import gradient_sample, pixel_contributions
 from invrender.validate import MAX_SPP, check_int, check_paths
-from invrender.transport.ranks import refuse
+from invrender.core.ranks import refuse
 
 #: the configurations of a default study: both pairings with one estimator, both estimators with
 #: the pairing fit uses (autodiff is the cheaper one for a correlated gradient of a small image);

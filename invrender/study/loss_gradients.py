@@ -39,7 +39,7 @@ from typing import ClassVar
 
 import torch
 
-from invrender.diff import backpropagate, render
+from invrender.estimators import backpropagate, render
 from invrender.errors import ParameterError
 from invrender.inverse import params as P
 from invrender.inverse.control_variates import RecursiveControlVariate

@@ -17,7 +17,7 @@ from invrender.inverse.fit_output import FitOutput, fit_into
 from invrender.inverse.report import study_table
 from invrender.io.reports import write_json, write_text
 from invrender.recipes import FitRecipe, apply_init, check_fit_recipe, load_dataset, load_fit_recipe, make_dataset, split_init
-from invrender.transport.ranks import barrier
+from invrender.core.ranks import barrier
 
 
 @dataclass(frozen=True)

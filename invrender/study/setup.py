@@ -7,7 +7,7 @@ import math
 
 import torch
 
-from invrender.diff import render
+from invrender.estimators import render
 from invrender.errors import ParameterError
 from invrender.scene.scene import Scene
 from invrender.study.configs import GradientConfig

@@ -27,7 +27,7 @@ import time
 import torch
 import torch.autograd.forward_ad as fwAD
 
-from invrender.diff import render
+from invrender.estimators import render
 from invrender.study.configs import GradientConfig
 from invrender.study.loss_gradients import LOSS_GRADIENTS, Objective
 

@@ -195,9 +195,9 @@ def test_auto_estimator_records_small_renders_and_replays_large_ones(small_targe
     forward (one trace), else autodiff where the recorded render fits in the memory budget, replay
     where it does not or the depth is unbounded; a fit takes the same steps either way (they give
     the same gradient to float rounding)."""
-    from invrender.diff import resolve_estimator
-    from invrender.transport.driver import RenderSettings
-    from invrender.transport.integrators import make_integrator
+    from invrender.estimators import resolve_estimator
+    from invrender.core.driver import RenderSettings
+    from invrender.plugins.integrators import make_integrator
 
     scene = ir.load_scene("cornell_box", resolution=(64, 64))
     path = make_integrator("path", max_depth=8)
@@ -219,8 +219,8 @@ def test_auto_estimator_records_small_renders_and_replays_large_ones(small_targe
     with pytest.raises(ParameterError, match="unknown estimator 'fast'"):
         fit_module.FitSettings(estimator="fast")
 
-    import invrender.diff as diff
-    import invrender.diff.replay as replay
+    import invrender.estimators as diff
+    import invrender.estimators.replay as replay
 
     used = []  # the estimator each gradient of the fits ran
     autodiff_render, replay_gradient = diff.autodiff_render, replay.replay_gradient

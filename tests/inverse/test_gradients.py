@@ -109,8 +109,8 @@ def test_replay_reuses_the_forward_pass_radiance(monkeypatch, scene_name, integr
     """``loss(render(...)).backward()`` with replay skips the primal pass when the forward pass kept
     each path's radiance: the same gradient as tracing it again (paths that split included), and
     fewer traces."""
-    from invrender.diff import replay
-    from invrender.transport.integrators import INTEGRATORS
+    from invrender.estimators import replay
+    from invrender.plugins.integrators import INTEGRATORS
 
     scene = ir.load_scene(scene_name, resolution=(16, 16))
     weights = torch.rand(16, 16, 3, generator=torch.Generator().manual_seed(2))

@@ -68,7 +68,7 @@ def test_bad_solver_settings_are_refused(problem):
 def test_standard_errors_are_calibrated():
     """Over 20 independent seeds (target and records), the truth lies within 2 reported standard
     errors in at least 85% of the parameter channels."""
-    from invrender.diff.records import record_paths
+    from invrender.estimators.records import record_paths
     from invrender.inverse.least_squares import solve
 
     scene = ir.load_scene("cornell_box", resolution=(12, 12))
@@ -112,7 +112,7 @@ def test_decorrelation_removes_the_fixed_sample_bias_in_the_furnace():
     squares on the same a for residual and Jacobian gives eps * E[a]^2 / E[a^2], i.e. eps / (1 + rho)
     at 1 spp (Var(n) / E[n]^2 = rho, docs/closed_forms.md#furnace): 2/3 of the truth. Residual and
     Jacobian from independent sets remove it."""
-    from invrender.diff.records import record_paths
+    from invrender.estimators.records import record_paths
     from invrender.inverse.least_squares import solve
 
     rho, eps = 0.5, 2.0
@@ -133,7 +133,7 @@ def test_rounds_accumulate_their_records_and_a_resumed_fit_re_records_them(probl
     set) and solves on every sample so far; the rounds stop (the nested rounds' move test); a fit
     stopped after two rounds and resumed re-records their passes at their record points and ends
     exactly where the uninterrupted fit does."""
-    from invrender.diff import records
+    from invrender.estimators import records
 
     scene, target, truth = problem
     traced = []
@@ -160,7 +160,7 @@ def test_the_reduced_problem_has_the_normal_equations_of_every_pixel():
     """reduce_records: at any values, set A's residual keeps its norm and set B's Jacobian gives
     the same J_B^T r_A and J_B^T J_B as the full per-pixel problem (with a sensor's gains too), in
     a few rows a channel."""
-    from invrender.diff.records import record_paths
+    from invrender.estimators.records import record_paths
     from invrender.inverse.least_squares import _full_jacobian, _Layout, _residual, _weights, reduce_records
 
     scene = ir.load_scene("cornell_box", resolution=(12, 12))

@@ -17,7 +17,7 @@ import pytest
 import torch
 
 import invrender as ir
-from invrender.emitters.envmap import Envmap, quaternion_of
+from invrender.plugins.emitters.envmap import Envmap, quaternion_of
 from invrender.errors import ParameterError
 from invrender.scene.camera import Camera
 from invrender.scene.emitters import Emitter
@@ -57,7 +57,7 @@ def test_texels_project_back_and_the_quadrature_is_orthonormal():
 
 
 def test_the_texels_follow_the_envmaps_convention_under_a_rotation():
-    from invrender.emitters.envmap import rotation_of
+    from invrender.plugins.emitters.envmap import rotation_of
 
     basis = L.sh_basis(2, (65, 128), rotation=rotation_of(ROTATION))
     c = torch.randn(9, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(2))

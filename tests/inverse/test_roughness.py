@@ -168,8 +168,8 @@ def test_plastic_tables_follow_alpha(type):
 
     import numpy as np
 
-    from invrender.materials import checks
-    from invrender.materials.plastic import rough_tables
+    from invrender.plugins.bsdfs import checks
+    from invrender.plugins.bsdfs.plastic import rough_tables
 
     eta = 1.49 / 1.000277
 

@@ -13,11 +13,11 @@ import torch
 
 import invrender as ir
 from invrender.errors import SceneError
-from invrender.materials import checks, metals
-from invrender.materials.glossy import Glossy, GlossyBeckmann
-from invrender.materials.metal_iors import METAL_IORS
-from invrender.materials.microfacet import BECKMANN, DISTRIBUTIONS, GGX
-from invrender.materials.mirror import Mirror
+from invrender.plugins.bsdfs import checks, metals
+from invrender.plugins.bsdfs.glossy import Glossy, GlossyBeckmann
+from invrender.plugins.bsdfs.metal_iors import METAL_IORS
+from invrender.plugins.bsdfs.microfacet import BECKMANN, DISTRIBUTIONS, GGX
+from invrender.plugins.bsdfs.mirror import Mirror
 
 GOLD = METAL_IORS["Au"]
 

@@ -1,7 +1,7 @@
-"""Every registered material passes the BSDF conformance checks (invrender.materials.checks), so a
+"""Every registered material passes the BSDF conformance checks (invrender.plugins.bsdfs.checks), so a
 new material gets them without writing a test: its sampling against its pdf (chi-square), its sample
 weights against eval / pdf, its delta samples against its listed delta lobes, and its albedo below 1.
-Every registered emitter type infinitely far away passes invrender.emitters.checks: its pdf
+Every registered emitter type infinitely far away passes invrender.plugins.emitters.checks: its pdf
 integrates to 1 and its samples follow it (chi-square)."""
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ import pytest
 import torch
 
 import invrender  # noqa: F401  (registers the built-in materials)
-from invrender.materials import checks
+from invrender.plugins.bsdfs import checks
 from invrender.registry import MATERIALS
-from invrender.transport.bsdfs import Lobe
+from invrender.core.bsdfs import Lobe
 
 TYPES = MATERIALS.names()
 ANGLES = [0.0, 0.8, 1.35]
@@ -103,7 +103,7 @@ def _infinite_types():
 
 @pytest.mark.parametrize("name", _infinite_types())
 def test_an_environments_sampling_matches_its_pdf(name):
-    from invrender.emitters import checks as emitter_checks
+    from invrender.plugins.emitters import checks as emitter_checks
 
     light = _environment(name)
     assert emitter_checks.pdf_integral(light) == pytest.approx(1.0, abs=2e-3)

@@ -28,9 +28,9 @@ import pytest
 import torch
 
 import invrender as ir
-from invrender.materials import checks
-from invrender.materials.diffuse import Diffuse
-from invrender.materials.mirror import reflect
+from invrender.plugins.bsdfs import checks
+from invrender.plugins.bsdfs.diffuse import Diffuse
+from invrender.plugins.bsdfs.mirror import reflect
 from invrender.cli import main
 from invrender.errors import ParameterError
 from invrender.recipes import load_fit_recipe
@@ -44,10 +44,10 @@ from invrender.scene.materials import Material
 from invrender.scene.plugins import Constant, Param
 from invrender.scene.scene import build_scene
 from invrender.scene.shapes import Mesh, cube
-from invrender.transport.bsdfs import BSDFSample, Lobe
-from invrender.transport.integrators import Integrator
-from invrender.transport.integrators.vertex import next_vertex
-from invrender.transport.lights import Light, LightSample
+from invrender.core.bsdfs import BSDFSample, Lobe
+from invrender.plugins.integrators import Integrator
+from invrender.plugins.integrators.vertex import next_vertex
+from invrender.core.lights import Light, LightSample
 from invrender.vec import dot
 
 

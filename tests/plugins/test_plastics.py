@@ -1,4 +1,4 @@
-"""Plastics (invrender/materials/plastic.py): closed forms and quadratures a broken model misses,
+"""Plastics (invrender/plugins/bsdfs/plastic.py): closed forms and quadratures a broken model misses,
 Mitsuba's sampling weights, the scene formats and their one-line errors, and path records.
 
 The registry-driven conformance suite (test_conformance.py) already checks their sampling against
@@ -15,9 +15,9 @@ import torch
 
 import invrender as ir
 from invrender.errors import ParameterError, SceneError
-from invrender.materials import checks
-from invrender.materials.dielectric import fresnel_dielectric
-from invrender.materials.plastic import Plastic, RoughPlastic, RoughPlasticGGX, fresnel_diffuse_reflectance, rough_tables
+from invrender.plugins.bsdfs import checks
+from invrender.plugins.bsdfs.dielectric import fresnel_dielectric
+from invrender.plugins.bsdfs.plastic import Plastic, RoughPlastic, RoughPlasticGGX, fresnel_diffuse_reflectance, rough_tables
 
 ETA = 1.49 / 1.000277  # Mitsuba's default polypropylene over air
 F0 = ((ETA - 1) / (ETA + 1)) ** 2

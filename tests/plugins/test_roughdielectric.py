@@ -1,4 +1,4 @@
-"""Rough glass (invrender/materials/roughdielectric.py): sampling against pdf and weights against
+"""Rough glass (invrender/plugins/bsdfs/roughdielectric.py): sampling against pdf and weights against
 eval / pdf from both sides of the interface at several roughnesses and angles, Walter's BTDF by an
 independent formula, reciprocity, energy (the smooth dielectric's split as alpha -> 0), next-event
 estimation through the transmission lobe, roughness gradients, and the scene formats.
@@ -15,10 +15,10 @@ import torch
 
 import invrender as ir
 from invrender.errors import SceneError
-from invrender.materials import checks
-from invrender.materials.dielectric import fresnel_dielectric
-from invrender.materials.microfacet import BECKMANN, GGX
-from invrender.materials.roughdielectric import RoughDielectric, RoughDielectricGGX
+from invrender.plugins.bsdfs import checks
+from invrender.plugins.bsdfs.dielectric import fresnel_dielectric
+from invrender.plugins.bsdfs.microfacet import BECKMANN, GGX
+from invrender.plugins.bsdfs.roughdielectric import RoughDielectric, RoughDielectricGGX
 from invrender.scene.builtin import primitive, scale, translate
 from invrender.scene.camera import Camera
 from invrender.scene.emitters import Emitter

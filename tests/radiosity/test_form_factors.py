@@ -9,9 +9,9 @@ import torch
 import invrender as ir
 from invrender.scene.scene import build_scene
 from invrender.scene.shapes import primitive, rotate, scale, translate
-from invrender.transport.accel import make_intersector
-from invrender.transport.radiosity import FormFactorSettings, form_factors, mesh_patches
-from invrender.transport.radiosity.patches import grid_triangles
+from invrender.backends.accel import make_intersector
+from invrender.radiosity_solver import FormFactorSettings, form_factors, mesh_patches
+from invrender.radiosity_solver.patches import grid_triangles
 from tests.radiosity.conftest import area_fractions, hemispheres
 
 

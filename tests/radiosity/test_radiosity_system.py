@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from invrender.errors import ParameterError
-from invrender.transport.radiosity.system import SolverSettings, neumann_terms, solve
+from invrender.radiosity_solver.system import SolverSettings, neumann_terms, solve
 from tests.radiosity.conftest import sphere_closed_form, sphere_system
 
 METHODS = ["direct", "jacobi", "gauss_seidel", "neumann"]

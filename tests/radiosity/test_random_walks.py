@@ -6,7 +6,7 @@ import torch
 
 import invrender as ir
 from invrender.errors import ParameterError
-from invrender.transport.radiosity import neumann_ulam, transition_matrix, variance_radius
+from invrender.radiosity_solver import neumann_ulam, transition_matrix, variance_radius
 from tests.radiosity.conftest import sphere_closed_form, sphere_system
 
 

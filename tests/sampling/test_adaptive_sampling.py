@@ -8,10 +8,10 @@ import torch
 
 import invrender as ir
 from invrender.errors import ParameterError
-from invrender.transport.adaptive import AdaptiveSettings, adaptive_render, allocate, trace_pass
-from invrender.transport.driver import RenderSettings, SamplePlan
-from invrender.transport.integrators.base import Integrator
-from invrender.transport.sampler import uniform
+from invrender.core.adaptive import AdaptiveSettings, adaptive_render, allocate, trace_pass
+from invrender.core.driver import RenderSettings, SamplePlan
+from invrender.plugins.integrators.base import Integrator
+from invrender.core.sampler import uniform
 
 CPU = torch.device("cpu")
 

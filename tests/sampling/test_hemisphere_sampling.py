@@ -11,9 +11,9 @@ import math
 
 import torch
 
-from invrender.transport.bsdfs import BSDFSampling, ShadingPoint
-from invrender.materials.diffuse import Diffuse
-from invrender.transport.frame import Frame
+from invrender.core.bsdfs import BSDFSampling, ShadingPoint
+from invrender.plugins.bsdfs.diffuse import Diffuse
+from invrender.core.frame import Frame
 
 RHO = torch.tensor([0.8, 0.5, 0.2])
 

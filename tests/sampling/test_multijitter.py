@@ -14,7 +14,7 @@ import math
 import pytest
 import torch
 
-from invrender.transport.sampler import _permuted, multijitter
+from invrender.core.sampler import _permuted, multijitter
 
 
 @pytest.mark.parametrize("n", [1, 2, 3, 5, 16, 17, 100, 1000])

@@ -1,4 +1,4 @@
-"""Emitting spheres sampled by the solid angle of their cone (invrender/emitters/area.py).
+"""Emitting spheres sampled by the solid angle of their cone (invrender/plugins/emitters/area.py).
 
 - Closed form: the irradiance at a point facing the centre of a uniformly emitting sphere is
   ``pi L sin^2 theta_max``; the cone estimate matches it to sampling error, with far lower variance
@@ -24,9 +24,9 @@ import invrender as ir
 from invrender.scene.camera import Camera
 from invrender.scene.scene import build_scene
 from invrender.scene.shapes import Mesh, primitive, rectangle, scale, translate
-from invrender.transport.accel import intersector_for
-from invrender.transport.lights import Lights
-from invrender.transport.surface import surface_at
+from invrender.backends.accel import intersector_for
+from invrender.core.lights import Lights
+from invrender.core.surface import surface_at
 
 CENTER, RADIUS, L = (0.0, 0.0, 3.0), 0.5, 2.0
 

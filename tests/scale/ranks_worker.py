@@ -14,9 +14,9 @@ from invrender.study import gradient_study
 
 def decorrelated(scene) -> torch.Tensor:
     """A decorrelated gradient (``backpropagate``: a fit's step) of red's reflectance."""
-    from invrender.diff import backpropagate
-    from invrender.transport.driver import RenderSettings
-    from invrender.transport.integrators import make_integrator
+    from invrender.estimators import backpropagate
+    from invrender.core.driver import RenderSettings
+    from invrender.plugins.integrators import make_integrator
 
     rho = scene.params["red.reflectance"].requires_grad_(True)
     backpropagate(scene, torch.ones(scene.height, scene.width, 3), make_integrator("path"), RenderSettings(spp=8, seed=1, progress=False), "replay")

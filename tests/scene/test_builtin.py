@@ -68,7 +68,7 @@ def test_degenerate_triangles_dropped_with_warning():
 def test_sky_spheres_loads_renders_and_shows_its_map():
     """The envmap scene: its parameters, the sun is the map's brightest texel, and the background
     pixels are the map's radiance along their directions."""
-    from invrender.emitters.envmap import Envmap, quaternion_of
+    from invrender.plugins.emitters.envmap import Envmap, quaternion_of
     from invrender.scene.builtin import map_directions, sun_direction
 
     scene = ir.load_scene("sky_spheres", resolution=(32, 32), map_size=(8, 16), subdivisions=2)

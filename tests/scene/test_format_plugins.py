@@ -8,7 +8,7 @@ import torch
 import invrender as ir
 from invrender import registry
 from invrender.errors import SceneError
-from invrender.materials.mirror import Mirror
+from invrender.plugins.bsdfs.mirror import Mirror
 from invrender.scene.kinds import SPECULAR_REFLECTANCE
 from invrender.scene.materials import Constant
 

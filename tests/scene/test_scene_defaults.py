@@ -9,7 +9,7 @@ import torch
 
 import invrender as ir
 from invrender.cli import main
-from invrender.diff.defaults import SettingOverridden, fit_settings, scene_integrator
+from invrender.estimators.defaults import SettingOverridden, fit_settings, scene_integrator
 from invrender.inverse.fit import FitSettings
 from invrender.study.configs import GradientConfig
 

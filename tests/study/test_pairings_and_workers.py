@@ -68,7 +68,7 @@ def test_workers_trace_on_one_core_each(cbox6):
     """A worker sees one core (the driver and Embree then trace in its thread, so its CPU time is
     the gradient's whole cost) and torch runs single-threaded in it."""
     from invrender.study.gradients import _Workers
-    from invrender.transport.driver import cpu_workers
+    from invrender.core.driver import cpu_workers
 
     objective = _objective(cbox6)
     threads, cores = torch.get_num_threads(), os.sched_getaffinity(0)

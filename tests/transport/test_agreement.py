@@ -88,7 +88,7 @@ def test_two_workers_give_the_same_image(cbox32):
     threads = torch.get_num_threads()
     torch.set_num_threads(2)
     try:
-        from invrender.transport.driver import cpu_workers
+        from invrender.core.driver import cpu_workers
 
         assert cpu_workers(torch.device("cpu")) == 2
         two = ir.render(cbox32, spp=8, seed=4, progress=False)

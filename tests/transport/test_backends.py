@@ -15,8 +15,8 @@ from invrender.errors import ParameterError
 from invrender.scene.camera import Camera
 from invrender.scene.scene import build_scene, scene_extent
 from invrender.scene.shapes import Mesh
-from invrender.transport import packages
-from invrender.transport.accel import check_backend, intersector_for, make_intersector
+from invrender.backends import packages
+from invrender.backends.accel import check_backend, intersector_for, make_intersector
 
 FORWARD = Path(__file__).resolve().parents[2] / "forward"
 SHIPPED = ["cornell_box", "cornell_specular", "furnace", *sorted(str(p) for p in FORWARD.glob("*.toml"))]
@@ -150,11 +150,11 @@ def test_repeated_queries_answer_the_adjoint_pass_from_the_primal_pass(monkeypat
     first's rays again and gets the recorded answers: the backend is asked once per ray. (The
     Cornell box's gradient is otherwise carried forward by the fused bounce, one trace and no
     replay: that is switched off here, and checked at the end.)"""
-    from invrender.diff import replay
-    from invrender.diff.replay import replay_gradient
-    from invrender.transport import accel
-    from invrender.transport.driver import RenderSettings
-    from invrender.transport.integrators import make_integrator
+    from invrender.estimators import replay
+    from invrender.estimators.replay import replay_gradient
+    from invrender.backends import accel
+    from invrender.core.driver import RenderSettings
+    from invrender.plugins.integrators import make_integrator
 
     scene = ir.load_scene("cornell_box", resolution=(16, 16))
     calls = {"intersect": 0, "occluded": 0}

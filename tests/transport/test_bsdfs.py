@@ -18,11 +18,11 @@ import math
 import pytest
 import torch
 
-from invrender.materials.checks import chi_square_p, local_directions, shading_point
-from invrender.materials.dielectric import Dielectric, fresnel_dielectric
-from invrender.materials.diffuse import Diffuse
-from invrender.materials.glossy import Glossy
-from invrender.materials.mirror import Mirror
+from invrender.plugins.bsdfs.checks import chi_square_p, local_directions, shading_point
+from invrender.plugins.bsdfs.dielectric import Dielectric, fresnel_dielectric
+from invrender.plugins.bsdfs.diffuse import Diffuse
+from invrender.plugins.bsdfs.glossy import Glossy
+from invrender.plugins.bsdfs.mirror import Mirror
 
 KS = torch.tensor([0.9, 0.7, 0.5])
 

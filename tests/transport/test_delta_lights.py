@@ -26,7 +26,7 @@ import pytest
 import torch
 
 import invrender as ir
-from invrender.emitters.spot import falloff
+from invrender.plugins.emitters.spot import falloff
 from invrender.scene.camera import Camera
 from invrender.scene.emitters import Emitter
 from invrender.scene.scene import build_scene

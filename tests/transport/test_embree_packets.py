@@ -1,4 +1,4 @@
-"""The embree backend's 16-ray packets (the compiled wrapper of ``invrender.transport.embree_native``)
+"""The embree backend's 16-ray packets (the compiled wrapper of ``invrender.backends.embree_native``)
 against embreex's single rays and the torch backend: the same hits and shadow-ray answers on every
 shipped scene and an 80k-triangle mesh, at batch sizes that leave partial packets, with rays that are
 not traced (distance not positive or NaN); the same image; the fallback to embreex said once."""
@@ -16,8 +16,8 @@ from invrender.errors import ParameterError
 from invrender.scene.camera import Camera
 from invrender.scene.scene import build_scene
 from invrender.scene.shapes import Mesh
-from invrender.transport import accel, embree_native, packages
-from invrender.transport.accel import make_intersector
+from invrender.backends import accel, embree_native, packages
+from invrender.backends.accel import make_intersector
 from tests.transport.test_backends import SHIPPED, assert_same_hits, random_rays
 
 built, why_not = embree_native.library()

@@ -20,8 +20,8 @@ import pytest
 import torch
 
 import invrender as ir
-from invrender.emitters import checks
-from invrender.emitters.envmap import Distribution, Envmap, padded, quaternion_of
+from invrender.plugins.emitters import checks
+from invrender.plugins.emitters.envmap import Distribution, Envmap, padded, quaternion_of
 from invrender.io import write_image
 from invrender.scene.camera import Camera
 from invrender.scene.emitters import Emitter
@@ -264,7 +264,7 @@ def test_next_event_estimation_and_escaping_rays_give_the_same_texel_gradients()
 
 
 def test_path_records_keep_the_map_per_texel():
-    """(The records' own tests: tests/diff/test_records.py.)"""
+    """(The records' own tests: tests/estimators/test_records.py.)"""
     rec = ir.record_paths(grad_scene(), ["sky.emission"], spp=2, max_depth=2, progress=False)
     assert rec.jacobian()["sky.emission"].shape == (16, 16, 5, 8, 3)
 

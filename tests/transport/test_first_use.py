@@ -8,7 +8,8 @@ import pytest
 import torch
 
 import invrender as ir
-from invrender.transport import first_use, kernels
+from invrender import first_use
+from invrender.backends import kernels
 
 
 def test_a_compile_is_announced_once_and_only_where_progress_shows(capsys):

@@ -11,11 +11,12 @@ import pytest
 import torch
 
 import invrender as ir
-from invrender.transport import driver, fused, kernels
-from invrender.transport.context import TransportContext
-from invrender.transport.driver import RenderSettings
-from invrender.transport.film import Film, PathFilm
-from invrender.transport.integrators import make_integrator
+from invrender.core import driver, fused
+from invrender.backends import kernels
+from invrender.core.context import TransportContext
+from invrender.core.driver import RenderSettings
+from invrender.core.film import Film, PathFilm
+from invrender.plugins.integrators import make_integrator
 
 pytestmark = pytest.mark.warp
 FORWARD = Path(__file__).resolve().parents[2] / "forward"
@@ -79,8 +80,8 @@ def test_the_fused_bounce_applies_only_where_nothing_needs_the_torch_bounce(tmp_
     with torch.no_grad():
         assert fused.tables(ctx, "mis", "cosine") is not None
     # a plugin built on the diffuse BSDF or the area light that changes what it does: its own methods
-    from invrender.emitters.area import Area
-    from invrender.materials.diffuse import Diffuse
+    from invrender.plugins.emitters.area import Area
+    from invrender.plugins.bsdfs.diffuse import Diffuse
 
     class Brighter(Diffuse):
         def eval(self, sp, wi):
@@ -95,8 +96,8 @@ def test_the_fused_bounce_applies_only_where_nothing_needs_the_torch_bounce(tmp_
     eps = [{"emission": box.params["light.emission"]}]
     assert Area([0], eps, [{}], box.triangles).fused_triangles() is not None and Dimmer([0], eps, [{}], box.triangles).fused_triangles() is None
     # films with hooks (path records', replay's adjoint) take the torch bounce
-    from invrender.diff.records import _RecordFilm
-    from invrender.diff.replay import AdjointFilm
+    from invrender.estimators.records import _RecordFilm
+    from invrender.estimators.replay import AdjointFilm
 
     assert fused.takes(Film(2, 2, False, CPU)) and fused.takes(PathFilm(4, CPU))
     assert not fused.takes(AdjointFilm.__new__(AdjointFilm)) and not fused.takes(_RecordFilm.__new__(_RecordFilm))
@@ -107,8 +108,8 @@ def test_the_fused_bounces_derivatives_are_autodiffs(strategy, unfused):
     """Replay of a fusable render carries each pixel's derivatives forward in the fused kernels (one
     trace, no adjoint pass): the gradient is autodiff's and the torch replay's to float rounding, in
     a render (loss.backward) and a decorrelated gradient (backpropagate) alike."""
-    from invrender.diff import backpropagate
-    from invrender.diff.replay import tangent_slots
+    from invrender.estimators import backpropagate
+    from invrender.estimators.replay import tangent_slots
 
     scene = ir.load_scene("cornell_box", resolution=(16, 16))
     names = ["white.reflectance", "red.reflectance", "light.emission"]

@@ -10,8 +10,8 @@ import torch
 
 import invrender as ir
 from invrender.errors import ParameterError
-from invrender.transport.integrators import INTEGRATORS, DepthSettings, Integrator, make_integrator
-from invrender.transport.integrators.vertex import next_vertex
+from invrender.plugins.integrators import INTEGRATORS, DepthSettings, Integrator, make_integrator
+from invrender.plugins.integrators.vertex import next_vertex
 
 
 def test_registry_holds_the_ladder():
@@ -69,7 +69,7 @@ def test_a_new_integrator_registers_once_and_runs_its_pre_pass_once_per_render()
 
 def test_a_render_that_cannot_fit_in_memory_is_refused_before_work(monkeypatch, tmp_path, capsys):
     from invrender.cli import main
-    from invrender.transport import driver
+    from invrender.core import driver
 
     monkeypatch.setattr(driver, "available_memory_bytes", lambda: 10 * 2**20)  # 10 MiB left
     scene = ir.load_scene("cornell_box", resolution=(4, 4))

@@ -12,11 +12,11 @@ import torch
 
 import invrender as ir
 from invrender.errors import ParameterError
-from invrender.transport import kernels
-from invrender.transport.accel import make_intersector
-from invrender.emitters.area import Area
-from invrender.transport.sampler import mirrored, path_keys, uniform
-from invrender.transport.surface import surface_at
+from invrender.backends import kernels
+from invrender.backends.accel import make_intersector
+from invrender.plugins.emitters.area import Area
+from invrender.core.sampler import mirrored, path_keys, uniform
+from invrender.core.surface import surface_at
 
 pytestmark = pytest.mark.warp  # every test here runs the Warp kernels
 FORWARD = Path(__file__).resolve().parents[2] / "forward"
@@ -130,8 +130,8 @@ def test_images_and_gradients_agree(name, reference):
 
 
 def test_cosine_directions_and_ray_origins_match_the_reference(reference):
-    from invrender.materials.diffuse import Diffuse
-    from invrender.transport.context import TransportContext
+    from invrender.plugins.bsdfs.diffuse import Diffuse
+    from invrender.core.context import TransportContext
 
     scene = ir.load_scene("cornell_box", resolution=(8, 8))
     hits, d = _hits(scene, seed=3)

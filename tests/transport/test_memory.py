@@ -13,7 +13,7 @@ import sys
 
 import pytest
 
-SNIPPET = "from invrender.transport import memory; print(memory.keep_freed_blocks(), memory.keep_freed_blocks())"
+SNIPPET = "from invrender.core import memory; print(memory.keep_freed_blocks(), memory.keep_freed_blocks())"
 
 
 def run(env_value: str | None) -> str:
@@ -32,7 +32,7 @@ def test_heap_thresholds_are_set_once_and_can_be_left_alone():
 
 def test_a_render_sets_them():
     import invrender as ir
-    from invrender.transport import memory
+    from invrender.core import memory
 
     ir.render(ir.load_scene("cornell_box", resolution=(4, 4)), spp=1, progress=False)
     assert memory._done == (sys.platform.startswith("linux") and os.environ.get("INVRENDER_MALLOC", "") != "default")

@@ -20,7 +20,7 @@ import pytest
 
 import invrender as ir
 from invrender.errors import SceneError
-from invrender.transport import accel, embree_native, packages
+from invrender.backends import accel, embree_native, packages
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -63,7 +63,7 @@ RAYS_CHILD = """
     import json, math, os, sys
     import torch
     import invrender as ir
-    from invrender.transport import accel, embree_native
+    from invrender.backends import accel, embree_native
     from tests.transport.test_backends import random_rays
 
     def answers(backend, n, threads, bad):
@@ -129,7 +129,7 @@ RENDER_CHILD = """
     import torch
     import invrender as ir
     from invrender.scene.camera import Camera
-    from invrender.transport.integrators import Integrator
+    from invrender.plugins.integrators import Integrator
 
     out = {}
     scene = ir.load_scene("cornell_box", resolution=(8, 8))

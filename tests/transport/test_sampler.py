@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from invrender.transport.sampler import path_keys, uniform
+from invrender.core.sampler import path_keys, uniform
 
 
 def numbers(n=200_000, seed=0, bounce=1, dims=6):
@@ -39,7 +39,7 @@ def test_pure_function_of_counters():
 
 
 def test_mirrored_keys_draw_one_minus_u_also_after_a_split():
-    from invrender.transport.sampler import branch_keys, mirrored, path_keys, uniform
+    from invrender.core.sampler import branch_keys, mirrored, path_keys, uniform
 
     keys = path_keys(7, torch.arange(4096), torch.arange(4096) % 5)
     assert int((keys & 1).sum()) == 0  # path keys are never mirrored

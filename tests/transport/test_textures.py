@@ -2,7 +2,7 @@
 
 import torch
 
-from invrender.transport.textures import gather_rgb, lookup
+from invrender.core.textures import gather_rgb, lookup
 
 
 def test_texel_centres_and_bilinear_midpoint():

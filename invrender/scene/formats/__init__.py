@@ -13,7 +13,7 @@ Texture coordinates
 -------------------
 
 UVs follow OpenGL's, OBJ's and trimesh's convention, which is also the renderer's
-(:mod:`invrender.transport.textures`): u grows left to right along the image's columns, v grows
+(:mod:`invrender.core.textures`): u grows left to right along the image's columns, v grows
 from the image's *bottom* row to its top row, so uv (0, 0) is the bottom-left corner of the image.
 Texture tensors are stored as images are, row 0 at the top, and no image is ever flipped: OBJ UVs
 are used as written, and trimesh already turns glTF UVs (origin top-left) into this convention

@@ -6,7 +6,7 @@ geometry in file order (trimesh's node order is not). Each distinct material bec
 named as in the file (unnamed: ``material``), made unique with ``_2``, ``_3``, ... suffixes when
 two different materials share a name. A material's type is that of the first registered
 material type (:data:`invrender.registry.MATERIALS`, in order of their ``gltf_priority``) whose
-``from_gltf`` takes it; each says in its module (:mod:`invrender.materials`) which materials it
+``from_gltf`` takes it; each says in its module (:mod:`invrender.plugins.bsdfs`) which materials it
 takes and what it reads of them. They read a :class:`GltfMaterial`, which puts glTF's and MTL's
 values in glTF's metallic-roughness terms (transmission, ior, metal, GGX alpha, base colour, metal
 colour), read as follows.

@@ -3,7 +3,7 @@
 BSDFs (``<bsdf type=...>``)
     Each registered material type (:data:`invrender.registry.MATERIALS`) names the Mitsuba
     plugins it stands for in ``mitsuba_plugins`` and reads them in its ``from_mitsuba`` (whose
-    docstring, in the material's module of :mod:`invrender.materials`, says which properties it
+    docstring, in the material's module of :mod:`invrender.plugins.bsdfs`, says which properties it
     takes); ``invrender.registry.MATERIALS`` is also what the message for an unsupported type
     lists. A material reads its ``<bsdf>`` through a :class:`BsdfReader`, whose getters are the
     vocabulary below, so every material's messages say the same things the same way:
@@ -12,7 +12,7 @@ BSDFs (``<bsdf type=...>``)
       parameter may be one (:mod:`.textures`);
     - indices of refraction: positive numbers or Mitsuba's named media (:data:`NAMED_IOR`);
     - conductors: ``material``, Mitsuba's named metals (``"Au"``, ``"Cu"``, ...: the RGB values
-      of :mod:`invrender.materials.metals`) or ``"none"`` (Fresnel 1, Mitsuba 3's default), or
+      of :mod:`invrender.plugins.bsdfs.metals`) or ``"none"`` (Fresnel 1, Mitsuba 3's default), or
       the complex index given as ``eta`` (default 0) and ``k`` (default 1), each an ``<rgb>``, a
       ``<float>`` or a constant ``<spectrum>``, >= 0; ``material`` other than none beside
       ``eta``/``k`` is an error (as in Mitsuba);

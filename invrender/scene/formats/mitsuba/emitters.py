@@ -3,7 +3,7 @@
 Emitters (``<emitter type=...>``)
     Each registered emitter type (:data:`invrender.registry.EMITTERS`) names the Mitsuba plugins
     it stands for in ``mitsuba_plugins`` and reads them in its ``from_mitsuba`` (whose docstring,
-    in the emitter's module of :mod:`invrender.emitters`, says which properties it takes), through
+    in the emitter's module of :mod:`invrender.plugins.emitters`, says which properties it takes), through
     a :class:`~.reader.PluginReader`. Types that emit from surfaces (``area``: radiance from the
     front side) are nested in the ``<shape>`` that emits, or declared at the top level with an
     ``id`` and attached by a ``<ref id=.../>`` in the shape (one declared so that no shape

@@ -4,7 +4,7 @@ mapped by the plugin modules, named, and assembled.
 Render settings the file suggests go to ``scene.defaults`` (only those the file states):
 ``{"spp": sample_count, "integrator": "path", "max_depth": ..., "rr_depth": ...}``; ``ir.render``,
 ``fit``, studies and the CLI take them as their defaults where nothing is given
-(:mod:`invrender.diff.defaults`; the file's settings only with the file's integrator). An
+(:mod:`invrender.estimators.defaults`; the file's settings only with the file's integrator). An
 ``<integrator>`` that states no ``max_depth`` gets Mitsuba's default, -1 (unbounded, Russian
 roulette from ``rr_depth``; :mod:`.integrator`), so the file renders as in Mitsuba. A file that
 states nothing (no ``<integrator>``, no ``sample_count``) gets invrender's defaults (path, 64 spp,

@@ -1,0 +1,1 @@
+"""Backends: ray intersection and the compiled evaluation of the bounce (nothing above core imports them directly)."""

@@ -1,0 +1,158 @@
+// Embree's packet queries for the embree intersection backend (invrender/backends/embree_native.py).
+//
+// A ray batch arrives as flat float32 arrays (origins and unit directions (N, 3), distances (N,));
+// each query packs 16 rays at a time into Embree's structure-of-arrays packet and writes its answers
+// straight into the caller's (torch) arrays: closest hits as (t, triangle, u, v) with t = inf and
+// triangle = -1 for a miss, shadow rays as one byte each. A shadow ray whose distance is not
+// positive (or NaN) is not traced and answers "not occluded": nothing lies strictly before it.
+// A ray that Embree would refuse (a component of its origin or direction NaN, infinite or beyond
+// Embree's FLT_LARGE) is not traced either: a miss, not occluded. Embree built with assertions
+// (Debian's is) aborts the process on such a lane; the Python side (accel.Intersector) masks these
+// rays before the call, and this check keeps the wrapper safe on its own.
+//
+// Built on first use against the system's Embree 3 (Debian's libembree-dev) and loaded by ctypes,
+// which releases the GIL for the call, so Python threads can split a batch.
+
+#include <embree3/rtcore.h>
+
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+
+namespace {
+
+constexpr int K = 16;  // rays per packet
+constexpr float kRayLimit = 1.844e18f;  // Embree's FLT_LARGE (RayK::valid); accel.RAY_LIMIT
+
+// Can ray i be traced: every component of its origin and direction finite and within kRayLimit?
+inline bool traceable(const float* o, const float* d, int64_t i) {
+    bool ok = true;
+    for (int j = 0; j < 3; ++j) ok &= std::fabs(o[3 * i + j]) <= kRayLimit && std::fabs(d[3 * i + j]) <= kRayLimit;  // false for NaN
+    return ok;
+}
+
+struct Accel {
+    RTCDevice device;
+    RTCScene scene;
+};
+
+// Lane k of a packet: ray i of the batch (origin o[3i..], direction d[3i..]) from 0 to tfar; a lane
+// that is not live gets a finite stand-in ray (from the world origin along +z, tfar = 0).
+inline void pack(RTCRay16& ray, int k, const float* o, const float* d, int64_t i, float tfar, bool live) {
+    if (live) {
+        ray.org_x[k] = o[3 * i], ray.org_y[k] = o[3 * i + 1], ray.org_z[k] = o[3 * i + 2];
+        ray.dir_x[k] = d[3 * i], ray.dir_y[k] = d[3 * i + 1], ray.dir_z[k] = d[3 * i + 2];
+    } else {
+        ray.org_x[k] = ray.org_y[k] = ray.org_z[k] = 0.0f;
+        ray.dir_x[k] = ray.dir_y[k] = 0.0f, ray.dir_z[k] = 1.0f;
+        tfar = 0.0f;
+    }
+    ray.tnear[k] = 0.0f, ray.tfar[k] = tfar, ray.time[k] = 0.0f;
+    ray.mask[k] = ~0u, ray.id[k] = 0, ray.flags[k] = 0;
+}
+
+void say(char* error, int64_t size, const char* what, RTCError code) {
+    std::snprintf(error, size_t(size), "Embree: %s (error %d)", what, int(code));
+}
+
+}  // namespace
+
+extern "C" {
+
+// A scene of `count` triangles from their corners (count, 3, 3); null with `error` set on failure.
+void* ir_embree_new(const float* corners, int64_t count, char* error, int64_t error_size) try {
+    RTCDevice device = rtcNewDevice(nullptr);
+    if (!device) {
+        say(error, error_size, "no device", rtcGetDeviceError(nullptr));
+        return nullptr;
+    }
+    RTCScene scene = rtcNewScene(device);
+    RTCGeometry mesh = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
+    auto* vertices = static_cast<float*>(rtcSetNewGeometryBuffer(mesh, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), size_t(3 * count)));
+    auto* index = static_cast<unsigned*>(rtcSetNewGeometryBuffer(mesh, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(unsigned), size_t(count)));
+    if (!vertices || !index) {
+        say(error, error_size, "cannot allocate the triangles", rtcGetDeviceError(device));
+        rtcReleaseGeometry(mesh);
+        rtcReleaseScene(scene);
+        rtcReleaseDevice(device);
+        return nullptr;
+    }
+    for (int64_t i = 0; i < 9 * count; ++i) vertices[i] = corners[i];
+    for (int64_t i = 0; i < 3 * count; ++i) index[i] = unsigned(i);
+    rtcCommitGeometry(mesh);
+    rtcAttachGeometry(scene, mesh);
+    rtcReleaseGeometry(mesh);
+    rtcCommitScene(scene);
+    RTCError code = rtcGetDeviceError(device);
+    if (code != RTC_ERROR_NONE) {
+        say(error, error_size, "cannot build the scene", code);
+        rtcReleaseScene(scene);
+        rtcReleaseDevice(device);
+        return nullptr;
+    }
+    return new Accel{device, scene};
+} catch (...) {  // no C++ exception may cross into ctypes (it would terminate the process)
+    std::snprintf(error, size_t(error_size), "Embree: cannot build the scene (out of memory?)");
+    return nullptr;
+}
+
+void ir_embree_free(void* accel) {
+    auto* a = static_cast<Accel*>(accel);
+    rtcReleaseScene(a->scene);
+    rtcReleaseDevice(a->device);
+    delete a;
+}
+
+// Closest hits of n rays: t (n,) float32, prim (n,) int64, u, v (n,) float32.
+void ir_embree_intersect(void* accel, const float* o, const float* d, int64_t n, float* t, int64_t* prim, float* u, float* v) {
+    RTCScene scene = static_cast<Accel*>(accel)->scene;
+    RTCIntersectContext context;
+    rtcInitIntersectContext(&context);
+    RTCRayHit16 packet;
+    alignas(64) int valid[K];
+    for (int64_t start = 0; start < n; start += K) {
+        const int lanes = int(n - start < K ? n - start : K);
+        int traced = 0;
+        for (int k = 0; k < K; ++k) {
+            const int64_t i = start + (k < lanes ? k : 0);
+            const bool live = k < lanes && traceable(o, d, i);
+            valid[k] = live ? -1 : 0;
+            traced += live;
+            pack(packet.ray, k, o, d, i, INFINITY, live);
+            packet.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID, packet.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
+        }
+        if (traced) rtcIntersect16(valid, scene, &context, &packet);
+        for (int k = 0; k < lanes; ++k) {
+            const int64_t i = start + k;
+            const bool hit = packet.hit.geomID[k] != RTC_INVALID_GEOMETRY_ID;
+            t[i] = hit ? packet.ray.tfar[k] : INFINITY;
+            prim[i] = hit ? int64_t(packet.hit.primID[k]) : -1;
+            u[i] = hit ? packet.hit.u[k] : 0.0f;
+            v[i] = hit ? packet.hit.v[k] : 0.0f;
+        }
+    }
+}
+
+// Shadow rays: hit[i] = 1 when something lies along ray i strictly before tmax[i], else 0.
+void ir_embree_occluded(void* accel, const float* o, const float* d, const float* tmax, int64_t n, uint8_t* hit) {
+    RTCScene scene = static_cast<Accel*>(accel)->scene;
+    RTCIntersectContext context;
+    rtcInitIntersectContext(&context);
+    RTCRay16 packet;
+    alignas(64) int valid[K];
+    for (int64_t start = 0; start < n; start += K) {
+        const int lanes = int(n - start < K ? n - start : K);
+        int traced = 0;
+        for (int k = 0; k < K; ++k) {
+            const int64_t i = start + (k < lanes ? k : 0);
+            const bool live = k < lanes && tmax[i] > 0.0f && traceable(o, d, i);  // false for a NaN tmax too
+            valid[k] = live ? -1 : 0;
+            traced += live;
+            pack(packet, k, o, d, i, tmax[i], live);
+        }
+        if (traced) rtcOccluded16(valid, scene, &context, &packet);
+        for (int k = 0; k < lanes; ++k) hit[start + k] = valid[k] && packet.tfar[k] < 0.0f;  // Embree sets tfar = -inf on a hit
+    }
+}
+
+}  // extern "C"

@@ -1,0 +1,1 @@
+"""The core every integrator uses: the driver, sampler, film, context and the bounce."""

@@ -1,0 +1,283 @@
+"""The BSDF interface (pbrt-v4's ``BSDF`` / ``BSDFSample``, batched): ``eval``, ``sample``, ``pdf``.
+
+Conventions, shared by every material:
+
+- Directions are world-space unit vectors. ``wo`` points back along the ray that arrived (towards
+  the camera side of the path), ``wi`` towards where light comes from (the next vertex).
+- ``eval`` returns ``f(wo, wi) |cos theta_i|`` (the cosine folded in, as Mitsuba does), ``pdf`` the
+  solid-angle density with which ``sample`` would have produced ``wi``, and ``sample`` a direction
+  with its *weight* ``f |cos theta_i| / pdf``. Random numbers are arguments: ``u_lobe`` (N,) picks a
+  lobe (reflection or refraction), ``u_dir`` (N, 2) the direction within it.
+- Delta lobes (a mirror, smooth glass) have no density: ``eval`` and ``pdf`` return 0 for them and
+  ``sample`` flags them, and integrators never sample emitters towards them.
+- Sampling never depends on a differentiable parameter: pdfs read constants (ior) or detached
+  values (:meth:`BSDF.sampling_param`: a roughness), so the derivative of a weight is the
+  derivative of its ``f`` alone (``f(alpha) cos / pdf(detached alpha)``). Weights are
+  differentiable in the material's parameters; that is what path replay's vertex adjoint
+  differentiates.
+- ``n`` is the shading normal turned to ``wo``'s geometric side; ``front`` says whether that side
+  is the triangle's front (for glass: outside). :attr:`ShadingPoint.frame` is the shading frame,
+  built once per vertex and shared by every BSDF call there; BSDFs that are not rotationally
+  trivial (microfacets, refraction) work in it, where ``cos(theta) = z``.
+- A BSDF says what kinds of lobe it has with :class:`Lobe` flags (several per material: a plastic
+  is a diffuse base under a delta or glossy coating). Integrators branch on these flags, never on a
+  material's type, so a new material needs no integrator change.
+
+A material is a plugin (:mod:`invrender.plugins.bsdfs`): one module holding a subclass of :class:`BSDF`
+that declares its type name, parameters, constants, lobes and format aliases beside ``eval`` /
+``pdf`` / ``sample``, registered in :data:`invrender.registry.MATERIALS`.
+"""
+
+from __future__ import annotations
+
+import enum
+import functools
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import torch
+
+from invrender.errors import ParameterError, did_you_mean
+from invrender.scene.plugins import Declared
+from invrender.core.frame import Frame
+from invrender.core.textures import gather_rgb
+
+
+class Lobe(enum.IntFlag):
+    """Kinds of lobe a BSDF has (a bitset, as pbrt-v4's ``BxDFFlags``).
+
+    ``DIFFUSE``, ``GLOSSY`` (reflection) and ``GLOSSY_TRANSMISSION`` lobes have a density:
+    emitters can be sampled towards them and ``eval`` / ``pdf`` see them; a glossy transmission
+    lobe gathers emitter samples from behind the surface too. ``DELTA_REFLECTION`` and
+    ``DELTA_TRANSMISSION`` scatter into discrete directions only: ``eval`` and ``pdf`` are zero
+    for them, ``sample`` flags them and :meth:`BSDF.specular_lobes` lists them.
+    """
+
+    DIFFUSE = 1
+    GLOSSY = 2
+    DELTA_REFLECTION = 4
+    DELTA_TRANSMISSION = 8
+    GLOSSY_TRANSMISSION = 16
+    #: lobes with a density (next-event estimation and MIS apply)
+    SMOOTH = DIFFUSE | GLOSSY | GLOSSY_TRANSMISSION
+    #: lobes without one
+    DELTA = DELTA_REFLECTION | DELTA_TRANSMISSION
+    #: lobes that cross the surface
+    TRANSMISSION = DELTA_TRANSMISSION | GLOSSY_TRANSMISSION
+    ALL = SMOOTH | DELTA
+
+    def describe(self) -> str:
+        """The lobes in words (``"diffuse, delta reflection"``)."""
+        single = (Lobe.DIFFUSE, Lobe.GLOSSY, Lobe.GLOSSY_TRANSMISSION, Lobe.DELTA_REFLECTION, Lobe.DELTA_TRANSMISSION)
+        return ", ".join(f.name.lower().replace("_", " ") for f in single if f & self)
+
+#: how diffuse lobes draw directions (:attr:`BSDFSampling.hemisphere`)
+HEMISPHERES = ("cosine", "uniform")
+
+
+@dataclass(frozen=True)
+class BSDFSampling:
+    """How BSDFs draw directions, never what they evaluate: ``eval`` is the same whatever the choice,
+    and ``pdf`` always returns the density of the chosen ``sample`` (so MIS weights stay right).
+
+    Attributes:
+        hemisphere: diffuse lobes: ``"cosine"`` (pdf ``cos(theta)/pi``, weight rho; the default)
+            or ``"uniform"`` over the hemisphere (pdf ``1/(2 pi)``, weight ``2 rho cos(theta)``).
+    """
+
+    hemisphere: str = "cosine"
+
+    def __post_init__(self):
+        if self.hemisphere not in HEMISPHERES:
+            raise ParameterError(f"unknown hemisphere sampling {self.hemisphere!r}{did_you_mean(self.hemisphere, HEMISPHERES)} (known: {', '.join(HEMISPHERES)})")
+
+
+@dataclass(frozen=True)
+class ShadingPoint:
+    """N surface points as a BSDF sees them.
+
+    Attributes:
+        wo: (N, 3) unit direction back along the arriving ray.
+        n: (N, 3) unit shading normal on ``wo``'s geometric side.
+        ng: (N, 3) unit geometric normal on ``wo``'s side.
+        front: (N,) bool, True where ``wo`` lies on the triangle's front (outside) side.
+        uv: (N, 2) texture coordinates.
+        material: (N,) int64 index of each point's material among its BSDF's materials.
+        slot: (N,) int64 which of the render's BSDF instances takes each point (for dispatch).
+        cache: parameter values already looked up at these points (a vertex's ``eval`` for its
+            emitter sample and its ``sample`` share one lookup); not carried by :meth:`select`.
+    """
+
+    wo: torch.Tensor
+    n: torch.Tensor
+    ng: torch.Tensor
+    front: torch.Tensor
+    uv: torch.Tensor
+    material: torch.Tensor
+    slot: torch.Tensor
+    cache: dict = field(default_factory=dict, compare=False, repr=False)
+
+    def select(self, index: torch.Tensor) -> "ShadingPoint":
+        """The points at ``index`` (M,) int64 (with their frames, where already built)."""
+        out = ShadingPoint(*(getattr(self, f).index_select(0, index) for f in _POINT_FIELDS))
+        if "frame" in self.__dict__:
+            out.__dict__["frame"] = Frame(*(v.index_select(0, index) for v in (self.frame.s, self.frame.t, self.frame.n)))
+        return out
+
+    @property
+    def count(self) -> int:
+        return int(self.wo.shape[0])
+
+    @functools.cached_property
+    def frame(self) -> Frame:
+        """The shading frames (z = ``n``), built on first use and shared by every BSDF call at
+        these points."""
+        return Frame.from_normal(self.n)
+
+    @functools.cached_property
+    def wo_local(self) -> torch.Tensor:
+        """``wo`` in :attr:`frame` (N, 3)."""
+        return self.frame.to_local(self.wo)
+
+
+_POINT_FIELDS = ("wo", "n", "ng", "front", "uv", "material", "slot")
+
+
+@dataclass(frozen=True)
+class BSDFSample:
+    """N sampled directions.
+
+    Attributes:
+        wi: (N, 3) unit direction towards the next vertex.
+        weight: (N, 3) ``f |cos theta_i| / pdf`` (differentiable in the material's parameters);
+            zero where no valid direction was drawn.
+        pdf: (N,) solid-angle density (0 for a delta lobe).
+        delta: (N,) bool, True where ``wi`` came from a delta lobe.
+    """
+
+    wi: torch.Tensor
+    weight: torch.Tensor
+    pdf: torch.Tensor
+    delta: torch.Tensor
+
+
+class BSDF(Declared, ABC):
+    """Base class of the materials: one instance holds every material of one type in a scene.
+
+    A subclass is the whole description of a material type: it declares the class attributes
+    below and implements :meth:`eval`, :meth:`pdf` and :meth:`sample` (materials with delta lobes
+    also :meth:`specular_lobes`); registered with ``@MATERIALS.register``
+    (:data:`invrender.registry.MATERIALS`), it is known to the scene formats, the renderer, error
+    messages and the docs.
+
+    Attributes:
+        values: per material of this type, parameter key -> tensor (3,) or (h, w, 3).
+        constants: per material, constant key -> float.
+        sampling: how :meth:`sample` draws directions (and so what :meth:`pdf` returns).
+    """
+
+    #: the kinds of lobe it has (several for layered materials)
+    lobes: ClassVar[Lobe]
+
+    def __init__(
+        self, values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], flat: bool = False, sampling: BSDFSampling | None = None,
+        sampling_values: list[dict[str, torch.Tensor]] | None = None,
+    ):  # fmt: skip
+        self.values, self.constants = values, constants
+        #: per material, the (detached) values its sampling reads (:meth:`sampling_param`)
+        self.sampling_values = sampling_values or [{k: v.detach() for k, v in m.items()} for m in values]
+        self.sampling = sampling or BSDFSampling()
+        #: no shading normals in the scene: ``n`` is the geometric normal, ``wo`` always above it
+        self.flat = flat
+        self._constant_tables: dict = {}  # (key, device) -> (M,) float32, built on first use
+
+    @classmethod
+    def has(cls, lobes: Lobe) -> bool:
+        """Does this material have any of ``lobes``?"""
+        return bool(cls.lobes & lobes)
+
+    def param(self, key: str, sp: ShadingPoint) -> torch.Tensor:
+        """Parameter ``key`` at each point (N, 3), differentiable (textures filtered at ``sp.uv``);
+        looked up once per point set."""
+        token = (id(self), key)
+        if token not in sp.cache:
+            sp.cache[token] = gather_rgb([v[key] for v in self.values], sp.material, sp.uv)
+        return sp.cache[token]
+
+    def sampling_param(self, key: str, sp: ShadingPoint) -> torch.Tensor:
+        """Parameter ``key`` at each point (N, 3) as sampling and ``pdf`` read it: detached, and
+        the unperturbed value where a render holds sampling fixed (``sampling_params``)."""
+        token = (id(self), key, "sampling")
+        if token not in sp.cache:
+            sp.cache[token] = gather_rgb([v[key] for v in self.sampling_values], sp.material, sp.uv)
+        return sp.cache[token]
+
+    def constant(self, key: str, sp: ShadingPoint) -> torch.Tensor:
+        """Constant ``key`` at each point (N,)."""
+        token = (key, sp.wo.device)
+        if token not in self._constant_tables:
+            self._constant_tables[token] = torch.tensor([c[key] for c in self.constants], dtype=torch.float32, device=sp.wo.device)
+        return self._constant_tables[token].index_select(0, sp.material)
+
+    @abstractmethod
+    def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        """``f(wo, wi) |cos theta_i|`` (N, 3) for directions ``wi`` (N, 3); 0 for delta lobes."""
+
+    @abstractmethod
+    def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        """Solid-angle density (N,) of :meth:`sample` producing ``wi``; 0 for delta lobes."""
+
+    @abstractmethod
+    def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
+        """One direction per point from uniforms ``u_lobe`` (N,) (which lobe, for materials with
+        several) and ``u_dir`` (N, 2) (the direction within it); the weight is ``f |cos| / pdf``
+        of the whole BSDF's sampling density (for a delta lobe: its weight over its choice
+        probability)."""
+
+    def specular_lobes(self, sp: ShadingPoint) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """Every delta lobe as ``(wi (N, 3), weight (N, 3))``, weights not divided by any choice
+        probability (Whitted's split: a dielectric's reflection F and refraction 1 - F); none for
+        materials without delta lobes."""
+        return []
+
+    def fused_albedo(self) -> torch.Tensor | None:
+        """(M, 3) the reflectance of each of this type's materials when every one is Lambertian
+        with an RGB constant (``rho / pi``, sampled by the cosine), for the fused primal bounce
+        (:mod:`invrender.core.fused`), which then evaluates and samples them itself; None (the
+        default) = the BSDF is evaluated by its own methods."""
+        return None
+
+    def diffuse_reflectance(self, sp: ShadingPoint) -> torch.Tensor | None:
+        """The Lambertian albedo k_d (N, 3) the ambient term ``k_d eps0`` reflects; None = no
+        diffuse part."""
+        return None
+
+    @classmethod
+    def not_polynomial(cls, key: str, constants: dict) -> str | None:
+        """Why parameter ``key`` of a material with ``constants`` is not one factor of each of its
+        sample weights and ``eval`` values (path records need one monomial per contribution), or
+        None when it is (every reflectance-like factor of the single-lobe materials)."""
+        return None
+
+
+class DeltaBSDF(BSDF):
+    """A BSDF with delta lobes only (mirror, smooth glass): no density to evaluate or sample
+    towards, so ``eval`` and ``pdf`` are zero and integrators follow :meth:`specular_lobes`."""
+
+    lobes = Lobe.DELTA_REFLECTION
+
+    def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        return sp.wo.new_zeros(sp.count, 3)
+
+    def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        return sp.wo.new_zeros(sp.count)
+
+    @abstractmethod
+    def specular_lobes(self, sp: ShadingPoint) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """Every delta lobe as ``(wi (N, 3), weight (N, 3))``."""
+
+    def delta_sample(self, wi: torch.Tensor, weight: torch.Tensor) -> BSDFSample:
+        """A sample of a delta lobe: no density, flagged delta."""
+        n = wi.shape[0]
+        return BSDFSample(wi, weight, wi.new_zeros(n), torch.ones(n, dtype=torch.bool, device=wi.device))

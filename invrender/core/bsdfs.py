@@ -1,0 +1,165 @@
+"""The BSDF interface and the dispatch of a batch of hits to the scene's materials.
+
+Each material type is a :class:`~.base.BSDF` subclass registered in
+:data:`invrender.registry.MATERIALS` (the built-in ones in :mod:`invrender.plugins.bsdfs`). A render
+builds one instance per type present in the scene (holding all materials of that type), and
+:class:`Materials` sends each hit to its type's instance: one batched call per type and bounce,
+so a scene with one material type pays no dispatch at all. Integrators ask :meth:`Materials.has`
+which kinds of lobe (:class:`~.base.Lobe`) a hit's BSDF has, never which type it is.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from invrender.registry import MATERIALS
+from invrender.core.bsdf import BSDF, HEMISPHERES, BSDFSample, BSDFSampling, DeltaBSDF, Lobe, ShadingPoint
+
+
+class Materials:
+    """The scene's BSDFs on one device, and per-hit dispatch to them.
+
+    Args:
+        types: per scene material, its type name.
+        values: per scene material, parameter key -> tensor (differentiable).
+        constants: per scene material, constant key -> float.
+        device: where hits live.
+        flat: the scene has no shading normals (BSDFs may skip checks that only they need).
+        sampling: how the BSDFs draw directions (default: cosine-weighted diffuse lobes).
+        sampling_values: per scene material, the values its sampling reads (detached; None = its
+            own ``values``, detached).
+        one_sided: per scene material, is its back side black (``Material.one_sided``: Mitsuba's
+            BSDFs without ``twosided``)? None = every material two-sided. Ignored for types that
+            transmit.
+    """
+
+    def __init__(
+        self, types: list[str], values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], device, flat: bool = False, sampling: BSDFSampling | None = None,
+        sampling_values: list[dict[str, torch.Tensor]] | None = None, one_sided: list[bool] | None = None,
+    ):  # fmt: skip
+        present = list(dict.fromkeys(types))  # first-seen order
+        self.bsdfs: list[BSDF] = []
+        slot_of, local_of = [], []
+        for t in present:
+            members = [i for i, ti in enumerate(types) if ti == t]
+            frozen = None if sampling_values is None else [sampling_values[i] for i in members]
+            self.bsdfs.append(MATERIALS[t]([values[i] for i in members], [constants[i] for i in members], flat, sampling, frozen))
+        for t in types:
+            k = present.index(t)
+            slot_of.append(k)
+            local_of.append(sum(1 for ti in types[: len(local_of)] if ti == t))
+        #: (M,) which of ``bsdfs`` each scene material uses, and its index among that BSDF's materials
+        self.slot_of = torch.tensor(slot_of, dtype=torch.int64, device=device)
+        self.local_of = torch.tensor(local_of, dtype=torch.int64, device=device)
+        self.single = len(self.bsdfs) == 1
+        #: (K,) int64 each BSDF slot's lobe flags (for :meth:`has`)
+        self._lobe_table = torch.tensor([int(b.lobes) for b in self.bsdfs], dtype=torch.int64, device=device)
+        #: some BSDF has no smooth lobe (delta only): next-event estimation skips its hits
+        self.any_delta_only = any(not b.has(Lobe.SMOOTH) for b in self.bsdfs)
+        #: some BSDF transmits through a lobe with a density: next-event estimation looks behind its hits too
+        self.any_smooth_transmission = any(b.has(Lobe.GLOSSY_TRANSMISSION) for b in self.bsdfs)
+        #: every BSDF is purely Lambertian (its sample weight is rho, never zero on a flat scene)
+        self.all_diffuse = all(b.lobes == Lobe.DIFFUSE for b in self.bsdfs)
+        #: (K, L) bool: is material l of BSDF slot k one-sided (black from behind)? None: none is
+        self._one_sided = None
+        if one_sided is not None and any(one_sided):
+            table = torch.zeros(len(self.bsdfs), max(local_of) + 1, dtype=torch.bool)
+            for m, flag in enumerate(one_sided):
+                table[slot_of[m], local_of[m]] = bool(flag) and not self.bsdfs[slot_of[m]].has(Lobe.TRANSMISSION)
+            if bool(table.any()):
+                self._one_sided = table.to(device)
+                self.all_diffuse = False  # a back-side hit's weight is zero
+
+    def shading_point(self, material: torch.Tensor, wo, n, ng, front, uv) -> ShadingPoint:
+        """The :class:`ShadingPoint` of hits on scene materials ``material`` (N,) int64."""
+        if self.single:  # local index = scene index; no dispatch
+            return ShadingPoint(wo, n, ng, front, uv, material, torch.zeros_like(material))
+        return ShadingPoint(wo, n, ng, front, uv, self.local_of[material], self.slot_of[material])
+
+    def groups(self, sp: ShadingPoint) -> list[tuple[BSDF, torch.Tensor | None]]:
+        """``[(bsdf, index of its hits)]``; the index is None when one BSDF takes every hit."""
+        if self.single:
+            return [(self.bsdfs[0], None)]
+        slot = sp.slot
+        out = []
+        for k, bsdf in enumerate(self.bsdfs):
+            index = (slot == k).nonzero()[:, 0]
+            if index.numel():
+                out.append((bsdf, index))
+        return out
+
+    def has(self, sp: ShadingPoint, lobes: Lobe) -> torch.Tensor:
+        """(N,) bool: does each point's BSDF have any of ``lobes``?"""
+        return (self._lobe_table.index_select(0, sp.slot) & int(lobes)) != 0
+
+    def _dispatch(self, sp: ShadingPoint, call):
+        groups = self.groups(sp)
+        if not groups or groups[0][1] is None:  # one BSDF for every hit (or no hits at all)
+            return call(self.bsdfs[0], sp, None)
+        out = None
+        for bsdf, index in groups:
+            part = call(bsdf, sp.select(index), index)
+            out = _scatter(_empty_like(part, sp.count) if out is None else out, index, part)
+        return out
+
+    def _lit(self, sp: ShadingPoint) -> torch.Tensor | None:
+        """(N,) float: 0 where a one-sided material is seen from behind, else 1; None when no
+        material is one-sided."""
+        if self._one_sided is None:
+            return None
+        return (~(self._one_sided[sp.slot, sp.material] & ~sp.front)).to(sp.wo.dtype)
+
+    def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        """``f |cos theta_i|`` (N, 3) of each hit's BSDF (0 at the back of a one-sided material)."""
+        f = self._dispatch(sp, lambda b, p, i: b.eval(p, wi if i is None else wi[i]))
+        lit = self._lit(sp)
+        return f if lit is None else f * lit[:, None]
+
+    def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        """Solid-angle pdf (N,) of each hit's BSDF sampling ``wi`` (0 at the back of a one-sided
+        material: it samples nothing there)."""
+        pdf = self._dispatch(sp, lambda b, p, i: b.pdf(p, wi if i is None else wi[i]))
+        lit = self._lit(sp)
+        return pdf if lit is None else pdf * lit
+
+    def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
+        """One direction per hit from its BSDF (weight and pdf 0 at the back of a one-sided
+        material: the path ends there)."""
+        s = self._dispatch(sp, lambda b, p, i: b.sample(p, u_lobe if i is None else u_lobe[i], u_dir if i is None else u_dir[i]))
+        lit = self._lit(sp)
+        return s if lit is None else BSDFSample(s.wi, s.weight * lit[:, None], s.pdf * lit, s.delta)
+
+    def fused_albedo(self) -> torch.Tensor | None:
+        """(M, 3) rho per scene material where one BSDF type holds them all, none one-sided, and
+        it gives its table (:meth:`BSDF.fused_albedo`); else None."""
+        if not self.single or self._one_sided is not None:
+            return None
+        return self.bsdfs[0].fused_albedo()
+
+    def diffuse_reflectance(self, sp: ShadingPoint) -> torch.Tensor:
+        """k_d (N, 3) of each hit for the ambient term (0 for materials without a diffuse part, and
+        at the back of a one-sided material)."""
+
+        def call(b, p, i):
+            value = b.diffuse_reflectance(p)
+            return value if value is not None else p.wo.new_zeros(p.count, 3)
+
+        kd = self._dispatch(sp, call)
+        lit = self._lit(sp)
+        return kd if lit is None else kd * lit[:, None]
+
+
+def _empty_like(part, n: int):
+    if isinstance(part, BSDFSample):
+        return BSDFSample(*(_empty_like(getattr(part, f), n) for f in part.__dataclass_fields__))
+    return part.new_zeros((n, *part.shape[1:]))
+
+
+def _scatter(out, index: torch.Tensor, part):
+    """``out`` with rows ``index`` replaced by ``part`` (out of place, so autograd sees it)."""
+    if isinstance(part, BSDFSample):
+        return BSDFSample(*(_scatter(getattr(out, f), index, getattr(part, f)) for f in part.__dataclass_fields__))
+    return out.index_put((index,), part)
+
+
+__all__ = ["BSDF", "DeltaBSDF", "HEMISPHERES", "BSDFSample", "BSDFSampling", "Lobe", "Materials", "ShadingPoint"]

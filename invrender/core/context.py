@@ -1,0 +1,171 @@
+"""The per-render context the integrators read, and the loop state of a chunk of paths."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import torch
+
+from invrender.scene.kinds import param_name
+from invrender.scene.scene import AMBIENT, Scene, Triangles, scene_extent
+from invrender.backends import kernels
+from invrender.backends.accel import intersector_for
+from invrender.core.bsdfs import BSDFSampling, Materials, ShadingPoint
+from invrender.core.lights import Lights
+from invrender.core.surface import Surface
+from invrender.core.textures import gather_rgb
+from invrender.vec import dot
+
+
+@dataclass(frozen=True)
+class TransportContext:
+    """Everything an integrator reads while tracing one render.
+
+    Attributes:
+        triangles: scene geometry on the render device.
+        accel: the intersection backend.
+        lights: the scene's emitters (:class:`~invrender.core.lights.Lights`; differentiable
+            in their parameters); ``lights.count`` is 0 when nothing can be sampled.
+        materials: the scene's BSDFs (differentiable in their parameters), indexed by
+            ``triangles.material``.
+        eps: per scene emitter, its ``emission`` parameter (differentiable; zero for emitter types
+            without one), indexed by ``triangles.emitter``.
+        ambient: (3,) the ambient radiance eps0 of the Utah, Whitted and distributed models
+            (differentiable), or None.
+        ray_offset: distance new rays start off a surface, to avoid self-intersection.
+        textured: does any parameter vary over UVs (else hits skip texture coordinates)?
+        extra: what an integrator's pre-pass computed for its ``trace`` (None without one).
+        hide_emitters: camera rays see no emission (the integrator's ``hide_emitters``).
+    """
+
+    triangles: Triangles
+    accel: object
+    lights: Lights
+    materials: Materials
+    eps: list[torch.Tensor]
+    ambient: torch.Tensor | None
+    ray_offset: float
+    textured: bool
+    extra: object = None
+    hide_emitters: bool = False
+
+    @staticmethod
+    def build(
+        scene: Scene, device: torch.device, backend: str | None = None, embree_threads: int | None = None, params: dict | None = None, sampling: BSDFSampling | None = None,
+        sampling_params: dict | None = None,
+    ) -> "TransportContext":  # fmt: skip
+        """The context for rendering ``scene`` on ``device`` (parameters moved differentiably).
+
+        ``backend``: intersection backend name (None = the device's default); its acceleration
+        structure is built once per geometry and reused.
+        ``embree_threads``: threads each Embree query is split across (None = one per core).
+        ``params``: values to use instead of ``scene.params`` (same names; all or some).
+        ``sampling``: how the BSDFs draw directions (None = cosine-weighted diffuse lobes).
+        ``sampling_params``: values (same names; all or some) the emitters' and BSDFs' sampling is
+            built from instead of the render's own (:class:`~invrender.core.lights.Light`); None = none.
+        """
+        tris = scene.triangles.to(device)
+        kernels.load(device)  # compiled or loaded here, before any render thread launches them
+        values = {**scene.params, **(params or {})}
+        specs = [scene.material_spec(i) for i in range(len(scene.materials))]
+        material_values = [{key: values[param_name(m, key)].to(device) for key in spec.spec.params} for m, spec in zip(scene.materials, specs)]
+        emitters = [scene.emitter_spec(i) for i in range(len(scene.emitters))]
+        light_values = [{key: values[param_name(e, key)].to(device) for key in spec.spec.params} for e, spec in zip(scene.emitters, emitters)]
+        eps = [v.get("emission", torch.zeros(3, device=device)) for v in light_values]
+        frozen = frozen_materials = None
+        if sampling_params:
+            sampled_from = {**values, **sampling_params}
+            frozen = [{key: sampled_from[param_name(e, key)].detach().to(device) for key in spec.spec.params} for e, spec in zip(scene.emitters, emitters)]
+            frozen_materials = [{key: sampled_from[param_name(m, key)].detach().to(device) for key in spec.spec.params} for m, spec in zip(scene.materials, specs)]
+        return TransportContext(
+            triangles=tris,
+            accel=intersector_for(tris, backend, embree_threads),
+            lights=Lights([e.type for e in emitters], light_values, [dict(e.constants) for e in emitters], tris, frozen),
+            materials=Materials(
+                [s.type for s in specs], material_values, [dict(s.constants) for s in specs], device, flat=not tris.any_smooth, sampling=sampling, sampling_values=frozen_materials,
+                one_sided=[s.one_sided for s in specs],
+            ),
+            eps=eps,
+            ambient=values[AMBIENT].to(device) if AMBIENT in values else None,
+            ray_offset=1e-4 * max(scene_extent(tris), 1e-3),
+            textured=any(p.ndim == 3 for p in [v for m in light_values + material_values for v in m.values()]),
+        )
+
+    def material(self, s: Surface) -> torch.Tensor:
+        """(N,) int64 scene material of each hit."""
+        return self.triangles.material.index_select(0, s.tri)
+
+    def shading_point(self, s: Surface, wo: torch.Tensor) -> ShadingPoint:
+        """The hits as their BSDFs see them, for outgoing directions ``wo`` (N, 3)."""
+        return self.materials.shading_point(self.material(s), wo, s.ns, s.n, s.front, s.uv)
+
+    def emission(self, emitter: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
+        """Surface emission eps (N, 3) of scene emitters ``emitter`` (N,) int64 (-1 = none) at
+        ``uv`` (N, 2) (for methods that read emission off the triangles, e.g. radiosity's patches)."""
+        return gather_rgb(self.eps, emitter, uv)
+
+    def spawn(self, s: Surface, wi: torch.Tensor) -> torch.Tensor:
+        """Origins (N, 3) of new rays leaving ``s`` in directions ``wi``, offset off the surface on
+        the geometric side ``wi`` points to (so refracted rays start inside)."""
+        if kernels.enabled(wi.device):
+            return kernels.offset_origins(s.p, s.n, wi, self.ray_offset)
+        side = torch.where(dot(s.n, wi) >= 0, self.ray_offset, -self.ray_offset)
+        return s.p + side[:, None] * s.n
+
+
+@dataclass(frozen=True)
+class PathState:
+    """The live paths of one chunk (loop state of the bounce loop).
+
+    Attributes:
+        keys: (N,) int32 counter-based random keys, one per path.
+        pixel: (N,) int64 film index each path contributes to (the pixel; path replay's films use
+            one index per path instead).
+        o: (N, 3) origin of the current ray.
+        d: (N, 3) unit direction of the current ray.
+        beta: (N, 3) path throughput: the product of BSDF sample weights / RR survival so far.
+        pdf_dir: (N,) solid-angle pdf with which ``d`` was sampled (for MIS); unused at depth 0.
+        delta: (N,) bool, ``d`` came from a delta lobe (or the camera): no MIS on what it hits.
+    """
+
+    keys: torch.Tensor
+    pixel: torch.Tensor
+    o: torch.Tensor
+    d: torch.Tensor
+    beta: torch.Tensor
+    pdf_dir: torch.Tensor
+    delta: torch.Tensor
+
+    def select(self, mask: torch.Tensor) -> "PathState":
+        """The paths where ``mask`` (N,) bool is True, or at ``mask`` (M,) int64 (compaction:
+        dead paths are dropped, not masked)."""
+        index = mask.nonzero()[:, 0] if mask.dtype == torch.bool else mask
+        return PathState(*(getattr(self, f).index_select(0, index) for f in self.__dataclass_fields__))
+
+    @staticmethod
+    def cat(states: list["PathState"]) -> "PathState":
+        """The paths of ``states`` one after the other (for integrators whose paths split)."""
+        return PathState(*(torch.cat([getattr(s, f) for s in states]) for f in PathState.__dataclass_fields__))
+
+    def replace(self, **changes) -> "PathState":
+        return dataclasses.replace(self, **changes)
+
+    @property
+    def count(self) -> int:
+        return int(self.keys.shape[0])
+
+
+def russian_roulette(state: PathState, u: torch.Tensor, depth: int, rr_depth: int, dead: torch.Tensor | None = None) -> PathState:
+    """Unbiased Russian roulette after vertex ``depth`` once ``depth + 1 >= rr_depth``.
+
+    Survival probability ``q = min(max_c beta_c, 0.95)`` from the detached throughput (Mitsuba's
+    rule); survivors' throughput is divided by q. ``u`` (N,) uniforms. Paths flagged in ``dead``
+    (N,) bool end in any case (before ``rr_depth`` too).
+    """
+    if depth + 1 < rr_depth:
+        return state if dead is None else state.select(~dead)
+    q = state.beta.detach().amax(dim=1).clamp(max=0.95)
+    alive = (u < q).nonzero()[:, 0]  # one synchronization: the survivors' count
+    state = state.select(alive)
+    return dataclasses.replace(state, beta=state.beta / q.index_select(0, alive)[:, None])

@@ -1,0 +1,294 @@
+"""The chunked wavefront driver: (pixel, sample) paths in chunks sized by a memory budget.
+
+Each chunk is a flat batch of path ids ``pixel * spp + sample``. Camera rays are generated from
+counter-based numbers, the integrator runs its bounce loop over the batch, and contributions
+accumulate in the film; chunks only add, so any spp fits in bounded memory and the image does not
+depend on the chunk size (``docs/architecture.md``: wavefront, counter-based random numbers).
+
+On the CPU, one worker thread per core traces its own chunks single-threaded (torch ops and Embree
+release the GIL): this keeps both cores busy through the many small per-bounce tensor operations,
+which intra-op threading parallelizes poorly. Each worker has its own film; they are summed at the
+end in float64, so the image is the same whatever the number of workers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import sys
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import torch
+from tqdm.auto import tqdm
+
+from invrender.errors import ParameterError
+from invrender.scene.scene import Scene
+from invrender.backends import kernels
+from invrender.core import ranks
+from invrender.core.context import PathState
+from invrender.core.memory import keep_freed_blocks
+from invrender.core.sampler import bounce_salts, mirrored, multijitter, path_keys, seed_salt, uniform
+from invrender.validate import MAX_SPP, check_bool, check_choice, check_float, check_int
+
+#: working-set estimate per path in a chunk (state, hits, temporaries, backend copies), bytes
+BYTES_PER_PATH = 2048
+#: the same for path replay's passes (and the forward pass that keeps radiance for them): on top of
+#: a path's state, its float64 adjoints and the factors autograd saves at each vertex
+BYTES_PER_REPLAYED_PATH = 5120
+
+
+#: how a pixel's samples are drawn (RenderSettings.sampler)
+SAMPLERS = ("stratified", "independent", "antithetic")
+#: intersection backends (RenderSettings.backend)
+BACKENDS = ("embree", "warp", "torch")
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """How to run a render, whatever the integrator.
+
+    Attributes:
+        spp: samples (paths) per pixel, > 0.
+        seed: seed of the counter-based random numbers, >= 0.
+        terms: return one image per Neumann term, shape (K, H, W, 3), summing to the full image.
+        backend: intersection backend ``"embree"`` (CPU), ``"warp"`` (CUDA or CPU) or ``"torch"``
+            (any device, brute force); None = the device's default (embree on the CPU, warp on CUDA).
+        chunk_paths: paths traced per chunk; None = sized by ``memory_mb``.
+        memory_mb: memory budget for one chunk's working set, MiB.
+        progress: show a progress bar (rate, ETA) on renders that take longer than a second.
+        sampler: how a pixel's samples are drawn (:data:`SAMPLERS`): ``"stratified"``
+            (correlated multi-jittered: every count stratified on both axes and in 2-D, the default), ``"independent"`` (each uniform over the pixel)
+            or ``"antithetic"`` (pairs: the second path of each pair draws ``1 - u`` for every
+            number ``u`` of the first, pixel jitter, lens, light samples, BSDF samples and
+            roulette; the pairs are stratified).
+        plan: which samples each pixel traces (:class:`SamplePlan`, the passes of adaptive
+            sampling); None = samples ``0 .. spp - 1`` in every pixel.
+        sampling_params: parameter values (name -> tensor, all or some) the emitters' sampling
+            (choice by power, environment-map densities) and the BSDFs' (a glossy material's
+            roughness: its visible normals and pdf) are built from instead of the render's own;
+            None = its own, detached. Finite differences with common random numbers give the
+            perturbed renders the unperturbed values, so every render draws the same paths.
+    """
+
+    spp: int = 64
+    seed: int = 0
+    terms: bool = False
+    backend: str | None = None
+    chunk_paths: int | None = None
+    memory_mb: float = 512.0
+    progress: bool = True
+    sampler: str = "stratified"
+    plan: SamplePlan | None = dataclasses.field(default=None, compare=False)
+    sampling_params: dict | None = dataclasses.field(default=None, compare=False)
+
+    def __post_init__(self):
+        check_int("", "spp", self.spp, 1, MAX_SPP)
+        check_choice("", "sampler", self.sampler, SAMPLERS)
+        check_int("", "seed", self.seed, 0)
+        check_bool("", "terms", self.terms)
+        check_bool("", "progress", self.progress)
+        if self.backend is not None:
+            check_choice("intersection ", "backend", self.backend, BACKENDS)
+        if self.chunk_paths is not None:
+            check_int("", "chunk_paths", self.chunk_paths, 1)
+        check_float("", "memory_mb", self.memory_mb, positive=True)
+
+    def replace(self, **changes) -> RenderSettings:
+        return dataclasses.replace(self, **changes)
+
+
+@dataclass(frozen=True)
+class SamplePlan:
+    """A pass of samples with a count of its own in every pixel (adaptive sampling's rounds).
+
+    Pixel p traces the samples with indices ``first[p] .. first[p] + count[p] - 1``: its random
+    numbers are those of these sample indices, so passes with disjoint index ranges are
+    independent. Within a pass the pixel's ``count[p]`` samples are stratified as ``count[p]``
+    samples of a uniform render are (``RenderSettings.sampler``).
+
+    Attributes:
+        count: (P,) int64 samples of each pixel in this pass, >= 0 (P = width * height).
+        first: (P,) int64 index of each pixel's first sample.
+    """
+
+    count: torch.Tensor
+    first: torch.Tensor
+
+    @property
+    def total(self) -> int:
+        """Paths in the pass."""
+        return int(self.count.sum())
+
+    def locate(self, ids: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Flat path ids (N,) in ``[0, total)`` -> (pixel (N,), index of the sample within the
+        pixel's pass (N,)); ids run through pixel 0's samples, then pixel 1's, ..."""
+        ends = torch.cumsum(self.count.to(ids.device), 0)
+        pixel = torch.searchsorted(ends, ids, right=True)
+        return pixel, ids - (ends[pixel] - self.count.to(ids.device)[pixel])
+
+
+def for_each_chunk(
+    scene: Scene, settings: RenderSettings, device: torch.device, work, grad: bool | None = None, across_ranks: bool = False, with_start: bool = False,
+    bytes_per_path: int = BYTES_PER_PATH, max_chunk: int | None = None,
+) -> None:  # fmt: skip
+    """Call ``work(worker, camera_paths)`` for every chunk of the (pixel, sample) paths
+    (``work(worker, camera_paths, start)`` with ``with_start``: ``start`` the chunk's first path id,
+    the same for the same settings whatever the workers and ranks).
+
+    On the CPU, one worker thread per core takes chunks ``w, w + workers, ...`` (a fixed split, so
+    results do not depend on timing) and runs single-threaded; a progress bar shows rate and ETA.
+    ``grad``: autograd on or off inside the workers (default: the caller's mode).
+    ``across_ranks``: inside a torch.distributed group, trace only this rank's chunks (chunk c
+    belongs to rank ``c mod world``; :mod:`invrender.core.ranks`): the caller sums the ranks'
+    results. Otherwise every chunk is traced here.
+    ``bytes_per_path``: the working set of a path, which sizes the chunks from ``settings.memory_mb``
+    (unless ``settings.chunk_paths`` is given); ``max_chunk``: at most that many paths a chunk then.
+    """
+    if device.type == "cpu":
+        keep_freed_blocks()  # chunk-sized temporaries reused, not page-faulted in anew
+    workers = cpu_workers(device)
+    rank, world = ranks.world() if across_ranks else (0, 1)
+    total = total_paths(scene, settings)
+    chunk = settings.chunk_paths or max(1024, min(int(settings.memory_mb * 2**20 // bytes_per_path) // workers, -(-total // (workers * world)), max_chunk or total))
+    starts = range(0, total, chunk)[rank::world]
+    grad = torch.is_grad_enabled() if grad is None else grad
+    mine = sum(min(total, s + chunk) - s for s in starts)
+    bar = tqdm(total=mine, unit="path", unit_scale=True, delay=1.0, disable=not settings.progress or not ranks.is_main(), desc=f"render {scene.name}", file=sys.stderr, leave=False)
+    stop = threading.Event()
+
+    def run(w: int) -> None:
+        if workers > 1:
+            torch.set_num_threads(1)  # per thread (OpenMP): the workers, not the ops, use the cores
+        with torch.set_grad_enabled(grad):  # grad mode is thread-local
+            for start in starts[w::workers]:
+                if stop.is_set():
+                    return
+                ids = torch.arange(start, min(total, start + chunk), dtype=torch.int64, device=device)
+                state = camera_paths(scene, settings, ids)
+                work(w, state, start) if with_start else work(w, state)
+                bar.update(ids.numel())
+
+    with bar:
+        if workers == 1:
+            run(0)
+            return
+        with ThreadPoolExecutor(workers) as pool:
+            jobs = [pool.submit(run, w) for w in range(workers)]
+            try:
+                for job in jobs:
+                    job.result()
+            except BaseException:
+                stop.set()
+                raise
+
+
+def total_paths(scene: Scene, settings: RenderSettings) -> int:
+    """Camera paths a render traces: every pixel's spp, or the paths of ``settings.plan``."""
+    return scene.width * scene.height * settings.spp if settings.plan is None else settings.plan.total
+
+
+def available_memory_bytes() -> int | None:
+    """Memory the OS can still give this process (``MemAvailable``), or None where unknown."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None
+
+
+def check_film_memory(width: int, height: int, device: torch.device, images: int = 1) -> None:
+    """A one-line :class:`ParameterError` before any work when the films of a ``width x height``
+    render (float64 RGB sums per CPU worker, ``images`` of them each, e.g. one per Neumann term)
+    cannot fit in the memory available."""
+    need = width * height * 3 * 8 * images * cpu_workers(device)
+    have = available_memory_bytes() if device.type == "cpu" else None
+    if have is not None and need > have:
+        raise ParameterError(
+            f"a {width}x{height} render needs {need / 2**30:.1f} GiB for its films ({images} image(s) of float64 RGB sums per worker), "
+            f"more than the {have / 2**30:.1f} GiB available: lower the resolution"
+        )
+
+
+def cpu_workers(device: torch.device) -> int:
+    """Chunks traced at once: one per core on the CPU (each single-threaded), one on a GPU."""
+    if device.type != "cpu":
+        return 1
+    return max(1, min(len(os.sched_getaffinity(0)), torch.get_num_threads()))
+
+
+def camera_paths(scene: Scene, settings: RenderSettings, ids: torch.Tensor) -> PathState:
+    """Camera rays for flat path ids (N,) = ``pixel * spp + sample`` (or the ids of
+    ``settings.plan``, each pixel with its own count).
+
+    ``settings.sampler`` ``"stratified"``: a pixel's spp samples are correlated multi-jittered
+    (:func:`~invrender.core.sampler.multijitter`: every count stratified, a pattern per pixel
+    and pass), so every sample's film position is uniform over the pixel on average (a box filter,
+    unbiased);
+    ``"independent"``: every sample uniform over the pixel; ``"antithetic"``: samples 2k and 2k + 1
+    share their counters, the second mirrored (``sampler.mirrored``), and the pairs are stratified
+    as samples are. A thin lens draws its lens point from dimensions 2 and 3 of the same counters.
+    With a plan, spp is the pixel's count in the pass and sample k has the index ``first + k``.
+    """
+    camera = scene.camera
+    if settings.plan is None and kernels.enabled(ids.device):
+        pixel, keys, film_xy, lens = _camera_samples(scene, settings, ids)
+    else:
+        pixel, keys, film_xy, lens = _camera_samples_torch(scene, settings, ids)
+    o, d = camera.generate_rays(film_xy, scene.width, scene.height, lens)
+    n_paths = ids.shape[0]
+    beta = torch.ones(n_paths, 3, device=ids.device)
+    return PathState(
+        keys=keys, pixel=pixel, o=o.contiguous(), d=d, beta=beta,
+        pdf_dir=torch.ones(n_paths, device=ids.device), delta=torch.ones(n_paths, dtype=torch.bool, device=ids.device),
+    )  # fmt: skip
+
+
+#: the sampler names of the camera-sample kernel's modes
+_MODES = {"stratified": 0, "independent": 1, "antithetic": 2}
+
+
+def _camera_samples(scene: Scene, settings: RenderSettings, ids: torch.Tensor):
+    """(pixel, keys, film positions, lens uniforms or None) of path ids ``ids`` (no plan) from one
+    kernel: the values of :func:`_camera_samples_torch`."""
+    spp = settings.spp
+    cells = (spp + 1) // 2 if settings.sampler == "antithetic" else spp
+    m = max(d for d in range(1, math.isqrt(cells) + 1) if cells % d == 0)  # sampler.multijitter's factors
+    lens = not scene.camera.is_pinhole
+    salts = bounce_salts(0, 4 if lens else 2, ids.device)
+    key_salt, pattern_salt = seed_salt(settings.seed), seed_salt(settings.seed ^ 0x5EED)
+    return kernels.camera_samples(ids, spp, scene.width, _MODES[settings.sampler], key_salt, pattern_salt, cells, m, salts, lens)
+
+
+def _camera_samples_torch(scene: Scene, settings: RenderSettings, ids: torch.Tensor):
+    """(pixel (N,) int64, keys (N,) int32, film positions (N, 2) in pixels, lens uniforms (N, 2) or
+    None for a pinhole camera) of path ids (N,): the torch reference (and the only way with a plan)."""
+    if settings.plan is None:
+        spp = settings.spp
+        pixel, sample = ids // spp, ids % spp
+        first = 0
+    else:
+        pixel, sample = settings.plan.locate(ids)
+        spp, first = settings.plan.count.to(ids.device)[pixel], settings.plan.first.to(ids.device)[pixel]
+    cell, cells = sample, spp
+    if settings.sampler == "antithetic":
+        cell, cells = sample // 2, (spp + 1) // 2
+        keys = mirrored(path_keys(settings.seed, pixel, first + 2 * cell), sample % 2 == 1)
+    else:
+        keys = path_keys(settings.seed, pixel, first + sample)
+    pinhole = scene.camera.is_pinhole
+    u = uniform(keys, 0, 2 if pinhole else 4)
+    if settings.sampler == "independent":
+        fx, fy = u[:, 0], u[:, 1]
+    else:
+        first = torch.as_tensor(first, dtype=torch.int64, device=ids.device)
+        pattern = path_keys(settings.seed ^ 0x5EED, pixel, first).long() & 0xFFFFFFFF  # one per pixel and pass
+        fx, fy = multijitter(pattern, cell, cells, u[:, :2]).unbind(1)
+    film_xy = torch.stack([(pixel % scene.width).float() + fx, (pixel // scene.width).float() + fy], dim=1)
+    return pixel, keys, film_xy, None if pinhole else u[:, 2:4]
+

@@ -1,0 +1,125 @@
+"""The film: accumulates path contributions per pixel, optionally one image per Neumann term."""
+
+from __future__ import annotations
+
+import torch
+
+from invrender.core.ranks import max_across_ranks, sum_across_ranks, world
+
+
+class Film:
+    """Box-filtered accumulation of radiance samples.
+
+    With ``terms`` each contribution is kept in the image of its Neumann term k (the contribution of
+    paths with k reflections, ``g (Mg)^k eps``); otherwise everything goes to one image. Sums are
+    kept in float64, so the float32 image does not depend on the order in which chunks arrive.
+    """
+
+    #: replay's adjoint pass sets this: the integrator then carries the throughput beta detached
+    detach_throughput = False
+
+    def __init__(self, width: int, height: int, terms: bool, device):
+        self.width, self.height, self.terms, self.device = width, height, terms, device
+        self._images: dict[int, torch.Tensor] = {}
+
+    def add(self, term: int, pixel: torch.Tensor, radiance: torch.Tensor) -> None:
+        """Add ``radiance`` (N, 3) to the flat ``pixel`` indices (N,) of Neumann term ``term``."""
+        key = term if self.terms else 0
+        if key not in self._images:
+            self._images[key] = torch.zeros(self.width * self.height, 3, dtype=torch.float64, device=self.device)
+        self._images[key].index_add_(0, pixel, radiance.double())
+
+    def visit(self, pixel: torch.Tensor, s) -> None:
+        """Hook called when the paths writing to ``pixel`` (N,) reach new vertices ``s`` (a
+        :class:`~invrender.core.surface.Surface` of N hits), before anything is added there.
+        The film ignores it; path records note where each path met a textured parameter."""
+
+    def arrive(self, pixel: torch.Tensor, d: torch.Tensor) -> None:
+        """Hook called just before the next contribution of the paths writing to ``pixel`` (N,)
+        that may end on an emitter infinitely far away (an escaped ray, an emitter sample): the
+        radiance it carries arrives along world directions ``d`` (N, 3). The film ignores it; path
+        records look up which texels of an environment map that radiance reads."""
+
+    def scatter(self, pixel: torch.Tensor, weight: torch.Tensor) -> None:
+        """Hook called at each scattering vertex with the sample weight ``f cos / pdf`` (N, 3) the
+        path's throughput is multiplied by, after every contribution that does not pass through it
+        was added. The film ignores it; path replay's adjoint film turns it into the gradient of
+        everything the path gathers beyond the vertex."""
+
+    def branch(self, pixel: torch.Tensor) -> torch.Tensor:
+        """Film indices (M,) for new paths split off paths writing to ``pixel`` (M,) (Whitted's
+        reflection and refraction): the same pixels here; path replay's films give each branch an
+        index of its own."""
+        return pixel
+
+    def sums(self) -> torch.Tensor:
+        """(W * H, 3) float64 sums of all contributions so far, all terms together."""
+        total = torch.zeros(self.width * self.height, 3, dtype=torch.float64, device=self.device)
+        for img in self._images.values():
+            total = total + img
+        return total
+
+    @staticmethod
+    def merge(films: list[Film]) -> Film:
+        """One film holding the sums of ``films`` (same size and ``terms``)."""
+        out = films[0]
+        for other in films[1:]:
+            for k, img in other._images.items():
+                out._images[k] = out._images[k] + img if k in out._images else img
+        return out
+
+    def summed_across_ranks(self) -> Film:
+        """This film holding every rank's contributions (all-reduced float64 sums, differentiable;
+        itself outside a torch.distributed group): for renders whose chunks were split across ranks."""
+        if world()[1] == 1:
+            return self
+        count = max_across_ranks(max(self._images, default=-1) + 1, self.device)
+        for k in range(count):
+            image = self._images.get(k)
+            self._images[k] = sum_across_ranks(image if image is not None else torch.zeros(self.width * self.height, 3, dtype=torch.float64, device=self.device))
+        return self
+
+    def develop(self, spp: int, terms: int = 1) -> torch.Tensor:
+        """The mean over ``spp`` samples: (H, W, 3), or (K, H, W, 3) per term with ``terms``, K at
+        least ``terms`` (the terms the integrator keeps: an image of zeros for terms nothing reached)."""
+        shape = (self.height, self.width, 3)
+        if not self.terms:
+            img = self._images.get(0, torch.zeros(self.width * self.height, 3, device=self.device))
+            return (img / spp).float().reshape(shape)
+        count = max(max(self._images, default=-1) + 1, terms)
+        zero = torch.zeros(self.width * self.height, 3, dtype=torch.float64, device=self.device)
+        return torch.stack([(self._images.get(k, zero) / spp).float().reshape(shape) for k in range(count)])
+
+
+class PathFilm(Film):
+    """A film with one entry per path (the film index is the path), growing when paths split;
+    :meth:`totals` folds every branch's radiance into its parent's. Path replay's primal pass traces
+    into one (each path's radiance is what its adjoint pass strikes off vertex by vertex)."""
+
+    def __init__(self, n: int, device):
+        super().__init__(n, 1, False, device)
+        self.size = n
+        self._branches: list[tuple[torch.Tensor, torch.Tensor]] = []  # (new indices, parent indices)
+
+    def add(self, term: int, pixel: torch.Tensor, radiance: torch.Tensor) -> None:
+        if 0 not in self._images or self._images[0].shape[0] < self.size:
+            grown = torch.zeros(self.size, 3, dtype=torch.float64, device=self.device)
+            if 0 in self._images:
+                grown[: self._images[0].shape[0]] = self._images[0]
+            self._images[0] = grown
+        self._images[0].index_add_(0, pixel, radiance.double())
+
+    def branch(self, pixel: torch.Tensor) -> torch.Tensor:
+        new = torch.arange(self.size, self.size + pixel.numel(), device=pixel.device)
+        self._branches.append((new, pixel))
+        self.size += pixel.numel()
+        return new
+
+    def totals(self) -> torch.Tensor:
+        """(size, 3) float64: each path's radiance, including all its branches'."""
+        total = torch.zeros(self.size, 3, dtype=torch.float64, device=self.device)
+        if 0 in self._images:
+            total[: self._images[0].shape[0]] = self._images[0]
+        for new, parent in reversed(self._branches):  # children are created after their parents
+            total.index_add_(0, parent, total[new])
+        return total

@@ -1,0 +1,216 @@
+"""The primal bounce of the random walk and the path tracer as one fused kernel, where it applies.
+
+Outside its ray queries, a bounce in eager torch is a few hundred small operations, each a pass
+over megabytes of (N,) and (N, 3) tensors. When nothing needs those operations' autograd graph
+or hooks, a bounce of a Lambertian scene lit by emissive triangles is instead:
+
+1. the closest-hit query, and the compaction to the rays that hit;
+2. one kernel (:func:`~invrender.backends.kernels.lambert_vertex`): the hit's geometry, the
+   emission seen there with its MIS weight (term k), one emitter sample, its shadow ray and the
+   direct light it carries if unoccluded (term k + 1), the cosine-weighted BSDF sample, the new ray,
+   the throughput and Russian roulette;
+3. the shadow-ray query, the two film additions, and the compaction to the surviving paths.
+
+The kernel draws the same counter-based numbers (the same salts, the same dimensions) and follows
+the same expressions as the torch bounce of :class:`~invrender.plugins.integrators.random_walk.RandomWalk`
+and :func:`~invrender.plugins.integrators.vertex.add_direct`, which stay the reference: the two
+give the same image within float rounding (``tests/transport/test_fused.py``; a roulette decision
+that float rounding flips changes one path), and cast the same shadow rays in the same order, so
+path replay's adjoint pass (differentiable torch) takes its primal pass's answers unchanged.
+
+It applies (:func:`tables`) where the Warp kernels run (:func:`~invrender.backends.kernels.enabled`),
+the integrator's vertex step is the random walk's or the path tracer's own (``fused_direct``) with
+cosine-weighted diffuse sampling, every material belongs to one type that gives an albedo table
+(:meth:`BSDF.fused_albedo <invrender.core.bsdf.BSDF.fused_albedo>`: ``diffuse`` with RGB
+reflectance, no shading normals, none one-sided), the emitters are of one type that gives its
+triangle tables (:meth:`Light.fused_triangles <invrender.core.lights.Light.fused_triangles>`:
+``area`` with RGB radiance, no sphere sampled by solid angle), the camera sees emitters, there is no
+ambient term, and no parameter carries a gradient or a forward-mode tangent; and, per chunk, where
+the film has no hooks (:func:`takes`: path records' and replay's adjoint films do). Everywhere else
+the torch bounce runs. ``INVRENDER_KERNELS=steps`` switches it off (the kernels of single steps
+stay), ``INVRENDER_KERNELS=torch`` with the other kernels.
+
+**Derivatives carried forward.** Every factor of such a path is linear in one of the scene's
+constant parameters (a material's rho, an emitter's eps), so each path counts its throughput's
+factors of each rho as it scatters (``counts``), and one more kernel per bounce
+(:func:`~invrender.backends.kernels.tangents_add`) turns a contribution C into what two callers
+need: its derivatives, ``n C / rho_m`` and the factor beside eps, summed per pixel into a
+:class:`TangentFilm` (path replay's gradient is then one contraction with ``dl/dI``, no adjoint
+trace: :mod:`invrender.estimators.replay`), or its monomial's code ``sum_s k_s R_s`` for a film that
+takes contributions by code (path records: :func:`places`), instead of forward-mode autodiff.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+import torch.autograd.forward_ad as fwAD
+
+from invrender.scene.kinds import param_name
+from invrender.backends import kernels
+from invrender.core.context import PathState, TransportContext
+from invrender.core.film import Film
+from invrender.core.ranks import sum_across_ranks, world
+from invrender.core.sampler import bounce_salts
+
+#: paths a chunk traced by the fused bounce holds at most on the CPU: its per-chunk cost (a few
+#: dozen launches and queries a bounce) is paid back well below this, and smaller chunks keep the
+#: working set small (about 400 bytes a path)
+CPU_CHUNK_PATHS = 1 << 16
+#: the same for a render that carries derivatives (path replay's gradient: its memory is what
+#: replay promises to keep small; half the chunk, about 25 MiB less, for a few % of its time)
+CPU_TANGENT_CHUNK_PATHS = 1 << 15
+
+#: random numbers drawn per vertex (as the random walk draws them: 0-1 BSDF direction, 2-4 emitter
+#: sample, 5 roulette, 6 BSDF lobe)
+DIMS = 7
+
+
+@dataclass(frozen=True)
+class FusedScene:
+    """What the fused bounce reads of one render's scene.
+
+    Attributes:
+        tables: the kernel's scene tables (:func:`~invrender.backends.kernels.lambert_vertex`).
+        mis: emission hit by BSDF samples is weighted against emitter samples (power heuristic).
+        nee_only: emitter samples alone estimate direct light (emission counts on camera rays only).
+        nee: emitter samples are taken (next-event estimation).
+    """
+
+    tables: list
+    mis: bool
+    nee_only: bool
+    nee: bool
+
+
+def tables(ctx: TransportContext, direct, hemisphere: str) -> FusedScene | None:
+    """The fused bounce's view of the render ``ctx``, or None where it does not apply (module
+    docstring). ``direct``: the integrator's ``fused_direct`` (None: its vertex step is its own;
+    ``False``: no emitter samples; ``"mis"`` or ``"emitter"``: the path tracer's strategies);
+    ``hemisphere``: its diffuse sampling."""
+    if direct is None or hemisphere != "cosine" or not kernels.fused_bounce(ctx.triangles.p0.device):
+        return None
+    if ctx.hide_emitters or ctx.ambient is not None or ctx.triangles.any_smooth:
+        return None
+    rho, lights = ctx.materials.fused_albedo(), ctx.lights.fused_triangles()
+    if rho is None or lights is None or any(_carries_derivative(x) for x in (rho, lights.eps)):
+        return None
+    t = ctx.triangles
+    packed = [t.packed.reshape(-1), t.material, t.emitter, lights.emitting, rho.detach().float(), lights.eps.detach().float(), lights.tri, lights.cdf, lights.pdf_area]
+    return FusedScene(packed, mis=direct == "mis", nee_only=direct == "emitter", nee=direct in ("mis", "emitter"))
+
+
+def _carries_derivative(x: torch.Tensor) -> bool:
+    return (x.requires_grad and torch.is_grad_enabled()) or fwAD.unpack_dual(x).tangent is not None
+
+
+def takes(film: Film) -> bool:
+    """Does ``film`` take the fused bounce's contributions: it has none of the hooks the torch
+    bounce calls (``visit``, ``arrive``, ``scatter``), or it takes contributions by monomial code
+    (:func:`places`)?"""
+    if places(film) is not None:
+        return True
+    cls = type(film)
+    return cls.visit is Film.visit and cls.arrive is Film.arrive and cls.scatter is Film.scatter and not film.detach_throughput
+
+
+def places(film: Film) -> torch.Tensor | None:
+    """(S,) int64 the place of each slot's exponent in a monomial's code, for a film that takes the
+    contributions by code (``film.fused_places``; path records, which then add each contribution
+    with ``film.add_coded(term, index, code, radiance)``, code -1: none); else None."""
+    return getattr(film, "fused_places", None)
+
+
+class TangentFilm(Film):
+    """A film that also keeps each pixel's derivatives in the scene's constant parameters (forward
+    mode, in the fused kernels): :attr:`jacobian` (W * H, 3, S) float64, pixel by colour channel by
+    *slot*, the M materials' reflectance (:meth:`BSDF.fused_albedo` rows) then the E emitters'
+    emission (``triangles.emitter`` rows); channel c of a pixel depends on channel c of each slot
+    only. Sums over paths, as the image (divide by spp for the image's derivative).
+
+    Every factor of a Lambertian path is linear in one of them, so a contribution C with n factors
+    of rho_m has derivative ``n C / rho_m`` (0 in a channel where rho_m is 0, as path replay
+    gives there) and one with the factor eps_e the factor beside it; a path counts its throughput's
+    factors per material as it scatters (``kernels.tangents_add``).
+    """
+
+    def __init__(self, width: int, height: int, slots: int, device):
+        super().__init__(width, height, False, device)
+        self.jacobian = torch.zeros(width * height, 3, slots, dtype=torch.float64, device=device)
+
+    @staticmethod
+    def merge(films: list[TangentFilm]) -> TangentFilm:
+        out = Film.merge(films)
+        for other in films[1:]:
+            out.jacobian += other.jacobian
+        return out
+
+    def summed_across_ranks(self) -> TangentFilm:
+        if world()[1] > 1:
+            self.jacobian = sum_across_ranks(self.jacobian)
+        return super().summed_across_ranks()
+
+
+def slots(fused: FusedScene) -> int:
+    """The Jacobian's slots of the scene: its materials, then its emitters (:class:`TangentFilm`)."""
+    return fused.tables[4].shape[0] + fused.tables[5].shape[0]
+
+
+def slot_index(scene, fused: FusedScene) -> dict[str, int]:
+    """Parameter name -> its slot (``NAME.reflectance`` of the scene's materials, then
+    ``NAME.emission`` of its emitters), the parameters whose derivatives and monomial codes the
+    fused bounce carries; empty when its tables do not have one row per material and emitter."""
+    if slots(fused) != len(scene.materials) + len(scene.emitters):
+        return {}
+    index = {param_name(m, "reflectance"): i for i, m in enumerate(scene.materials)}
+    index.update({param_name(e, "emission"): len(scene.materials) + i for i, e in enumerate(scene.emitters)})
+    return index
+
+
+def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film, settings) -> None:
+    """Follow ``state``'s camera rays with the fused bounce and add each term to ``film`` (and,
+    into a :class:`TangentFilm`, each pixel's derivatives); ``settings``: the integrator's
+    (``max_depth``, ``rr_depth``)."""
+    rr_start = math.inf if settings.rr_depth == -1 else settings.rr_depth
+    pixel, keys, o, d, beta, pdf = state.pixel, state.keys, state.o, state.d, state.beta, state.pdf_dir
+    coded = places(film)
+    tangents = isinstance(film, TangentFilm) or coded is not None
+    rho = fused.tables[4]
+    counts = torch.zeros(keys.shape[0], rho.shape[0] if tangents else 0, dtype=torch.int32, device=keys.device)  # factors of each rho in beta
+    depth = 0
+    while keys.shape[0]:
+        hits = ctx.accel.intersect(o, d)
+        hit = hits.valid.nonzero()[:, 0]  # a synchronization: the count of rays that hit
+        prim, u, v, t = hits.prim, hits.u, hits.v, hits.t
+        if hit.shape[0] < keys.shape[0]:
+            pixel, keys, d, beta, pdf, prim, u, v, t, counts = (x.index_select(0, hit) for x in (pixel, keys, d, beta, pdf, prim, u, v, t, counts))
+            if not hit.shape[0]:
+                break
+        more = settings.continues_after(depth)
+        flags = (depth, int(fused.mis), int(fused.nee_only), int(fused.nee), int(more), int(depth + 1 >= rr_start))
+        salts = bounce_salts(depth + 1, DIMS, d.device)
+        out = kernels.lambert_vertex(fused.tables, (prim, u, v, t), d, beta, pdf, keys, salts, flags, ctx.ray_offset, tangents)
+        emitted, shadow_o, shadow_d, shadow_t, direct, o, d, beta, pdf, alive = out[:10]
+        occluded = None
+        if more and fused.nee:
+            occluded = ctx.accel.occluded(shadow_o, shadow_d, shadow_t)
+            direct.masked_fill_(occluded[:, None], 0.0)
+        if coded is not None:  # path records: each contribution with its monomial's code
+            code_e, code_d = kernels.tangents_add(pixel, counts, rho, emitted, out[10:], direct, occluded, more, places=coded)
+            film.add_coded(depth, pixel, code_e, emitted)  # term depth
+            if occluded is not None:
+                film.add_coded(depth + 1, pixel, code_d, direct)  # term depth + 1
+        else:
+            film.add(depth, pixel, emitted)  # term depth
+            if occluded is not None:
+                film.add(depth + 1, pixel, direct)  # term depth + 1
+            if tangents:
+                kernels.tangents_add(pixel, counts, rho, emitted, out[10:], direct, occluded, more, jacobian=film.jacobian)
+        if not more:
+            break
+        if depth + 1 >= rr_start:
+            live = alive.nonzero()[:, 0]  # a synchronization: the survivors' count
+            pixel, keys, o, d, beta, pdf, counts = (x.index_select(0, live) for x in (pixel, keys, o, d, beta, pdf, counts))
+        depth += 1

@@ -1,0 +1,106 @@
+"""Smooth glass: Mitsuba's ``dielectric``. Fresnel reflection and refraction at an interface with
+relative index ``ior`` (interior over exterior; the exterior is vacuum, 1.0).
+
+With ``eta`` the index ratio transmitted over incident (``ior`` entering, ``1 / ior`` leaving) and
+``cos_t^2 = 1 - (1 - cos_i^2) / eta^2``, unpolarized Fresnel reflectance is the mean of
+
+    r_s = (cos_i - eta cos_t) / (cos_i + eta cos_t),   r_p = (eta cos_i - cos_t) / (eta cos_i + cos_t)
+
+squared (Born and Wolf, Principles of Optics, 1.5.2), ``((n - 1)/(n + 1))^2`` at normal incidence
+and 1 beyond the critical angle (total internal reflection). Sampling picks reflection with
+probability F, so the reflection's weight is 1 and the refraction's ``1 / eta^2``: radiance is
+compressed into a smaller solid angle on entering a denser medium (Veach's thesis, 5.2); entering and
+leaving a closed object cancel. No parameter is differentiable (``ior`` is a scene constant).
+"""
+
+from __future__ import annotations
+
+
+import torch
+
+from invrender import registry
+from invrender.errors import SceneError
+from invrender.plugins.bsdfs.mirror import reflect
+from invrender.scene.plugins import Constant
+from invrender.core.bsdf import BSDFSample, DeltaBSDF, Lobe, ShadingPoint
+from invrender.vec import dot
+
+
+#: the widest relative index of refraction (interior over exterior) a material accepts, and its
+#: inverse the narrowest: real media lie between 1 (vacuum) and about 4 (germanium, in the
+#: infrared), so a ratio beyond it is a slip, and far beyond it the Fresnel terms' ``eta^2``
+#: leaves float32's range (a render of NaN)
+MAX_RELATIVE_IOR = 100.0
+
+
+def check_relative_ior(where: str, int_ior: float, ext_ior: float) -> None:
+    """A :class:`SceneError` naming ``where`` and both indices unless ``int_ior / ext_ior`` lies in
+    ``[1 / MAX_RELATIVE_IOR, MAX_RELATIVE_IOR]``."""
+    eta = int_ior / ext_ior
+    if not 1.0 / MAX_RELATIVE_IOR <= eta <= MAX_RELATIVE_IOR:
+        raise SceneError(f"{where}: 'int_ior' / 'ext_ior' = {int_ior:g} / {ext_ior:g} = {eta:g}; expected a relative index of refraction in "
+                         f"[{1.0 / MAX_RELATIVE_IOR:g}, {MAX_RELATIVE_IOR:g}] (real media lie between 1 and about 4)")
+
+
+def fresnel_dielectric(cos_i: torch.Tensor, eta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Unpolarized Fresnel reflectance F (N,) and the transmitted cosine cos_t (N,) (0 under total
+    internal reflection), for incident cosines ``cos_i`` (N,) >= 0 and index ratios ``eta`` (N,)."""
+    cos2_t = 1.0 - (1.0 - cos_i * cos_i) / (eta * eta)
+    tir = cos2_t <= 0
+    cos_t = cos2_t.clamp_min(0.0).sqrt()
+    r_s = (cos_i - eta * cos_t) / (cos_i + eta * cos_t).clamp_min(1e-12)
+    r_p = (eta * cos_i - cos_t) / (eta * cos_i + cos_t).clamp_min(1e-12)
+    F = torch.where(tir, 1.0, 0.5 * (r_s * r_s + r_p * r_p))
+    return F, cos_t
+
+
+@registry.MATERIALS.register
+class Dielectric(DeltaBSDF):
+    type_name = "dielectric"
+    lobes = Lobe.DELTA_REFLECTION | Lobe.DELTA_TRANSMISSION
+    constants = {"ior": Constant(1.5, 1.0 / MAX_RELATIVE_IOR, MAX_RELATIVE_IOR, False, False)}
+    doc = "smooth glass: Fresnel reflection and refraction"
+
+    def _interface(self, sp: ShadingPoint):
+        """(F, reflected wi, refracted wi, eta) at each point."""
+        ior = self.constant("ior", sp)
+        eta = torch.where(sp.front, ior, 1.0 / ior)  # transmitted over incident
+        cos_i = dot(sp.n, sp.wo).clamp_min(0.0)
+        F, cos_t = fresnel_dielectric(cos_i, eta)
+        wr = reflect(sp.wo, sp.n)
+        wt = -sp.wo / eta[:, None] + (cos_i / eta - cos_t)[:, None] * sp.n
+        return F, wr, wt, eta
+
+    def specular_lobes(self, sp: ShadingPoint) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """Reflection with weight F, refraction with weight ``(1 - F) / eta^2``."""
+        F, wr, wt, eta = self._interface(sp)
+        return [(wr, F[:, None].expand(-1, 3)), (wt, ((1.0 - F) / (eta * eta))[:, None].expand(-1, 3))]
+
+    def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
+        """Reflection with probability F (weight 1), else refraction (weight ``1 / eta^2``)."""
+        F, wr, wt, eta = self._interface(sp)
+        reflected = u_lobe < F
+        wi = torch.where(reflected[:, None], wr, wt)
+        weight = torch.where(reflected, 1.0, 1.0 / (eta * eta))[:, None].expand(-1, 3)
+        return self.delta_sample(wi, weight)
+
+    # ---- its aliases in the scene formats (read through the registry)
+
+    mitsuba_plugins = ("dielectric",)
+    gltf_priority = 10
+
+    @classmethod
+    def from_mitsuba(cls, bsdf) -> dict:
+        """Mitsuba's ``dielectric``: ``ior = int_ior / ext_ior`` (numbers or named media, default bk7 / air)."""
+        ior = bsdf.ior("int_ior", "bk7") / bsdf.ior("ext_ior", "air")
+        bsdf.finish(("int_ior", "ext_ior"))
+        return {"ior": ior}
+
+    @classmethod
+    def from_gltf(cls, material) -> dict | None:
+        """Any transmission (``transmissionFactor`` > 0): clear glass of the material's ``ior``."""
+        return {"ior": material.ior} if material.transmission > 0 else None
+
+    @classmethod
+    def to_mitsuba(cls, values: dict, constants: dict) -> dict:
+        return {"type": "dielectric", "int_ior": float(constants["ior"]), "ext_ior": 1.0}

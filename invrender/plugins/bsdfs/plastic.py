@@ -1,0 +1,488 @@
+"""Plastics, two-sided: a diffuse base under a dielectric coating, Mitsuba 3's ``plastic`` (smooth
+coating, type ``plastic``) and ``roughplastic`` (microfacet coating: Beckmann, Mitsuba's default,
+type ``roughplastic``; GGX, type ``roughplastic_ggx``), with Mitsuba's model, defaults and sampling.
+
+The coating has the relative index ``eta = int_ior / ext_ior`` (defaults polypropylene 1.49 over
+air 1.000277; numbers or Mitsuba's named media). With ``rho`` the base's ``reflectance`` (Mitsuba's
+``diffuse_reflectance``) and ``k_s`` the coating's ``specular_reflectance``, for ``wo`` (towards the
+camera) and ``wi`` (towards the light) at cosines ``c_o``, ``c_i`` with the normal:
+
+``plastic`` (lobes: delta reflection, diffuse)
+    - specular: a delta reflection of weight ``k_s F(c_o)`` (F the dielectric Fresnel term,
+      :func:`~invrender.plugins.bsdfs.dielectric.fresnel_dielectric`);
+    - diffuse: ``f cos = rho' c_i / pi (1 - F(c_o)) (1 - F(c_i)) / eta^2``, light refracted in,
+      scattered by the base, refracted out; ``rho' = rho / (1 - F_dr)`` sums the internal
+      reflections (``nonlinear = false``, Mitsuba's default: the colour is kept) or
+      ``rho / (1 - rho F_dr)`` (``nonlinear = true``: each internal bounce scatters off the base
+      again, so colours darken and saturate). ``F_dr`` is the diffuse Fresnel reflectance seen from
+      inside (index ``1 / eta``), by Mitsuba's fits (:func:`fresnel_diffuse_reflectance`).
+
+``roughplastic`` (lobes: glossy, diffuse)
+    - specular: the microfacet reflection ``k_s F(wo . h) D(h) G1(wo) G1(wi) / (4 c_o)`` of the
+      distribution (:mod:`invrender.plugins.bsdfs.microfacet`) at ``roughness`` alpha (Mitsuba's
+      ``alpha``);
+    - diffuse: ``rho' c_i / pi T(c_o) T(c_i) / eta^2``, ``T(c)`` the rough interface's
+      transmittance, ``rho'`` as above with the rough internal reflectance ``R_int`` for ``F_dr``.
+
+    ``T`` and ``R_int`` are what Mitsuba precomputes (``roughplastic.cpp``, ``eval_transmittance``
+    and ``eval_reflectance`` of ``microfacet.h``), computed here the same way for each material
+    (:func:`rough_tables`): ``T(mu)`` at 64 cosines ``mu = max(1e-6, linspace(0, 1, 64))`` is the
+    mean, over visible normals m from ``wi = (sqrt(1 - mu^2), 0, mu)``, of ``(1 - F(wi . m))
+    G1(wt)`` (``wt`` the refracted direction), by a 32 x 32 Gauss-Legendre rule over the square
+    of the visible-normal sampler's uniforms; ``R_int = 2 mean_mu(mu R(mu))`` over the same 64
+    cosines, ``R(mu)`` the reflected ``F G1`` at index ``1 / eta`` (a 64 x 64 rule; Mitsuba's
+    is 128 x 128). ``T`` is
+    read by linear interpolation in ``c``. ``docs/rendering.md`` gives the approximation's
+    measured size.
+
+    The roughness is a differentiable parameter (``NAME.roughness``, kind ``roughness``, one number
+    per material: the tables are a material's, so a map is refused). ``eval`` reads it attached in
+    ``D`` and ``G1`` (as the glossy conductors do) and in the tables, attached to first order:
+    ``T(alpha_0) + T'(alpha_0) (alpha - alpha_0)``, ``T'`` and ``R_int'`` by
+    :func:`rough_table_slopes`, exact in value (renders are bit-identical to a constant
+    roughness's). Sampling reads the detached roughness: the lobe choice (``T`` at alpha_s), the
+    visible normal and ``pdf``; a sample's weight ``f(alpha) cos / pdf(alpha_s)`` carries the
+    gradient, so every estimator stays unbiased (``docs/gradient_variance.md#roughness``).
+
+Sampling (both): the specular lobe with probability ``P_s = a w / (a w + (1 - a)(1 - w))``, else
+cosine-weighted directions, where ``a`` is ``F(c_o)`` (plastic) or ``1 - T(c_o)`` (roughplastic) and
+``w = mean(k_s) / (mean(rho) + mean(k_s))`` is Mitsuba's specular sampling weight, computed from
+the values a scene is built with and kept as the constant ``specular_sampling_weight`` (or given),
+so sampling never depends on a differentiable parameter but through the detached roughness: finite
+differences with common random numbers stay exact, and a fit only changes how well it samples,
+never what it estimates. The rough lobe samples
+visible normals; its ``pdf`` is ``P_s D G1(wo) / (4 c_o) + (1 - P_s) c_i / pi`` and a sample's
+weight is ``f cos / pdf`` of the whole BSDF, as Mitsuba's.
+
+Mitsuba's plastics are one-sided (black from behind); invrender's are two-sided, as its other
+materials (Mitsuba's ``twosided`` of them).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from typing import ClassVar
+
+import numpy as np
+import torch
+
+from invrender import registry
+from invrender.errors import ParameterError, SceneError
+from invrender.plugins.bsdfs.dielectric import check_relative_ior, fresnel_dielectric
+from invrender.plugins.bsdfs.glossy import ALPHA
+from invrender.plugins.bsdfs.microfacet import BECKMANN, DISTRIBUTIONS, GGX, Distribution, fwAD_active, roughness_at
+from invrender.plugins.bsdfs.mirror import reflect
+from invrender.scene.formats.mitsuba.bsdfs import NAMED_IOR
+from invrender.scene.kinds import REFLECTANCE, ROUGHNESS
+from invrender.scene.kinds import SPECULAR_REFLECTANCE_RGB as SPECULAR_REFLECTANCE
+from invrender.scene.plugins import Constant, Param
+from invrender.core.bsdf import BSDF, BSDFSample, Lobe, ShadingPoint
+from invrender.vec import dot, normalize
+
+#: a rough plastic's roughness: the roughness kind, one number per material (its tables are a
+#: material's, not a texel's: a map is refused as for any RGB-only parameter)
+ROUGHNESS_RGB = dataclasses.replace(ROUGHNESS, texture=False)
+
+#: Mitsuba's roughplastic transmittance table size (``MI_ROUGH_TRANSMITTANCE_RES``)
+TABLE_SIZE = 64
+
+#: the coating's indices of refraction and Mitsuba's ``nonlinear`` switch
+COATING_CONSTANTS = {
+    "int_ior": Constant(NAMED_IOR["polypropylene"], 0.0, math.inf, True, True, names=NAMED_IOR),
+    "ext_ior": Constant(NAMED_IOR["air"], 0.0, math.inf, True, True, names=NAMED_IOR),
+    "nonlinear": Constant(False, 0.0, 1.0, False, False, boolean=True),
+    # Mitsuba's, for the defaults rho 0.5 and k_s 1; computed from the values unless given (resolve)
+    "specular_sampling_weight": Constant(2.0 / 3.0, 0.0, 1.0, False, False),
+}
+
+
+def fresnel_diffuse_reflectance(eta: float) -> float:
+    """Mitsuba 3's diffuse Fresnel reflectance ``2 int_0^1 F(mu, eta) mu dmu`` of an interface of
+    relative index ``eta``, by its fits: Egan and Hilgeman (1973) for ``eta < 1``, d'Eon and Irving
+    (2011) otherwise (``docs/rendering.md`` compares them with the integral)."""
+    if eta < 1.0:
+        return 0.0636 / eta + eta * (eta * -1.4399 + 0.7099) + 0.6681
+    x = 1.0 / eta
+    return float(np.polyval([-1.36881, 4.98554, -7.80989, 6.75335, -3.4793, 0.919317], x))
+
+
+def _mean(value) -> float:
+    """The mean of a colour (a number, an RGB triple or a texture; arrays or tensors)."""
+    return float(np.mean(np.asarray(value.detach().cpu() if torch.is_tensor(value) else value, dtype=np.float64)))
+
+
+def cosine_hemisphere(u: torch.Tensor) -> torch.Tensor:
+    """Cosine-distributed local directions (N, 3) about +z from uniforms ``u`` (N, 2)."""
+    r = u[:, 0].sqrt()
+    phi = (2.0 * math.pi) * u[:, 1]
+    return torch.stack([r * torch.cos(phi), r * torch.sin(phi), (1.0 - u[:, 0]).clamp_min(0.0).sqrt()], dim=1)
+
+
+def _rough_quadrature(distribution: str, alpha: float, eta: float, nodes: tuple[int, int]) -> tuple[np.ndarray, float]:
+    """``(T, R_int)`` of :func:`rough_tables`, in float64."""
+    d = DISTRIBUTIONS[distribution]
+    mu = np.maximum(1e-6, np.linspace(0.0, 1.0, TABLE_SIZE))
+    wi_rows = torch.tensor(np.stack([np.sqrt(1.0 - mu * mu), np.zeros_like(mu), mu], 1), dtype=torch.float64)
+
+    def integrate(n: int, integrand) -> np.ndarray:
+        x, w = np.polynomial.legendre.leggauss(n)
+        u = torch.tensor(np.stack(np.meshgrid(0.5 * x + 0.5, 0.5 * x + 0.5, indexing="ij"), -1).reshape(-1, 2), dtype=torch.float64)
+        weight = torch.tensor(np.outer(w, w).reshape(-1) * 0.25, dtype=torch.float64)
+        k = u.shape[0]
+        wi = wi_rows.repeat_interleave(k, 0)  # every cosine with every node
+        a = torch.full((wi.shape[0],), alpha, dtype=torch.float64)
+        m = d.sample_visible(wi, a, u.repeat(TABLE_SIZE, 1)).double()
+        return (integrand(wi, m, a).reshape(TABLE_SIZE, k) * weight).sum(1).numpy()
+
+    def transmitted(wi, m, a):
+        c = dot(wi, m)
+        F, cos_t = fresnel_dielectric(c.clamp_min(0.0), torch.full_like(c, eta))
+        wt = m * (c / eta - cos_t)[:, None] - wi / eta  # refracted below the interface
+        g = d.G1(wt[:, 2].abs(), a) * (dot(wt, m) * wt[:, 2] > 0)
+        return torch.where(wt[:, 2] * wi[:, 2] < 0, g * (1.0 - F), 0.0)
+
+    def reflected(wi, m, a):  # from inside: index 1 / eta (total internal reflection: F = 1)
+        c = dot(wi, m)
+        F, _ = fresnel_dielectric(c.clamp_min(0.0), torch.full_like(c, 1.0 / eta))
+        wr = 2.0 * c[:, None] * m - wi
+        return torch.where(wr[:, 2] > 0, d.G1(wr[:, 2], a) * F, 0.0)
+
+    with torch.no_grad():
+        T = integrate(nodes[0], transmitted)
+        R = integrate(nodes[1], reflected)
+    return T, float(2.0 * np.mean(R * mu))
+
+
+@functools.lru_cache(maxsize=64)
+def rough_tables(distribution: str, alpha: float, eta: float, nodes: tuple[int, int] = (32, 64)) -> tuple[tuple[float, ...], float]:
+    """``(T, R_int)`` of a rough interface (module docstring): the external transmittance at the
+    :data:`TABLE_SIZE` cosines and the internal diffuse reflectance, for the named distribution at
+    roughness ``alpha`` and relative index ``eta`` (float64). ``nodes``: the Gauss-Legendre
+    rules' sizes per axis for the two; Mitsuba's are 32 and 128, the internal one is 64 here (four
+    times cheaper; ``docs/rendering.md`` gives the difference)."""
+    T, R = _rough_quadrature(distribution, alpha, eta, nodes)
+    return tuple(float(t) for t in T), R
+
+
+#: the step (in alpha) of the tables' central difference (:func:`rough_table_slopes`)
+SLOPE_STEP = 1e-2
+
+
+@functools.lru_cache(maxsize=64)
+def rough_table_slopes(distribution: str, alpha: float, eta: float, nodes: tuple[int, int] = (32, 64)) -> tuple[tuple[float, ...], float]:
+    """``(dT/dalpha, dR_int/dalpha)`` of :func:`rough_tables`, what a differentiable roughness
+    attaches its tables by: the central difference of the same rules' values at ``alpha +- h``,
+    ``h`` = :data:`SLOPE_STEP` (a quarter of alpha below 0.04). Not the rules' exact derivative:
+    Fresnel's square-root edge at total internal reflection makes the internal rule's sum ripple
+    in alpha (by about 3e-5, at scales below 2e-3), so its exact derivative wanders by 10% around
+    the slope its values follow over 1e-2 (the scale a fit or a finite difference moves alpha
+    by); the difference follows that slope. Two extra evaluations of the rules (each about 0.07 s
+    on one quiet core)."""
+    h = min(SLOPE_STEP, alpha / 4.0)
+    (Tp, Rp), (Tm, Rm) = (_rough_quadrature(distribution, alpha + k * h, eta, nodes) for k in (1, -1))
+    return tuple(float(t) for t in (Tp - Tm) / (2.0 * h)), (Rp - Rm) / (2.0 * h)
+
+
+class Coated(BSDF):
+    """What both plastics share: a diffuse base under a dielectric coating of index ``eta``, the
+    specular sampling weight, Mitsuba's properties and export. Subclasses give the coating."""
+
+    params = {"reflectance": Param(REFLECTANCE, 0.5), "specular_reflectance": Param(SPECULAR_REFLECTANCE, 1.0)}
+    #: the Mitsuba plugin it writes
+    mitsuba_type: ClassVar[str]
+
+    def _per_material(self, key: str, device, fn) -> torch.Tensor:
+        """A (M,) float32 table of ``fn(index)`` over this BSDF's materials, built once per device."""
+        token = (key, device)
+        if token not in self._constant_tables:
+            self._constant_tables[token] = torch.tensor([fn(i) for i in range(len(self.constants))], dtype=torch.float32, device=device)
+        return self._constant_tables[token]
+
+    def _eta(self, sp: ShadingPoint) -> torch.Tensor:
+        """(N,) the relative index of the coating."""
+        return self.constant("int_ior", sp) / self.constant("ext_ior", sp)
+
+    def _spec_weight(self, sp: ShadingPoint) -> torch.Tensor:
+        """(N,) the specular sampling weight of each point's material (a constant: :meth:`resolve`)."""
+        return self.constant("specular_sampling_weight", sp)
+
+    @staticmethod
+    def _lobe_choice(a: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+        """(N,) probability of the specular lobe, ``a w / (a w + (1 - a)(1 - w))``."""
+        s, d = a * w, (1.0 - a) * (1.0 - w)
+        return torch.where(s + d > 0, s / (s + d).clamp_min(1e-30), 0.0)
+
+    def _base(self, sp: ShadingPoint, internal: torch.Tensor) -> torch.Tensor:
+        """(N, 3) ``rho / (1 - F_dr)`` or, nonlinear, ``rho / (1 - rho F_dr)``, with the internal
+        reflectance ``internal`` (N,)."""
+        rho = self.param("reflectance", sp)
+        nonlinear = self.constant("nonlinear", sp)[:, None] > 0.5
+        F = internal[:, None]
+        return rho / torch.where(nonlinear, 1.0 - rho * F, 1.0 - F)
+
+    def diffuse_reflectance(self, sp: ShadingPoint) -> torch.Tensor:
+        return self.param("reflectance", sp)
+
+    @classmethod
+    def not_polynomial(cls, key: str, constants: dict) -> str | None:
+        """Path records: the rough plastic's ``f`` sums its two lobes (no single monomial in
+        ``k_s`` and ``rho``), and ``nonlinear`` makes ``rho / (1 - rho F_dr)``; the smooth one
+        with ``nonlinear = false`` is linear in each, lobe by lobe."""
+        if cls.has(Lobe.GLOSSY):
+            return f"a {cls.type_name}'s value sums two lobes (k_s times the coating's, rho times the base's), not one monomial"
+        if key == "reflectance" and constants.get("nonlinear"):
+            return "with nonlinear = true the base's factor rho / (1 - rho F_dr) is not a polynomial in rho"
+        return None
+
+    @classmethod
+    def resolve(cls, where: str, values: dict, constants: dict, given: set) -> dict:
+        """Mitsuba's specular sampling weight ``mean(k_s) / (mean(rho) + mean(k_s))`` (over channels
+        and texels; 0.5 when both are 0) from the values the scene is built with, unless given;
+        the rough plastic's indices must differ (as Mitsuba's); the coating's ratio of indices must
+        be one real media have (:func:`~invrender.plugins.bsdfs.dielectric.check_relative_ior`)."""
+        if constants["int_ior"] == constants["ext_ior"] and cls.has(Lobe.GLOSSY):
+            raise SceneError(f"{where}: 'int_ior' and 'ext_ior' must differ (both {constants['int_ior']:g}), as Mitsuba's roughplastic requires")
+        check_relative_ior(where, constants["int_ior"], constants["ext_ior"])
+        if "specular_sampling_weight" not in given:
+            d, s = (_mean(values[k]) for k in ("reflectance", "specular_reflectance"))
+            constants = {**constants, "specular_sampling_weight": s / (d + s) if d + s > 0 else 0.5}
+        return constants
+
+    # ---- its aliases in the scene formats (read through the registry)
+
+    @classmethod
+    def _read_coating(cls, bsdf) -> dict:
+        """The properties both Mitsuba plastics share (``diffuse_reflectance``, a colour or bitmap;
+        ``specular_reflectance``; ``int_ior``/``ext_ior``; ``nonlinear``)."""
+        rho = bsdf.colour("diffuse_reflectance", REFLECTANCE, 0.5)
+        ks = bsdf.colour("specular_reflectance", SPECULAR_REFLECTANCE, 1.0, texture=False)
+        int_ior, ext_ior = bsdf.ior("int_ior", "polypropylene"), bsdf.ior("ext_ior", "air")
+        nonlinear = bool(bsdf.boolean("nonlinear", False))
+        return {"reflectance": rho, "specular_reflectance": ks, "int_ior": int_ior, "ext_ior": ext_ior, "nonlinear": nonlinear}
+
+    @classmethod
+    def to_mitsuba(cls, values: dict, constants: dict) -> dict:
+        inner = {
+            "type": cls.mitsuba_type,
+            "diffuse_reflectance": values["reflectance"],
+            "specular_reflectance": values["specular_reflectance"],
+            "int_ior": float(constants["int_ior"]),
+            "ext_ior": float(constants["ext_ior"]),
+            "nonlinear": bool(constants["nonlinear"]),
+        }
+        return {"type": "twosided", "bsdf": {**inner, **cls._mitsuba_extra(values, constants)}}
+
+    @classmethod
+    def _mitsuba_extra(cls, values: dict, constants: dict) -> dict:
+        return {}
+
+
+@registry.MATERIALS.register
+class Plastic(Coated):
+    type_name = "plastic"
+    lobes = Lobe.DELTA_REFLECTION | Lobe.DIFFUSE
+    constants = dict(COATING_CONSTANTS)
+    doc = "smooth plastic: a diffuse base under a smooth dielectric coating (Mitsuba's plastic), two-sided"
+    mitsuba_type = "plastic"
+
+    def _internal(self, sp: ShadingPoint) -> torch.Tensor:
+        def fdr(i: int) -> float:
+            c = self.constants[i]
+            return fresnel_diffuse_reflectance(c["ext_ior"] / c["int_ior"])
+
+        return self._per_material("fdr_int", sp.wo.device, fdr).index_select(0, sp.material)
+
+    def _fresnel(self, sp: ShadingPoint, cos: torch.Tensor) -> torch.Tensor:
+        return fresnel_dielectric(cos.clamp(0.0, 1.0), self._eta(sp))[0]
+
+    def _diffuse(self, sp: ShadingPoint, c_o: torch.Tensor, c_i: torch.Tensor) -> torch.Tensor:
+        """(N, 3) ``f cos / (c_i / pi)`` of the diffuse lobe: ``rho' (1 - F_o)(1 - F_i) / eta^2``."""
+        eta = self._eta(sp)
+        t = (1.0 - self._fresnel(sp, c_o)) * (1.0 - self._fresnel(sp, c_i)) / (eta * eta)
+        return self._base(sp, self._internal(sp)) * torch.where((c_o > 0) & (c_i > 0), t, 0.0)[:, None]
+
+    def _p_spec(self, sp: ShadingPoint, c_o: torch.Tensor) -> torch.Tensor:
+        return self._lobe_choice(self._fresnel(sp, c_o), self._spec_weight(sp))
+
+    def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        """The diffuse lobe's ``f cos`` (N, 3) (the delta lobe has no density)."""
+        c_o, c_i = dot(sp.n, sp.wo), dot(sp.n, wi)
+        return self._diffuse(sp, c_o, c_i) * (c_i.clamp_min(0.0) / math.pi)[:, None]
+
+    def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        """``(1 - P_s) c_i / pi`` (N,)."""
+        c_o, c_i = dot(sp.n, sp.wo), dot(sp.n, wi)
+        p = (1.0 - self._p_spec(sp, c_o)) * c_i.clamp_min(0.0) / math.pi
+        return torch.where(c_o > 0, p, 0.0)
+
+    def specular_lobes(self, sp: ShadingPoint) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """The coating's reflection, weight ``k_s F(c_o)``."""
+        c_o = dot(sp.n, sp.wo)
+        F = torch.where(c_o > 0, self._fresnel(sp, c_o), 0.0)
+        return [(reflect(sp.wo, sp.n), self.param("specular_reflectance", sp) * F[:, None])]
+
+    def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
+        """The reflection with probability P_s (weight ``k_s F / P_s``), else a cosine-weighted
+        direction (weight ``rho' (1 - F_o)(1 - F_i) / (eta^2 (1 - P_s))``)."""
+        c_o = dot(sp.n, sp.wo)
+        p_s = self._p_spec(sp, c_o)
+        spec = (u_lobe < p_s) & (c_o > 0)
+        wd = sp.frame.to_world(cosine_hemisphere(u_dir))
+        wi = torch.where(spec[:, None], reflect(sp.wo, sp.n), wd)
+        c_i = dot(sp.n, wi)
+        F_o = self._fresnel(sp, c_o)
+        w_spec = self.param("specular_reflectance", sp) * (F_o / p_s.clamp_min(1e-30))[:, None]
+        w_diff = self._diffuse(sp, c_o, c_i) / (1.0 - p_s).clamp_min(1e-30)[:, None]
+        weight = torch.where(spec[:, None], w_spec, w_diff)
+        pdf = torch.where(spec | (c_o <= 0), 0.0, (1.0 - p_s) * c_i.clamp_min(0.0) / math.pi)
+        return BSDFSample(wi, weight, pdf, spec)
+
+    mitsuba_plugins = ("plastic",)
+
+    @classmethod
+    def from_mitsuba(cls, bsdf) -> dict:
+        """Mitsuba's ``plastic``: ``diffuse_reflectance`` (colour or bitmap, default 0.5; invrender's
+        ``reflectance``), ``specular_reflectance`` (default 1), ``int_ior``/``ext_ior`` (numbers or
+        named media, default polypropylene / air), ``nonlinear`` (default false)."""
+        entries = cls._read_coating(bsdf)
+        bsdf.finish(("diffuse_reflectance", "specular_reflectance", "int_ior", "ext_ior", "nonlinear"))
+        return entries
+
+
+@registry.MATERIALS.register
+class RoughPlastic(Coated):
+    type_name = "roughplastic"
+    lobes = Lobe.GLOSSY | Lobe.DIFFUSE
+    params = {**Coated.params, "roughness": Param(ROUGHNESS_RGB, 0.1)}
+    constants = dict(COATING_CONSTANTS)
+    doc = "rough plastic: a diffuse base under a Beckmann rough dielectric coating (Mitsuba's roughplastic, its default distribution), two-sided"
+    mitsuba_type = "roughplastic"
+    #: the coating's microfacet distribution
+    distribution: ClassVar[Distribution] = BECKMANN
+
+    def _alphas(self, values: list[dict]) -> list[torch.Tensor]:
+        """Each material's roughness (a (3,) grey tensor) in ``values``."""
+        alphas = [v["roughness"] for v in values]
+        if any(a.ndim != 1 for a in alphas):
+            raise ParameterError(f"a {self.type_name} material's roughness must be an RGB triple, not a texture (its coating's tables are one per material)")
+        return alphas
+
+    def _table_rows(self, alphas: list[torch.Tensor], device, fn) -> tuple[torch.Tensor, torch.Tensor]:
+        """(M, 64) and (M,) float32 of ``fn(distribution, alpha, eta)`` over the materials."""
+        rows = [fn(self.distribution.name, float(a.detach().reshape(-1)[0]), float(c["int_ior"] / c["ext_ior"])) for a, c in zip(alphas, self.constants)]
+        T = torch.tensor([r[0] for r in rows], dtype=torch.float32, device=device)
+        R = torch.tensor([r[1] for r in rows], dtype=torch.float32, device=device)
+        return T, R
+
+    def _tables(self, sp: ShadingPoint, sampling: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+        """(M, 64) transmittance tables and (M,) internal reflectances of this BSDF's materials, at
+        the roughness ``eval`` reads (attached: to first order in alpha, by the tables' slopes) or,
+        ``sampling``, at the detached one sampling and ``pdf`` read."""
+        device = sp.wo.device
+        token = ("rough_tables", device, sampling)
+        alphas = self._alphas(self.sampling_values if sampling else self.values)
+        if token not in self._constant_tables:
+            self._constant_tables[token] = self._table_rows(alphas, device, rough_tables)
+        T, R = self._constant_tables[token]
+        if sampling or not any(a.requires_grad or fwAD_active(a) for a in alphas):
+            return T, R
+        key = (id(self), "rough_tables_attached")  # per point set: each chunk's graph its own
+        if key not in sp.cache:
+            slopes = ("rough_table_slopes", device)
+            if slopes not in self._constant_tables:
+                self._constant_tables[slopes] = self._table_rows(alphas, device, rough_table_slopes)
+            dT, dR = self._constant_tables[slopes]
+            delta = torch.stack([a.mean() - a.mean().detach() for a in alphas]).to(device, torch.float32)  # 0 in value
+            sp.cache[key] = (T + dT * delta[:, None], R + dR * delta)
+        return sp.cache[key]
+
+    def _transmittance(self, sp: ShadingPoint, table: torch.Tensor, cos: torch.Tensor) -> torch.Tensor:
+        """(N,) T at cosines ``cos`` (N,), linear in the table (Mitsuba's ``lerp_gather``)."""
+        x = cos.clamp(0.0, 1.0) * (TABLE_SIZE - 1)
+        i = x.long().clamp_max(TABLE_SIZE - 2)
+        flat = sp.material * TABLE_SIZE + i  # into the (M * 64,) table: no (N, 64) rows
+        t0, t1 = table.reshape(-1).index_select(0, flat), table.reshape(-1).index_select(0, flat + 1)
+        return t0 + (t1 - t0) * (x - i)
+
+    def _terms(self, sp: ShadingPoint, wl: torch.Tensor, value: bool = True) -> tuple[torch.Tensor | None, torch.Tensor]:
+        """``(f cos (N, 3) or None, pdf (N,))`` at local directions ``wl`` (N, 3): ``f`` at the
+        attached roughness, ``pdf`` (and the lobe choice in it) at the detached one."""
+        wo = sp.wo_local
+        d = self.distribution
+        alpha, alpha_s = roughness_at(self, sp)
+        eta = self._eta(sp)
+        c_o, c_i = wo[:, 2], wl[:, 2]
+        ok = (c_o > 0) & (c_i > 0)
+        h = normalize(wo + wl)
+        g_o, D = d.G1(c_o, alpha_s), d.D(h[:, 2], alpha_s)
+        T_s, _ = self._tables(sp, sampling=True)
+        p_s = self._lobe_choice(1.0 - self._transmittance(sp, T_s, c_o), self._spec_weight(sp))
+        inv_4co = 1.0 / (4.0 * c_o.clamp_min(1e-12))
+        pdf = torch.where(ok, p_s * D * g_o * inv_4co + (1.0 - p_s) * c_i / math.pi, 0.0)
+        if not value:
+            return None, pdf
+        if alpha.requires_grad or fwAD_active(alpha) or not torch.equal(alpha, alpha_s):
+            g_o, D = d.G1(c_o, alpha), d.D(h[:, 2], alpha)
+        F = fresnel_dielectric(dot(wo, h).clamp(0.0, 1.0), eta)[0]
+        spec = torch.where(ok, F * D * g_o * d.G1(c_i, alpha) * inv_4co, 0.0)
+        T_table, R_int = self._tables(sp)
+        T_o, T_i = self._transmittance(sp, T_table, c_o), self._transmittance(sp, T_table, c_i)
+        diff = torch.where(ok, c_i * T_o * T_i / (math.pi * eta * eta), 0.0)
+        f = self.param("specular_reflectance", sp) * spec[:, None] + self._base(sp, R_int.index_select(0, sp.material)) * diff[:, None]
+        return f, pdf
+
+    def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        """``f cos`` (N, 3): the coating's microfacet reflection plus the diffuse base."""
+        return self._terms(sp, sp.frame.to_local(wi))[0]
+
+    def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        """``P_s D G1(wo) / (4 c_o) + (1 - P_s) c_i / pi`` (N,) (at the detached roughness)."""
+        return self._terms(sp, sp.frame.to_local(wi), value=False)[1]
+
+    def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
+        """A visible normal's reflection with probability P_s, else a cosine-weighted direction
+        (both at the detached roughness); weight ``f cos / pdf`` of both lobes (``f`` attached)."""
+        wo = sp.wo_local
+        above = wo[:, 2] > 0
+        wo_up = torch.where(above[:, None], wo, torch.tensor([0.0, 0.0, 1.0], device=wo.device))
+        T_s, _ = self._tables(sp, sampling=True)
+        p_s = self._lobe_choice(1.0 - self._transmittance(sp, T_s, wo_up[:, 2]), self._spec_weight(sp))
+        h = self.distribution.sample_visible(wo_up, roughness_at(self, sp)[1], u_dir)
+        w_spec = 2.0 * dot(wo_up, h)[:, None] * h - wo_up
+        wl = torch.where((u_lobe < p_s)[:, None], w_spec, cosine_hemisphere(u_dir))
+        f, pdf = self._terms(sp, wl)
+        ok = above & (pdf > 0)
+        weight = torch.where(ok[:, None], f / pdf.clamp_min(1e-30)[:, None], 0.0)
+        return BSDFSample(sp.frame.to_world(wl), weight, torch.where(ok, pdf, 0.0), torch.zeros_like(ok))
+
+    mitsuba_plugins = ("roughplastic",)
+
+    @classmethod
+    def from_mitsuba(cls, bsdf) -> dict:
+        """Mitsuba's ``roughplastic``: the properties of ``plastic`` and ``distribution`` beckmann
+        (Mitsuba's default: type roughplastic) or ggx (type roughplastic_ggx), isotropic ``alpha``
+        (invrender's ``roughness``, default 0.1), ``sample_visible`` (read; invrender always
+        samples visible normals)."""
+        entries = cls._read_coating(bsdf)
+        name = (bsdf.string("distribution", allowed=("beckmann", "ggx")) or "beckmann").lower()
+        target = RoughPlastic if name == "beckmann" else RoughPlasticGGX
+        for key in ("alpha_u", "alpha_v"):
+            if bsdf.has(key):
+                raise bsdf.error(key, f"'{key}' (anisotropic roughness) is not supported: give one 'alpha' (Mitsuba's roughplastic is isotropic)")
+        alpha = bsdf.number("alpha", ALPHA, f"{target.distribution.label} roughness", "a <float> (textured roughness is not supported)")
+        bsdf.boolean("sample_visible")
+        bsdf.finish(("diffuse_reflectance", "specular_reflectance", "int_ior", "ext_ior", "nonlinear", "distribution", "alpha", "sample_visible"))
+        return {"type": target.type_name, **entries, "roughness": alpha}
+
+    @classmethod
+    def _mitsuba_extra(cls, values: dict, constants: dict) -> dict:
+        return {"distribution": cls.distribution.name, "alpha": float(np.asarray(values["roughness"]).reshape(-1)[0]), "sample_visible": True}
+
+
+@registry.MATERIALS.register
+class RoughPlasticGGX(RoughPlastic):
+    type_name = "roughplastic_ggx"
+    doc = "rough plastic with a GGX coating (Mitsuba's roughplastic, distribution ggx), two-sided"
+    distribution = GGX

@@ -1,0 +1,113 @@
+"""A spot light: Mitsuba's ``spot`` emitter, a point light whose intensity falls off with the angle
+theta to its axis.
+
+As Mitsuba's ``spot.cpp`` defines it: with the cutoff angle c and the beam width b (degrees; b
+defaults to ``3/4 c``), the intensity towards a direction at angle theta from the axis is
+``I falloff(theta)``, where ``falloff = 1`` for ``cos(theta) >= cos(b)``, ``(c - theta) / (c - b)``
+(radians) between, and 0 for ``cos(theta) <= cos(c)``: full inside the beam, a linear ramp in
+angle to the cutoff, black beyond. From a shading point at distance r, ``Le = I falloff / r^2``.
+Its power is its flux over pi: ``I`` times the falloff's solid angle,
+``2 pi (1 + (sin b - sin c) / (c - b))`` (``2 pi (1 - cos c)`` when b = c), over pi.
+
+Scene files: the parameter ``emission`` is I (RGB only; Mitsuba's ``intensity``); the constants
+are ``position`` and ``direction`` (the axis, lists of three numbers; Mitsuba's ``to_world``,
+whose local +z is the axis), ``cutoff_angle`` and ``beam_width`` (degrees, ``beam_width <=
+cutoff_angle``). Mitsuba's projected ``texture`` is not supported (an error).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from invrender import registry
+from invrender.plugins.emitters.delta import DIRECTION, POSITION, DeltaLight, frame_z, look_at_matrix, towards_point, unit
+from invrender.errors import SceneError
+from invrender.scene.kinds import EMISSION, EMISSION_RGB
+from invrender.scene.plugins import Constant, Param
+
+
+def falloff(cos_theta: torch.Tensor, cutoff_deg: float, beam_deg: float) -> torch.Tensor:
+    """Mitsuba's ``falloff_curve``: 1 inside the beam, ``(c - theta) / (c - b)`` between the beam
+    and the cutoff, 0 beyond (``cos_theta``: the cosine of the angle to the axis)."""
+    c, b = math.radians(cutoff_deg), math.radians(beam_deg)
+    inv_transition = 1.0 / (c - b) if c > b else 0.0
+    ramp = (c - torch.acos(cos_theta.clamp(-1.0, 1.0))) * inv_transition
+    beam = torch.where(cos_theta >= math.cos(b), torch.ones_like(cos_theta), ramp)
+    return torch.where(cos_theta > math.cos(c), beam, torch.zeros_like(cos_theta))
+
+
+def falloff_solid_angle(cutoff_deg: float, beam_deg: float) -> float:
+    """The integral of :func:`falloff` over the sphere of directions (sr)."""
+    c, b = math.radians(cutoff_deg), math.radians(beam_deg)
+    if c - b < 1e-9:
+        return 2.0 * math.pi * (1.0 - math.cos(c))
+    return 2.0 * math.pi * (1.0 + (math.sin(b) - math.sin(c)) / (c - b))
+
+
+@registry.EMITTERS.register
+class Spot(DeltaLight):
+    type_name = "spot"
+    params = {"emission": Param(EMISSION_RGB, 1.0)}
+    constants = {
+        "position": POSITION,
+        "direction": DIRECTION,
+        "cutoff_angle": Constant(20.0, 0.0, 180.0, low_open=True, high_open=True),
+        "beam_width": Constant(15.0, 0.0, 180.0, low_open=False, high_open=True),
+    }
+    doc = "a spot light: intensity I (W/sr, RGB) from `position` along `direction`, Mitsuba's falloff (beam_width default: 3/4 of cutoff_angle)"
+
+    @classmethod
+    def resolve(cls, where: str, values: dict, constants: dict, given: set) -> dict:
+        out = dict(constants, direction=unit(where, "direction", constants["direction"]))
+        if "beam_width" not in given:
+            out["beam_width"] = 0.75 * out["cutoff_angle"]  # Mitsuba's default
+        if out["beam_width"] > out["cutoff_angle"]:
+            raise SceneError(f"{where}: 'beam_width' ({out['beam_width']:g} degrees) must not exceed 'cutoff_angle' ({out['cutoff_angle']:g} degrees)")
+        return out
+
+    def member_power(self, i: int) -> float:
+        c = self.constants[i]
+        return float(self.sampling[i]["emission"].mean()) * falloff_solid_angle(c["cutoff_angle"], c["beam_width"]) / math.pi
+
+    def arrive(self, k, o, nx, offset):
+        p = self.vectors("position").index_select(0, k)
+        axis = self.vectors("direction").index_select(0, k)
+        wl, r, tmax, facing = towards_point(p, o, nx, offset)
+        cos_theta = -(wl * axis).sum(dim=1)  # the direction from the light to x, against the axis
+        f = torch.zeros_like(cos_theta)
+        for i, c in enumerate(self.constants):
+            f = torch.where(k == i, falloff(cos_theta, c["cutoff_angle"], c["beam_width"]), f)
+        Le = self.stacked("emission").index_select(0, k) * (f / (r * r))[:, None]
+        return wl, tmax, facing & (f > 0), Le
+
+    # ---- the formats' aliases
+
+    #: the Mitsuba emitter plugins it reads (a child of <scene>)
+    mitsuba_plugins = ("spot",)
+
+    @classmethod
+    def from_mitsuba(cls, emitter) -> dict:
+        """Mitsuba's ``spot``: ``intensity`` (RGB, default 1), ``cutoff_angle`` (degrees, default
+        20), ``beam_width`` (degrees, default 3/4 of the cutoff), ``to_world`` (a rotation,
+        translation and uniform scale; the light looks along its local +z). A ``texture`` is an error."""
+        if emitter.has("texture"):
+            raise emitter.error("texture", "a spot light's projected 'texture' is not supported (give an RGB 'intensity')")
+        I = emitter.colour("intensity", EMISSION, 1.0, texture=False)
+        entries = {"emission": I, "cutoff_angle": emitter.number("cutoff_angle", cls.constants["cutoff_angle"], "the cone's half-angle, degrees")}
+        if emitter.has("beam_width"):
+            entries["beam_width"] = emitter.number("beam_width", cls.constants["beam_width"], "the full beam's half-angle, degrees")
+        position, axis, _ = frame_z(emitter)
+        emitter.finish(("intensity", "cutoff_angle", "beam_width", "to_world"))
+        return {**entries, "position": [float(v) for v in position], "direction": [float(v) for v in axis]}
+
+    @classmethod
+    def to_mitsuba(cls, values: dict, constants: dict) -> dict:
+        return {
+            "type": "spot",
+            "intensity": values["emission"],
+            "cutoff_angle": float(constants["cutoff_angle"]),
+            "beam_width": float(constants["beam_width"]),
+            "to_world": look_at_matrix(constants["position"], constants["direction"]),  # (4, 4)
+        }
