@@ -34,7 +34,7 @@ import mitsuba_ref  # noqa: E402
 from _measure import Results, add_json_option, peak_rss_mib  # noqa: E402
 
 import invrender as ir  # noqa: E402
-from invrender.backends import embree_native# noqa: E402
+from invrender.backends import embree_native  # noqa: E402
 from invrender.backends.embree_native import ENV as EMBREE_ENV  # noqa: E402
 from invrender.backends.kernels import ENV as KERNELS_ENV  # noqa: E402
 
@@ -129,7 +129,7 @@ def breakdown(args, results: Results) -> None:
     thread, the time inside the ray queries and inside the Warp kernels' launches measured, the
     rest being torch's operations and Python; with the fused bounce and without it."""
     from invrender.backends import accel, kernels
-from invrender.core import context
+    from invrender.core import context
 
     torch.set_num_threads(1)  # one worker
     spent = {"rays": 0.0, "kernels": 0.0}
