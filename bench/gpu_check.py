@@ -7,8 +7,10 @@ seed, and compares the two:
 
 - ``render_torch``, ``render_warp``: the Cornell box with the ``torch`` and ``warp`` intersection
   backends (images: largest pixel difference at most 1e-4 of the image's mean);
-- ``kernels``: the fused Warp kernels against their torch expressions on the device (uniforms bit
-  for bit, images as above), and the kernels' image against the CPU's;
+- ``kernels``: the compiled bounce (Dr.Jit's CUDA backend on a GPU: the lane functions of
+  ``invrender.core.lanes`` and the plugins) and Warp's remaining kernels against their eager torch
+  evaluation on the device (uniforms and camera samples bit for bit, images as above), and their
+  image against the CPU's;
 - ``grad_replay``, ``grad_autodiff``: the L2 gradient of four parameters by path replay and by
   autodiff (largest difference at most 1e-3 of the largest component);
 - ``records``: path records (:func:`invrender.record_paths`): their image and Jacobian;
@@ -47,7 +49,7 @@ from pathlib import Path
 import torch
 
 import invrender as ir
-from invrender.backends import accel, kernels, packages
+from invrender.backends import accel, arrays, kernels, packages
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _measure import machine  # noqa: E402
@@ -95,20 +97,23 @@ def cornell(n: int, device: torch.device, scale: float = 1.0):
 
 @dataclasses.dataclass
 class Kernels:
-    """Set INVRENDER_KERNELS for a block (None: leave it)."""
+    """Set INVRENDER_KERNELS for a block (None: leave it), and with it INVRENDER_BOUNCE: ``torch``
+    runs everything as eager torch, another value compiles the bounce (Dr.Jit, where it loads)."""
 
     value: str | None
 
     def __enter__(self):
-        self.saved = os.environ.get(kernels.ENV)
+        self.saved = {name: os.environ.get(name) for name in (kernels.ENV, arrays.ENV)}
         if self.value is not None:
             os.environ[kernels.ENV] = self.value
+            os.environ[arrays.ENV] = "torch" if self.value == "torch" else "drjit"
 
     def __exit__(self, *exc):
-        if self.saved is None:
-            os.environ.pop(kernels.ENV, None)
-        else:
-            os.environ[kernels.ENV] = self.saved
+        for name, value in self.saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
 
 
 # --- what each check computes on one device: name -> (kind, tensor) ------------------------------
@@ -124,7 +129,7 @@ def render_with(backend: str, kernel_choice: str | None):
 
 
 def check_kernels(sizes: Sizes, device: torch.device) -> dict:
-    """The fused kernels against their torch expressions on ``device``; their image for the CPU's."""
+    """The compiled bounce and Warp's kernels against eager torch on ``device``; their image for the CPU's."""
     from invrender.core.sampler import mirrored, path_keys, uniform
 
     pixel = torch.arange(200_000, device=device)
@@ -240,7 +245,7 @@ class Check:
 CHECKS = [
     Check("render_torch", "render, torch backend", render_with("torch", None)),
     Check("render_warp", "render, warp backend (Warp's BVH)", render_with("warp", None), ("warp",)),
-    Check("kernels", "fused Warp kernels against their torch expressions", check_kernels, ("warp",)),
+    Check("kernels", "compiled bounce (Dr.Jit) and Warp kernels against eager torch", check_kernels, ("warp",)),
     Check("grad_replay", "L2 gradient of 4 parameters, path replay (the fused bounce's forward-mode derivatives)", gradient("replay")),
     Check("grad_replay_torch", "L2 gradient of 4 parameters, path replay with the torch bounce (adjoint pass)", gradient("replay", "torch")),
     Check("grad_autodiff", "L2 gradient of 4 parameters, autodiff", gradient("autodiff")),

@@ -139,7 +139,7 @@ class TorchArrays:
 
     @staticmethod
     def to_torch(x) -> torch.Tensor:
-        """A result as torch: a 3-tuple as (N, 3)."""
+        """A result as torch: a k-tuple as (N, k)."""
         return torch.stack(x, dim=1) if isinstance(x, tuple) else x
 
 
@@ -228,13 +228,15 @@ class DrJitArrays:
         return self.Float(t.to(torch.float32))
 
     def rows(self, x):
-        """A 3-tuple of Floats written as (N, 3) rows into a new flat Float (a packet scatter, in
-        the kernel that computes them); other arrays as they are. Evaluate, then :meth:`to_torch`."""
+        """A 2- or 3-tuple of Floats written as (N, 2) or (N, 3) rows into a new flat Float (a
+        packet scatter, in the kernel that computes them); other arrays as they are. Evaluate, then
+        :meth:`to_torch`."""
         if not isinstance(x, tuple):
             return x
         n = max(self.dr.width(c) for c in x)
-        out = self.dr.empty(self.Float, 3 * n)
-        self.dr.scatter(out, self._Array3f(*x), self.dr.arange(self.UInt, n))
+        out = self.dr.empty(self.Float, len(x) * n)
+        vector = self._Array3f if len(x) == 3 else self._rows[2]
+        self.dr.scatter(out, vector(*(self.Float(c) for c in x)), self.dr.arange(self.UInt, n))
         return out
 
     def to_torch(self, x) -> torch.Tensor:

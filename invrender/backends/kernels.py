@@ -1,23 +1,18 @@
-"""Fused per-bounce kernels (NVIDIA Warp) for the steps of a bounce that never carry a gradient.
+"""The Warp kernels that remain (NVIDIA Warp), for steps that never carry a gradient.
 
-A bounce in eager torch is a few hundred small operations, each a pass over megabytes of (N,) and
-(N, 3) tensors; the steps below are pure geometry and random numbers (no parameter enters them:
-sampling and hit geometry are detached by design), so each is one Warp kernel
-(:mod:`invrender.backends.warp_kernels`, imported on first use: without warp-lang, ``import
-invrender`` works and the torch expressions run), one pass over its inputs, compiled for the CPU
-and for CUDA from the same source and cached on disk by Warp (``~/.cache/warp``) after the first
-compile. The torch expressions they replace stay beside them as
-the reference: they run on devices Warp has no backend for, with ``INVRENDER_KERNELS=torch``, and
-in the tests that check the two agree (the random numbers bit for bit, the geometry to float
-rounding).
+The steps of a bounce are written once against the array interface and compiled by Dr.Jit
+(:mod:`invrender.core.lanes`, :mod:`invrender.core.compiled`); two kernels are still Warp's, each
+beside the torch expression it stands for (run with ``INVRENDER_KERNELS=torch``, on devices Warp
+has no backend for, and by the tests that check the two agree):
 
-- :func:`hash_uniforms`: the counter-based uniforms of :func:`invrender.core.sampler.uniform`;
-- :func:`hit_geometry`: position, facing normal, side, cosine and texture coordinates of hits
-  (:func:`invrender.core.surface.surface_at`);
-- :func:`emitter_geometry`: points sampled on emitters as seen from surface points, the shadow ray
-  towards each and its solid-angle pdf (:meth:`invrender.plugins.emitters.area.Area.geometry`);
-- :func:`cosine_directions`: the diffuse BSDF's cosine-weighted directions and their pdf;
-- :func:`offset_origins`: the origins of rays leaving surfaces (``TransportContext.spawn``).
+- :func:`camera_samples`: the camera's film positions and lens samples
+  (:func:`invrender.core.driver` plans);
+- :func:`tangents_add`: the fused bounce's derivatives carried forward into a per-pixel Jacobian
+  or path records' monomial codes (:mod:`invrender.core.fused`).
+
+Each is compiled for the CPU and for CUDA from the same source and cached on disk by Warp
+(``~/.cache/warp``); :mod:`invrender.backends.warp_kernels` is imported on first use (without
+warp-lang, ``import invrender`` works and the torch expressions run).
 
 Tensors are shared with Warp without copies (``wp.from_torch``); on CUDA the kernels run on torch's
 current stream. Warp's CPU launches run in the calling thread without the GIL, so the render's
@@ -157,88 +152,6 @@ class Vec2(Vec3):
 
     __slots__ = ()
     vector = "vec2"
-
-
-def hash_uniforms(keys: torch.Tensor, salts: torch.Tensor) -> torch.Tensor:
-    """(N, D) float32 uniforms: lowbias32 of ``(keys & ~1) ^ salt_j`` (N,) x (D,) int32, all bits
-    flipped for odd (mirrored) keys, low 24 bits / 2^24 (the kernel of ``sampler.uniform``)."""
-    out = torch.empty(keys.shape[0], salts.shape[0], dtype=torch.float32, device=keys.device)
-    launch(warp_kernels().uniform_kernel, keys.shape[0], [keys, salts, out], keys.device)
-    return out
-
-
-def hit_geometry(packed: torch.Tensor, tri: torch.Tensor, u: torch.Tensor, v: torch.Tensor, d: torch.Tensor, with_uv: bool):
-    """Hits of rays ``d`` (N, 3) on triangles ``tri`` (N,) at barycentrics ``u``, ``v`` (N,) (the
-    weights of corners 1 and 2), from the (T, 18) packed table (``Triangles.packed``).
-
-    Returns:
-        p (N, 3), n (N, 3) the geometric normal turned towards the ray's origin, front (N,) bool,
-        cos_o (N,) |cos| between them, uv (N, 2) (zeros unless ``with_uv``).
-    """
-    count, dev = tri.shape[0], tri.device
-    p, n = (torch.empty(count, 3, device=dev) for _ in range(2))
-    front = torch.empty(count, dtype=torch.bool, device=dev)
-    cos_o = torch.empty(count, device=dev)
-    uv = torch.empty(count, 2, device=dev) if with_uv else torch.zeros(1, 2, device=dev)
-    inputs = [packed.reshape(-1), tri, u, v, Vec3(d), int(with_uv), Vec3(p), Vec3(n), front, cos_o, uv]
-    launch(warp_kernels().hit_kernel, count, inputs, dev)
-    return p, n, front, cos_o, uv if with_uv else uv.expand(count, 2)
-
-
-def emitter_geometry(packed, light_tri, cdf, pdf_area, u: torch.Tensor, x: torch.Tensor, nx: torch.Tensor, offset: float, with_uv: bool):
-    """Emitter samples seen from points ``x`` (N, 3) with normals ``nx`` (N, 3), from uniforms ``u``
-    (N, 3) (pick, then the point), the area lights' tables (:class:`~invrender.plugins.emitters.area.Area`) and the (T, 18) packed
-    triangles.
-
-    Returns:
-        tri (N,) int64, o (N, 3) shadow-ray origins ``x + offset nx``, wl (N, 3) unit directions to
-        the points, tmax (N,) their distance minus ``offset``, facing (N,) bool (the point is in
-        front of ``nx`` and ``x`` in front of the emitter), pdf (N,) solid-angle density of the
-        sample at ``o``, uv (N, 2) at the points (zeros unless ``with_uv``).
-    """
-    count, dev = x.shape[0], x.device
-    tri = torch.empty(count, dtype=torch.int64, device=dev)
-    o, wl = (torch.empty(count, 3, device=dev) for _ in range(2))
-    tmax, pdf = (torch.empty(count, device=dev) for _ in range(2))
-    facing = torch.empty(count, dtype=torch.bool, device=dev)
-    uv = torch.empty(count, 2, device=dev) if with_uv else torch.zeros(1, 2, device=dev)
-    inputs = [
-        packed.reshape(-1),
-        light_tri,
-        cdf,
-        pdf_area,
-        u,
-        Vec3(x),
-        Vec3(nx),
-        float(offset),
-        int(with_uv),
-        tri,
-        Vec3(o),
-        Vec3(wl),
-        tmax,
-        facing,
-        pdf,
-        uv,
-    ]
-    launch(warp_kernels().emitter_kernel, count, inputs, dev)
-    return tri, o, wl, tmax, facing, pdf, uv if with_uv else uv.expand(count, 2)
-
-
-def cosine_directions(n: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Cosine-weighted directions about unit normals ``n`` (N, 3) from uniforms ``u`` (N, 2), as
-    ``normalize(n + s)`` with ``s`` uniform on the sphere (``z = 1 - 2 u_0``, ``phi = 2 pi u_1``):
-    (wi (N, 3), their pdf ``max(cos, 0) / pi`` (N,))."""
-    count = n.shape[0]
-    wi, pdf = torch.empty(count, 3, device=n.device), torch.empty(count, device=n.device)
-    launch(warp_kernels().cosine_kernel, count, [Vec3(n), u, Vec3(wi), pdf], n.device)
-    return wi, pdf
-
-
-def offset_origins(p: torch.Tensor, n: torch.Tensor, wi: torch.Tensor, offset: float) -> torch.Tensor:
-    """Ray origins (N, 3) ``p +- offset n``, on the side of ``n`` (N, 3) that ``wi`` (N, 3) points to."""
-    o = torch.empty(p.shape[0], 3, device=p.device)
-    launch(warp_kernels().spawn_kernel, p.shape[0], [Vec3(p), Vec3(n), Vec3(wi), float(offset), Vec3(o)], p.device)
-    return o
 
 
 def tangents_add(pixel, counts, rho, emitted, tangents: tuple, direct, occluded, scatter: bool, jacobian: torch.Tensor | None = None, places: torch.Tensor | None = None):

@@ -55,27 +55,31 @@ def run(fn, device: torch.device, *args, **static) -> tuple[torch.Tensor, ...]:
 
     Args:
         fn: a function written against the array interface returning a tuple of arrays and
-            3-tuples of arrays, each of the lanes' length.
+            2- or 3-tuples of Float arrays, each of the lanes' length.
         args: torch tensors (1-D: lanes or flat tables; 2-D (N, 3): lanes of 3-vectors, passed as
             three columns), :class:`Opaque` scalars, Python numbers.
         static: Python values that choose the code (flags), the same for every lane.
     Returns:
-        torch tensors on ``device``: (N,) per array, (N, 3) per 3-tuple; UInt arrays as int32.
+        torch tensors on ``device``: (N,) per array, (N, k) per k-tuple; UInt arrays as int32.
     """
     xp = namespace(device)
+    if xp is not TORCH and any(isinstance(a, torch.Tensor) and not a.shape[0] for a in args):
+        xp = TORCH  # no lanes (Dr.Jit has no empty arrays to broadcast against)
     return evaluate(xp, fn, *args, **static)
 
 
 def evaluate(xp, fn, *args, **static) -> tuple[torch.Tensor, ...]:
     """:func:`run` with the namespace given (the tests run both on the same inputs)."""
+    if xp is not TORCH and xp.name.endswith("cuda"):
+        torch.cuda.current_stream().synchronize()  # torch's writes done before Dr.Jit's stream reads them
     out = fn(xp, *(_argument(xp, a) for a in args), **static)
     if xp is TORCH:
         return tuple(xp.to_torch(o) for o in out)
-    vectors = [isinstance(o, tuple) for o in out]
+    widths = [len(o) if isinstance(o, tuple) else 0 for o in out]
     out = [xp.rows(o) for o in out]
     xp.dr.eval(*out)  # one kernel
     xp.dr.sync_thread()
-    return tuple(xp.to_torch(o).view(-1, 3) if v else xp.to_torch(o) for o, v in zip(out, vectors))
+    return tuple(xp.to_torch(o).view(-1, k) if k else xp.to_torch(o) for o, k in zip(out, widths))
 
 
 def _argument(xp, a):

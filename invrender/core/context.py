@@ -11,6 +11,7 @@ from invrender.scene.kinds import param_name
 from invrender.scene.scene import AMBIENT, Scene, Triangles, scene_extent
 from invrender.backends import kernels
 from invrender.backends.accel import intersector_for
+from invrender.core import compiled, lanes
 from invrender.core.bsdfs import BSDFSampling, Materials, ShadingPoint
 from invrender.core.lights import Lights
 from invrender.core.surface import Surface
@@ -108,10 +109,12 @@ class TransportContext:
     def spawn(self, s: Surface, wi: torch.Tensor) -> torch.Tensor:
         """Origins (N, 3) of new rays leaving ``s`` in directions ``wi``, offset off the surface on
         the geometric side ``wi`` points to (so refracted rays start inside)."""
-        if kernels.enabled(wi.device):
-            return kernels.offset_origins(s.p, s.n, wi, self.ray_offset)
-        side = torch.where(dot(s.n, wi) >= 0, self.ray_offset, -self.ray_offset)
-        return s.p + side[:, None] * s.n
+        (origin,) = compiled.run(_spawn, wi.device, s.p, s.n, wi, float(self.ray_offset))
+        return origin
+
+
+def _spawn(xp, p, n, wi, offset: float):
+    return (lanes.spawn(xp, p, n, wi, offset),)
 
 
 @dataclass(frozen=True)

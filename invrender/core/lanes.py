@@ -90,6 +90,28 @@ def triangle_rows(packed, material, emitter, emitting, pdf_area):
     return torch.cat(cols, dim=1).reshape(-1).contiguous()
 
 
+def geometry_rows(triangles):
+    """The triangle table (:func:`triangle_rows`) of a scene's geometry alone (no material or light
+    columns), made once per :class:`~invrender.scene.scene.Triangles`."""
+
+    def build():
+        zero = torch.zeros(triangles.count, device=triangles.p0.device)
+        return triangle_rows(triangles.packed, zero, zero, zero, zero)
+
+    return triangles.derived("lane_rows", build)
+
+
+def uv_rows(triangles):
+    """(T * 8,) float32 each triangle's corner texture coordinates ``u0 v0 u1 v1 u2 v2`` (and two
+    zeros), made once per :class:`~invrender.scene.scene.Triangles`."""
+
+    def build():
+        p = triangles.packed.reshape(-1, 18)
+        return torch.nn.functional.pad(p[:, 12:18], (0, 2)).reshape(-1).contiguous()
+
+    return triangles.derived("lane_uv", build)
+
+
 def light_rows(cdf, tri):
     """(L * 2,) float32 the light table: each emissive triangle's cdf entry and index (< 2^24)."""
     return torch.stack([cdf.to(torch.float32), tri.to(torch.float32)], dim=1).reshape(-1).contiguous()
@@ -141,6 +163,28 @@ class Triangle:
 
 
 # ---- geometry ----------------------------------------------------------------------------------
+
+
+def uv_at(xp, uvs, k, b1, b2):
+    """Texture coordinates (a 2-tuple) of triangles ``k`` at barycentrics (b1, b2), from the uv
+    table (:func:`uv_rows`)."""
+    r = xp.gather_rows(uvs, k, 8)
+    b0 = 1.0 - b1 - b2
+    return (b0 * r[0] + b1 * r[2] + b2 * r[4], b0 * r[1] + b1 * r[3] + b2 * r[5])
+
+
+def surface(xp, rows, uvs, k, b1, b2, d, *, with_uv: bool):
+    """The geometry of hits of rays ``d`` on triangles ``k`` (UInt) at barycentrics (b1, b2):
+    (point, geometric normal towards the ray's origin, front side, ``|cos|`` between them, and
+    with ``with_uv`` the texture coordinates); ``rows``, ``uvs``: :func:`geometry_rows`, :func:`uv_rows`."""
+    p, n, c = hit(xp, Triangle(xp, rows, k), b1, b2, d)
+    out = (p, n, c > 0.0, xp.abs(c))
+    return out + (uv_at(xp, uvs, k, b1, b2),) if with_uv else out
+
+
+def uniforms(xp, keys, salts):
+    """:func:`uniform` of path keys ``keys`` for each of the ``salts``: a tuple of arrays."""
+    return tuple(uniform(xp, keys, s) for s in salts)
 
 
 def hit(xp, tri: Triangle, b1, b2, d):
@@ -197,7 +241,7 @@ def lambert_vertex(
             5 roulette).
         sample_direction: the material's lane sampler ``(xp, n, u0, u1) -> (wi, pdf)``;
             sample_light: the emitter's ``(xp, tri_table, light_table, lights, u0, u1, u2, x, nx,
-            offset) -> (k, origin, w, tmax, facing, pdf)``; lights: L.
+            offset) -> (k, b1, b2, origin, w, tmax, facing, pdf)``; lights: L.
         first: camera rays (depth 0); mis, nee_only, nee, more, roulette, tangents: the
             integrator's strategy (:class:`invrender.core.fused.FusedScene`), whether paths go on
             after this vertex, whether roulette applies, whether the factors are returned.
@@ -231,7 +275,7 @@ def lambert_vertex(
     zero = 0.0 * w
     if nee:
         u0, u1, u2 = (uniform(xp, keys, salts[j]) for j in (2, 3, 4))
-        kl, so, wl, tmax, facing, pdf = sample_light(xp, tri_table, light_table, lights, u0, u1, u2, p, n, offset)
+        kl, _, _, so, wl, tmax, facing, pdf = sample_light(xp, tri_table, light_table, lights, u0, u1, u2, p, n, offset)
         cos_i = xp.maximum(dot(n, wl), 0.0)
         bsdf_pdf = cos_i * (1.0 / math.pi)
         inv = power_heuristic(xp, pdf, bsdf_pdf) / pdf if mis else 1.0 / pdf

@@ -14,9 +14,10 @@ every number is ``1 - u`` (exactly: the bit complement of the 24 bits, so still 
 ``u`` its partner (the same key with the bit clear) draws. :func:`path_keys` returns keys with the bit
 clear; :func:`mirrored` sets it.
 
-The hash runs on int32 tensors: products wrap modulo 2^32 (two's complement), and the logical right
-shifts of unsigned arithmetic are an arithmetic shift followed by a mask. (int32 is several times
-faster than int64 on the CPU, where 64-bit multiplies do not vectorize.)
+The hash is written once (:func:`invrender.core.lanes.lowbias32`) and runs compiled by Dr.Jit or
+on int32 tensors, where products wrap modulo 2^32 (two's complement) and the logical right shifts
+of unsigned arithmetic are an arithmetic shift followed by a mask. (int32 is several times faster
+than int64 on the CPU, where 64-bit multiplies do not vectorize.)
 """
 
 from __future__ import annotations
@@ -26,7 +27,8 @@ import math
 
 import torch
 
-from invrender.backends import kernels
+from invrender.backends.arrays import TORCH
+from invrender.core import compiled, lanes
 
 _MASK = 0xFFFFFFFF
 
@@ -37,23 +39,10 @@ def _signed(x: int) -> int:
     return x - (1 << 32) if x >= 1 << 31 else x
 
 
-_M1 = _signed(0x7FEB352D)
-_M2 = _signed(0x846CA68B)
-
-
 def _mix(x: torch.Tensor) -> torch.Tensor:
-    """lowbias32 on an int32 tensor (bits read as unsigned); a new tensor of the same shape.
-
-    After the first step everything is done in place on the new tensor: each temporary of a
-    wavefront is megabytes, and fresh ones cost their page faults (the hash is ~10% of a render).
-    """
-    x = x ^ ((x >> 16) & 0xFFFF)
-    x.mul_(_M1)
-    t = x >> 15
-    x ^= t.bitwise_and_(0x1FFFF)
-    x.mul_(_M2)
-    t = x >> 16
-    return x.bitwise_xor_(t.bitwise_and_(0xFFFF))
+    """lowbias32 on an int32 tensor (bits read as unsigned): :func:`invrender.core.lanes.lowbias32`
+    evaluated by torch."""
+    return lanes.lowbias32(TORCH, x)
 
 
 def _mix_int(x: int) -> int:
@@ -109,12 +98,8 @@ def uniform(keys: torch.Tensor, bounce: int, dims: int) -> torch.Tensor:
         (N, dims) float32, each the hash of (key, bounce, dimension): its low 24 bits / 2^24 (their
         complement for mirrored keys).
     """
-    salts = bounce_salts(bounce, dims, keys.device)
-    if kernels.enabled(keys.device):
-        return kernels.hash_uniforms(keys, salts)
-    h = _mix((keys & -2)[:, None] ^ salts)
-    h ^= -(keys & 1)[:, None]  # mirrored: all bits flipped, so the low 24 give 1 - 2^-24 - u
-    return h.bitwise_and_(0xFFFFFF).to(torch.float32).mul_(1.0 / 16777216.0)
+    salts = tuple(compiled.Opaque(x) for x in bounce_salt_values(bounce, dims))
+    return torch.stack(compiled.run(lanes.uniforms, keys.device, keys, salts), dim=1)
 
 
 @functools.lru_cache(maxsize=4096)
@@ -128,7 +113,7 @@ def bounce_salts(bounce: int, dims: int, device: torch.device) -> torch.Tensor:
     """(dims,) int32 salts of one bounce's dimensions on ``device``, made once: a tensor built from
     a list is a copy from pageable host memory, which on CUDA waits for the stream each bounce.
     Read only (never written in place). Kernels that draw a bounce's numbers themselves take these
-    (:func:`uniform` is ``lowbias32((key & ~1) ^ salt_j)``)."""
+    (:func:`uniform` is ``lowbias32((key & ~1) ^ salt_j)``: :func:`invrender.core.lanes.uniform`)."""
     return torch.tensor([_signed(x) for x in bounce_salt_values(bounce, dims)], dtype=torch.int32, device=device)
 
 

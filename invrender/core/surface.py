@@ -7,9 +7,9 @@ from dataclasses import dataclass
 import torch
 
 from invrender.scene.scene import Triangles
-from invrender.backends import kernels
 from invrender.backends.accel import Hits
-from invrender.vec import dot, normalize
+from invrender.core import compiled, lanes
+from invrender.vec import normalize
 
 
 @dataclass(frozen=True)
@@ -49,20 +49,12 @@ def surface_at(triangles: Triangles, hits: Hits, d: torch.Tensor, with_uv: bool 
 
     ``with_uv=False`` skips interpolating texture coordinates (for scenes without textures).
     Shading normals are interpolated only when some triangle has vertex normals. The geometry is
-    one fused kernel where :mod:`~invrender.backends.kernels` runs, else torch (the reference).
+    :func:`invrender.core.lanes.surface`, compiled where Dr.Jit runs (:mod:`invrender.core.compiled`).
     """
     tri = hits.prim
     u, v = hits.u[:, None], hits.v[:, None]
-    if kernels.enabled(d.device):
-        p, n, front, cos_o, uv = kernels.hit_geometry(triangles.packed, tri, hits.u, hits.v, d, with_uv)
-    else:
-        g = triangles.packed.index_select(0, tri)
-        p = g[:, 0:3] + u * g[:, 3:6] + v * g[:, 6:9]
-        ng = g[:, 9:12]
-        cos = -dot(ng, d)
-        front = cos > 0
-        n, cos_o = ng * torch.where(front, 1.0, -1.0)[:, None], cos.abs()
-        uv = (1 - u - v) * g[:, 12:14] + u * g[:, 14:16] + v * g[:, 16:18] if with_uv else g[:, 12:14].new_zeros(()).expand(len(tri), 2)
+    p, n, front, cos_o, *uv = compiled.run(lanes.surface, d.device, lanes.geometry_rows(triangles), lanes.uv_rows(triangles), tri, hits.u, hits.v, d, with_uv=with_uv)
+    uv = uv[0] if with_uv else p.new_zeros(()).expand(len(tri), 2)
     if triangles.any_smooth:
         side = torch.where(front, 1.0, -1.0)[:, None]  # the geometric side, for the shading normal too
         vn = triangles.vertex_normal.index_select(0, tri)

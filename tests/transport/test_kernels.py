@@ -1,6 +1,8 @@
-"""The fused Warp kernels against the torch expressions they replace (kept as the reference): the
-random numbers bit for bit, hit and emitter-sample geometry to float rounding, and the same images
-and gradients with either."""
+"""The compiled steps of a bounce (the lane functions of invrender.core.lanes and the plugins, run by
+Dr.Jit) against their eager torch evaluation and the formulas they stand for: the random numbers
+bit for bit, hit and emitter-sample geometry to float rounding, and the same images and gradients
+with either; Warp's remaining kernels (camera samples, the derivative kernel) switch off with
+INVRENDER_KERNELS=torch."""
 
 from __future__ import annotations
 
@@ -12,7 +14,7 @@ import torch
 
 import invrender as ir
 from invrender.errors import ParameterError
-from invrender.backends import kernels
+from invrender.backends import arrays, kernels
 from invrender.backends.accel import make_intersector
 from invrender.plugins.emitters.area import Area
 from invrender.core.sampler import mirrored, path_keys, uniform
@@ -25,10 +27,12 @@ CPU = torch.device("cpu")
 
 @pytest.fixture
 def reference(monkeypatch):
-    """A context manager-free switch: call it to run the torch reference expressions."""
+    """A context manager-free switch: call it to run everything as eager torch (the lane functions
+    and Warp's kernels' torch expressions)."""
 
     def use_torch(on: bool = True) -> None:
         monkeypatch.setenv(kernels.ENV, "torch" if on else "warp")
+        monkeypatch.setenv(arrays.ENV, "torch" if on else "drjit")
 
     return use_torch
 
@@ -83,6 +87,10 @@ def test_hit_geometry_matches_the_reference(name, reference):
         assert (a - b).abs().max() < 2e-6 * max(1.0, float(b.abs().max())), field
     assert torch.equal(fused.front, expected.front) and torch.equal(fused.tri, expected.tri)
     assert 0.02 < fused.front.float().mean() < 0.98  # both sides seen: the normal flip is exercised
+    t = scene.triangles  # the formulas: p = p0 + u e1 + v e2, n = the front normal facing the ray's origin
+    p0, e1, e2 = (getattr(t, k).index_select(0, hits.prim) for k in ("p0", "e1", "e2"))
+    assert (fused.p - (p0 + hits.u[:, None] * e1 + hits.v[:, None] * e2)).abs().max() < 1e-5
+    assert ((fused.n * d).sum(1) <= 0).all() and torch.allclose(fused.cos_o, -(fused.n * d).sum(1), atol=1e-6)
     untextured = surface_at(scene.triangles, hits, d, with_uv=False)
     assert untextured.uv.shape == (len(d), 2) and not untextured.uv.any()
 

@@ -16,10 +16,9 @@ import torch
 from invrender import registry
 from invrender.scene.kinds import REFLECTANCE
 from invrender.scene.plugins import Param
-from invrender.backends import kernels
-from invrender.core import lanes
+from invrender.core import compiled, lanes
 from invrender.core.bsdf import BSDF, BSDFSample, Lobe, ShadingPoint
-from invrender.vec import dot, normalize
+from invrender.vec import dot
 
 
 def cosine_lanes(xp, n, u0, u1):
@@ -87,17 +86,10 @@ class Diffuse(BSDF):
         """Cosine-weighted directions: weight rho.
 
         ``normalize(n + s)`` with ``s`` uniform on the unit sphere is cosine-distributed about ``n``
-        (the tangent-sphere construction), which needs no tangent frame; one fused kernel where
-        :mod:`~invrender.backends.kernels` runs.
+        (the tangent-sphere construction), which needs no tangent frame: :func:`cosine_lanes`,
+        compiled where Dr.Jit runs.
         """
-        if kernels.enabled(sp.n.device):
-            wi, pdf = kernels.cosine_directions(sp.n, u_dir)
-        else:
-            z = 1.0 - 2.0 * u_dir[:, 0]
-            r = (1.0 - z * z).clamp_min(0.0).sqrt()
-            phi = (2.0 * math.pi) * u_dir[:, 1]
-            wi = normalize(sp.n + torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], dim=1))
-            pdf = self.pdf(sp, wi)
+        wi, pdf = compiled.run(cosine_lanes, sp.n.device, sp.n.detach(), u_dir[:, 0], u_dir[:, 1])
         return BSDFSample(wi, self._rho(sp), pdf, torch.zeros(wi.shape[0], dtype=torch.bool, device=wi.device))
 
     def _sample_uniform(self, sp: ShadingPoint, u_dir: torch.Tensor) -> BSDFSample:

@@ -5,8 +5,9 @@ their UVs) from their front side (counter-clockwise winding), uniformly in direc
 estimation picks an emissive triangle with probability proportional to ``area x mean(eps)`` (eps read
 without gradient when the render starts), then a point uniformly on it, so no pdf depends on the
 differentiable eps (docs/architecture.md#detached-sampling-differentiable-evaluation). The points'
-shadow rays and solid-angle pdfs come from one fused kernel where
-:mod:`~invrender.backends.kernels` runs.
+shadow rays and solid-angle pdfs are :func:`triangle_lanes`, written once against the array
+interface (:mod:`invrender.core.lanes`) and compiled where Dr.Jit runs; the fused bounce calls the
+same function.
 
 **Spheres by solid angle.** The triangles of an emitting sphere (a mesh inscribed in an analytic
 sphere, :attr:`Triangles.sphere <invrender.scene.scene.Triangles>`, with a constant eps) form the
@@ -27,6 +28,7 @@ docs/sampling.md#spheres-by-solid-angle gives the radial error and what it does 
 
 from __future__ import annotations
 
+import functools
 import torch
 
 from dataclasses import dataclass
@@ -35,8 +37,7 @@ from invrender import registry
 from invrender.scene.kinds import EMISSION
 from invrender.scene.plugins import Param
 from invrender.scene.scene import Triangles
-from invrender.backends import kernels
-from invrender.core import lanes
+from invrender.core import compiled, lanes
 from invrender.core.lights import Light, LightSample, TriangleTables
 from invrender.core.surface import Surface
 from invrender.core.textures import gather_rgb
@@ -185,8 +186,7 @@ class Area(Light):
 
     def geometry(self, u: torch.Tensor, x: torch.Tensor, nx: torch.Tensor, offset: float) -> AreaSample:
         """The detached part of :meth:`sample_from`: the points picked and their shadow rays (the
-        triangle group in one fused kernel where :mod:`~invrender.backends.kernels` runs, else
-        the torch reference; the sphere group in torch)."""
+        triangle group by :func:`triangle_lanes`; the sphere group in torch)."""
         n = x.shape[0]
         if self.count:
             ut = u
@@ -210,18 +210,18 @@ class Area(Light):
         return AreaSample(tri, uv, o, wl, tmax, facing, pdf)
 
     def _triangle_points(self, u, x, nx, offset: float):
-        """The triangle group's samples: (tri, o, wl, tmax, facing, pdf, uv) as :class:`AreaSample`."""
-        if kernels.enabled(x.device):
-            return kernels.emitter_geometry(self.triangles.packed, self.tri, self.cdf, self.pdf_area, u, x, nx, offset, self.textured)
-        tri, p, n, uv = self._points(u[:, 0], u[:, 1:3])
-        o = x + offset * nx
-        to_light = p - o
-        dist = norm(to_light).clamp_min(1e-12)
-        wl = to_light / dist[:, None]
-        cos_l = -dot(n, wl)  # at the light: only its front side emits
-        facing = (dot(nx, wl) > 0) & (cos_l > 0)  # light from behind x's surface does not reach it
-        pdf = self.pdf_area.index_select(0, tri) * dist * dist / cos_l.clamp_min(1e-12)  # area -> solid angle
-        return tri, o, wl, dist - offset, facing, pdf, uv
+        """The triangle group's samples: (tri, o, wl, tmax, facing, pdf, uv) as :class:`AreaSample`
+        (:func:`triangle_lanes`, compiled where Dr.Jit runs)."""
+        tables = (self._rows, lanes.light_rows(self.cdf, self.tri), lanes.uv_rows(self.triangles))
+        tri, o, wl, tmax, facing, pdf, *uv = compiled.run(_sample_points, x.device, *tables, u[:, 0], u[:, 1], u[:, 2], x, nx, float(offset), lights=self.count, with_uv=self.textured)
+        uv = uv[0] if self.textured else x.new_zeros(()).expand(x.shape[0], 2)
+        return tri.long(), o, wl, tmax, facing, pdf, uv
+
+    @functools.cached_property
+    def _rows(self) -> torch.Tensor:
+        """The triangle table of the lane functions (:func:`invrender.core.lanes.triangle_rows`)."""
+        t = self.triangles
+        return lanes.triangle_rows(t.packed, torch.zeros_like(t.emitter), t.emitter, self._emitting, self.pdf_area)
 
     def _choice(self, o: torch.Tensor) -> torch.Tensor:
         """(N, S) float64: the probability of each cone sphere for origins ``o`` (N, 3), given the
@@ -299,18 +299,6 @@ class Area(Light):
             pdf = pdf.index_put((j,), self.group * qk[j] / self.sphere_area[kj] * dist * dist / cos_l.clamp_min(1e-12))
         return tri, wl, t - offset, facing, pdf
 
-    def _points(self, u_pick: torch.Tensor, u: torch.Tensor):
-        """(tri (N,) int64, p (N, 3), front normal n (N, 3), uv (N, 2)) of points picked by
-        ``u_pick`` (N,) and placed by ``u`` (N, 2): the torch reference of the fused kernel."""
-        k = torch.searchsorted(self.cdf, u_pick.contiguous(), right=True).clamp_max(self.count - 1)
-        tri = self.tri.index_select(0, k)
-        g = self.triangles.packed.index_select(0, tri)
-        su = u[:, 0].sqrt()
-        b1, b2 = (su * (1.0 - u[:, 1]))[:, None], (su * u[:, 1])[:, None]  # uniform barycentrics (weights of p1, p2)
-        p = g[:, 0:3] + b1 * g[:, 3:6] + b2 * g[:, 6:9]
-        uv = (1 - b1 - b2) * g[:, 12:14] + b1 * g[:, 14:16] + b2 * g[:, 16:18] if self.textured else p.new_zeros(()).expand(len(tri), 2)
-        return tri, p, g[:, 9:12], uv
-
     # ---- the formats' aliases
 
     #: the Mitsuba emitter plugins it reads (nested in the shape that emits)
@@ -363,12 +351,13 @@ def triangle_lanes(xp, tri_table, light_table, lights: int, u0, u1, u2, x, nx, o
     """Points on the emissive triangles seen from points ``x`` with normals ``nx`` (3-tuples of (N,)
     arrays), written against the array interface (:mod:`invrender.core.lanes`): the triangle picked
     by ``u0`` through the cdf of the light table's ``lights`` rows (by area x emission), the point
-    placed uniformly by ``u1``, ``u2``. Returns (triangle, shadow-ray origin, unit direction, tmax,
-    facing: both surfaces face each other, solid-angle pdf)."""
+    placed uniformly by ``u1``, ``u2``. Returns (triangle, its barycentrics b1 b2, shadow-ray
+    origin, unit direction, tmax, facing: both surfaces face each other, solid-angle pdf)."""
     k = lanes.pick_light(xp, light_table, lights, u0)
     tri = lanes.Triangle(xp, tri_table, k)
     su = xp.sqrt(u1)
-    y = tri.point(su * (1.0 - u2), su * u2)
+    b1, b2 = su * (1.0 - u2), su * u2
+    y = tri.point(b1, b2)
     start = lanes.add(x, lanes.scale(nx, offset))
     to_light = lanes.sub(y, start)
     dist = xp.maximum(xp.sqrt(lanes.dot(to_light, to_light)), 1e-12)
@@ -376,4 +365,10 @@ def triangle_lanes(xp, tri_table, light_table, lights: int, u0, u1, u2, x, nx, o
     cos_l = -lanes.dot(tri.normal, w)
     facing = (lanes.dot(nx, w) > 0.0) & (cos_l > 0.0)
     pdf = tri.pdf_area * dist * dist / xp.maximum(cos_l, 1e-12)
-    return k, start, w, dist - offset, facing, pdf
+    return k, b1, b2, start, w, dist - offset, facing, pdf
+
+
+def _sample_points(xp, rows, light_table, uvs, u0, u1, u2, x, nx, offset: float, *, lights: int, with_uv: bool):
+    """:func:`triangle_lanes` with the points' texture coordinates when ``with_uv``."""
+    k, b1, b2, *rest = triangle_lanes(xp, rows, light_table, lights, u0, u1, u2, x, nx, offset)
+    return (k, *rest) + ((lanes.uv_at(xp, uvs, k, b1, b2),) if with_uv else ())
