@@ -1,4 +1,4 @@
-"""Plugin registries: where materials, emitters and integrators are found by name.
+"""Plugin registries: where materials, emitters, integrators and reconstruction filters are found by name.
 
 A plugin is one module that describes itself completely (its type name, parameters, settings,
 aliases in the scene formats) and registers its class here with one decorator or by subclassing.
@@ -116,6 +116,8 @@ MATERIALS: Registry = Registry("material type", SceneError, "type_name", builtin
 EMITTERS: Registry = Registry("emitter type", SceneError, "type_name", builtins="invrender.plugins.emitters")
 #: integrator name -> its class (:mod:`invrender.plugins.integrators`; registered by subclassing)
 INTEGRATORS: Registry = Registry("integrator", ParameterError, "name", builtins="invrender.plugins.integrators")
+#: reconstruction filter name -> its class (:mod:`invrender.plugins.filters`)
+FILTERS: Registry = Registry("reconstruction filter", ParameterError, "type_name", builtins="invrender.plugins.filters")
 
 
 def integrator_spec(spec, where: str = "integrator") -> tuple[str, dict]:
