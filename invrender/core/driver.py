@@ -206,6 +206,22 @@ def sampled_size(scene: Scene) -> tuple[int, int]:
     return scene.width + 2 * b, scene.height + 2 * b
 
 
+def film_weights(scene: Scene, settings: RenderSettings, device: torch.device) -> torch.Tensor:
+    """(W * H,) float64: the sum of the filter weights every pixel receives from the samples of a
+    render (what its film divides by; :mod:`invrender.core.rfilter`), from the samples' film
+    positions alone (nothing is traced). For the adjoint of a filtered film (path replay)."""
+    rfilter = scene.film.filter
+    weights = torch.zeros(scene.width * scene.height, dtype=torch.float64, device=device)
+    total = total_paths(scene, settings)
+    step = max(1024, int(settings.memory_mb * 2**20 // (64 * rfilter.taps**2)))
+    border = float(scene.film.border)
+    for start in range(0, total, step):
+        ids = torch.arange(start, min(total, start + step), dtype=torch.int64, device=device)
+        samples = _camera_samples(scene, settings, ids) if settings.plan is None and kernels.enabled(device) else _camera_samples_torch(scene, settings, ids)
+        rfilter.footprint(samples[2] - border, scene.width, scene.height).weights_into(weights)
+    return weights
+
+
 def check_filter_supported(scene: Scene, what: str) -> None:
     """A one-line :class:`ParameterError` when ``scene``'s film has a filter other than the box and
     ``what`` (a consumer of films that follows only the box) cannot follow it."""
