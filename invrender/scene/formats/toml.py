@@ -185,7 +185,7 @@ def film_from_table(doc: dict, where: str, size) -> tuple[FilmOptions, tuple | N
         extent = [int(x) for x in vector(doc, "crop_size", where, length=2)] if "crop_size" in doc else [size[0] - offset[0], size[1] - offset[1]]
         raw = [*(doc.get("crop_offset") or []), *(doc.get("crop_size") or [])]
         if any(isinstance(x, float) and not x.is_integer() for x in raw) or min(offset) < 0 or min(extent) <= 0 or offset[0] + extent[0] > size[0] or offset[1] + extent[1] > size[1]:
-            raise SceneError(f"{where}: the crop window (offset {offset}, size {extent}) must be whole pixels inside the {size[0]}x{size[1]} film (offsets >= 0, sizes > 0)")
+            raise SceneError(f"{where}: the crop window (offset {offset}, size {extent}) must be whole pixels inside the {int(size[0])}x{int(size[1])} film (offsets >= 0, sizes > 0)")
         crop = (tuple(offset), tuple(extent))
     return FilmOptions(None if rfilter.is_box else rfilter, sample_border=border), crop
 
