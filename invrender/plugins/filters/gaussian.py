@@ -1,6 +1,6 @@
 """``gaussian``: a truncated Gaussian, Mitsuba 3's default filter (stddev 1/2, radius 4 stddev).
 
-``f(x) = max(0, exp(-x^2 / (2 s^2)) - exp(-r^2 / (2 s^2)))`` with r = 4 s: the value at the radius
+Its weight: ``f(x) = max(0, exp(-x^2 / (2 s^2)) - exp(-r^2 / (2 s^2)))`` with r = 4 s: the value at the radius
 is subtracted so that the filter falls to 0 there continuously. (Mitsuba's CPU variants evaluate
 the exponential with a polynomial fit; the two agree to about 1e-7 of the peak.)
 """

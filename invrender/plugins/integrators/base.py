@@ -220,13 +220,16 @@ class Integrator(ABC):
             # per-path radiance first: kept for replay, and/or splatted by the filter from the film positions
             paths, shadows = PathFilm(state.count, device, settings.terms), RepeatedQueries(ctx.accel, kinds=("occluded",))
             self.trace(ctx if keep is None else dataclasses.replace(ctx, accel=shadows), state.replace(pixel=torch.arange(state.count, device=device)), paths)
-            totals = paths.term_totals()  # a root path's total holds its branches'
+            if settings.terms:  # (a filter's: never kept) each term's radiance splatted on its own
+                films[worker].splat(xy, {k: t[: state.count] for k, t in paths.term_totals().items()})
+                return
+            totals = paths.totals()  # a root path's total holds its branches'
             if box:
-                films[worker].add(0, state.pixel, totals[0][: state.count])
+                films[worker].add(0, state.pixel, totals[: state.count])
             else:
-                films[worker].splat(xy, {k: t[: state.count] for k, t in totals.items()})
+                films[worker].splat(xy, {0: totals[: state.count]})
             if keep is not None:
-                keep[start] = (totals[0].float() if 0 in totals else paths.totals().float(), shadows)  # float32 until replay takes it up
+                keep[start] = (totals.float(), shadows)  # float32 until replay takes it up
 
         size = BYTES_PER_PATH if keep is None else BYTES_PER_REPLAYED_PATH  # kept chunks are replay's chunks
         small = keep is None and device.type == "cpu" and scene_tables is not None  # fused chunks need not be large
