@@ -33,13 +33,15 @@ class Film:
     def splat(self, xy: torch.Tensor, radiance: dict[int, torch.Tensor]) -> None:
         """Samples at film positions ``xy`` (N, 2) with radiance (N, 3) per Neumann term (a dict
         term -> tensor): each into every pixel its filter reaches, weighted (a film with a filter)."""
-        footprint = self.rfilter.footprint(xy, self.width, self.height)
-        footprint.weights_into(self.weights)
-        for term, value in radiance.items():
+        terms = list(radiance)
+        values = torch.cat([radiance[k].to(torch.float64) for k in terms] + [torch.ones(xy.shape[0], 1, dtype=torch.float64, device=xy.device)], dim=1)
+        index, sums = self.rfilter.splat(xy, values, self.width, self.height)  # (M,), (M, 3 T + 1): each term's RGB, then the weight
+        self.weights.index_add_(0, index, sums[:, -1])
+        for t, term in enumerate(terms):
             key = term if self.terms else 0
             if key not in self._images:
                 self._images[key] = torch.zeros(self.width * self.height, 3, dtype=torch.float64, device=self.device)
-            footprint.splat(value, self._images[key])
+            self._images[key].index_add_(0, index, sums[:, 3 * t : 3 * t + 3])
 
     def add(self, term: int, pixel: torch.Tensor, radiance: torch.Tensor) -> None:
         """Add ``radiance`` (N, 3) to the flat ``pixel`` indices (N,) of Neumann term ``term``."""

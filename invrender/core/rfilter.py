@@ -69,6 +69,51 @@ class ReconstructionFilter(ABC):
     def __hash__(self) -> int:
         return hash((type(self).__name__, self.radius, tuple(sorted(self.settings().items()))))
 
+    @property
+    def reach(self) -> int:
+        """R: a sample in pixel i reaches pixels i - R .. i + R along an axis, ``ceil(radius + 1/2) - 1``
+        (a pixel centre j + 1/2 within the radius of a position in [i, i + 1))."""
+        return math.ceil(self.radius + 0.5) - 1
+
+    def splat(self, xy: torch.Tensor, values: torch.Tensor, width: int, height: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """The weighted sums the samples at film positions ``xy`` (N, 2) with ``values`` (N, C)
+        add to the pixels of a ``width x height`` film: (pixel indices (M,) int64, sums (M, C)
+        float64). The same sums as :meth:`footprint` then :meth:`Footprint.splat` (differentiable
+        in ``values``), computed per source pixel: the samples of a pixel (consecutive in a
+        chunk) give its block of (2R + 1)^2 sums as one matrix product by separability,
+        ``B[a, b, c] = sum_n wy[n, a] (wx[n, b] v[n, c])``, and only the blocks are scattered to the
+        pixels they reach (rows: the source pixels times (2R + 1)^2, not the samples times it)."""
+        R = self.reach
+        n = xy.shape[0]
+        offsets = torch.arange(-R, R + 1, device=xy.device)
+        cell = torch.floor(xy).long()  # (N, 2) the pixel each sample lies in (outside the film with sample_border)
+        low = cell.amin(0)
+        span = int(cell[:, 0].max() - low[0]) + 1
+        key = (cell[:, 1] - low[1]) * span + (cell[:, 0] - low[0])
+        if n > 1 and bool((key[1:] < key[:-1]).any()):  # the driver's chunks come sorted by pixel; others are sorted here
+            key, order = key.sort(stable=True)
+            xy, values, cell = xy[order], values[order], cell[order]
+        cells, counts = torch.unique_consecutive(key, return_counts=True)
+        group = torch.repeat_interleave(torch.arange(cells.shape[0], device=xy.device), counts)
+        slot = torch.arange(n, device=xy.device) - (torch.cumsum(counts, 0) - counts)[group]  # index within its pixel
+        width_of = int(counts.max())
+        weights = []
+        for axis in (0, 1):
+            d = (cell[:, axis : axis + 1] + offsets).to(torch.float64) + 0.5 - xy[:, axis : axis + 1].to(torch.float64)  # (N, 2R + 1)
+            w = self.eval(d)
+            weights.append(torch.where(d.abs() <= self.radius, w, torch.zeros((), dtype=w.dtype, device=w.device)))
+        wx, wy = weights
+        v = values.to(torch.float64)
+        taps, C = 2 * R + 1, v.shape[1]
+        Wy = torch.zeros(cells.shape[0], width_of, taps, dtype=torch.float64, device=xy.device).index_put_((group, slot), wy)
+        XV = torch.zeros(cells.shape[0], width_of, taps * C, dtype=torch.float64, device=xy.device).index_put_((group, slot), (wx[:, :, None] * v[:, None, :]).reshape(n, -1))
+        blocks = torch.bmm(Wy.transpose(1, 2), XV)  # (G, 2R + 1 (y), (2R + 1) C (x, channel))
+        cx, cy = cells % span + low[0], cells // span + low[1]
+        ty = cy.reshape(-1, 1, 1) + offsets.reshape(1, -1, 1)
+        tx = cx.reshape(-1, 1, 1) + offsets.reshape(1, 1, -1)
+        inside = ((tx >= 0) & (tx < width) & (ty >= 0) & (ty < height)).reshape(-1)
+        return (ty * width + tx).reshape(-1)[inside], blocks.reshape(-1, C)[inside]
+
     def footprint(self, xy: torch.Tensor, width: int, height: int) -> Footprint:
         """The pixels of a ``width x height`` film the samples at film positions ``xy`` (N, 2)
         reach, with their weights (:class:`Footprint`)."""
