@@ -446,3 +446,14 @@ def test_cli_reports_one_line_and_writes_nothing(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"invrender: error: {path}:{line_of(path, '1.5')}: <bsdf type=\"diffuse\">")
     assert not out.exists()
+
+
+def test_crop_window_renders_the_crop_with_the_full_films_projection(tmp_path):
+    full = load_mitsuba_xml(_with_film(tmp_path, ""))
+    inside = '<integer name="crop_offset_x" value="2"/><integer name="crop_offset_y" value="1"/><integer name="crop_width" value="4"/><integer name="crop_height" value="3"/>'
+    crop = load_mitsuba_xml(_with_film(tmp_path, inside))
+    assert full.resolution == (8, 6) and crop.resolution == (4, 3)
+    xy = torch.rand(32, 2) * torch.tensor([4.0, 3.0])
+    assert torch.allclose(full.camera.generate_rays(xy + torch.tensor([2.0, 1.0]), 8, 6)[1], crop.camera.generate_rays(xy, 4, 3)[1], atol=1e-6)
+    with pytest.warns(UserWarning, match="crop window of the 8x6 film is dropped"):
+        assert ir.load_scene(_with_film(tmp_path, inside), resolution=(16, 12)).resolution == (16, 12)
