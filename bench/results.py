@@ -31,6 +31,7 @@ BENCHMARKS = [
     ("radiosity", "radiosity against closed forms and the path tracer", "python bench/radiosity.py", "~3-6 min", "radiosity.md#measured-in-brief"),
     ("ladder", "the ladder of approximations (figure and channel means)", "python bench/ladder.py --out /tmp/ladder.png", "~1 min", "integrators.md#the-ladder-of-approximations"),
     ("mitsuba_compare", "channel means against Mitsuba 3 (acceptance)", "python bench/mitsuba_compare.py --acceptance --closeups", "14-25 min", "rendering.md#against-mitsuba-3"),
+    ("filter_compare", "reconstruction filters against Mitsuba 3, pixel for pixel", "python bench/filter_compare.py", "~3 min", "rendering.md#reconstruction-filters"),
     ("envmap_compare", "an environment map against Mitsuba 3 (diffuse and GGX spheres)", "python bench/envmap_compare.py --resolution 64 --spp 512 --seeds 8 --max-depth 8 2", "~2 min", "environment.md#against-mitsuba-3"),
     ("fit_cornell", "the acceptance fit (Adam, lm, Mitsuba `prb` + Adam)", "python bench/fit_cornell.py", "~13 min", "fitting.md#measured"),
     ("fit_recipes", "every shipped fit recipe with both solvers", "python bench/fit_recipes.py", "~40 min", "fitting.md#every-recipe-with-both-solvers"),

@@ -1,4 +1,4 @@
-"""Plugin registries: where materials, emitters and integrators are found by name.
+"""Plugin registries: where materials, emitters, integrators and reconstruction filters are found by name.
 
 A plugin is one module that describes itself completely (its type name, parameters, settings,
 aliases in the scene formats) and registers its class here with one decorator or by subclassing.
@@ -116,6 +116,8 @@ MATERIALS: Registry = Registry("material type", SceneError, "type_name", builtin
 EMITTERS: Registry = Registry("emitter type", SceneError, "type_name", builtins="invrender.plugins.emitters")
 #: integrator name -> its class (:mod:`invrender.plugins.integrators`; registered by subclassing)
 INTEGRATORS: Registry = Registry("integrator", ParameterError, "name", builtins="invrender.plugins.integrators")
+#: reconstruction filter name -> its class (:mod:`invrender.plugins.filters`)
+FILTERS: Registry = Registry("reconstruction filter", ParameterError, "type_name", builtins="invrender.plugins.filters")
 
 
 def integrator_spec(spec, where: str = "integrator") -> tuple[str, dict]:
@@ -132,3 +134,29 @@ def integrator_spec(spec, where: str = "integrator") -> tuple[str, dict]:
         INTEGRATORS.get(name, where)
         return name, options
     raise ParameterError(f"{where}: expected an integrator name, a {{'type': name, ...}} mapping or an integrator object, got {spec!r}")
+
+
+def make_filter(spec, where: str = "filter"):
+    """A reconstruction filter object (:mod:`invrender.plugins.filters`) from a spec: None (the
+    box), a name, a ``{"type": name, ...}`` mapping of its settings, or a filter object (returned
+    as it is); a one-line :class:`ParameterError` naming ``where`` for an unknown name, an unknown
+    setting or a value out of range."""
+    if spec is None:
+        spec = "box"
+    if isinstance(spec, str):
+        return FILTERS.get(spec, where)()
+    if isinstance(spec, Mapping):
+        settings = dict(spec)
+        if "type" not in settings:
+            raise ParameterError(f"{where}: a mapping spec needs a 'type' key naming the filter (known: {', '.join(FILTERS)}), got keys {sorted(settings)}")
+        cls = FILTERS.get(settings.pop("type"), where)
+        unknown = sorted(set(settings) - set(cls.setting_names))
+        if unknown:
+            raise ParameterError(f"{where}: filter {cls.type_name!r} has no setting {unknown[0]!r}{did_you_mean(unknown[0], cls.setting_names)} (its settings: {', '.join(cls.setting_names) or 'none'})")
+        try:
+            return cls(**settings)
+        except ParameterError as e:
+            raise ParameterError(f"{where}: {e}") from None
+    if callable(getattr(spec, "footprint", None)):
+        return spec
+    raise ParameterError(f"{where}: expected a filter name, a {{'type': name, ...}} mapping or a filter object, got {spec!r}")

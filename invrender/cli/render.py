@@ -72,6 +72,7 @@ def add_parser(sub) -> None:
     r.add_argument("--ambient", type=parse_rgb, default=None, metavar="R,G,B", help="ambient radiance eps0 for --integrator utah, whitted or distributed (one number or R,G,B; default: the scene's, else 0)")
     r.add_argument("--seed", type=int, default=0, help="random seed; the image is a pure function of it (default: 0)")
     r.add_argument("--rr-depth", type=int, default=None, help="the integrator's rr_depth: Russian roulette starts after this many terms; -1 = no roulette (path, random_walk, distributed; default: the scene file's, else 5)")
+    r.add_argument("--filter", default=None, metavar="NAME", help="the film's reconstruction filter: box, tent, gaussian, mitchell, catmullrom or lanczos at their default settings (default: the scene's: a Mitsuba file's <rfilter>, its gaussian when it has none, else box)")
     r.add_argument("--sampler", default="stratified", help="pixel samples: stratified (correlated multi-jittered: every spp stratified, default), independent, or antithetic (pairs whose second path draws 1 - u for every number of the first)")
     r.add_argument("--strategy", default=None, help="the path tracer's strategy for direct light: mis (emitter and BSDF samples by multiple importance sampling, default), bsdf (BSDF samples only) or emitter (emitter samples only)")
     r.add_argument("--hemisphere", default=None, help="the integrator's hemisphere: diffuse BSDF sampling, cosine (default) or uniform over the hemisphere (path, random_walk, distributed)")
@@ -104,7 +105,7 @@ def run(args) -> int:
     start, compiling = time.perf_counter(), first_use.seconds()
     result = ir.render(
         scene, integrator=spec, spp=spp, seed=args.seed, terms=args.terms, backend=args.backend, device=args.device, memory_mb=args.memory_mb,
-        progress=not args.quiet, sampler=args.sampler, adaptive=adaptive, return_counts=adaptive is not None,
+        progress=not args.quiet, sampler=args.sampler, adaptive=adaptive, return_counts=adaptive is not None, filter=args.filter,
     )  # fmt: skip
     # a first use's compiles and kernel loads (first_use.py) are not rendering: reported apart
     compiling = first_use.seconds() - compiling

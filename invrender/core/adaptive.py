@@ -25,7 +25,7 @@ import torch
 
 from invrender.errors import ParameterError
 from invrender.scene.scene import Scene
-from invrender.core.driver import RenderSettings, SamplePlan, check_film_memory, cpu_workers, for_each_chunk
+from invrender.core.driver import RenderSettings, SamplePlan, check_film_memory, check_filter_supported, cpu_workers, for_each_chunk
 from invrender.validate import MAX_SPP, check_int
 from invrender.core.film import Film
 
@@ -256,6 +256,7 @@ def adaptive_render(integrator, scene: Scene, settings: RenderSettings, adaptive
     Records autograd where a parameter requires grad (the allocation itself is detached, as every
     sampling decision is). ``params`` overrides ``scene.params`` values.
     """
+    check_filter_supported(scene, "adaptive sampling")
     if settings.terms:
         raise ParameterError("adaptive sampling gives the full image only: terms=True is not available with adaptive")
     if settings.plan is not None:

@@ -132,7 +132,7 @@ class SamplePlan:
 
 def for_each_chunk(
     scene: Scene, settings: RenderSettings, device: torch.device, work, grad: bool | None = None, across_ranks: bool = False, with_start: bool = False,
-    bytes_per_path: int = BYTES_PER_PATH, max_chunk: int | None = None,
+    bytes_per_path: int = BYTES_PER_PATH, max_chunk: int | None = None, with_positions: bool = False,
 ) -> None:  # fmt: skip
     """Call ``work(worker, camera_paths)`` for every chunk of the (pixel, sample) paths
     (``work(worker, camera_paths, start)`` with ``with_start``: ``start`` the chunk's first path id,
@@ -146,6 +146,8 @@ def for_each_chunk(
     results. Otherwise every chunk is traced here.
     ``bytes_per_path``: the working set of a path, which sizes the chunks from ``settings.memory_mb``
     (unless ``settings.chunk_paths`` is given); ``max_chunk``: at most that many paths a chunk then.
+    ``with_positions``: ``work`` also receives the chunk's film positions (N, 2) float32 (pixel
+    units), last: a filter's splat needs them (:mod:`invrender.core.rfilter`).
     """
     if device.type == "cpu":
         keep_freed_blocks()  # chunk-sized temporaries reused, not page-faulted in anew
@@ -167,8 +169,9 @@ def for_each_chunk(
                 if stop.is_set():
                     return
                 ids = torch.arange(start, min(total, start + chunk), dtype=torch.int64, device=device)
-                state = camera_paths(scene, settings, ids)
-                work(w, state, start) if with_start else work(w, state)
+                state, xy = camera_paths(scene, settings, ids, positions=True)
+                args = (w, state, start) if with_start else (w, state)
+                work(*args, xy) if with_positions else work(*args)
                 bar.update(ids.numel())
 
     with bar:
@@ -186,8 +189,44 @@ def for_each_chunk(
 
 
 def total_paths(scene: Scene, settings: RenderSettings) -> int:
-    """Camera paths a render traces: every pixel's spp, or the paths of ``settings.plan``."""
-    return scene.width * scene.height * settings.spp if settings.plan is None else settings.plan.total
+    """Camera paths a render traces: every sampled pixel's spp (the image's pixels and, with the
+    film's ``sample_border``, a border around them: :func:`sampled_size`), or the paths of
+    ``settings.plan``."""
+    if settings.plan is not None:
+        return settings.plan.total
+    width, height = sampled_size(scene)
+    return width * height * settings.spp
+
+
+def sampled_size(scene: Scene) -> tuple[int, int]:
+    """(width, height) of the grid of pixels whose samples are traced: the image's, grown by the
+    film's border on each side (``scene.film.border``: the filter's border size with
+    ``sample_border``, as Mitsuba samples it)."""
+    b = scene.film.border
+    return scene.width + 2 * b, scene.height + 2 * b
+
+
+def film_weights(scene: Scene, settings: RenderSettings, device: torch.device) -> torch.Tensor:
+    """(W * H,) float64: the sum of the filter weights every pixel receives from the samples of a
+    render (what its film divides by; :mod:`invrender.core.rfilter`), from the samples' film
+    positions alone (nothing is traced). For the adjoint of a filtered film (path replay)."""
+    rfilter = scene.film.filter
+    weights = torch.zeros(scene.width * scene.height, dtype=torch.float64, device=device)
+    total = total_paths(scene, settings)
+    step = max(1024, int(settings.memory_mb * 2**20 // (64 * rfilter.taps**2)))
+    border = float(scene.film.border)
+    for start in range(0, total, step):
+        ids = torch.arange(start, min(total, start + step), dtype=torch.int64, device=device)
+        samples = _camera_samples(scene, settings, ids) if settings.plan is None and kernels.enabled(device) else _camera_samples_torch(scene, settings, ids)
+        rfilter.footprint(samples[2] - border, scene.width, scene.height).weights_into(weights)
+    return weights
+
+
+def check_filter_supported(scene: Scene, what: str) -> None:
+    """A one-line :class:`ParameterError` when ``scene``'s film has a filter other than the box and
+    ``what`` (a consumer of films that follows only the box) cannot follow it."""
+    if not scene.film.is_box:
+        raise ParameterError(f"{what} supports the box filter only, and scene {scene.name!r} has the {scene.film.filter.type_name!r} filter: render with filter='box'")
 
 
 def available_memory_bytes() -> int | None:
@@ -222,7 +261,7 @@ def cpu_workers(device: torch.device) -> int:
     return max(1, min(len(os.sched_getaffinity(0)), torch.get_num_threads()))
 
 
-def camera_paths(scene: Scene, settings: RenderSettings, ids: torch.Tensor) -> PathState:
+def camera_paths(scene: Scene, settings: RenderSettings, ids: torch.Tensor, positions: bool = False):
     """Camera rays for flat path ids (N,) = ``pixel * spp + sample`` (or the ids of
     ``settings.plan``, each pixel with its own count).
 
@@ -234,19 +273,26 @@ def camera_paths(scene: Scene, settings: RenderSettings, ids: torch.Tensor) -> P
     share their counters, the second mirrored (``sampler.mirrored``), and the pairs are stratified
     as samples are. A thin lens draws its lens point from dimensions 2 and 3 of the same counters.
     With a plan, spp is the pixel's count in the pass and sample k has the index ``first + k``.
+    With the film's ``sample_border`` the pixels are those of the grown grid (:func:`sampled_size`),
+    ``pixel`` indexes that grid, and film positions run from ``-border`` to ``width + border``.
+    Returns the :class:`PathState`, or (state, film positions (N, 2) float32) with ``positions``.
     """
     camera = scene.camera
     if settings.plan is None and kernels.enabled(ids.device):
         pixel, keys, film_xy, lens = _camera_samples(scene, settings, ids)
     else:
         pixel, keys, film_xy, lens = _camera_samples_torch(scene, settings, ids)
+    border = scene.film.border
+    if border:
+        film_xy = film_xy - float(border)  # the grown grid's origin is border pixels up and left of the image's
     o, d = camera.generate_rays(film_xy, scene.width, scene.height, lens)
     n_paths = ids.shape[0]
     beta = torch.ones(n_paths, 3, device=ids.device)
-    return PathState(
+    state = PathState(
         keys=keys, pixel=pixel, o=o.contiguous(), d=d, beta=beta,
         pdf_dir=torch.ones(n_paths, device=ids.device), delta=torch.ones(n_paths, dtype=torch.bool, device=ids.device),
     )  # fmt: skip
+    return (state, film_xy) if positions else state
 
 
 #: the sampler names of the camera-sample kernel's modes
@@ -262,7 +308,7 @@ def _camera_samples(scene: Scene, settings: RenderSettings, ids: torch.Tensor):
     lens = not scene.camera.is_pinhole
     salts = bounce_salts(0, 4 if lens else 2, ids.device)
     key_salt, pattern_salt = seed_salt(settings.seed), seed_salt(settings.seed ^ 0x5EED)
-    return kernels.camera_samples(ids, spp, scene.width, _MODES[settings.sampler], key_salt, pattern_salt, cells, m, salts, lens)
+    return kernels.camera_samples(ids, spp, sampled_size(scene)[0], _MODES[settings.sampler], key_salt, pattern_salt, cells, m, salts, lens)
 
 
 def _camera_samples_torch(scene: Scene, settings: RenderSettings, ids: torch.Tensor):
@@ -289,6 +335,7 @@ def _camera_samples_torch(scene: Scene, settings: RenderSettings, ids: torch.Ten
         first = torch.as_tensor(first, dtype=torch.int64, device=ids.device)
         pattern = path_keys(settings.seed ^ 0x5EED, pixel, first).long() & 0xFFFFFFFF  # one per pixel and pass
         fx, fy = multijitter(pattern, cell, cells, u[:, :2]).unbind(1)
-    film_xy = torch.stack([(pixel % scene.width).float() + fx, (pixel // scene.width).float() + fy], dim=1)
+    width = sampled_size(scene)[0]
+    film_xy = torch.stack([(pixel % width).float() + fx, (pixel // width).float() + fy], dim=1)
     return pixel, keys, film_xy, None if pinhole else u[:, 2:4]
 

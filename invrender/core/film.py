@@ -8,7 +8,12 @@ from invrender.core.ranks import max_across_ranks, sum_across_ranks, world
 
 
 class Film:
-    """Box-filtered accumulation of radiance samples.
+    """Accumulation of radiance samples into pixels.
+
+    With the box filter (``rfilter`` None or a box) each contribution lands in its own pixel
+    (:meth:`add`) and the image is the sum over spp; with another filter each sample's radiance is
+    splatted into every pixel its filter reaches (:meth:`splat`, from its film position) and each
+    pixel is divided by the sum of the weights it received (:mod:`invrender.core.rfilter`).
 
     With ``terms`` each contribution is kept in the image of its Neumann term k (the contribution of
     paths with k reflections, ``g (Mg)^k eps``); otherwise everything goes to one image. Sums are
@@ -18,9 +23,25 @@ class Film:
     #: replay's adjoint pass sets this: the integrator then carries the throughput beta detached
     detach_throughput = False
 
-    def __init__(self, width: int, height: int, terms: bool, device):
+    def __init__(self, width: int, height: int, terms: bool, device, rfilter=None):
         self.width, self.height, self.terms, self.device = width, height, terms, device
         self._images: dict[int, torch.Tensor] = {}
+        self.rfilter = None if rfilter is None or rfilter.is_box else rfilter
+        #: (W * H,) float64 sums of the filter weights each pixel received (None for the box)
+        self.weights = None if self.rfilter is None else torch.zeros(width * height, dtype=torch.float64, device=device)
+
+    def splat(self, xy: torch.Tensor, radiance: dict[int, torch.Tensor]) -> None:
+        """Samples at film positions ``xy`` (N, 2) with radiance (N, 3) per Neumann term (a dict
+        term -> tensor): each into every pixel its filter reaches, weighted (a film with a filter)."""
+        terms = list(radiance)
+        values = torch.cat([radiance[k].to(torch.float64) for k in terms] + [torch.ones(xy.shape[0], 1, dtype=torch.float64, device=xy.device)], dim=1)
+        index, sums = self.rfilter.splat(xy, values, self.width, self.height)  # (M,), (M, 3 T + 1): each term's RGB, then the weight
+        self.weights.index_add_(0, index, sums[:, -1])
+        for t, term in enumerate(terms):
+            key = term if self.terms else 0
+            if key not in self._images:
+                self._images[key] = torch.zeros(self.width * self.height, 3, dtype=torch.float64, device=self.device)
+            self._images[key].index_add_(0, index, sums[:, 3 * t : 3 * t + 3])
 
     def add(self, term: int, pixel: torch.Tensor, radiance: torch.Tensor) -> None:
         """Add ``radiance`` (N, 3) to the flat ``pixel`` indices (N,) of Neumann term ``term``."""
@@ -66,6 +87,8 @@ class Film:
         for other in films[1:]:
             for k, img in other._images.items():
                 out._images[k] = out._images[k] + img if k in out._images else img
+            if out.weights is not None:
+                out.weights += other.weights
         return out
 
     def summed_across_ranks(self) -> Film:
@@ -77,37 +100,45 @@ class Film:
         for k in range(count):
             image = self._images.get(k)
             self._images[k] = sum_across_ranks(image if image is not None else torch.zeros(self.width * self.height, 3, dtype=torch.float64, device=self.device))
+        if self.weights is not None:
+            self.weights = sum_across_ranks(self.weights)
         return self
 
     def develop(self, spp: int, terms: int = 1) -> torch.Tensor:
-        """The mean over ``spp`` samples: (H, W, 3), or (K, H, W, 3) per term with ``terms``, K at
-        least ``terms`` (the terms the integrator keeps: an image of zeros for terms nothing reached)."""
+        """The mean over ``spp`` samples (box), or each pixel's weighted sum divided by its sum of
+        weights (0 where it received none; another filter): (H, W, 3), or (K, H, W, 3) per term
+        with ``terms``, K at least ``terms`` (the terms the integrator keeps: an image of zeros for
+        terms nothing reached)."""
         shape = (self.height, self.width, 3)
+        norm = spp if self.weights is None else self.weights.masked_fill(self.weights == 0, 1.0)[:, None]
         if not self.terms:
             img = self._images.get(0, torch.zeros(self.width * self.height, 3, device=self.device))
-            return (img / spp).float().reshape(shape)
+            return (img / norm).float().reshape(shape)
         count = max(max(self._images, default=-1) + 1, terms)
         zero = torch.zeros(self.width * self.height, 3, dtype=torch.float64, device=self.device)
-        return torch.stack([(self._images.get(k, zero) / spp).float().reshape(shape) for k in range(count)])
+        return torch.stack([(self._images.get(k, zero) / norm).float().reshape(shape) for k in range(count)])
 
 
 class PathFilm(Film):
     """A film with one entry per path (the film index is the path), growing when paths split;
     :meth:`totals` folds every branch's radiance into its parent's. Path replay's primal pass traces
-    into one (each path's radiance is what its adjoint pass strikes off vertex by vertex)."""
+    into one (each path's radiance is what its adjoint pass strikes off vertex by vertex), and so do
+    the chunks of a render with a filter before their samples are splatted (per term with
+    ``terms``; differentiable)."""
 
-    def __init__(self, n: int, device):
-        super().__init__(n, 1, False, device)
+    def __init__(self, n: int, device, terms: bool = False):
+        super().__init__(n, 1, terms, device)
         self.size = n
         self._branches: list[tuple[torch.Tensor, torch.Tensor]] = []  # (new indices, parent indices)
 
     def add(self, term: int, pixel: torch.Tensor, radiance: torch.Tensor) -> None:
-        if 0 not in self._images or self._images[0].shape[0] < self.size:
+        key = term if self.terms else 0
+        if key not in self._images or self._images[key].shape[0] < self.size:
             grown = torch.zeros(self.size, 3, dtype=torch.float64, device=self.device)
-            if 0 in self._images:
-                grown[: self._images[0].shape[0]] = self._images[0]
-            self._images[0] = grown
-        self._images[0].index_add_(0, pixel, radiance.double())
+            if key in self._images:
+                grown[: self._images[key].shape[0]] = self._images[key]
+            self._images[key] = grown
+        self._images[key].index_add_(0, pixel, radiance.double())
 
     def branch(self, pixel: torch.Tensor) -> torch.Tensor:
         new = torch.arange(self.size, self.size + pixel.numel(), device=pixel.device)
@@ -115,11 +146,17 @@ class PathFilm(Film):
         self.size += pixel.numel()
         return new
 
-    def totals(self) -> torch.Tensor:
-        """(size, 3) float64: each path's radiance, including all its branches'."""
+    def totals(self, term: int = 0) -> torch.Tensor:
+        """(size, 3) float64: each path's radiance (of Neumann term ``term`` with ``terms``),
+        including all its branches'."""
         total = torch.zeros(self.size, 3, dtype=torch.float64, device=self.device)
-        if 0 in self._images:
-            total[: self._images[0].shape[0]] = self._images[0]
+        if term in self._images:
+            total[: self._images[term].shape[0]] = self._images[term]
         for new, parent in reversed(self._branches):  # children are created after their parents
             total.index_add_(0, parent, total[new])
         return total
+
+    def term_totals(self) -> dict[int, torch.Tensor]:
+        """Neumann term -> :meth:`totals` of that term (one entry, 0, without ``terms``)."""
+        return {k: self.totals(k) for k in sorted(self._images)}
+

@@ -15,8 +15,11 @@ inverse-rendering layer above it (fits, gradient checks) calls :func:`render` an
 
 from __future__ import annotations
 
+import dataclasses
+
 import torch
 
+from invrender import registry
 from invrender.estimators.autodiff import autodiff_render
 from invrender.estimators.defaults import report, scene_integrator, scene_spp
 from invrender.estimators.finite import check_image, check_params
@@ -83,6 +86,7 @@ def render(
     adaptive=None,
     return_counts: bool = False,
     sampling_params: dict | None = None,
+    filter=None,
     **options,
 ):
     """Render ``scene`` by Monte Carlo estimation of ``I = g eps + gMg eps + g(Mg)^2 eps + ...``.
@@ -131,6 +135,11 @@ def render(
         sampling_params: values (name -> tensor, all or some) the emitters' and BSDFs' sampling is built from
             instead of ``scene.params`` (see :class:`~invrender.core.driver.RenderSettings`):
             for finite differences whose renders must draw the same paths.
+        filter: the film's reconstruction filter for this render, overriding the scene's
+            (``scene.film``: a Mitsuba file's ``<rfilter>``, else the box): a name (``"box"``,
+            ``"tent"``, ``"gaussian"``, ``"mitchell"``, ``"catmullrom"``, ``"lanczos"``), a mapping
+            ``{"type": "gaussian", "stddev": 0.5}`` or a filter object
+            (:mod:`invrender.plugins.filters`; docs/rendering.md#reconstruction-filters). None = the scene's.
         options: further settings of the integrator, e.g. for ``path`` ``strategy`` (``"mis"``,
             ``"bsdf"``, ``"emitter"``) and ``hemisphere`` (``"cosine"``, ``"uniform"``).
     Returns:
@@ -144,6 +153,8 @@ def render(
     """
     check_params(scene.params)
     check_params(sampling_params or {}, "sampling parameter")
+    if filter is not None:
+        scene = dataclasses.replace(scene, film=dataclasses.replace(scene.film, filter=registry.make_filter(filter, "render filter")))
     for key, value in (("max_depth", max_depth), ("rr_depth", rr_depth)):
         if value is not None:
             options[key] = value

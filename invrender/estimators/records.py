@@ -58,7 +58,7 @@ from invrender.registry import EMITTERS
 from invrender.scene.kinds import kind_of
 from invrender.scene.scene import Scene, check_names
 from invrender.core import fused
-from invrender.core.driver import RenderSettings, SamplePlan, for_each_chunk
+from invrender.core.driver import RenderSettings, SamplePlan, film_weights, for_each_chunk
 from invrender.core.film import Film
 from invrender.plugins.integrators import make_integrator
 from invrender.core.textures import bilinear
@@ -319,9 +319,12 @@ class _RecordFilm(Film):
         self.tables: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}  # K -> (keys (U, 2 + K), coefficients (U, 3))
         self.pending: dict[int, list[tuple[torch.Tensor, torch.Tensor]]] = {}
 
-    def begin(self, pixel: torch.Tensor) -> torch.Tensor:
-        """Start a chunk whose paths write to ``pixel`` (N,); returns their film indices."""
+    def begin(self, pixel: torch.Tensor, footprint=None) -> torch.Tensor:
+        """Start a chunk whose paths write to ``pixel`` (N,); returns their film indices. With a
+        filter, ``footprint`` (:class:`~invrender.core.rfilter.Footprint` of the N paths): each
+        contribution lands in every pixel of its path's footprint, weighted."""
         self.pixel_of = pixel
+        self.footprint = footprint
         n = pixel.shape[0]
         self.visits = torch.zeros(n, dtype=torch.int64, device=pixel.device)
         # a map's history holds one entry: the texels of the next contribution's arrival (arrive)
@@ -331,6 +334,9 @@ class _RecordFilm(Film):
     def branch(self, path: torch.Tensor) -> torch.Tensor:
         new = torch.arange(self.pixel_of.shape[0], self.pixel_of.shape[0] + path.numel(), device=path.device)
         self.pixel_of = torch.cat([self.pixel_of, self.pixel_of[path]])
+        if self.footprint is not None:
+            f = self.footprint
+            self.footprint = type(f)(torch.cat([f.index, f.index[path]]), torch.cat([f.weight, f.weight[path]]))
         self.visits = torch.cat([self.visits, self.visits[path]])
         for hist in self.history:
             hist.extend(path)
@@ -374,8 +380,22 @@ class _RecordFilm(Film):
         monomials' codes ``code`` (L,) given (-1: no contribution), from the fused bounce."""
         c = radiance.double()
         live = (code >= 0)[:, None] & (c != 0)
-        key = self.pixel_of[path][:, None] * 3 + torch.arange(3, device=path.device)
-        self._add_dense(code.clamp_min(0)[:, None].expand(-1, 3).reshape(-1), key.reshape(-1), torch.where(live, c, 0.0).reshape(-1), live.reshape(-1))
+        code = code.clamp_min(0)[:, None].expand(-1, 3)
+        key, code, c, live = self._spread(path, code, torch.where(live, c, 0.0), live)
+        self._add_dense(code.reshape(-1), key.reshape(-1), c.reshape(-1), live.reshape(-1))
+
+    def _spread(self, path, code, c, live):
+        """(film entries, codes, contributions, live) of contributions ``c`` (L, 3) with codes and
+        liveness (L, 3) of paths ``path`` (L,): entries ``pixel * 3 + channel`` (L, 3) in the
+        path's pixel, or with a filter (L * K, 3) in each pixel of its footprint, ``c`` weighted."""
+        channel = torch.arange(3, device=path.device)
+        if self.footprint is None:
+            return self.pixel_of[path][:, None] * 3 + channel, code, c, live
+        index, weight = self.footprint.index[path], self.footprint.weight[path]  # (L, K)
+        on = live[:, None, :] & (weight != 0)[:, :, None]
+        key = index[:, :, None] * 3 + channel
+        value = c[:, None, :] * weight[:, :, None]
+        return key.reshape(-1, 3), code[:, None, :].expand_as(key).reshape(-1, 3), value.reshape(-1, 3), on.reshape(-1, 3)
 
     def _add(self, path: torch.Tensor, radiance: torch.Tensor) -> None:
         primal, tangent = fwAD.unpack_dual(radiance)
@@ -388,12 +408,13 @@ class _RecordFilm(Film):
         if bool(((ratio - code).abs() > 0.25).any()):  # 0 where c == 0 (code 0, adding 0)
             raise ParameterError("a contribution is not a monomial in the recorded parameters (a recorded parameter enters non-linearly)")
         code = code.long()
-        key = self.pixel_of[path][:, None] * 3 + torch.arange(3, device=path.device)  # (L, 3) film entries
         if not self.slots:
             # every contribution is added at the record point: its monomial there is divided out
             # once per code and channel when the record is read (sums), not per contribution
+            key, code, c, live = self._spread(path, code, c, live)
             self._add_dense(code.reshape(-1), key.reshape(-1), c.reshape(-1), live.reshape(-1))
             return
+        key = self.pixel_of[path][:, None] * 3 + torch.arange(3, device=path.device)  # (L, 3) film entries
         channel = torch.arange(3, device=path.device).expand_as(live)[live]
         path, key = path[:, None].expand_as(live)[live], key[live]
         code, c = code[live], c[live]
@@ -636,6 +657,8 @@ def record_paths(
     why = record_obstacle(scene, names)
     if why:
         raise ParameterError(f"{why}: path records cannot represent it; {INSTEAD}")
+    if not scene.film.is_box and any(scene.params[n].ndim == 3 for n in names):
+        raise ParameterError(f"path records of textured parameters support the box filter only, and scene {scene.name!r} has the {scene.film.filter.type_name!r} filter: record with filter='box' or fit with solver 'adam'")
     if isinstance(max_depth, bool) or not isinstance(max_depth, int) or max_depth < 1:
         raise ParameterError(f"record_paths needs a finite max_depth >= 1 (it bounds the polynomial's degree), got {max_depth!r}")
     slots, offset = [], 0
@@ -681,14 +704,15 @@ def record_paths(
             ctx = model.context(scene, settings, device)
         slots = [_with_lookup(s, ctx.lights) if s.lookup is not None else s for s in slots]
 
-        def work(worker: int, state) -> None:
+        def work(worker: int, state, xy) -> None:
             if worker not in films:
                 films[worker] = _RecordFilm(w, h, device, radix, record, slots, material_of, max_depth + 1, max_record_mb * 2**20)
                 films[worker].fused_places = coded
             film = films[worker]
-            model.trace(ctx, state.replace(pixel=film.begin(state.pixel)), film)
+            footprint = None if scene.film.is_box else scene.film.filter.footprint(xy, w, h)
+            model.trace(ctx, state.replace(pixel=film.begin(state.pixel, footprint)), film)
 
-        for_each_chunk(scene, settings, device, work, grad=False)
+        for_each_chunk(scene, settings, device, work, grad=False, with_positions=True)
 
     sums: dict[int, torch.Tensor] = {}
     for film in films.values():
@@ -702,7 +726,12 @@ def record_paths(
         return torch.tensor([[(c // pl) % r for pl, r in zip(place, radix)] for c in code_list], dtype=torch.int64).reshape(len(code_list), len(names))
 
     exponents = exponents_of(codes)
-    coefficients = (torch.stack([sums[c] for c in codes]) if codes else torch.zeros(0, w * h * 3, dtype=torch.float64)).reshape(len(codes), w * h, 3) / spp
+    coefficients = (torch.stack([sums[c] for c in codes]) if codes else torch.zeros(0, w * h * 3, dtype=torch.float64)).reshape(len(codes), w * h, 3)
+    if scene.film.is_box:
+        coefficients = coefficients / spp
+    else:  # the film's normalization: each pixel divided by the sum of the weights it received
+        weights = film_weights(scene, settings, device)
+        coefficients = coefficients / weights.masked_fill(weights == 0, 1.0)[:, None]
     texel_exponents, texel_terms = None, ()
     if slots:
         tables: dict[int, list] = {}

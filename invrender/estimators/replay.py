@@ -42,7 +42,7 @@ from invrender.scene.scene import Scene
 from invrender.core import fused
 from invrender.backends.accel import RepeatedQueries
 from invrender.core.context import PathState
-from invrender.core.driver import BYTES_PER_REPLAYED_PATH, RenderSettings, cpu_workers, for_each_chunk, total_paths
+from invrender.core.driver import BYTES_PER_REPLAYED_PATH, RenderSettings, cpu_workers, film_weights, for_each_chunk, total_paths
 from invrender.core.film import Film, PathFilm
 from invrender.plugins.integrators import Integrator
 from invrender.core.ranks import sum_gradients
@@ -58,7 +58,10 @@ class AdjointFilm(Film):
     """The adjoint pass's "film": turns contributions into parameter gradients.
 
     Attributes:
-        g: (size, 3) float32 ``dl/dI`` at each path's pixel, divided by spp (a path is 1/spp of it).
+        g: (size, 3) float32 ``dl/dL`` of each path: ``dl/dI`` at its pixel divided by spp (a path
+            is 1/spp of it), or with a filter ``sum_j w_j dl/dI_j / W_j`` over the pixels j its
+            footprint reaches (weights w_j, the pixels' sums of weights W_j: the adjoint of the
+            normalized splat).
         L_rem: (size, 3) float64 radiance each path (branch) has yet to gather (float64: it is what
             is left after subtracting every contribution from the path's total).
         grads: name -> accumulated gradient for each differentiable leaf in ``leaves``.
@@ -142,7 +145,7 @@ def tangent_slots(scene: Scene, integrator: Integrator, settings: RenderSettings
     render, each name is a material's ``reflectance`` or an emitter's ``emission``, and the
     Jacobian (8 bytes a pixel, channel and slot, per worker) fits in :data:`KEEP_SHARE` of the
     memory budget; else None (the paths are replayed)."""
-    if settings.terms:
+    if settings.terms or not scene.film.is_box:  # the Jacobian is per pixel: a filter spreads a path over several
         return None
     with torch.no_grad():
         scene_tables = integrator.fused_scene(integrator.context(scene, settings, device, params))
@@ -198,11 +201,17 @@ def replay_gradient(
     leaves = {k: v.detach().to(device).requires_grad_(True) for k, v in values.items()}
     workers = cpu_workers(device)
     ctx = integrator.context(scene, settings, device, params=leaves)
-    g_image = grad_image.detach().reshape(-1, 3).to(device, torch.float32) / settings.spp
+    g_image = grad_image.detach().reshape(-1, 3).to(device, torch.float32)
+    if scene.film.is_box:
+        g_image = g_image / settings.spp
+    else:  # the image is normalize(splat): dI_j/dL_path = w_j(path) / W_j, so a path's adjoint gathers g_j / W_j
+        weights = film_weights(scene, settings, device)
+        g_image = (g_image.double() / weights.masked_fill(weights == 0, 1.0)[:, None]).float()
+    rfilter = None if scene.film.is_box else scene.film.filter
     per_worker = [{k: torch.zeros_like(v) for k, v in leaves.items()} for _ in range(workers)]
     chunks_done = [0] * workers
 
-    def chunk(worker: int, state: PathState, start: int) -> None:
+    def chunk(worker: int, state: PathState, start: int, xy: torch.Tensor) -> None:
         n = state.count
         local = state.replace(pixel=torch.arange(n, device=device))  # film index = path
         totals, queries = kept.pop(start) if kept is not None and start in kept else (None, None)
@@ -214,7 +223,8 @@ def replay_gradient(
             totals = primal.totals()
             del primal
         chunk_ctx = dataclasses.replace(ctx, accel=queries.repeat(ctx.accel))
-        adjoint = AdjointFilm(g_image[state.pixel], totals, leaves)
+        g = g_image[state.pixel] if rfilter is None else rfilter.footprint(xy, scene.width, scene.height).gather(g_image)
+        adjoint = AdjointFilm(g, totals, leaves)
         del totals  # the film holds them now (as L_rem)
         with torch.enable_grad():
             integrator.trace(chunk_ctx, local, adjoint)
@@ -234,6 +244,7 @@ def replay_gradient(
         across_ranks=True,
         with_start=True,
         bytes_per_path=BYTES_PER_REPLAYED_PATH,
+        with_positions=True,
     )
     return sum_gradients({k: sum(w[k] for w in per_worker) for k in leaves})
 

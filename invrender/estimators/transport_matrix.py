@@ -33,7 +33,7 @@ from invrender.estimators.map_basis import MapBasis
 from invrender.errors import ParameterError
 from invrender.registry import EMITTERS
 from invrender.scene.scene import AMBIENT, Scene
-from invrender.core.driver import RenderSettings, available_memory_bytes, for_each_chunk
+from invrender.core.driver import RenderSettings, available_memory_bytes, check_filter_supported, for_each_chunk
 from invrender.plugins.integrators import make_integrator
 from invrender.core.texel_film import TexelFilm
 from invrender.validate import check_int, check_paths
@@ -167,6 +167,7 @@ class ViewHalves:
 def matrix_views(scene: Scene, emitter: str, cameras, spp: int, seed: int, basis: MapBasis | None) -> tuple[list[Scene], MapBasis]:
     """The views (the scene per camera) and the basis of a transport matrix, its settings checked
     (one-line :class:`ParameterError` each)."""
+    check_filter_supported(scene, "the transport matrix")
     envmap_of(scene, emitter)
     current = scene.params[f"{emitter}.emission"]
     h, w = int(current.shape[0]), int(current.shape[1])

@@ -28,6 +28,7 @@ orientation, and passes through the point the pinhole ray meets on the plane of 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import numbers
 from dataclasses import dataclass
@@ -150,6 +151,16 @@ class Camera:
     def is_pinhole(self) -> bool:
         return self.aperture_radius == 0.0
 
+    def cropped(self, width: int, height: int, offset: tuple[int, int], size: tuple[int, int]) -> "Camera":
+        """The camera whose ``size`` (w, h) film sees exactly the crop window at pixel ``offset``
+        (x, y) of this camera's ``width x height`` film (Mitsuba's crop window: the projection of
+        the full film is kept): the same focal lengths in pixels, the principal point moved by the
+        offset. The lens and pose are kept."""
+        fx, fy, cx, cy = self.intrinsics(width, height)
+        w, h = size
+        fov = math.degrees(2.0 * math.atan(w / (2.0 * fx)))
+        return dataclasses.replace(self, fov=fov, fov_axis="x", pixel_aspect=fy / fx, principal_point_offset=(0.5 - (cx - offset[0]) / w, 0.5 - (cy - offset[1]) / h))
+
     def generate_rays(self, film_xy: torch.Tensor, width: int, height: int, u_lens: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """Primary rays through continuous film positions.
 
@@ -200,6 +211,10 @@ class OrthographicCamera(Camera):
         object.__setattr__(self, "extent", tuple(float(x) for x in extent))
         if self.aperture_radius != 0.0 or self.principal_point_offset != (0.0, 0.0) or self.pixel_aspect != 1.0:
             raise SceneError("an orthographic camera has no lens, principal point offset or pixel aspect")
+
+    def cropped(self, width: int, height: int, offset: tuple[int, int], size: tuple[int, int]) -> "Camera":
+        """Not available: an orthographic camera has no principal point offset to move."""
+        raise SceneError("a crop window needs a perspective or thinlens camera; the orthographic camera cannot be cropped")
 
     def generate_rays(self, film_xy: torch.Tensor, width: int, height: int, u_lens: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """Parallel rays from the image window (see :meth:`Camera.generate_rays` for the arguments)."""

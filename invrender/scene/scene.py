@@ -35,6 +35,7 @@ from invrender.errors import ParameterError, SceneError, UnknownParameterError, 
 from invrender.scene.camera import Camera
 from invrender.scene.kinds import kind_of, param_name
 from invrender.scene.emitters import Emitter
+from invrender.scene.film import FilmOptions
 from invrender.scene.materials import Material
 from invrender.scene.shapes import Mesh
 
@@ -140,6 +141,8 @@ class Scene:
             (a Mitsuba XML file's ``sample_count``, ``max_depth``, ``rr_depth``); empty = none.
         emitter_specs: one :class:`~invrender.scene.emitters.Emitter` per emitter (type and
             constants; its values live in ``params``); empty = every emitter an area light.
+        film: the reconstruction filter and ``sample_border``
+            (:class:`~invrender.scene.film.FilmOptions`); the default is the box filter.
     """
 
     triangles: Triangles
@@ -152,6 +155,7 @@ class Scene:
     material_specs: tuple[Material, ...] = ()
     defaults: dict = field(default_factory=dict)
     emitter_specs: tuple[Emitter, ...] = ()
+    film: FilmOptions = field(default_factory=FilmOptions)
 
     def __setattr__(self, name, value):
         if name == "params" and not isinstance(value, Params):

@@ -181,12 +181,13 @@ def test_orthographic_sees_the_same_window_at_any_distance(tmp_path, distance):
     look = f'<lookat origin="0, 0, {distance}" target="0, 0, 0" up="0, 1, 0"/>'
     scene = ir.load_scene(ortho_scene(tmp_path, look))
     assert type(scene.camera).__name__ == "OrthographicCamera" and scene.camera.extent == (1.0, 1.0)
-    img = ir.render(scene, spp=4, seed=0, max_depth=1, progress=False)
+    assert scene.film.filter.type_name == "gaussian"  # hdrfilm's default; the box shows the window's pixel edges exactly
+    img = ir.render(scene, spp=4, seed=0, max_depth=1, progress=False, filter="box")
     assert float(img.double().mean()) == pytest.approx(0.25, abs=1e-6)
     # the window scales with the to_world's x and y scales, and with the film's aspect along y (Mitsuba's [-1/aspect, 1/aspect])
     wide = ir.load_scene(ortho_scene(tmp_path, f'<scale x="2" y="0.5"/>{look}', film=(32, 16)))
     assert wide.camera.extent == (2.0, 0.5)  # window 4 wide, 0.5 * 16/32 * 2 = 0.5 high: the emitter fills 1/4 of the width, all the height
-    img = ir.render(wide, spp=4, seed=0, max_depth=1, progress=False)
+    img = ir.render(wide, spp=4, seed=0, max_depth=1, progress=False, filter="box")
     assert float(img.double().mean()) == pytest.approx(0.25, abs=1e-6)
     assert float(img[:, :12].max()) == 0.0 and float(img[:, 12:20].min()) == 1.0
 

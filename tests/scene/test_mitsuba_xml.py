@@ -306,11 +306,34 @@ def test_names_are_unique_and_never_ambient(tmp_path):
     assert scene.materials == ("ambient_2", "panel_bsdf_2", "panel_bsdf") and scene.emitters == ("panel",)
 
 
-def test_non_box_filter_warns(tmp_path):
+def _with_film(tmp_path, film_inside: str):
     path = write(tmp_path, '<shape type="rectangle"/>', sensor=False)
-    path.write_text(path.read_text().replace("<shape", SENSOR.replace("<film type=\"hdrfilm\">", '<film type="hdrfilm"><rfilter type="gaussian"/>') + "<shape"))
-    with pytest.warns(UserWarning, match="box filter"):
-        load_mitsuba_xml(path)
+    path.write_text(path.read_text().replace("<shape", SENSOR.replace("<film type=\"hdrfilm\">", f'<film type="hdrfilm">{film_inside}') + "<shape"))
+    return path
+
+
+def test_rfilter_and_film_options_load(tmp_path):
+    """Each <rfilter> with its settings; Mitsuba's default (gaussian, stddev 0.5) without one;
+    sample_border; bad settings are one-line errors naming the line."""
+    scene = load_mitsuba_xml(_with_film(tmp_path, '<rfilter type="gaussian"><float name="stddev" value="0.3"/></rfilter><boolean name="sample_border" value="true"/>'))
+    f = scene.film.filter
+    assert f.type_name == "gaussian" and f.stddev == 0.3 and f.radius == pytest.approx(1.2) and scene.film.sample_border
+    assert load_mitsuba_xml(_with_film(tmp_path, "")).film.filter.type_name == "gaussian"  # hdrfilm's default
+    assert load_mitsuba_xml(_with_film(tmp_path, "")).film.filter.stddev == 0.5
+    assert load_mitsuba_xml(_with_film(tmp_path, '<rfilter type="box"/>')).film.is_box
+    m = load_mitsuba_xml(_with_film(tmp_path, '<rfilter type="mitchell"><float name="B" value="0.5"/></rfilter>')).film.filter
+    assert (m.B, m.C, m.radius) == (0.5, pytest.approx(1 / 3), 2.0)
+    assert load_mitsuba_xml(_with_film(tmp_path, '<rfilter type="lanczos"><integer name="lobes" value="2"/></rfilter>')).film.filter.radius == 2.0
+    for inside, match in (
+        ('<rfilter type="gaussian"><float name="stddev" value="-1"/></rfilter>', "stddev must be a number in"),
+        ('<rfilter type="tent"><float name="radius" value="1e6"/></rfilter>', "radius must be a number in"),
+        ('<rfilter type="gaussian"><float name="radius" value="2"/></rfilter>', "unsupported property 'radius'"),
+        ('<rfilter type="sinc"/>', "unsupported rfilter type 'sinc'"),
+        ('<integer name="crop_offset_x" value="15"/><integer name="crop_width" value="10"/>', "crop window"),
+    ):
+        with pytest.raises(SceneError, match=match) as e:
+            load_mitsuba_xml(_with_film(tmp_path, inside))
+        assert "\n" not in str(e.value)
 
 
 def test_load_scene_dispatch_and_cli_defaults(tmp_path, capsys):
@@ -423,3 +446,14 @@ def test_cli_reports_one_line_and_writes_nothing(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"invrender: error: {path}:{line_of(path, '1.5')}: <bsdf type=\"diffuse\">")
     assert not out.exists()
+
+
+def test_crop_window_renders_the_crop_with_the_full_films_projection(tmp_path):
+    full = load_mitsuba_xml(_with_film(tmp_path, ""))
+    inside = '<integer name="crop_offset_x" value="2"/><integer name="crop_offset_y" value="1"/><integer name="crop_width" value="4"/><integer name="crop_height" value="3"/>'
+    crop = load_mitsuba_xml(_with_film(tmp_path, inside))
+    assert full.resolution == (8, 6) and crop.resolution == (4, 3)
+    xy = torch.rand(32, 2) * torch.tensor([4.0, 3.0])
+    assert torch.allclose(full.camera.generate_rays(xy + torch.tensor([2.0, 1.0]), 8, 6)[1], crop.camera.generate_rays(xy, 4, 3)[1], atol=1e-6)
+    with pytest.warns(UserWarning, match="crop window of the 8x6 film is dropped"):
+        assert ir.load_scene(_with_film(tmp_path, inside), resolution=(16, 12)).resolution == (16, 12)

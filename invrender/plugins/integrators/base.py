@@ -205,27 +205,36 @@ class Integrator(ABC):
         check_film_memory(scene.width, scene.height, device, max(self.terms_kept, 1) if settings.terms else 1)
         ctx = self.context(scene, settings, device, params)
         scene_tables = self.fused_scene(ctx)
+        box = scene.film.is_box
         if tangents is not None:
-            if scene_tables is None:
-                raise ValueError(f"tangents: the fused bounce does not apply to this render of {scene.name!r}")
+            if scene_tables is None or not box:
+                raise ValueError(f"tangents: the fused bounce's per-pixel Jacobian does not apply to this render of {scene.name!r}")
             films = [fused.TangentFilm(scene.width, scene.height, fused.slots(scene_tables), device) for _ in range(cpu_workers(device))]
         else:
-            films = [Film(scene.width, scene.height, settings.terms, device) for _ in range(cpu_workers(device))]
+            films = [Film(scene.width, scene.height, settings.terms, device, scene.film.filter) for _ in range(cpu_workers(device))]
 
-        def chunk(worker: int, state: PathState, start: int) -> None:
-            if keep is None:
+        def chunk(worker: int, state: PathState, start: int, xy: torch.Tensor) -> None:
+            if keep is None and box:
                 self.trace(ctx, state, films[worker])
                 return
-            paths, shadows = PathFilm(state.count, device), RepeatedQueries(ctx.accel, kinds=("occluded",))
-            self.trace(dataclasses.replace(ctx, accel=shadows), state.replace(pixel=torch.arange(state.count, device=device)), paths)
-            totals = paths.totals()
-            films[worker].add(0, state.pixel, totals[: state.count])  # a root path's total holds its branches'
-            keep[start] = (totals.float(), shadows)  # float32 until replay takes it up
+            # per-path radiance first: kept for replay, and/or splatted by the filter from the film positions
+            paths, shadows = PathFilm(state.count, device, settings.terms), RepeatedQueries(ctx.accel, kinds=("occluded",))
+            self.trace(ctx if keep is None else dataclasses.replace(ctx, accel=shadows), state.replace(pixel=torch.arange(state.count, device=device)), paths)
+            if settings.terms:  # (a filter's: never kept) each term's radiance splatted on its own
+                films[worker].splat(xy, {k: t[: state.count] for k, t in paths.term_totals().items()})
+                return
+            totals = paths.totals()  # a root path's total holds its branches'
+            if box:
+                films[worker].add(0, state.pixel, totals[: state.count])
+            else:
+                films[worker].splat(xy, {0: totals[: state.count]})
+            if keep is not None:
+                keep[start] = (totals.float(), shadows)  # float32 until replay takes it up
 
         size = BYTES_PER_PATH if keep is None else BYTES_PER_REPLAYED_PATH  # kept chunks are replay's chunks
         small = keep is None and device.type == "cpu" and scene_tables is not None  # fused chunks need not be large
         cap = fused.CPU_TANGENT_CHUNK_PATHS if tangents is not None else fused.CPU_CHUNK_PATHS
-        for_each_chunk(scene, settings, device, chunk, across_ranks=True, with_start=True, bytes_per_path=size, max_chunk=cap if small else None)
+        for_each_chunk(scene, settings, device, chunk, across_ranks=True, with_start=True, bytes_per_path=size, max_chunk=cap if small else None, with_positions=True)
         film = type(films[0]).merge(films).summed_across_ranks()
         if tangents is not None:
             tangents["jacobian"] = film.jacobian / settings.spp

@@ -22,6 +22,15 @@ allowed keys). Out-of-range colours (rho outside [0, 1], eps < 0) are
     aperture_radius = 0.0              # thin lens radius, >= 0 (0 = pinhole, the default)
     focus_distance = 3.9               # distance of the plane in focus along the view axis, > 0
 
+    [film]                             # every key optional (docs/rendering.md#reconstruction-filters)
+    filter = "box"                     # the default (unlike Mitsuba's files, whose default is gaussian): box | tent |
+                                       # gaussian | mitchell | catmullrom | lanczos, or a table with settings:
+                                       # filter = { type = "gaussian", stddev = 0.5 }
+    sample_border = false              # also trace samples in the border the filter reaches from (Mitsuba's)
+    crop_offset = [0, 0]               # a crop window (x, y, and width, height, pixels, inside the film): the image
+    crop_size = [64, 64]               # is the crop; the camera keeps the full film's projection (dropped, with a
+                                       # warning, when the ``resolution`` argument resizes the film)
+
     [materials.white]                  # one table per material; type = "diffuse" (the default when type is absent):
     reflectance = [0.8, 0.8, 0.8]      # Lambertian, two-sided; rho in linear RGB [0, 1] or one number (default 0.5); or
     # reflectance_texture = "albedo.png"   # relative to this file; PNG/JPEG are sRGB-decoded to linear, EXR read as linear
@@ -85,21 +94,25 @@ from __future__ import annotations
 
 import math
 import tomllib
+import warnings
 from pathlib import Path
 
 import numpy as np
 
+from invrender import registry
 from invrender.errors import InvRenderError, SceneError, did_you_mean
 from invrender.scene.camera import FOV_AXES, Camera
 from invrender.scene.formats.trimesh import mesh_arrays
 from invrender.scene.formats.values import CHECKERBOARD_RESOLUTION, checkerboard, is_number, one_line, show
 from invrender.scene.emitters import Emitter
+from invrender.scene.film import FilmOptions
 from invrender.scene.materials import Material
 from invrender.scene.plugins import PluginSpec
 from invrender.scene.scene import Scene, build_scene
 from invrender.scene.shapes import PRIMITIVES, Mesh, primitive, rotate, scale, translate
 
-TOP_KEYS = {"name", "resolution", "ambient", "camera", "materials", "emitters", "shapes"}
+TOP_KEYS = {"name", "resolution", "ambient", "camera", "film", "materials", "emitters", "shapes"}
+FILM_KEYS = {"filter", "sample_border", "crop_offset", "crop_size"}
 CAMERA_KEYS = {"origin", "target", "up", "fov", "fov_axis", "aperture_radius", "focus_distance", "principal_point_offset", "pixel_aspect"}
 SHAPE_KEYS = {"type", "material", "emitter", "file", "subdivisions", "flip_normals", "transform"}
 SHAPE_TYPES = (*PRIMITIVES, "mesh")
@@ -135,13 +148,46 @@ def load_toml(path, resolution=None) -> Scene:
         raise SceneError(f"{where}: 'shapes' must be an array of tables ([[shapes]]), got {show(shapes_doc)}")
     meshes = [_shape(s, f"{where} shapes[{i}]", path.parent) for i, s in enumerate(shapes_doc)]
 
+    film, crop = film_from_table(table(doc, "film", where), f"{where} [film]", file_resolution)
+    size = file_resolution if resolution is None else resolution
+    if crop is not None:
+        if resolution is None or tuple(resolution) == tuple(file_resolution):
+            camera, size = camera.cropped(*file_resolution, *crop), crop[1]
+        else:
+            warnings.warn(f"{where} [film]: the crop window is dropped at the resolution {resolution[0]}x{resolution[1]} asked for (the full film is rendered)", stacklevel=3)
     try:
-        scene = build_scene(meshes, materials, emission, camera, file_resolution if resolution is None else resolution, name=name)
+        scene = build_scene(meshes, materials, emission, camera, size, name=name)
     except SceneError as e:
         raise SceneError(f"{where}: {e}") from None
+    scene.film = film
     if "ambient" in doc:
         scene = scene.with_ambient(vector(doc, "ambient", where, scalar_ok=True))
     return scene
+
+
+def film_from_table(doc: dict, where: str, size) -> tuple[FilmOptions, tuple | None]:
+    """(film options, crop window ((x, y), (w, h)) or None) of a ``[film]`` table; a
+    :class:`SceneError` naming ``where`` and the key when one is invalid."""
+    check_keys(doc, FILM_KEYS, where)
+    spec = doc.get("filter")
+    if spec is not None and not isinstance(spec, (str, dict)):
+        raise SceneError(f"{where}: 'filter' must be a filter name or a table {{ type = ..., ... }}, got {show(spec)}")
+    try:
+        rfilter = registry.make_filter(spec, f"{where} filter")
+    except InvRenderError as e:
+        raise SceneError(one_line(e)) from None
+    border = doc.get("sample_border", False)
+    if not isinstance(border, bool):
+        raise SceneError(f"{where}: 'sample_border' must be true or false, got {show(border)}")
+    crop = None
+    if "crop_offset" in doc or "crop_size" in doc:
+        offset = [int(x) for x in vector(doc, "crop_offset", where, length=2)] if "crop_offset" in doc else [0, 0]
+        extent = [int(x) for x in vector(doc, "crop_size", where, length=2)] if "crop_size" in doc else [size[0] - offset[0], size[1] - offset[1]]
+        raw = [*(doc.get("crop_offset") or []), *(doc.get("crop_size") or [])]
+        if any(isinstance(x, float) and not x.is_integer() for x in raw) or min(offset) < 0 or min(extent) <= 0 or offset[0] + extent[0] > size[0] or offset[1] + extent[1] > size[1]:
+            raise SceneError(f"{where}: the crop window (offset {offset}, size {extent}) must be whole pixels inside the {int(size[0])}x{int(size[1])} film (offsets >= 0, sizes > 0)")
+        crop = (tuple(offset), tuple(extent))
+    return FilmOptions(None if rfilter.is_box else rfilter, sample_border=border), crop
 
 
 def camera_from_table(doc, where: str) -> Camera:

@@ -71,7 +71,7 @@ def build(ctx: Context, resolution) -> Scene:
         emission[name] = spec
         return name
 
-    camera, film, defaults, seen = None, DEFAULT_FILM, {}, {}
+    camera, film, defaults, seen, film_options = None, DEFAULT_FILM, {}, {}, None
     surface_emitters = []  # declared at the top level, for shapes to reference
     for item in scene.children:
         try:
@@ -88,7 +88,7 @@ def build(ctx: Context, resolution) -> Scene:
             elif obj.tag == "texture":
                 bitmap(ctx, obj)
             elif obj.tag == "sensor":
-                camera, film, sensor_defaults = sensor(ctx, obj, resolution)
+                camera, film, sensor_defaults, film_options = sensor(ctx, obj, resolution)
                 defaults.update(sensor_defaults)
             elif obj.tag == "integrator":
                 defaults.update(integrator(ctx, obj))
@@ -143,6 +143,8 @@ def build(ctx: Context, resolution) -> Scene:
     except InvRenderError as e:
         raise SceneError(f"{ctx.where}: {one_line(e)}") from None
     built.defaults = defaults
+    if film_options is not None:
+        built.film = film_options
     if ctx.sample_counts:
         delta_lights = any(not (c.surface or c.infinite) for c in (registry.EMITTERS[e.type] for e in emission.values()))
         delta_lobes = any(_has_delta_lobe(registry.MATERIALS[m.type].lobes) for m in materials.values())

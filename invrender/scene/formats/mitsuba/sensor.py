@@ -20,25 +20,35 @@ Sensor (at most one ``<sensor>``)
     ``far_clip`` (accepted, checked, ignored), ``focus_distance`` (thinlens; default ``far_clip``;
     > 0), ``aperture_radius`` (thinlens, required, >= 0). Inside the sensor: ``<film
     type="hdrfilm">`` with ``width``/``height`` (default 768 x 576 as Mitsuba; the ``resolution``
-    argument overrides them; ``file_format``, ``pixel_format``, ``component_format``, ``banner``,
-    ``compensate`` accepted and ignored) and an optional ``<rfilter>`` (invrender always uses a box
-    filter: ``box`` is accepted silently, Mitsuba's other filters with a warning); ``<sampler>`` of
+    argument overrides them), a crop window ``crop_offset_x``/``_y``, ``crop_width``/``_height``
+    (the scene's image is the crop, its camera sees that part of the full film; inside the film or
+    an error; dropped with a warning when ``resolution`` resizes the film, as Mitsuba resets it on
+    a resize; perspective and thinlens only), ``sample_border`` (default false), ``file_format``,
+    ``pixel_format``, ``component_format``, ``banner``, ``compensate`` accepted and ignored (the
+    image is RGB), and an optional ``<rfilter>``: ``box``, ``tent`` (``radius``), ``gaussian``
+    (``stddev``), ``mitchell`` (``B``, ``C``), ``catmullrom``, ``lanczos`` (``lobes``), Mitsuba's
+    gaussian of stddev 0.5 when there is none (the scene's ``film``,
+    :mod:`invrender.plugins.filters`); ``<sampler>`` of
     any Mitsuba type with ``sample_count`` (the default spp; ``seed`` and ``jitter`` are ignored;
     invrender draws its own samples). A scene without a sensor is an error (Mitsuba 3 cannot
     render one either).
 
 Deviations from Mitsuba
-    - The film's reconstruction filter is always a box; sampling patterns are invrender's own.
+    - Sampling patterns are invrender's own; the Gaussian is evaluated with ``exp`` where
+      Mitsuba's CPU variants use a polynomial fit (they agree to about 1e-7).
 """
 
 from __future__ import annotations
 
 import math
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
-from invrender.errors import SceneError
+from invrender import registry
+from invrender.errors import ParameterError, SceneError
+from invrender.scene.film import FilmOptions
 from invrender.scene.camera import Camera, OrthographicCamera
 from invrender.scene.formats.mitsuba.context import Context
 from invrender.scene.formats.mitsuba.parser import Obj
@@ -53,16 +63,22 @@ FILM_TYPES = ("hdrfilm",)
 SAMPLER_TYPES = ("independent", "stratified", "multijitter", "orthogonal", "ldsampler")
 
 
-def sensor(ctx: Context, obj: Obj, resolution: tuple[int, int] | None = None) -> tuple[Camera, tuple[int, int], dict]:
-    """The camera of a ``<sensor>``, its film's (width, height) and the render settings its
-    sampler states; ``resolution`` (width, height), the size the scene is loaded at when it is not
-    the film's (a ``focal_length``'s field of view depends on the aspect)."""
+def sensor(ctx: Context, obj: Obj, resolution: tuple[int, int] | None = None) -> tuple[Camera, tuple[int, int], dict, FilmOptions]:
+    """The camera of a ``<sensor>``, the (width, height) of the image it renders (its crop window's
+    when it has one: the camera then sees that part of the full film), the render settings its
+    sampler states and its film's options (filter, ``sample_border``); ``resolution`` (width,
+    height), the size the scene is loaded at when it is not the film's (a ``focal_length``'s field
+    of view depends on the aspect; a crop window is then dropped with a warning, as Mitsuba drops
+    it when a film is resized)."""
     if obj.type not in SENSOR_TYPES:
         raise ctx.error(obj.node, f"unsupported sensor type {obj.type!r} (supported: {', '.join(SENSOR_TYPES)})", obj)
     film_obj = ctx.one_nested(obj, "film")
-    film = DEFAULT_FILM if film_obj is None else film_size(ctx, film_obj)
-    if obj.type != "orthographic":
-        fov, axis = field_of_view(ctx, obj, resolution or film)
+    spec = FilmSpec(DEFAULT_FILM, None, FilmOptions(registry.make_filter("gaussian"))) if film_obj is None else film_size(ctx, film_obj)
+    film, crop = spec.size, spec.crop
+    if crop is not None and resolution is not None and tuple(resolution) != film:
+        warnings.warn(f"{ctx.where}:{film_obj.node.line}: the crop window of the {film[0]}x{film[1]} film is dropped at the resolution {resolution[0]}x{resolution[1]} asked for (the full film is rendered)", stacklevel=4)
+        crop = None
+    fov, axis = field_of_view(ctx, obj, resolution or film) if obj.type != "orthographic" else (None, None)
     near = ctx.get(obj, "near_clip", "float", 1e-2)
     far = ctx.get(obj, "far_clip", "float", 1e4)
     if not 0 < near < far:
@@ -90,7 +106,21 @@ def sensor(ctx: Context, obj: Obj, resolution: tuple[int, int] | None = None) ->
 
     node = obj.node if to_world is None else to_world.node
     if obj.type == "orthographic":
-        return orthographic(ctx, obj, matrix, node), film, sampler_defaults(ctx, obj)
+        camera = orthographic(ctx, obj, matrix, node)
+    else:
+        camera = perspective(ctx, obj, matrix, node, fov, axis, aperture, focus, offset)
+    if crop is None:
+        return camera, film, sampler_defaults(ctx, obj), spec.options
+    try:
+        camera = camera.cropped(film[0], film[1], *crop)
+    except SceneError as e:
+        raise ctx.error(film_obj.node, str(e), film_obj) from None
+    return camera, crop[1], sampler_defaults(ctx, obj), spec.options
+
+
+def perspective(ctx: Context, obj: Obj, matrix: np.ndarray, node, fov: float, axis: str, aperture: float, focus: float, offset) -> Camera:
+    """The camera of a ``perspective`` or ``thinlens`` sensor from its to_world (a rotation and
+    translation, a uniform scale at most) and its lens settings."""
     linear = matrix[:3, :3]
     det = np.linalg.det(linear)
     if det <= 0:
@@ -107,7 +137,7 @@ def sensor(ctx: Context, obj: Obj, resolution: tuple[int, int] | None = None) ->
             camera = Camera(tuple(origin), tuple(origin + forward), tuple(up), fov, axis, principal_point_offset=offset)
     except SceneError as e:
         raise ctx.error(obj.node, str(e), obj) from None
-    return camera, film, sampler_defaults(ctx, obj)
+    return camera
 
 
 def orthographic(ctx: Context, obj: Obj, matrix: np.ndarray, node) -> OrthographicCamera:
@@ -184,8 +214,28 @@ def field_of_view(ctx: Context, obj: Obj, size: tuple[int, int]) -> tuple[float,
     return math.degrees(2.0 * math.atan(0.5 * diagonal / math.sqrt(1.0 + 1.0 / (aspect * aspect)))), "x"
 
 
-def film_size(ctx: Context, film: Obj) -> tuple[int, int]:
-    """(width, height) of a ``<film>``; its ``<rfilter>`` checked (invrender's filter is a box)."""
+#: each Mitsuba filter's settings and their XML tags
+RFILTER_SETTINGS = {"box": {}, "tent": {"radius": "float"}, "gaussian": {"stddev": "float"}, "mitchell": {"B": "float", "C": "float"}, "catmullrom": {}, "lanczos": {"lobes": "integer"}}
+
+
+@dataclass(frozen=True)
+class FilmSpec:
+    """What a ``<film>`` states.
+
+    Attributes:
+        size: (width, height) of the full film, pixels.
+        crop: ((x, y) offset, (width, height) size) of the crop window, None for the full film.
+        options: its filter and ``sample_border`` (:class:`~invrender.scene.film.FilmOptions`).
+    """
+
+    size: tuple[int, int]
+    crop: tuple[tuple[int, int], tuple[int, int]] | None = None
+    options: FilmOptions = FilmOptions(filter=None)
+
+
+def film_size(ctx: Context, film: Obj) -> FilmSpec:
+    """The :class:`FilmSpec` of a ``<film>``: its size, crop window, ``sample_border`` and
+    ``<rfilter>`` (Mitsuba's default: a gaussian of stddev 0.5)."""
     if film.type not in FILM_TYPES:
         raise ctx.error(film.node, f"unsupported film type {film.type!r} (supported: {', '.join(FILM_TYPES)})", film)
     size = []
@@ -198,13 +248,38 @@ def film_size(ctx: Context, film: Obj) -> tuple[int, int]:
         ctx.get(film, key, "string")
     for key in ("banner", "compensate"):
         ctx.get(film, key, "boolean")
-    ctx.finish(film, ("width", "height", "file_format", "pixel_format", "component_format", "banner", "compensate"), ("rfilter",))
+    crop = crop_window(ctx, film, tuple(size))
+    border = ctx.get(film, "sample_border", "boolean", False)
+    ctx.finish(film, ("width", "height", "crop_offset_x", "crop_offset_y", "crop_width", "crop_height", "sample_border", "file_format", "pixel_format", "component_format", "banner", "compensate"), ("rfilter",))
     rfilter = ctx.one_nested(film, "rfilter")
-    if rfilter is not None:
-        if rfilter.type not in RFILTER_TYPES:
-            raise ctx.error(rfilter.node, f"unsupported rfilter type {rfilter.type!r} (Mitsuba's are {', '.join(RFILTER_TYPES)})", rfilter)
-        rfilter.used.update(rfilter.props)  # its radius, stddev, B, C, lobes are irrelevant to a box
-        ctx.finish(rfilter, ())
-        if rfilter.type != "box":
-            warnings.warn(f"{ctx.where}:{rfilter.node.line}: {rfilter.describe()}: invrender always uses a box filter; the {rfilter.type} filter is ignored", stacklevel=4)
-    return tuple(size)
+    return FilmSpec(tuple(size), crop, FilmOptions(reconstruction_filter(ctx, rfilter), sample_border=border))
+
+
+def crop_window(ctx: Context, film: Obj, size: tuple[int, int]):
+    """((x, y), (w, h)) of a film's crop window (Mitsuba's ``crop_offset_x/_y``, ``crop_width/_height``;
+    defaults: the whole film), None when it is the whole film; an error when it leaves the film."""
+    keys = ("crop_offset_x", "crop_offset_y", "crop_width", "crop_height")
+    if not any(k in film.props for k in keys):
+        return None
+    x, y = (ctx.get(film, k, "integer", 0) for k in keys[:2])
+    w, h = ctx.get(film, "crop_width", "integer", size[0]), ctx.get(film, "crop_height", "integer", size[1])
+    if x < 0 or y < 0 or w <= 0 or h <= 0 or x + w > size[0] or y + h > size[1]:
+        key = next(k for k in keys if k in film.props)
+        raise ctx.error(film.props[key].node, f"crop window offset ({x}, {y}) size {w}x{h} must lie inside the {size[0]}x{size[1]} film (offsets >= 0, sizes > 0)", film)
+    return None if (x, y, w, h) == (0, 0, *size) else ((x, y), (w, h))
+
+
+def reconstruction_filter(ctx: Context, rfilter: Obj | None):
+    """The filter object of an ``<rfilter>`` (its settings checked); Mitsuba's default, the
+    gaussian of stddev 0.5, when there is none."""
+    if rfilter is None:
+        return registry.make_filter("gaussian")
+    if rfilter.type not in RFILTER_TYPES:
+        raise ctx.error(rfilter.node, f"unsupported rfilter type {rfilter.type!r} (Mitsuba's are {', '.join(RFILTER_TYPES)})", rfilter)
+    settings = RFILTER_SETTINGS[rfilter.type]
+    values = {k: ctx.get(rfilter, k, tag) for k, tag in settings.items() if k in rfilter.props}
+    ctx.finish(rfilter, tuple(settings))
+    try:
+        return registry.make_filter({"type": rfilter.type, **values})
+    except ParameterError as e:
+        raise ctx.error(rfilter.node, str(e), rfilter) from None
