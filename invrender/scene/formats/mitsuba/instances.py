@@ -21,6 +21,8 @@ from invrender.scene.formats.mitsuba.context import Context
 from invrender.scene.formats.mitsuba.parser import Obj, Ref
 from invrender.scene.shapes import Mesh
 
+#: the shape plugins this module reads
+SHAPE_TYPES = ("shapegroup", "instance")
 #: most triangles instances may add to a scene (each costs about 200 bytes of float32 geometry)
 MAX_INSTANCED_TRIANGLES = 20_000_000
 
