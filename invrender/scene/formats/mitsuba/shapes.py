@@ -209,16 +209,19 @@ def mesh_file(ctx: Context, obj: Obj) -> tuple[Mesh, np.ndarray, bool]:
 # ---------------------------------------------------------------- helpers
 
 
-#: the suffixes of a PLY vertex property that Mitsuba groups into a ``vertex_<prefix>`` attribute, in channel order
-_PLY_SUFFIXES = ("x", "y", "z", "w")
+#: the suffixes by which Mitsuba groups PLY vertex properties into a ``vertex_<prefix>`` attribute, in channel order
+_PLY_SUFFIXES = (("x", "y", "z", "w"), ("0", "1", "2", "3"))
 
 
 def _ply_attributes(mesh) -> dict[str, np.ndarray] | None:
-    """A PLY file's per-vertex attributes as Mitsuba reads them (measured with Mitsuba 3.9.1): ``r g
-    b`` or ``red green blue`` become ``vertex_color`` (values as stored: 8-bit colours stay 0..255,
-    as Mitsuba warns), ``<prefix>_x``, ``_y``, ... become ``vertex_<prefix>``; other properties are
-    ignored. None when there are none."""
+    """A PLY file's per-vertex attributes as Mitsuba 3.9.1 reads them (measured): ``r g b`` or
+    ``red green blue`` become ``vertex_color`` (values as stored: 8-bit colours stay 0..255, as
+    Mitsuba warns), ``<prefix>_x, _y, _z`` or ``<prefix>_0, _1, _2`` (one or three of them)
+    become ``vertex_<prefix>`` (Mitsuba's own writer stores ``vertex_color`` as ``color_0..2``);
+    other properties are ignored, as Mitsuba ignores them. None when there are none."""
     raw = (mesh.metadata.get("_ply_raw") or {}).get("vertex", {}).get("data")
+    if isinstance(raw, np.ndarray) and raw.dtype.names:  # a binary file's structured array
+        raw = {name: raw[name] for name in raw.dtype.names}
     if not isinstance(raw, dict):
         return None
     columns = {k: np.asarray(v, dtype=np.float64).reshape(len(mesh.vertices), -1)[:, 0] for k, v in raw.items() if np.asarray(v).size == len(mesh.vertices)}
@@ -226,15 +229,15 @@ def _ply_attributes(mesh) -> dict[str, np.ndarray] | None:
     for names in (("r", "g", "b"), ("red", "green", "blue")):
         if all(n in columns for n in names):
             out["vertex_color"] = np.stack([columns[n] for n in names], axis=1)
-    prefixes = dict.fromkeys(k.rpartition("_")[0] for k in columns if k.rpartition("_")[2] in _PLY_SUFFIXES and k.rpartition("_")[0])
-    for prefix in prefixes:
-        channels = []
-        for suffix in _PLY_SUFFIXES:
-            if f"{prefix}_{suffix}" not in columns:
-                break
-            channels.append(columns[f"{prefix}_{suffix}"])
-        if channels:
-            out[f"vertex_{prefix}"] = np.stack(channels, axis=1)
+    for prefix in dict.fromkeys(k.rpartition("_")[0] for k in columns if k.rpartition("_")[0]):
+        for suffixes in _PLY_SUFFIXES:
+            channels = []
+            for suffix in suffixes:
+                if f"{prefix}_{suffix}" not in columns:
+                    break
+                channels.append(columns[f"{prefix}_{suffix}"])
+            if len(channels) in (1, 3):
+                out[f"vertex_{prefix}"] = np.stack(channels, axis=1)
     return out or None
 
 
