@@ -242,3 +242,22 @@ def test_missing_attribute_and_bad_options(tmp_path):
     for bad, words in ((dict(filter="cubic"), "unknown texture filter 'cubic'"), (dict(wrap="border"), "unknown texture wrap mode 'border'"), (dict(to_uv=(1, 0)), "to_uv must be 6 finite numbers")):
         with pytest.raises(SceneError, match=words):
             TextureSampling(**bad)
+
+
+def test_binary_ply_with_mitsubas_attribute_naming(tmp_path):
+    # Mitsuba's own writer stores vertex_color as color_0, color_1, color_2 (binary); a property
+    # with two fields is ignored (as Mitsuba ignores it), one field is a grey attribute
+    names = ("x", "y", "z", "color_0", "color_1", "color_2", "uv_x", "uv_y", "w_0")
+    rows = np.array([(-1, -1, 0, *COLOURS[0], 0, 0, 0.5), (1, -1, 0, *COLOURS[1], 1, 0, 0.6), (1, 1, 0, *COLOURS[2], 1, 1, 0.7), (-1, 1, 0, *COLOURS[3], 0, 1, 0.8)], dtype="<f4")
+    head = "ply\nformat binary_little_endian 1.0\nelement vertex 4\n" + "".join(f"property float {n}\n" for n in names)
+    head += "element face 2\nproperty list uchar int vertex_indices\nend_header\n"
+    faces = b"".join(np.uint8(3).tobytes() + np.array(f, dtype="<i4").tobytes() for f in ((0, 1, 2), (0, 2, 3)))
+    (tmp_path / "b.ply").write_bytes(head.encode() + rows.tobytes() + faces)
+    body = """<shape type="ply"><string name="filename" value="b.ply"/><bsdf type="diffuse">
+    <texture type="mesh_attribute" name="reflectance"><string name="name" value="{}"/></texture></bsdf></shape>"""
+    scene = ir.load_scene(write(tmp_path, body.format("vertex_color")))
+    assert torch.allclose(scene.params["material_1.reflectance"], torch.tensor(COLOURS))
+    grey = ir.load_scene(write(tmp_path, body.format("vertex_w"), name="w.xml"))
+    assert grey.params["material_1.reflectance"][:, 2].tolist() == pytest.approx([0.5, 0.6, 0.7, 0.8])
+    with pytest.raises(SceneError, match="lacks \\(it has: vertex_color, vertex_w\\)"):
+        ir.load_scene(write(tmp_path, body.format("vertex_uv"), name="uv.xml"))
