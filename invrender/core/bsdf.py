@@ -43,6 +43,7 @@ from invrender.errors import ParameterError, did_you_mean
 from invrender.scene.plugins import Declared
 from invrender.core.frame import Frame
 from invrender.core.textures import gather_rgb
+from invrender.scene.textures import TextureSampling
 
 
 class Lobe(enum.IntFlag):
@@ -108,6 +109,9 @@ class ShadingPoint:
         slot: (N,) int64 which of the render's BSDF instances takes each point (for dispatch).
         cache: parameter values already looked up at these points (a vertex's ``eval`` for its
             emitter sample and its ``sample`` share one lookup); not carried by :meth:`select`.
+        corners: (N, 3) int64 rows of the hit triangles' corners in per-vertex parameters, or
+            None (the scene has none).
+        bary: (N, 3) barycentric weights of those corners, or None.
     """
 
     wo: torch.Tensor
@@ -118,10 +122,13 @@ class ShadingPoint:
     material: torch.Tensor
     slot: torch.Tensor
     cache: dict = field(default_factory=dict, compare=False, repr=False)
+    corners: torch.Tensor | None = None
+    bary: torch.Tensor | None = None
 
     def select(self, index: torch.Tensor) -> "ShadingPoint":
         """The points at ``index`` (M,) int64 (with their frames, where already built)."""
-        out = ShadingPoint(*(getattr(self, f).index_select(0, index) for f in _POINT_FIELDS))
+        vertex = {} if self.corners is None else {"corners": self.corners.index_select(0, index), "bary": self.bary.index_select(0, index)}
+        out = ShadingPoint(*(getattr(self, f).index_select(0, index) for f in _POINT_FIELDS), **vertex)
         if "frame" in self.__dict__:
             out.__dict__["frame"] = Frame(*(v.index_select(0, index) for v in (self.frame.s, self.frame.t, self.frame.n)))
         return out
@@ -183,9 +190,11 @@ class BSDF(Declared, ABC):
 
     def __init__(
         self, values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], flat: bool = False, sampling: BSDFSampling | None = None,
-        sampling_values: list[dict[str, torch.Tensor]] | None = None,
+        sampling_values: list[dict[str, torch.Tensor]] | None = None, texture_sampling: list[dict[str, TextureSampling]] | None = None,
     ):  # fmt: skip
         self.values, self.constants = values, constants
+        #: per material, parameter key -> how its texture is read (absent: the default)
+        self.texture_sampling = texture_sampling or [{} for _ in values]
         #: per material, the (detached) values its sampling reads (:meth:`sampling_param`)
         self.sampling_values = sampling_values or [{k: v.detach() for k, v in m.items()} for m in values]
         self.sampling = sampling or BSDFSampling()
@@ -203,7 +212,7 @@ class BSDF(Declared, ABC):
         looked up once per point set."""
         token = (id(self), key)
         if token not in sp.cache:
-            sp.cache[token] = gather_rgb([v[key] for v in self.values], sp.material, sp.uv)
+            sp.cache[token] = gather_rgb([v[key] for v in self.values], sp.material, sp.uv, [t.get(key) for t in self.texture_sampling], sp.corners, sp.bary)
         return sp.cache[token]
 
     def sampling_param(self, key: str, sp: ShadingPoint) -> torch.Tensor:
@@ -211,7 +220,7 @@ class BSDF(Declared, ABC):
         the unperturbed value where a render holds sampling fixed (``sampling_params``)."""
         token = (id(self), key, "sampling")
         if token not in sp.cache:
-            sp.cache[token] = gather_rgb([v[key] for v in self.sampling_values], sp.material, sp.uv)
+            sp.cache[token] = gather_rgb([v[key] for v in self.sampling_values], sp.material, sp.uv, [t.get(key) for t in self.texture_sampling], sp.corners, sp.bary)
         return sp.cache[token]
 
     def constant(self, key: str, sp: ShadingPoint) -> torch.Tensor:

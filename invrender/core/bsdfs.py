@@ -28,6 +28,8 @@ class Materials:
         sampling: how the BSDFs draw directions (default: cosine-weighted diffuse lobes).
         sampling_values: per scene material, the values its sampling reads (detached; None = its
             own ``values``, detached).
+        texture_sampling: per scene material, parameter key -> how its texture is read
+            (:class:`~invrender.scene.textures.TextureSampling`); None = the defaults.
         one_sided: per scene material, is its back side black (``Material.one_sided``: Mitsuba's
             BSDFs without ``twosided``)? None = every material two-sided. Ignored for types that
             transmit.
@@ -35,7 +37,7 @@ class Materials:
 
     def __init__(
         self, types: list[str], values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], device, flat: bool = False, sampling: BSDFSampling | None = None,
-        sampling_values: list[dict[str, torch.Tensor]] | None = None, one_sided: list[bool] | None = None,
+        sampling_values: list[dict[str, torch.Tensor]] | None = None, one_sided: list[bool] | None = None, texture_sampling: list[dict] | None = None,
     ):  # fmt: skip
         present = list(dict.fromkeys(types))  # first-seen order
         self.bsdfs: list[BSDF] = []
@@ -43,7 +45,8 @@ class Materials:
         for t in present:
             members = [i for i, ti in enumerate(types) if ti == t]
             frozen = None if sampling_values is None else [sampling_values[i] for i in members]
-            self.bsdfs.append(MATERIALS[t]([values[i] for i in members], [constants[i] for i in members], flat, sampling, frozen))
+            textures = None if texture_sampling is None else [texture_sampling[i] for i in members]
+            self.bsdfs.append(MATERIALS[t]([values[i] for i in members], [constants[i] for i in members], flat, sampling, frozen, textures))
         for t in types:
             k = present.index(t)
             slot_of.append(k)
@@ -70,11 +73,13 @@ class Materials:
                 self._one_sided = table.to(device)
                 self.all_diffuse = False  # a back-side hit's weight is zero
 
-    def shading_point(self, material: torch.Tensor, wo, n, ng, front, uv) -> ShadingPoint:
-        """The :class:`ShadingPoint` of hits on scene materials ``material`` (N,) int64."""
+    def shading_point(self, material: torch.Tensor, wo, n, ng, front, uv, corners=None, bary=None) -> ShadingPoint:
+        """The :class:`ShadingPoint` of hits on scene materials ``material`` (N,) int64 (``corners``
+        and ``bary``: for per-vertex parameters, see :class:`ShadingPoint`)."""
+        vertex = {} if corners is None else {"corners": corners, "bary": bary}
         if self.single:  # local index = scene index; no dispatch
-            return ShadingPoint(wo, n, ng, front, uv, material, torch.zeros_like(material))
-        return ShadingPoint(wo, n, ng, front, uv, self.local_of[material], self.slot_of[material])
+            return ShadingPoint(wo, n, ng, front, uv, material, torch.zeros_like(material), **vertex)
+        return ShadingPoint(wo, n, ng, front, uv, self.local_of[material], self.slot_of[material], **vertex)
 
     def groups(self, sp: ShadingPoint) -> list[tuple[BSDF, torch.Tensor | None]]:
         """``[(bsdf, index of its hits)]``; the index is None when one BSDF takes every hit."""

@@ -36,6 +36,8 @@ class TransportContext:
             (differentiable), or None.
         ray_offset: distance new rays start off a surface, to avoid self-intersection.
         textured: does any parameter vary over UVs (else hits skip texture coordinates)?
+        per_vertex: is any material parameter per vertex (shading points then carry the hit
+            triangles' corner rows and barycentric weights)?
         extra: what an integrator's pre-pass computed for its ``trace`` (None without one).
         hide_emitters: camera rays see no emission (the integrator's ``hide_emitters``).
     """
@@ -48,6 +50,7 @@ class TransportContext:
     ambient: torch.Tensor | None
     ray_offset: float
     textured: bool
+    per_vertex: bool = False
     extra: object = None
     hide_emitters: bool = False
 
@@ -86,11 +89,13 @@ class TransportContext:
             materials=Materials(
                 [s.type for s in specs], material_values, [dict(s.constants) for s in specs], device, flat=not tris.any_smooth, sampling=sampling, sampling_values=frozen_materials,
                 one_sided=[s.one_sided for s in specs],
+                texture_sampling=[{key: scene.texture_sampling[param_name(m, key)] for key in spec.spec.params if param_name(m, key) in scene.texture_sampling} for m, spec in zip(scene.materials, specs)],
             ),
             eps=eps,
             ambient=values[AMBIENT].to(device) if AMBIENT in values else None,
             ray_offset=1e-4 * max(scene_extent(tris), 1e-3),
             textured=any(p.ndim == 3 for p in [v for m in light_values + material_values for v in m.values()]),
+            per_vertex=any(p.ndim == 2 for m in material_values for p in m.values()),
         )
 
     def material(self, s: Surface) -> torch.Tensor:
@@ -99,6 +104,9 @@ class TransportContext:
 
     def shading_point(self, s: Surface, wo: torch.Tensor) -> ShadingPoint:
         """The hits as their BSDFs see them, for outgoing directions ``wo`` (N, 3)."""
+        if self.per_vertex:
+            corners = self.triangles.vertex.index_select(0, s.tri)
+            return self.materials.shading_point(self.material(s), wo, s.ns, s.n, s.front, s.uv, corners, s.bary)
         return self.materials.shading_point(self.material(s), wo, s.ns, s.n, s.front, s.uv)
 
     def emission(self, emitter: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:

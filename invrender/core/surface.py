@@ -27,6 +27,8 @@ class Surface:
         tri: (N,) int64 triangle index.
         t: (N,) distance from the ray origin.
         d: (N, 3) unit direction of the ray (its origin is ``p - t d``).
+        bary: (N, 3) barycentric weights of the triangle's three corners at ``p`` (for per-vertex
+            parameters).
     """
 
     p: torch.Tensor
@@ -38,6 +40,7 @@ class Surface:
     tri: torch.Tensor
     t: torch.Tensor
     d: torch.Tensor
+    bary: torch.Tensor
 
     def select(self, index: torch.Tensor) -> "Surface":
         """The hits at ``index`` (M,) int64 (or where a (N,) bool mask is True)."""
@@ -61,4 +64,4 @@ def surface_at(triangles: Triangles, hits: Hits, d: torch.Tensor, with_uv: bool 
         ns = normalize((1 - u - v) * vn[:, 0] + u * vn[:, 1] + v * vn[:, 2]) * side
     else:
         ns = n
-    return Surface(p, n, ns, front, cos_o, uv, tri, hits.t, d)
+    return Surface(p, n, ns, front, cos_o, uv, tri, hits.t, d, torch.cat([1 - u - v, u, v], dim=1))

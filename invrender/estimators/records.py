@@ -23,7 +23,7 @@ degree). A monomial's tangent is then ``contribution * sum_p k_p R^(p)``: dividi
 contribution gives an integer code that spells out the exponents, digit by digit. No integrator
 knows it is being recorded.
 
-**Textured parameters.** A texture (h, w, 3) enters a vertex through its bilinear filter, a linear
+**Textured parameters.** A texture (h, w, 3) enters a vertex through its filter (bilinear, or nearest: Scene.texture_sampling), a linear
 form ``sum_j b_j x_{t_j}`` of four texels, not as a monomial. Its digit in the code still counts its
 factors (the lookup is linear, so its tangent is its value times the digit's place), and the film is
 told where each path met the textured material (``Film.visit``): a contribution with k factors of the
@@ -62,6 +62,7 @@ from invrender.core.driver import RenderSettings, SamplePlan, film_weights, for_
 from invrender.core.film import Film
 from invrender.plugins.integrators import make_integrator
 from invrender.core.textures import bilinear
+from invrender.scene.textures import DEFAULT, TextureSampling
 
 #: largest exponent code the float32 trace resolves exactly (its relative rounding stays < 1e-6)
 MAX_CODES = 1 << 16
@@ -265,6 +266,8 @@ class _TextureSlot:
     w: int
     offset: int
     lookup: object = None
+    #: how the material's texture is read (its ``to_uv``, filter and wrap)
+    sampling: TextureSampling = DEFAULT
 
     @property
     def sky(self) -> bool:
@@ -349,7 +352,7 @@ class _RecordFilm(Film):
             on = (self.material_of[s.tri] == slot.material).nonzero()[:, 0]
             if on.numel():
                 at = path[on]
-                rows, weights = bilinear(slot.h, slot.w, s.uv[on])
+                rows, weights = bilinear(slot.h, slot.w, s.uv[on], slot.sampling)
                 k = hist.count[at]
                 hist.rows[at, k] = rows + slot.offset
                 hist.weights[at, k] = weights.double()
@@ -595,6 +598,8 @@ def record_obstacle(scene: Scene, names) -> str | None:
     infinite = [e for i, e in enumerate(scene.emitters) if EMITTERS[scene.emitter_spec(i).type].infinite]
     for n in names:
         kind = kind_of(n)
+        if scene.params[n].ndim == 2:
+            return f"{n} is per vertex (a mesh attribute), which path records do not follow"
         if not kind.polynomial:
             return f"{n} is a {kind.key}, not a polynomial factor of a path's weight"
         owner, _, key = n.rpartition(".")
@@ -671,7 +676,7 @@ def record_paths(
             elif kind_of(n).key == "emission" or owner not in scene.materials:
                 raise ParameterError(f"{n} is a textured emission of a type without a texel lookup: path records follow textures of materials and environment maps (record a constant emission, or fit it with adam)")
             else:
-                slots.append(_TextureSlot(p, n, scene.materials.index(owner), v.shape[0], v.shape[1], offset))
+                slots.append(_TextureSlot(p, n, scene.materials.index(owner), v.shape[0], v.shape[1], offset, sampling=scene.texture_sampling.get(n, DEFAULT)))
         offset += v.numel() // 3
         if not bool((v.detach() > 0).all()):
             raise ParameterError(f"{n} must be > 0 in every channel at the record point, got {v.detach().tolist() if v.ndim == 1 else 'a texture with a texel <= 0'}")

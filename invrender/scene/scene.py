@@ -38,6 +38,7 @@ from invrender.scene.emitters import Emitter
 from invrender.scene.film import FilmOptions
 from invrender.scene.materials import Material
 from invrender.scene.shapes import Mesh
+from invrender.scene.textures import SampledTexture, TextureSampling, VertexAttribute
 
 _DERIVED_LOCK = threading.RLock()
 
@@ -68,6 +69,8 @@ class Triangles:
         sphere: (T,) int64 index into ``spheres`` of the analytic sphere the triangle's mesh is
             inscribed in (:attr:`Mesh.sphere <invrender.scene.shapes.Mesh.sphere>`), -1 for others.
         spheres: (S, 4) float32 rows ``[cx, cy, cz, radius]`` of those spheres, world units.
+        vertex: (T, 3) int64 row of each corner in per-vertex parameters (scene vertices numbered
+            mesh after mesh, :class:`~invrender.scene.textures.VertexAttribute`).
     """
 
     p0: torch.Tensor
@@ -82,6 +85,7 @@ class Triangles:
     smooth: torch.Tensor
     sphere: torch.Tensor
     spheres: torch.Tensor
+    vertex: torch.Tensor
 
     @property
     def count(self) -> int:
@@ -143,6 +147,10 @@ class Scene:
             constants; its values live in ``params``); empty = every emitter an area light.
         film: the reconstruction filter and ``sample_border``
             (:class:`~invrender.scene.film.FilmOptions`); the default is the box filter.
+        texture_sampling: parameter name -> how its texture is read
+            (:class:`~invrender.scene.textures.TextureSampling`: Mitsuba's bitmap ``to_uv``,
+            ``filter_type``, ``wrap_mode``); a textured parameter not named reads bilinearly with
+            repeat wrapping.
     """
 
     triangles: Triangles
@@ -156,6 +164,7 @@ class Scene:
     defaults: dict = field(default_factory=dict)
     emitter_specs: tuple[Emitter, ...] = ()
     film: FilmOptions = field(default_factory=FilmOptions)
+    texture_sampling: dict[str, TextureSampling] = field(default_factory=dict)
 
     def __setattr__(self, name, value):
         if name == "params" and not isinstance(value, Params):
@@ -219,7 +228,7 @@ class Scene:
         values = dict(values or {})
         if values:
             check_names(self.params, list(values))
-        replaced = {k: _checked_value(k, v) for k, v in values.items()}
+        replaced = {k: _checked_value(k, v, self.params[k] if self.params[k].ndim == 2 else None) for k, v in values.items()}
         params = {**self.params, **replaced}
         if detach:
             params = {k: v.detach().clone() for k, v in params.items()}
@@ -273,9 +282,16 @@ def check_param_value(name: str, value) -> torch.Tensor:
     return t
 
 
-def _checked_value(name: str, value) -> torch.Tensor:
+def _checked_value(name: str, value, per_vertex: torch.Tensor | None = None) -> torch.Tensor:
     """``value`` checked as :func:`check_param_value` checks it; a floating-point tensor is kept as
-    it is (its graph, dtype and device; one number is expanded to three), anything else converted."""
+    it is (its graph, dtype and device; one number is expanded to three), anything else converted.
+    ``per_vertex``: the current value of a per-vertex parameter, whose shape the new one keeps."""
+    if per_vertex is not None:
+        t = value if isinstance(value, torch.Tensor) and value.is_floating_point() else torch.as_tensor(value, dtype=torch.float32)
+        if t.shape != per_vertex.shape:
+            raise ParameterError(f"{name}: a per-vertex parameter keeps its shape {tuple(per_vertex.shape)}, got {tuple(t.shape)}")
+        _check_tensor(name, t.detach(), per_vertex=True)
+        return t
     if not (isinstance(value, torch.Tensor) and value.is_floating_point()):
         return check_param_value(name, value)
     t = value.expand(3) if value.ndim == 0 else _grey_map(name, value)
@@ -288,9 +304,13 @@ def _grey_map(name: str, t: torch.Tensor) -> torch.Tensor:
     return t[:, :, None].expand(-1, -1, 3) if t.ndim == 2 and kind_of(name).grey and kind_of(name).texture else t
 
 
-def _check_tensor(name: str, t: torch.Tensor) -> None:
-    """A :class:`ParameterError` naming ``name`` unless ``t`` is (3,) or (h, w, 3), finite, in range."""
-    if not (t.shape == (3,) or (t.ndim == 3 and t.shape[2] == 3 and t.shape[0] > 0 and t.shape[1] > 0)):
+def _check_tensor(name: str, t: torch.Tensor, per_vertex: bool = False) -> None:
+    """A :class:`ParameterError` naming ``name`` unless ``t`` is (3,) or (h, w, 3) (or, for a
+    ``per_vertex`` parameter, (V, 3) of its V rows), finite, in range."""
+    if per_vertex:
+        if not (t.ndim == 2 and t.shape[1] == 3):
+            raise ParameterError(f"{name}: a per-vertex parameter needs shape (V, 3), got {tuple(t.shape)}")
+    elif not (t.shape == (3,) or (t.ndim == 3 and t.shape[2] == 3 and t.shape[0] > 0 and t.shape[1] > 0)):
         raise ParameterError(f"{name}: expected shape (3,) or (h, w, 3), got {tuple(t.shape)}")
     if not torch.isfinite(t).all():
         raise ParameterError(f"{name}: values must be finite")
@@ -348,6 +368,7 @@ def build_scene(
     camera: Camera,
     resolution,
     name: str = "scene",
+    texture_sampling: Mapping[str, TextureSampling] | None = None,
 ) -> Scene:
     """Assemble a :class:`Scene` from meshes and named materials and emitters.
 
@@ -358,6 +379,11 @@ def build_scene(
             diffuse reflectance rho (an RGB triple, one number or an (h, w, 3) texture).
         emission: emitter name -> an :class:`~invrender.scene.emitters.Emitter`, or just the eps
             of an area light (an RGB triple or an (h, w, 3) texture).
+        texture_sampling: parameter name -> how its texture is read (``Scene.texture_sampling``).
+
+    A material's value may be a :class:`~invrender.scene.textures.VertexAttribute`: the parameter
+    becomes (V, 3), one row per scene vertex (meshes in order), filled from the attribute of each
+    mesh that uses the material (zero elsewhere).
     Raises:
         SceneError: unknown material or emitter names, bad indices, no triangles.
         ParameterError: a value outside its kind's range.
@@ -371,11 +397,27 @@ def build_scene(
     specs = {k: v if isinstance(v, Material) else Material(values={"reflectance": v}) for k, v in materials.items()}
     material_names = tuple(materials)
     emitters = tuple(emission)
-    params = {param_name(k, key): _plugin_value(m, k, key, v) for k, m in specs.items() for key, v in m.values.items()}
+    texture_sampling = dict(texture_sampling or {})
+    per_vertex = {param_name(k, key): (k, v) for k, m in specs.items() for key, v in m.values.items() if isinstance(v, VertexAttribute)}
+    texture_sampling.update({param_name(k, key): v.sampling for k, m in specs.items() for key, v in m.values.items() if isinstance(v, SampledTexture)})
+    params = {
+        param_name(k, key): _plugin_value(m, k, key, v.texels if isinstance(v, SampledTexture) else v)
+        for k, m in specs.items() for key, v in m.values.items() if not isinstance(v, VertexAttribute)
+    }  # fmt: skip
     emitter_specs = {k: v if isinstance(v, Emitter) else Emitter(values={"emission": v}) for k, v in emission.items()}
+    for k, e in emitter_specs.items():
+        for key, v in e.values.items():
+            if isinstance(v, VertexAttribute):
+                raise SceneError(f"{param_name(k, key)}: per-vertex values (vertex attribute {v.name!r}) are supported for material parameters only")
+            if isinstance(v, SampledTexture) or param_name(k, key) in texture_sampling:
+                raise SceneError(f"{param_name(k, key)}: texture options (to_uv, filter, wrap) are supported for material parameters only; an emitter's texture reads bilinearly with repeat wrapping")
+    for n in texture_sampling:
+        if n not in params:
+            raise SceneError(f"texture options for {n!r}, which is not a textured material parameter")
     params.update({param_name(k, key): _plugin_value(e, k, key, v) for k, e in emitter_specs.items() for key, v in e.values.items()})
 
-    tris, uvs, mats, emits, normals, smooth, sphere_of, spheres = [], [], [], [], [], [], [], []
+    tris, uvs, mats, emits, normals, smooth, sphere_of, spheres, rows = [], [], [], [], [], [], [], [], []
+    first_vertex = 0
     for mesh in meshes:
         if mesh.material not in materials:
             raise SceneError(f"shape uses unknown material {mesh.material!r} (known: {', '.join(material_names) or 'none'})")
@@ -400,6 +442,8 @@ def build_scene(
             raise SceneError(f"mesh uvs must have shape ({len(v)}, 2), got {uv.shape}")
         tris.append(v[f])
         uvs.append(uv[f])
+        rows.append(f + first_vertex)
+        first_vertex += len(v)
         if mesh.normals is not None:
             vn = np.asarray(mesh.normals, dtype=np.float64)
             if vn.shape != (len(v), 3) or not np.isfinite(vn).all():
@@ -416,6 +460,8 @@ def build_scene(
             spheres.append([*mesh.sphere[0], mesh.sphere[1]])
     if not tris or sum(len(t) for t in tris) == 0:
         raise SceneError("scene has no triangles")
+    for n, (material, attribute) in per_vertex.items():
+        params[n] = _vertex_param(n, material, attribute, meshes, first_vertex)
 
     corners = np.concatenate(tris)
     cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
@@ -450,12 +496,37 @@ def build_scene(
         smooth=t(np.concatenate(smooth), torch.bool),
         sphere=t(np.concatenate(sphere_of), torch.int64),
         spheres=torch.tensor(spheres, dtype=torch.float32).reshape(-1, 4),
+        vertex=t(np.concatenate(rows), torch.int64),
     )
     specs_only = tuple(dataclasses.replace(m, values={}) for m in specs.values())
     emitters_only = tuple(Emitter(e.type, {}, e.constants) for e in emitter_specs.values())
     if all(e.type == Emitter.default_type and not e.constants for e in emitters_only):
         emitters_only = ()  # every emitter an area light: the default
-    return Scene(triangles, material_names, emitters, camera, resolution, params, name, specs_only, emitter_specs=emitters_only)
+    return Scene(triangles, material_names, emitters, camera, resolution, params, name, specs_only, emitter_specs=emitters_only, texture_sampling=texture_sampling)
+
+
+def _vertex_param(name: str, material: str, vertex_attribute: VertexAttribute, meshes: Sequence[Mesh], count: int) -> torch.Tensor:
+    """The (count, 3) per-vertex parameter ``name`` of ``material``: the attribute (times its scale)
+    of each mesh that uses the material at its vertices' rows, zero elsewhere; checked in its
+    kind's range."""
+    attribute = vertex_attribute.name
+    out = np.zeros((count, 3))
+    first = 0
+    for mesh in meshes:
+        v = len(mesh.vertices)
+        if mesh.material == material:
+            have = mesh.attributes or {}
+            if attribute not in have:
+                raise SceneError(f"{name} reads vertex attribute {attribute!r}, which a mesh using material {material!r} lacks (it has: {', '.join(have) or 'none'})")
+            a = np.asarray(have[attribute], dtype=np.float64)
+            a = a.reshape(len(a), -1)
+            if a.shape not in ((v, 1), (v, 3)):
+                raise SceneError(f"{name}: vertex attribute {attribute!r} must have 1 or 3 values per vertex for {v} vertices, got shape {a.shape}")
+            out[first : first + v] = np.broadcast_to(a, (v, 3)) * vertex_attribute.scale
+        first += v
+    t = torch.as_tensor(out, dtype=torch.float32)
+    _check_tensor(name, t, per_vertex=True)
+    return t
 
 
 def _plugin_value(spec, owner: str, key: str, value) -> torch.Tensor:

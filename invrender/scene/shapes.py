@@ -34,6 +34,9 @@ class Mesh:
             ``((cx, cy, cz), radius)`` in world units (emitters sample it by solid angle:
             :mod:`invrender.plugins.emitters.area`); None for any other shape, an ellipsoid (a sphere under
             a transform that is not a similarity) and a sphere turned inside out.
+        attributes: per-vertex attributes by name (``"vertex_color"``, ...), each (V, C) float64
+            with C = 1 or 3 (a PLY file's colours and extra vertex properties), read by
+            :class:`~invrender.scene.textures.VertexAttribute` values; None = none.
     """
 
     vertices: np.ndarray
@@ -43,6 +46,7 @@ class Mesh:
     emitter: str | None = None
     normals: np.ndarray | None = None
     sphere: tuple[tuple[float, float, float], float] | None = None
+    attributes: dict[str, np.ndarray] | None = None
 
     def transformed(self, matrix: np.ndarray) -> "Mesh":
         """This mesh with a 4x4 affine ``matrix`` applied to its vertices (winding kept front-facing;
@@ -54,7 +58,7 @@ class Mesh:
         if self.normals is not None:
             n = self.normals @ np.linalg.inv(linear)
             normals = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        return Mesh(v, faces, self.uvs, self.material, self.emitter, normals, _similar_sphere(self.sphere, matrix))
+        return Mesh(v, faces, self.uvs, self.material, self.emitter, normals, _similar_sphere(self.sphere, matrix), self.attributes)
 
     def flipped(self) -> "Mesh":
         """The same mesh with every triangle's front and back exchanged."""

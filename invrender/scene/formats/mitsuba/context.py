@@ -20,6 +20,8 @@ class Context(Document):
         materials: ``id(bsdf)`` -> (the BSDF object, its :class:`Material`, the id of the first
             shape that used it or None): each BSDF converted once, references share it.
         textures: ``id(texture)`` -> its linear RGB (h, w, 3) float64, each read once.
+        texture_sampling: ``id(texture)`` -> how a bitmap is read (its ``to_uv``, ``filter_type``,
+            ``wrap_mode``).
         sample_counts: the sample counts an integrator alias read (Mitsuba's ``direct``:
             ``emitter_samples``, ...) -> (value, its node), for the loader's warnings.
     """
@@ -30,4 +32,5 @@ class Context(Document):
         self.subdivisions = subdivisions
         self.materials: dict[int, tuple[Obj, Material, str | None]] = {}
         self.textures: dict[int, np.ndarray] = {}
+        self.texture_sampling: dict = {}
         self.sample_counts: dict[str, tuple] = {}

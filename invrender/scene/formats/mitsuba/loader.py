@@ -37,6 +37,7 @@ from invrender.scene.formats.mitsuba.sensor import DEFAULT_FILM, sensor
 from invrender.scene.formats.mitsuba.shapes import SPHERE_SUBDIVISIONS, shape
 from invrender.scene.formats.mitsuba.textures import bitmap
 from invrender.scene.formats.values import one_line
+from invrender.scene.formats.mitsuba.instances import Groups
 from invrender.scene.scene import Scene, build_scene
 from invrender.scene.shapes import Mesh
 
@@ -73,6 +74,7 @@ def build(ctx: Context, resolution) -> Scene:
 
     camera, film, defaults, seen, film_options = None, DEFAULT_FILM, {}, {}, None
     surface_emitters = []  # declared at the top level, for shapes to reference
+    groups, group_objs = Groups(ctx, lambda obj: shape(ctx, obj, emitter_name)), []
     for item in scene.children:
         try:
             obj = ctx.resolve(item)
@@ -81,7 +83,11 @@ def build(ctx: Context, resolution) -> Scene:
             if obj.tag in seen and obj.tag in ("sensor", "integrator"):
                 raise ctx.error(obj.node, f"only one <{obj.tag}> is supported (the first is at line {seen[obj.tag]})", obj)
             seen.setdefault(obj.tag, obj.node.line)
-            if obj.tag == "shape":
+            if obj.tag == "shape" and obj.type == "shapegroup":
+                group_objs.append(obj)  # converted where an instance uses it (else checked below)
+            elif obj.tag == "shape" and obj.type == "instance":
+                meshes.extend(groups.instance(obj))
+            elif obj.tag == "shape":
                 meshes.append(shape(ctx, obj, emitter_name))
             elif obj.tag == "bsdf":
                 material(ctx, obj, None)  # checked even when no shape uses it
@@ -101,6 +107,11 @@ def build(ctx: Context, resolution) -> Scene:
             else:
                 home = {"film": " (it belongs inside a <sensor>)", "sampler": " (it belongs inside a <sensor>)", "rfilter": " (it belongs inside a <film>)"}
                 raise ctx.error(obj.node, f"<{obj.tag}> cannot be a child of <scene>{home.get(obj.tag, '')}", obj)
+        except SceneError as e:
+            ctx.problem(e)
+    for obj in group_objs:  # groups no instance used: read for their problems, adding nothing
+        try:
+            groups.group(obj)
         except SceneError as e:
             ctx.problem(e)
     for obj in surface_emitters:
@@ -134,7 +145,7 @@ def build(ctx: Context, resolution) -> Scene:
             names[key] = _unique(base, used_names | set(ctx.ids))
             used_names.add(names[key])
     materials = {names[key]: ctx.materials[key][1] for _, key in ordered}
-    shapes = [Mesh(m.vertices, m.faces, m.uvs, names[k], m.emitter, m.normals, m.sphere) for m, k in meshes]
+    shapes = [Mesh(m.vertices, m.faces, m.uvs, names[k], m.emitter, m.normals, m.sphere, m.attributes) for m, k in meshes]
 
     if camera is None:  # Mitsuba 3 cannot render such a scene either ("No sensor specified")
         raise SceneError(f"{ctx.where}:{scene.node.line}: <scene>: no <sensor>: add a <sensor type=\"perspective\"> with a fov and a to_world")

@@ -94,14 +94,14 @@ def shape(ctx: Context, obj: Obj, emitter_name) -> tuple[Mesh, int]:
     else:
         supported += ["filename", "face_normals", "flip_tex_coords"]
         mesh, mitsuba_uv, compute_normals = mesh_file(ctx, obj)
-    mesh = Mesh(mesh.vertices, mesh.faces, np.stack([mitsuba_uv[:, 0], 1.0 - mitsuba_uv[:, 1]], axis=1), "", None, mesh.normals, mesh.sphere)
+    mesh = Mesh(mesh.vertices, mesh.faces, np.stack([mitsuba_uv[:, 0], 1.0 - mitsuba_uv[:, 1]], axis=1), "", None, mesh.normals, mesh.sphere, mesh.attributes)
     if flip:
         mesh = mesh.flipped()
     if np.linalg.det(matrix[:3, :3]) == 0:
         raise ctx.error(to_world.node, "to_world is singular", obj)
     mesh = mesh.transformed(matrix)
     if compute_normals:  # as Mitsuba does: angle-weighted, from the world-space triangles
-        mesh = Mesh(mesh.vertices, mesh.faces, mesh.uvs, "", None, _vertex_normals(mesh.vertices, mesh.faces))
+        mesh = Mesh(mesh.vertices, mesh.faces, mesh.uvs, "", None, _vertex_normals(mesh.vertices, mesh.faces), attributes=mesh.attributes)
     found = []  # its own problems, its BSDF's and its emitter's: each checked
     try:
         ctx.finish(obj, tuple(supported), ("bsdf", "emitter"))
@@ -117,7 +117,7 @@ def shape(ctx: Context, obj: Obj, emitter_name) -> tuple[Mesh, int]:
     emitter = ctx.one_nested(obj, "emitter")
     if emitter is not None:
         try:
-            mesh = Mesh(mesh.vertices, mesh.faces, mesh.uvs, "", emitter_name(obj, emitter_of(ctx, emitter, in_shape=True)), mesh.normals, mesh.sphere)
+            mesh = Mesh(mesh.vertices, mesh.faces, mesh.uvs, "", emitter_name(obj, emitter_of(ctx, emitter, in_shape=True)), mesh.normals, mesh.sphere, mesh.attributes)
         except SceneError as e:
             found.append(e)
     if len(found) == 1:
@@ -181,6 +181,7 @@ def mesh_file(ctx: Context, obj: Obj) -> tuple[Mesh, np.ndarray, bool]:
         # trimesh returns a file's vertex normals as they are (it computes its own only without)
         has_normals = not face_normals and _file_has_normals(path, obj.type)
         vs, fs, uvs, ns, offset = [], [], [], [], 0
+        attributes = _ply_attributes(loaded) if obj.type == "ply" and isinstance(loaded, trimesh.Trimesh) else None
         for m, t in parts:
             if len(m.faces) == 0:
                 continue
@@ -202,10 +203,42 @@ def mesh_file(ctx: Context, obj: Obj) -> tuple[Mesh, np.ndarray, bool]:
     if flip_uv:  # Mitsuba's v = 1 - v_file
         uv = np.stack([uv[:, 0], 1.0 - uv[:, 1]], axis=1)
     normals = np.concatenate(ns) if has_normals else None
-    return Mesh(np.concatenate(vs), np.concatenate(fs), None, "", None, normals), uv, not face_normals and not has_normals
+    return Mesh(np.concatenate(vs), np.concatenate(fs), None, "", None, normals, attributes=attributes), uv, not face_normals and not has_normals
 
 
 # ---------------------------------------------------------------- helpers
+
+
+#: the suffixes by which Mitsuba groups PLY vertex properties into a ``vertex_<prefix>`` attribute, in channel order
+_PLY_SUFFIXES = (("x", "y", "z", "w"), ("0", "1", "2", "3"))
+
+
+def _ply_attributes(mesh) -> dict[str, np.ndarray] | None:
+    """A PLY file's per-vertex attributes as Mitsuba 3.9.1 reads them (measured): ``r g b`` or
+    ``red green blue`` become ``vertex_color`` (values as stored: 8-bit colours stay 0..255, as
+    Mitsuba warns), ``<prefix>_x, _y, _z`` or ``<prefix>_0, _1, _2`` (one or three of them)
+    become ``vertex_<prefix>`` (Mitsuba's own writer stores ``vertex_color`` as ``color_0..2``);
+    other properties are ignored, as Mitsuba ignores them. None when there are none."""
+    raw = (mesh.metadata.get("_ply_raw") or {}).get("vertex", {}).get("data")
+    if isinstance(raw, np.ndarray) and raw.dtype.names:  # a binary file's structured array
+        raw = {name: raw[name] for name in raw.dtype.names}
+    if not isinstance(raw, dict):
+        return None
+    columns = {k: np.asarray(v, dtype=np.float64).reshape(len(mesh.vertices), -1)[:, 0] for k, v in raw.items() if np.asarray(v).size == len(mesh.vertices)}
+    out = {}
+    for names in (("r", "g", "b"), ("red", "green", "blue")):
+        if all(n in columns for n in names):
+            out["vertex_color"] = np.stack([columns[n] for n in names], axis=1)
+    for prefix in dict.fromkeys(k.rpartition("_")[0] for k in columns if k.rpartition("_")[0]):
+        for suffixes in _PLY_SUFFIXES:
+            channels = []
+            for suffix in suffixes:
+                if f"{prefix}_{suffix}" not in columns:
+                    break
+                channels.append(columns[f"{prefix}_{suffix}"])
+            if len(channels) in (1, 3):
+                out[f"vertex_{prefix}"] = np.stack(channels, axis=1)
+    return out or None
 
 
 def _file_has_normals(path: Path, kind: str) -> bool:

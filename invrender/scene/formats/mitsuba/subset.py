@@ -4,13 +4,13 @@ module stays the place its part is read and documented)."""
 
 from __future__ import annotations
 
-from invrender.scene.formats.mitsuba import bsdfs, emitters, integrator, parser, sensor, shapes, textures
+from invrender.scene.formats.mitsuba import bsdfs, emitters, instances, integrator, parser, sensor, shapes, textures
 
 
 def plugin_types() -> dict[str, tuple[str, ...]]:
     """Object element (``"bsdf"``, ``"shape"``, ...) -> the plugin types (``type="..."``) read."""
     return {
-        "shape": tuple(shapes.SHAPE_TYPES),
+        "shape": (*shapes.SHAPE_TYPES, *instances.SHAPE_TYPES),
         "bsdf": (*bsdfs.plugins(), bsdfs.TWOSIDED),
         "emitter": tuple(emitters.plugins()),
         "integrator": (*integrator.plugins(), integrator.MOMENT, *integrator.VOLUMETRIC),

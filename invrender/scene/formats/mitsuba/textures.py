@@ -9,12 +9,24 @@ Colours
 
 Bitmap textures (``<texture type="bitmap">``)
     ``filename`` (relative to the XML file; EXR linear, PNG/JPEG sRGB-decoded, like Mitsuba's
-    ``raw=false``; ``raw=true`` only for EXR), ``filter_type`` bilinear, ``wrap_mode`` repeat (the
-    only ones invrender has, and Mitsuba's defaults). ``to_uv`` is an error. Texture coordinates
+    ``raw=false``; ``raw=true`` only for EXR), ``filter_type`` ``bilinear`` (the default) or
+    ``nearest``, ``wrap_mode`` ``repeat`` (the default), ``clamp`` or ``mirror``, and ``to_uv`` (a
+    ``<transform>``; its 2D part, as Mitsuba reads it), with Mitsuba 3's semantics
+    (:mod:`invrender.core.textures` gives the arithmetic). Options other than the defaults are
+    kept per parameter (``Scene.texture_sampling``) and supported on material parameters; an
+    emitter's texture must use the defaults. Texture coordinates
     follow Mitsuba's parametrizations (rectangle ``uv = ((x + 1) / 2, (y + 1) / 2)``, the sphere's
     ``(phi / 2 pi, theta / pi)`` about local z, the cube's per-face layout, OBJ/PLY as Mitsuba
     reads them) and Mitsuba's image convention (``v = 0`` is the image's top row), so an image
-    lands where Mitsuba puts it; they are stored in invrender's convention (``v`` flipped).
+    lands where Mitsuba puts it; they are stored in invrender's convention (``v`` flipped, and
+    ``to_uv`` converted to match).
+
+Vertex attributes (``<texture type="mesh_attribute">``)
+    ``name`` (``vertex_color`` or ``vertex_<x>``: a PLY file's colours or extra vertex properties,
+    or a serialized mesh's colours) and ``scale`` (default 1), on material parameters: the
+    attribute of each shape using the material, interpolated barycentrically at the hit
+    (:class:`~invrender.scene.textures.VertexAttribute`). Face attributes (``face_*``) are
+    not supported.
 
 Checkerboard textures (``<texture type="checkerboard">``)
     ``color0`` (default 0.4), ``color1`` (default 0.2), each an ``<rgb>``, ``<float>`` or constant
@@ -39,14 +51,16 @@ from invrender.scene.formats.mitsuba.context import Context
 from invrender.scene.formats.mitsuba.parser import Obj, Ref
 from invrender.scene.formats.values import CHECKERBOARD_RESOLUTION, checkerboard, one_line
 from invrender.scene.kinds import ParamKind
+from invrender.scene.textures import DEFAULT, FILTERS, WRAPS, SampledTexture, TextureSampling, VertexAttribute, mitsuba_to_uv
 
 #: the texture plugins read
-TEXTURE_TYPES = ("bitmap", "checkerboard")
+TEXTURE_TYPES = ("bitmap", "checkerboard", "mesh_attribute")
 
 
 def colour(ctx: Context, obj: Obj, name: str, kind: ParamKind, default: float, texture: bool = True):
-    """An RGB triple (3,) or a linear texture (h, w, 3) from a property of ``obj``, checked
-    against ``kind``'s range."""
+    """An RGB triple (3,), a linear texture (h, w, 3) (a :class:`SampledTexture` where it has
+    options other than the defaults) or a :class:`VertexAttribute` from a property of ``obj``,
+    checked against ``kind``'s range (a vertex attribute's when the scene is built)."""
     prop = obj.props.get(name)
     if prop is None:
         return np.full(3, default)
@@ -57,7 +71,10 @@ def colour(ctx: Context, obj: Obj, name: str, kind: ParamKind, default: float, t
             raise ctx.error(prop.node, f"'{name}' must be a colour or a texture, got {value.describe()}", obj)
         if not texture or not kind.texture:
             raise ctx.error(prop.node, f"'{name}' must be a constant (<rgb>, <float> or <spectrum>): textures are not supported here", obj)
+        if value.type == "mesh_attribute":
+            return mesh_attribute(ctx, value)
         rgb = bitmap(ctx, value)
+        sampling = ctx.texture_sampling.get(id(value), DEFAULT)
     elif prop.tag in ("rgb", "spectrum", "float"):
         rgb = np.broadcast_to(np.asarray(value, dtype=np.float64), (3,)).copy()
     else:
@@ -67,12 +84,30 @@ def colour(ctx: Context, obj: Obj, name: str, kind: ParamKind, default: float, t
         expected = f"lie in [0, {kind.upper:g}]" if math.isfinite(kind.upper) else "be >= 0"
         shown = ", ".join(f"{v:g}" for v in rgb) if rgb.ndim == 1 else f"values in [{lo:.4g}, {hi:.4g}]"
         raise ctx.error(prop.node, f"'{name}' ({kind.doc.split(',')[0]}) must {expected}, got {shown}", obj)
-    return rgb
+    return SampledTexture(rgb, sampling) if isinstance(value, Obj) and sampling != DEFAULT else rgb
+
+
+def mesh_attribute(ctx: Context, tex: Obj) -> VertexAttribute:
+    """A ``<texture type="mesh_attribute">`` (see this module's docstring)."""
+    ctx.check_broken(tex)
+    name = ctx.get(tex, "name", "string")
+    if name is None:
+        raise ctx.error(tex.node, "missing <string name=\"name\"> (the vertex attribute: vertex_color, vertex_<x>)", tex)
+    if not name.startswith("vertex_"):
+        raise ctx.error(tex.props["name"].node, f"mesh attribute {name!r} is not supported (supported: per-vertex attributes, vertex_color or vertex_<x>)", tex)
+    scale = float(ctx.get(tex, "scale", "float", 1.0))
+    if not (math.isfinite(scale) and scale >= 0):
+        raise ctx.error(tex.props["scale"].node, f"'scale' must be a finite number >= 0, got {scale:g}", tex)
+    ctx.finish(tex, ("name", "scale"))
+    return VertexAttribute(name, scale)
 
 
 def bitmap(ctx: Context, tex: Obj) -> np.ndarray:
     """The linear RGB (h, w, 3) float64 of a ``<texture>`` (read or baked once; references share it)."""
     ctx.check_broken(tex)
+    if tex.type == "mesh_attribute":  # declared at the top level: checked, read where a material refers to it
+        mesh_attribute(ctx, tex)
+        return None
     if id(tex) not in ctx.textures:
         ctx.textures[id(tex)] = read_checkerboard(ctx, tex) if tex.type == "checkerboard" else read_bitmap(ctx, tex)
     return ctx.textures[id(tex)]
@@ -96,15 +131,23 @@ def read_bitmap(ctx: Context, tex: Obj) -> np.ndarray:
     filename = ctx.get(tex, "filename", "string")
     if filename is None:
         raise ctx.error(tex.node, "missing <string name=\"filename\">", tex)
-    for key, allowed in (("filter_type", "bilinear"), ("wrap_mode", "repeat")):
-        value = ctx.get(tex, key, "string", allowed)
-        if value.strip().lower() != allowed:
-            raise ctx.error(tex.props[key].node, f"{key} {value!r} is not supported (supported: {allowed})", tex)
+    options = {}
+    for key, allowed in (("filter_type", FILTERS), ("wrap_mode", WRAPS)):
+        value = ctx.get(tex, key, "string", allowed[0])
+        options[key] = value.strip().lower()
+        if options[key] not in allowed:
+            raise ctx.error(tex.props[key].node, f"{key} {value!r} is not supported (supported: {', '.join(allowed)})", tex)
+    to_uv = ctx.take(tex, "to_uv", ("transform",), "a <transform>")
+    try:
+        to_uv = None if to_uv is None else mitsuba_to_uv(to_uv.value)
+    except InvRenderError as e:
+        raise ctx.error(tex.props["to_uv"].node, one_line(e), tex) from None
+    ctx.texture_sampling[id(tex)] = TextureSampling(options["filter_type"], options["wrap_mode"], to_uv)
     path = ctx.find_file(tex.props["filename"].node, filename) or ctx.base / filename
     raw = ctx.get(tex, "raw", "boolean", False)
     if raw and path.suffix.lower() != ".exr":
         raise ctx.error(tex.props["raw"].node, "raw=true is supported for EXR files only (PNG/JPEG are always sRGB-decoded)", tex)
-    ctx.finish(tex, ("filename", "filter_type", "wrap_mode", "raw"))
+    ctx.finish(tex, ("filename", "filter_type", "wrap_mode", "raw", "to_uv"))
     from invrender.io.images import read_image  # lazily: images need kornia/OpenEXR
 
     try:
