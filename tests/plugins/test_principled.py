@@ -116,3 +116,142 @@ def test_eval_and_pdf_match_mitsuba(setting):
     want_pdf = torch.tensor([r[4] for r in rows], dtype=torch.float64)
     torch.testing.assert_close(f, want_f, rtol=1e-4, atol=1e-7)
     torch.testing.assert_close(pdf, want_pdf, rtol=1e-4, atol=1e-7)
+
+
+# ---------------------------------------------------------------- sampling, energy
+
+
+@pytest.mark.parametrize("setting, front", [("metal", True), ("aniso", True), ("sheen_coat", True), ("glass", True), ("glass", False),
+                                            ("twosided", False), ("thin_leaf", True), ("thin_aniso", False)])  # fmt: skip
+def test_sampling_matches_pdf(setting, front):
+    """Chi-square of the samples against pdf (settings where Mitsuba's lobe choice follows its pdf:
+    opaque, or spec_trans = 1, or the thin sheet; see the module docstring of principled.py)."""
+    bsdf = material(setting)
+    assert checks.chi_square_p(bsdf, 0.7, samples=100_000, seed=3, front=front) > 1e-3
+
+
+@pytest.mark.parametrize("setting", list(SETTINGS))
+def test_sample_weight_is_eval_over_pdf(setting):
+    for front in (True, False):
+        pdf_err, weight_err, _ = checks.weight_errors(material(setting), 0.9, front=front)
+        assert pdf_err < 2e-3 and weight_err < 2e-3, (front, pdf_err, weight_err)
+
+
+def albedo(bsdf, theta: float, front: bool = True, n: int = 200_000) -> torch.Tensor:
+    g = torch.Generator().manual_seed(2)
+    bs = bsdf.sample(checks.shading_point(theta, n, front=front), torch.rand(n, generator=g), torch.rand(n, 2, generator=g))
+    return bs.weight.double().mean(0)
+
+
+def test_white_furnace_burley_diffuse_closed_form():
+    """eta = 1 turns the specular lobe off (F = 0), leaving Burley's diffuse with retro-reflection:
+    at normal incidence its albedo is ``2 int_0^1 [1 - (1 - mu)^5 / 2 + r (1 + mu)(1 - mu)^5] mu dmu
+    = 1 - 1/42 + 10 r / 168`` (above 1 for r > 0.4: Burley's model is not energy-conserving), the same
+    for the thin sheet."""
+    for r in (0.25, 0.8):
+        want = 1.0 - 1.0 / 42.0 + 10.0 * r / 168.0
+        for bsdf in (checks.instance(Principled, base_color=1.0, roughness=r, eta=1.0), checks.instance(PrincipledThin, base_color=1.0, roughness=r)):
+            assert albedo(bsdf, 0.0).tolist() == pytest.approx([want] * 3, rel=3e-3), (bsdf.type_name, r)
+
+
+def test_white_furnace_metal_and_glass():
+    """A white metal reflects all but what single scattering loses (about 0.2% at alpha 0.04); a
+    white glass at normal incidence splits into ``F0 + (1 - F0) / eta^2`` from outside and ``F0 +
+    (1 - F0) eta^2`` from inside (radiance scaled across the interface)."""
+    metal = albedo(checks.instance(Principled, base_color=1.0, metallic=1.0, roughness=0.2), 0.0)
+    assert 0.99 < float(metal.min()) and float(metal.max()) < 1.0 + 3e-3
+    glass = checks.instance(Principled, base_color=1.0, spec_trans=1.0, roughness=0.2, eta=1.5)
+    F0 = 0.04
+    assert albedo(glass, 0.0).tolist() == pytest.approx([F0 + (1 - F0) / 2.25] * 3, rel=1e-2)
+    assert albedo(glass, 0.0, front=False).tolist() == pytest.approx([F0 + (1 - F0) * 2.25] * 3, rel=1.5e-2)
+
+
+def test_opaque_back_side_is_black_unless_two_sided():
+    sp = checks.shading_point(0.4, 64, front=False)
+    wi = torch.nn.functional.normalize(torch.randn(64, 3, generator=torch.Generator().manual_seed(0)), dim=1)
+    assert float(material("default").eval(sp, wi).abs().max()) == 0.0
+    two = material("twosided")
+    torch.testing.assert_close(two.eval(sp, wi), two.eval(checks.shading_point(0.4, 64), wi))
+
+
+# ---------------------------------------------------------------- the Mitsuba loader, renders, gradients
+
+
+def box_xml(tmp_path, large: str, small: str) -> Path:
+    """forward/cornell_box.xml with its boxes' BSDFs replaced."""
+    text = BOX.read_text()
+    for shape, bsdf in (("large_box", large), ("small_box", small)):
+        start = text.index(f'<shape type="cube" id="{shape}">')
+        ref = text.index('<ref id="white"/>', start)
+        text = text[:ref] + bsdf + text[ref + len('<ref id="white"/>') :]
+    path = tmp_path / "box.xml"
+    path.write_text(text)
+    return path
+
+
+LARGE = ('<bsdf type="principled" id="large"><rgb name="base_color" value="0.8, 0.4, 0.2"/><float name="metallic" value="0.3"/>'
+         '<float name="roughness" value="0.4"/><float name="clearcoat" value="0.5"/><rgb name="spec_tint" value="0.2, 0.4, 0.6"/></bsdf>')  # fmt: skip
+SMALL = ('<bsdf type="twosided" id="small"><bsdf type="principled"><rgb name="base_color" value="0.2, 0.5, 0.7"/><float name="specular" value="0.3"/>'
+         '<float name="spec_trans" value="0.0"/><float name="sheen" value="0.4"/></bsdf></bsdf>')  # fmt: skip
+
+
+def test_mitsuba_xml_principled(tmp_path):
+    scene = ir.load_scene(box_xml(tmp_path, LARGE, SMALL), resolution=(8, 8))
+    large = scene.material_spec(scene.materials.index("large"))
+    small = scene.material_spec(scene.materials.index("small"))
+    assert large.type == small.type == "principled"
+    assert scene.params["large.base_color"].tolist() == pytest.approx([0.8, 0.4, 0.2])
+    assert scene.params["large.spec_tint"].tolist() == pytest.approx([0.4] * 3)  # a colour weight: its channel mean, Mitsuba's eval_1
+    assert scene.params["large.metallic"].tolist() == pytest.approx([0.3] * 3) and scene.params["large.clearcoat"].tolist() == pytest.approx([0.5] * 3)
+    assert large.constants["eta"] == pytest.approx(1.5) and large.constants["two_sided"] == 0.0
+    assert small.constants["eta"] == pytest.approx(2.0 / (1.0 - math.sqrt(0.08 * 0.3)) - 1.0) and small.constants["two_sided"] == 1.0
+    img = ir.render(scene, spp=2, max_depth=3, seed=1, progress=False)
+    assert bool(torch.isfinite(img).all()) and float(img.mean()) > 0.01
+
+
+@pytest.mark.parametrize(
+    "bsdf, words",
+    [
+        ('<bsdf type="principled"><float name="eta" value="1.4"/><float name="specular" value="0.5"/></bsdf>', "give either 'eta' or 'specular', not both"),
+        ('<bsdf type="principled"><float name="subsurface" value="0.5"/></bsdf>', "subsurface"),
+        ('<bsdf type="principled"><float name="metallic" value="1.5"/></bsdf>', "'metallic'"),
+        ('<bsdf type="principled"><float name="specular" value="-0.1"/></bsdf>', "'specular'"),
+        ('<bsdf type="twosided"><bsdf type="principled"><float name="spec_trans" value="0.5"/></bsdf></bsdf>', "twosided cannot wrap a principled BSDF with spec_trans > 0"),
+        ('<bsdf type="twosided"><bsdf type="principledthin"/></bsdf>', "twosided cannot wrap a principledthin BSDF"),
+        ('<bsdf type="principledthin"><float name="diff_trans" value="2.5"/></bsdf>', "'diff_trans'"),
+        ('<bsdf type="principledthin"><float name="metallic" value="0.5"/></bsdf>', "metallic"),
+    ],
+)
+def test_bad_input_is_a_one_line_error(tmp_path, bsdf, words):
+    with pytest.raises(SceneError) as info:
+        ir.load_scene(box_xml(tmp_path, bsdf, '<ref id="white"/>'), resolution=(8, 8))
+    message = str(info.value)
+    assert words in message and "box.xml:" in message and "\n" not in message, message
+
+
+def test_gradients_match_finite_differences(tmp_path):
+    """The boxes' base colours and the large one's metallic: both estimators within 2% of central
+    differences, replay = autodiff."""
+    scene = ir.load_scene(box_xml(tmp_path, LARGE, SMALL), resolution=(10, 10))
+    params = ["large.base_color", "large.metallic", "small.base_color"]
+    rows = ir.gradcheck(scene, params, spp=8, max_depth=3, seed=3)
+    assert {r.name for r in rows} == set(params)
+    for r in rows:
+        for estimator, err in r.rel_errors.items():
+            assert err < 0.02, (r.name, r.index, estimator, r.fd, r.gradients)
+        a, b = r.gradients["autodiff"], r.gradients["replay"]
+        assert abs(a - b) <= 1e-5 * max(abs(a), 1e-3), (r.name, r.index, a, b)
+
+
+def test_path_records_refuse_principled(tmp_path):
+    from invrender.errors import ParameterError
+
+    scene = ir.load_scene(box_xml(tmp_path, LARGE, SMALL), resolution=(8, 8))
+    with pytest.raises(ParameterError, match="not a polynomial factor"):
+        ir.record_paths(scene, ["large.base_color"], spp=1, max_depth=2, progress=False)
+
+
+def test_to_mitsuba_round_trip():
+    values = {k: torch.full((3,), 0.25) for k in Principled.params}
+    out = Principled.to_mitsuba(values, {"eta": 1.4, "main_specular_sampling_rate": 1.0, "clearcoat_sampling_rate": 1.0, "diffuse_reflectance_sampling_rate": 1.0, "two_sided": 1.0})
+    assert out["type"] == "twosided" and out["bsdf"]["type"] == "principled" and out["bsdf"]["metallic"] == 0.25 and out["bsdf"]["eta"] == 1.4
