@@ -417,6 +417,18 @@ class Principled(PrincipledBase):
         bsdf.finish(("base_color", "roughness", *WEIGHTS, "eta", "specular", "main_specular_sampling_rate", "clearcoat_sampling_rate", "diffuse_reflectance_sampling_rate"))
         return entries
 
+    gltf_priority = 25  # after the mirrors (a polished partial metal stays a mirror), before the glossy metals
+
+    @classmethod
+    def from_gltf(cls, material) -> dict | None:
+        """An opaque glTF material with a metallic factor strictly between 0 and 1: base_color =
+        its base colour (a texture too), metallic, roughness = sqrt(alpha) (glTF's perceptual
+        roughness; at least 1e-4), eta = its ``ior`` (1.5 by default: F0 = 0.04, glTF's), two-sided
+        as invrender's other glTF materials."""
+        if not 0.0 < material.metallic < 1.0 or material.transmission > 0:
+            return None
+        return {"base_color": material.base_colour, "metallic": material.metallic, "roughness": max(math.sqrt(material.alpha), 1e-4), "eta": material.ior, "two_sided": True}
+
     @classmethod
     def from_mitsuba_twosided(cls, entries: dict, error) -> dict:
         """Mitsuba's ``twosided`` around it: the back shaded as the front; refused where it
