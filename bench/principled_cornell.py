@@ -77,7 +77,7 @@ def main() -> int:
     code = 0
     for name, (title, bsdfs) in SCENES.items():
         if args.scene in (name, "both"):
-            code = max(code, compare(args, f"principled_{name}", f"Principled materials ({name}) vs Mitsuba 3", title, box_with(bsdfs)))
+            code = max(code, compare(args, f"principled_{name}", f"Principled materials ({name}) vs Mitsuba 3", title, box_with(bsdfs), converted=True))
     return code
 
 
