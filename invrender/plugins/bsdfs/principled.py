@@ -1,6 +1,6 @@
 """The principled BSDF: Mitsuba 3's ``principled`` (Burley, "Physically-Based Shading at Disney",
 SIGGRAPH 2012 course; "Extending the Disney BRDF to a BSDF with Integrated Subsurface Scattering",
-2015), matched to Mitsuba's ``eval`` and ``pdf`` term by term (``docs/materials.md#principled``).
+2015), matched to Mitsuba's ``eval`` and ``pdf`` term by term (``docs/rendering.md#principled-materials``).
 
 Every quantity below is in the shading frame of the surface's *front* side (Mitsuba's: normal
 along the triangle's front; ``a`` = the direction towards the camera, ``b`` = towards the light,

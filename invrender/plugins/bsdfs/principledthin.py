@@ -1,6 +1,6 @@
 """The thin principled BSDF: Mitsuba 3's ``principledthin``, Burley 2015's thin-surface variant of
 the principled BSDF (a sheet with no inside: leaves, paper, fabric), matched to Mitsuba's ``eval``
-and ``pdf`` term by term (``docs/materials.md#principled``).
+and ``pdf`` term by term (``docs/rendering.md#principled-materials``).
 
 The sheet is symmetric: both directions are first mirrored to the side of ``a`` (the direction
 towards the camera, ``c_a > 0``; ``b`` towards the light). ``h = normalize(a + b_r)`` with ``b_r``

@@ -20,7 +20,8 @@ BSDFs (``<bsdf type=...>``)
 
     ``twosided`` wrapping one BSDF (or two references to the same one) is accepted, the material
     is the nested one; like Mitsuba, it cannot wrap a BSDF that transmits (a dielectric) or
-    another ``twosided``.
+    another ``twosided``. A material whose transmission depends on its values (``principled``:
+    ``spec_trans``) says itself in its ``from_mitsuba_twosided``, which also marks it two-sided.
 
 Deviations from Mitsuba
     - invrender's diffuse, mirror, glossy and plastic materials are two-sided: one-sided Mitsuba
