@@ -57,8 +57,8 @@ def invrender_bsdf(plugin: str, props: dict, twosided: bool):
     entries = {k: v for k, v in props.items() if k != "specular"}
     if plugin == "principled" and "eta" not in props:
         entries["eta"] = 2.0 / (1.0 - math.sqrt(0.08 * props.get("specular", 0.5))) - 1.0
-    if twosided:
-        entries["two_sided"] = True
+    if plugin == "principled":
+        entries["two_sided"] = twosided  # Mitsuba's principled is one-sided unless wrapped
     return checks.instance(cls, **entries)
 
 

@@ -84,8 +84,8 @@ def material(setting: str):
     entries = {k: v for k, v in props.items() if k != "specular"}
     if plugin == "principled" and "eta" not in props:
         entries["eta"] = 2.0 / (1.0 - math.sqrt(0.08 * props.get("specular", 0.5))) - 1.0
-    if twosided:
-        entries["two_sided"] = True
+    if plugin == "principled":
+        entries["two_sided"] = twosided  # Mitsuba's principled is one-sided unless wrapped
     return checks.instance(Principled if plugin == "principled" else PrincipledThin, **entries)
 
 
@@ -255,3 +255,22 @@ def test_to_mitsuba_round_trip():
     values = {k: torch.full((3,), 0.25) for k in Principled.params}
     out = Principled.to_mitsuba(values, {"eta": 1.4, "main_specular_sampling_rate": 1.0, "clearcoat_sampling_rate": 1.0, "diffuse_reflectance_sampling_rate": 1.0, "two_sided": 1.0})
     assert out["type"] == "twosided" and out["bsdf"]["type"] == "principled" and out["bsdf"]["metallic"] == 0.25 and out["bsdf"]["eta"] == 1.4
+
+
+def test_toml_principled_with_textures(tmp_path):
+    """TOML: two-sided by default; base_color and a weight may be textures (a weight's map is grey);
+    the back of a two-sided material shades as its front."""
+    path = tmp_path / "s.toml"
+    path.write_text(
+        '[camera]\norigin = [0, 0, 3]\n[materials.m]\ntype = "principled"\nmetallic = { checkerboard = { color0 = 0.9, color1 = 0.1, resolution = 8 } }\n'
+        'base_color = { checkerboard = { color0 = [0.9, 0.2, 0.1], color1 = 0.3, resolution = 8 } }\nclearcoat = 0.4\n'
+        '[emitters.light]\nemission = 1\n[[shapes]]\ntype = "rectangle"\nmaterial = "m"\n[[shapes]]\ntype = "sphere"\nmaterial = "m"\nemitter = "light"\n'
+    )
+    scene = ir.load_scene(path, resolution=(8, 8))
+    spec = scene.material_spec(scene.materials.index("m"))
+    assert spec.type == "principled" and spec.constants["two_sided"] == 1.0 and spec.constants["eta"] == 1.5
+    metallic, base = scene.params["m.metallic"], scene.params["m.base_color"]
+    assert metallic.ndim == 3 and bool((metallic == metallic[..., :1]).all()) and {round(float(x), 4) for x in metallic.unique()} == {0.1, 0.9}
+    assert base.ndim == 3 and scene.params["m.clearcoat"].tolist() == pytest.approx([0.4] * 3)
+    img = ir.render(scene, spp=2, max_depth=3, seed=1, progress=False)
+    assert bool(torch.isfinite(img).all()) and float(img.mean()) > 0

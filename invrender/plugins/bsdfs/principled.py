@@ -37,10 +37,12 @@ Mitsuba; renders match Mitsuba's). Sampling reads the parameters detached
 (:meth:`~invrender.core.bsdf.BSDF.sampling_param`), ``eval`` attached: the weight ``f cos / pdf`` carries
 every gradient.
 
-Back side: as Mitsuba's, an opaque principled material is black from behind, and one with
-spec_trans > 0 reflects and refracts there as a dielectric; ``two_sided = true`` (Mitsuba's
+Back side: ``two_sided = true`` (the default, as invrender's other materials; Mitsuba's
 ``twosided`` wrapper, which the Blender exporter writes around every opaque principled material)
-shades the back as the front.
+shades the back of an opaque material as its front; with ``two_sided = false`` (Mitsuba's
+``principled`` unwrapped: the Mitsuba reader sets it) an opaque material is black from behind. A
+material that transmits (spec_trans > 0 somewhere) reflects and refracts from behind as a
+dielectric, whatever ``two_sided`` says.
 """
 
 from __future__ import annotations
@@ -196,10 +198,20 @@ class PrincipledBase(BSDF):
 
     def sided(self, sp: ShadingPoint) -> torch.Tensor:
         """(N, 3) the factor taking invrender's local frame (normal turned to ``wo``) to the front
-        side's (Mitsuba's: normal along the triangle's front): z negated behind, unless two-sided."""
-        flip = ~sp.front & ~(self.constant("two_sided", sp) > 0.5)
+        side's (Mitsuba's: normal along the triangle's front): z negated behind, unless the
+        material is two-sided and opaque."""
+        flip = ~sp.front & ~((self.constant("two_sided", sp) > 0.5) & ~self._transmits(sp))
         z = torch.where(flip, -1.0, 1.0)
         return torch.stack([torch.ones_like(z), torch.ones_like(z), z], dim=1)
+
+    def _transmits(self, sp: ShadingPoint) -> torch.Tensor:
+        """(N,) bool: has the point's material a transmission lobe (spec_trans not 0 everywhere in
+        the values sampling reads; Mitsuba's ``m_has_spec_trans``)?"""
+        token = ("has_spec_trans", sp.wo.device)
+        if token not in self._constant_tables:
+            flags = [bool((v["spec_trans"] != 0).any()) for v in self.sampling_values]
+            self._constant_tables[token] = torch.tensor(flags, dtype=torch.bool, device=sp.wo.device)
+        return self._constant_tables[token].index_select(0, sp.material)
 
     def diffuse_reflectance(self, sp: ShadingPoint) -> torch.Tensor:
         return self.param("base_color", sp)
@@ -231,18 +243,9 @@ class Principled(PrincipledBase):
         "main_specular_sampling_rate": Constant(1.0, 0.0, math.inf, False, True),
         "clearcoat_sampling_rate": Constant(1.0, 0.0, math.inf, False, True),
         "diffuse_reflectance_sampling_rate": Constant(1.0, 0.0, math.inf, False, True),
-        "two_sided": Constant(False, 0.0, 1.0, False, False, boolean=True),
+        "two_sided": Constant(True, 0.0, 1.0, False, False, boolean=True),
     }
     doc = "Disney's principled BSDF (Mitsuba's principled): diffuse with retro-reflection, sheen, GGX specular with metallic and tint, GTR1 clearcoat, rough transmission"
-
-    def _transmits(self, sp: ShadingPoint) -> torch.Tensor:
-        """(N,) bool: has the point's material a transmission lobe (spec_trans not 0 everywhere in
-        the values sampling reads; Mitsuba's ``m_has_spec_trans``)?"""
-        token = ("has_spec_trans", sp.wo.device)
-        if token not in self._constant_tables:
-            flags = [bool((v["spec_trans"] != 0).any()) for v in self.sampling_values]
-            self._constant_tables[token] = torch.tensor(flags, dtype=torch.bool, device=sp.wo.device)
-        return self._constant_tables[token].index_select(0, sp.material)
 
     def _half(self, sp: ShadingPoint, a: torch.Tensor, b: torch.Tensor):
         """The geometry of a direction pair in the front-side frame: ``(c_a, c_b, front, reflect,
@@ -412,6 +415,7 @@ class Principled(PrincipledBase):
             specular = 1e-3 if transmits and specular == 0.0 else specular
             eta = 2.0 / (1.0 - math.sqrt(0.08 * specular)) - 1.0
         entries["eta"] = eta
+        entries["two_sided"] = False  # Mitsuba's principled is one-sided unless wrapped in twosided
         for key in ("main_specular_sampling_rate", "clearcoat_sampling_rate", "diffuse_reflectance_sampling_rate"):
             entries[key] = bsdf.number(key, cls.constants[key], "a lobe's sampling rate")
         bsdf.finish(("base_color", "roughness", *WEIGHTS, "eta", "specular", "main_specular_sampling_rate", "clearcoat_sampling_rate", "diffuse_reflectance_sampling_rate"))
