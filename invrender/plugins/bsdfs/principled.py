@@ -173,15 +173,6 @@ def gtr1_sample(alpha: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
     return torch.stack([torch.cos(phi) * sin_t, torch.sin(phi) * sin_t, cos_t], dim=1)
 
 
-def ggx1_G1(v: torch.Tensor, h: torch.Tensor, alpha: float) -> torch.Tensor:
-    """(N,) isotropic GGX masking of alpha ``alpha`` at ``|v_z|`` (the clearcoat's), 1 at normal
-    incidence, 0 where ``v`` sees the microfacet's back."""
-    c2 = v[:, 2].square()
-    g = 2.0 / (1.0 + (1.0 + alpha * alpha * (1.0 - c2) / c2.clamp_min(1e-30)).sqrt())
-    g = torch.where(v[:, 2] == 1.0, 1.0, g)
-    return torch.where(dot(v, h) * v[:, 2] <= 0, 0.0, g)
-
-
 def safe(x: torch.Tensor) -> torch.Tensor:
     """``x`` with zeros replaced by 1 (a denominator whose zero lanes are masked out later, so that
     neither the value nor the gradient of the masked lanes is NaN)."""
@@ -290,7 +281,8 @@ class Principled(PrincipledBase):
         cc = w["clearcoat"]
         on = active & (cc > 0) & reflect & compat_r & front
         alpha_cc = 0.1 + (0.001 - 0.1) * w["clearcoat_gloss"]
-        G_cc = ggx1_G1(a, h, 0.25) * ggx1_G1(b, h, 0.25)
+        quarter = torch.full_like(c_a, 0.25)  # the clearcoat's masking: GGX of alpha 0.25
+        G_cc = ggx_G1_aniso(a, h, quarter, quarter) * ggx_G1_aniso(b, h, quarter, quarter)
         value = value + torch.where(on, 0.25 * cc * schlick(torch.full_like(d_a, 0.04), d_a, eta) * gtr1_D(h[:, 2], alpha_cc) * G_cc * c_b.abs(), 0.0)[:, None]
         # diffuse with retro-reflection (and the fake subsurface by flatness)
         on = active & (brdf > 0) & reflect & front
