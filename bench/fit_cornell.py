@@ -127,7 +127,15 @@ def mitsuba_keys(params) -> dict[str, list[str]]:
     return {n: keys[n] for n in PARAMS}
 
 
-def fit_mitsuba(scene, target: torch.Tensor, truth: dict, steps: int, spp: int, lr: float, lr_final: float,
+def fit_mitsuba(*args, **kwargs) -> dict:
+    """:func:`_fit_mitsuba` with Dr.Jit's whole thread pool (``mitsuba_ref.whole_pool``)."""
+    import mitsuba_ref
+
+    with mitsuba_ref.whole_pool():
+        return _fit_mitsuba(*args, **kwargs)
+
+
+def _fit_mitsuba(scene, target: torch.Tensor, truth: dict, steps: int, spp: int, lr: float, lr_final: float,
                 max_depth: int, check_spp: int) -> dict:  # fmt: skip
     """Fit the four parameters with Mitsuba's ``prb`` and ``mi.ad.Adam``; the history has the
     invrender format (``step``, ``loss``, ``spp``, ``seconds``, ``params``, ``errors``) plus

@@ -126,10 +126,11 @@ def throughput(args, results: Results) -> None:
 
 def breakdown(args, results: Results) -> None:
     """Where a render's time goes: the Cornell box rendered by one worker thread with Embree on one
-    thread, the time inside the ray queries and inside the Warp kernels' launches measured, the
+    thread, the time inside the ray queries and inside the kernels' launches (Warp's, and the
+    compiled bounce's: :func:`invrender.core.compiled.run`) measured, the
     rest being torch's operations and Python; with the fused bounce and without it."""
     from invrender.backends import accel, kernels
-    from invrender.core import context
+    from invrender.core import compiled, context
 
     torch.set_num_threads(1)  # one worker
     spent = {"rays": 0.0, "kernels": 0.0}
@@ -147,13 +148,14 @@ def breakdown(args, results: Results) -> None:
     for kind in ("intersect", "occluded"):
         setattr(accel.EmbreeIntersector, kind, timed("rays", getattr(accel.EmbreeIntersector, kind)))
     kernels.launch = timed("kernels", kernels.launch)
+    compiled.run = timed("kernels", compiled.run)  # the bounce written once (Dr.Jit, or eager torch)
     build = context.TransportContext.build
     context.TransportContext.build = staticmethod(lambda scene, device, backend=None, threads=None, *a, **k: build(scene, device, backend, 1, *a, **k))
     n, spp = args.resolution, args.spp
     scene = ir.load_scene("cornell_box", resolution=(n, n))
     heading = f"cornell_box {n}x{n}, {spp} spp, max_depth {args.max_depth}: one worker thread, Embree on one thread, medians of {args.repeats}"
     print(heading)
-    rows = results.table(heading, ["bounce", "total s", "ray queries s", "Warp kernels s", "torch and Python s", "share left to torch and Python"])
+    rows = results.table(heading, ["bounce", "total s", "ray queries s", "kernels s (Warp, Dr.Jit)", "torch and Python s", "share left to torch and Python"])
     for choice, label in (("warp", "fused"), ("steps", "unfused (kernels of single steps)")):
         os.environ[KERNELS_ENV] = choice
         ir.render(scene, spp=4, max_depth=args.max_depth, progress=False)
@@ -165,7 +167,7 @@ def breakdown(args, results: Results) -> None:
             figures.append((time.perf_counter() - start, spent["rays"], spent["kernels"]))
         total, rays, warp = (statistics.median(f[j] for f in figures) for j in range(3))
         rest = total - rays - warp
-        print(f"  {label:36s} {total:6.3f} s: ray queries {rays:.3f} s ({rays / total:.0%}), Warp kernels {warp:.3f} s ({warp / total:.0%}), torch and Python {rest:.3f} s ({rest / total:.0%})")
+        print(f"  {label:36s} {total:6.3f} s: ray queries {rays:.3f} s ({rays / total:.0%}), kernels {warp:.3f} s ({warp / total:.0%}), torch and Python {rest:.3f} s ({rest / total:.0%})")
         rows.append([label, round(total, 3), round(rays, 3), round(warp, 3), round(rest, 3), f"{rest / total:.0%}"])
     os.environ[KERNELS_ENV] = "warp"
 

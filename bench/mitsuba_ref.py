@@ -58,6 +58,8 @@ Dr.Jit evaluates lazily and asynchronously, so every render and every timing end
 
 from __future__ import annotations
 
+import contextlib
+
 import glob
 import json
 import os
@@ -367,12 +369,27 @@ def load_scene(scene, spp: int, max_depth: int, filter: str = "box", integrator:
     return mi.load_dict(scene_dict(scene, spp, max_depth, filter, integrator))
 
 
+@contextlib.contextmanager
+def whole_pool():
+    """Within the block, Dr.Jit's thread pool has one thread per core: invrender's compiled bounce
+    sets it to none (its kernels run in its render workers' threads), which would leave Mitsuba,
+    in the same process, one thread."""
+    _, dr = _require()
+    before = dr.thread_count()
+    dr.set_thread_count(len(os.sched_getaffinity(0)))
+    try:
+        yield
+    finally:
+        dr.set_thread_count(before)
+
+
 def _render_synced(scene, spp: int, seed: int):
-    """``mi.render`` of a loaded scene (a Dr.Jit tensor), evaluated and finished."""
+    """``mi.render`` of a loaded scene (a Dr.Jit tensor), evaluated and finished (:func:`whole_pool`)."""
     mi, dr = _require()
-    img = mi.render(scene, spp=spp, seed=seed)
-    dr.eval(img)
-    dr.sync_thread()
+    with whole_pool():
+        img = mi.render(scene, spp=spp, seed=seed)
+        dr.eval(img)
+        dr.sync_thread()
     return img
 
 
@@ -445,12 +462,13 @@ def gradient_in_process(width, height, spp, max_depth, integrator, params, repea
         for k in keys:
             dr.clear_grad(p[k])
         start = time.perf_counter()
-        img = mi.render(scene, p, spp=spp, seed=s)
-        loss = dr.mean(dr.square(img - target), axis=None)
-        dr.backward(loss)
-        grads = [dr.grad(p[k]) for k in keys]
-        dr.eval(loss, *grads)
-        dr.sync_thread()
+        with whole_pool():
+            img = mi.render(scene, p, spp=spp, seed=s)
+            loss = dr.mean(dr.square(img - target), axis=None)
+            dr.backward(loss)
+            grads = [dr.grad(p[k]) for k in keys]
+            dr.eval(loss, *grads)
+            dr.sync_thread()
         seconds = time.perf_counter() - start
         return seconds, float(loss.array[0] if hasattr(loss, "array") else loss[0]), grads
 

@@ -1,7 +1,7 @@
-"""invrender without its optional accelerators: warp-lang, embreex and pyrender blocked, and no C++
-compiler for Embree's packets.
+"""invrender without its optional accelerators: warp-lang, drjit, embreex and pyrender blocked, and no
+C++ compiler for Embree's packets.
 
-A child process makes every import of ``warp``, ``embreex`` and ``pyrender`` fail (``sys.modules[name]
+A child process makes every import of ``warp``, ``drjit``, ``embreex`` and ``pyrender`` fail (``sys.modules[name]
 = None`` before ``import invrender``, as on a machine where they are not installed) and then renders
 with the torch backend, differentiates, runs an ``lm`` fit and asks for each missing package's path.
 The image must equal, to float rounding, the one this process renders with the same seed and backend
@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 CHILD = r"""
 import json, sys
-for name in ("warp", "embreex", "pyrender"):
+for name in ("warp", "embreex", "pyrender", "drjit"):
     sys.modules[name] = None
 import torch
 import invrender as ir
@@ -66,7 +66,7 @@ except BaselineError as e:
 out["errors"] = errors
 from invrender.cli import main
 out["cli_rc"] = main(["render", "cornell_box", "--backend", "warp", "--resolution", "4x4", "--spp", "1", "--out", sys.argv[1]])
-out["blocked"] = {name: sys.modules.get(name, 0) is None for name in ("warp", "embreex", "pyrender")}
+out["blocked"] = {name: sys.modules.get(name, 0) is None for name in ("warp", "embreex", "pyrender", "drjit")}
 print("RESULT " + json.dumps(out))
 """
 
@@ -80,7 +80,7 @@ def test_invrender_works_without_warp_embree_and_pyrender(tmp_path):
     assert run.returncode == 0, run.stderr[-3000:]
     out = json.loads(next(line for line in run.stdout.splitlines() if line.startswith("RESULT "))[7:])
     assert Path(out["file"]).resolve().is_relative_to(ROOT)
-    assert out["blocked"] == {"warp": True, "embreex": True, "pyrender": True}
+    assert out["blocked"] == {"warp": True, "embreex": True, "pyrender": True, "drjit": True}
 
     # the fallbacks are said once each, on one line
     notes = [line for line in run.stderr.splitlines() if line.startswith("invrender: note: ")]

@@ -241,46 +241,6 @@ def offset_origins(p: torch.Tensor, n: torch.Tensor, wi: torch.Tensor, offset: f
     return o
 
 
-def lambert_vertex(tables: list, hits: tuple, d, beta, pdf_dir, keys, salts, flags: tuple, offset: float, tangents: bool = False) -> tuple:
-    """One primal bounce of N paths on Lambertian surfaces lit by emissive triangles (the kernel
-    of :mod:`invrender.core.fused`, which documents it).
-
-    Args:
-        tables: the scene's tables, in order: packed (T * 18,) flat, material (T,), emitter (T,), emitting
-            (T,) bool, rho (M, 3), eps (E, 3), light triangles (L,), their cdf (L,), pdf_area (T,).
-        hits: (prim, u, v, t) (N,) each: the paths' closest hits, all valid.
-        d, beta: (N, 3) the rays' directions and the paths' throughputs; pdf_dir (N,) the pdf ``d``
-            was sampled with; keys (N,) int32; salts (7,) int32 of the bounce's numbers.
-        flags: (depth, mis, nee_only, nee, more, roulette) ints.
-        offset: the ray offset off surfaces.
-    Returns:
-        emitted (N, 3) (term depth), shadow rays o (N, 3), d (N, 3), tmax (N,) and the direct light
-        (N, 3) each adds if unoccluded (term depth + 1; tmax 0, a ray no backend traces, where the
-        light sample adds nothing whatever the parameters: facing away or below the surface), then the continued paths' o, d, beta (N, 3),
-        pdf (N,) and alive (N,) bool. With ``more`` 0 only ``emitted`` is written. With
-        ``tangents``, then also what :func:`tangents_add` reads: the factors beside eps of the
-        emission (N, 3) and of the direct light (N, 3), the emitters hit (N,) int32 (-1: none) and
-        sampled (N,), and the materials hit (N,).
-    """
-    n, dev = d.shape[0], d.device
-    vec = [torch.empty(n, 3, device=dev) for _ in range(7)]
-    shadow_t, pdf = torch.empty(n, device=dev), torch.empty(n, device=dev)
-    alive = torch.empty(n, dtype=torch.bool, device=dev)
-    emitted, shadow_o, shadow_d, direct, o_next, d_next, beta_next = vec
-    rho, eps = tables[4], tables[5]
-    count = n if tangents else 1
-    factors = [torch.zeros(count, 3, device=dev) for _ in range(2)]
-    indices = [torch.empty(count, dtype=torch.int32, device=dev) for _ in range(3)]
-    inputs = [
-        *tables[:4], Vec3(rho), Vec3(eps), *tables[6:], *hits, Vec3(d), Vec3(beta), pdf_dir, keys, salts, *flags, float(offset),
-        Vec3(emitted), Vec3(shadow_o), Vec3(shadow_d), shadow_t, Vec3(direct), Vec3(o_next), Vec3(d_next), Vec3(beta_next), pdf, alive,
-        int(tangents), Vec3(factors[0]), indices[0], Vec3(factors[1]), indices[1], indices[2],
-    ]  # fmt: skip
-    launch(warp_kernels().lambert_vertex_kernel, n, inputs, dev)
-    out = (emitted, shadow_o, shadow_d, shadow_t, direct, o_next, d_next, beta_next, pdf, alive)
-    return out + (factors[0], indices[0], factors[1], indices[1], indices[2]) if tangents else out
-
-
 def tangents_add(pixel, counts, rho, emitted, tangents: tuple, direct, occluded, scatter: bool, jacobian: torch.Tensor | None = None, places: torch.Tensor | None = None):
     """One bounce's contributions in the scene's constant parameters (the kernel's docstring):
     their derivatives added to ``jacobian`` (P, 3, S) float64 (pixel, channel, slot: the M
@@ -290,7 +250,7 @@ def tangents_add(pixel, counts, rho, emitted, tangents: tuple, direct, occluded,
 
     Args:
         pixel: (N,) int64 film index; rho (M, 3); emitted, direct (N, 3) the bounce's contributions
-            (``direct`` before occlusion); tangents: the extra outputs of :func:`lambert_vertex`;
+            (``direct`` before occlusion); tangents: the extra outputs of ``invrender.core.fused.vertex``;
         occluded: (N,) bool the shadow rays' answers (None: no emitter samples).
     Returns:
         (codes of the emission (N,), of the direct light (N,)) int64 with ``places`` (-1: no

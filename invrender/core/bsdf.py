@@ -34,6 +34,7 @@ import enum
 import functools
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
+from collections.abc import Callable
 from typing import ClassVar
 
 import torch
@@ -240,6 +241,10 @@ class BSDF(Declared, ABC):
         probability (Whitted's split: a dielectric's reflection F and refraction 1 - F); none for
         materials without delta lobes."""
         return []
+
+    #: the direction sampling of the lobe :meth:`fused_albedo` describes, written against the array
+    #: interface (:mod:`invrender.core.lanes`): ``(xp, n, u0, u1) -> (wi, pdf)`` (3-tuples of lanes)
+    sample_lanes: ClassVar[Callable | None] = None
 
     def fused_albedo(self) -> torch.Tensor | None:
         """(M, 3) the reflectance of each of this type's materials when every one is Lambertian

@@ -1,24 +1,29 @@
-"""The primal bounce of the random walk and the path tracer as one fused kernel, where it applies.
+"""The primal bounce of the random walk and the path tracer as one compiled kernel, where it applies.
 
 Outside its ray queries, a bounce in eager torch is a few hundred small operations, each a pass
 over megabytes of (N,) and (N, 3) tensors. When nothing needs those operations' autograd graph
 or hooks, a bounce of a Lambertian scene lit by emissive triangles is instead:
 
 1. the closest-hit query, and the compaction to the rays that hit;
-2. one kernel (:func:`~invrender.backends.kernels.lambert_vertex`): the hit's geometry, the
-   emission seen there with its MIS weight (term k), one emitter sample, its shadow ray and the
-   direct light it carries if unoccluded (term k + 1), the cosine-weighted BSDF sample, the new ray,
-   the throughput and Russian roulette;
+2. one kernel (:func:`vertex`: :func:`invrender.core.lanes.lambert_vertex`, written once against
+   the array interface and compiled by Dr.Jit, or run as eager torch where Dr.Jit is missing:
+   :mod:`invrender.core.compiled`): the hit's geometry, the emission seen there with its MIS
+   weight (term k), one emitter sample, its shadow ray and the direct light it carries if
+   unoccluded (term k + 1), the material's direction sample, the new ray, the throughput and
+   Russian roulette; the material's and the emitter's sampling are the plugins' own lane functions
+   (``Diffuse.sample_lanes``, ``Area``'s ``TriangleTables.sample``);
 3. the shadow-ray query, the two film additions, and the compaction to the surviving paths.
 
 The kernel draws the same counter-based numbers (the same salts, the same dimensions) and follows
 the same expressions as the torch bounce of :class:`~invrender.plugins.integrators.random_walk.RandomWalk`
-and :func:`~invrender.plugins.integrators.vertex.add_direct`, which stay the reference: the two
-give the same image within float rounding (``tests/transport/test_fused.py``; a roulette decision
-that float rounding flips changes one path), and cast the same shadow rays in the same order, so
-path replay's adjoint pass (differentiable torch) takes its primal pass's answers unchanged.
+and :func:`~invrender.plugins.integrators.vertex.add_direct`, which stay the differentiable
+reference: the two give the same image within float rounding (``tests/transport/test_fused.py``; a
+roulette decision that float rounding flips changes one path), and cast the same shadow rays in the
+same order, so path replay's adjoint pass (differentiable torch) takes its primal pass's answers
+unchanged. Its compiled and eager evaluations agree lane by lane (``tests/transport/test_lanes.py``).
 
-It applies (:func:`tables`) where the Warp kernels run (:func:`~invrender.backends.kernels.enabled`),
+It applies (:func:`tables`) where the Warp kernels run (:func:`~invrender.backends.kernels.enabled`:
+the derivative kernel below is still Warp's),
 the integrator's vertex step is the random walk's or the path tracer's own (``fused_direct``) with
 cosine-weighted diffuse sampling, every material belongs to one type that gives an albedo table
 (:meth:`BSDF.fused_albedo <invrender.core.bsdf.BSDF.fused_albedo>`: ``diffuse`` with RGB
@@ -28,12 +33,13 @@ triangle tables (:meth:`Light.fused_triangles <invrender.core.lights.Light.fused
 ambient term, and no parameter carries a gradient or a forward-mode tangent; and, per chunk, where
 the film has no hooks (:func:`takes`: path records' and replay's adjoint films do). Everywhere else
 the torch bounce runs. ``INVRENDER_KERNELS=steps`` switches it off (the kernels of single steps
-stay), ``INVRENDER_KERNELS=torch`` with the other kernels.
+stay), ``INVRENDER_KERNELS=torch`` with the other kernels; ``INVRENDER_BOUNCE=torch`` runs the
+kernel as eager torch.
 
 **Derivatives carried forward.** Every factor of such a path is linear in one of the scene's
 constant parameters (a material's rho, an emitter's eps), so each path counts its throughput's
 factors of each rho as it scatters (``counts``), and one more kernel per bounce
-(:func:`~invrender.backends.kernels.tangents_add`) turns a contribution C into what two callers
+(:func:`~invrender.backends.kernels.tangents_add`, Warp) turns a contribution C into what two callers
 need: its derivatives, ``n C / rho_m`` and the factor beside eps, summed per pixel into a
 :class:`TangentFilm` (path replay's gradient is then one contraction with ``dl/dI``, no adjoint
 trace: :mod:`invrender.estimators.replay`), or its monomial's code ``sum_s k_s R_s`` for a film that
@@ -43,6 +49,7 @@ takes contributions by code (path records: :func:`places`), instead of forward-m
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -53,7 +60,9 @@ from invrender.backends import kernels
 from invrender.core.context import PathState, TransportContext
 from invrender.core.film import Film
 from invrender.core.ranks import sum_across_ranks, world
-from invrender.core.sampler import bounce_salts
+from invrender.core import compiled, lanes
+from invrender.core.compiled import Opaque
+from invrender.core.sampler import bounce_salt_values
 
 #: paths a chunk traced by the fused bounce holds at most on the CPU: its per-chunk cost (a few
 #: dozen launches and queries a bounce) is paid back well below this, and smaller chunks keep the
@@ -73,16 +82,25 @@ class FusedScene:
     """What the fused bounce reads of one render's scene.
 
     Attributes:
-        tables: the kernel's scene tables (:func:`~invrender.backends.kernels.lambert_vertex`).
+        tables: the scene's tables, in order: packed (T * 18,) flat, material (T,), emitter (T,),
+            emitting (T,) bool, rho (M, 3), eps (E, 3), light triangles (L,), their cdf (L,),
+            pdf_area (T,).
         mis: emission hit by BSDF samples is weighted against emitter samples (power heuristic).
         nee_only: emitter samples alone estimate direct light (emission counts on camera rays only).
         nee: emitter samples are taken (next-event estimation).
+        sample_direction, sample_light: the material's and the emitter's lane samplers
+            (:func:`invrender.core.lanes.lambert_vertex`).
+        lanes: the same tables as the lane functions read them: triangles (T * 16,), lights
+            (L * 2,), rho (M * 4,), eps (E * 4,) (:mod:`invrender.core.lanes`).
     """
 
     tables: list
     mis: bool
     nee_only: bool
     nee: bool
+    sample_direction: Callable
+    sample_light: Callable
+    lanes: tuple
 
 
 def tables(ctx: TransportContext, direct, hemisphere: str) -> FusedScene | None:
@@ -99,7 +117,15 @@ def tables(ctx: TransportContext, direct, hemisphere: str) -> FusedScene | None:
         return None
     t = ctx.triangles
     packed = [t.packed.reshape(-1), t.material, t.emitter, lights.emitting, rho.detach().float(), lights.eps.detach().float(), lights.tri, lights.cdf, lights.pdf_area]
-    return FusedScene(packed, mis=direct == "mis", nee_only=direct == "emitter", nee=direct in ("mis", "emitter"))
+    sampler = ctx.materials.fused_sampler()
+    if sampler is None:
+        return None
+    rows = (
+        lanes.triangle_rows(t.packed, t.material, t.emitter, lights.emitting, lights.pdf_area),
+        lanes.light_rows(lights.cdf, lights.tri),
+        *(torch.nn.functional.pad(x.detach().float(), (0, 1)).reshape(-1) for x in (rho, lights.eps)),
+    )
+    return FusedScene(packed, direct == "mis", direct == "emitter", direct in ("mis", "emitter"), sampler, lights.sample, rows)
 
 
 def _carries_derivative(x: torch.Tensor) -> bool:
@@ -169,6 +195,35 @@ def slot_index(scene, fused: FusedScene) -> dict[str, int]:
     return index
 
 
+def vertex(fused: FusedScene, hits: tuple, d, beta, pdf_dir, keys, depth: int, more: bool, roulette: bool, offset: float, tangents: bool) -> tuple:
+    """One bounce of N paths: :func:`invrender.core.lanes.lambert_vertex` run by Dr.Jit or eager
+    torch (:func:`invrender.core.compiled.run`).
+
+    Args:
+        hits: (prim, u, v, t) (N,) each: the paths' closest hits, all valid.
+        d, beta: (N, 3) the rays' directions and the paths' throughputs; pdf_dir (N,) the pdf ``d``
+            was sampled with; keys (N,) int32 path keys; depth: the vertex's index (0: camera rays).
+        more, roulette: do paths go on after it; does Russian roulette apply.
+    Returns:
+        emitted (N, 3) (term depth), shadow rays o (N, 3), d (N, 3), tmax (N,) and the direct light
+        (N, 3) each adds if unoccluded (term depth + 1; tmax 0, a ray no backend traces, where the
+        light sample adds nothing whatever the parameters), then the continued paths' o, d, beta
+        (N, 3), pdf (N,) and alive (N,) bool (without ``more``: None, the direct light zero). With
+        ``tangents``, then also what :func:`~invrender.backends.kernels.tangents_add` reads: the
+        factors beside eps of the emission (N, 3) and of the direct light (N, 3), the emitters hit
+        (N,) int32 (-1: none) and sampled (N,), and the materials hit (N,).
+    """
+    salts = tuple(Opaque(s) for s in bounce_salt_values(depth + 1, DIMS))
+    static = dict(sample_direction=fused.sample_direction, sample_light=fused.sample_light, lights=int(fused.tables[7].shape[0]), first=depth == 0,
+                  mis=fused.mis, nee_only=fused.nee_only, nee=fused.nee, more=more, roulette=roulette, tangents=tangents)  # fmt: skip
+    out = compiled.run(lanes.lambert_vertex, d.device, *fused.lanes, *hits, d, beta, pdf_dir, keys, salts, float(offset), **static)
+    if not more:  # the emission alone: the other primal outputs are not read (the direct light: zero)
+        out = (out[0], None, None, None, torch.zeros_like(out[0]), None, None, None, None, None) + out[1:]
+    if tangents:  # the indices as int32
+        out = out[:-5] + tuple(x.to(torch.int32) if not x.is_floating_point() else x for x in out[-5:])
+    return out
+
+
 def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film, settings) -> None:
     """Follow ``state``'s camera rays with the fused bounce and add each term to ``film`` (and,
     into a :class:`TangentFilm`, each pixel's derivatives); ``settings``: the integrator's
@@ -189,9 +244,7 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
             if not hit.shape[0]:
                 break
         more = settings.continues_after(depth)
-        flags = (depth, int(fused.mis), int(fused.nee_only), int(fused.nee), int(more), int(depth + 1 >= rr_start))
-        salts = bounce_salts(depth + 1, DIMS, d.device)
-        out = kernels.lambert_vertex(fused.tables, (prim, u, v, t), d, beta, pdf, keys, salts, flags, ctx.ray_offset, tangents)
+        out = vertex(fused, (prim, u, v, t), d, beta, pdf, keys, depth, more, depth + 1 >= rr_start, ctx.ray_offset, tangents)
         emitted, shadow_o, shadow_d, shadow_t, direct, o, d, beta, pdf, alive = out[:10]
         occluded = None
         if more and fused.nee:

@@ -23,6 +23,8 @@ the instance their emitter belongs to.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import dataclasses
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
@@ -85,6 +87,8 @@ class TriangleTables:
             it (0 on triangles never sampled).
         emitting: (T,) bool per scene triangle, does its front side emit?
         eps: (E, 3) radiance per scene emitter (rows of ``triangles.emitter``), detached.
+        sample: the emitter's point sampling written against the array interface
+            (:mod:`invrender.core.lanes`; the signature of ``lambert_vertex``'s ``sample_light``).
     """
 
     tri: torch.Tensor
@@ -92,6 +96,7 @@ class TriangleTables:
     pdf_area: torch.Tensor
     emitting: torch.Tensor
     eps: torch.Tensor
+    sample: Callable
 
 
 class Light(Declared, ABC):

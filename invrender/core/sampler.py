@@ -118,12 +118,18 @@ def uniform(keys: torch.Tensor, bounce: int, dims: int) -> torch.Tensor:
 
 
 @functools.lru_cache(maxsize=4096)
+def bounce_salt_values(bounce: int, dims: int) -> tuple[int, ...]:
+    """The unsigned 32-bit salts of one bounce's ``dims`` dimensions (:func:`bounce_salts`)."""
+    return tuple(_mix_int(bounce * 0x10000 + d + 0x632BE5AB) for d in range(dims))
+
+
+@functools.lru_cache(maxsize=4096)
 def bounce_salts(bounce: int, dims: int, device: torch.device) -> torch.Tensor:
     """(dims,) int32 salts of one bounce's dimensions on ``device``, made once: a tensor built from
     a list is a copy from pageable host memory, which on CUDA waits for the stream each bounce.
     Read only (never written in place). Kernels that draw a bounce's numbers themselves take these
     (:func:`uniform` is ``lowbias32((key & ~1) ^ salt_j)``)."""
-    return torch.tensor([_signed(_mix_int(bounce * 0x10000 + d + 0x632BE5AB)) for d in range(dims)], dtype=torch.int32, device=device)
+    return torch.tensor([_signed(x) for x in bounce_salt_values(bounce, dims)], dtype=torch.int32, device=device)
 
 
 def branch_keys(keys: torch.Tensor, branch: int) -> torch.Tensor:

@@ -21,7 +21,7 @@ def test_comparison_on_the_cornell_box(cbox32):
     assert list(c.images) == ["pyrender", "utah", "path, max_depth 2", "utah, eps0 fitted", "path"]
     assert c.pyrender_error is None
     rel = c.relative_differences()
-    assert torch.equal(c.images["utah"], c.images["path, max_depth 2"])  # no ambient: the same estimate
+    torch.testing.assert_close(c.images["utah"], c.images["path, max_depth 2"], rtol=1e-5, atol=1e-7)  # no ambient: the same estimate (path compiled)
     # the Utah approximation drops the interreflected light: about a third of red, an eighth of blue
     assert (rel["utah"] < -0.08).all() and (rel["utah"] > -0.5).all()
     assert (rel["utah, eps0 fitted"].abs() < 0.02).all()  # a constant ambient recovers the mean

@@ -71,7 +71,8 @@ def test_hide_emitters_hides_area_lights_seen_directly():
     shown = ir.render(scene, spp=16, seed=0, progress=False)
     hidden = ir.render(scene, {"type": "path", "hide_emitters": True}, spp=16, seed=0, progress=False)
     assert 0.0 < float(hidden[light].mean()) < 0.5 < 5.0 < float(shown[light].mean())
-    assert torch.equal(hidden[away], shown[away])  # paths whose camera ray misses the light are the same paths
+    # paths whose camera ray misses the light are the same paths (to float rounding: the fused bounce is compiled)
+    torch.testing.assert_close(hidden[away], shown[away], rtol=1e-5, atol=1e-7)
 
 
 @pytest.mark.parametrize("estimator", ["autodiff", "replay"])

@@ -17,8 +17,23 @@ from invrender import registry
 from invrender.scene.kinds import REFLECTANCE
 from invrender.scene.plugins import Param
 from invrender.backends import kernels
+from invrender.core import lanes
 from invrender.core.bsdf import BSDF, BSDFSample, Lobe, ShadingPoint
 from invrender.vec import dot, normalize
+
+
+def cosine_lanes(xp, n, u0, u1):
+    """Cosine-weighted directions about unit normals ``n`` (a 3-tuple of (N,) arrays) from uniforms
+    ``u0``, ``u1`` (N,), written against the array interface (:mod:`invrender.core.lanes`):
+    ``normalize(n + s)`` with ``s`` uniform on the unit sphere (the tangent-sphere construction,
+    which needs no tangent frame). Returns (directions, their pdf ``max(n . w, 0) / pi``)."""
+    z = 1.0 - 2.0 * u0
+    r = xp.sqrt(xp.maximum(1.0 - z * z, 0.0))
+    phi = (2.0 * math.pi) * u1
+    a = (n[0] + r * xp.cos(phi), n[1] + r * xp.sin(phi), n[2] + z)
+    length = xp.maximum(xp.sqrt(lanes.dot(a, a)), 1e-30)
+    w = (a[0] / length, a[1] / length, a[2] / length)
+    return w, xp.maximum(lanes.dot(n, w), 0.0) * (1.0 / math.pi)
 
 
 @registry.MATERIALS.register
@@ -35,6 +50,8 @@ class Diffuse(BSDF):
         """rho (N, 3), zero where ``wo`` lies below the shading normal (never without shading normals)."""
         rho = self.param("reflectance", sp)
         return rho if self.flat else rho * (dot(sp.n, sp.wo) > 0)[:, None].to(rho.dtype)
+
+    sample_lanes = staticmethod(cosine_lanes)
 
     def fused_albedo(self) -> torch.Tensor | None:
         """(M, 3) rho of each material, when none is textured, sampling is cosine-weighted and the
@@ -118,3 +135,4 @@ class Diffuse(BSDF):
     @classmethod
     def to_mitsuba(cls, values: dict, constants: dict) -> dict:
         return {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": values["reflectance"]}}
+

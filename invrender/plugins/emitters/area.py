@@ -36,6 +36,7 @@ from invrender.scene.kinds import EMISSION
 from invrender.scene.plugins import Param
 from invrender.scene.scene import Triangles
 from invrender.backends import kernels
+from invrender.core import lanes
 from invrender.core.lights import Light, LightSample, TriangleTables
 from invrender.core.surface import Surface
 from invrender.core.textures import gather_rgb
@@ -170,7 +171,7 @@ class Area(Light):
         changed = any(getattr(type(self), m) is not getattr(Area, m) for m in ("sample_from", "geometry", "radiance", "emits", "emitted", "pdf_hit", "params"))
         if changed or self.textured or self.spheres or not self.count:
             return None
-        return TriangleTables(self.tri, self.cdf, self.pdf_area, self._emitting, torch.stack(self.eps))
+        return TriangleTables(self.tri, self.cdf, self.pdf_area, self._emitting, torch.stack(self.eps), triangle_lanes)
 
     def radiance(self, emitter: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
         """eps (N, 3) of scene emitters ``emitter`` (N,) int64 (-1 = none) at ``uv`` (N, 2)."""
@@ -355,3 +356,24 @@ class Area(Light):
         cone = self.group * qk / (2 * torch.pi * h)
         area = self.group * qk / self.sphere_area[k] * t * t / cos_o.clamp_min(1e-12)
         return pdf.index_put((i,), torch.where(far, cone, area).to(pdf.dtype))
+
+
+
+def triangle_lanes(xp, tri_table, light_table, lights: int, u0, u1, u2, x, nx, offset: float):
+    """Points on the emissive triangles seen from points ``x`` with normals ``nx`` (3-tuples of (N,)
+    arrays), written against the array interface (:mod:`invrender.core.lanes`): the triangle picked
+    by ``u0`` through the cdf of the light table's ``lights`` rows (by area x emission), the point
+    placed uniformly by ``u1``, ``u2``. Returns (triangle, shadow-ray origin, unit direction, tmax,
+    facing: both surfaces face each other, solid-angle pdf)."""
+    k = lanes.pick_light(xp, light_table, lights, u0)
+    tri = lanes.Triangle(xp, tri_table, k)
+    su = xp.sqrt(u1)
+    y = tri.point(su * (1.0 - u2), su * u2)
+    start = lanes.add(x, lanes.scale(nx, offset))
+    to_light = lanes.sub(y, start)
+    dist = xp.maximum(xp.sqrt(lanes.dot(to_light, to_light)), 1e-12)
+    w = (to_light[0] / dist, to_light[1] / dist, to_light[2] / dist)
+    cos_l = -lanes.dot(tri.normal, w)
+    facing = (lanes.dot(nx, w) > 0.0) & (cos_l > 0.0)
+    pdf = tri.pdf_area * dist * dist / xp.maximum(cos_l, 1e-12)
+    return k, start, w, dist - offset, facing, pdf

@@ -1,0 +1,285 @@
+"""The array interface the bounce is written against once, and its two evaluators.
+
+A function written against it takes the namespace ``xp`` first and computes on 1-D arrays of one
+length N (one lane per path), per component (a 3-vector is a tuple of three arrays), with masks
+instead of data-dependent shapes:
+
+- ``Float`` (float32), ``UInt`` (32 bits, read as unsigned) and ``Bool`` arrays, with Python's
+  operators: ``+ - * /`` and comparisons on Float; ``* ^ & |`` on UInt (products wrap modulo 2^32);
+  ``& | ~`` on Bool; Python numbers mix with arrays;
+- :meth:`sqrt`, :meth:`cos`, :meth:`sin`, :meth:`abs`, :meth:`minimum`, :meth:`maximum`,
+  :meth:`select` (``mask ? a : b``), :meth:`shr` (the logical right shift of a UInt),
+  :meth:`bits24` (a UInt's low 24 bits as a Float), :meth:`u32` (a UInt constant),
+  :meth:`gather` (``table[index]``, a 1-D table read at UInt indices), :meth:`gather_rows`
+  (whole rows of 2, 4, 8 or 16 floats at once), :meth:`uint` (a Float holding an integer as a
+  UInt), :meth:`full`.
+
+Tables are read by rows where they can be: Dr.Jit turns a row of a power-of-two width into packet
+loads, where single-element gathers become the CPU's vector-gather instruction, which on the CPUs
+measured here costs about 10 ns a lane (microcode mitigations), more than the rest of a bounce.
+
+Two namespaces satisfy it:
+
+- :data:`TORCH`: eager torch on the tensors' device; differentiable (autograd and forward-mode flow
+  through every Float operation), so it is the reference the tests hold the other to. UInt arrays
+  are int32 tensors with the same bits (an arithmetic shift and a mask make the logical shift).
+- :func:`drjit_arrays`: Dr.Jit's ``llvm`` (CPU, SIMD across lanes) or ``cuda`` arrays. A function
+  evaluated on them is traced once per call and compiled by LLVM into one kernel, cached by Dr.Jit
+  (in memory and on disk); :class:`Compiled` carries torch tensors in (without copies, by DLPack)
+  and out.
+
+The same counter-based bits come out of both (the integer hash is exact); floats agree to rounding.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import re
+import threading
+
+import torch
+
+from invrender.backends import packages
+
+#: the environment variable that picks the bounce's evaluator: ``drjit`` (default where importable) or ``torch``
+ENV = "INVRENDER_BOUNCE"
+CHOICES = ("drjit", "torch")
+
+_U32 = 0xFFFFFFFF
+
+
+def _signed(x: int) -> int:
+    """A 32-bit unsigned value as the int32 with the same bits."""
+    x &= _U32
+    return x - (1 << 32) if x >= 1 << 31 else x
+
+
+class TorchArrays:
+    """The array interface on torch tensors (module docstring): eager and differentiable."""
+
+    name = "torch"
+
+    @staticmethod
+    def sqrt(x):
+        return torch.sqrt(x)
+
+    @staticmethod
+    def cos(x):
+        return torch.cos(x)
+
+    @staticmethod
+    def sin(x):
+        return torch.sin(x)
+
+    @staticmethod
+    def abs(x):
+        return torch.abs(x)
+
+    @staticmethod
+    def minimum(a, b):
+        return torch.clamp_max(a, b) if not isinstance(b, torch.Tensor) else torch.minimum(a, b)
+
+    @staticmethod
+    def maximum(a, b):
+        return torch.clamp_min(a, b) if not isinstance(b, torch.Tensor) else torch.maximum(a, b)
+
+    @staticmethod
+    def select(mask, a, b):
+        return torch.where(mask, a, b)
+
+    @staticmethod
+    def shr(x, k: int):
+        """``x >> k`` of 32-bit unsigned words held as int32."""
+        return (x >> k) & ((1 << (32 - k)) - 1)
+
+    @staticmethod
+    def bits24(x):
+        """(N,) Float: the low 24 bits of UInt ``x`` as a float in [0, 2^24)."""
+        return (x & 0xFFFFFF).to(torch.float32)
+
+    @staticmethod
+    def u32(value: int):
+        """A UInt constant (the int32 with its bits)."""
+        return _signed(value)
+
+    @staticmethod
+    def gather(table, index):
+        """``table[index]``: ``table`` (T,) any dtype, ``index`` (N,) integer."""
+        return table.index_select(0, index if index.dtype in (torch.int32, torch.int64) else index.to(torch.int64))
+
+    @staticmethod
+    def gather_rows(table, index, width: int):
+        """Rows ``index`` (N,) of ``table`` ((T * width,) float32 flat), as a ``width``-tuple of (N,)."""
+        return tuple(table.view(-1, width).index_select(0, index if index.dtype in (torch.int32, torch.int64) else index.to(torch.int64)).unbind(1))
+
+    @staticmethod
+    def uint(x):
+        """A Float holding non-negative integers (< 2^24) as a UInt."""
+        return x.to(torch.int32)
+
+    @staticmethod
+    def full(value, like):
+        """An array of ``like``'s length filled with ``value``: Float for a float, UInt for an int."""
+        return torch.full_like(like, value, dtype=torch.float32 if isinstance(value, float) else torch.int32)
+
+    @staticmethod
+    def zeros(like):
+        return torch.zeros_like(like, dtype=torch.float32)
+
+    @staticmethod
+    def opaque(value: int):
+        """A UInt scalar that changes from call to call (a bounce's salt): a plain int here."""
+        return _signed(value)
+
+    @staticmethod
+    def from_torch(t: torch.Tensor, lanes: bool):
+        """An argument as the functions see it: (N, 3) lanes as a tuple of three columns."""
+        return tuple(t.unbind(1)) if lanes and t.ndim == 2 else t
+
+    @staticmethod
+    def to_torch(x) -> torch.Tensor:
+        """A result as torch: a 3-tuple as (N, 3)."""
+        return torch.stack(x, dim=1) if isinstance(x, tuple) else x
+
+
+#: the torch namespace (module docstring)
+TORCH = TorchArrays()
+
+
+class DrJitArrays:
+    """The array interface on Dr.Jit arrays of one backend (``llvm`` or ``cuda``)."""
+
+    def __init__(self, dr, backend):
+        self.dr = dr
+        self.name = f"drjit-{backend.__name__.rsplit('.', 1)[-1]}"
+        self.Float, self.UInt, self.Bool, self.Int64, self._Int32 = backend.Float, backend.UInt32, backend.Bool, backend.Int64, backend.Int32
+        self._rows = {2: backend.Array2f, 4: backend.Array4f}
+        self._ArrayXf, self._Array3f = backend.ArrayXf, backend.Array3f
+
+    def sqrt(self, x):
+        return self.dr.sqrt(x)
+
+    def cos(self, x):
+        return self.dr.cos(x)
+
+    def sin(self, x):
+        return self.dr.sin(x)
+
+    def abs(self, x):
+        return self.dr.abs(x)
+
+    def minimum(self, a, b):
+        return self.dr.minimum(a, b)
+
+    def maximum(self, a, b):
+        return self.dr.maximum(a, b)
+
+    def select(self, mask, a, b):
+        return self.dr.select(mask, a, b)
+
+    def shr(self, x, k: int):
+        return x >> k
+
+    def bits24(self, x):
+        return self.Float(x & 0xFFFFFF)
+
+    def u32(self, value: int):
+        return value & _U32
+
+    def gather(self, table, index):
+        return self.dr.gather(type(table), table, index)
+
+    def gather_rows(self, table, index, width: int):
+        if width == 1:
+            return (self.dr.gather(self.Float, table, index),)
+        rows = self.dr.gather(self._rows[width], table, index) if width in self._rows else self.dr.gather(self._ArrayXf, table, index, shape=(width, self.dr.width(index)))
+        return tuple(rows[j] for j in range(width))
+
+    def uint(self, x):
+        return self.UInt(x)
+
+    def full(self, value, like):
+        kind = self.Float if isinstance(value, float) else self.UInt
+        return self.dr.full(kind, value, self.dr.width(like))
+
+    def zeros(self, like):
+        return self.dr.zeros(self.Float, self.dr.width(like))
+
+    def opaque(self, value: int):
+        """A UInt scalar that changes from call to call, passed to the kernel as a value rather
+        than compiled into it (one kernel for every bounce's salts)."""
+        return self.dr.opaque(self.UInt, value & _U32)
+
+    def from_torch(self, t: torch.Tensor, lanes: bool):
+        """A torch tensor as Dr.Jit arrays without a copy where it is contiguous: float32 as Float,
+        int32 and int64 as UInt (the same low 32 bits), bool as Bool; (N, 3) lanes as three Floats."""
+        if lanes and t.ndim == 2:
+            return tuple(self.Float(c) for c in t.t().contiguous())
+        t = t.contiguous()
+        if t.dtype == torch.float32:
+            return self.Float(t)
+        if t.dtype == torch.int32:
+            return self.dr.reinterpret_array(self.UInt, self._Int32(t))
+        if t.dtype == torch.int64:
+            return self.UInt(self.Int64(t))
+        if t.dtype == torch.bool:
+            return self.Bool(t)
+        return self.Float(t.to(torch.float32))
+
+    def rows(self, x):
+        """A 3-tuple of Floats written as (N, 3) rows into a new flat Float (a packet scatter, in
+        the kernel that computes them); other arrays as they are. Evaluate, then :meth:`to_torch`."""
+        if not isinstance(x, tuple):
+            return x
+        n = max(self.dr.width(c) for c in x)
+        out = self.dr.empty(self.Float, 3 * n)
+        self.dr.scatter(out, self._Array3f(*x), self.dr.arange(self.UInt, n))
+        return out
+
+    def to_torch(self, x) -> torch.Tensor:
+        """A result of :meth:`rows` (evaluated) as a torch tensor sharing its memory: UInt as
+        int32, rows as (N, 3)."""
+        out = torch.from_dlpack(x)
+        return out.view(torch.int32) if out.dtype == torch.uint32 else out
+
+
+def _llvm_version(path: str) -> int:
+    m = re.search(r"LLVM-?(\d+)", os.path.basename(path)) or re.search(r"llvm-(\d+)", path)
+    return int(m.group(1)) if m else 0
+
+
+_lock = threading.Lock()
+_namespaces: dict[str, DrJitArrays | None] = {}
+
+
+def drjit_arrays(device: torch.device) -> DrJitArrays | None:
+    """The Dr.Jit namespace for ``device`` (``llvm`` on the CPU, ``cuda`` on CUDA), or None where
+    Dr.Jit or its backend is missing (no libLLVM, no CUDA driver: a one-time note says so)."""
+    kind = "cuda" if device.type == "cuda" else "llvm"
+    with _lock:
+        if kind not in _namespaces:
+            _namespaces[kind] = _load(kind)
+        return _namespaces[kind]
+
+
+def _load(kind: str) -> DrJitArrays | None:
+    if kind == "llvm" and "DRJIT_LIBLLVM_PATH" not in os.environ:
+        found = sorted(glob.glob("/usr/lib/*/libLLVM-[0-9]*.so") + glob.glob("/usr/lib/llvm-*/lib/libLLVM*.so"), key=_llvm_version)
+        if found:  # the newest system libLLVM (Dr.Jit's own search may stop at an older one)
+            os.environ["DRJIT_LIBLLVM_PATH"] = found[-1]
+    dr = packages.find("drjit")
+    if dr is None:
+        packages.note_once(f"drjit is not installed: the bounce runs as eager torch ({packages.install_hint('drjit')} for the compiled bounce)")
+        return None
+    try:
+        backend = packages.find(f"drjit.{kind}")
+        if backend is None or not dr.has_backend(getattr(dr.JitBackend, kind.upper() if kind == "cuda" else "LLVM")):
+            raise RuntimeError(f"no {kind} backend")
+    except Exception as e:  # no libLLVM (DRJIT_LIBLLVM_PATH) or no CUDA driver
+        packages.note_once(f"Dr.Jit's {kind} backend is unavailable ({e}): the bounce runs as eager torch")
+        return None
+    dr.set_flag(dr.JitFlag.FastMath, False)  # IEEE arithmetic, op by op as torch rounds it: the same images
+    if kind == "llvm":
+        dr.set_thread_count(0)  # kernels run in the calling thread: renders parallelize across chunks, one worker per core
+    return DrJitArrays(dr, backend)

@@ -1,0 +1,88 @@
+"""Run a function written once against the array interface: compiled by Dr.Jit, or as eager torch.
+
+The bounce's detached maths (hit decode, emitter and BSDF sampling, throughput, roulette, the
+counter-based random numbers) is written once, per component and with masks, against the array
+interface of :mod:`invrender.backends.arrays`. :func:`run` evaluates such a function on torch
+tensors:
+
+- with Dr.Jit (``llvm`` on the CPU, ``cuda`` on CUDA) where it is importable and its backend loads:
+  the call is traced and compiled into one kernel (SIMD across lanes on the CPU), cached in memory
+  and on disk by Dr.Jit (``~/.drjit``), so a kernel compiles once per machine; tensors go in and
+  come out without copies;
+- else, or with ``INVRENDER_BOUNCE=torch``, as eager torch: the reference (the tests hold the
+  compiled results to it: the same random bits, floats within rounding).
+
+Neither carries autograd through a compiled call: callers pass detached inputs (sampling and hit
+geometry are detached by design; gradients flow through the torch bounce's evaluation of the
+parameters).
+"""
+
+from __future__ import annotations
+
+import os
+
+import torch
+
+from invrender.errors import ParameterError
+from invrender.backends import arrays
+from invrender.backends.arrays import TORCH
+
+
+class Opaque:
+    """A 32-bit unsigned scalar argument that changes from call to call (a bounce's salts): passed
+    to a compiled kernel as a value, not compiled into it."""
+
+    __slots__ = ("value",)
+
+    def __init__(self, value: int):
+        self.value = value
+
+
+def namespace(device: torch.device):
+    """The array namespace :func:`run` evaluates with on ``device``: Dr.Jit's where it loads and
+    ``INVRENDER_BOUNCE`` is not ``torch``, else :data:`~invrender.backends.arrays.TORCH`. Another
+    value of the variable is a one-line :class:`~invrender.errors.ParameterError`."""
+    choice = os.environ.get(arrays.ENV, "drjit")
+    if choice not in arrays.CHOICES:
+        raise ParameterError(f"{arrays.ENV} must be {' or '.join(map(repr, arrays.CHOICES))}, got {choice!r}")
+    if choice == "torch" or device.type not in ("cpu", "cuda"):
+        return TORCH
+    return arrays.drjit_arrays(device) or TORCH
+
+
+def run(fn, device: torch.device, *args, **static) -> tuple[torch.Tensor, ...]:
+    """``fn(xp, *args, **static)`` evaluated on ``device``'s namespace (:func:`namespace`).
+
+    Args:
+        fn: a function written against the array interface returning a tuple of arrays and
+            3-tuples of arrays, each of the lanes' length.
+        args: torch tensors (1-D: lanes or flat tables; 2-D (N, 3): lanes of 3-vectors, passed as
+            three columns), :class:`Opaque` scalars, Python numbers.
+        static: Python values that choose the code (flags), the same for every lane.
+    Returns:
+        torch tensors on ``device``: (N,) per array, (N, 3) per 3-tuple; UInt arrays as int32.
+    """
+    xp = namespace(device)
+    return evaluate(xp, fn, *args, **static)
+
+
+def evaluate(xp, fn, *args, **static) -> tuple[torch.Tensor, ...]:
+    """:func:`run` with the namespace given (the tests run both on the same inputs)."""
+    out = fn(xp, *(_argument(xp, a) for a in args), **static)
+    if xp is TORCH:
+        return tuple(xp.to_torch(o) for o in out)
+    vectors = [isinstance(o, tuple) for o in out]
+    out = [xp.rows(o) for o in out]
+    xp.dr.eval(*out)  # one kernel
+    xp.dr.sync_thread()
+    return tuple(xp.to_torch(o).view(-1, 3) if v else xp.to_torch(o) for o, v in zip(out, vectors))
+
+
+def _argument(xp, a):
+    if isinstance(a, Opaque):
+        return xp.opaque(a.value)
+    if isinstance(a, torch.Tensor):
+        return xp.from_torch(a, lanes=True)
+    if isinstance(a, (tuple, list)):
+        return tuple(_argument(xp, x) for x in a)
+    return a

@@ -1,0 +1,269 @@
+"""The bounce's detached maths, written once per component against the array interface.
+
+Every function takes the array namespace ``xp`` first (:mod:`invrender.backends.arrays`: eager
+torch, the reference, or Dr.Jit, compiled) and works on 1-D arrays, one lane per path; a 3-vector
+is a tuple ``(x, y, z)`` of arrays; branches are masks (:meth:`select`), never data-dependent
+shapes. :func:`invrender.core.compiled.run` evaluates them on torch tensors.
+
+- the counter-based random numbers (:func:`uniform`, bit for bit those of
+  :func:`invrender.core.sampler.uniform`);
+- the scene's tables as rows (:func:`triangle_rows`, :func:`light_rows`, :class:`Triangle`), a
+  hit's geometry (:func:`hit`), the origin of a ray leaving a surface (:func:`spawn`), Veach's
+  power heuristic, the choice of an emissive triangle by its cdf (:func:`pick_light`);
+- :func:`lambert_vertex`: one primal bounce of the random walk and the path tracer on Lambertian
+  surfaces lit by emissive triangles (:mod:`invrender.core.fused` documents it), composed of the
+  above and of the plugins' own lane functions: the material's direction sampling
+  (``Diffuse.sample_lanes``) and the emitter's point sampling (``Area.sample_lanes``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+_M1, _M2 = 0x7FEB352D, 0x846CA68B
+
+
+# ---- 3-vectors as tuples of arrays -------------------------------------------------------------
+
+
+def dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def add(a, b):
+    return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
+
+
+def sub(a, b):
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+
+def scale(a, s):
+    """``a * s``, ``s`` an array or number, or a 3-tuple (componentwise)."""
+    if isinstance(s, tuple):
+        return (a[0] * s[0], a[1] * s[1], a[2] * s[2])
+    return (a[0] * s, a[1] * s, a[2] * s)
+
+
+def select3(xp, mask, a, b):
+    return tuple(xp.select(mask, x, y) for x, y in zip(a, b))
+
+
+# ---- random numbers ----------------------------------------------------------------------------
+
+
+def lowbias32(xp, x):
+    """Wellons' lowbias32 hash of UInt ``x``."""
+    x = x ^ xp.shr(x, 16)
+    x = x * xp.u32(_M1)
+    x = x ^ xp.shr(x, 15)
+    x = x * xp.u32(_M2)
+    return x ^ xp.shr(x, 16)
+
+
+def uniform(xp, key, salt):
+    """The uniform in [0, 1) of path keys ``key`` (UInt) for one salt (a bounce's dimension): the low
+    24 bits of ``lowbias32((key & ~1) ^ salt)`` / 2^24, all bits flipped for a mirrored (odd) key."""
+    flip = xp.u32(0) - (key & 1)
+    h = lowbias32(xp, (key & xp.u32(0xFFFFFFFE)) ^ salt) ^ flip
+    return xp.bits24(h) * (1.0 / 16777216.0)
+
+
+# ---- tables, read by rows ----------------------------------------------------------------------
+
+#: floats per triangle in the lanes' triangle table (:func:`triangle_rows`)
+TRIANGLE_ROW = 16
+#: floats per emissive triangle in the lanes' light table (:func:`light_rows`): its cdf, its index
+LIGHT_ROW = 2
+
+
+def triangle_rows(packed, material, emitter, emitting, pdf_area):
+    """(T * 16,) float32 the triangle table the lane functions read, one row a triangle:
+    ``p0, n_x, e1, n_y, e2, n_z, material, emitter, emitting, pdf_area`` (p0, e1, e2 as 3 floats;
+    indices as exact floats, -1 = none), from ``packed`` (T, 18) (``Triangles.packed``: p0, e1,
+    e2, the unit normal, uv), material, emitter (T,) int64, emitting (T,) bool, pdf_area (T,)."""
+    p = packed.reshape(-1, 18)
+    cols = [p[:, 0:3], p[:, 9:10], p[:, 3:6], p[:, 10:11], p[:, 6:9], p[:, 11:12]]
+    cols += [x.to(torch.float32)[:, None] for x in (material, emitter, emitting, pdf_area)]
+    return torch.cat(cols, dim=1).reshape(-1).contiguous()
+
+
+def light_rows(cdf, tri):
+    """(L * 2,) float32 the light table: each emissive triangle's cdf entry and index (< 2^24)."""
+    return torch.stack([cdf.to(torch.float32), tri.to(torch.float32)], dim=1).reshape(-1).contiguous()
+
+
+class Triangle:
+    """Rows of the triangle table (:func:`triangle_rows`) read for N lanes."""
+
+    __slots__ = ("r",)
+
+    def __init__(self, xp, table, k):
+        self.r = xp.gather_rows(table, k, TRIANGLE_ROW)
+
+    @property
+    def p0(self):
+        return self.r[0:3]
+
+    @property
+    def e1(self):
+        return self.r[4:7]
+
+    @property
+    def e2(self):
+        return self.r[8:11]
+
+    @property
+    def normal(self):
+        """The unit geometric normal (the front side)."""
+        return (self.r[3], self.r[7], self.r[11])
+
+    def point(self, b1, b2):
+        """The point at barycentrics (b1, b2): ``p0 + b1 e1 + b2 e2``."""
+        return add(self.p0, add(scale(self.e1, b1), scale(self.e2, b2)))
+
+    def material(self, xp):
+        return xp.uint(self.r[12])
+
+    def emitter(self, xp):
+        """The emitter's index (-1 as 0xFFFFFFFF where none)."""
+        return xp.uint(xp.maximum(self.r[13], 0.0)), self.r[13] >= 0.0
+
+    @property
+    def emitting(self):
+        return self.r[14] > 0.5
+
+    @property
+    def pdf_area(self):
+        return self.r[15]
+
+
+# ---- geometry ----------------------------------------------------------------------------------
+
+
+def hit(xp, tri: Triangle, b1, b2, d):
+    """Rays of directions ``d`` hitting triangles ``tri`` at barycentrics (b1, b2): (point,
+    geometric normal turned towards the ray's origin, ``-ng . d``: > 0 on the front side)."""
+    ng = tri.normal
+    c = -dot(ng, d)
+    n = select3(xp, c > 0.0, ng, scale(ng, -1.0))
+    return tri.point(b1, b2), n, c
+
+
+def spawn(xp, p, n, w, offset: float):
+    """The origins of rays leaving ``p`` along ``w``: offset to the side of ``n`` that ``w`` points to."""
+    side = xp.select(dot(n, w) >= 0.0, offset, -offset)
+    return add(p, scale(n, side))
+
+
+def power_heuristic(xp, a, b):
+    """Veach's power heuristic: the weight of a strategy of pdf ``a`` against one of pdf ``b``."""
+    a2 = a * a
+    return xp.select(a2 > 0.0, a2 / xp.maximum(a2 + b * b, 1e-30), 0.0)
+
+
+def pick_light(xp, lights, size: int, u):
+    """The emissive triangle whose cdf interval holds ``u``: the first row of the light table
+    (:func:`light_rows`, ``size`` rows) with cdf above ``u`` (``searchsorted``, ``right=True``),
+    clamped to the last, by a fixed number of masked halvings. Returns its triangle index (UInt)."""
+    lo = xp.full(0, u)
+    hi = xp.full(size, u)
+    for _ in range(max(1, size.bit_length())):
+        active = lo < hi
+        mid = xp.shr(lo + hi, 1)
+        right = active & (xp.gather_rows(lights, xp.minimum(mid, size - 1), LIGHT_ROW)[0] <= u)
+        lo = xp.select(right, mid + 1, lo)
+        hi = xp.select(active & ~right, mid, hi)
+    return xp.uint(xp.gather_rows(lights, xp.minimum(lo, size - 1), LIGHT_ROW)[1])
+
+
+# ---- the Lambertian bounce ---------------------------------------------------------------------
+
+
+def lambert_vertex(
+    xp, tri_table, light_table, rho, eps, prim, b1, b2, t, d, beta, pdf_dir, keys, salts, offset: float, *,
+    sample_direction, sample_light, lights: int, first: bool, mis: bool, nee_only: bool, nee: bool, more: bool, roulette: bool, tangents: bool,
+):  # fmt: skip
+    """One primal bounce of N paths on Lambertian surfaces lit by emissive triangles.
+
+    Args:
+        tri_table: (T * 16,) the triangle table (:func:`triangle_rows`); light_table (L * 2,) the
+            emissive triangles' (:func:`light_rows`); rho (M * 4,), eps (E * 4,) RGB rows padded to 4.
+        prim, b1, b2, t: (N,) the paths' closest hits (all valid); d, beta: 3-tuples of (N,) the
+            rays' directions and the throughputs; pdf_dir (N,) the pdf ``d`` was sampled with;
+            keys (N,) UInt; salts: the bounce's 7 salts (0-1 BSDF direction, 2-4 emitter sample,
+            5 roulette).
+        sample_direction: the material's lane sampler ``(xp, n, u0, u1) -> (wi, pdf)``;
+            sample_light: the emitter's ``(xp, tri_table, light_table, lights, u0, u1, u2, x, nx,
+            offset) -> (k, origin, w, tmax, facing, pdf)``; lights: L.
+        first: camera rays (depth 0); mis, nee_only, nee, more, roulette, tangents: the
+            integrator's strategy (:class:`invrender.core.fused.FusedScene`), whether paths go on
+            after this vertex, whether roulette applies, whether the factors are returned.
+    Returns:
+        emitted (term depth); with ``more``: the shadow rays' origin, direction, tmax (0 where the
+        sample adds nothing whatever the parameters) and the direct light each adds if unoccluded
+        (term depth + 1; zeros without ``nee``), the continued rays' origin, direction, throughput,
+        pdf and alive mask; with ``tangents``: the factors beside eps of the emission and of the
+        direct light, the emitters hit and sampled (-1: none) and the materials hit.
+    """
+    tri = Triangle(xp, tri_table, prim)
+    p, n, c = hit(xp, tri, b1, b2, d)
+    # term depth: the emission seen, weighted against the previous vertex's emitter sample
+    em, has_emitter = tri.emitter(xp)
+    seen = (c > 0.0) & tri.emitting & has_emitter
+    if nee_only and not first:
+        seen = seen & False
+    w = xp.select(seen, 1.0, 0.0)
+    if mis and not first:
+        light_pdf = tri.pdf_area * t * t / xp.maximum(xp.abs(c), 1e-12)
+        w = w * power_heuristic(xp, pdf_dir, light_pdf)
+    factor_e = scale(beta, w)
+    emitted = scale(factor_e, xp.gather_rows(eps, em, 4)[:3])
+    mat = tri.material(xp)
+    none = xp.u32(0xFFFFFFFF)
+    tangent_out = (factor_e, xp.select(seen, em, none), mat) if tangents else ()
+    if not more:
+        return (emitted,) + _tangents(xp, tangent_out, None, None)
+    r = xp.gather_rows(rho, mat, 4)[:3]
+    # term depth + 1: one emitter sample; its shadow ray is cast by the caller
+    zero = 0.0 * w
+    if nee:
+        u0, u1, u2 = (uniform(xp, keys, salts[j]) for j in (2, 3, 4))
+        kl, so, wl, tmax, facing, pdf = sample_light(xp, tri_table, light_table, lights, u0, u1, u2, p, n, offset)
+        cos_i = xp.maximum(dot(n, wl), 0.0)
+        bsdf_pdf = cos_i * (1.0 / math.pi)
+        inv = power_heuristic(xp, pdf, bsdf_pdf) / pdf if mis else 1.0 / pdf
+        weight = xp.select(facing, inv, 0.0)
+        shadow_t = xp.select(facing & (cos_i > 0.0), tmax, 0.0)
+        factor_d = scale(scale(beta, weight * bsdf_pdf), r)
+        sampled, _ = Triangle(xp, tri_table, kl).emitter(xp)
+        direct = scale(factor_d, xp.gather_rows(eps, sampled, 4)[:3])
+    else:
+        so, wl, shadow_t = (zero, zero, zero), (zero, zero, zero), zero
+        factor_d = direct = (zero, zero, zero)
+        sampled = xp.select(seen & False, mat, none)
+    # the BSDF sample, the new ray and Russian roulette
+    wi, pdf_next = sample_direction(xp, n, uniform(xp, keys, salts[0]), uniform(xp, keys, salts[1]))
+    o_next = spawn(xp, p, n, wi, offset)
+    b = scale(beta, r)
+    alive = c == c
+    if roulette:
+        q = xp.minimum(xp.maximum(xp.maximum(b[0], b[1]), b[2]), 0.95)
+        alive = uniform(xp, keys, salts[5]) < q
+        b = scale(b, 1.0 / q)
+    out = (emitted, so, wl, shadow_t, direct, o_next, wi, b, pdf_next, alive)
+    return out + _tangents(xp, tangent_out, factor_d, sampled)
+
+
+def _tangents(xp, tangent_out, factor_d, sampled):
+    """The tangent outputs in :func:`lambert_vertex`'s order (factor_e, hit emitter, factor_d,
+    sampled emitter, material hit)."""
+    if not tangent_out:
+        return ()
+    factor_e, hit_emitter, mat = tangent_out
+    if factor_d is None:
+        zero = 0.0 * factor_e[0]
+        factor_d, sampled = (zero, zero, zero), xp.select(zero > 1.0, mat, xp.u32(0xFFFFFFFF))
+    return (factor_e, hit_emitter, factor_d, sampled, mat)

@@ -1,0 +1,89 @@
+"""The bounce written once (invrender.core.lanes): its eager torch evaluation and its Dr.Jit
+compilation give the same random bits and, within float rounding, the same bounce; the pieces
+equal the torch expressions they stand for."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+import invrender as ir
+from invrender.errors import ParameterError
+from invrender.backends import arrays
+from invrender.core import compiled, fused, lanes, sampler
+
+CPU = torch.device("cpu")
+DRJIT = arrays.drjit_arrays(CPU)
+needs_drjit = pytest.mark.skipif(DRJIT is None, reason="Dr.Jit (drjit with a libLLVM) is not available")
+NAMESPACES = [arrays.TORCH] + ([DRJIT] if DRJIT is not None else [])
+
+
+@pytest.mark.parametrize("xp", NAMESPACES, ids=lambda xp: xp.name)
+def test_lane_uniforms_are_the_samplers_bit_for_bit(xp):
+    keys = sampler.path_keys(7, torch.arange(5000), torch.arange(5000) % 13)
+    keys = sampler.mirrored(keys, torch.arange(5000) % 3 == 0)  # mirrored keys draw 1 - u
+    salts = sampler.bounce_salt_values(3, 7)
+    got = torch.stack(compiled.evaluate(xp, lambda xp, k, s: tuple(lanes.uniform(xp, k, x) for x in s), keys, tuple(compiled.Opaque(s) for s in salts)), dim=1)
+    assert torch.equal(got, sampler.uniform(keys, 3, 7))
+
+
+@pytest.mark.parametrize("xp", NAMESPACES, ids=lambda xp: xp.name)
+def test_the_light_pick_is_searchsorted(xp):
+    g = torch.Generator().manual_seed(0)
+    cdf = torch.cumsum(torch.rand(37, generator=g), 0)
+    cdf[5] = cdf[4]  # a zero-probability triangle
+    cdf = (cdf / cdf[-1]).float()
+    tri = torch.arange(37) * 3 + 1
+    u = torch.cat([torch.rand(4000, generator=g), cdf[:10], torch.tensor([0.0, 1.0 - 2**-24])]).float()
+    (got,) = compiled.evaluate(xp, lambda xp, rows, u: (lanes.pick_light(xp, rows, 37, u),), lanes.light_rows(cdf, tri), u)
+    expected = tri[torch.searchsorted(cdf, u, right=True).clamp_max(36)]
+    assert torch.equal(got.long(), expected)
+
+
+def _bounce_inputs(strategy: str):
+    """The arguments of every :func:`fused.vertex` call of a small Cornell box render."""
+    calls = []
+    vertex = fused.vertex
+    scene = ir.load_scene("cornell_box", resolution=(16, 16))
+    try:
+        fused.vertex = lambda *a, **k: (calls.append((a, k)), vertex(*a, **k))[1]
+        ir.render(scene, spp=4, seed=3, max_depth=6, rr_depth=2, strategy=strategy, progress=False)
+    finally:
+        fused.vertex = vertex
+    return vertex, calls
+
+
+@needs_drjit
+@pytest.mark.parametrize("strategy", ["mis", "emitter", "bsdf"])
+@pytest.mark.parametrize("tangents", [False, True])
+def test_the_compiled_bounce_is_the_eager_one(strategy, tangents, monkeypatch):
+    vertex, calls = _bounce_inputs(strategy)
+    assert len(calls) >= 5 and any(a[8] for a, _ in calls) and any(not a[7] for a, _ in calls)  # roulette on, last bounce
+    for a, k in calls:
+        a = a[:-1] + (tangents,)
+        monkeypatch.setenv(arrays.ENV, "drjit")
+        got = vertex(*a, **k)
+        monkeypatch.setenv(arrays.ENV, "torch")
+        expected = vertex(*a, **k)
+        for x, y in zip(got, expected):
+            if x is None:
+                assert y is None
+            elif x.dtype.is_floating_point:
+                assert torch.allclose(x, y, rtol=2e-5, atol=1e-6 * float(y.abs().max().clamp_min(1.0)))
+            else:  # the alive masks (the same roulette bits), indices
+                assert torch.equal(x, y.to(x.dtype))
+
+
+def test_an_unknown_bounce_evaluator_is_a_one_line_error(monkeypatch):
+    monkeypatch.setenv(arrays.ENV, "jax")
+    with pytest.raises(ParameterError, match="INVRENDER_BOUNCE must be 'drjit' or 'torch', got 'jax'"):
+        compiled.namespace(CPU)
+
+
+def test_without_drjit_the_bounce_runs_as_eager_torch(monkeypatch):
+    scene = ir.load_scene("cornell_box", resolution=(16, 16))
+    image = ir.render(scene, spp=8, seed=1, progress=False)
+    monkeypatch.setattr(arrays, "_namespaces", {"llvm": None, "cuda": None})
+    assert compiled.namespace(CPU) is arrays.TORCH
+    again = ir.render(scene, spp=8, seed=1, progress=False)
+    assert (image - again).abs().max() < 1e-5 * float(image.max())
