@@ -174,6 +174,23 @@ def test_opaque_back_side_is_black_unless_two_sided():
     torch.testing.assert_close(two.eval(checks.shading_point(0.4, 64, front=False), wi), two.eval(checks.shading_point(0.4, 64), wi))
 
 
+@pytest.mark.parametrize("cls, key", [(Principled, "clearcoat"), (Principled, "sheen"), (Principled, "spec_trans"), (Principled, "metallic"),
+                                      (PrincipledThin, "spec_trans"), (PrincipledThin, "sheen")])  # fmt: skip
+def test_derivative_at_a_zero_weight_is_its_lobes(cls, key):
+    """eval is linear in each of these weights, so its derivative at 0 equals the difference quotient
+    (Mitsuba masks a lobe of weight 0, which would make it 0: a fit could never start there)."""
+    g = torch.Generator().manual_seed(4)
+    wi = torch.nn.functional.normalize(torch.randn(256, 3, generator=g), dim=1)
+    entries = {"base_color": 0.6, "roughness": 0.4, **({"two_sided": False, "metallic": 0.3} if cls is Principled else {}), key: 0.0}
+    bsdf = checks.instance(cls, **entries)
+    weight = bsdf.values[0][key].requires_grad_(True)
+    f0 = bsdf.eval(checks.shading_point(0.5, 256), wi)
+    (grad,) = torch.autograd.grad(f0.sum(), weight)
+    step = checks.instance(cls, **{**entries, key: 1e-2})
+    quotient = float((step.eval(checks.shading_point(0.5, 256), wi) - f0.detach()).sum()) / 1e-2
+    assert abs(quotient) > 1e-2 and float(grad.sum()) == pytest.approx(quotient, rel=2e-3)
+
+
 # ---------------------------------------------------------------- the Mitsuba loader, renders, gradients
 
 

@@ -26,6 +26,9 @@ exact dielectric Fresnel term at ``a . h`` for the relative index ``eta``:
   subsurface ``f_ss`` (flatness 0, the default, turns it off);
 - sheen (front only): ``sheen (1 - m) (1 - |b.h|)^5 lerp(1, c_tint, sheen_tint) |c_b|``.
 
+Each blend weight multiplies its lobe with no mask at 0 (Mitsuba masks a lobe whose weight is 0:
+the same values), so the derivative in a weight at 0 is its lobe's and a fit can start there.
+
 Sampling, as Mitsuba's: a GGX normal visible from ``a`` (turned up) gives ``F`` and so the lobe
 probabilities ``P_diffuse ~ brdf r_d``, ``P_clearcoat ~ clearcoat / 4 r_c``, ``P_transmit ~ bsdf (1 -
 F) r_s``, ``P_reflect ~ (1 - bsdf (1 - F)) r_s`` (front; from behind only ``F`` and ``1 - F``), the
@@ -274,23 +277,23 @@ class Principled(PrincipledBase):
         on = active & reflect & compat_r & (F > 0)
         value = F_p * torch.where(on, D * G / (4.0 * abs_a), 0.0)[:, None]
         # main specular transmission (radiance: 1 / eta_path^2 times Walter's eta_path^2)
-        on = active & (bsdf > 0) & refract & compat_t & (F < 1)
+        on = active & refract & compat_t & (F < 1)
         t = ((1.0 - F) * D * G * d_a * d_b / (abs_a * safe((d_a + eta_path * d_b).square()))).abs()
         value = value + base.clamp_min(1e-12).sqrt() * torch.where(on, bsdf * t, 0.0)[:, None]
         # clearcoat: GTR1, Schlick with R0 = 0.04, GGX masking of alpha 0.25
         cc = w["clearcoat"]
-        on = active & (cc > 0) & reflect & compat_r & front
+        on = active & reflect & compat_r & front
         alpha_cc = 0.1 + (0.001 - 0.1) * w["clearcoat_gloss"]
         quarter = torch.full_like(c_a, 0.25)  # the clearcoat's masking: GGX of alpha 0.25
         G_cc = ggx_G1_aniso(a, h, quarter, quarter) * ggx_G1_aniso(b, h, quarter, quarter)
         value = value + torch.where(on, 0.25 * cc * schlick(torch.full_like(d_a, 0.04), d_a, eta) * gtr1_D(h[:, 2], alpha_cc) * G_cc * c_b.abs(), 0.0)[:, None]
         # diffuse with retro-reflection (and the fake subsurface by flatness)
-        on = active & (brdf > 0) & reflect & front
+        on = active & reflect & front
         lobe = diffuse_retro(c_a, c_b, d_b, r, w["flatness"])
         value = value + base * torch.where(on, brdf * c_b.abs() / math.pi * lobe, 0.0)[:, None]
         # sheen
         sh = w["sheen"]
-        on = active & (sh > 0) & reflect & (1.0 - m > 0) & front
+        on = active & reflect & front
         value = value + sheen_colour(base, w["sheen_tint"]) * torch.where(on, sh * (1.0 - m) * schlick_weight(d_b.abs()) * c_b.abs(), 0.0)[:, None]
         return value
 

@@ -14,6 +14,9 @@ from 0 to 2) and the helpers of :mod:`~invrender.plugins.bsdfs.principled`:
 - diffuse with retro-reflection and flatness, and sheen, times ``(1 - st)(1 - dt)`` (``b`` above);
 - diffuse transmission (``b`` below): ``(1 - st) dt base_color / pi |c_b|``.
 
+spec_trans multiplies its lobes with no mask at 0 or 1 (Mitsuba masks them: the same values), so
+its derivative there is the lobes'.
+
 Sampling: the lobes with probabilities ``st r_sr / 2``, ``st r_st / 2``, ``(1 - st)(1 - dt) r_dr``,
 ``(1 - st) dt r_dt`` (normalized; the ``r`` are sampling rates, default 1), visible GGX normals for the
 specular ones and the cosine for the diffuse ones; ``pdf`` is their mixture. ``eta`` (default 1.5)
@@ -101,24 +104,24 @@ class PrincipledThin(PrincipledBase):
         inv_4ca = 1.0 / safe(4.0 * c_a)
         # specular reflection, its Fresnel term tinted by spec_tint
         ax, ay = distribution_alphas(w["anisotropic"], r)
-        on = active & (st > 0) & reflect & compatible(h, a, b, c_a, True)
+        on = active & reflect & compatible(h, a, b, c_a, True)
         F_thin = F[:, None] + w["spec_tint"][:, None] * (schlick(tint_colour(base) * schlick_r0(eta)[:, None], d_a, eta) - F[:, None])
         g = ggx_D_aniso(h, ax, ay) * ggx_G1_aniso(a, h, ax, ay) * ggx_G1_aniso(b, h, ax, ay) * inv_4ca
         value = F_thin * torch.where(on, st * g, 0.0)[:, None]
         # specular transmission: the roughness scaled by the index
         ax_t, ay_t = distribution_alphas(w["anisotropic"], (0.65 * eta - 0.35) * r)
-        on = active & (st > 0) & refract & compatible(h, a, b, c_a, False)
+        on = active & refract & compatible(h, a, b, c_a, False)
         g = ggx_D_aniso(h, ax_t, ay_t) * ggx_G1_aniso(a, h, ax_t, ay_t) * ggx_G1_aniso(b, h, ax_t, ay_t) * inv_4ca
         value = value + base * torch.where(on, st * (1.0 - F) * g, 0.0)[:, None]
         # diffuse with retro-reflection and flatness, and sheen
-        on = active & reflect & (st < 1) & (dt < 1)
+        on = active & reflect & (dt < 1)
         cos_d = dot(h, b)
         lobe = diffuse_retro(c_a, c_b, cos_d, r, w["flatness"])
         value = value + base * torch.where(on, (1.0 - st) * c_b / math.pi * (1.0 - dt) * lobe, 0.0)[:, None]
         sheen = sheen_colour(base, w["sheen_tint"]) * torch.where(on, w["sheen"] * (1.0 - st) * schlick_weight(cos_d.abs()) * (1.0 - dt) * c_b.abs(), 0.0)[:, None]
         value = value + sheen
         # diffuse transmission
-        on = active & refract & (st < 1) & (dt > 0)
+        on = active & refract & (dt > 0)
         return value + base * torch.where(on, (1.0 - st) * dt / math.pi * c_b.abs(), 0.0)[:, None]
 
     def _pdf(self, sp: ShadingPoint, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
