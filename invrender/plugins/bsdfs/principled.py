@@ -67,6 +67,10 @@ from invrender.vec import dot, normalize
 #: Rec. 709 luminance weights (Mitsuba's ``luminance`` of an RGB colour)
 LUMINANCE = (0.212671, 0.715160, 0.072169)
 
+#: Mitsuba's ``specular`` (read as eta = 2 / (1 - sqrt(0.08 specular)) - 1: 0.5 is eta 1.5; 12 is eta 99,
+#: about the largest relative index a material takes)
+SPECULAR = Constant(0.5, 0.0, 12.0, False, False)
+
 #: the blend weights every principled material has (key -> kind), all default 0
 WEIGHTS = {
     "metallic": kinds.METALLIC,
@@ -406,7 +410,7 @@ class Principled(PrincipledBase):
             eta = bsdf.number("eta", cls.constants["eta"], "relative index of refraction")
             eta = 1.001 if transmits and eta == 1.0 else eta
         else:
-            specular = bsdf.number("specular", Constant(0.5, 0.0, 1.0, False, True), "specular reflectance, Mitsuba's eta = 2 / (1 - sqrt(0.08 specular)) - 1")
+            specular = bsdf.number("specular", SPECULAR, "specular level, Mitsuba's eta = 2 / (1 - sqrt(0.08 specular)) - 1")
             specular = 1e-3 if transmits and specular == 0.0 else specular
             eta = 2.0 / (1.0 - math.sqrt(0.08 * specular)) - 1.0
         entries["eta"] = eta
