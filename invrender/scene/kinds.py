@@ -115,8 +115,33 @@ ROUGHNESS = ParamKind(
     positive=True, polynomial=False, grey=True,
 )  # fmt: skip
 
+# ---- the principled materials' (Mitsuba's principled, principledthin: Burley's Disney BSDF)
+
+#: the base colour of a principled material: the diffuse albedo, the metal's and the tint's colour
+#: (it enters through a luminance normalization and a square root, so not a polynomial factor)
+BASE_COLOR = ParamKind("base_color", "c_base", 1.0, True, "sigmoid", "lr", 1e-2, "base colour of a principled material, in [0, 1]", polynomial=False)
+
+
+def _weight(key: str, symbol: str, doc: str) -> ParamKind:
+    """A principled material's blend weight: one number in [0, 1] (three equal channels) or a grey
+    map, fitted as sigmoid(x), entering non-linearly."""
+    return ParamKind(key, symbol, 1.0, True, "sigmoid", "lr", 1e-2, doc, polynomial=False, grey=True)
+
+
+METALLIC = _weight("metallic", "metallic", "metallic weight of a principled material, in [0, 1]")
+SPEC_TINT = _weight("spec_tint", "spec_tint", "how far a principled material's dielectric specular is tinted towards its base colour, in [0, 1]")
+ANISOTROPIC = _weight("anisotropic", "anisotropic", "anisotropy of a principled material's specular lobes, in [0, 1]")
+SHEEN = _weight("sheen", "sheen", "sheen weight of a principled material, in [0, 1]")
+SHEEN_TINT = _weight("sheen_tint", "sheen_tint", "how far a principled material's sheen is tinted towards its base colour, in [0, 1]")
+CLEARCOAT = _weight("clearcoat", "clearcoat", "clearcoat weight of a principled material, in [0, 1]")
+CLEARCOAT_GLOSS = _weight("clearcoat_gloss", "clearcoat_gloss", "glossiness of a principled material's clearcoat, in [0, 1]")
+SPEC_TRANS = _weight("spec_trans", "spec_trans", "specular transmission weight of a principled material, in [0, 1]")
+FLATNESS = _weight("flatness", "flatness", "blend of a principled material's diffuse towards its fake subsurface lobe, in [0, 1]")
+#: the principled materials' kinds, by key
+PRINCIPLED_KINDS = (BASE_COLOR, METALLIC, SPEC_TINT, ANISOTROPIC, SHEEN, SHEEN_TINT, CLEARCOAT, CLEARCOAT_GLOSS, SPEC_TRANS, FLATNESS)
+
 #: every kind of a scene parameter, by key
-KINDS: dict[str, ParamKind] = {k.key: k for k in (REFLECTANCE, SPECULAR_REFLECTANCE, EMISSION, ROUGHNESS)}
+KINDS: dict[str, ParamKind] = {k.key: k for k in (REFLECTANCE, SPECULAR_REFLECTANCE, EMISSION, ROUGHNESS, *PRINCIPLED_KINDS)}
 
 
 def _short(value: torch.Tensor) -> str:

@@ -449,12 +449,14 @@ def test_gltf_material_types(tmp_path):
     none = {"eta": (0.0, 0.0, 0.0), "k": (1.0, 1.0, 1.0)}  # conductor material none: Fresnel 1
     assert types["chrome"] == ("mirror", none) and types["polished"] == ("mirror", none)
     assert types["glass"] == ("dielectric", {"ior": 1.33}) and types["frosted"] == ("dielectric", {"ior": 1.5})
-    assert types["plastic"] == ("diffuse", {}) and types["bare"] == ("glossy", none) and alpha["bare"] == 1.0
-    assert types["brushed"][0] == "glossy" and alpha["brushed"] == pytest.approx(0.0016)
+    assert types["plastic"][0] == "principled" and types["bare"] == ("glossy", none) and alpha["bare"] == 1.0  # a partial metal: principled
+    assert types["plastic"][1]["eta"] == pytest.approx(1.5) and types["plastic"][1]["two_sided"] == 1.0
+    assert float(scene.params["plastic.metallic"][0]) == pytest.approx(0.3) and alpha["plastic"] == pytest.approx(0.1)  # its roughness: glTF's perceptual one
+    assert types["brushed"][0] == "principled" and alpha["brushed"] == pytest.approx(0.04)
     p = scene.params
     assert torch.allclose(p["gold.specular_reflectance"], torch.tensor([1.0, 0.766, 0.336]))  # exact, not 8-bit
     assert torch.allclose(p["chrome.specular_reflectance"], torch.tensor([0.9, 0.8, 0.7]))
-    assert torch.allclose(p["plastic.reflectance"], torch.tensor([0.2, 0.4, 0.6]))
+    assert torch.allclose(p["plastic.base_color"], torch.tensor([0.2, 0.4, 0.6]))
     assert torch.equal(p["bare.specular_reflectance"], torch.ones(3))
     assert torch.allclose(p["patina.specular_reflectance"], torch.tensor([0.25, 0.125, 0.25]), atol=0.003)  # texture mean x factor
     assert not any(k.startswith(("glass.", "frosted.")) for k in p)

@@ -355,7 +355,7 @@ BAD = {
     # name: (body, text on the offending line, words in the message)
     "unknown element": ('<shape type="rectangle"><colour name="x" value="1"/></shape>', "<colour", "unknown element <colour>"),
     "unsupported shape": ('<shape type="hair"/>', "hair", "unsupported shape type 'hair' (supported: rectangle, cube, sphere, disk, cylinder, obj, ply, serialized)"),
-    "unsupported bsdf": ('<shape type="rectangle"><bsdf type="principled"/></shape>', "principled", "unsupported bsdf type 'principled'"),
+    "unsupported bsdf": ('<shape type="rectangle"><bsdf type="hair"/></shape>', "hair", "unsupported bsdf type 'hair'"),
     "unsupported emitter": ('<shape type="rectangle"/>\n<emitter type="projector"/>', "projector", "unsupported emitter type 'projector' (supported: area"),
     "emitter in shape": ('<shape type="rectangle"><emitter type="spot"/></shape>', "spot", "an emitter of type 'spot' is a point or a direction (a delta light), not emitted by a shape"),
     # conductors: named metals, eta/k and Beckmann load (test_conductors_...); what stays outside the subset

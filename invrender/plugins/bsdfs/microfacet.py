@@ -41,7 +41,7 @@ from abc import ABC, abstractmethod
 import torch
 import torch.autograd.forward_ad as fwAD
 
-from invrender.vec import normalize
+from invrender.vec import dot, normalize
 
 
 # ---------------------------------------------------------------- GGX, as functions (the GGX material's originals)
@@ -62,9 +62,11 @@ def smith_G1(cos_v: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
     return torch.where(cos_v > 0, 2.0 / (1.0 + (1.0 + alpha * alpha * tan2).sqrt()), 0.0)
 
 
-def sample_visible_normal(wo_local: torch.Tensor, alpha: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-    """Heitz (2018): a GGX normal (N, 3), local frame, visible from ``wo_local`` (N, 3) (z > 0)."""
-    vh = normalize(torch.stack([alpha * wo_local[:, 0], alpha * wo_local[:, 1], wo_local[:, 2]], dim=1))
+def sample_visible_normal(wo_local: torch.Tensor, alpha: torch.Tensor, u: torch.Tensor, alpha_y: torch.Tensor | None = None) -> torch.Tensor:
+    """Heitz (2018): a GGX normal (N, 3), local frame, visible from ``wo_local`` (N, 3) (z > 0);
+    anisotropic with roughness ``alpha`` along x and ``alpha_y`` along y where ``alpha_y`` is given."""
+    ay = alpha if alpha_y is None else alpha_y
+    vh = normalize(torch.stack([alpha * wo_local[:, 0], ay * wo_local[:, 1], wo_local[:, 2]], dim=1))
     lensq = vh[:, 0] ** 2 + vh[:, 1] ** 2
     inv = torch.where(lensq > 0, lensq.clamp_min(1e-30).rsqrt(), 0.0)
     t1 = torch.where((lensq > 0)[:, None], torch.stack([-vh[:, 1] * inv, vh[:, 0] * inv, torch.zeros_like(inv)], dim=1), torch.tensor([1.0, 0.0, 0.0], device=u.device))
@@ -76,7 +78,35 @@ def sample_visible_normal(wo_local: torch.Tensor, alpha: torch.Tensor, u: torch.
     p2 = (1.0 - s) * (1.0 - p1 * p1).clamp_min(0.0).sqrt() + s * p2
     p3 = (1.0 - p1 * p1 - p2 * p2).clamp_min(0.0).sqrt()
     nh = p1[:, None] * t1 + p2[:, None] * t2 + p3[:, None] * vh
-    return normalize(torch.stack([alpha * nh[:, 0], alpha * nh[:, 1], nh[:, 2].clamp_min(1e-6)], dim=1))
+    return normalize(torch.stack([alpha * nh[:, 0], ay * nh[:, 1], nh[:, 2].clamp_min(1e-6)], dim=1))
+
+
+# ---------------------------------------------------------------- anisotropic GGX, on whole vectors
+
+
+def ggx_D_aniso(m: torch.Tensor, alpha_x: torch.Tensor, alpha_y: torch.Tensor) -> torch.Tensor:
+    """Anisotropic GGX density D(m) (N,) of local normals ``m`` (N, 3) with roughness ``alpha_x``
+    (N,) along x and ``alpha_y`` (N,) along y: ``1 / (pi ax ay ((mx/ax)^2 + (my/ay)^2 + mz^2)^2)``,
+    0 where ``D cos_m <= 1e-20`` (as Mitsuba's, which is also where m points below)."""
+    q = (m[:, 0] / alpha_x).square() + (m[:, 1] / alpha_y).square() + m[:, 2].square()
+    d = 1.0 / (math.pi * alpha_x * alpha_y * q.square()).clamp_min(1e-30)
+    return torch.where(d * m[:, 2] > 1e-20, d, 0.0)
+
+
+def ggx_G1_aniso(v: torch.Tensor, m: torch.Tensor, alpha_x: torch.Tensor, alpha_y: torch.Tensor) -> torch.Tensor:
+    """Anisotropic GGX Smith masking G1 (N,) of directions ``v`` (N, 3) on microfacets ``m`` (N, 3):
+    ``2 / (1 + sqrt(1 + (ax^2 vx^2 + ay^2 vy^2) / vz^2))``, 1 at normal incidence, 0 where ``v``
+    sees the microfacet's back (``(v.m) vz <= 0``), Mitsuba's ``smith_g1``."""
+    xy = (alpha_x * v[:, 0]).square() + (alpha_y * v[:, 1]).square()
+    g = 2.0 / (1.0 + (1.0 + xy / v[:, 2].square().clamp_min(1e-30)).sqrt())
+    g = torch.where(xy == 0, 1.0, g)
+    return torch.where(dot(v, m) * v[:, 2] <= 0, 0.0, g)
+
+
+def ggx_visible_pdf_aniso(v: torch.Tensor, m: torch.Tensor, alpha_x: torch.Tensor, alpha_y: torch.Tensor) -> torch.Tensor:
+    """Density (N,) of :func:`sample_visible_normal` drawing ``m`` (N, 3) seen from ``v`` (N, 3),
+    ``vz > 0``: ``D(m) G1(v, m) |v.m| / vz``."""
+    return ggx_D_aniso(m, alpha_x, alpha_y) * ggx_G1_aniso(v, m, alpha_x, alpha_y) * dot(v, m).abs() / v[:, 2]
 
 
 # ---------------------------------------------------------------- Beckmann, as functions

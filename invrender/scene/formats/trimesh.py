@@ -19,9 +19,11 @@ colour), read as follows.
   ``roughnessFactor`` is perceptual roughness r and GGX alpha = r^2, the glTF spec's convention.
   A primitive without any material is the exception to the spec (whose default material is
   metallic): it gets the grey diffuse of an OBJ face without a material.
+- A metallic factor strictly between 0 and 1 (an opaque material, not a mirror) is a ``principled``
+  material: glTF's metallic-roughness model is the Disney model's core (base colour, metallic,
+  perceptual roughness r with alpha = r^2, a dielectric F0 of 0.04 = ``eta`` 1.5, or ``ior``).
 - What invrender's types cannot hold is dropped: ``metallicRoughnessTexture`` (factors only),
-  metallic factors strictly between 0 and 1 (a metal at >= 0.5; below, the dielectric base's
-  specular layer is dropped and only its diffuse part stays), a conductor's texture (its
+  a conductor's texture (its
   ``specular_reflectance`` is RGB only: the linear mean of ``baseColorTexture`` x
   ``baseColorFactor``), partial transmission (any ``transmissionFactor`` > 0 is clear glass, its
   base colour ignored), normal, occlusion and alpha.
@@ -263,8 +265,9 @@ class GltfMaterial:
         where: the file and the material's name, for messages.
         transmission: ``transmissionFactor`` in [0, 1] (0: opaque).
         ior: the index of refraction ``ior`` > 0 (1.5 by default).
-        metal: a conductor (glTF ``metallicFactor`` >= 0.5: invrender has no partial metals;
-            MTL ``illum 3`` with a non-zero ``Ks``).
+        metallic: glTF ``metallicFactor`` in [0, 1] (MTL: 1 for a metal, else 0).
+        metal: a conductor (glTF ``metallicFactor`` >= 0.5; MTL ``illum 3`` with a non-zero
+            ``Ks``); partial metals are principled materials.
         alpha: GGX alpha in [0, 1] (glTF ``roughnessFactor`` squared; 0 for an MTL mirror).
         base_colour: linear RGB (3,) or texture (h, w, 3): what a diffuse surface reflects.
         metal_colour: linear RGB (3,): what a metal reflects (a texture by its linear mean).
@@ -273,6 +276,7 @@ class GltfMaterial:
 
     transmission = 0.0
     ior = 1.5
+    metallic = 0.0
     metal = False
     alpha = 1.0
     emission = None
@@ -317,8 +321,12 @@ class _PbrMaterial(GltfMaterial):
         return _gltf_number(self._extension("KHR_materials_ior"), "ior", None, 1.5, self.where, high=math.inf)
 
     @cached_property
+    def metallic(self) -> float:
+        return _gltf_number(self._pbr, "metallicFactor", self._material.metallicFactor, 1.0, self.where)
+
+    @cached_property
     def metal(self) -> bool:
-        return _gltf_number(self._pbr, "metallicFactor", self._material.metallicFactor, 1.0, self.where) >= 0.5
+        return self.metallic >= 0.5
 
     @cached_property
     def alpha(self) -> float:
@@ -374,6 +382,10 @@ class _MtlMaterial(GltfMaterial):
     @property
     def metal(self) -> bool:
         return self._ks is not None and bool(np.any(self._ks != 0))
+
+    @property
+    def metallic(self) -> float:
+        return 1.0 if self.metal else 0.0
 
     @property
     def metal_colour(self) -> np.ndarray:

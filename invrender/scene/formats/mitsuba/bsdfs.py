@@ -20,7 +20,8 @@ BSDFs (``<bsdf type=...>``)
 
     ``twosided`` wrapping one BSDF (or two references to the same one) is accepted, the material
     is the nested one; like Mitsuba, it cannot wrap a BSDF that transmits (a dielectric) or
-    another ``twosided``.
+    another ``twosided``. A material whose transmission depends on its values (``principled``:
+    ``spec_trans``) says itself in its ``from_mitsuba_twosided``, which also marks it two-sided.
 
 Deviations from Mitsuba
     - invrender's diffuse, mirror, glossy and plastic materials are two-sided: one-sided Mitsuba
@@ -87,23 +88,28 @@ def material(ctx: Context, bsdf: Obj, owner: str | None) -> int:
     return key
 
 
-def convert_bsdf(ctx: Context, bsdf: Obj) -> Material:
+def convert_bsdf(ctx: Context, bsdf: Obj, outer: Obj | None = None) -> Material:
     """The :class:`Material` of a ``<bsdf>``: ``twosided`` unwrapped, any other plugin read by the
-    material class that names it in ``mitsuba_plugins`` (its ``from_mitsuba``)."""
+    material class that names it in ``mitsuba_plugins`` (its ``from_mitsuba``; inside a
+    ``twosided`` ``outer``, then its ``from_mitsuba_twosided`` where it has one)."""
     known = plugins()
     if bsdf.type == TWOSIDED:
         inner = ctx.nested(bsdf, "bsdf")
         if not inner or len(inner) > 2 or (len(inner) == 2 and inner[0] is not inner[1]):
             raise ctx.error(bsdf.node, "twosided must wrap one BSDF (two different sides are not supported: invrender's materials are two-sided)", bsdf)
-        if inner[0].type == TWOSIDED or (inner[0].type in known and _transmits(known[inner[0].type])):
+        inner_cls = known.get(inner[0].type)
+        # a material whose transmission depends on its values says itself (from_mitsuba_twosided)
+        if inner[0].type == TWOSIDED or (inner_cls is not None and _transmits(inner_cls) and not hasattr(inner_cls, "from_mitsuba_twosided")):
             # as Mitsuba's twosided, which rejects BSDFs with a transmission component
             raise ctx.error(inner[0].node, f"twosided cannot wrap a {inner[0].type} BSDF", bsdf)
         ctx.finish(bsdf, (), ("bsdf",))
-        return dataclasses.replace(convert_bsdf(ctx, inner[0]), one_sided=False)
+        return dataclasses.replace(convert_bsdf(ctx, inner[0], outer=bsdf), one_sided=False)
     if bsdf.type not in known:
         raise ctx.error(bsdf.node, f"unsupported bsdf type {bsdf.type!r} (supported: {', '.join([*known, TWOSIDED])})", bsdf)
     cls = known[bsdf.type]
     entries = cls.from_mitsuba(BsdfReader(ctx, bsdf))
+    if outer is not None and hasattr(cls, "from_mitsuba_twosided"):
+        entries = cls.from_mitsuba_twosided(entries, lambda message: ctx.error(bsdf.node, message, outer))
     # a plugin standing for several types names the one it read (roughconductor: its distribution)
     type_name = entries.pop("type", cls.type_name)
     spec = Material.of(type_name, f"{ctx.where}:{bsdf.node.line}: {bsdf.describe()}", **entries)

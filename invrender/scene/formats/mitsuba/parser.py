@@ -365,7 +365,7 @@ class Document:
             obj = self.parse_object(node)
             parent.broken |= obj.broken
             name = node.attrs.get("name")
-            if name is None:
+            if name is None or parent.tag == "scene":  # the scene's objects are its children, named or not (Mitsuba-Blender names them)
                 parent.children.append(obj)
             else:
                 self.set_prop(parent, node, name, obj)

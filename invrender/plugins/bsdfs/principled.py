@@ -1,0 +1,469 @@
+"""The principled BSDF: Mitsuba 3's ``principled`` (Burley, "Physically-Based Shading at Disney",
+SIGGRAPH 2012 course; "Extending the Disney BRDF to a BSDF with Integrated Subsurface Scattering",
+2015), matched to Mitsuba's ``eval`` and ``pdf`` term by term (``docs/rendering.md#principled-materials``).
+
+Every quantity below is in the shading frame of the surface's *front* side (Mitsuba's: normal
+along the triangle's front; ``a`` = the direction towards the camera, ``b`` = towards the light,
+``c_a = a_z``, ``c_b = b_z``). The weights ``brdf = (1 - metallic)(1 - spec_trans)`` and ``bsdf =
+(1 - metallic) spec_trans`` split the dielectric base between the opaque and the transmitting
+part; alpha ``= max(0.001, roughness^2 / s)`` along x and ``max(0.001, roughness^2 s)`` along y,
+``s = sqrt(1 - 0.9 anisotropic)``. With ``h`` the (generalized) half vector turned up and ``F`` the
+exact dielectric Fresnel term at ``a . h`` for the relative index ``eta``:
+
+- specular reflection (both sides): ``F_p D(h) G(a, b) / (4 |c_a|)``, anisotropic GGX ``D`` and
+  Smith ``G`` (:mod:`~invrender.plugins.bsdfs.microfacet`), where on the front side ``F_p = (1 -
+  m)(1 - spec_tint) F + m Schlick(base_color) + (1 - m) spec_tint Schlick(c_tint R0(eta))`` (Schlick's
+  approximation with the index's branch, ``c_tint`` = base_color over its luminance) and on the back
+  side ``F_p = bsdf F``;
+- specular transmission: ``sqrt(base_color) bsdf (1 - F) D G |a.h| |b.h| / (|c_a| (a.h + eta' b.h)^2)``
+  (Walter et al.'s BTDF in radiance units, ``eta'`` the index along the path);
+- clearcoat (front only): ``clearcoat / 4 Schlick_0.04(a.h) D_GTR1(h) G_0.25(a) G_0.25(b) |c_b|``
+  with the GTR1 distribution of alpha ``0.1 (1 - clearcoat_gloss) + 0.001 clearcoat_gloss`` and
+  GGX masking of alpha 0.25 (Mitsuba's form, the cosine included as written);
+- diffuse (front only): ``brdf base_color / pi |c_b| lerp(f_d + f_r, f_ss, flatness)``, Burley's
+  ``f_d = (1 - F_i/2)(1 - F_o/2)`` with Schlick weights ``F = (1 - |c|)^5``, retro-reflection ``f_r
+  = R (F_o + F_i + F_o F_i (R - 1))``, ``R = 2 roughness (b.h)^2``, and the Hanrahan-Krueger fake
+  subsurface ``f_ss`` (flatness 0, the default, turns it off);
+- sheen (front only): ``sheen (1 - m) (1 - |b.h|)^5 lerp(1, c_tint, sheen_tint) |c_b|``.
+
+Each blend weight multiplies its lobe with no mask at 0 (Mitsuba masks a lobe whose weight is 0:
+the same values), so the derivative in a weight at 0 is its lobe's and a fit can start there.
+
+Sampling, as Mitsuba's: a GGX normal visible from ``a`` (turned up) gives ``F`` and so the lobe
+probabilities ``P_diffuse ~ brdf r_d``, ``P_clearcoat ~ clearcoat / 4 r_c``, ``P_transmit ~ bsdf (1 -
+F) r_s``, ``P_reflect ~ (1 - bsdf (1 - F)) r_s`` (front; from behind only ``F`` and ``1 - F``), the
+``r`` being the sampling rates (constants, default 1); ``pdf`` is the mixture of the lobes' densities
+with those probabilities at the half vector of ``b``. Where spec_trans > 0 and the surface is also
+opaque in part, Mitsuba's lobe choice reads ``F`` at the sampled normal while its ``pdf`` reads it at
+the direction's half vector, so sampling follows the ``pdf`` only approximately there (as in
+Mitsuba; renders match Mitsuba's). Sampling reads the parameters detached
+(:meth:`~invrender.core.bsdf.BSDF.sampling_param`), ``eval`` attached: the weight ``f cos / pdf`` carries
+every gradient.
+
+Back side: ``two_sided = true`` (the default, as invrender's other materials; Mitsuba's
+``twosided`` wrapper, which the Blender exporter writes around every opaque principled material)
+shades the back of an opaque material as its front; with ``two_sided = false`` (Mitsuba's
+``principled`` unwrapped: the Mitsuba reader sets it) an opaque material is black from behind. A
+material that transmits (spec_trans > 0 somewhere) reflects and refracts from behind as a
+dielectric, whatever ``two_sided`` says.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from invrender import registry
+from invrender.core.bsdf import BSDF, BSDFSample, Lobe, ShadingPoint
+from invrender.plugins.bsdfs.dielectric import MAX_RELATIVE_IOR, fresnel_dielectric
+from invrender.plugins.bsdfs.microfacet import ggx_D_aniso, ggx_G1_aniso, ggx_visible_pdf_aniso, roughness_at, sample_visible_normal
+from invrender.plugins.bsdfs.plastic import cosine_hemisphere
+from invrender.scene import kinds
+from invrender.scene.plugins import Constant, Param
+from invrender.vec import dot, normalize
+
+#: Rec. 709 luminance weights (Mitsuba's ``luminance`` of an RGB colour)
+LUMINANCE = (0.212671, 0.715160, 0.072169)
+
+#: Mitsuba's ``specular`` (read as eta = 2 / (1 - sqrt(0.08 specular)) - 1: 0.5 is eta 1.5; 12 is eta 99,
+#: about the largest relative index a material takes)
+SPECULAR = Constant(0.5, 0.0, 12.0, False, False)
+
+#: the blend weights every principled material has (key -> kind), all default 0
+WEIGHTS = {
+    "metallic": kinds.METALLIC,
+    "spec_tint": kinds.SPEC_TINT,
+    "anisotropic": kinds.ANISOTROPIC,
+    "sheen": kinds.SHEEN,
+    "sheen_tint": kinds.SHEEN_TINT,
+    "clearcoat": kinds.CLEARCOAT,
+    "clearcoat_gloss": kinds.CLEARCOAT_GLOSS,
+    "spec_trans": kinds.SPEC_TRANS,
+    "flatness": kinds.FLATNESS,
+}
+
+
+# ---------------------------------------------------------------- the helpers both principled materials use
+
+
+def luminance(rgb: torch.Tensor) -> torch.Tensor:
+    """(N,) luminance of linear RGB colours (N, 3)."""
+    return LUMINANCE[0] * rgb[:, 0] + LUMINANCE[1] * rgb[:, 1] + LUMINANCE[2] * rgb[:, 2]
+
+
+def tint_colour(base: torch.Tensor) -> torch.Tensor:
+    """(N, 3) the base colour over its luminance (white where the luminance is 0)."""
+    lum = luminance(base)[:, None]
+    return torch.where(lum > 0, base / torch.where(lum > 0, lum, 1.0), 1.0)
+
+
+def schlick_weight(cos: torch.Tensor) -> torch.Tensor:
+    """(N,) ``(1 - cos)^5``, ``1 - cos`` clamped to [0, 1]."""
+    m = (1.0 - cos).clamp(0.0, 1.0)
+    return m.square().square() * m
+
+
+def schlick_r0(eta: torch.Tensor) -> torch.Tensor:
+    """(N,) normal-incidence reflectance ``((eta - 1) / (eta + 1))^2``."""
+    return ((eta - 1.0) / (eta + 1.0)).square()
+
+
+def fresnel(cos_i: torch.Tensor, eta: torch.Tensor) -> torch.Tensor:
+    """(N,) exact dielectric Fresnel reflectance at signed cosines ``cos_i`` (N,) of an interface
+    of relative index ``eta`` (N,) (the index inverted where ``cos_i < 0``: arriving from inside)."""
+    return fresnel_dielectric(cos_i.abs(), torch.where(cos_i >= 0, eta, 1.0 / eta))[0]
+
+
+def schlick(r0: torch.Tensor, cos_i: torch.Tensor, eta: torch.Tensor) -> torch.Tensor:
+    """Schlick's Fresnel ``r0 + (1 - r0) (1 - cos)^5`` (shape of ``r0``: (N,) or (N, 3)) at signed
+    cosines ``cos_i`` (N,), with the transmitted cosine for ``cos`` where the incident side is the
+    denser one (Mitsuba's ``calc_schlick``)."""
+    eta_it = torch.where(cos_i >= 0, eta, 1.0 / eta)
+    cos2_t = 1.0 - (1.0 - cos_i * cos_i) / (eta_it * eta_it)
+    w = torch.where(eta_it > 1.0, schlick_weight(cos_i.abs()), schlick_weight(cos2_t.clamp_min(0.0).sqrt()))
+    if r0.ndim == 2:
+        w = w[:, None]
+    return w * (1.0 - r0) + r0
+
+
+def distribution_alphas(anisotropic: torch.Tensor, roughness: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(alpha_x, alpha_y), each (N,): ``max(0.001, r^2 / s)`` and ``max(0.001, r^2 s)``, ``s =
+    sqrt(1 - 0.9 anisotropic)`` (Burley 2012's mapping)."""
+    r2 = roughness.square()
+    aspect = (1.0 - 0.9 * anisotropic).clamp_min(0.0).sqrt()
+    return (r2 / aspect.clamp_min(1e-6)).clamp_min(0.001), (r2 * aspect).clamp_min(0.001)
+
+
+def diffuse_retro(c_a: torch.Tensor, c_b: torch.Tensor, cos_d: torch.Tensor, roughness: torch.Tensor, flatness: torch.Tensor) -> torch.Tensor:
+    """(N,) Burley's diffuse with retro-reflection, blended by ``flatness`` towards the fake
+    subsurface lobe: ``lerp(f_d + f_r, f_ss, flatness)`` (times ``base_color / pi`` makes f)."""
+    Fo, Fi = schlick_weight(c_b.abs()), schlick_weight(c_a.abs())
+    f_diff = (1.0 - 0.5 * Fi) * (1.0 - 0.5 * Fo)
+    Rr = 2.0 * roughness * cos_d.square()
+    f_retro = Rr * (Fo + Fi + Fo * Fi * (Rr - 1.0))
+    Fss90 = 0.5 * Rr
+    Fss = (1.0 + (Fss90 - 1.0) * Fo) * (1.0 + (Fss90 - 1.0) * Fi)
+    f_ss = 1.25 * (Fss * (1.0 / (c_b.abs() + c_a.abs()).clamp_min(1e-12) - 0.5) + 0.5)
+    return (f_diff + f_retro) * (1.0 - flatness) + f_ss * flatness
+
+
+def sheen_colour(base: torch.Tensor, sheen_tint: torch.Tensor) -> torch.Tensor:
+    """(N, 3) ``lerp(1, c_tint, sheen_tint)``."""
+    return 1.0 + sheen_tint[:, None] * (tint_colour(base) - 1.0)
+
+
+def compatible(h: torch.Tensor, a: torch.Tensor, b: torch.Tensor, c_a: torch.Tensor, reflection: bool) -> torch.Tensor:
+    """(N,) bool: do the macro- and the microsurface agree on the sides of ``a`` and ``b``
+    (``b`` on ``a``'s side of ``h`` for a reflection, on the other for a transmission)? ``h`` is
+    turned to ``a``'s side of the macrosurface (sign of ``c_a``) first."""
+    s = torch.where(c_a >= 0, 1.0, -1.0)
+    d_a, d_b = dot(a, h) * s, dot(b, h) * s
+    return (d_a > 0) & ((d_b > 0) if reflection else (d_b < 0))
+
+
+def gtr1_D(cos_h: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
+    """(N,) Burley's GTR1 density ``(alpha^2 - 1) / (pi log(alpha^2) (1 + (alpha^2 - 1) cos^2))``
+    (0 where ``D cos <= 1e-20``)."""
+    a2 = alpha.square()
+    d = (a2 - 1.0) / (math.pi * torch.log(a2) * (1.0 + (a2 - 1.0) * cos_h.square()))
+    return torch.where(d * cos_h > 1e-20, d, 0.0)
+
+
+def gtr1_sample(alpha: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+    """GTR1 normals (N, 3) (density ``D cos``) from uniforms ``u`` (N, 2)."""
+    phi = (2.0 * math.pi) * u[:, 0]
+    a2 = alpha.square()
+    cos2 = (1.0 - a2.pow(1.0 - u[:, 1])) / (1.0 - a2)
+    sin_t, cos_t = (1.0 - cos2).clamp_min(0.0).sqrt(), cos2.clamp_min(0.0).sqrt()
+    return torch.stack([torch.cos(phi) * sin_t, torch.sin(phi) * sin_t, cos_t], dim=1)
+
+
+def safe(x: torch.Tensor) -> torch.Tensor:
+    """``x`` with zeros replaced by 1 (a denominator whose zero lanes are masked out later, so that
+    neither the value nor the gradient of the masked lanes is NaN)."""
+    return torch.where(x == 0, 1.0, x)
+
+
+class PrincipledBase(BSDF):
+    """What both principled materials share: parameter reading (attached for ``eval``, detached
+    for sampling), the front-side frame, and the Mitsuba export."""
+
+    def grey(self, key: str, sp: ShadingPoint) -> tuple[torch.Tensor, torch.Tensor]:
+        """A blend weight at the points: ``(attached (N,), detached sampling value (N,))``."""
+        return roughness_at(self, sp, key)
+
+    def sided(self, sp: ShadingPoint) -> torch.Tensor:
+        """(N, 3) the factor taking invrender's local frame (normal turned to ``wo``) to the front
+        side's (Mitsuba's: normal along the triangle's front): z negated behind, unless the
+        material is two-sided and opaque."""
+        flip = ~sp.front & ~((self.constant("two_sided", sp) > 0.5) & ~self._transmits(sp))
+        z = torch.where(flip, -1.0, 1.0)
+        return torch.stack([torch.ones_like(z), torch.ones_like(z), z], dim=1)
+
+    def _transmits(self, sp: ShadingPoint) -> torch.Tensor:
+        """(N,) bool: has the point's material a transmission lobe (spec_trans not 0 everywhere in
+        the values sampling reads; Mitsuba's ``m_has_spec_trans``)?"""
+        token = ("has_spec_trans", sp.wo.device)
+        if token not in self._constant_tables:
+            flags = [bool((v["spec_trans"] != 0).any()) for v in self.sampling_values]
+            self._constant_tables[token] = torch.tensor(flags, dtype=torch.bool, device=sp.wo.device)
+        return self._constant_tables[token].index_select(0, sp.material)
+
+    def diffuse_reflectance(self, sp: ShadingPoint) -> torch.Tensor:
+        return self.param("base_color", sp)
+
+    @classmethod
+    def not_polynomial(cls, key: str, constants: dict) -> str | None:
+        return f"a {cls.type_name}'s value sums several lobes, each non-linear in its parameters"
+
+    @staticmethod
+    def read_weight(bsdf, key: str, kind, default: float) -> np.ndarray:
+        """A blend weight of a Mitsuba file: a number, or a colour or bitmap reduced to one number
+        as Mitsuba's ``eval_1`` does (a constant colour's channel mean, a bitmap's luminance)."""
+        value = np.asarray(bsdf.colour(key, kind, default), dtype=np.float64)
+        grey = value.mean(-1) if value.ndim == 1 else value @ np.asarray(LUMINANCE)
+        return np.broadcast_to(np.asarray(grey)[..., None], value.shape).copy()
+
+
+@registry.MATERIALS.register
+class Principled(PrincipledBase):
+    type_name = "principled"
+    lobes = Lobe.DIFFUSE | Lobe.GLOSSY | Lobe.GLOSSY_TRANSMISSION
+    params = {
+        "base_color": Param(kinds.BASE_COLOR, 0.5),
+        "roughness": Param(kinds.ROUGHNESS, 0.5),
+        **{k: Param(kind, 0.0) for k, kind in WEIGHTS.items()},
+    }
+    constants = {
+        "eta": Constant(1.5, 1.0 / MAX_RELATIVE_IOR, MAX_RELATIVE_IOR, False, False),
+        "main_specular_sampling_rate": Constant(1.0, 0.0, math.inf, False, True),
+        "clearcoat_sampling_rate": Constant(1.0, 0.0, math.inf, False, True),
+        "diffuse_reflectance_sampling_rate": Constant(1.0, 0.0, math.inf, False, True),
+        "two_sided": Constant(True, 0.0, 1.0, False, False, boolean=True),
+    }
+    doc = "Disney's principled BSDF (Mitsuba's principled): diffuse with retro-reflection, sheen, GGX specular with metallic and tint, GTR1 clearcoat, rough transmission"
+
+    def _half(self, sp: ShadingPoint, a: torch.Tensor, b: torch.Tensor):
+        """The geometry of a direction pair in the front-side frame: ``(c_a, c_b, front, reflect,
+        refract, eta, eta_path, h, a.h, b.h, F)``."""
+        c_a, c_b = a[:, 2], b[:, 2]
+        front = c_a > 0
+        reflect, refract = c_a * c_b > 0, c_a * c_b < 0
+        eta = self.constant("eta", sp)
+        eta_path = torch.where(front, eta, 1.0 / eta)
+        h = normalize(a + b * torch.where(reflect, 1.0, eta_path)[:, None])
+        h = h * torch.where(h[:, 2] < 0, -1.0, 1.0)[:, None]
+        d_a, d_b = dot(a, h), dot(b, h)
+        return c_a, c_b, front, reflect, refract, eta, eta_path, h, d_a, d_b, fresnel(d_a, eta)
+
+    def _value(self, sp: ShadingPoint, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+        """``f |c_b|`` (N, 3) in the front-side frame, parameters attached (module docstring)."""
+        c_a, c_b, front, reflect, refract, eta, eta_path, h, d_a, d_b, F = self._half(sp, a, b)
+        active = c_a != 0
+        base = self.param("base_color", sp)
+        w = {k: self.grey(k, sp)[0] for k in WEIGHTS}
+        r = self.grey("roughness", sp)[0]
+        m, st = w["metallic"], w["spec_trans"]
+        brdf, bsdf = (1.0 - m) * (1.0 - st), (1.0 - m) * st
+        ax, ay = distribution_alphas(w["anisotropic"], r)
+        D = ggx_D_aniso(h, ax, ay)
+        G = ggx_G1_aniso(a, h, ax, ay) * ggx_G1_aniso(b, h, ax, ay)
+        compat_r, compat_t = compatible(h, a, b, c_a, True), compatible(h, a, b, c_a, False)
+        abs_a = safe(c_a.abs())
+        # main specular reflection: the principled Fresnel blend (front) or the dielectric's (back)
+        eta_it = torch.where(d_a >= 0, eta, 1.0 / eta)
+        tint = w["spec_tint"]
+        F_schlick = m[:, None] * schlick(base, d_a, eta) + ((1.0 - m) * tint)[:, None] * schlick(tint_colour(base) * schlick_r0(eta_it)[:, None], d_a, eta)
+        F_front = ((1.0 - m) * (1.0 - tint) * F)[:, None] + F_schlick
+        F_p = torch.where(front[:, None], F_front, (bsdf * F)[:, None])
+        on = active & reflect & compat_r & (F > 0)
+        value = F_p * torch.where(on, D * G / (4.0 * abs_a), 0.0)[:, None]
+        # main specular transmission (radiance: 1 / eta_path^2 times Walter's eta_path^2)
+        on = active & refract & compat_t & (F < 1)
+        t = ((1.0 - F) * D * G * d_a * d_b / (abs_a * safe((d_a + eta_path * d_b).square()))).abs()
+        value = value + base.clamp_min(1e-12).sqrt() * torch.where(on, bsdf * t, 0.0)[:, None]
+        # clearcoat: GTR1, Schlick with R0 = 0.04, GGX masking of alpha 0.25
+        cc = w["clearcoat"]
+        on = active & reflect & compat_r & front
+        alpha_cc = 0.1 + (0.001 - 0.1) * w["clearcoat_gloss"]
+        quarter = torch.full_like(c_a, 0.25)  # the clearcoat's masking: GGX of alpha 0.25
+        G_cc = ggx_G1_aniso(a, h, quarter, quarter) * ggx_G1_aniso(b, h, quarter, quarter)
+        value = value + torch.where(on, 0.25 * cc * schlick(torch.full_like(d_a, 0.04), d_a, eta) * gtr1_D(h[:, 2], alpha_cc) * G_cc * c_b.abs(), 0.0)[:, None]
+        # diffuse with retro-reflection (and the fake subsurface by flatness)
+        on = active & reflect & front
+        lobe = diffuse_retro(c_a, c_b, d_b, r, w["flatness"])
+        value = value + base * torch.where(on, brdf * c_b.abs() / math.pi * lobe, 0.0)[:, None]
+        # sheen
+        sh = w["sheen"]
+        on = active & reflect & front
+        value = value + sheen_colour(base, w["sheen_tint"]) * torch.where(on, sh * (1.0 - m) * schlick_weight(d_b.abs()) * c_b.abs(), 0.0)[:, None]
+        return value
+
+    def _probabilities(self, sp: ShadingPoint, front: torch.Tensor, F: torch.Tensor):
+        """The lobe probabilities ``(diffuse, clearcoat, transmission, reflection)`` (N,) each, at
+        the detached parameters, for Fresnel reflectance ``F`` (N,)."""
+        m, st, cc = (self.grey(k, sp)[1] for k in ("metallic", "spec_trans", "clearcoat"))
+        has_st = self._transmits(sp)
+        brdf, bsdf = (1.0 - m) * (1.0 - st), torch.where(has_st, (1.0 - m) * st, 0.0)
+        r_spec, r_cc, r_diff = (self.constant(k, sp) for k in ("main_specular_sampling_rate", "clearcoat_sampling_rate", "diffuse_reflectance_sampling_rate"))
+        p_r = torch.where(front, r_spec * (1.0 - bsdf * (1.0 - F)), F)
+        p_t = torch.where(has_st, torch.where(front, r_spec * bsdf * (1.0 - F), 1.0 - F), 0.0)
+        p_c = torch.where(front, 0.25 * cc * r_cc, 0.0)
+        p_d = torch.where(front, brdf * r_diff, 0.0)
+        total = p_r + p_t + p_c + p_d
+        inv = torch.where(total > 0, 1.0 / safe(total), 0.0)
+        return p_d * inv, p_c * inv, p_t * inv, p_r * inv
+
+    def _pdf(self, sp: ShadingPoint, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+        """(N,) the sampling density of ``b`` in the front-side frame (detached parameters)."""
+        c_a, c_b, front, reflect, refract, eta, eta_path, h, d_a, d_b, F = self._half(sp, a, b)
+        p_d, p_c, p_t, p_r = self._probabilities(sp, front, F)
+        ax, ay = distribution_alphas(self.grey("anisotropic", sp)[1], self.grey("roughness", sp)[1])
+        jacobian = torch.where(reflect, 1.0 / safe(4.0 * d_b), eta_path.square() * d_b / safe((d_a + eta_path * d_b).square())).abs()
+        up = a * torch.where(c_a < 0, -1.0, 1.0)[:, None]
+        visible = ggx_visible_pdf_aniso(up, h, ax, ay) * jacobian
+        mirror = compatible(h, a, b, c_a, True) & reflect
+        through = compatible(h, a, b, c_a, False) & refract & self._transmits(sp)
+        alpha_cc = 0.1 + (0.001 - 0.1) * self.grey("clearcoat_gloss", sp)[1]
+        coat = torch.where(h[:, 2] < 0, 0.0, h[:, 2] * gtr1_D(h[:, 2], alpha_cc)) * jacobian
+        pdf = torch.where(mirror, p_r * visible + p_c * coat, 0.0) + torch.where(reflect, p_d * c_b / math.pi, 0.0) + torch.where(through, p_t * visible, 0.0)
+        return torch.where(c_a != 0, pdf, 0.0)
+
+    def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        """``f |cos theta_i|`` (N, 3) of all lobes (differentiable in every parameter)."""
+        s = self.sided(sp)
+        return self._value(sp, sp.wo_local * s, sp.frame.to_local(wi) * s)
+
+    def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        """(N,) the lobes' densities mixed by their (detached) probabilities."""
+        s = self.sided(sp)
+        return self._pdf(sp, sp.wo_local * s, sp.frame.to_local(wi) * s)
+
+    def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
+        """Mitsuba's procedure: a visible GGX normal from ``u_dir`` fixes ``F`` and so the lobe
+        probabilities; ``u_lobe`` picks diffuse, clearcoat, transmission or reflection in that order;
+        ``u_dir`` draws the lobe's direction (cosine-weighted, a GTR1 normal, or the visible normal
+        refracted or reflected). Weight ``f cos / pdf`` (``f`` attached)."""
+        s = self.sided(sp)
+        a = sp.wo_local * s
+        c_a = a[:, 2]
+        front = c_a > 0
+        sign = torch.where(c_a < 0, -1.0, 1.0)
+        up = a * sign[:, None]
+        ax, ay = distribution_alphas(self.grey("anisotropic", sp)[1], self.grey("roughness", sp)[1])
+        h = sample_visible_normal(torch.where((up[:, 2] > 0)[:, None], up, torch.tensor([0.0, 0.0, 1.0], device=a.device)), ax, u_dir, ay)
+        eta = self.constant("eta", sp)
+        d_a = dot(a, h)
+        F = fresnel(d_a, eta)
+        p_d, p_c, p_t, _ = self._probabilities(sp, front, F)
+        diffuse = u_lobe < p_d
+        coat = ~diffuse & (u_lobe < p_d + p_c)
+        transmit = ~diffuse & ~coat & (u_lobe < p_d + p_c + p_t)
+        # reflection about the visible normal, or about a GTR1 normal for the clearcoat
+        alpha_cc = 0.1 + (0.001 - 0.1) * self.grey("clearcoat_gloss", sp)[1]
+        h_r = torch.where(coat[:, None], gtr1_sample(alpha_cc, u_dir), h)
+        w_r = 2.0 * dot(a, h_r)[:, None] * h_r - a
+        # refraction through the visible normal (Mitsuba's refract, its signed cosine)
+        eta_ti = torch.where(d_a >= 0, 1.0 / eta, eta)
+        cos2_t = 1.0 - eta_ti.square() * (1.0 - d_a.square())
+        cos_t = -cos2_t.clamp_min(0.0).sqrt() * torch.where(d_a >= 0, 1.0, -1.0)
+        w_t = h * (d_a * eta_ti + cos_t)[:, None] - a * eta_ti[:, None]
+        b = torch.where(diffuse[:, None], cosine_hemisphere(u_dir), torch.where(transmit[:, None], w_t, w_r))
+        c_b = b[:, 2]
+        ok = (c_a != 0) & (front | (self._transmits(sp) & (self.grey("spec_trans", sp)[1] * (1.0 - self.grey("metallic", sp)[1]) > 0)))
+        ok = ok & torch.where(transmit, compatible(h, a, b, c_a, False) & (c_a * c_b < 0), c_a * c_b > 0)
+        ok = ok & torch.where(diffuse | transmit, True, compatible(h_r, a, b, c_a, True))
+        pdf = torch.where(ok, self._pdf(sp, a, b), 0.0)
+        ok = ok & (pdf > 0)
+        value = self._value(sp, a, b)
+        weight = torch.where(ok[:, None], value / safe(pdf)[:, None], 0.0)
+        return BSDFSample(sp.frame.to_world(b * s), weight, torch.where(ok, pdf, 0.0), torch.zeros_like(ok))
+
+    @classmethod
+    def resolve(cls, where: str, values: dict, constants: dict, given: set) -> dict:
+        """``eta = 1`` (no interface to refract at) becomes 1.001 where the material transmits, as
+        Mitsuba's does."""
+        if constants["eta"] == 1.0 and bool(np.any(np.asarray(_numpy(values["spec_trans"])) != 0)):
+            constants = {**constants, "eta": 1.001}
+        return constants
+
+    # ---- its aliases in the scene formats (read through the registry)
+
+    mitsuba_plugins = ("principled",)
+
+    @classmethod
+    def from_mitsuba(cls, bsdf) -> dict:
+        """Mitsuba's ``principled``: ``base_color`` (colour or bitmap, default 0.5), ``roughness``
+        (default 0.5; 0 is read as 1e-4, the smallest roughness invrender's kind holds, which gives
+        the same alpha 0.001), the blend weights (``metallic``, ``spec_tint``, ``anisotropic``,
+        ``sheen``, ``sheen_tint``, ``clearcoat``, ``clearcoat_gloss``, ``spec_trans``, ``flatness``;
+        numbers, colours or bitmaps, default 0), ``eta`` or ``specular`` (not both; ``eta = 2 / (1 -
+        sqrt(0.08 specular)) - 1``, default specular 0.5: eta 1.5) and the three sampling rates."""
+        entries = {"base_color": bsdf.colour("base_color", kinds.BASE_COLOR, 0.5)}
+        entries.update(read_common(cls, bsdf))
+        if bsdf.has("eta") and bsdf.has("specular"):
+            raise bsdf.error("specular", "give either 'eta' or 'specular', not both (as Mitsuba)")
+        transmits = bool(np.any(entries["spec_trans"] != 0))
+        if bsdf.has("eta"):
+            eta = bsdf.number("eta", cls.constants["eta"], "relative index of refraction")
+            eta = 1.001 if transmits and eta == 1.0 else eta
+        else:
+            specular = bsdf.number("specular", SPECULAR, "specular level, Mitsuba's eta = 2 / (1 - sqrt(0.08 specular)) - 1")
+            specular = 1e-3 if transmits and specular == 0.0 else specular
+            eta = 2.0 / (1.0 - math.sqrt(0.08 * specular)) - 1.0
+        entries["eta"] = eta
+        entries["two_sided"] = False  # Mitsuba's principled is one-sided unless wrapped in twosided
+        for key in ("main_specular_sampling_rate", "clearcoat_sampling_rate", "diffuse_reflectance_sampling_rate"):
+            entries[key] = bsdf.number(key, cls.constants[key], "a lobe's sampling rate")
+        bsdf.finish(("base_color", "roughness", *WEIGHTS, "eta", "specular", "main_specular_sampling_rate", "clearcoat_sampling_rate", "diffuse_reflectance_sampling_rate"))
+        return entries
+
+    gltf_priority = 25  # after the mirrors (a polished partial metal stays a mirror), before the glossy metals
+
+    @classmethod
+    def from_gltf(cls, material) -> dict | None:
+        """An opaque glTF material with a metallic factor strictly between 0 and 1: base_color =
+        its base colour (a texture too), metallic, roughness = sqrt(alpha) (glTF's perceptual
+        roughness; at least 1e-4), eta = its ``ior`` (1.5 by default: F0 = 0.04, glTF's), two-sided
+        as invrender's other glTF materials."""
+        if not 0.0 < material.metallic < 1.0 or material.transmission > 0:
+            return None
+        return {"base_color": material.base_colour, "metallic": material.metallic, "roughness": max(math.sqrt(material.alpha), 1e-4), "eta": material.ior, "two_sided": True}
+
+    @classmethod
+    def from_mitsuba_twosided(cls, entries: dict, error) -> dict:
+        """Mitsuba's ``twosided`` around it: the back shaded as the front; refused where it
+        transmits (Mitsuba's twosided rejects a BSDF with a transmission lobe)."""
+        if bool(np.any(np.asarray(_numpy(entries.get("spec_trans", 0.0))) != 0)):
+            raise error(f"twosided cannot wrap a {cls.type_name} BSDF with spec_trans > 0 (a transmission lobe)")
+        return {**entries, "two_sided": True}
+
+    @classmethod
+    def to_mitsuba(cls, values: dict, constants: dict) -> dict:
+        out = {"type": cls.type_name, "base_color": values["base_color"]}
+        for key in ("roughness", *WEIGHTS):
+            v = np.asarray(_numpy(values[key]), dtype=np.float64)
+            if v.ndim != 1:
+                raise ValueError(f"a {key} map has no export here (written as one number)")
+            out[key] = float(v[0])
+        out["eta"] = float(constants["eta"])
+        for key in ("main_specular_sampling_rate", "clearcoat_sampling_rate", "diffuse_reflectance_sampling_rate"):
+            out[key] = float(constants[key])
+        return {"type": "twosided", "bsdf": out} if constants.get("two_sided") else out
+
+
+def _numpy(value):
+    return value.detach().cpu().numpy() if torch.is_tensor(value) else np.asarray(value)
+
+
+def read_common(cls, bsdf) -> dict:
+    """The parameters both principled materials read alike: ``roughness`` and the blend weights the
+    class ``cls`` has."""
+    r = np.asarray(cls.read_weight(bsdf, "roughness", kinds.ROUGHNESS, 0.5), dtype=np.float64)
+    entries = {"roughness": np.maximum(r, 1e-4)}
+    for key, kind in WEIGHTS.items():
+        if key in cls.params:
+            entries[key] = cls.read_weight(bsdf, key, kind, 0.0)
+    return entries
