@@ -10,9 +10,8 @@ instead of data-dependent shapes:
 - :meth:`sqrt`, :meth:`cos`, :meth:`sin`, :meth:`abs`, :meth:`minimum`, :meth:`maximum`,
   :meth:`select` (``mask ? a : b``), :meth:`shr` (the logical right shift of a UInt),
   :meth:`bits24` (a UInt's low 24 bits as a Float), :meth:`u32` (a UInt constant),
-  :meth:`gather` (``table[index]``, a 1-D table read at UInt indices), :meth:`gather_rows`
-  (whole rows of 2, 4, 8 or 16 floats at once), :meth:`uint` (a Float holding an integer as a
-  UInt), :meth:`full`.
+  :meth:`gather_rows` (whole rows of 1, 2, 4, 8 or 16 floats of a table at UInt indices),
+  :meth:`uint` (a Float holding an integer as a UInt), :meth:`full`, :meth:`opaque`.
 
 Tables are read by rows where they can be: Dr.Jit turns a row of a power-of-two width into packet
 loads, where single-element gathers become the CPU's vector-gather instruction, which on the CPUs
@@ -104,11 +103,6 @@ class TorchArrays:
         return _signed(value)
 
     @staticmethod
-    def gather(table, index):
-        """``table[index]``: ``table`` (T,) any dtype, ``index`` (N,) integer."""
-        return table.index_select(0, index if index.dtype in (torch.int32, torch.int64) else index.to(torch.int64))
-
-    @staticmethod
     def gather_rows(table, index, width: int):
         """Rows ``index`` (N,) of ``table`` ((T * width,) float32 flat), as a ``width``-tuple of (N,)."""
         return tuple(table.view(-1, width).index_select(0, index if index.dtype in (torch.int32, torch.int64) else index.to(torch.int64)).unbind(1))
@@ -120,12 +114,9 @@ class TorchArrays:
 
     @staticmethod
     def full(value, like):
-        """An array of ``like``'s length filled with ``value``: Float for a float, UInt for an int."""
+        """An array of ``like``'s length filled with ``value``: Float for a float, UInt for an int
+        (a UInt constant above 2^31 through :meth:`u32`)."""
         return torch.full_like(like, value, dtype=torch.float32 if isinstance(value, float) else torch.int32)
-
-    @staticmethod
-    def zeros(like):
-        return torch.zeros_like(like, dtype=torch.float32)
 
     @staticmethod
     def opaque(value: int):
@@ -187,9 +178,6 @@ class DrJitArrays:
     def u32(self, value: int):
         return value & _U32
 
-    def gather(self, table, index):
-        return self.dr.gather(type(table), table, index)
-
     def gather_rows(self, table, index, width: int):
         if width == 1:
             return (self.dr.gather(self.Float, table, index),)
@@ -202,9 +190,6 @@ class DrJitArrays:
     def full(self, value, like):
         kind = self.Float if isinstance(value, float) else self.UInt
         return self.dr.full(kind, value, self.dr.width(like))
-
-    def zeros(self, like):
-        return self.dr.zeros(self.Float, self.dr.width(like))
 
     def opaque(self, value: int):
         """A UInt scalar that changes from call to call, passed to the kernel as a value rather

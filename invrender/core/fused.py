@@ -121,8 +121,8 @@ def tables(ctx: TransportContext, direct, hemisphere: str) -> FusedScene | None:
     if sampler is None:
         return None
     rows = (
-        lanes.triangle_rows(t.packed, t.material, t.emitter, lights.emitting, lights.pdf_area),
-        lanes.light_rows(lights.cdf, lights.tri),
+        lights.rows,
+        lights.light_rows,
         *(torch.nn.functional.pad(x.detach().float(), (0, 1)).reshape(-1) for x in (rho, lights.eps)),
     )
     return FusedScene(packed, direct == "mis", direct == "emitter", direct in ("mis", "emitter"), sampler, lights.sample, rows)

@@ -258,7 +258,7 @@ def lambert_vertex(
     em, has_emitter = tri.emitter(xp)
     seen = (c > 0.0) & tri.emitting & has_emitter
     if nee_only and not first:
-        seen = seen & False
+        seen = c != c  # none (c is never NaN for a valid hit)
     w = xp.select(seen, 1.0, 0.0)
     if mis and not first:
         light_pdf = tri.pdf_area * t * t / xp.maximum(xp.abs(c), 1e-12)
@@ -287,12 +287,12 @@ def lambert_vertex(
     else:
         so, wl, shadow_t = (zero, zero, zero), (zero, zero, zero), zero
         factor_d = direct = (zero, zero, zero)
-        sampled = xp.select(seen & False, mat, none)
+        sampled = xp.full(none, mat)
     # the BSDF sample, the new ray and Russian roulette
     wi, pdf_next = sample_direction(xp, n, uniform(xp, keys, salts[0]), uniform(xp, keys, salts[1]))
     o_next = spawn(xp, p, n, wi, offset)
     b = scale(beta, r)
-    alive = c == c
+    alive = c == c  # every path (c is never NaN for a valid hit)
     if roulette:
         q = xp.minimum(xp.maximum(xp.maximum(b[0], b[1]), b[2]), 0.95)
         alive = uniform(xp, keys, salts[5]) < q
@@ -309,5 +309,5 @@ def _tangents(xp, tangent_out, factor_d, sampled):
     factor_e, hit_emitter, mat = tangent_out
     if factor_d is None:
         zero = 0.0 * factor_e[0]
-        factor_d, sampled = (zero, zero, zero), xp.select(zero > 1.0, mat, xp.u32(0xFFFFFFFF))
+        factor_d, sampled = (zero, zero, zero), xp.full(xp.u32(0xFFFFFFFF), mat)
     return (factor_e, hit_emitter, factor_d, sampled, mat)

@@ -89,6 +89,8 @@ class TriangleTables:
         eps: (E, 3) radiance per scene emitter (rows of ``triangles.emitter``), detached.
         sample: the emitter's point sampling written against the array interface
             (:mod:`invrender.core.lanes`; the signature of ``lambert_vertex``'s ``sample_light``).
+        rows, light_rows: the triangle and light tables it reads
+            (:func:`invrender.core.lanes.triangle_rows`, :func:`~invrender.core.lanes.light_rows`).
     """
 
     tri: torch.Tensor
@@ -97,6 +99,8 @@ class TriangleTables:
     emitting: torch.Tensor
     eps: torch.Tensor
     sample: Callable
+    rows: torch.Tensor
+    light_rows: torch.Tensor
 
 
 class Light(Declared, ABC):

@@ -186,6 +186,16 @@ def safe(x: torch.Tensor) -> torch.Tensor:
     return torch.where(x == 0, 1.0, x)
 
 
+def params_with(weights: dict) -> dict:
+    """The parameters of a principled material with the blend ``weights`` (name -> kind, default 0):
+    ``base_color`` and ``roughness`` (default 0.5) first, as Mitsuba declares them."""
+    return {"base_color": Param(kinds.BASE_COLOR, 0.5), "roughness": Param(kinds.ROUGHNESS, 0.5), **{k: Param(kind, 0.0) for k, kind in weights.items()}}
+
+
+#: the relative index of refraction both principled materials take (a constant)
+ETA = Constant(1.5, 1.0 / MAX_RELATIVE_IOR, MAX_RELATIVE_IOR, False, False)
+
+
 class PrincipledBase(BSDF):
     """What both principled materials share: parameter reading (attached for ``eval``, detached
     for sampling), the front-side frame, and the Mitsuba export."""
@@ -231,13 +241,9 @@ class PrincipledBase(BSDF):
 class Principled(PrincipledBase):
     type_name = "principled"
     lobes = Lobe.DIFFUSE | Lobe.GLOSSY | Lobe.GLOSSY_TRANSMISSION
-    params = {
-        "base_color": Param(kinds.BASE_COLOR, 0.5),
-        "roughness": Param(kinds.ROUGHNESS, 0.5),
-        **{k: Param(kind, 0.0) for k, kind in WEIGHTS.items()},
-    }
+    params = params_with(WEIGHTS)
     constants = {
-        "eta": Constant(1.5, 1.0 / MAX_RELATIVE_IOR, MAX_RELATIVE_IOR, False, False),
+        "eta": ETA,
         "main_specular_sampling_rate": Constant(1.0, 0.0, math.inf, False, True),
         "clearcoat_sampling_rate": Constant(1.0, 0.0, math.inf, False, True),
         "diffuse_reflectance_sampling_rate": Constant(1.0, 0.0, math.inf, False, True),

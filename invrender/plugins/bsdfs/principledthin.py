@@ -32,15 +32,14 @@ import torch
 
 from invrender import registry
 from invrender.core.bsdf import BSDFSample, Lobe, ShadingPoint
-from invrender.plugins.bsdfs.dielectric import MAX_RELATIVE_IOR
 from invrender.plugins.bsdfs.microfacet import ggx_D_aniso, ggx_G1_aniso, ggx_visible_pdf_aniso, sample_visible_normal
 from invrender.plugins.bsdfs.plastic import cosine_hemisphere
 from invrender.plugins.bsdfs.principled import (
-    WEIGHTS, PrincipledBase, compatible, diffuse_retro, distribution_alphas, fresnel, read_common, safe, schlick, schlick_r0, schlick_weight, sheen_colour,
+    ETA, WEIGHTS, PrincipledBase, compatible, params_with, diffuse_retro, distribution_alphas, fresnel, read_common, safe, schlick, schlick_r0, schlick_weight, sheen_colour,
     tint_colour, _numpy,
 )  # fmt: skip
 from invrender.scene import kinds
-from invrender.scene.plugins import Constant, Param
+from invrender.scene.plugins import Constant
 from invrender.vec import dot, normalize
 
 #: the weights the thin sheet has (no metallic, no clearcoat)
@@ -53,13 +52,9 @@ RATES = ("specular_reflectance_sampling_rate", "specular_transmittance_sampling_
 class PrincipledThin(PrincipledBase):
     type_name = "principledthin"
     lobes = Lobe.DIFFUSE | Lobe.GLOSSY | Lobe.GLOSSY_TRANSMISSION
-    params = {
-        "base_color": Param(kinds.BASE_COLOR, 0.5),
-        "roughness": Param(kinds.ROUGHNESS, 0.5),
-        **{k: Param(kind, 0.0) for k, kind in THIN_WEIGHTS.items()},
-    }
+    params = params_with(THIN_WEIGHTS)
     constants = {
-        "eta": Constant(1.5, 1.0 / MAX_RELATIVE_IOR, MAX_RELATIVE_IOR, False, False),
+        "eta": ETA,
         "diff_trans": Constant(0.0, 0.0, 2.0, False, False),
         **{k: Constant(1.0, 0.0, math.inf, False, True) for k in RATES},
     }

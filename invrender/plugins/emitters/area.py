@@ -172,7 +172,7 @@ class Area(Light):
         changed = any(getattr(type(self), m) is not getattr(Area, m) for m in ("sample_from", "geometry", "radiance", "emits", "emitted", "pdf_hit", "params"))
         if changed or self.textured or self.spheres or not self.count:
             return None
-        return TriangleTables(self.tri, self.cdf, self.pdf_area, self._emitting, torch.stack(self.eps), triangle_lanes)
+        return TriangleTables(self.tri, self.cdf, self.pdf_area, self._emitting, torch.stack(self.eps), triangle_lanes, self.lane_rows, self.lane_lights)
 
     def radiance(self, emitter: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
         """eps (N, 3) of scene emitters ``emitter`` (N,) int64 (-1 = none) at ``uv`` (N, 2)."""
@@ -212,16 +212,22 @@ class Area(Light):
     def _triangle_points(self, u, x, nx, offset: float):
         """The triangle group's samples: (tri, o, wl, tmax, facing, pdf, uv) as :class:`AreaSample`
         (:func:`triangle_lanes`, compiled where Dr.Jit runs)."""
-        tables = (self._rows, lanes.light_rows(self.cdf, self.tri), lanes.uv_rows(self.triangles))
+        tables = (self.lane_rows, self.lane_lights, lanes.uv_rows(self.triangles))
         tri, o, wl, tmax, facing, pdf, *uv = compiled.run(_sample_points, x.device, *tables, u[:, 0], u[:, 1], u[:, 2], x, nx, float(offset), lights=self.count, with_uv=self.textured)
         uv = uv[0] if self.textured else x.new_zeros(()).expand(x.shape[0], 2)
         return tri.long(), o, wl, tmax, facing, pdf, uv
 
     @functools.cached_property
-    def _rows(self) -> torch.Tensor:
-        """The triangle table of the lane functions (:func:`invrender.core.lanes.triangle_rows`)."""
+    def lane_rows(self) -> torch.Tensor:
+        """(T * 16,) the triangle table of the lane functions (:func:`invrender.core.lanes.triangle_rows`),
+        made once per render: this bounce's sampling and the fused bounce read it."""
         t = self.triangles
-        return lanes.triangle_rows(t.packed, torch.zeros_like(t.emitter), t.emitter, self._emitting, self.pdf_area)
+        return lanes.triangle_rows(t.packed, t.material, t.emitter, self._emitting, self.pdf_area)
+
+    @functools.cached_property
+    def lane_lights(self) -> torch.Tensor:
+        """(L * 2,) the light table of the lane functions (:func:`invrender.core.lanes.light_rows`)."""
+        return lanes.light_rows(self.cdf, self.tri)
 
     def _choice(self, o: torch.Tensor) -> torch.Tensor:
         """(N, S) float64: the probability of each cone sphere for origins ``o`` (N, 3), given the
