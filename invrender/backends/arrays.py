@@ -7,7 +7,9 @@ instead of data-dependent shapes:
 - ``Float`` (float32), ``UInt`` (32 bits, read as unsigned) and ``Bool`` arrays, with Python's
   operators: ``+ - * /`` and comparisons on Float; ``* ^ & |`` on UInt (products wrap modulo 2^32);
   ``& | ~`` on Bool; Python numbers mix with arrays;
-- :meth:`sqrt`, :meth:`cos`, :meth:`sin`, :meth:`abs`, :meth:`minimum`, :meth:`maximum`,
+- :meth:`sqrt`, :meth:`cos`, :meth:`sin`, :meth:`abs`, :meth:`exp`, :meth:`log`, :meth:`floor`,
+  :meth:`atan2`, :meth:`acos`, :meth:`tan`, :meth:`erf`, :meth:`erfinv`, :meth:`copysign`,
+  :meth:`minimum`, :meth:`maximum`,
   :meth:`select` (``mask ? a : b``), :meth:`shr` (the logical right shift of a UInt),
   :meth:`bits24` (a UInt's low 24 bits as a Float), :meth:`u32` (a UInt constant),
   :meth:`gather_rows` (whole rows of 1, 2, 4, 8 or 16 floats of a table at UInt indices),
@@ -76,6 +78,43 @@ class TorchArrays:
         return torch.abs(x)
 
     @staticmethod
+    def exp(x):
+        return torch.exp(x)
+
+    @staticmethod
+    def log(x):
+        return torch.log(x)
+
+    @staticmethod
+    def floor(x):
+        return torch.floor(x)
+
+    @staticmethod
+    def atan2(y, x):
+        return torch.atan2(y, x)
+
+    @staticmethod
+    def acos(x):
+        return torch.acos(x)
+
+    @staticmethod
+    def tan(x):
+        return torch.tan(x)
+
+    @staticmethod
+    def erf(x):
+        return torch.erf(x)
+
+    @staticmethod
+    def erfinv(x):
+        return torch.erfinv(x)
+
+    @staticmethod
+    def copysign(a, b):
+        """``|a|`` with the sign of ``b``."""
+        return torch.copysign(a, b)
+
+    @staticmethod
     def minimum(a, b):
         return torch.clamp_max(a, b) if not isinstance(b, torch.Tensor) else torch.minimum(a, b)
 
@@ -114,9 +153,10 @@ class TorchArrays:
 
     @staticmethod
     def full(value, like):
-        """An array of ``like``'s length filled with ``value``: Float for a float, UInt for an int
-        (a UInt constant above 2^31 through :meth:`u32`)."""
-        return torch.full_like(like, value, dtype=torch.float32 if isinstance(value, float) else torch.int32)
+        """An array of ``like``'s length filled with ``value``: Bool for a bool, Float for a float,
+        UInt for an int (a UInt constant above 2^31 through :meth:`u32`)."""
+        dtype = torch.bool if isinstance(value, bool) else torch.float32 if isinstance(value, float) else torch.int32
+        return torch.full(like.shape, value, dtype=dtype, device=like.device)
 
     @staticmethod
     def opaque(value: int):
@@ -160,6 +200,33 @@ class DrJitArrays:
     def abs(self, x):
         return self.dr.abs(x)
 
+    def exp(self, x):
+        return self.dr.exp(x)
+
+    def log(self, x):
+        return self.dr.log(x)
+
+    def floor(self, x):
+        return self.dr.floor(x)
+
+    def atan2(self, y, x):
+        return self.dr.atan2(y, x)
+
+    def acos(self, x):
+        return self.dr.acos(x)
+
+    def tan(self, x):
+        return self.dr.tan(x)
+
+    def erf(self, x):
+        return self.dr.erf(x)
+
+    def erfinv(self, x):
+        return self.dr.erfinv(x)
+
+    def copysign(self, a, b):
+        return self.dr.copysign(a, b)
+
     def minimum(self, a, b):
         return self.dr.minimum(a, b)
 
@@ -188,7 +255,7 @@ class DrJitArrays:
         return self.UInt(x)
 
     def full(self, value, like):
-        kind = self.Float if isinstance(value, float) else self.UInt
+        kind = self.Bool if isinstance(value, bool) else self.Float if isinstance(value, float) else self.UInt
         return self.dr.full(kind, value, self.dr.width(like))
 
     def opaque(self, value: int):

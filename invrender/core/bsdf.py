@@ -25,7 +25,9 @@ Conventions, shared by every material:
 
 A material is a plugin (:mod:`invrender.plugins.bsdfs`): one module holding a subclass of :class:`BSDF`
 that declares its type name, parameters, constants, lobes and format aliases beside ``eval`` /
-``pdf`` / ``sample``, registered in :data:`invrender.registry.MATERIALS`.
+``pdf`` / ``sample``, registered in :data:`invrender.registry.MATERIALS`. Written as lane functions
+(:class:`LaneForm`, subclassing :class:`LaneBSDF`), those three methods are derived from them and
+the material is on the compiled bounce too: written once.
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ import torch
 
 from invrender.errors import ParameterError, did_you_mean
 from invrender.scene.plugins import Declared
+from invrender.backends.arrays import TORCH
 from invrender.core.frame import Frame
 from invrender.core.textures import gather_rgb
 from invrender.scene.textures import TextureSampling
@@ -170,6 +173,42 @@ class BSDFSample:
     delta: torch.Tensor
 
 
+@dataclass(frozen=True)
+class LaneForm:
+    """A material type's BSDF written once against the array interface (:mod:`invrender.core.lanes`),
+    lane by lane with masks: evaluated as eager torch it *is* the type's differentiable
+    :meth:`~BSDF.eval`, :meth:`~BSDF.pdf` and :meth:`~BSDF.sample` (:class:`LaneBSDF`), compiled it is
+    the material's part of the compiled bounce.
+
+    Both functions work in the shading frame (:func:`invrender.core.lanes.frame`: z is the shading
+    normal turned to ``wo``'s geometric side, as :attr:`ShadingPoint.frame`) on 3-tuples of (N,)
+    Float lanes:
+
+    - ``eval(xp, p, ps, wo, wi, front) -> (f_cos, pdf)``: ``f(wo, wi) |cos theta_i|`` (a 3-tuple)
+      and the density (a Float) with which ``sample`` draws ``wi``; 0 for delta lobes;
+    - ``sample(xp, p, ps, wo, front, u_lobe, u0, u1) -> (wi, weight, pdf, delta)``: one direction
+      from uniforms ``u_lobe`` (the lobe) and ``u0, u1`` (the direction within it), its weight
+      ``f |cos| / pdf`` (a 3-tuple; zero where no valid direction was drawn), its pdf and a Bool,
+      True for a delta lobe.
+
+    ``p`` and ``ps`` hold each lane's material values, ``p[key]`` a 3-tuple of Floats (size 3) or a
+    Float (size 1) for every ``(key, size)`` of :attr:`keys`: ``p`` the values ``f`` and the weight
+    are differentiated in, ``ps`` the detached ones sampling and pdfs read
+    (:meth:`BSDF.sampling_param`; the same arrays in the compiled bounce). ``front`` (Bool) is True
+    where ``wo`` lies on the triangle's front (outside) side. Python values the code depends on (a
+    sampling choice, a distribution) are bound when :meth:`BSDF.lane_form` builds the form.
+
+    Attributes:
+        keys: ``((key, size), ...)`` the parameters and constants the functions read, in order
+            (size 1 of an RGB parameter: its first channel).
+        eval, sample: the two functions.
+    """
+
+    keys: tuple[tuple[str, int], ...]
+    eval: Callable
+    sample: Callable
+
+
 class BSDF(Declared, ABC):
     """Base class of the materials: one instance holds every material of one type in a scene.
 
@@ -251,6 +290,11 @@ class BSDF(Declared, ABC):
         materials without delta lobes."""
         return []
 
+    def lane_form(self) -> LaneForm | None:
+        """This type's BSDF in lane form (:class:`LaneForm`), which puts its scenes on the compiled
+        bounce; None (the default): the torch bounce evaluates it by its methods."""
+        return None
+
     #: the direction sampling of the lobe :meth:`fused_albedo` describes, written against the array
     #: interface (:mod:`invrender.core.lanes`): ``(xp, n, u0, u1) -> (wi, pdf)`` (3-tuples of lanes)
     sample_lanes: ClassVar[Callable | None] = None
@@ -295,3 +339,54 @@ class DeltaBSDF(BSDF):
         """A sample of a delta lobe: no density, flagged delta."""
         n = wi.shape[0]
         return BSDFSample(wi, weight, wi.new_zeros(n), torch.ones(n, dtype=torch.bool, device=wi.device))
+
+
+class LaneBSDF(BSDF):
+    """A BSDF written once, as its :class:`LaneForm`: :meth:`eval`, :meth:`pdf` and :meth:`sample`
+    are that form evaluated as eager torch (differentiable in the material's parameters, textures
+    included), and the compiled bounce runs the same functions. A subclass implements
+    :meth:`lane_form` (and, for delta lobes, :meth:`specular_lobes`)."""
+
+    @abstractmethod
+    def lane_form(self) -> LaneForm:
+        """The type's lane functions (:class:`LaneForm`)."""
+
+    def lane_values(self, sp: ShadingPoint, sampling: bool) -> dict:
+        """``p`` (or, with ``sampling``, ``ps``) of :class:`LaneForm` at the points ``sp``: each
+        key's (N,) columns, differentiable in the parameters (detached for sampling)."""
+        out = {}
+        for key, size in self.lane_form().keys:
+            if key in self.params:
+                value = (self.sampling_param if sampling else self.param)(key, sp)
+            else:
+                value = self.constant_rgb(key, sp)
+            out[key] = value[:, 0] if size == 1 else tuple(value.unbind(1))
+        return out
+
+    def constant_rgb(self, key: str, sp: ShadingPoint) -> torch.Tensor:
+        """Constant ``key`` at each point (N, 3): an RGB constant, or a number repeated."""
+        token = (key, "rgb", sp.wo.device)
+        if token not in self._constant_tables:
+            rows = [c[key] if isinstance(c[key], (tuple, list)) else (c[key],) * 3 for c in self.constants]
+            self._constant_tables[token] = torch.tensor(rows, dtype=torch.float32, device=sp.wo.device).reshape(-1, 3)
+        return self._constant_tables[token].index_select(0, sp.material)
+
+    def _local(self, sp: ShadingPoint, wi: torch.Tensor | None = None):
+        wo = tuple(sp.wo_local.unbind(1))
+        return wo if wi is None else (wo, tuple(sp.frame.to_local(wi).unbind(1)))
+
+    def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        wo, wl = self._local(sp, wi)
+        f, _ = self.lane_form().eval(TORCH, self.lane_values(sp, False), self.lane_values(sp, True), wo, wl, sp.front)
+        return torch.stack(f, dim=1)
+
+    def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        wo, wl = self._local(sp, wi)
+        ps = self.lane_values(sp, True)
+        _, pdf = self.lane_form().eval(TORCH, ps, ps, wo, wl, sp.front)
+        return pdf
+
+    def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
+        wo = self._local(sp)
+        wi, weight, pdf, delta = self.lane_form().sample(TORCH, self.lane_values(sp, False), self.lane_values(sp, True), wo, sp.front, u_lobe, u_dir[:, 0], u_dir[:, 1])
+        return BSDFSample(sp.frame.to_world(torch.stack(wi, dim=1)), torch.stack(weight, dim=1), pdf, delta)

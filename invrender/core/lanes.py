@@ -51,6 +51,30 @@ def select3(xp, mask, a, b):
     return tuple(xp.select(mask, x, y) for x, y in zip(a, b))
 
 
+# ---- shading frames ---------------------------------------------------------------------------
+
+
+def frame(xp, n):
+    """The orthonormal frame ``(s, t, n)`` whose z axis is the unit normal ``n`` (Duff et al. 2017;
+    the same expressions as :meth:`invrender.core.frame.Frame.from_normal`)."""
+    sign = xp.select(n[2] >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sign + n[2])
+    b = n[0] * n[1] * a
+    s = (1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0])
+    t = (b, sign + n[1] * n[1] * a, -n[1])
+    return s, t, n
+
+
+def to_local(f, v):
+    """World vector ``v`` in frame ``f`` (:func:`frame`)."""
+    return (dot(v, f[0]), dot(v, f[1]), dot(v, f[2]))
+
+
+def to_world(f, v):
+    """Local coordinates ``v`` in frame ``f`` as a world vector."""
+    return add(add(scale(f[0], v[0]), scale(f[1], v[1])), scale(f[2], v[2]))
+
+
 # ---- random numbers ----------------------------------------------------------------------------
 
 
@@ -160,6 +184,52 @@ class Triangle:
     @property
     def pdf_area(self):
         return self.r[15]
+
+
+def material_width(keys) -> int:
+    """Floats per row of a material table with ``keys`` (:class:`~invrender.core.bsdf.LaneForm`):
+    their sizes summed, rounded up to a power of two, or to a multiple of 16 above 16."""
+    n = max(1, sum(size for _, size in keys))
+    return 1 << (n - 1).bit_length() if n <= 16 else -(-n // 16) * 16
+
+
+def material_rows(bsdf, keys) -> torch.Tensor | None:
+    """(M * W,) float32 the table of ``bsdf``'s M materials' values for its lane form's ``keys``
+    (:func:`material_width` W floats a row): a parameter's detached value, a constant; None where a
+    parameter is not one colour for every material (a texture, per-vertex values) or sampling reads
+    other values than the parameters hold (a render that holds sampling fixed)."""
+    rows = []
+    for m, values in enumerate(bsdf.values):
+        row = []
+        for key, size in keys:
+            if key in values:
+                v, vs = values[key], bsdf.sampling_values[m][key]
+                if v.ndim != 1 or not torch.equal(v.detach(), vs):
+                    return None
+                v = v.detach().float().reshape(-1)
+            else:
+                c = bsdf.constants[m][key]
+                v = torch.tensor(c if isinstance(c, (tuple, list)) else (c,) * 3, dtype=torch.float32)
+            row.append(v.to("cpu")[:3] if size == 3 else v.to("cpu")[:1])
+        row = torch.cat(row) if row else torch.zeros(0)
+        rows.append(torch.nn.functional.pad(row, (0, material_width(keys) - row.shape[0])))
+    return torch.stack(rows).reshape(-1).contiguous()
+
+
+def material_values(xp, table, m, keys):
+    """``p`` of :class:`~invrender.core.bsdf.LaneForm` for lanes of materials ``m`` (UInt) from
+    their table (:func:`material_rows`): key -> a Float (size 1) or a 3-tuple (size 3)."""
+    width = material_width(keys)
+    if width <= 16:
+        flat = xp.gather_rows(table, m, width)
+    else:
+        chunks = width // 16
+        flat = sum((xp.gather_rows(table, m * chunks + j, 16) for j in range(chunks)), ())
+    out, at = {}, 0
+    for key, size in keys:
+        out[key] = flat[at] if size == 1 else tuple(flat[at : at + 3])
+        at += size
+    return out
 
 
 # ---- geometry ----------------------------------------------------------------------------------
@@ -289,7 +359,9 @@ def lambert_vertex(
         factor_d = direct = (zero, zero, zero)
         sampled = xp.full(none, mat)
     # the BSDF sample, the new ray and Russian roulette
-    wi, pdf_next = sample_direction(xp, n, uniform(xp, keys, salts[0]), uniform(xp, keys, salts[1]))
+    up = (zero, zero, zero + 1.0)
+    wi, pdf_next = sample_direction(xp, up, uniform(xp, keys, salts[0]), uniform(xp, keys, salts[1]))
+    wi = to_world(frame(xp, n), wi)  # sampled in the shading frame, as the torch BSDF samples
     o_next = spawn(xp, p, n, wi, offset)
     b = scale(beta, r)
     alive = c == c  # every path (c is never NaN for a valid hit)

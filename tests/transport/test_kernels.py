@@ -148,9 +148,9 @@ def test_cosine_directions_and_ray_origins_match_the_reference(reference):
     sp = ctx.shading_point(s, -d)
     u = torch.rand(len(d), 2, generator=torch.Generator().manual_seed(4))
     bsdf = next(b for b in ctx.materials.bsdfs if isinstance(b, Diffuse))
-    fused, o_fused, o_through = bsdf._sample_cosine(sp, u), ctx.spawn(s, -d), ctx.spawn(s, d)
+    fused, o_fused, o_through = bsdf.sample(sp, u[:, 0], u), ctx.spawn(s, -d), ctx.spawn(s, d)
     reference()
-    expected, o_expected, o_through_expected = bsdf._sample_cosine(sp, u), ctx.spawn(s, -d), ctx.spawn(s, d)
+    expected, o_expected, o_through_expected = bsdf.sample(sp, u[:, 0], u), ctx.spawn(s, -d), ctx.spawn(s, d)
     err = (fused.wi - expected.wi).abs().amax(1)  # normalize(n + s) is ill-conditioned where s ~ -n
     assert torch.quantile(err, 0.999) < 1e-6 and err.max() < 1e-4 and (fused.pdf - expected.pdf).abs().max() < 1e-4
     assert (fused.wi * sp.n).sum(1).min() > -1e-6  # about the normal, on its side

@@ -9,6 +9,7 @@ reflected, as in Mitsuba's ``diffuse``.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
@@ -16,9 +17,9 @@ import torch
 from invrender import registry
 from invrender.scene.kinds import REFLECTANCE
 from invrender.scene.plugins import Param
-from invrender.core import compiled, lanes
-from invrender.core.bsdf import BSDF, BSDFSample, Lobe, ShadingPoint
-from invrender.vec import dot
+from invrender.core import lanes
+from invrender.core.bsdf import LaneBSDF, LaneForm, Lobe, ShadingPoint
+from invrender.core.lanes import scale
 
 
 def cosine_lanes(xp, n, u0, u1):
@@ -35,20 +36,50 @@ def cosine_lanes(xp, n, u0, u1):
     return w, xp.maximum(lanes.dot(n, w), 0.0) * (1.0 / math.pi)
 
 
+def _lambert(xp, p, wo, cos_i):
+    """``rho`` where ``wo`` and ``wi`` (``cos_i``) lie above the shading normal, else 0 (3-tuple)."""
+    lit = xp.select((wo[2] > 0.0) & (cos_i > 0.0), 1.0, 0.0)
+    return scale(p["reflectance"], lit)
+
+
+def eval_lanes(xp, p, ps, wo, wi, front, *, uniform: bool):
+    """``rho cos(theta_i) / pi`` and the pdf: ``cos(theta_i) / pi`` (cosine sampling) or ``1 / (2 pi)``
+    (uniform) above the shading normal, 0 below."""
+    cos_i = wi[2]
+    f = scale(_lambert(xp, p, wo, cos_i), xp.maximum(cos_i, 0.0) * (1.0 / math.pi))
+    pdf = xp.select(cos_i > 0.0, 0.5 / math.pi, 0.0) if uniform else xp.maximum(cos_i, 0.0) * (1.0 / math.pi)
+    return f, pdf
+
+
+def sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1, *, uniform: bool):
+    """Cosine-weighted directions (:func:`cosine_lanes` about the frame's z: weight rho) or uniform
+    over the hemisphere (``cos(theta) = u0``, ``phi = 2 pi u1``: weight ``2 rho cos(theta)``)."""
+    if uniform:
+        sin_t = xp.sqrt(xp.maximum(1.0 - u0 * u0, 0.0))
+        phi = (2.0 * math.pi) * u1
+        wi = (sin_t * xp.cos(phi), sin_t * xp.sin(phi), u0)
+        _, pdf = eval_lanes(xp, ps, ps, wo, wi, front, uniform=True)
+        weight = scale(_lambert(xp, p, wo, wi[2]), xp.select(pdf > 0.0, 2.0 * u0, 0.0))
+    else:
+        zero = 0.0 * u0
+        wi, pdf = cosine_lanes(xp, (zero, zero, zero + 1.0), u0, u1)
+        weight = _lambert(xp, p, wo, wi[2])
+    return wi, weight, pdf, xp.full(False, u0)
+
+
 @registry.MATERIALS.register
-class Diffuse(BSDF):
-    """Frame-free: every quantity is a cosine with ``n``, so it never builds the shading frame
-    (except for uniform hemisphere sampling)."""
+class Diffuse(LaneBSDF):
+    """Frame-free in the fused Lambertian bounce (every quantity is a cosine with ``n``); written
+    once in lane form (:func:`eval_lanes`, :func:`sample_lanes`) for everything else."""
 
     type_name = "diffuse"
     lobes = Lobe.DIFFUSE
     params = {"reflectance": Param(REFLECTANCE, 0.5)}
     doc = "Lambertian, two-sided: f = rho / pi"
 
-    def _rho(self, sp: ShadingPoint) -> torch.Tensor:
-        """rho (N, 3), zero where ``wo`` lies below the shading normal (never without shading normals)."""
-        rho = self.param("reflectance", sp)
-        return rho if self.flat else rho * (dot(sp.n, sp.wo) > 0)[:, None].to(rho.dtype)
+    def lane_form(self) -> LaneForm:
+        uniform = self.sampling.hemisphere == "uniform"
+        return LaneForm((("reflectance", 3),), functools.partial(eval_lanes, uniform=uniform), functools.partial(sample_lanes, uniform=uniform))
 
     sample_lanes = staticmethod(cosine_lanes)
 
@@ -57,52 +88,10 @@ class Diffuse(BSDF):
         scene has no shading normals (the fused bounce's Lambertian lobe); else None. Not for a
         subclass that changes what the BSDF does (a plugin built on this one)."""
         rho = [v["reflectance"] for v in self.values]
-        changed = any(getattr(type(self), m) is not getattr(Diffuse, m) for m in ("eval", "pdf", "sample", "_rho", "lobes", "params"))
+        changed = any(getattr(type(self), m) is not getattr(Diffuse, m) for m in ("eval", "pdf", "sample", "lane_form", "lobes", "params"))
         if changed or not self.flat or self.sampling.hemisphere != "cosine" or any(r.ndim != 1 for r in rho):
             return None
         return torch.stack(rho)
-
-    def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        """``rho cos(theta_i) / pi`` (N, 3)."""
-        cos_i = dot(sp.n, wi).clamp_min(0.0)
-        return self._rho(sp) * (cos_i * (1.0 / math.pi))[:, None]
-
-    def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        """(N,): ``cos(theta_i) / pi`` (cosine sampling) or ``1 / (2 pi)`` above the shading normal
-        (uniform sampling); 0 below it."""
-        cos_i = dot(sp.n, wi)
-        if self.sampling.hemisphere == "uniform":
-            return (cos_i > 0).to(cos_i.dtype) * (0.5 / math.pi)
-        return cos_i.clamp_min(0.0) * (1.0 / math.pi)
-
-    def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
-        """Directions about ``n`` from ``u_dir`` (N, 2), cosine-weighted (weight rho) or uniform
-        (weight ``2 rho cos(theta_i)``)."""
-        if self.sampling.hemisphere == "uniform":
-            return self._sample_uniform(sp, u_dir)
-        return self._sample_cosine(sp, u_dir)
-
-    def _sample_cosine(self, sp: ShadingPoint, u_dir: torch.Tensor) -> BSDFSample:
-        """Cosine-weighted directions: weight rho.
-
-        ``normalize(n + s)`` with ``s`` uniform on the unit sphere is cosine-distributed about ``n``
-        (the tangent-sphere construction), which needs no tangent frame: :func:`cosine_lanes`,
-        compiled where Dr.Jit runs.
-        """
-        wi, pdf = compiled.run(cosine_lanes, sp.n.device, sp.n.detach(), u_dir[:, 0], u_dir[:, 1])
-        return BSDFSample(wi, self._rho(sp), pdf, torch.zeros(wi.shape[0], dtype=torch.bool, device=wi.device))
-
-    def _sample_uniform(self, sp: ShadingPoint, u_dir: torch.Tensor) -> BSDFSample:
-        """Directions uniform over the hemisphere of ``n``: ``cos(theta) = u_0`` (the solid angle is
-        uniform in cos theta), ``phi = 2 pi u_1``; weight ``(rho cos / pi) / (1 / (2 pi)) = 2 rho cos``."""
-        cos_t = u_dir[:, 0]
-        sin_t = (1.0 - cos_t * cos_t).clamp_min(0.0).sqrt()
-        phi = (2.0 * math.pi) * u_dir[:, 1]
-        local = torch.stack([sin_t * torch.cos(phi), sin_t * torch.sin(phi), cos_t], dim=1)
-        wi = sp.frame.to_world(local)
-        pdf = self.pdf(sp, wi)
-        weight = self._rho(sp) * torch.where(pdf > 0, 2.0 * cos_t, 0.0)[:, None]
-        return BSDFSample(wi, weight, pdf, torch.zeros_like(cos_t, dtype=torch.bool))
 
     def diffuse_reflectance(self, sp: ShadingPoint) -> torch.Tensor:
         return self.param("reflectance", sp)
