@@ -18,7 +18,20 @@ from invrender.registry import MATERIALS
 
 TYPES = MATERIALS.names()
 #: materials still written in torch alone (the torch bounce renders them); shrinks to nothing
-NOT_YET = {"mirror", "dielectric", "glossy", "glossy_beckmann", "plastic", "roughplastic", "roughplastic_ggx", "roughdielectric", "roughdielectric_ggx", "thindielectric", "principled", "principledthin"}  # fmt: skip
+NOT_YET = {
+    "mirror",
+    "dielectric",
+    "glossy",
+    "glossy_beckmann",
+    "plastic",
+    "roughplastic",
+    "roughplastic_ggx",
+    "roughdielectric",
+    "roughdielectric_ggx",
+    "thindielectric",
+    "principled",
+    "principledthin",
+}
 XP = arrays.drjit_arrays(torch.device("cpu"))
 
 
