@@ -134,6 +134,12 @@ class Materials:
         lit = self._lit(sp)
         return s if lit is None else BSDFSample(s.wi, s.weight * lit[:, None], s.pdf * lit, s.delta)
 
+    def one_sided_rows(self) -> torch.Tensor:
+        """(M,) bool: is each scene material one-sided (black from behind)?"""
+        if self._one_sided is None:
+            return torch.zeros_like(self.slot_of, dtype=torch.bool)
+        return self._one_sided[self.slot_of, self.local_of]
+
     def fused_albedo(self) -> torch.Tensor | None:
         """(M, 3) rho per scene material where one BSDF type holds them all, none one-sided, and
         it gives its table (:meth:`BSDF.fused_albedo`); else None."""

@@ -62,6 +62,7 @@ from invrender.core.film import Film
 from invrender.core.ranks import sum_across_ranks, world
 from invrender.core import compiled, lanes
 from invrender.core.compiled import Opaque
+from invrender.core.bsdf import LaneBSDF, Lobe
 from invrender.core.sampler import bounce_salt_values
 
 #: paths a chunk traced by the fused bounce holds at most on the CPU: its per-chunk cost (a few
@@ -82,24 +83,32 @@ class FusedScene:
     """What the fused bounce reads of one render's scene.
 
     Attributes:
-        tables: the scene's tables, in order: packed (T * 18,) flat, material (T,), emitter (T,),
-            emitting (T,) bool, rho (M, 3), eps (E, 3), light triangles (L,), their cdf (L,),
-            pdf_area (T,).
+        rho: (M, 3) the materials' reflectance where every material is Lambertian with an RGB
+            constant and the scene is flat (the derivatives and monomial codes the bounce carries
+            are then exact: :class:`TangentFilm`); else None (the primal image only).
+        eps: (E, 3) the emitters' radiance.
+        lights: L, the emissive triangles.
         mis: emission hit by BSDF samples is weighted against emitter samples (power heuristic).
-        nee_only: emitter samples alone estimate direct light (emission counts on camera rays only).
+        nee_only: emitter samples alone estimate direct light (emission counts on camera rays
+            and after delta lobes only).
         nee: emitter samples are taken (next-event estimation).
-        sample_direction, sample_light: the material's and the emitter's lane samplers
-            (:func:`invrender.core.lanes.lambert_vertex`).
-        lanes: the same tables as the lane functions read them: triangles (T * 16,), lights
-            (L * 2,), rho (M * 4,), eps (E * 4,) (:mod:`invrender.core.lanes`).
+        sample_light: the emitter's lane sampler (:func:`invrender.core.lanes.path_vertex`).
+        materials: per material type present, its :class:`~invrender.core.lanes.Material`.
+        absorbing: some BSDF weight can be zero (such paths end: not a flat Lambertian scene).
+        lanes: the tables as the lane functions read them: triangles (T * 16,), lights (L * 2,),
+            eps (E * 4,), the material index (M * 4,), per type its material table, the vertex
+            normals (T * 16,) or None (:mod:`invrender.core.lanes`).
     """
 
-    tables: list
+    rho: torch.Tensor | None
+    eps: torch.Tensor
+    lights: int
     mis: bool
     nee_only: bool
     nee: bool
-    sample_direction: Callable
     sample_light: Callable
+    materials: tuple
+    absorbing: bool
     lanes: tuple
 
 
@@ -107,37 +116,57 @@ def tables(ctx: TransportContext, direct, hemisphere: str) -> FusedScene | None:
     """The fused bounce's view of the render ``ctx``, or None where it does not apply (module
     docstring). ``direct``: the integrator's ``fused_direct`` (None: its vertex step is its own;
     ``False``: no emitter samples; ``"mis"`` or ``"emitter"``: the path tracer's strategies);
-    ``hemisphere``: its diffuse sampling."""
-    if direct is None or hemisphere != "cosine" or not kernels.fused_bounce(ctx.triangles.p0.device):
+    ``hemisphere``: its diffuse sampling (the materials' lane forms follow it)."""
+    if direct is None or not kernels.fused_bounce(ctx.triangles.p0.device):
         return None
-    if ctx.hide_emitters or ctx.ambient is not None or ctx.triangles.any_smooth:
+    if ctx.hide_emitters or ctx.ambient is not None or ctx.per_vertex:
         return None
-    rho, lights = ctx.materials.fused_albedo(), ctx.lights.fused_triangles()
-    if rho is None or lights is None or any(_carries_derivative(x) for x in (rho, lights.eps)):
+    lights = ctx.lights.fused_triangles()
+    if lights is None or _carries_derivative(lights.eps):
         return None
-    t = ctx.triangles
-    packed = [t.packed.reshape(-1), t.material, t.emitter, lights.emitting, rho.detach().float(), lights.eps.detach().float(), lights.tri, lights.cdf, lights.pdf_area]
-    sampler = ctx.materials.fused_sampler()
-    if sampler is None:
-        return None
+    materials, forms = ctx.materials, []
+    device = ctx.triangles.p0.device
+    for bsdf in materials.bsdfs:
+        form = bsdf.lane_form()
+        if form is None or not _written_once(bsdf) or any(_carries_derivative(v) for m in bsdf.values for v in m.values()):
+            return None
+        table = lanes.material_rows(bsdf, form.keys)
+        if table is None:
+            return None
+        forms.append((lanes.Material(form, bsdf.has(Lobe.SMOOTH), bsdf.has(Lobe.GLOSSY_TRANSMISSION)), table.to(device)))
+    one_sided = materials.one_sided_rows()
+    index = torch.stack([materials.slot_of.float(), materials.local_of.float(), one_sided.float(), torch.zeros_like(one_sided, dtype=torch.float32)], dim=1)
+    rho = materials.fused_albedo()
+    eps = lights.eps.detach().float()
     rows = (
         lights.rows,
         lights.light_rows,
-        *(torch.nn.functional.pad(x.detach().float(), (0, 1)).reshape(-1) for x in (rho, lights.eps)),
+        torch.nn.functional.pad(eps, (0, 1)).reshape(-1),
+        index.reshape(-1).contiguous(),
+        tuple(t for _, t in forms),
+        lanes.normal_rows(ctx.triangles) if ctx.triangles.any_smooth else None,
     )
-    return FusedScene(packed, direct == "mis", direct == "emitter", direct in ("mis", "emitter"), sampler, lights.sample, rows)
+    rho = None if rho is None else rho.detach().float()
+    absorbing = rho is None or ctx.triangles.any_smooth
+    return FusedScene(rho, eps, int(lights.light_rows.shape[0]) // lanes.LIGHT_ROW, direct == "mis", direct == "emitter", direct in ("mis", "emitter"), lights.sample, tuple(m for m, _ in forms), absorbing, rows)
+
+
+def _written_once(bsdf) -> bool:
+    """Are ``bsdf``'s torch methods its lane form's (not a subclass's own, which the compiled bounce
+    would not follow)?"""
+    return all(getattr(type(bsdf), m) is getattr(LaneBSDF, m) for m in ("eval", "pdf", "sample"))
 
 
 def _carries_derivative(x: torch.Tensor) -> bool:
     return (x.requires_grad and torch.is_grad_enabled()) or fwAD.unpack_dual(x).tangent is not None
 
 
-def takes(film: Film) -> bool:
+def takes(film: Film, fused: FusedScene) -> bool:
     """Does ``film`` take the fused bounce's contributions: it has none of the hooks the torch
     bounce calls (``visit``, ``arrive``, ``scatter``), or it takes contributions by monomial code
-    (:func:`places`)?"""
-    if places(film) is not None:
-        return True
+    (:func:`places`) and the scene is Lambertian (``fused.rho``)?"""
+    if places(film) is not None or isinstance(film, TangentFilm):
+        return fused.rho is not None
     cls = type(film)
     return cls.visit is Film.visit and cls.arrive is Film.arrive and cls.scatter is Film.scatter and not film.detach_throughput
 
@@ -181,44 +210,45 @@ class TangentFilm(Film):
 
 def slots(fused: FusedScene) -> int:
     """The Jacobian's slots of the scene: its materials, then its emitters (:class:`TangentFilm`)."""
-    return fused.tables[4].shape[0] + fused.tables[5].shape[0]
+    return 0 if fused.rho is None else fused.rho.shape[0] + fused.eps.shape[0]
 
 
 def slot_index(scene, fused: FusedScene) -> dict[str, int]:
     """Parameter name -> its slot (``NAME.reflectance`` of the scene's materials, then
     ``NAME.emission`` of its emitters), the parameters whose derivatives and monomial codes the
     fused bounce carries; empty when its tables do not have one row per material and emitter."""
-    if slots(fused) != len(scene.materials) + len(scene.emitters):
+    if fused.rho is None or slots(fused) != len(scene.materials) + len(scene.emitters):
         return {}
     index = {param_name(m, "reflectance"): i for i, m in enumerate(scene.materials)}
     index.update({param_name(e, "emission"): len(scene.materials) + i for i, e in enumerate(scene.emitters)})
     return index
 
 
-def vertex(fused: FusedScene, hits: tuple, d, beta, pdf_dir, keys, depth: int, more: bool, roulette: bool, offset: float, tangents: bool) -> tuple:
-    """One bounce of N paths: :func:`invrender.core.lanes.lambert_vertex` run by Dr.Jit or eager
+def vertex(fused: FusedScene, hits: tuple, d, beta, pdf_dir, delta, keys, depth: int, more: bool, roulette: bool, offset: float, tangents: bool) -> tuple:
+    """One bounce of N paths: :func:`invrender.core.lanes.path_vertex` run by Dr.Jit or eager
     torch (:func:`invrender.core.compiled.run`).
 
     Args:
         hits: (prim, u, v, t) (N,) each: the paths' closest hits, all valid.
         d, beta: (N, 3) the rays' directions and the paths' throughputs; pdf_dir (N,) the pdf ``d``
-            was sampled with; keys (N,) int32 path keys; depth: the vertex's index (0: camera rays).
+            was sampled with; delta (N,) bool: ``d`` came from a delta lobe or the camera; keys
+            (N,) int32 path keys; depth: the vertex's index (0: camera rays).
         more, roulette: do paths go on after it; does Russian roulette apply.
     Returns:
         emitted (N, 3) (term depth), shadow rays o (N, 3), d (N, 3), tmax (N,) and the direct light
         (N, 3) each adds if unoccluded (term depth + 1; tmax 0, a ray no backend traces, where the
         light sample adds nothing whatever the parameters), then the continued paths' o, d, beta
-        (N, 3), pdf (N,) and alive (N,) bool (without ``more``: None, the direct light zero). With
-        ``tangents``, then also what :func:`~invrender.backends.kernels.tangents_add` reads: the
-        factors beside eps of the emission (N, 3) and of the direct light (N, 3), the emitters hit
-        (N,) int32 (-1: none) and sampled (N,), and the materials hit (N,).
+        (N, 3), pdf (N,), delta (N,) and alive (N,) bool (without ``more``: None, the direct light
+        zero). With ``tangents``, then also what :func:`~invrender.backends.kernels.tangents_add`
+        reads: the factors beside eps of the emission (N, 3) and of the direct light (N, 3), the
+        emitters hit (N,) int32 (-1: none) and sampled (N,), and the materials hit (N,).
     """
     salts = tuple(Opaque(s) for s in bounce_salt_values(depth + 1, DIMS))
-    static = dict(sample_direction=fused.sample_direction, sample_light=fused.sample_light, lights=int(fused.tables[7].shape[0]), first=depth == 0,
-                  mis=fused.mis, nee_only=fused.nee_only, nee=fused.nee, more=more, roulette=roulette, tangents=tangents)  # fmt: skip
-    out = compiled.run(lanes.lambert_vertex, d.device, *fused.lanes, *hits, d, beta, pdf_dir, keys, salts, float(offset), **static)
+    static = dict(materials=fused.materials, sample_light=fused.sample_light, lights=fused.lights, first=depth == 0, mis=fused.mis, nee_only=fused.nee_only,
+                  nee=fused.nee, more=more, roulette=roulette, absorbing=fused.absorbing, tangents=tangents)  # fmt: skip
+    out = compiled.run(lanes.path_vertex, d.device, *fused.lanes, *hits, d, beta, pdf_dir, delta, keys, salts, float(offset), **static)
     if not more:  # the emission alone: the other primal outputs are not read (the direct light: zero)
-        out = (out[0], None, None, None, torch.zeros_like(out[0]), None, None, None, None, None) + out[1:]
+        out = (out[0], None, None, None, torch.zeros_like(out[0]), None, None, None, None, None, None) + out[1:]
     if tangents:  # the indices as int32
         out = out[:-5] + tuple(x.to(torch.int32) if not x.is_floating_point() else x for x in out[-5:])
     return out
@@ -229,10 +259,10 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
     into a :class:`TangentFilm`, each pixel's derivatives); ``settings``: the integrator's
     (``max_depth``, ``rr_depth``)."""
     rr_start = math.inf if settings.rr_depth == -1 else settings.rr_depth
-    pixel, keys, o, d, beta, pdf = state.pixel, state.keys, state.o, state.d, state.beta, state.pdf_dir
+    pixel, keys, o, d, beta, pdf, delta = state.pixel, state.keys, state.o, state.d, state.beta, state.pdf_dir, state.delta
     coded = places(film)
     tangents = isinstance(film, TangentFilm) or coded is not None
-    rho = fused.tables[4]
+    rho = fused.rho
     counts = torch.zeros(keys.shape[0], rho.shape[0] if tangents else 0, dtype=torch.int32, device=keys.device)  # factors of each rho in beta
     depth = 0
     while keys.shape[0]:
@@ -240,18 +270,18 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
         hit = hits.valid.nonzero()[:, 0]  # a synchronization: the count of rays that hit
         prim, u, v, t = hits.prim, hits.u, hits.v, hits.t
         if hit.shape[0] < keys.shape[0]:
-            pixel, keys, d, beta, pdf, prim, u, v, t, counts = (x.index_select(0, hit) for x in (pixel, keys, d, beta, pdf, prim, u, v, t, counts))
+            pixel, keys, d, beta, pdf, delta, prim, u, v, t, counts = (x.index_select(0, hit) for x in (pixel, keys, d, beta, pdf, delta, prim, u, v, t, counts))
             if not hit.shape[0]:
                 break
         more = settings.continues_after(depth)
-        out = vertex(fused, (prim, u, v, t), d, beta, pdf, keys, depth, more, depth + 1 >= rr_start, ctx.ray_offset, tangents)
-        emitted, shadow_o, shadow_d, shadow_t, direct, o, d, beta, pdf, alive = out[:10]
+        out = vertex(fused, (prim, u, v, t), d, beta, pdf, delta, keys, depth, more, depth + 1 >= rr_start, ctx.ray_offset, tangents)
+        emitted, shadow_o, shadow_d, shadow_t, direct, o, d, beta, pdf, delta, alive = out[:11]
         occluded = None
         if more and fused.nee:
             occluded = ctx.accel.occluded(shadow_o, shadow_d, shadow_t)
             direct.masked_fill_(occluded[:, None], 0.0)
         if coded is not None:  # path records: each contribution with its monomial's code
-            code_e, code_d = kernels.tangents_add(pixel, counts, rho, emitted, out[10:], direct, occluded, more, places=coded)
+            code_e, code_d = kernels.tangents_add(pixel, counts, rho, emitted, out[11:], direct, occluded, more, places=coded)
             film.add_coded(depth, pixel, code_e, emitted)  # term depth
             if occluded is not None:
                 film.add_coded(depth + 1, pixel, code_d, direct)  # term depth + 1
@@ -260,10 +290,11 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
             if occluded is not None:
                 film.add(depth + 1, pixel, direct)  # term depth + 1
             if tangents:
-                kernels.tangents_add(pixel, counts, rho, emitted, out[10:], direct, occluded, more, jacobian=film.jacobian)
+                kernels.tangents_add(pixel, counts, rho, emitted, out[11:], direct, occluded, more, jacobian=film.jacobian)
         if not more:
             break
-        if depth + 1 >= rr_start:
+        if depth + 1 >= rr_start or fused.absorbing:
             live = alive.nonzero()[:, 0]  # a synchronization: the survivors' count
-            pixel, keys, o, d, beta, pdf, counts = (x.index_select(0, live) for x in (pixel, keys, o, d, beta, pdf, counts))
+            if live.shape[0] < keys.shape[0]:
+                pixel, keys, o, d, beta, pdf, delta, counts = (x.index_select(0, live) for x in (pixel, keys, o, d, beta, pdf, delta, counts))
         depth += 1

@@ -10,10 +10,12 @@ shapes. :func:`invrender.core.compiled.run` evaluates them on torch tensors.
 - the scene's tables as rows (:func:`triangle_rows`, :func:`light_rows`, :class:`Triangle`), a
   hit's geometry (:func:`hit`), the origin of a ray leaving a surface (:func:`spawn`), Veach's
   power heuristic, the choice of an emissive triangle by its cdf (:func:`pick_light`);
-- :func:`lambert_vertex`: one primal bounce of the random walk and the path tracer on Lambertian
-  surfaces lit by emissive triangles (:mod:`invrender.core.fused` documents it), composed of the
-  above and of the plugins' own lane functions: the material's direction sampling
-  (``Diffuse.sample_lanes``) and the emitter's point sampling (``Area.sample_lanes``).
+- shading frames (:func:`frame`), the materials' tables (:func:`material_rows`) and their dispatch
+  by type with masks (:class:`Point`);
+- :func:`path_vertex`: one primal bounce of the random walk and the path tracer lit by emissive
+  triangles (:mod:`invrender.core.fused` documents it), composed of the above and of the plugins'
+  own lane functions: each material's lane form (:class:`~invrender.core.bsdf.LaneForm`) and the
+  emitter's point sampling (``Area``'s ``triangle_lanes``).
 """
 
 from __future__ import annotations
@@ -293,46 +295,134 @@ def pick_light(xp, lights, size: int, u):
     return xp.uint(xp.gather_rows(lights, xp.minimum(lo, size - 1), LIGHT_ROW)[1])
 
 
-# ---- the Lambertian bounce ---------------------------------------------------------------------
+def normal_rows(triangles):
+    """(T * 16,) float32 each triangle's three unit vertex normals (9 floats, then zeros), made once
+    per :class:`~invrender.scene.scene.Triangles`."""
+
+    def build():
+        return torch.nn.functional.pad(triangles.vertex_normal.reshape(-1, 9).float(), (0, 7)).reshape(-1).contiguous()
+
+    return triangles.derived("lane_normals", build)
 
 
-def lambert_vertex(
-    xp, tri_table, light_table, rho, eps, prim, b1, b2, t, d, beta, pdf_dir, keys, salts, offset: float, *,
-    sample_direction, sample_light, lights: int, first: bool, mis: bool, nee_only: bool, nee: bool, more: bool, roulette: bool, tangents: bool,
+def shading_normal(xp, normals, k, b1, b2, front):
+    """The interpolated vertex normals of triangles ``k`` at barycentrics (b1, b2), normalized and
+    turned to the geometric side ``front`` says the ray is on (as :func:`invrender.core.surface.surface_at`)."""
+    r = xp.gather_rows(normals, k, 16)
+    b0 = 1.0 - b1 - b2
+    v = add(add(scale(r[0:3], b0), scale(r[3:6], b1)), scale(r[6:9], b2))
+    length = xp.sqrt(dot(v, v))
+    side = xp.select(front, 1.0, -1.0) / xp.maximum(length, 1e-12)
+    return scale(v, side)
+
+
+# ---- the bounce ----------------------------------------------------------------------------------
+
+#: floats per scene material in the material index table (:func:`invrender.core.fused.tables`):
+#: its type's slot, its index among that type's materials, one-sided (1.0) or not
+MATERIAL_ROW = 4
+
+
+class Material:
+    """The materials of one type as the bounce sees them: its lane form and which lobes it has
+    (Python values: they choose the code, the same for every lane)."""
+
+    __slots__ = ("form", "smooth", "smooth_transmission")
+
+    def __init__(self, form, smooth: bool, smooth_transmission: bool):
+        self.form, self.smooth, self.smooth_transmission = form, smooth, smooth_transmission
+
+
+class Point:
+    """The materials at N hit points, dispatched by type with masks: each type's lane functions
+    run on every lane and a lane keeps its own type's answer (one type: no masks)."""
+
+    def __init__(self, xp, types, tables, index, mat, wo, front):
+        row = xp.gather_rows(index, mat, MATERIAL_ROW)
+        self.xp, self.types, self.wo, self.front = xp, types, wo, front
+        slot, local = xp.uint(row[0]), xp.uint(row[1])
+        self.lit = ~((row[2] > 0.5) & ~front)  # a one-sided material is black from behind
+        self.mine = [slot == k for k in range(len(types))] if len(types) > 1 else [None]
+        self.p = [material_values(xp, t, local if len(types) == 1 else xp.select(m, local, 0), m_.form.keys) for t, m, m_ in zip(tables, self.mine, types)]
+
+    def _merge(self, parts):
+        """Each lane's own type's value of ``parts`` (per type, a tuple of arrays and 3-tuples)."""
+        out = parts[0]
+        for m, part in zip(self.mine[1:], parts[1:]):
+            out = tuple(select3(self.xp, m, a, b) if isinstance(a, tuple) else self.xp.select(m, a, b) for a, b in zip(part, out))
+        return out
+
+    def any(self, flag: str):
+        """Bool: is each lane's type one whose ``flag`` (``smooth``, ``smooth_transmission``) holds;
+        True or False where every type agrees."""
+        flags = [getattr(t, flag) for t in self.types]
+        if all(flags) or not any(flags):
+            return flags[0]
+        out = None
+        for m, f in zip(self.mine, flags):
+            if f:
+                out = m if out is None else out | m
+        return out
+
+    def eval(self, wi):
+        """``f |cos|`` (3-tuple) and the pdf at local directions ``wi`` (0 behind a one-sided material)."""
+        f, pdf = self._merge([t.form.eval(self.xp, p, p, self.wo, wi, self.front) for t, p in zip(self.types, self.p)])
+        return scale(f, xp_lit(self.xp, self.lit)), pdf * xp_lit(self.xp, self.lit)
+
+    def sample(self, u_lobe, u0, u1):
+        """Local direction, weight (3-tuple), pdf and delta flag of one BSDF sample a lane."""
+        wi, weight, pdf, delta = self._merge([t.form.sample(self.xp, p, p, self.wo, self.front, u_lobe, u0, u1) for t, p in zip(self.types, self.p)])
+        lit = xp_lit(self.xp, self.lit)
+        return wi, scale(weight, lit), pdf * lit, delta
+
+
+def xp_lit(xp, lit):
+    return xp.select(lit, 1.0, 0.0)
+
+
+def path_vertex(
+    xp, tri_table, light_table, eps, material_index, material_tables, normals, prim, b1, b2, t, d, beta, pdf_dir, delta, keys, salts, offset: float, *,
+    materials, sample_light, lights: int, first: bool, mis: bool, nee_only: bool, nee: bool, more: bool, roulette: bool, absorbing: bool, tangents: bool,
 ):  # fmt: skip
-    """One primal bounce of N paths on Lambertian surfaces lit by emissive triangles.
+    """One primal bounce of N paths lit by emissive triangles: the random walk's and the path
+    tracer's vertex (:mod:`invrender.core.fused` documents it), every material in its lane form.
 
     Args:
         tri_table: (T * 16,) the triangle table (:func:`triangle_rows`); light_table (L * 2,) the
-            emissive triangles' (:func:`light_rows`); rho (M * 4,), eps (E * 4,) RGB rows padded to 4.
+            emissive triangles' (:func:`light_rows`); eps (E * 4,) RGB rows padded to 4;
+            material_index (M * 4,) per scene material its type's slot, index in that type, one-sided
+            flag (:data:`MATERIAL_ROW`); material_tables: per type, :func:`material_rows`;
+            normals: (T * 16,) the vertex normals (:func:`normal_rows`), or None (no shading normals).
         prim, b1, b2, t: (N,) the paths' closest hits (all valid); d, beta: 3-tuples of (N,) the
-            rays' directions and the throughputs; pdf_dir (N,) the pdf ``d`` was sampled with;
-            keys (N,) UInt; salts: the bounce's 7 salts (0-1 BSDF direction, 2-4 emitter sample,
-            5 roulette).
-        sample_direction: the material's lane sampler ``(xp, n, u0, u1) -> (wi, pdf)``;
-            sample_light: the emitter's ``(xp, tri_table, light_table, lights, u0, u1, u2, x, nx,
-            offset) -> (k, b1, b2, origin, w, tmax, facing, pdf)``; lights: L.
-        first: camera rays (depth 0); mis, nee_only, nee, more, roulette, tangents: the
-            integrator's strategy (:class:`invrender.core.fused.FusedScene`), whether paths go on
-            after this vertex, whether roulette applies, whether the factors are returned.
+            rays' directions and the throughputs; pdf_dir (N,) the pdf ``d`` was sampled with and
+            delta (N,) Bool whether from a delta lobe (or the camera); keys (N,) UInt; salts: the
+            bounce's 7 salts (0-1 BSDF direction, 2-4 emitter sample, 5 roulette, 6 BSDF lobe).
+        materials: per type a :class:`Material`; sample_light: the emitter's ``(xp, tri_table,
+            light_table, lights, u0, u1, u2, x, nx, offset) -> (k, b1, b2, origin, w, tmax, facing,
+            pdf)``; lights: L.
+        first: camera rays (depth 0); mis, nee_only, nee, more, roulette: the integrator's
+            strategy (:class:`invrender.core.fused.FusedScene`), whether paths go on after this
+            vertex, whether roulette applies; absorbing: a BSDF weight can be zero (such paths end);
+            tangents: the factors are returned.
     Returns:
         emitted (term depth); with ``more``: the shadow rays' origin, direction, tmax (0 where the
         sample adds nothing whatever the parameters) and the direct light each adds if unoccluded
         (term depth + 1; zeros without ``nee``), the continued rays' origin, direction, throughput,
-        pdf and alive mask; with ``tangents``: the factors beside eps of the emission and of the
-        direct light, the emitters hit and sampled (-1: none) and the materials hit.
+        pdf, delta flag and alive mask; with ``tangents``: the factors beside eps of the emission and
+        of the direct light, the emitters hit and sampled (-1: none) and the materials hit.
     """
     tri = Triangle(xp, tri_table, prim)
     p, n, c = hit(xp, tri, b1, b2, d)
+    front = c > 0.0
     # term depth: the emission seen, weighted against the previous vertex's emitter sample
     em, has_emitter = tri.emitter(xp)
-    seen = (c > 0.0) & tri.emitting & has_emitter
+    seen = front & tri.emitting & has_emitter
     if nee_only and not first:
-        seen = c != c  # none (c is never NaN for a valid hit)
+        seen = seen & delta  # only where no emitter sample competed
     w = xp.select(seen, 1.0, 0.0)
     if mis and not first:
         light_pdf = tri.pdf_area * t * t / xp.maximum(xp.abs(c), 1e-12)
-        w = w * power_heuristic(xp, pdf_dir, light_pdf)
+        w = w * xp.select(delta, 1.0, power_heuristic(xp, pdf_dir, light_pdf))
     factor_e = scale(beta, w)
     emitted = scale(factor_e, xp.gather_rows(eps, em, 4)[:3])
     mat = tri.material(xp)
@@ -340,18 +430,28 @@ def lambert_vertex(
     tangent_out = (factor_e, xp.select(seen, em, none), mat) if tangents else ()
     if not more:
         return (emitted,) + _tangents(xp, tangent_out, None, None)
-    r = xp.gather_rows(rho, mat, 4)[:3]
-    # term depth + 1: one emitter sample; its shadow ray is cast by the caller
+    ns = n if normals is None else shading_normal(xp, normals, prim, b1, b2, front)
+    f = frame(xp, ns)
+    wo = scale(d, -1.0)
+    point = Point(xp, materials, material_tables, material_index, mat, to_local(f, wo), front)
+    # term depth + 1: one emitter sample (its shadow ray is cast by the caller) where the BSDF has a smooth lobe
     zero = 0.0 * w
-    if nee:
+    smooth = point.any("smooth")
+    if nee and smooth is not False:
         u0, u1, u2 = (uniform(xp, keys, salts[j]) for j in (2, 3, 4))
         kl, _, _, so, wl, tmax, facing, pdf = sample_light(xp, tri_table, light_table, lights, u0, u1, u2, p, n, offset)
-        cos_i = xp.maximum(dot(n, wl), 0.0)
-        bsdf_pdf = cos_i * (1.0 / math.pi)
+        through = point.any("smooth_transmission")
+        if through is not False:  # behind a glossy transmitter: the same sample from the other side
+            kb, _, _, sob, wlb, tmaxb, facingb, pdfb = sample_light(xp, tri_table, light_table, lights, u0, u1, u2, p, scale(n, -1.0), offset)
+            back = ~facing if through is True else through & ~facing
+            kl, so, wl = xp.select(back, kb, kl), select3(xp, back, sob, so), select3(xp, back, wlb, wl)
+            tmax, facing, pdf = xp.select(back, tmaxb, tmax), xp.select(back, facingb, facing), xp.select(back, pdfb, pdf)
+        f_cos, bsdf_pdf = point.eval(to_local(f, wl))
         inv = power_heuristic(xp, pdf, bsdf_pdf) / pdf if mis else 1.0 / pdf
-        weight = xp.select(facing, inv, 0.0)
-        shadow_t = xp.select(facing & (cos_i > 0.0), tmax, 0.0)
-        factor_d = scale(scale(beta, weight * bsdf_pdf), r)
+        ok = facing if smooth is True else facing & smooth
+        weight = xp.select(ok, inv, 0.0)
+        shadow_t = xp.select(ok & (xp.maximum(xp.maximum(f_cos[0], f_cos[1]), f_cos[2]) > 0.0), tmax, 0.0)
+        factor_d = scale(scale(beta, weight), f_cos)
         sampled, _ = Triangle(xp, tri_table, kl).emitter(xp)
         direct = scale(factor_d, xp.gather_rows(eps, sampled, 4)[:3])
     else:
@@ -359,22 +459,23 @@ def lambert_vertex(
         factor_d = direct = (zero, zero, zero)
         sampled = xp.full(none, mat)
     # the BSDF sample, the new ray and Russian roulette
-    up = (zero, zero, zero + 1.0)
-    wi, pdf_next = sample_direction(xp, up, uniform(xp, keys, salts[0]), uniform(xp, keys, salts[1]))
-    wi = to_world(frame(xp, n), wi)  # sampled in the shading frame, as the torch BSDF samples
+    wi, weight, pdf_next, delta_next = point.sample(uniform(xp, keys, salts[6]), uniform(xp, keys, salts[0]), uniform(xp, keys, salts[1]))
+    wi = to_world(f, wi)
     o_next = spawn(xp, p, n, wi, offset)
-    b = scale(beta, r)
+    b = scale(beta, weight)
     alive = c == c  # every path (c is never NaN for a valid hit)
     if roulette:
         q = xp.minimum(xp.maximum(xp.maximum(b[0], b[1]), b[2]), 0.95)
         alive = uniform(xp, keys, salts[5]) < q
-        b = scale(b, 1.0 / q)
-    out = (emitted, so, wl, shadow_t, direct, o_next, wi, b, pdf_next, alive)
+        b = scale(b, 1.0 / xp.maximum(q, 1e-30))
+    elif absorbing:
+        alive = xp.maximum(xp.maximum(b[0], b[1]), b[2]) > 0.0
+    out = (emitted, so, wl, shadow_t, direct, o_next, wi, b, pdf_next, delta_next, alive)
     return out + _tangents(xp, tangent_out, factor_d, sampled)
 
 
 def _tangents(xp, tangent_out, factor_d, sampled):
-    """The tangent outputs in :func:`lambert_vertex`'s order (factor_e, hit emitter, factor_d,
+    """The tangent outputs in :func:`path_vertex`'s order (factor_e, hit emitter, factor_d,
     sampled emitter, material hit)."""
     if not tangent_out:
         return ()

@@ -66,26 +66,31 @@ def test_the_fused_bounce_applies_only_where_nothing_needs_the_torch_bounce(tmp_
         monkeypatch.setenv(kernels.ENV, choice)
         assert _fused_scene(box) is None and kernels.enabled(CPU) == (choice == "steps")
     monkeypatch.delenv(kernels.ENV)
-    assert _fused_scene(box, "path", hemisphere="uniform") is None  # another diffuse sampling
+    assert _fused_scene(box, "path", hemisphere="uniform") is not None  # the lane form samples as the BSDF does
     assert _fused_scene(box, "utah") is None  # a vertex step of its own
     assert _fused_scene(box, "path", hide_emitters=True) is None
     assert _fused_scene(ir.load_scene(str(FORWARD / "mesh_in_box.toml"), resolution=(8, 8))) is not None  # flat meshes: yes
     for name in ("textured_floor.toml", "glossy_plate.toml"):  # a texture, a glossy lobe
         assert _fused_scene(ir.load_scene(str(FORWARD / name), resolution=(8, 8))) is None, name
     assert _fused_scene(ir.load_scene("cornell_specular", resolution=(8, 8))) is None  # mirror and glass
+    # a plugin built on the diffuse BSDF that changes what it does: its own methods, the torch bounce
+    from invrender.plugins.bsdfs.diffuse import Diffuse
+
+    class Brighter(Diffuse):
+        def eval(self, sp, wi):
+            return 2 * super().eval(sp, wi)
+
+    bright = TransportContext.build(box, CPU)
+    bright.materials.bsdfs[0] = Brighter(bright.materials.bsdfs[0].values, bright.materials.bsdfs[0].constants, flat=True)
+    assert fused.tables(bright, "mis", "cosine") is None
     # a parameter that carries a gradient: its factors must go through autograd
     leaf = box.params["red.reflectance"].clone().requires_grad_(True)
     ctx = TransportContext.build(box, CPU, params={"red.reflectance": leaf})
     assert fused.tables(ctx, "mis", "cosine") is None
     with torch.no_grad():
         assert fused.tables(ctx, "mis", "cosine") is not None
-    # a plugin built on the diffuse BSDF or the area light that changes what it does: its own methods
+    # a plugin built on the area light that changes what it does: its own methods
     from invrender.plugins.emitters.area import Area
-    from invrender.plugins.bsdfs.diffuse import Diffuse
-
-    class Brighter(Diffuse):
-        def eval(self, sp, wi):
-            return 2 * super().eval(sp, wi)
 
     class Dimmer(Area):
         def emitted(self, s):
@@ -99,8 +104,9 @@ def test_the_fused_bounce_applies_only_where_nothing_needs_the_torch_bounce(tmp_
     from invrender.estimators.records import _RecordFilm
     from invrender.estimators.replay import AdjointFilm
 
-    assert fused.takes(Film(2, 2, False, CPU)) and fused.takes(PathFilm(4, CPU))
-    assert not fused.takes(AdjointFilm.__new__(AdjointFilm)) and not fused.takes(_RecordFilm.__new__(_RecordFilm))
+    lambertian = _fused_scene(box)
+    assert fused.takes(Film(2, 2, False, CPU), lambertian) and fused.takes(PathFilm(4, CPU), lambertian)
+    assert not fused.takes(AdjointFilm.__new__(AdjointFilm), lambertian) and not fused.takes(_RecordFilm.__new__(_RecordFilm), lambertian)
 
 
 @pytest.mark.parametrize("strategy", ["mis", "emitter", "bsdf"])
@@ -159,3 +165,40 @@ def test_a_thin_lens_camera_draws_its_lens_point_in_the_kernel():
     got, expected = driver._camera_samples(lens, settings, ids), driver._camera_samples_torch(lens, settings, ids)
     assert got[3] is not None and all(torch.equal(a, b) for a, b in zip(got, expected))
     assert kernels.enabled(CPU)
+
+
+def _smooth_spheres(materials: dict) -> ir.Scene:
+    """The Cornell box with its boxes replaced by two smooth-shaded spheres of the given materials
+    (names ``near``, ``far``), the walls one-sided from behind (``white``)."""
+    from invrender.scene.builtin import CORNELL_CAMERA, CORNELL_GREEN, CORNELL_LIGHT, CORNELL_RED, CORNELL_WHITE, _light, _walls
+    from invrender.scene.materials import Material
+    from invrender.scene.scene import build_scene
+    from invrender.scene.shapes import primitive, scale, translate
+
+    shapes = [
+        *_walls(),
+        primitive("sphere", "near", None, 2).transformed(translate([0.35, -0.7, 0.3]) @ scale(0.3)),
+        primitive("sphere", "far", None, 2).transformed(translate([-0.35, -0.6, -0.3]) @ scale(0.35)),
+        _light(),
+    ]
+    specs = {"white": dataclasses.replace(Material.of("diffuse", reflectance=CORNELL_WHITE), one_sided=True), "red": CORNELL_RED, "green": CORNELL_GREEN, **materials}
+    return build_scene(shapes, specs, {"light": CORNELL_LIGHT}, CORNELL_CAMERA, (24, 24), name="spheres")
+
+
+@pytest.mark.parametrize("options", [{}, {"strategy": "emitter"}, {"hemisphere": "uniform"}, {"max_depth": 4, "rr_depth": -1}])
+def test_the_fused_bounce_renders_smooth_one_sided_and_mixed_materials_as_the_torch_bounce(options, unfused):
+    """Every material in lane form is on the fused bounce: shading normals, one-sided materials,
+    several material types dispatched by masks, delta lobes, paths that end with a zero weight."""
+    from invrender.scene.materials import Material
+
+    mats = {"near": Material.of("diffuse", reflectance=(0.7, 0.6, 0.2)), "far": Material.of("diffuse", reflectance=(0.2, 0.5, 0.7))}
+    scene = _smooth_spheres(mats)
+    assert _fused_scene(scene, "path", **options) is not None
+    kw = dict(spp=16, seed=7, progress=False, integrator="path", **options)
+    image = ir.render(scene, **kw)
+    unfused()
+    expected = ir.render(scene, **kw)
+    assert float(expected.mean()) > 0.05
+    close = (image - expected).abs() <= 1e-4 * float(expected.max())
+    assert float(close.float().mean()) > 0.995  # float rounding; a roulette decision it flips changes a path
+    assert abs(float(image.mean() / expected.mean()) - 1) < 2e-3

@@ -207,7 +207,7 @@ class Integrator(ABC):
         scene_tables = self.fused_scene(ctx)
         box = scene.film.is_box
         if tangents is not None:
-            if scene_tables is None or not box:
+            if scene_tables is None or scene_tables.rho is None or not box:
                 raise ValueError(f"tangents: the fused bounce's per-pixel Jacobian does not apply to this render of {scene.name!r}")
             films = [fused.TangentFilm(scene.width, scene.height, fused.slots(scene_tables), device) for _ in range(cpu_workers(device))]
         else:

@@ -68,7 +68,7 @@ class RandomWalk(Integrator):
         bounce where it applies: :mod:`invrender.core.fused`)."""
         cfg = self.settings
         scene = self.fused_scene(ctx)
-        if scene is not None and fused.takes(film):
+        if scene is not None and fused.takes(film, scene):
             fused.trace(ctx, scene, state, film, cfg)
             return
         rr_start = math.inf if cfg.rr_depth == -1 else cfg.rr_depth  # -1: no roulette
