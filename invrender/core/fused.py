@@ -97,7 +97,8 @@ class FusedScene:
         absorbing: some BSDF weight can be zero (such paths end: not a flat Lambertian scene).
         lanes: the tables as the lane functions read them: triangles (T * 16,), lights (L * 2,),
             eps (E * 4,), the material index (M * 4,), per type its material table, the vertex
-            normals (T * 16,) or None (:mod:`invrender.core.lanes`).
+            normals (T * 16,) or None, the textures (uvs, rows, texels) or None
+            (:mod:`invrender.core.lanes`).
     """
 
     rho: torch.Tensor | None
@@ -124,16 +125,17 @@ def tables(ctx: TransportContext, direct, hemisphere: str) -> FusedScene | None:
     lights = ctx.lights.fused_triangles()
     if lights is None or _carries_derivative(lights.eps):
         return None
-    materials, forms = ctx.materials, []
+    materials, forms, textures = ctx.materials, [], lanes.TextureTable()
     device = ctx.triangles.p0.device
     for bsdf in materials.bsdfs:
         form = bsdf.lane_form()
         if form is None or not _written_once(bsdf) or any(_carries_derivative(v) for m in bsdf.values for v in m.values()):
             return None
-        table = lanes.material_rows(bsdf, form.keys)
-        if table is None:
+        rows = lanes.material_rows(bsdf, form.keys, textures)
+        if rows is None:
             return None
-        forms.append((lanes.Material(form, bsdf.has(Lobe.SMOOTH), bsdf.has(Lobe.GLOSSY_TRANSMISSION)), table.to(device)))
+        table, layout = rows
+        forms.append((lanes.Material(form, layout, bsdf.has(Lobe.SMOOTH), bsdf.has(Lobe.GLOSSY_TRANSMISSION)), table.to(device)))
     one_sided = materials.one_sided_rows()
     index = torch.stack([materials.slot_of.float(), materials.local_of.float(), one_sided.float(), torch.zeros_like(one_sided, dtype=torch.float32)], dim=1)
     rho = materials.fused_albedo()
@@ -145,6 +147,7 @@ def tables(ctx: TransportContext, direct, hemisphere: str) -> FusedScene | None:
         index.reshape(-1).contiguous(),
         tuple(t for _, t in forms),
         lanes.normal_rows(ctx.triangles) if ctx.triangles.any_smooth else None,
+        None if textures.empty else (lanes.uv_rows(ctx.triangles), *textures.tables(device)),
     )
     rho = None if rho is None else rho.detach().float()
     absorbing = rho is None or ctx.triangles.any_smooth

@@ -188,50 +188,128 @@ class Triangle:
         return self.r[15]
 
 
-def material_width(keys) -> int:
-    """Floats per row of a material table with ``keys`` (:class:`~invrender.core.bsdf.LaneForm`):
-    their sizes summed, rounded up to a power of two, or to a multiple of 16 above 16."""
-    n = max(1, sum(size for _, size in keys))
+def material_width(layout) -> int:
+    """Floats per row of a material table of ``layout`` (:func:`material_rows`): the entries'
+    sizes summed, rounded up to a power of two, or to a multiple of 16 above 16."""
+    n = max(1, sum(_floats(size, textured) for _, size, textured in layout))
     return 1 << (n - 1).bit_length() if n <= 16 else -(-n // 16) * 16
 
 
-def material_rows(bsdf, keys) -> torch.Tensor | None:
-    """(M * W,) float32 the table of ``bsdf``'s M materials' values for its lane form's ``keys``
-    (:func:`material_width` W floats a row): a parameter's detached value, a constant; None where a
-    parameter is not one colour for every material (a texture, per-vertex values) or sampling reads
-    other values than the parameters hold (a render that holds sampling fixed)."""
+def _floats(size: int, textured: bool) -> int:
+    return 4 if textured else size
+
+
+class TextureTable:
+    """The textures the materials of one render read, as the compiled bounce reads them: each
+    texture's texels (4 floats a texel, RGB then 0; :attr:`texels`) one after another, and a row of
+    16 floats a texture (:attr:`rows`): its first texel's place, width, height, nearest filter (1.0)
+    or bilinear, wrap code (:data:`~invrender.core.textures.WRAP_CODES`), ``to_uv``'s six
+    coefficients (the identity where none)."""
+
+    #: texels the table holds at most (their places are exact floats)
+    LIMIT = 1 << 24
+
+    def __init__(self):
+        self._texels, self._rows, self._count = [], [], 0
+
+    def add(self, value: torch.Tensor, sampling) -> int | None:
+        """The id of texture ``value`` (h, w, 3) read by ``sampling`` (None: the default), or None
+        where the table would outgrow :attr:`LIMIT`."""
+        from invrender.core.textures import WRAP_CODES
+        from invrender.scene.textures import DEFAULT
+
+        sampling = sampling or DEFAULT
+        h, w = value.shape[0], value.shape[1]
+        if self._count + h * w > self.LIMIT:
+            return None
+        to_uv = sampling.to_uv or (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
+        self._rows.append([float(self._count), float(w), float(h), float(sampling.filter == "nearest"), WRAP_CODES[sampling.wrap], *to_uv] + [0.0] * 5)
+        self._texels.append(torch.nn.functional.pad(value.detach().float().reshape(-1, 3).cpu(), (0, 1)))
+        self._count += h * w
+        return len(self._rows) - 1
+
+    @property
+    def empty(self) -> bool:
+        return not self._rows
+
+    def tables(self, device) -> tuple[torch.Tensor, torch.Tensor]:
+        """(K * 16,) the textures' rows and (texels * 4,) their texels, flat float32 on ``device``."""
+        rows = torch.tensor(self._rows, dtype=torch.float32).reshape(-1)
+        return rows.to(device), torch.cat(self._texels).reshape(-1).to(device)
+
+
+def material_rows(bsdf, keys, textures: TextureTable):
+    """The table of ``bsdf``'s M materials' values for its lane form's ``keys``
+    (:class:`~invrender.core.bsdf.LaneForm`): ``(table (M * W,) float32, layout)``, W floats a row
+    (:func:`material_width`), ``layout`` the entries ``(key, size, textured)`` in row order: a
+    parameter's detached value or a constant, and where some material of the type reads the key
+    from a texture (added to ``textures``), four floats, the constant or zeros then the texture's
+    id (-1: none). None where a parameter is per vertex, a texture does not fit the table, or
+    sampling reads other values than the parameters hold (a render that holds sampling fixed)."""
+    layout = tuple((key, size, size == 3 and any(key in v and v[key].ndim == 3 for v in bsdf.values)) for key, size in keys)
     rows = []
     for m, values in enumerate(bsdf.values):
         row = []
-        for key, size in keys:
+        for key, size, textured in layout:
+            texture = -1.0
             if key in values:
                 v, vs = values[key], bsdf.sampling_values[m][key]
-                if v.ndim != 1 or not torch.equal(v.detach(), vs):
+                if v.ndim not in (1, 3) or not torch.equal(v.detach(), vs):
                     return None
-                v = v.detach().float().reshape(-1)
+                if v.ndim == 3:
+                    texture = textures.add(v, bsdf.texture_sampling[m].get(key))
+                    if texture is None:
+                        return None
+                    v = torch.zeros(3)
+                v = v.detach().float().reshape(-1).cpu()
             else:
                 c = bsdf.constants[m][key]
                 v = torch.tensor(c if isinstance(c, (tuple, list)) else (c,) * 3, dtype=torch.float32)
-            row.append(v.to("cpu")[:3] if size == 3 else v.to("cpu")[:1])
+            row.append(v[:3] if size == 3 else v[:1])
+            if textured:
+                row.append(torch.tensor([float(texture)]))
         row = torch.cat(row) if row else torch.zeros(0)
-        rows.append(torch.nn.functional.pad(row, (0, material_width(keys) - row.shape[0])))
-    return torch.stack(rows).reshape(-1).contiguous()
+        rows.append(torch.nn.functional.pad(row, (0, material_width(layout) - row.shape[0])))
+    return torch.stack(rows).reshape(-1).contiguous(), layout
 
 
-def material_values(xp, table, m, keys):
+def material_values(xp, table, m, layout, lookup=None):
     """``p`` of :class:`~invrender.core.bsdf.LaneForm` for lanes of materials ``m`` (UInt) from
-    their table (:func:`material_rows`): key -> a Float (size 1) or a 3-tuple (size 3)."""
-    width = material_width(keys)
+    their table (:func:`material_rows`): key -> a Float (size 1) or a 3-tuple (size 3), a textured
+    entry read through ``lookup(texture id, constant)`` (:func:`texture_lookup`)."""
+    width = material_width(layout)
     if width <= 16:
         flat = xp.gather_rows(table, m, width)
     else:
         chunks = width // 16
         flat = sum((xp.gather_rows(table, m * chunks + j, 16) for j in range(chunks)), ())
     out, at = {}, 0
-    for key, size in keys:
+    for key, size, textured in layout:
         out[key] = flat[at] if size == 1 else tuple(flat[at : at + 3])
-        at += size
+        if textured:
+            out[key] = lookup(flat[at + 3], out[key])
+        at += _floats(size, textured)
     return out
+
+
+def texture_lookup(xp, rows, texels, uv):
+    """The lookup :func:`material_values` reads textured entries with, at texture coordinates
+    ``uv`` (a 2-tuple), from a :class:`TextureTable`'s ``rows`` and ``texels``: ``(texture id,
+    constant) -> `` the texture's filtered RGB, or the constant where the id is -1."""
+    from invrender.core.textures import filter_lanes
+
+    def lookup(texture, constant):
+        has = texture >= 0.0
+        r = xp.gather_rows(rows, xp.uint(xp.maximum(texture, 0.0)), 16)
+        index, weight = filter_lanes(xp, uv[0], uv[1], r[2], r[1], r[3] > 0.5, r[4], r[5:11])
+        first = xp.uint(r[0])
+        rgb = None
+        for i, w in zip(index, weight):
+            texel = scale(xp.gather_rows(texels, first + i, 4)[:3], w)
+            rgb = texel if rgb is None else add(rgb, texel)
+        return select3(xp, has, rgb, constant)
+
+    return lookup
 
 
 # ---- geometry ----------------------------------------------------------------------------------
@@ -327,23 +405,27 @@ class Material:
     """The materials of one type as the bounce sees them: its lane form and which lobes it has
     (Python values: they choose the code, the same for every lane)."""
 
-    __slots__ = ("form", "smooth", "smooth_transmission")
+    __slots__ = ("form", "layout", "smooth", "smooth_transmission")
 
-    def __init__(self, form, smooth: bool, smooth_transmission: bool):
-        self.form, self.smooth, self.smooth_transmission = form, smooth, smooth_transmission
+    def __init__(self, form, layout, smooth: bool, smooth_transmission: bool):
+        self.form, self.layout, self.smooth, self.smooth_transmission = form, layout, smooth, smooth_transmission
+
+    @property
+    def textured(self) -> bool:
+        return any(t for _, _, t in self.layout)
 
 
 class Point:
     """The materials at N hit points, dispatched by type with masks: each type's lane functions
     run on every lane and a lane keeps its own type's answer (one type: no masks)."""
 
-    def __init__(self, xp, types, tables, index, mat, wo, front):
+    def __init__(self, xp, types, tables, index, mat, wo, front, lookup):
         row = xp.gather_rows(index, mat, MATERIAL_ROW)
         self.xp, self.types, self.wo, self.front = xp, types, wo, front
         slot, local = xp.uint(row[0]), xp.uint(row[1])
         self.lit = ~((row[2] > 0.5) & ~front)  # a one-sided material is black from behind
         self.mine = [slot == k for k in range(len(types))] if len(types) > 1 else [None]
-        self.p = [material_values(xp, t, local if len(types) == 1 else xp.select(m, local, 0), m_.form.keys) for t, m, m_ in zip(tables, self.mine, types)]
+        self.p = [material_values(xp, table, local if m is None else xp.select(m, local, 0), kind.layout, lookup) for table, m, kind in zip(tables, self.mine, types)]
 
     def _merge(self, parts):
         """Each lane's own type's value of ``parts`` (per type, a tuple of arrays and 3-tuples)."""
@@ -381,7 +463,7 @@ def xp_lit(xp, lit):
 
 
 def path_vertex(
-    xp, tri_table, light_table, eps, material_index, material_tables, normals, prim, b1, b2, t, d, beta, pdf_dir, delta, keys, salts, offset: float, *,
+    xp, tri_table, light_table, eps, material_index, material_tables, normals, textures, prim, b1, b2, t, d, beta, pdf_dir, delta, keys, salts, offset: float, *,
     materials, sample_light, lights: int, first: bool, mis: bool, nee_only: bool, nee: bool, more: bool, roulette: bool, absorbing: bool, tangents: bool,
 ):  # fmt: skip
     """One primal bounce of N paths lit by emissive triangles: the random walk's and the path
@@ -392,7 +474,9 @@ def path_vertex(
             emissive triangles' (:func:`light_rows`); eps (E * 4,) RGB rows padded to 4;
             material_index (M * 4,) per scene material its type's slot, index in that type, one-sided
             flag (:data:`MATERIAL_ROW`); material_tables: per type, :func:`material_rows`;
-            normals: (T * 16,) the vertex normals (:func:`normal_rows`), or None (no shading normals).
+            normals: (T * 16,) the vertex normals (:func:`normal_rows`), or None (no shading normals);
+            textures: (uv table (:func:`uv_rows`), texture rows, texels) (:class:`TextureTable`), or
+            None (no material reads a texture).
         prim, b1, b2, t: (N,) the paths' closest hits (all valid); d, beta: 3-tuples of (N,) the
             rays' directions and the throughputs; pdf_dir (N,) the pdf ``d`` was sampled with and
             delta (N,) Bool whether from a delta lobe (or the camera); keys (N,) UInt; salts: the
@@ -433,7 +517,8 @@ def path_vertex(
     ns = n if normals is None else shading_normal(xp, normals, prim, b1, b2, front)
     f = frame(xp, ns)
     wo = scale(d, -1.0)
-    point = Point(xp, materials, material_tables, material_index, mat, to_local(f, wo), front)
+    lookup = None if textures is None else texture_lookup(xp, textures[1], textures[2], uv_at(xp, textures[0], prim, b1, b2))
+    point = Point(xp, materials, material_tables, material_index, mat, to_local(f, wo), front, lookup)
     # term depth + 1: one emitter sample (its shadow ray is cast by the caller) where the BSDF has a smooth lobe
     zero = 0.0 * w
     smooth = point.any("smooth")

@@ -26,39 +26,72 @@ from collections.abc import Sequence
 import torch
 
 from invrender.errors import SceneError
+from invrender.backends.arrays import TORCH
 from invrender.scene.textures import DEFAULT, TextureSampling
 
 
-def wrap(index: torch.Tensor, n: int, mode: str) -> torch.Tensor:
-    """Texel indices ``index`` (int64, any shape) along an axis of ``n`` texels, wrapped by ``mode``."""
-    if mode == "repeat":
-        return index.remainder(n)
-    if mode == "clamp":
-        return index.clamp(0, n - 1)
-    m = index.remainder(2 * n)  # mirror
-    return torch.where(m >= n, 2 * n - 1 - m, m)
+#: the wrap modes by code, as the texture table of the compiled bounce holds them
+WRAP_CODES = {"repeat": 0.0, "clamp": 1.0, "mirror": 2.0}
+
+
+def _choose(xp, flag, a, b):
+    """``flag ? a : b`` for a Python bool (chosen once) or a Bool array (per lane)."""
+    if isinstance(flag, bool):
+        return a if flag else b
+    return xp.select(flag, a, b)
+
+
+def wrap_lanes(xp, i, n, mode):
+    """Texel indices ``i`` (Float holding integers) along an axis of ``n`` texels, wrapped by
+    ``mode``: a :data:`WRAP_CODES` code (a number, or a Float per lane)."""
+    repeat = i - n * xp.floor(i / n)
+    if not isinstance(mode, float):  # per lane: every mode, then the lane's own
+        m = i - (2.0 * n) * xp.floor(i / (2.0 * n))
+        mirror = xp.select(m >= n, 2.0 * n - 1.0 - m, m)
+        clamp = xp.minimum(xp.maximum(i, 0.0), n - 1.0)
+        return xp.select(mode < 0.5, repeat, xp.select(mode < 1.5, clamp, mirror))
+    if mode == WRAP_CODES["repeat"]:
+        return repeat
+    if mode == WRAP_CODES["clamp"]:
+        return xp.minimum(xp.maximum(i, 0.0), n - 1.0)
+    m = i - (2.0 * n) * xp.floor(i / (2.0 * n))
+    return xp.select(m >= n, 2.0 * n - 1.0 - m, m)
+
+
+def filter_lanes(xp, u, v, h, w, nearest, mode, to_uv):
+    """The filter of an h x w texture at texture coordinates (u, v), written once against the array
+    interface (:mod:`invrender.core.lanes`): four texel indices (UInt, ``row * w + column`` into the
+    flattened texels) and their four weights (Float), which sum to 1 (module docstring).
+
+    ``h``, ``w``: numbers or Floats per lane; ``nearest``: a bool or a Bool per lane; ``mode``: a
+    :data:`WRAP_CODES` code, a number or a Float per lane; ``to_uv``: None or the affine map's six
+    coefficients (numbers or Floats)."""
+    if to_uv is not None:
+        a, b, c, d, e, f = to_uv
+        u, v = a * u + b * v + c, d * u + e * v + f
+    x, y = u * w, (1.0 - v) * h
+    x0, y0 = xp.floor(x - 0.5), xp.floor(y - 0.5)
+    fx, fy = x - 0.5 - x0, y - 0.5 - y0
+    i0, i1 = wrap_lanes(xp, y0, h, mode), wrap_lanes(xp, y0 + 1.0, h, mode)
+    j0, j1 = wrap_lanes(xp, x0, w, mode), wrap_lanes(xp, x0 + 1.0, w, mode)
+    weight = ((1.0 - fx) * (1.0 - fy), fx * (1.0 - fy), (1.0 - fx) * fy, fx * fy)
+    rows = ((i0, j0), (i0, j1), (i1, j0), (i1, j1))
+    if nearest is not False:  # the texel holding (x, y), weight 1
+        i, j = wrap_lanes(xp, xp.floor(y), h, mode), wrap_lanes(xp, xp.floor(x), w, mode)
+        zero = 0.0 * fx
+        weight = tuple(_choose(xp, nearest, one, k) for one, k in zip((zero + 1.0, zero, zero, zero), weight))
+        rows = tuple((_choose(xp, nearest, i, r), _choose(xp, nearest, j, c)) for r, c in rows)
+    ww = xp.uint(w) if not isinstance(w, (int, float)) else int(w)
+    return tuple(xp.uint(r) * ww + xp.uint(c) for r, c in rows), weight
 
 
 def bilinear(h: int, w: int, uv: torch.Tensor, sampling: TextureSampling = DEFAULT) -> tuple[torch.Tensor, torch.Tensor]:
     """The filter of an h x w texture at ``uv`` (N, 2) under ``sampling`` (bilinear by default):
     texel indices (N, 4) int64 into the flattened (h * w) texels and their weights (N, 4), which
-    sum to 1 (never differentiable)."""
-    st = sampling.transform(uv.detach())
-    x, y = st[:, 0] * w, (1.0 - st[:, 1]) * h
-    if sampling.filter == "nearest":
-        i, j = wrap(torch.floor(y).long(), h, sampling.wrap), wrap(torch.floor(x).long(), w, sampling.wrap)
-        index = (i * w + j)[:, None].expand(-1, 4)
-        weight = torch.zeros_like(index, dtype=uv.dtype)
-        return index, torch.cat([torch.ones_like(weight[:, :1]), weight[:, 1:]], dim=1)
-    x, y = x - 0.5, y - 0.5
-    x0, y0 = torch.floor(x), torch.floor(y)
-    fx, fy = x - x0, y - y0
-    i0, j0 = y0.long(), x0.long()
-    i0, i1 = wrap(i0, h, sampling.wrap), wrap(i0 + 1, h, sampling.wrap)
-    j0, j1 = wrap(j0, w, sampling.wrap), wrap(j0 + 1, w, sampling.wrap)
-    index = torch.stack([i0 * w + j0, i0 * w + j1, i1 * w + j0, i1 * w + j1], dim=1)
-    weight = torch.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], dim=1)
-    return index, weight
+    sum to 1 (never differentiable): :func:`filter_lanes` as eager torch."""
+    uv = uv.detach()
+    index, weight = filter_lanes(TORCH, uv[:, 0], uv[:, 1], float(h), float(w), sampling.filter == "nearest", WRAP_CODES[sampling.wrap], sampling.to_uv)
+    return torch.stack(index, dim=1).long(), torch.stack(weight, dim=1).to(uv.dtype)
 
 
 def lookup(value: torch.Tensor, uv: torch.Tensor, sampling: TextureSampling = DEFAULT) -> torch.Tensor:

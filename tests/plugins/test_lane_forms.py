@@ -58,8 +58,8 @@ def lanes_at(n: int, seed: int):
     return wo, wi, front, torch.rand(3, n, generator=g)
 
 
-def _eval(xp, table, m, wo, wi, front, u_lobe, u0, u1, *, form):
-    p = lanes.material_values(xp, table, m, form.keys)
+def _eval(xp, table, m, wo, wi, front, u_lobe, u0, u1, *, form, layout):
+    p = lanes.material_values(xp, table, m, layout)
     f, pdf = form.eval(xp, p, p, wo, wi, front)
     ws, weight, pdf_s, delta = form.sample(xp, p, p, wo, front, u_lobe, u0, u1)
     return f, pdf, ws, weight, pdf_s, delta
@@ -72,13 +72,13 @@ def test_compiled_lane_form_equals_eager(name):
     extra = {"spec_trans": 0.5} if "spec_trans" in cls.params else {}
     bsdf = checks.instance(cls, **extra)
     form = bsdf.lane_form()
-    table = lanes.material_rows(bsdf, form.keys)
+    table, layout = lanes.material_rows(bsdf, form.keys, lanes.TextureTable())
     n = 4096
     wo, wi, front, u = lanes_at(n, seed=len(name))
     m = torch.zeros(n, dtype=torch.int32)
     args = (table, m, wo, wi, front, u[0], u[1], u[2])
-    eager = compiled.evaluate(arrays.TORCH, _eval, *args, form=form)
-    jit = compiled.evaluate(XP, _eval, *args, form=form)
+    eager = compiled.evaluate(arrays.TORCH, _eval, *args, form=form, layout=layout)
+    jit = compiled.evaluate(XP, _eval, *args, form=form, layout=layout)
     for label, a, b in zip(("f", "pdf", "wi", "weight", "sample pdf", "delta"), eager, jit):
         if a.dtype == torch.bool:
             assert (a != b).float().mean() < 1e-3, (name, label)
