@@ -103,6 +103,43 @@ class TriangleTables:
     light_rows: torch.Tensor
 
 
+@dataclass(frozen=True)
+class LightLanes:
+    """An emitter type written once against the array interface (:mod:`invrender.core.lanes`): the
+    form in which the compiled bounce samples it and reads its radiance, lane by lane with masks.
+    Its torch methods evaluate the same functions for what they detach (directions, pdfs, shadow
+    rays; ``compiled.run``), so the sampling maths is written once.
+
+    The functions take the namespace ``xp``, then ``t``: :attr:`tables` as arrays, then per lane
+    3-tuples of Floats (points, normals, directions) and Floats (uniforms):
+
+    - ``sample(xp, t, u0, u1, u2, x, nx, offset) -> (origin, wl, tmax, Le, pdf, facing)``: what
+      :meth:`Light.sample_from` returns from uniforms ``(u0, u1, u2)`` at points ``x`` with
+      geometric normals ``nx`` (detached: ``Le`` a 3-tuple of the radiance arriving, or for delta
+      emitters the quantity whose ratio to ``pdf`` is the estimate; ``pdf`` this type's own, the
+      choice among types is the caller's; ``tmax`` ``inf`` for emitters infinitely far away);
+    - ``escaped(xp, t, d) -> (Le, pdf)`` (types with :attr:`Light.infinite`; else None): what
+      :meth:`Light.escaped` and :meth:`Light.pdf_escaped` return for rays of directions ``d``
+      leaving the scene;
+    - ``hit(xp, t, tri, front, dist, cos) -> (Le, pdf, seen)`` (types with :attr:`Light.surface`;
+      else None): the radiance leaving hits back along their rays, the density with which
+      ``sample`` from the ray's origin would have picked them, and a Bool where the hit is on an
+      emitting side; ``tri`` the hit triangles' rows (:class:`invrender.core.lanes.Triangle`),
+      ``dist`` the ray's length, ``cos`` the cosine at the hit (> 0).
+
+    Attributes:
+        sample, escaped, hit: the functions.
+        tables: the flat float32 tensors they read (detached values, on the render's device).
+        delta: every sample is a delta one (a point, a direction): MIS gives it weight 1.
+    """
+
+    sample: Callable
+    tables: tuple
+    escaped: Callable | None = None
+    hit: Callable | None = None
+    delta: bool = False
+
+
 class Light(Declared, ABC):
     """Base class of the emitter types: one instance holds every emitter of one type in a scene.
 
@@ -165,6 +202,12 @@ class Light(Declared, ABC):
         """Solid-angle density (N,) with which :meth:`sample_from` would have sampled directions
         ``d`` (N, 3) (types that emit from infinitely far only)."""
         return d.new_zeros(d.shape[0])
+
+    def lanes(self) -> LightLanes | None:
+        """This type in lane form (:class:`LightLanes`), which puts its scenes on the compiled
+        bounce; None (the default, or where a render's emitters of this type cannot be: a
+        texture, a sampling held fixed): the torch bounce answers by its methods."""
+        return None
 
     def fused_triangles(self) -> TriangleTables | None:
         """Its tables for the fused primal bounce, when it is a surface emitter of constant radiance
