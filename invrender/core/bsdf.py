@@ -295,10 +295,6 @@ class BSDF(Declared, ABC):
         bounce; None (the default): the torch bounce evaluates it by its methods."""
         return None
 
-    #: the direction sampling of the lobe :meth:`fused_albedo` describes, written against the array
-    #: interface (:mod:`invrender.core.lanes`): ``(xp, n, u0, u1) -> (wi, pdf)`` (3-tuples of lanes)
-    sample_lanes: ClassVar[Callable | None] = None
-
     def fused_albedo(self) -> torch.Tensor | None:
         """(M, 3) the reflectance of each of this type's materials when every one is Lambertian
         with an RGB constant (``rho / pi``, sampled by the cosine), for the fused primal bounce

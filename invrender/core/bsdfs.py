@@ -147,10 +147,6 @@ class Materials:
             return None
         return self.bsdfs[0].fused_albedo()
 
-    def fused_sampler(self):
-        """The lane sampler of the materials' lobe where :meth:`fused_albedo` answers (:attr:`BSDF.sample_lanes`)."""
-        return type(self.bsdfs[0]).sample_lanes
-
     def diffuse_reflectance(self, sp: ShadingPoint) -> torch.Tensor:
         """k_d (N, 3) of each hit for the ambient term (0 for materials without a diffuse part, and
         at the back of a one-sided material)."""

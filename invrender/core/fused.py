@@ -2,48 +2,51 @@
 
 Outside its ray queries, a bounce in eager torch is a few hundred small operations, each a pass
 over megabytes of (N,) and (N, 3) tensors. When nothing needs those operations' autograd graph
-or hooks, a bounce of a Lambertian scene lit by emissive triangles is instead:
+or hooks, a bounce is instead:
 
-1. the closest-hit query, and the compaction to the rays that hit;
-2. one kernel (:func:`vertex`: :func:`invrender.core.lanes.lambert_vertex`, written once against
-   the array interface and compiled by Dr.Jit, or run as eager torch where Dr.Jit is missing:
-   :mod:`invrender.core.compiled`): the hit's geometry, the emission seen there with its MIS
-   weight (term k), one emitter sample, its shadow ray and the direct light it carries if
-   unoccluded (term k + 1), the material's direction sample, the new ray, the throughput and
-   Russian roulette; the material's and the emitter's sampling are the plugins' own lane functions
-   (``Diffuse.sample_lanes``, ``Area``'s ``TriangleTables.sample``);
+1. the closest-hit query, the radiance of the emitters infinitely far away seen by the rays that
+   leave the scene (one small kernel: :func:`invrender.core.lanes.escaped_vertex`), and the
+   compaction to the rays that hit;
+2. one kernel (:func:`vertex`: :func:`invrender.core.lanes.path_vertex`, written once against the
+   array interface and compiled by Dr.Jit, or run as eager torch where Dr.Jit is missing:
+   :mod:`invrender.core.compiled`): the hit's geometry and shading frame (interpolated normals),
+   the emission seen there with its MIS weight (term k), one emitter sample, its shadow ray and the
+   direct light it carries if unoccluded (term k + 1), the material's direction sample, the new
+   ray, the throughput and Russian roulette. The materials and emitters are the plugins' own lane
+   forms (:class:`~invrender.core.bsdf.LaneForm`, :class:`~invrender.core.lights.LightLanes`):
+   each type present runs on every lane and a lane keeps its own type's answer (masks, no
+   compaction); textures are read per lane (:class:`~invrender.core.lanes.TextureTable`);
 3. the shadow-ray query, the two film additions, and the compaction to the surviving paths.
 
 The kernel draws the same counter-based numbers (the same salts, the same dimensions) and follows
 the same expressions as the torch bounce of :class:`~invrender.plugins.integrators.random_walk.RandomWalk`
 and :func:`~invrender.plugins.integrators.vertex.add_direct`, which stay the differentiable
-reference: the two give the same image within float rounding (``tests/transport/test_fused.py``; a
-roulette decision that float rounding flips changes one path), and cast the same shadow rays in the
-same order, so path replay's adjoint pass (differentiable torch) takes its primal pass's answers
-unchanged. Its compiled and eager evaluations agree lane by lane (``tests/transport/test_lanes.py``).
+reference (and the materials' torch methods are the same lane functions evaluated as eager torch):
+the two give the same image within float rounding (``tests/transport/test_fused.py``; a roulette
+decision that float rounding flips changes one path). Its compiled and eager evaluations agree lane
+by lane (``tests/transport/test_lanes.py``, ``tests/plugins/test_lane_forms.py``).
 
 It applies (:func:`tables`) where the Warp kernels run (:func:`~invrender.backends.kernels.enabled`:
-the derivative kernel below is still Warp's),
-the integrator's vertex step is the random walk's or the path tracer's own (``fused_direct``) with
-cosine-weighted diffuse sampling, every material belongs to one type that gives an albedo table
-(:meth:`BSDF.fused_albedo <invrender.core.bsdf.BSDF.fused_albedo>`: ``diffuse`` with RGB
-reflectance, no shading normals, none one-sided), the emitters are of one type that gives its
-triangle tables (:meth:`Light.fused_triangles <invrender.core.lights.Light.fused_triangles>`:
-``area`` with RGB radiance, no sphere sampled by solid angle), the camera sees emitters, there is no
-ambient term, and no parameter carries a gradient or a forward-mode tangent; and, per chunk, where
-the film has no hooks (:func:`takes`: path records' and replay's adjoint films do). Everywhere else
-the torch bounce runs. ``INVRENDER_KERNELS=steps`` switches it off (the kernels of single steps
-stay), ``INVRENDER_KERNELS=torch`` with the other kernels; ``INVRENDER_BOUNCE=torch`` runs the
-kernel as eager torch.
+the derivative kernel below is still Warp's), the integrator's vertex step is the random walk's
+or the path tracer's own (``fused_direct``), every material type gives its lane form
+(:meth:`BSDF.lane_form <invrender.core.bsdf.BSDF.lane_form>`, its torch methods not overridden)
+with parameters that are colours or textures, every emitter type gives its lane form
+(:meth:`Light.lanes <invrender.core.lights.Light.lanes>`), the camera sees emitters, there is no
+ambient term, no parameter is per vertex, and no parameter carries a gradient or a forward-mode
+tangent; and, per chunk, where the film has no hooks (:func:`takes`: path records' and replay's
+adjoint films do). Everywhere else the torch bounce runs. ``INVRENDER_KERNELS=steps`` switches it
+off (the kernels of single steps stay), ``INVRENDER_KERNELS=torch`` with the other kernels;
+``INVRENDER_BOUNCE=torch`` runs the kernel as eager torch.
 
-**Derivatives carried forward.** Every factor of such a path is linear in one of the scene's
-constant parameters (a material's rho, an emitter's eps), so each path counts its throughput's
-factors of each rho as it scatters (``counts``), and one more kernel per bounce
-(:func:`~invrender.backends.kernels.tangents_add`, Warp) turns a contribution C into what two callers
-need: its derivatives, ``n C / rho_m`` and the factor beside eps, summed per pixel into a
-:class:`TangentFilm` (path replay's gradient is then one contraction with ``dl/dI``, no adjoint
-trace: :mod:`invrender.estimators.replay`), or its monomial's code ``sum_s k_s R_s`` for a film that
-takes contributions by code (path records: :func:`places`), instead of forward-mode autodiff.
+**Derivatives carried forward.** In a flat Lambertian scene lit by area emitters (``FusedScene.rho``)
+every factor of a path is linear in one of the scene's constant parameters (a material's rho, an
+emitter's eps), so each path counts its throughput's factors of each rho as it scatters
+(``counts``), and one more kernel per bounce (:func:`~invrender.backends.kernels.tangents_add`,
+Warp) turns a contribution C into what two callers need: its derivatives, ``n C / rho_m`` and the
+factor beside eps, summed per pixel into a :class:`TangentFilm` (path replay's gradient is then one
+contraction with ``dl/dI``, no adjoint trace: :mod:`invrender.estimators.replay`), or its
+monomial's code ``sum_s k_s R_s`` for a film that takes contributions by code (path records:
+:func:`places`), instead of forward-mode autodiff.
 """
 
 from __future__ import annotations
@@ -84,32 +87,33 @@ class FusedScene:
 
     Attributes:
         rho: (M, 3) the materials' reflectance where every material is Lambertian with an RGB
-            constant and the scene is flat (the derivatives and monomial codes the bounce carries
-            are then exact: :class:`TangentFilm`); else None (the primal image only).
-        eps: (E, 3) the emitters' radiance.
-        lights: L, the emissive triangles.
+            constant, the scene flat and its emitters of the one type ``area`` (the derivatives and
+            monomial codes the bounce carries are then exact: :class:`TangentFilm`); else None
+            (the primal image only).
+        eps: (E, 3) the emitters' radiance where ``rho`` is given, else None.
         mis: emission hit by BSDF samples is weighted against emitter samples (power heuristic).
         nee_only: emitter samples alone estimate direct light (emission counts on camera rays
             and after delta lobes only).
         nee: emitter samples are taken (next-event estimation).
-        sample_light: the emitter's lane sampler (:func:`invrender.core.lanes.path_vertex`).
         materials: per material type present, its :class:`~invrender.core.lanes.Material`.
+        emitters: per emitter type present, its :class:`~invrender.core.lanes.Emitter`.
         absorbing: some BSDF weight can be zero (such paths end: not a flat Lambertian scene).
-        lanes: the tables as the lane functions read them: triangles (T * 16,), lights (L * 2,),
-            eps (E * 4,), the material index (M * 4,), per type its material table, the vertex
+        infinite: some emitter is infinitely far away (rays that leave the scene see it).
+        lanes: the tables as the lane functions read them: triangles (T * 16,), per emitter type
+            its tables, the material index (M * 4,), per material type its table, the vertex
             normals (T * 16,) or None, the textures (uvs, rows, texels) or None
             (:mod:`invrender.core.lanes`).
     """
 
     rho: torch.Tensor | None
-    eps: torch.Tensor
-    lights: int
+    eps: torch.Tensor | None
     mis: bool
     nee_only: bool
     nee: bool
-    sample_light: Callable
     materials: tuple
+    emitters: tuple
     absorbing: bool
+    infinite: bool
     lanes: tuple
 
 
@@ -122,8 +126,8 @@ def tables(ctx: TransportContext, direct, hemisphere: str) -> FusedScene | None:
         return None
     if ctx.hide_emitters or ctx.ambient is not None or ctx.per_vertex:
         return None
-    lights = ctx.lights.fused_triangles()
-    if lights is None or _carries_derivative(lights.eps):
+    emitters = _emitters(ctx.lights)
+    if emitters is None:
         return None
     materials, forms, textures = ctx.materials, [], lanes.TextureTable()
     device = ctx.triangles.p0.device
@@ -138,20 +142,46 @@ def tables(ctx: TransportContext, direct, hemisphere: str) -> FusedScene | None:
         forms.append((lanes.Material(form, layout, bsdf.has(Lobe.SMOOTH), bsdf.has(Lobe.GLOSSY_TRANSMISSION)), table.to(device)))
     one_sided = materials.one_sided_rows()
     index = torch.stack([materials.slot_of.float(), materials.local_of.float(), one_sided.float(), torch.zeros_like(one_sided, dtype=torch.float32)], dim=1)
-    rho = materials.fused_albedo()
-    eps = lights.eps.detach().float()
     rows = (
-        lights.rows,
-        lights.light_rows,
-        torch.nn.functional.pad(eps, (0, 1)).reshape(-1),
+        _triangle_rows(ctx),
+        tuple(t for _, t in emitters),
         index.reshape(-1).contiguous(),
         tuple(t for _, t in forms),
         lanes.normal_rows(ctx.triangles) if ctx.triangles.any_smooth else None,
         None if textures.empty else (lanes.uv_rows(ctx.triangles), *textures.tables(device)),
     )
-    rho = None if rho is None else rho.detach().float()
-    absorbing = rho is None or ctx.triangles.any_smooth
-    return FusedScene(rho, eps, int(lights.light_rows.shape[0]) // lanes.LIGHT_ROW, direct == "mis", direct == "emitter", direct in ("mis", "emitter"), lights.sample, tuple(m for m, _ in forms), absorbing, rows)
+    rho, eps = materials.fused_albedo(), None
+    if rho is not None and len(emitters) == 1 and emitters[0][0].surface:  # the area emitter's eps rows: (E, 3)
+        rho, eps = rho.detach().float(), emitters[0][1][2].view(-1, 4)[:, :3]
+    else:
+        rho = None
+    nee = direct in ("mis", "emitter") and ctx.lights.count > 0
+    kinds = tuple(e for e, _ in emitters)
+    return FusedScene(rho, eps, direct == "mis", direct == "emitter", nee, tuple(m for m, _ in forms), kinds, rho is None or ctx.triangles.any_smooth, any(e.infinite for e in kinds), rows)
+
+
+def _emitters(lights) -> list | None:
+    """Per emitter type of ``lights``, (its :class:`~invrender.core.lanes.Emitter`, its tables), or
+    None where one has no lane form or a parameter that carries a derivative."""
+    out = []
+    for light in lights.lights:
+        form = light.lanes()
+        if form is None or any(_carries_derivative(v) for m in light.values for v in m.values()):
+            return None
+        lo, p = lights.share(light)
+        out.append((lanes.Emitter(form, lo, p, lights.probability(light), light.infinite, light.surface), form.tables))
+    return out
+
+
+def _triangle_rows(ctx) -> torch.Tensor:
+    """The triangle table (:func:`~invrender.core.lanes.triangle_rows`) with the emitting flags and
+    area densities of the scene's surface emitters (zeros without one)."""
+    for light in ctx.lights.surfaces:
+        form = light.lanes()
+        if form is not None:
+            return form.tables[0]
+    t = ctx.triangles
+    return t.derived("lane_rows_dark", lambda: lanes.triangle_rows(t.packed, t.material, t.emitter, torch.zeros_like(t.material, dtype=torch.bool), torch.zeros_like(t.area)))
 
 
 def _written_once(bsdf) -> bool:
@@ -247,7 +277,7 @@ def vertex(fused: FusedScene, hits: tuple, d, beta, pdf_dir, delta, keys, depth:
         emitters hit (N,) int32 (-1: none) and sampled (N,), and the materials hit (N,).
     """
     salts = tuple(Opaque(s) for s in bounce_salt_values(depth + 1, DIMS))
-    static = dict(materials=fused.materials, sample_light=fused.sample_light, lights=fused.lights, first=depth == 0, mis=fused.mis, nee_only=fused.nee_only,
+    static = dict(materials=fused.materials, emitters=fused.emitters, first=depth == 0, mis=fused.mis, nee_only=fused.nee_only,
                   nee=fused.nee, more=more, roulette=roulette, absorbing=fused.absorbing, tangents=tangents)  # fmt: skip
     out = compiled.run(lanes.path_vertex, d.device, *fused.lanes, *hits, d, beta, pdf_dir, delta, keys, salts, float(offset), **static)
     if not more:  # the emission alone: the other primal outputs are not read (the direct light: zero)
@@ -270,6 +300,12 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
     depth = 0
     while keys.shape[0]:
         hits = ctx.accel.intersect(o, d)
+        if fused.infinite:  # term depth for the rays that leave the scene
+            gone = (~hits.valid).nonzero()[:, 0]
+            if gone.shape[0]:
+                args = (x.index_select(0, gone) for x in (d, beta, pdf, delta))
+                (seen,) = compiled.run(lanes.escaped_vertex, d.device, fused.lanes[1], *args, emitters=fused.emitters, first=depth == 0, mis=fused.mis, nee_only=fused.nee_only)
+                film.add(depth, pixel.index_select(0, gone), seen)
         hit = hits.valid.nonzero()[:, 0]  # a synchronization: the count of rays that hit
         prim, u, v, t = hits.prim, hits.u, hits.v, hits.t
         if hit.shape[0] < keys.shape[0]:

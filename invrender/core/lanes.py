@@ -462,18 +462,76 @@ def xp_lit(xp, lit):
     return xp.select(lit, 1.0, 0.0)
 
 
+class Emitter:
+    """The emitters of one type as the bounce sees them (Python values: they choose the code): its
+    lane functions (:class:`~invrender.core.lights.LightLanes`), its share ``[lo, lo + p)`` of the
+    uniform that chooses the type of an emitter sample (p = 0: never sampled), the probability of
+    that choice as the pdfs of hits weigh it, and its kind."""
+
+    __slots__ = ("form", "lo", "p", "choice", "infinite", "surface")
+
+    def __init__(self, form, lo: float, p: float, choice: float, infinite: bool, surface: bool):
+        self.form, self.lo, self.p, self.choice, self.infinite, self.surface = form, lo, p, choice, infinite, surface
+
+
+def sample_emitters(xp, emitters, tables, u0, u1, u2, x, nx, offset: float):
+    """One emitter sample per lane (:meth:`invrender.core.lights.Lights.sample_from`): ``u0``
+    chooses the type by its share (stretched back to [0, 1) for the type's own choice), then the
+    type samples. Returns (origin, wl, tmax, Le, pdf, facing, delta, emitter): ``delta`` a Bool or
+    a Python bool for every lane, ``emitter`` the scene emitter sampled (UInt) where the only
+    sampled type is a surface type, else None."""
+    sampled = [(e, t) for e, t in zip(emitters, tables) if e.p > 0.0]
+    if len(sampled) == 1:
+        e, t = sampled[0]
+        out = e.form.sample(xp, t, u0, u1, u2, x, nx, offset)
+        return out[:6] + (e.form.delta, out[6] if len(out) > 6 else None)
+    merged, delta = None, False
+    for i, (e, t) in enumerate(sampled):
+        ui = xp.minimum(xp.maximum((u0 - e.lo) / e.p, 0.0), 1.0 - 2.0**-24)
+        origin, wl, tmax, Le, pdf, facing = e.form.sample(xp, t, ui, u1, u2, x, nx, offset)[:6]
+        part = (origin, wl, tmax, Le, pdf * e.p, facing)
+        # the lanes whose u0 falls in this type's share: the first type below the second's, the last from its own
+        above = u0 >= e.lo if i else None
+        if merged is None:
+            merged = part
+        else:
+            merged = tuple(select3(xp, above, a, b) if isinstance(a, tuple) else xp.select(above, a, b) for a, b in zip(part, merged))
+        if e.form.delta:
+            mine = above if i else u0 == u0
+            if i + 1 < len(sampled):
+                mine = mine & (u0 < sampled[i + 1][0].lo)
+            delta = mine if delta is False else delta | mine
+    return merged + (delta, None)
+
+
+def escaped_vertex(xp, tables, d, beta, pdf_dir, delta, *, emitters, first: bool, mis: bool, nee_only: bool):
+    """Term depth for rays ``d`` that leave the scene: ``beta w Le`` of the emitters infinitely far
+    away, weighted as :func:`path_vertex` weighs emission hit (one array call: the paths' escaped
+    rays). Returns the radiance (3-tuple)."""
+    Le, pdf = None, None
+    for e, t in zip(emitters, tables):
+        if e.infinite:
+            Le_k, pdf_k = e.form.escaped(xp, t, d)
+            Le = Le_k if Le is None else add(Le, Le_k)
+            pdf = pdf_k * e.choice if pdf is None else pdf + pdf_k * e.choice
+    w = xp.select(delta, 1.0, 0.0) if nee_only and not first else 1.0
+    if mis and not first:
+        w = xp.select(delta, 1.0, power_heuristic(xp, pdf_dir, pdf))
+    return (scale(scale(beta, w), Le),)
+
+
 def path_vertex(
-    xp, tri_table, light_table, eps, material_index, material_tables, normals, textures, prim, b1, b2, t, d, beta, pdf_dir, delta, keys, salts, offset: float, *,
-    materials, sample_light, lights: int, first: bool, mis: bool, nee_only: bool, nee: bool, more: bool, roulette: bool, absorbing: bool, tangents: bool,
+    xp, tri_table, emitter_tables, material_index, material_tables, normals, textures, prim, b1, b2, t, d, beta, pdf_dir, delta, keys, salts, offset: float, *,
+    materials, emitters, first: bool, mis: bool, nee_only: bool, nee: bool, more: bool, roulette: bool, absorbing: bool, tangents: bool,
 ):  # fmt: skip
-    """One primal bounce of N paths lit by emissive triangles: the random walk's and the path
-    tracer's vertex (:mod:`invrender.core.fused` documents it), every material in its lane form.
+    """One primal bounce of N paths: the random walk's and the path tracer's vertex
+    (:mod:`invrender.core.fused` documents it), every material and emitter in its lane form.
 
     Args:
-        tri_table: (T * 16,) the triangle table (:func:`triangle_rows`); light_table (L * 2,) the
-            emissive triangles' (:func:`light_rows`); eps (E * 4,) RGB rows padded to 4;
-            material_index (M * 4,) per scene material its type's slot, index in that type, one-sided
-            flag (:data:`MATERIAL_ROW`); material_tables: per type, :func:`material_rows`;
+        tri_table: (T * 16,) the triangle table (:func:`triangle_rows`); emitter_tables: per emitter
+            type, its tables (:class:`~invrender.core.lights.LightLanes`); material_index (M * 4,)
+            per scene material its type's slot, index in that type, one-sided flag
+            (:data:`MATERIAL_ROW`); material_tables: per type, :func:`material_rows`;
             normals: (T * 16,) the vertex normals (:func:`normal_rows`), or None (no shading normals);
             textures: (uv table (:func:`uv_rows`), texture rows, texels) (:class:`TextureTable`), or
             None (no material reads a texture).
@@ -481,13 +539,11 @@ def path_vertex(
             rays' directions and the throughputs; pdf_dir (N,) the pdf ``d`` was sampled with and
             delta (N,) Bool whether from a delta lobe (or the camera); keys (N,) UInt; salts: the
             bounce's 7 salts (0-1 BSDF direction, 2-4 emitter sample, 5 roulette, 6 BSDF lobe).
-        materials: per type a :class:`Material`; sample_light: the emitter's ``(xp, tri_table,
-            light_table, lights, u0, u1, u2, x, nx, offset) -> (k, b1, b2, origin, w, tmax, facing,
-            pdf)``; lights: L.
+        materials: per type a :class:`Material`; emitters: per type an :class:`Emitter`.
         first: camera rays (depth 0); mis, nee_only, nee, more, roulette: the integrator's
             strategy (:class:`invrender.core.fused.FusedScene`), whether paths go on after this
             vertex, whether roulette applies; absorbing: a BSDF weight can be zero (such paths end);
-            tangents: the factors are returned.
+            tangents: the factors are returned (one emitter type, a surface one).
     Returns:
         emitted (term depth); with ``more``: the shadow rays' origin, direction, tmax (0 where the
         sample adds nothing whatever the parameters) and the direct light each adds if unoccluded
@@ -499,16 +555,20 @@ def path_vertex(
     p, n, c = hit(xp, tri, b1, b2, d)
     front = c > 0.0
     # term depth: the emission seen, weighted against the previous vertex's emitter sample
-    em, has_emitter = tri.emitter(xp)
-    seen = front & tri.emitting & has_emitter
+    zero = 0.0 * c
+    Le, light_pdf, seen, em = (zero, zero, zero), zero, c != c, None
+    for e, table in zip(emitters, emitter_tables):
+        if e.surface:
+            Le_k, pdf_k, seen_k, em_k = e.form.hit(xp, table, tri, front, t, xp.abs(c))
+            Le, light_pdf, seen = select3(xp, seen_k, Le_k, Le), xp.select(seen_k, pdf_k * e.choice, light_pdf), seen | seen_k
+            em = em_k if em is None else em
     if nee_only and not first:
         seen = seen & delta  # only where no emitter sample competed
     w = xp.select(seen, 1.0, 0.0)
     if mis and not first:
-        light_pdf = tri.pdf_area * t * t / xp.maximum(xp.abs(c), 1e-12)
         w = w * xp.select(delta, 1.0, power_heuristic(xp, pdf_dir, light_pdf))
     factor_e = scale(beta, w)
-    emitted = scale(factor_e, xp.gather_rows(eps, em, 4)[:3])
+    emitted = scale(factor_e, Le)
     mat = tri.material(xp)
     none = xp.u32(0xFFFFFFFF)
     tangent_out = (factor_e, xp.select(seen, em, none), mat) if tangents else ()
@@ -520,28 +580,33 @@ def path_vertex(
     lookup = None if textures is None else texture_lookup(xp, textures[1], textures[2], uv_at(xp, textures[0], prim, b1, b2))
     point = Point(xp, materials, material_tables, material_index, mat, to_local(f, wo), front, lookup)
     # term depth + 1: one emitter sample (its shadow ray is cast by the caller) where the BSDF has a smooth lobe
-    zero = 0.0 * w
     smooth = point.any("smooth")
     if nee and smooth is not False:
         u0, u1, u2 = (uniform(xp, keys, salts[j]) for j in (2, 3, 4))
-        kl, _, _, so, wl, tmax, facing, pdf = sample_light(xp, tri_table, light_table, lights, u0, u1, u2, p, n, offset)
+        so, wl, tmax, Ll, pdf, facing, light_delta, sampled = sample_emitters(xp, emitters, emitter_tables, u0, u1, u2, p, n, offset)
         through = point.any("smooth_transmission")
         if through is not False:  # behind a glossy transmitter: the same sample from the other side
-            kb, _, _, sob, wlb, tmaxb, facingb, pdfb = sample_light(xp, tri_table, light_table, lights, u0, u1, u2, p, scale(n, -1.0), offset)
+            sob, wlb, tmaxb, Llb, pdfb, facingb, _, sampledb = sample_emitters(xp, emitters, emitter_tables, u0, u1, u2, p, scale(n, -1.0), offset)
             back = ~facing if through is True else through & ~facing
-            kl, so, wl = xp.select(back, kb, kl), select3(xp, back, sob, so), select3(xp, back, wlb, wl)
+            so, wl, Ll = select3(xp, back, sob, so), select3(xp, back, wlb, wl), select3(xp, back, Llb, Ll)
             tmax, facing, pdf = xp.select(back, tmaxb, tmax), xp.select(back, facingb, facing), xp.select(back, pdfb, pdf)
+            sampled = None if sampled is None else xp.select(back, sampledb, sampled)
         f_cos, bsdf_pdf = point.eval(to_local(f, wl))
-        inv = power_heuristic(xp, pdf, bsdf_pdf) / pdf if mis else 1.0 / pdf
+        if mis:
+            mis_w = power_heuristic(xp, pdf, bsdf_pdf)
+            inv = (1.0 if light_delta is True else xp.select(light_delta, 1.0, mis_w) if light_delta is not False else mis_w) / pdf
+        else:
+            inv = 1.0 / pdf
         ok = facing if smooth is True else facing & smooth
         weight = xp.select(ok, inv, 0.0)
         shadow_t = xp.select(ok & (xp.maximum(xp.maximum(f_cos[0], f_cos[1]), f_cos[2]) > 0.0), tmax, 0.0)
         factor_d = scale(scale(beta, weight), f_cos)
-        sampled, _ = Triangle(xp, tri_table, kl).emitter(xp)
-        direct = scale(factor_d, xp.gather_rows(eps, sampled, 4)[:3])
+        direct = scale(factor_d, Ll)
     else:
         so, wl, shadow_t = (zero, zero, zero), (zero, zero, zero), zero
         factor_d = direct = (zero, zero, zero)
+        sampled = None
+    if sampled is None:
         sampled = xp.full(none, mat)
     # the BSDF sample, the new ray and Russian roulette
     wi, weight, pdf_next, delta_next = point.sample(uniform(xp, keys, salts[6]), uniform(xp, keys, salts[0]), uniform(xp, keys, salts[1]))

@@ -76,34 +76,6 @@ class LightSample:
 
 
 @dataclass(frozen=True)
-class TriangleTables:
-    """Emitters that are triangles of constant radiance, sampled by area, as the fused primal
-    bounce (:mod:`invrender.core.fused`) samples and evaluates them itself.
-
-    Attributes:
-        tri: (L,) int64 the triangles next-event estimation picks among.
-        cdf: (L,) float32 their cumulative choice probabilities (the last is 1).
-        pdf_area: (T,) float32 per scene triangle, the density per unit area of a sampled point on
-            it (0 on triangles never sampled).
-        emitting: (T,) bool per scene triangle, does its front side emit?
-        eps: (E, 3) radiance per scene emitter (rows of ``triangles.emitter``), detached.
-        sample: the emitter's point sampling written against the array interface
-            (:mod:`invrender.core.lanes`; the signature of ``lambert_vertex``'s ``sample_light``).
-        rows, light_rows: the triangle and light tables it reads
-            (:func:`invrender.core.lanes.triangle_rows`, :func:`~invrender.core.lanes.light_rows`).
-    """
-
-    tri: torch.Tensor
-    cdf: torch.Tensor
-    pdf_area: torch.Tensor
-    emitting: torch.Tensor
-    eps: torch.Tensor
-    sample: Callable
-    rows: torch.Tensor
-    light_rows: torch.Tensor
-
-
-@dataclass(frozen=True)
 class LightLanes:
     """An emitter type written once against the array interface (:mod:`invrender.core.lanes`): the
     form in which the compiled bounce samples it and reads its radiance, lane by lane with masks.
@@ -118,13 +90,14 @@ class LightLanes:
       geometric normals ``nx`` (detached: ``Le`` a 3-tuple of the radiance arriving, or for delta
       emitters the quantity whose ratio to ``pdf`` is the estimate; ``pdf`` this type's own, the
       choice among types is the caller's; ``tmax`` ``inf`` for emitters infinitely far away);
+      surface types return a seventh, the scene emitter sampled (UInt);
     - ``escaped(xp, t, d) -> (Le, pdf)`` (types with :attr:`Light.infinite`; else None): what
       :meth:`Light.escaped` and :meth:`Light.pdf_escaped` return for rays of directions ``d``
       leaving the scene;
-    - ``hit(xp, t, tri, front, dist, cos) -> (Le, pdf, seen)`` (types with :attr:`Light.surface`;
-      else None): the radiance leaving hits back along their rays, the density with which
-      ``sample`` from the ray's origin would have picked them, and a Bool where the hit is on an
-      emitting side; ``tri`` the hit triangles' rows (:class:`invrender.core.lanes.Triangle`),
+    - ``hit(xp, t, tri, front, dist, cos) -> (Le, pdf, seen, emitter)`` (types with
+      :attr:`Light.surface`; else None): the radiance leaving hits back along their rays, the
+      density with which ``sample`` from the ray's origin would have picked them, a Bool where the
+      hit is on an emitting side, and the scene emitter hit (UInt); ``tri`` the hit triangles' rows (:class:`invrender.core.lanes.Triangle`),
       ``dist`` the ray's length, ``cos`` the cosine at the hit (> 0).
 
     Attributes:
@@ -209,11 +182,6 @@ class Light(Declared, ABC):
         texture, a sampling held fixed): the torch bounce answers by its methods."""
         return None
 
-    def fused_triangles(self) -> TriangleTables | None:
-        """Its tables for the fused primal bounce, when it is a surface emitter of constant radiance
-        sampled by area alone (:class:`TriangleTables`); None (the default) = its own methods answer."""
-        return None
-
     #: does :meth:`texels` answer (a textured emission read through a linear filter by direction)?
     texel_lookup: ClassVar[bool] = False
 
@@ -294,15 +262,18 @@ class Lights:
             out = {f: out[f].index_put((index,), getattr(part, f)) for f in out}
         return LightSample(**out)
 
-    def fused_triangles(self) -> TriangleTables | None:
-        """The tables of the fused primal bounce when the scene's emitters are all of one type that
-        gives them (:meth:`Light.fused_triangles`), and some can be sampled; else None."""
-        if len(self.lights) != 1 or self.count != 1:
-            return None
-        return self.lights[0].fused_triangles()
-
-    def _probability(self, light: Light) -> float:
+    def probability(self, light: Light) -> float:
+        """The probability that an emitter sample picks ``light``'s type."""
         return self.choice[self.lights.index(light)]
+
+    def share(self, light: Light) -> tuple[float, float]:
+        """``(lo, p)``: the interval ``[lo, lo + p)`` of the uniform that picks ``light``'s type in
+        :meth:`sample_from` (``p`` 0: never sampled)."""
+        if light not in self.sampled:
+            return 0.0, 0.0
+        k = self.sampled.index(light)
+        lo = self._cdf_host[k - 1] if k else 0.0
+        return lo, self._cdf_host[k] - lo
 
     def emits(self, s: Surface) -> torch.Tensor:
         """(N,) bool: is each hit on an emitting side of an emitter?"""
@@ -319,7 +290,7 @@ class Lights:
 
     def pdf_hit(self, s: Surface) -> torch.Tensor:
         """Solid-angle density (N,) of next-event estimation having sampled the emitting hits ``s``."""
-        return self._per_surface(s, lambda light, t: light.pdf_hit(t) * self._probability(light))
+        return self._per_surface(s, lambda light, t: light.pdf_hit(t) * self.probability(light))
 
     def _per_surface(self, s: Surface, call):
         if len(self.surfaces) == 1:
@@ -345,7 +316,7 @@ class Lights:
 
     def pdf_escaped(self, d: torch.Tensor) -> torch.Tensor:
         """Solid-angle density (N,) of next-event estimation having sampled directions ``d``."""
-        out = self.infinite[0].pdf_escaped(d) * self._probability(self.infinite[0])
+        out = self.infinite[0].pdf_escaped(d) * self.probability(self.infinite[0])
         for light in self.infinite[1:]:
-            out = out + light.pdf_escaped(d) * self._probability(light)
+            out = out + light.pdf_escaped(d) * self.probability(light)
         return out

@@ -53,7 +53,8 @@ def test_hide_emitters_hides_the_sky_from_the_camera_only(masks):
     shown = ir.render(sky_scene(), spp=64, max_depth=3, seed=3, progress=False)
     hidden = ir.render(sky_scene(), {"type": "path", "hide_emitters": True}, spp=64, max_depth=3, seed=3, progress=False)
     assert bool((hidden[sky_pixels] == 0).all())
-    assert torch.equal(hidden[cube_pixels], shown[cube_pixels])
+    # the same paths (the fused bounce renders the one, the torch bounce the other: float rounding)
+    torch.testing.assert_close(hidden[cube_pixels], shown[cube_pixels], rtol=1e-5, atol=1e-6)
     with pytest.raises(ir.ParameterError, match="hide_emitters must be true or false"):
         ir.render(sky_scene(), {"type": "path", "hide_emitters": "yes"}, spp=1, progress=False)
 

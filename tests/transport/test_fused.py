@@ -98,7 +98,7 @@ def test_the_fused_bounce_applies_only_where_nothing_needs_the_torch_bounce(tmp_
     rho = {"reflectance": torch.tensor([0.5, 0.5, 0.5])}
     assert Diffuse([rho], [{}], flat=True).fused_albedo() is not None and Brighter([rho], [{}], flat=True).fused_albedo() is None
     eps = [{"emission": box.params["light.emission"]}]
-    assert Area([0], eps, [{}], box.triangles).fused_triangles() is not None and Dimmer([0], eps, [{}], box.triangles).fused_triangles() is None
+    assert Area([0], eps, [{}], box.triangles).lanes() is not None and Dimmer([0], eps, [{}], box.triangles).lanes() is None
     # films with hooks (path records', replay's adjoint) take the torch bounce
     from invrender.estimators.records import _RecordFilm
     from invrender.estimators.replay import AdjointFilm
@@ -166,7 +166,7 @@ def test_a_thin_lens_camera_draws_its_lens_point_in_the_kernel():
     assert kernels.enabled(CPU)
 
 
-def _smooth_spheres(materials: dict, texture_sampling=None) -> ir.Scene:
+def _smooth_spheres(materials: dict, texture_sampling=None, sky=None) -> ir.Scene:
     """The Cornell box with its boxes replaced by two smooth-shaded spheres of the given materials
     (names ``near``, ``far``), the walls one-sided from behind (``white``)."""
     from invrender.scene.builtin import CORNELL_CAMERA, CORNELL_GREEN, CORNELL_LIGHT, CORNELL_RED, CORNELL_WHITE, _light, _walls
@@ -181,7 +181,8 @@ def _smooth_spheres(materials: dict, texture_sampling=None) -> ir.Scene:
         _light(),
     ]
     specs = {"white": dataclasses.replace(Material.of("diffuse", reflectance=CORNELL_WHITE), one_sided=True), "red": CORNELL_RED, "green": CORNELL_GREEN, **materials}
-    return build_scene(shapes, specs, {"light": CORNELL_LIGHT}, CORNELL_CAMERA, (24, 24), name="spheres", texture_sampling=texture_sampling)
+    emitters = {"light": CORNELL_LIGHT, **({"sky": sky} if sky is not None else {})}
+    return build_scene(shapes, specs, emitters, CORNELL_CAMERA, (24, 24), name="spheres", texture_sampling=texture_sampling)
 
 
 @pytest.mark.parametrize("options", [{}, {"strategy": "emitter"}, {"hemisphere": "uniform"}, {"max_depth": 4, "rr_depth": -1}])
@@ -203,4 +204,24 @@ def test_the_fused_bounce_renders_smooth_one_sided_and_mixed_materials_as_the_to
     assert float(expected.mean()) > 0.05
     close = (image - expected).abs() <= 1e-4 * float(expected.max())
     assert float(close.float().mean()) > 0.995  # float rounding; a roulette decision it flips changes a path
+    assert abs(float(image.mean() / expected.mean()) - 1) < 2e-3
+
+
+@pytest.mark.parametrize("options", [{}, {"strategy": "emitter"}, {"strategy": "bsdf"}])
+def test_the_fused_bounce_renders_emitters_of_several_types_as_the_torch_bounce(options, unfused):
+    """Emitter samples choose among the area light and a constant sky by their power, rays that
+    leave the box through its open front see the sky (MIS-weighted), on the fused bounce."""
+    from invrender.scene.emitters import Emitter
+    from invrender.scene.materials import Material
+
+    mats = {"near": Material.of("diffuse", reflectance=(0.7, 0.6, 0.2)), "far": Material.of("diffuse", reflectance=(0.2, 0.5, 0.7))}
+    scene = _smooth_spheres(mats, sky=Emitter.of("constant", emission=(0.4, 0.5, 0.9)))
+    fused_scene = _fused_scene(scene, "path", **options)
+    assert fused_scene is not None and fused_scene.infinite and len(fused_scene.emitters) == 2
+    kw = dict(spp=16, seed=3, progress=False, integrator="path", **options)
+    image = ir.render(scene, **kw)
+    unfused()
+    expected = ir.render(scene, **kw)
+    close = (image - expected).abs() <= 1e-4 * float(expected.max())
+    assert float(close.float().mean()) > 0.995
     assert abs(float(image.mean() / expected.mean()) - 1) < 2e-3

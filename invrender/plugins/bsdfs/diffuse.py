@@ -81,8 +81,6 @@ class Diffuse(LaneBSDF):
         uniform = self.sampling.hemisphere == "uniform"
         return LaneForm((("reflectance", 3),), functools.partial(eval_lanes, uniform=uniform), functools.partial(sample_lanes, uniform=uniform))
 
-    sample_lanes = staticmethod(cosine_lanes)
-
     def fused_albedo(self) -> torch.Tensor | None:
         """(M, 3) rho of each material, when none is textured, sampling is cosine-weighted and the
         scene has no shading normals (the fused bounce's Lambertian lobe); else None. Not for a

@@ -38,7 +38,7 @@ from invrender.scene.kinds import EMISSION
 from invrender.scene.plugins import Param
 from invrender.scene.scene import Triangles
 from invrender.core import compiled, lanes
-from invrender.core.lights import Light, LightSample, TriangleTables
+from invrender.core.lights import Light, LightLanes, LightSample
 from invrender.core.surface import Surface
 from invrender.core.textures import gather_rgb
 from invrender.vec import dot, norm
@@ -165,14 +165,16 @@ class Area(Light):
     def power(self) -> float:
         return self.total  # sum of area x mean(eps): proportional to the power emitted
 
-    def fused_triangles(self) -> TriangleTables | None:
-        """The fused bounce's tables, when no emission is textured and no sphere is sampled by
-        solid angle (every point is picked by area, as :meth:`_triangle_points` picks them); not for
+    def lanes(self) -> LightLanes | None:
+        """The lane form (:func:`area_sample`, :func:`area_hit`), when no emission is textured, no
+        sphere is sampled by solid angle and sampling reads the values the render evaluates; not for
         a subclass that changes what the emitter does."""
         changed = any(getattr(type(self), m) is not getattr(Area, m) for m in ("sample_from", "geometry", "radiance", "emits", "emitted", "pdf_hit", "params"))
-        if changed or self.textured or self.spheres or not self.count:
+        held = any(not torch.equal(v["emission"].detach(), s["emission"]) for v, s in zip(self.values, self.sampling))
+        if changed or held or self.textured or self.spheres or not self.count:
             return None
-        return TriangleTables(self.tri, self.cdf, self.pdf_area, self._emitting, torch.stack(self.eps), triangle_lanes, self.lane_rows, self.lane_lights)
+        eps = torch.nn.functional.pad(torch.stack(self.eps).detach().float(), (0, 1)).reshape(-1).contiguous()
+        return LightLanes(functools.partial(area_sample, lights=self.count), (self.lane_rows, self.lane_lights, eps), hit=area_hit)
 
     def radiance(self, emitter: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
         """eps (N, 3) of scene emitters ``emitter`` (N,) int64 (-1 = none) at ``uv`` (N, 2)."""
@@ -372,6 +374,25 @@ def triangle_lanes(xp, tri_table, light_table, lights: int, u0, u1, u2, x, nx, o
     facing = (lanes.dot(nx, w) > 0.0) & (cos_l > 0.0)
     pdf = tri.pdf_area * dist * dist / xp.maximum(cos_l, 1e-12)
     return k, b1, b2, start, w, dist - offset, facing, pdf
+
+
+def area_sample(xp, t, u0, u1, u2, x, nx, offset: float, *, lights: int):
+    """:class:`~invrender.core.lights.LightLanes`' ``sample``: :func:`triangle_lanes` from the
+    tables ``t`` (triangle rows, light rows, eps rows padded to 4), then the radiance of the point's
+    emitter; and, as a surface type, that emitter's index (UInt)."""
+    rows, light_rows, eps = t
+    k, _, _, start, w, tmax, facing, pdf = triangle_lanes(xp, rows, light_rows, lights, u0, u1, u2, x, nx, offset)
+    em, _ = lanes.Triangle(xp, rows, k).emitter(xp)
+    return start, w, tmax, xp.gather_rows(eps, em, 4)[:3], pdf, facing, em
+
+
+def area_hit(xp, t, tri, front, dist, cos):
+    """:class:`~invrender.core.lights.LightLanes`' ``hit``: eps on the front of emitting triangles,
+    the area density as a solid angle ``pdf_area dist^2 / cos``; and the emitter hit (UInt)."""
+    em, has_emitter = tri.emitter(xp)
+    seen = front & tri.emitting & has_emitter
+    pdf = tri.pdf_area * dist * dist / xp.maximum(cos, 1e-12)
+    return xp.gather_rows(t[2], em, 4)[:3], pdf, seen, em
 
 
 def _sample_points(xp, rows, light_table, uvs, u0, u1, u2, x, nx, offset: float, *, lights: int, with_uv: bool):
