@@ -202,11 +202,14 @@ class LaneForm:
         keys: ``((key, size), ...)`` the parameters and constants the functions read, in order
             (size 1 of an RGB parameter: its first channel).
         eval, sample: the two functions.
+        world: ``sample`` also takes the shading frame, ``frame=(s, t, n)`` (world 3-vectors), for
+            a construction tied to world axes (the diffuse lobe's tangent sphere).
     """
 
     keys: tuple[tuple[str, int], ...]
     eval: Callable
     sample: Callable
+    world: bool = False
 
 
 class BSDF(Declared, ABC):
@@ -383,6 +386,7 @@ class LaneBSDF(BSDF):
         return pdf
 
     def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
-        wo = self._local(sp)
-        wi, weight, pdf, delta = self.lane_form().sample(TORCH, self.lane_values(sp, False), self.lane_values(sp, True), wo, sp.front, u_lobe, u_dir[:, 0], u_dir[:, 1])
+        wo, form = self._local(sp), self.lane_form()
+        world = {"frame": tuple(tuple(v.unbind(1)) for v in (sp.frame.s, sp.frame.t, sp.frame.n))} if form.world else {}
+        wi, weight, pdf, delta = form.sample(TORCH, self.lane_values(sp, False), self.lane_values(sp, True), wo, sp.front, u_lobe, u_dir[:, 0], u_dir[:, 1], **world)
         return BSDFSample(sp.frame.to_world(torch.stack(wi, dim=1)), torch.stack(weight, dim=1), pdf, delta)

@@ -419,9 +419,9 @@ class Point:
     """The materials at N hit points, dispatched by type with masks: each type's lane functions
     run on every lane and a lane keeps its own type's answer (one type: no masks)."""
 
-    def __init__(self, xp, types, tables, index, mat, wo, front, lookup):
+    def __init__(self, xp, types, tables, index, mat, f, wo, front, lookup):
         row = xp.gather_rows(index, mat, MATERIAL_ROW)
-        self.xp, self.types, self.wo, self.front = xp, types, wo, front
+        self.xp, self.types, self.frame, self.wo, self.front = xp, types, f, wo, front
         slot, local = xp.uint(row[0]), xp.uint(row[1])
         self.lit = ~((row[2] > 0.5) & ~front)  # a one-sided material is black from behind
         self.mine = [slot == k for k in range(len(types))] if len(types) > 1 else [None]
@@ -453,7 +453,8 @@ class Point:
 
     def sample(self, u_lobe, u0, u1):
         """Local direction, weight (3-tuple), pdf and delta flag of one BSDF sample a lane."""
-        wi, weight, pdf, delta = self._merge([t.form.sample(self.xp, p, p, self.wo, self.front, u_lobe, u0, u1) for t, p in zip(self.types, self.p)])
+        calls = [t.form.sample(self.xp, p, p, self.wo, self.front, u_lobe, u0, u1, **({"frame": self.frame} if t.form.world else {})) for t, p in zip(self.types, self.p)]
+        wi, weight, pdf, delta = self._merge(calls)
         lit = xp_lit(self.xp, self.lit)
         return wi, scale(weight, lit), pdf * lit, delta
 
@@ -578,7 +579,7 @@ def path_vertex(
     f = frame(xp, ns)
     wo = scale(d, -1.0)
     lookup = None if textures is None else texture_lookup(xp, textures[1], textures[2], uv_at(xp, textures[0], prim, b1, b2))
-    point = Point(xp, materials, material_tables, material_index, mat, to_local(f, wo), front, lookup)
+    point = Point(xp, materials, material_tables, material_index, mat, f, to_local(f, wo), front, lookup)
     # term depth + 1: one emitter sample (its shadow ray is cast by the caller) where the BSDF has a smooth lobe
     smooth = point.any("smooth")
     if nee and smooth is not False:

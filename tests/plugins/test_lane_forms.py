@@ -61,7 +61,9 @@ def lanes_at(n: int, seed: int):
 def _eval(xp, table, m, wo, wi, front, u_lobe, u0, u1, *, form, layout):
     p = lanes.material_values(xp, table, m, layout)
     f, pdf = form.eval(xp, p, p, wo, wi, front)
-    ws, weight, pdf_s, delta = form.sample(xp, p, p, wo, front, u_lobe, u0, u1)
+    zero = 0.0 * u0
+    world = {"frame": ((zero + 1.0, zero, zero), (zero, zero + 1.0, zero), (zero, zero, zero + 1.0))} if form.world else {}  # world = local
+    ws, weight, pdf_s, delta = form.sample(xp, p, p, wo, front, u_lobe, u0, u1, **world)
     return f, pdf, ws, weight, pdf_s, delta
 
 
