@@ -194,7 +194,7 @@ class EmbreeIntersector(Intersector):
     def _intersect(self, o: torch.Tensor, d: torch.Tensor) -> Hits:
         n, dev = o.shape[0], o.device
         if self._packets is not None:
-            o, d = _cpu32(o), _cpu32(d)
+            o, d = _cpu32(o, rows=False), _cpu32(d, rows=False)
             out = (torch.empty(n), torch.empty(n, dtype=torch.int64), torch.empty(n), torch.empty(n))
             self._split(n, lambda a, b: self._packets.intersect(o[a:b], d[a:b], tuple(x[a:b] for x in out)))
             return Hits(*(x.to(dev) for x in out))
@@ -212,7 +212,7 @@ class EmbreeIntersector(Intersector):
     def _occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
         n, dev = o.shape[0], o.device
         if self._packets is not None:
-            o, d, tmax = _cpu32(o), _cpu32(d), _cpu32(tmax)
+            o, d, tmax = _cpu32(o, rows=False), _cpu32(d, rows=False), _cpu32(tmax)
             hit = torch.empty(n, dtype=torch.bool)
             self._split(n, lambda a, b: self._packets.occluded(o[a:b], d[a:b], tmax[a:b], hit[a:b]))
             return hit.to(dev)
@@ -360,8 +360,11 @@ def _numpy(x: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(x.detach().to("cpu", torch.float32).numpy())
 
 
-def _cpu32(x: torch.Tensor) -> torch.Tensor:
-    return x.detach().to("cpu", torch.float32).contiguous()
+def _cpu32(x: torch.Tensor, rows: bool = True) -> torch.Tensor:
+    """``x`` as float32 on the CPU, contiguous, or (``rows=False``: for Embree's packet wrapper,
+    which reads (N, 3) rays through their strides) in whatever layout it has."""
+    x = x.detach().to("cpu", torch.float32)
+    return x.contiguous() if rows else x
 
 
 class RepeatedQueries:

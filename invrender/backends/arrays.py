@@ -170,8 +170,8 @@ class TorchArrays:
 
     @staticmethod
     def to_torch(x) -> torch.Tensor:
-        """A result as torch: a k-tuple as (N, k)."""
-        return torch.stack(x, dim=1) if isinstance(x, tuple) else x
+        """A result as torch: a k-tuple as (N, k), stored by columns (a view of a (k, N) tensor)."""
+        return torch.stack(x).t() if isinstance(x, tuple) else x
 
 
 #: the torch namespace (module docstring)
@@ -186,7 +186,7 @@ class DrJitArrays:
         self.name = f"drjit-{backend.__name__.rsplit('.', 1)[-1]}"
         self.Float, self.UInt, self.Bool, self.Int64, self._Int32 = backend.Float, backend.UInt32, backend.Bool, backend.Int64, backend.Int32
         self._rows = {2: backend.Array2f, 4: backend.Array4f}
-        self._ArrayXf, self._Array3f = backend.ArrayXf, backend.Array3f
+        self._Matrix4f, self._Array3f = backend.Matrix4f, backend.Array3f
 
     def sqrt(self, x):
         return self.dr.sqrt(x)
@@ -248,15 +248,26 @@ class DrJitArrays:
     def gather_rows(self, table, index, width: int):
         if width == 1:
             return (self.dr.gather(self.Float, table, index),)
-        rows = self.dr.gather(self._rows[width], table, index) if width in self._rows else self.dr.gather(self._ArrayXf, table, index, shape=(width, self.dr.width(index)))
+        if width == 16:  # one 4 x 4 packet, row by row
+            m = self.dr.gather(self._Matrix4f, table, index)
+            return tuple(m[i][j] for i in range(4) for j in range(4))
+        if width == 8:  # two packets of 4
+            return sum((tuple(self.dr.gather(self._rows[4], table, index * 2 + k)) for k in range(2)), ())
+        rows = self.dr.gather(self._rows[width], table, index)
         return tuple(rows[j] for j in range(width))
 
     def uint(self, x):
         return self.UInt(x)
 
     def full(self, value, like):
-        kind = self.Bool if isinstance(value, bool) else self.Float if isinstance(value, float) else self.UInt
-        return self.dr.full(kind, value, self.dr.width(like))
+        """(Through a float ``arange`` of ``like``'s width, whose size a frozen kernel follows, in
+        expressions the tracer does not fold into literals, which would keep the recorded size.)"""
+        zero = self.Float(self.dr.arange(self.UInt, self.dr.width(like))) * 0.0
+        if isinstance(value, bool):
+            return zero >= 0.0 if value else zero < 0.0
+        if isinstance(value, float):
+            return zero + value
+        return self.UInt(zero) + (value & _U32)
 
     def opaque(self, value: int):
         """A UInt scalar that changes from call to call, passed to the kernel as a value rather

@@ -24,10 +24,21 @@ namespace {
 constexpr int K = 16;  // rays per packet
 constexpr float kRayLimit = 1.844e18f;  // Embree's FLT_LARGE (RayK::valid); accel.RAY_LIMIT
 
+// A batch of rays read through strides (in floats): component j of ray i's origin is
+// o[i * o_lane + j * o_comp] (rows (n, 3): o_lane 3, o_comp 1; columns (3, n): o_lane 1, o_comp n).
+struct Rays {
+    const float* o;
+    int64_t o_lane, o_comp;
+    const float* d;
+    int64_t d_lane, d_comp;
+    float origin(int64_t i, int j) const { return o[i * o_lane + j * o_comp]; }
+    float direction(int64_t i, int j) const { return d[i * d_lane + j * d_comp]; }
+};
+
 // Can ray i be traced: every component of its origin and direction finite and within kRayLimit?
-inline bool traceable(const float* o, const float* d, int64_t i) {
+inline bool traceable(const Rays& r, int64_t i) {
     bool ok = true;
-    for (int j = 0; j < 3; ++j) ok &= std::fabs(o[3 * i + j]) <= kRayLimit && std::fabs(d[3 * i + j]) <= kRayLimit;  // false for NaN
+    for (int j = 0; j < 3; ++j) ok &= std::fabs(r.origin(i, j)) <= kRayLimit && std::fabs(r.direction(i, j)) <= kRayLimit;  // false for NaN
     return ok;
 }
 
@@ -36,12 +47,12 @@ struct Accel {
     RTCScene scene;
 };
 
-// Lane k of a packet: ray i of the batch (origin o[3i..], direction d[3i..]) from 0 to tfar; a lane
-// that is not live gets a finite stand-in ray (from the world origin along +z, tfar = 0).
-inline void pack(RTCRay16& ray, int k, const float* o, const float* d, int64_t i, float tfar, bool live) {
+// Lane k of a packet: ray i of the batch from 0 to tfar; a lane that is not live gets a finite
+// stand-in ray (from the world origin along +z, tfar = 0).
+inline void pack(RTCRay16& ray, int k, const Rays& r, int64_t i, float tfar, bool live) {
     if (live) {
-        ray.org_x[k] = o[3 * i], ray.org_y[k] = o[3 * i + 1], ray.org_z[k] = o[3 * i + 2];
-        ray.dir_x[k] = d[3 * i], ray.dir_y[k] = d[3 * i + 1], ray.dir_z[k] = d[3 * i + 2];
+        ray.org_x[k] = r.origin(i, 0), ray.org_y[k] = r.origin(i, 1), ray.org_z[k] = r.origin(i, 2);
+        ray.dir_x[k] = r.direction(i, 0), ray.dir_y[k] = r.direction(i, 1), ray.dir_z[k] = r.direction(i, 2);
     } else {
         ray.org_x[k] = ray.org_y[k] = ray.org_z[k] = 0.0f;
         ray.dir_x[k] = ray.dir_y[k] = 0.0f, ray.dir_z[k] = 1.0f;
@@ -103,8 +114,10 @@ void ir_embree_free(void* accel) {
     delete a;
 }
 
-// Closest hits of n rays: t (n,) float32, prim (n,) int64, u, v (n,) float32.
-void ir_embree_intersect(void* accel, const float* o, const float* d, int64_t n, float* t, int64_t* prim, float* u, float* v) {
+// Closest hits of n rays (origins o, directions d through their strides, as Rays reads them): t
+// (n,) float32, prim (n,) int64, u, v (n,) float32.
+void ir_embree_intersect(void* accel, const float* o, int64_t o_lane, int64_t o_comp, const float* d, int64_t d_lane, int64_t d_comp, int64_t n, float* t, int64_t* prim, float* u, float* v) {
+    const Rays rays{o, o_lane, o_comp, d, d_lane, d_comp};
     RTCScene scene = static_cast<Accel*>(accel)->scene;
     RTCIntersectContext context;
     rtcInitIntersectContext(&context);
@@ -115,10 +128,10 @@ void ir_embree_intersect(void* accel, const float* o, const float* d, int64_t n,
         int traced = 0;
         for (int k = 0; k < K; ++k) {
             const int64_t i = start + (k < lanes ? k : 0);
-            const bool live = k < lanes && traceable(o, d, i);
+            const bool live = k < lanes && traceable(rays, i);
             valid[k] = live ? -1 : 0;
             traced += live;
-            pack(packet.ray, k, o, d, i, INFINITY, live);
+            pack(packet.ray, k, rays, i, INFINITY, live);
             packet.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID, packet.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
         }
         if (traced) rtcIntersect16(valid, scene, &context, &packet);
@@ -134,7 +147,8 @@ void ir_embree_intersect(void* accel, const float* o, const float* d, int64_t n,
 }
 
 // Shadow rays: hit[i] = 1 when something lies along ray i strictly before tmax[i], else 0.
-void ir_embree_occluded(void* accel, const float* o, const float* d, const float* tmax, int64_t n, uint8_t* hit) {
+void ir_embree_occluded(void* accel, const float* o, int64_t o_lane, int64_t o_comp, const float* d, int64_t d_lane, int64_t d_comp, const float* tmax, int64_t n, uint8_t* hit) {
+    const Rays rays{o, o_lane, o_comp, d, d_lane, d_comp};
     RTCScene scene = static_cast<Accel*>(accel)->scene;
     RTCIntersectContext context;
     rtcInitIntersectContext(&context);
@@ -145,10 +159,10 @@ void ir_embree_occluded(void* accel, const float* o, const float* d, const float
         int traced = 0;
         for (int k = 0; k < K; ++k) {
             const int64_t i = start + (k < lanes ? k : 0);
-            const bool live = k < lanes && tmax[i] > 0.0f && traceable(o, d, i);  // false for a NaN tmax too
+            const bool live = k < lanes && tmax[i] > 0.0f && traceable(rays, i);  // false for a NaN tmax too
             valid[k] = live ? -1 : 0;
             traced += live;
-            pack(packet, k, o, d, i, tmax[i], live);
+            pack(packet, k, rays, i, tmax[i], live);
         }
         if (traced) rtcOccluded16(valid, scene, &context, &packet);
         for (int k = 0; k < lanes; ++k) hit[start + k] = valid[k] && packet.tfar[k] < 0.0f;  // Embree sets tfar = -inf on a hit

@@ -57,10 +57,13 @@ def run(fn, device: torch.device, *args, **static) -> tuple[torch.Tensor, ...]:
         fn: a function written against the array interface returning a tuple of arrays and
             2- or 3-tuples of Float arrays, each of the lanes' length.
         args: torch tensors (1-D: lanes or flat tables; 2-D (N, 3): lanes of 3-vectors, passed as
-            three columns), :class:`Opaque` scalars, Python numbers.
+            three columns, without a copy where they are stored by columns), :class:`Opaque`
+            scalars, Python numbers.
         static: Python values that choose the code (flags), the same for every lane.
     Returns:
-        torch tensors on ``device``: (N,) per array, (N, k) per k-tuple; UInt arrays as int32.
+        torch tensors on ``device``: (N,) per array, (N, k) per k-tuple, stored by columns (a
+        view of a (k, N) tensor: the next call reads its columns without a copy); UInt arrays as
+        int32.
     """
     xp = namespace(device)
     if xp is not TORCH and any(isinstance(a, torch.Tensor) and not a.shape[0] for a in args):
@@ -70,16 +73,40 @@ def run(fn, device: torch.device, *args, **static) -> tuple[torch.Tensor, ...]:
 
 def evaluate(xp, fn, *args, **static) -> tuple[torch.Tensor, ...]:
     """:func:`run` with the namespace given (the tests run both on the same inputs)."""
-    if xp is not TORCH and xp.name.endswith("cuda"):
-        torch.cuda.current_stream().synchronize()  # torch's writes done before Dr.Jit's stream reads them
-    out = fn(xp, *(_argument(xp, a) for a in args), **static)
     if xp is TORCH:
-        return tuple(xp.to_torch(o) for o in out)
-    widths = [len(o) if isinstance(o, tuple) else 0 for o in out]
-    out = [xp.rows(o) for o in out]
-    xp.dr.eval(*out)  # one kernel
+        return tuple(xp.to_torch(o) for o in fn(xp, *(_argument(xp, a) for a in args), **static))
+    if xp.name.endswith("cuda"):
+        torch.cuda.current_stream().synchronize()  # torch's writes done before Dr.Jit's stream reads them
+    out, widths = _frozen(xp, fn, static)(tuple(_argument(xp, a) for a in args))
     xp.dr.sync_thread()
-    return tuple(xp.to_torch(o).view(-1, k) if k else xp.to_torch(o) for o, k in zip(out, widths))
+    flat, at = [xp.to_torch(o) for o in out], 0
+    results = []
+    for k in widths:
+        results.append(torch.stack(flat[at : at + k]).t() if k else flat[at])  # (N, k) by columns: no interleaving copy
+        at += max(k, 1)
+    return tuple(results)
+
+
+_FROZEN: dict = {}
+
+
+def _frozen(xp, fn, static: dict):
+    """``fn`` on ``xp`` traced once per kind of call and replayed (``drjit.freeze``): a call with
+    other array sizes or values but the same static arguments launches the recorded kernel without
+    tracing the Python function again (tracing a bounce costs about as much as running it on 2^16
+    lanes). Returns ``(outputs as flat arrays, their row widths)``."""
+    key = (xp.name, fn, tuple(sorted(static.items())))  # Python values choose the code: one recording each
+    if key not in _FROZEN:
+
+        def body(args):
+            out = fn(xp, *args, **static)
+            widths = [len(o) if isinstance(o, tuple) else 0 for o in out]
+            flat = [c for o in out for c in (o if isinstance(o, tuple) else (o,))]
+            xp.dr.eval(*flat)  # one kernel
+            return flat, widths
+
+        _FROZEN[key] = xp.dr.freeze(body, warn_after=1 << 30)
+    return _FROZEN[key]
 
 
 def _argument(xp, a):

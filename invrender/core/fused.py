@@ -287,6 +287,13 @@ def vertex(fused: FusedScene, hits: tuple, d, beta, pdf_dir, delta, keys, depth:
     return out
 
 
+def _take(x: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """Rows ``index`` of ``x``, a (N, 3) stored by columns kept so (the kernels' layout)."""
+    if x.ndim == 2 and x.stride(0) == 1 and x.shape[1] > 1:
+        return x.t().index_select(1, index).t()
+    return x.index_select(0, index)
+
+
 def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film, settings) -> None:
     """Follow ``state``'s camera rays with the fused bounce and add each term to ``film`` (and,
     into a :class:`TangentFilm`, each pixel's derivatives); ``settings``: the integrator's
@@ -303,13 +310,13 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
         if fused.infinite:  # term depth for the rays that leave the scene
             gone = (~hits.valid).nonzero()[:, 0]
             if gone.shape[0]:
-                args = (x.index_select(0, gone) for x in (d, beta, pdf, delta))
+                args = (_take(x, gone) for x in (d, beta, pdf, delta))
                 (seen,) = compiled.run(lanes.escaped_vertex, d.device, fused.lanes[1], *args, emitters=fused.emitters, first=depth == 0, mis=fused.mis, nee_only=fused.nee_only)
                 film.add(depth, pixel.index_select(0, gone), seen)
         hit = hits.valid.nonzero()[:, 0]  # a synchronization: the count of rays that hit
         prim, u, v, t = hits.prim, hits.u, hits.v, hits.t
         if hit.shape[0] < keys.shape[0]:
-            pixel, keys, d, beta, pdf, delta, prim, u, v, t, counts = (x.index_select(0, hit) for x in (pixel, keys, d, beta, pdf, delta, prim, u, v, t, counts))
+            pixel, keys, d, beta, pdf, delta, prim, u, v, t, counts = (_take(x, hit) for x in (pixel, keys, d, beta, pdf, delta, prim, u, v, t, counts))
             if not hit.shape[0]:
                 break
         more = settings.continues_after(depth)
@@ -335,5 +342,5 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
         if depth + 1 >= rr_start or fused.absorbing:
             live = alive.nonzero()[:, 0]  # a synchronization: the survivors' count
             if live.shape[0] < keys.shape[0]:
-                pixel, keys, o, d, beta, pdf, delta, counts = (x.index_select(0, live) for x in (pixel, keys, o, d, beta, pdf, delta, counts))
+                pixel, keys, o, d, beta, pdf, delta, counts = (_take(x, live) for x in (pixel, keys, o, d, beta, pdf, delta, counts))
         depth += 1

@@ -82,6 +82,24 @@ def test_partial_packets_and_thread_splits(n, monkeypatch):
         assert torch.equal(make_intersector(scene.triangles, "embree", threads).occluded(o, d, tmax), reference.occluded(o, d, tmax))
 
 
+@needs_packets
+def test_rays_stored_by_columns_or_broadcast_are_read_through_their_strides():
+    """The compiled bounce keeps its rays by columns ((3, N) viewed as (N, 3)) and a camera's
+    origins may be one row broadcast: the wrapper reads every layout as the rows it stands for,
+    split across threads too."""
+    scene = ir.load_scene("cornell_box", resolution=(8, 8))
+    o, d = random_rays(scene, 5000, seed=2)
+    for threads in (1, 2):
+        packets = make_intersector(scene.triangles, "embree", threads)
+        want = packets.intersect(o.contiguous(), d.contiguous())
+        got = packets.intersect(o.t().contiguous().t(), d.t().contiguous().t())
+        assert torch.equal(got.prim, want.prim) and torch.equal(got.t, want.t)
+        one = o[:1].expand(5000, 3)  # stride 0 along the rays
+        assert torch.equal(packets.intersect(one, d).prim, packets.intersect(one.contiguous(), d).prim)
+        tmax = want.t.nan_to_num(posinf=3.0) * 0.9
+        assert torch.equal(packets.occluded(o.t().contiguous().t(), d.t().contiguous().t(), tmax), packets.occluded(o.contiguous(), d.contiguous(), tmax))
+
+
 @pytest.mark.parametrize("backend", ["embree", "torch", pytest.param("warp", marks=pytest.mark.warp)])
 def test_a_shadow_ray_with_no_length_is_not_occluded(backend, monkeypatch):
     """Every backend answers False for a distance that is not positive (the fused bounce sets 0
