@@ -25,9 +25,11 @@ Two namespaces satisfy it:
   through every Float operation), so it is the reference the tests hold the other to. UInt arrays
   are int32 tensors with the same bits (an arithmetic shift and a mask make the logical shift).
 - :func:`drjit_arrays`: Dr.Jit's ``llvm`` (CPU, SIMD across lanes) or ``cuda`` arrays. A function
-  evaluated on them is traced once per call and compiled by LLVM into one kernel, cached by Dr.Jit
-  (in memory and on disk); :class:`Compiled` carries torch tensors in (without copies, by DLPack)
-  and out.
+  evaluated on them is traced, compiled by LLVM into one kernel (cached by Dr.Jit in memory and on
+  disk) and frozen, so later calls replay the kernel without tracing
+  (:mod:`invrender.core.compiled`, which carries torch tensors in and out by DLPack, without
+  copies). Arrays of a call's width are made from its arrays (:meth:`full`), never from a width
+  number, which a frozen kernel would keep.
 
 The same counter-based bits come out of both (the integer hash is exact); floats agree to rounding.
 """
@@ -159,9 +161,10 @@ class TorchArrays:
         return torch.full(like.shape, value, dtype=dtype, device=like.device)
 
     @staticmethod
-    def opaque(value: int):
-        """A UInt scalar that changes from call to call (a bounce's salt): a plain int here."""
-        return _signed(value)
+    def opaque(value):
+        """A UInt (an int) or Float (a float) scalar that changes from call to call (a bounce's
+        salt, an emitter's share): a plain number here."""
+        return value if isinstance(value, float) else _signed(value)
 
     @staticmethod
     def from_torch(t: torch.Tensor, lanes: bool):
@@ -186,7 +189,7 @@ class DrJitArrays:
         self.name = f"drjit-{backend.__name__.rsplit('.', 1)[-1]}"
         self.Float, self.UInt, self.Bool, self.Int64, self._Int32 = backend.Float, backend.UInt32, backend.Bool, backend.Int64, backend.Int32
         self._rows = {2: backend.Array2f, 4: backend.Array4f}
-        self._Matrix4f, self._Array3f = backend.Matrix4f, backend.Array3f
+        self._Matrix4f = backend.Matrix4f
 
     def sqrt(self, x):
         return self.dr.sqrt(x)
@@ -260,18 +263,20 @@ class DrJitArrays:
         return self.UInt(x)
 
     def full(self, value, like):
-        """(Through a float ``arange`` of ``like``'s width, whose size a frozen kernel follows, in
-        expressions the tracer does not fold into literals, which would keep the recorded size.)"""
-        zero = self.Float(self.dr.arange(self.UInt, self.dr.width(like))) * 0.0
+        """(Computed from ``like``, so a frozen kernel gives it ``like``'s size whatever that is;
+        ``min(|x|, 0)`` is 0 for every x, NaN included, and not a literal the tracer folds.)"""
+        zero = self.dr.minimum(self.dr.abs(like if isinstance(like, self.Float) else self.Float(like)), 0.0)
         if isinstance(value, bool):
             return zero >= 0.0 if value else zero < 0.0
         if isinstance(value, float):
             return zero + value
         return self.UInt(zero) + (value & _U32)
 
-    def opaque(self, value: int):
-        """A UInt scalar that changes from call to call, passed to the kernel as a value rather
-        than compiled into it (one kernel for every bounce's salts)."""
+    def opaque(self, value):
+        """A UInt (an int) or Float (a float) scalar that changes from call to call, passed to the
+        kernel as a value rather than compiled into it (one kernel for every bounce's salts)."""
+        if isinstance(value, float):
+            return self.dr.opaque(self.Float, value)
         return self.dr.opaque(self.UInt, value & _U32)
 
     def from_torch(self, t: torch.Tensor, lanes: bool):
@@ -290,21 +295,8 @@ class DrJitArrays:
             return self.Bool(t)
         return self.Float(t.to(torch.float32))
 
-    def rows(self, x):
-        """A 2- or 3-tuple of Floats written as (N, 2) or (N, 3) rows into a new flat Float (a
-        packet scatter, in the kernel that computes them); other arrays as they are. Evaluate, then
-        :meth:`to_torch`."""
-        if not isinstance(x, tuple):
-            return x
-        n = max(self.dr.width(c) for c in x)
-        out = self.dr.empty(self.Float, len(x) * n)
-        vector = self._Array3f if len(x) == 3 else self._rows[2]
-        self.dr.scatter(out, vector(*(self.Float(c) for c in x)), self.dr.arange(self.UInt, n))
-        return out
-
     def to_torch(self, x) -> torch.Tensor:
-        """A result of :meth:`rows` (evaluated) as a torch tensor sharing its memory: UInt as
-        int32, rows as (N, 3)."""
+        """An evaluated array as a torch tensor sharing its memory: UInt as int32."""
         out = torch.from_dlpack(x)
         return out.view(torch.int32) if out.dtype == torch.uint32 else out
 

@@ -20,6 +20,7 @@ parameters).
 from __future__ import annotations
 
 import os
+import threading
 
 import torch
 
@@ -29,12 +30,13 @@ from invrender.backends.arrays import TORCH
 
 
 class Opaque:
-    """A 32-bit unsigned scalar argument that changes from call to call (a bounce's salts): passed
-    to a compiled kernel as a value, not compiled into it."""
+    """A scalar argument that changes from call to call, a 32-bit unsigned int (a bounce's salts)
+    or a float (an emitter type's share): passed to a compiled kernel as a value, not compiled into
+    it."""
 
     __slots__ = ("value",)
 
-    def __init__(self, value: int):
+    def __init__(self, value: int | float):
         self.value = value
 
 
@@ -87,7 +89,7 @@ def evaluate(xp, fn, *args, **static) -> tuple[torch.Tensor, ...]:
     return tuple(results)
 
 
-_FROZEN: dict = {}
+_FROZEN = threading.local()  # per thread: a frozen function's replays are not safe across threads
 
 
 def _frozen(xp, fn, static: dict):
@@ -95,8 +97,9 @@ def _frozen(xp, fn, static: dict):
     other array sizes or values but the same static arguments launches the recorded kernel without
     tracing the Python function again (tracing a bounce costs about as much as running it on 2^16
     lanes). Returns ``(outputs as flat arrays, their row widths)``."""
-    key = (xp.name, fn, tuple(sorted(static.items())))  # Python values choose the code: one recording each
-    if key not in _FROZEN:
+    key = (xp.name, fn, tuple(sorted(static.items())))  # Python values choose the code: one recording each (lanes.signature)
+    frozen = _FROZEN.__dict__.setdefault("functions", {})
+    if key not in frozen:
 
         def body(args):
             out = fn(xp, *args, **static)
@@ -105,8 +108,8 @@ def _frozen(xp, fn, static: dict):
             xp.dr.eval(*flat)  # one kernel
             return flat, widths
 
-        _FROZEN[key] = xp.dr.freeze(body, warn_after=1 << 30)
-    return _FROZEN[key]
+        frozen[key] = xp.dr.freeze(body, warn_after=1 << 30)
+    return frozen[key]
 
 
 def _argument(xp, a):

@@ -100,7 +100,7 @@ class FusedScene:
         absorbing: some BSDF weight can be zero (such paths end: not a flat Lambertian scene).
         infinite: some emitter is infinitely far away (rays that leave the scene see it).
         lanes: the tables as the lane functions read them: triangles (T * 16,), per emitter type
-            its tables, the material index (M * 4,), per material type its table, the vertex
+            its tables and its share (:func:`~invrender.core.lanes.shares`), the material index (M * 4,), per material type its table, the vertex
             normals (T * 16,) or None, the textures (uvs, rows, texels) or None
             (:mod:`invrender.core.lanes`).
     """
@@ -145,6 +145,7 @@ def tables(ctx: TransportContext, direct, hemisphere: str) -> FusedScene | None:
     rows = (
         _triangle_rows(ctx),
         tuple(t for _, t in emitters),
+        tuple(tuple(Opaque(float(x)) for x in share) for share in lanes.shares(ctx.lights)),
         index.reshape(-1).contiguous(),
         tuple(t for _, t in forms),
         lanes.normal_rows(ctx.triangles) if ctx.triangles.any_smooth else None,
@@ -168,8 +169,7 @@ def _emitters(lights) -> list | None:
         form = light.lanes()
         if form is None or any(_carries_derivative(v) for m in light.values for v in m.values()):
             return None
-        lo, p = lights.share(light)
-        out.append((lanes.Emitter(form, lo, p, lights.probability(light), light.infinite, light.surface), form.tables))
+        out.append((lanes.Emitter(form, light in lights.sampled, light.infinite, light.surface), form.tables))
     return out
 
 
@@ -311,7 +311,7 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
             gone = (~hits.valid).nonzero()[:, 0]
             if gone.shape[0]:
                 args = (_take(x, gone) for x in (d, beta, pdf, delta))
-                (seen,) = compiled.run(lanes.escaped_vertex, d.device, fused.lanes[1], *args, emitters=fused.emitters, first=depth == 0, mis=fused.mis, nee_only=fused.nee_only)
+                (seen,) = compiled.run(lanes.escaped_vertex, d.device, fused.lanes[1], fused.lanes[2], *args, emitters=fused.emitters, first=depth == 0, mis=fused.mis, nee_only=fused.nee_only)
                 film.add(depth, pixel.index_select(0, gone), seen)
         hit = hits.valid.nonzero()[:, 0]  # a synchronization: the count of rays that hit
         prim, u, v, t = hits.prim, hits.u, hits.v, hits.t

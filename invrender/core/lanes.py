@@ -20,6 +20,7 @@ shapes. :func:`invrender.core.compiled.run` evaluates them on torch tensors.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
@@ -401,7 +402,34 @@ def shading_normal(xp, normals, k, b1, b2, front):
 MATERIAL_ROW = 4
 
 
-class Material:
+def signature(fn):
+    """What a lane function computes, as a value: the function and the Python values bound to it
+    (a ``functools.partial``'s), so that equal forms of two renders share one compiled recording."""
+    if isinstance(fn, functools.partial):
+        return (signature(fn.func), tuple(fn.args), tuple(sorted(fn.keywords.items())))
+    return fn
+
+
+class _Static:
+    """Python values that choose a kernel's code, compared and hashed by :meth:`key` (the frozen
+    kernels are kept per equal static arguments: :mod:`invrender.core.compiled`)."""
+
+    __slots__ = ()
+
+    def key(self) -> tuple:
+        raise NotImplementedError
+
+    def __eq__(self, other):
+        return type(other) is type(self) and other.key() == self.key()
+
+    def __hash__(self):
+        return hash(self.key())
+
+    def __lt__(self, other):  # never ordered by value: sorting a kernel's static arguments never reaches here
+        return id(self) < id(other)
+
+
+class Material(_Static):
     """The materials of one type as the bounce sees them: its lane form and which lobes it has
     (Python values: they choose the code, the same for every lane)."""
 
@@ -409,6 +437,10 @@ class Material:
 
     def __init__(self, form, layout, smooth: bool, smooth_transmission: bool):
         self.form, self.layout, self.smooth, self.smooth_transmission = form, layout, smooth, smooth_transmission
+
+    def key(self) -> tuple:
+        f = self.form
+        return (signature(f.eval), signature(f.sample), f.keys, f.world, self.layout, self.smooth, self.smooth_transmission)
 
     @property
     def textured(self) -> bool:
@@ -463,36 +495,47 @@ def xp_lit(xp, lit):
     return xp.select(lit, 1.0, 0.0)
 
 
-class Emitter:
+class Emitter(_Static):
     """The emitters of one type as the bounce sees them (Python values: they choose the code): its
-    lane functions (:class:`~invrender.core.lights.LightLanes`), its share ``[lo, lo + p)`` of the
-    uniform that chooses the type of an emitter sample (p = 0: never sampled), the probability of
-    that choice as the pdfs of hits weigh it, and its kind."""
+    lane functions (:class:`~invrender.core.lights.LightLanes`), whether emitter samples pick it,
+    and its kind. Its share of the uniform that picks a type and the probability hits weigh it
+    with change with the emission: they are arguments (:func:`shares`)."""
 
-    __slots__ = ("form", "lo", "p", "choice", "infinite", "surface")
+    __slots__ = ("form", "sampled", "infinite", "surface")
 
-    def __init__(self, form, lo: float, p: float, choice: float, infinite: bool, surface: bool):
-        self.form, self.lo, self.p, self.choice, self.infinite, self.surface = form, lo, p, choice, infinite, surface
+    def __init__(self, form, sampled: bool, infinite: bool, surface: bool):
+        self.form, self.sampled, self.infinite, self.surface = form, sampled, infinite, surface
+
+    def key(self) -> tuple:
+        f = self.form
+        return (signature(f.sample), signature(f.escaped), signature(f.hit), f.delta, self.sampled, self.infinite, self.surface)
 
 
-def sample_emitters(xp, emitters, tables, u0, u1, u2, x, nx, offset: float):
+def shares(lights) -> tuple:
+    """Per emitter type of ``lights``: ``(lo, p, choice)``, its share ``[lo, lo + p)`` of the
+    uniform that picks the type of an emitter sample (p = 0: never sampled) and the probability of
+    that choice as the pdfs of hits weigh it (:meth:`invrender.core.lights.Lights.share`)."""
+    return tuple((*lights.share(light), lights.probability(light)) for light in lights.lights)
+
+
+def sample_emitters(xp, emitters, tables, share, u0, u1, u2, x, nx, offset: float):
     """One emitter sample per lane (:meth:`invrender.core.lights.Lights.sample_from`): ``u0``
-    chooses the type by its share (stretched back to [0, 1) for the type's own choice), then the
-    type samples. Returns (origin, wl, tmax, Le, pdf, facing, delta, emitter): ``delta`` a Bool or
-    a Python bool for every lane, ``emitter`` the scene emitter sampled (UInt) where the only
-    sampled type is a surface type, else None."""
-    sampled = [(e, t) for e, t in zip(emitters, tables) if e.p > 0.0]
+    chooses the type by its share (:func:`shares`; stretched back to [0, 1) for the type's own
+    choice), then the type samples. Returns (origin, wl, tmax, Le, pdf, facing, delta, emitter):
+    ``delta`` a Bool or a Python bool for every lane, ``emitter`` the scene emitter sampled (UInt)
+    where the only sampled type is a surface type, else None."""
+    sampled = [(e, t, s) for e, t, s in zip(emitters, tables, share) if e.sampled]
     if len(sampled) == 1:
-        e, t = sampled[0]
+        e, t, _ = sampled[0]
         out = e.form.sample(xp, t, u0, u1, u2, x, nx, offset)
         return out[:6] + (e.form.delta, out[6] if len(out) > 6 else None)
     merged, delta = None, False
-    for i, (e, t) in enumerate(sampled):
-        ui = xp.minimum(xp.maximum((u0 - e.lo) / e.p, 0.0), 1.0 - 2.0**-24)
+    for i, (e, t, (lo, p, _)) in enumerate(sampled):
+        ui = xp.minimum(xp.maximum((u0 - lo) / p, 0.0), 1.0 - 2.0**-24)
         origin, wl, tmax, Le, pdf, facing = e.form.sample(xp, t, ui, u1, u2, x, nx, offset)[:6]
-        part = (origin, wl, tmax, Le, pdf * e.p, facing)
+        part = (origin, wl, tmax, Le, pdf * p, facing)
         # the lanes whose u0 falls in this type's share: the first type below the second's, the last from its own
-        above = u0 >= e.lo if i else None
+        above = u0 >= lo if i else None
         if merged is None:
             merged = part
         else:
@@ -500,21 +543,21 @@ def sample_emitters(xp, emitters, tables, u0, u1, u2, x, nx, offset: float):
         if e.form.delta:
             mine = above if i else u0 == u0
             if i + 1 < len(sampled):
-                mine = mine & (u0 < sampled[i + 1][0].lo)
+                mine = mine & (u0 < sampled[i + 1][2][0])
             delta = mine if delta is False else delta | mine
     return merged + (delta, None)
 
 
-def escaped_vertex(xp, tables, d, beta, pdf_dir, delta, *, emitters, first: bool, mis: bool, nee_only: bool):
+def escaped_vertex(xp, tables, share, d, beta, pdf_dir, delta, *, emitters, first: bool, mis: bool, nee_only: bool):
     """Term depth for rays ``d`` that leave the scene: ``beta w Le`` of the emitters infinitely far
     away, weighted as :func:`path_vertex` weighs emission hit (one array call: the paths' escaped
     rays). Returns the radiance (3-tuple)."""
     Le, pdf = None, None
-    for e, t in zip(emitters, tables):
+    for e, t, (_, _, choice) in zip(emitters, tables, share):
         if e.infinite:
             Le_k, pdf_k = e.form.escaped(xp, t, d)
             Le = Le_k if Le is None else add(Le, Le_k)
-            pdf = pdf_k * e.choice if pdf is None else pdf + pdf_k * e.choice
+            pdf = pdf_k * choice if pdf is None else pdf + pdf_k * choice
     w = xp.select(delta, 1.0, 0.0) if nee_only and not first else 1.0
     if mis and not first:
         w = xp.select(delta, 1.0, power_heuristic(xp, pdf_dir, pdf))
@@ -522,7 +565,7 @@ def escaped_vertex(xp, tables, d, beta, pdf_dir, delta, *, emitters, first: bool
 
 
 def path_vertex(
-    xp, tri_table, emitter_tables, material_index, material_tables, normals, textures, prim, b1, b2, t, d, beta, pdf_dir, delta, keys, salts, offset: float, *,
+    xp, tri_table, emitter_tables, share, material_index, material_tables, normals, textures, prim, b1, b2, t, d, beta, pdf_dir, delta, keys, salts, offset: float, *,
     materials, emitters, first: bool, mis: bool, nee_only: bool, nee: bool, more: bool, roulette: bool, absorbing: bool, tangents: bool,
 ):  # fmt: skip
     """One primal bounce of N paths: the random walk's and the path tracer's vertex
@@ -530,7 +573,8 @@ def path_vertex(
 
     Args:
         tri_table: (T * 16,) the triangle table (:func:`triangle_rows`); emitter_tables: per emitter
-            type, its tables (:class:`~invrender.core.lights.LightLanes`); material_index (M * 4,)
+            type, its tables (:class:`~invrender.core.lights.LightLanes`); share: per emitter type,
+            its (lo, p, choice) (:func:`shares`, as scalars); material_index (M * 4,)
             per scene material its type's slot, index in that type, one-sided flag
             (:data:`MATERIAL_ROW`); material_tables: per type, :func:`material_rows`;
             normals: (T * 16,) the vertex normals (:func:`normal_rows`), or None (no shading normals);
@@ -558,10 +602,10 @@ def path_vertex(
     # term depth: the emission seen, weighted against the previous vertex's emitter sample
     zero = 0.0 * c
     Le, light_pdf, seen, em = (zero, zero, zero), zero, c != c, None
-    for e, table in zip(emitters, emitter_tables):
+    for e, table, (_, _, choice) in zip(emitters, emitter_tables, share):
         if e.surface:
             Le_k, pdf_k, seen_k, em_k = e.form.hit(xp, table, tri, front, t, xp.abs(c))
-            Le, light_pdf, seen = select3(xp, seen_k, Le_k, Le), xp.select(seen_k, pdf_k * e.choice, light_pdf), seen | seen_k
+            Le, light_pdf, seen = select3(xp, seen_k, Le_k, Le), xp.select(seen_k, pdf_k * choice, light_pdf), seen | seen_k
             em = em_k if em is None else em
     if nee_only and not first:
         seen = seen & delta  # only where no emitter sample competed
@@ -584,10 +628,10 @@ def path_vertex(
     smooth = point.any("smooth")
     if nee and smooth is not False:
         u0, u1, u2 = (uniform(xp, keys, salts[j]) for j in (2, 3, 4))
-        so, wl, tmax, Ll, pdf, facing, light_delta, sampled = sample_emitters(xp, emitters, emitter_tables, u0, u1, u2, p, n, offset)
+        so, wl, tmax, Ll, pdf, facing, light_delta, sampled = sample_emitters(xp, emitters, emitter_tables, share, u0, u1, u2, p, n, offset)
         through = point.any("smooth_transmission")
         if through is not False:  # behind a glossy transmitter: the same sample from the other side
-            sob, wlb, tmaxb, Llb, pdfb, facingb, _, sampledb = sample_emitters(xp, emitters, emitter_tables, u0, u1, u2, p, scale(n, -1.0), offset)
+            sob, wlb, tmaxb, Llb, pdfb, facingb, _, sampledb = sample_emitters(xp, emitters, emitter_tables, share, u0, u1, u2, p, scale(n, -1.0), offset)
             back = ~facing if through is True else through & ~facing
             so, wl, Ll = select3(xp, back, sob, so), select3(xp, back, wlb, wl), select3(xp, back, Llb, Ll)
             tmax, facing, pdf = xp.select(back, tmaxb, tmax), xp.select(back, facingb, facing), xp.select(back, pdfb, pdf)
