@@ -116,10 +116,13 @@ class DeltaLight(Light):
             rows[i, OWN : OWN + len(own)] = torch.tensor(own, dtype=torch.float32)
         return choice, rows.reshape(-1).to(self.device)
 
-    def lanes(self) -> LightLanes:
+    def lanes(self) -> LightLanes | None:
         """The type in lane form: :func:`delta_sample` on :attr:`lane_tables`, every sample a delta
-        one. It applies to every render, one that holds sampling fixed included: the table holds
-        the choice made from the sampling values and the intensities of the values."""
+        one. It applies to every render, one that holds sampling fixed included (the table holds
+        the choice made from the sampling values and the intensities of the values); None for a
+        subclass that answers ``sample_from`` by other means than the lane functions."""
+        if type(self).sample_from is not DeltaLight.sample_from:
+            return None
         return LightLanes(functools.partial(delta_sample, size=len(self.emitters), arrive=type(self).arrive), self.lane_tables, delta=True)
 
     def sample_from(self, u: torch.Tensor, x: torch.Tensor, nx: torch.Tensor, offset: float) -> LightSample:

@@ -255,6 +255,7 @@ class Envmap(Light):
         self.scale = [float(c.get("scale", 1.0)) for c in constants]
         #: per emitter, its to_world rotation (3, 3) float32 on the render device
         self.R = [torch.tensor(rotation_of(c), dtype=torch.float32, device=self.device) for c in constants]
+        #: per emitter, its sampling density (:class:`Distribution`, from the sampling values)
         self.dist = [Distribution(padded(v["emission"])) for v in self.sampling]
         weights = [d.total * s for d, s in zip(self.dist, self.scale)]
         total = sum(weights)
@@ -302,10 +303,13 @@ class Envmap(Light):
         flat = [x.reshape(-1).to(self.device) for x in flat] + [torch.cat(x).reshape(-1).contiguous() for x in (bands, cells, texels)]
         return (choice, *flat)
 
-    def lanes(self) -> LightLanes:
+    def lanes(self) -> LightLanes | None:
         """The maps in lane form: :func:`envmap_sample` and :func:`envmap_escaped` on
-        :attr:`lane_tables`. It applies to every render, one that holds sampling fixed included:
-        the tables hold the density of the sampling values and the texels of the values."""
+        :attr:`lane_tables`. It applies to every render, one that holds sampling fixed included
+        (the tables hold the density of the sampling values and the texels of the values); None
+        for a subclass that answers the queries by other means than the lane functions."""
+        if any(getattr(type(self), m) is not getattr(Envmap, m) for m in ("sample_from", "escaped", "pdf_escaped", "_radiance")):
+            return None
         return LightLanes(functools.partial(envmap_sample, **self._static), self.lane_tables, escaped=functools.partial(envmap_escaped, count=len(self.dist)))
 
     @property
