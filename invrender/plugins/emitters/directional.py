@@ -17,10 +17,9 @@ from __future__ import annotations
 
 import math
 
-import torch
-
 from invrender import registry
-from invrender.plugins.emitters.delta import DIRECTION, DeltaLight, unit
+from invrender.core import lanes
+from invrender.plugins.emitters.delta import DIRECTION, OWN, DeltaLight, unit
 from invrender.scene.kinds import EMISSION, EMISSION_RGB
 from invrender.scene.plugins import Param
 from invrender.scene.scene import scene_extent
@@ -41,11 +40,14 @@ class Directional(DeltaLight):
         radius = 0.5 * math.sqrt(3.0) * scene_extent(self.triangles)
         return radius * radius * float(self.sampling[i]["emission"].mean())
 
-    def arrive(self, k, o, nx, offset):
-        wl = -self.vectors("direction").index_select(0, k)
-        facing = (nx * wl).sum(dim=1) > 0
-        tmax = torch.full((o.shape[0],), math.inf, device=o.device)
-        return wl, tmax, facing, self.stacked("emission").index_select(0, k)
+    def member_row(self, i: int) -> list[float]:
+        return list(self.constants[i]["direction"])
+
+    @staticmethod
+    def arrive(xp, row, o, nx, offset: float):
+        """Against the direction of travel (row columns 4-6), no end to the ray: ``Le = E``."""
+        wl = (-row[OWN], -row[OWN + 1], -row[OWN + 2])
+        return wl, xp.full(math.inf, o[0]), xp.full(1.0, o[0]), lanes.dot(nx, wl) > 0.0
 
     # ---- the formats' aliases
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 
 from invrender import registry
-from invrender.plugins.emitters.delta import POSITION, DeltaLight, towards_point
+from invrender.plugins.emitters.delta import OWN, POSITION, DeltaLight, towards_point
 from invrender.scene.kinds import EMISSION, EMISSION_RGB
 from invrender.scene.plugins import Param
 
@@ -32,11 +32,14 @@ class Point(DeltaLight):
     def member_power(self, i: int) -> float:
         return 4.0 * float(self.sampling[i]["emission"].mean())
 
-    def arrive(self, k, o, nx, offset):
-        p = self.vectors("position").index_select(0, k)
-        wl, r, tmax, facing = towards_point(p, o, nx, offset)
-        Le = self.stacked("emission").index_select(0, k) / (r * r)[:, None]
-        return wl, tmax, facing, Le
+    def member_row(self, i: int) -> list[float]:
+        return list(self.constants[i]["position"])
+
+    @staticmethod
+    def arrive(xp, row, o, nx, offset: float):
+        """Towards the position (row columns 4-6): ``Le = I / r^2``."""
+        wl, r, tmax, facing = towards_point(xp, row[OWN : OWN + 3], o, nx, offset)
+        return wl, tmax, 1.0 / (r * r), facing
 
     # ---- the formats' aliases
 

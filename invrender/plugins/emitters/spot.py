@@ -22,20 +22,33 @@ import math
 import torch
 
 from invrender import registry
-from invrender.plugins.emitters.delta import DIRECTION, POSITION, DeltaLight, frame_z, look_at_matrix, towards_point, unit
+from invrender.core import lanes
+from invrender.core.compiled import TORCH
+from invrender.plugins.emitters.delta import DIRECTION, OWN, POSITION, DeltaLight, frame_z, look_at_matrix, towards_point, unit
 from invrender.errors import SceneError
 from invrender.scene.kinds import EMISSION, EMISSION_RGB
 from invrender.scene.plugins import Constant, Param
 
 
-def falloff(cos_theta: torch.Tensor, cutoff_deg: float, beam_deg: float) -> torch.Tensor:
-    """Mitsuba's ``falloff_curve``: 1 inside the beam, ``(c - theta) / (c - b)`` between the beam
-    and the cutoff, 0 beyond (``cos_theta``: the cosine of the angle to the axis)."""
+def angles(cutoff_deg: float, beam_deg: float) -> list[float]:
+    """The falloff's numbers as :func:`falloff_lanes` reads them: ``cos c, cos b, c, 1 / (c - b)``
+    (radians; 0 for the last when b = c)."""
     c, b = math.radians(cutoff_deg), math.radians(beam_deg)
-    inv_transition = 1.0 / (c - b) if c > b else 0.0
-    ramp = (c - torch.acos(cos_theta.clamp(-1.0, 1.0))) * inv_transition
-    beam = torch.where(cos_theta >= math.cos(b), torch.ones_like(cos_theta), ramp)
-    return torch.where(cos_theta > math.cos(c), beam, torch.zeros_like(cos_theta))
+    return [math.cos(c), math.cos(b), c, 1.0 / (c - b) if c > b else 0.0]
+
+
+def falloff_lanes(xp, cos_theta, cos_c, cos_b, c, inv_transition):
+    """Mitsuba's ``falloff_curve`` against the array interface: 1 inside the beam, ``(c - theta) /
+    (c - b)`` between the beam and the cutoff, 0 beyond (``cos_theta``: the cosine of the angle to
+    the axis; the rest :func:`angles`, numbers or Floats)."""
+    ramp = (c - xp.acos(xp.minimum(xp.maximum(cos_theta, -1.0), 1.0))) * inv_transition
+    beam = xp.select(cos_theta >= cos_b, 1.0 + 0.0 * ramp, ramp)
+    return xp.select(cos_theta > cos_c, beam, 0.0 * ramp)
+
+
+def falloff(cos_theta: torch.Tensor, cutoff_deg: float, beam_deg: float) -> torch.Tensor:
+    """:func:`falloff_lanes` of one spot (degrees) as eager torch."""
+    return falloff_lanes(TORCH, cos_theta, *angles(cutoff_deg, beam_deg))
 
 
 def falloff_solid_angle(cutoff_deg: float, beam_deg: float) -> float:
@@ -71,16 +84,18 @@ class Spot(DeltaLight):
         c = self.constants[i]
         return float(self.sampling[i]["emission"].mean()) * falloff_solid_angle(c["cutoff_angle"], c["beam_width"]) / math.pi
 
-    def arrive(self, k, o, nx, offset):
-        p = self.vectors("position").index_select(0, k)
-        axis = self.vectors("direction").index_select(0, k)
-        wl, r, tmax, facing = towards_point(p, o, nx, offset)
-        cos_theta = -(wl * axis).sum(dim=1)  # the direction from the light to x, against the axis
-        f = torch.zeros_like(cos_theta)
-        for i, c in enumerate(self.constants):
-            f = torch.where(k == i, falloff(cos_theta, c["cutoff_angle"], c["beam_width"]), f)
-        Le = self.stacked("emission").index_select(0, k) * (f / (r * r))[:, None]
-        return wl, tmax, facing & (f > 0), Le
+    def member_row(self, i: int) -> list[float]:
+        c = self.constants[i]
+        return [*c["position"], *c["direction"], *angles(c["cutoff_angle"], c["beam_width"])]
+
+    @staticmethod
+    def arrive(xp, row, o, nx, offset: float):
+        """Towards the position (row columns 4-6), the axis 7-9, the falloff's :func:`angles`
+        10-13: ``Le = I falloff / r^2``."""
+        wl, r, tmax, facing = towards_point(xp, row[OWN : OWN + 3], o, nx, offset)
+        cos_theta = -lanes.dot(wl, row[OWN + 3 : OWN + 6])  # the direction from the light to x, against the axis
+        f = falloff_lanes(xp, cos_theta, *row[OWN + 6 : OWN + 10])
+        return wl, tmax, f / (r * r), facing & (f > 0.0)
 
     # ---- the formats' aliases
 
