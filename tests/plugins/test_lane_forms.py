@@ -41,6 +41,17 @@ def test_every_material_is_written_once():
             assert issubclass(MATERIALS[name], LaneBSDF), f"{name} has no lane form"
 
 
+def test_every_emitter_is_written_once():
+    """Every registered emitter type gives its lane form (``Light.lanes``): its scenes render on the
+    compiled bounce (tests/transport/test_fused.py renders each beside an area light, and
+    tests/transport/test_light_lanes.py holds each type's lane functions to its torch methods)."""
+    from invrender.core.lights import Light
+    from invrender.registry import EMITTERS
+
+    for name in EMITTERS.names():
+        assert EMITTERS[name].lanes is not Light.lanes, f"{name} has no lane form"
+
+
 def lanes_at(n: int, seed: int):
     """Local directions wo, wi (3-tuples of (n,)), front (n,) bool and uniforms (3, n): random over
     the sphere, a quarter of them grazing (|z| < 0.05), wo below the normal for a tenth."""

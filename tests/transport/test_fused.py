@@ -207,17 +207,29 @@ def test_the_fused_bounce_renders_smooth_one_sided_and_mixed_materials_as_the_to
     assert abs(float(image.mean() / expected.mean()) - 1) < 2e-3
 
 
-@pytest.mark.parametrize("options", [{}, {"strategy": "emitter"}, {"strategy": "bsdf"}])
-def test_the_fused_bounce_renders_emitters_of_several_types_as_the_torch_bounce(options, unfused):
-    """Emitter samples choose among the area light and a constant sky by their power, rays that
-    leave the box through its open front see the sky (MIS-weighted), on the fused bounce."""
+SKIES = {
+    "constant": lambda: {"type": "constant", "emission": (0.4, 0.5, 0.9)},
+    "envmap": lambda: {"type": "envmap", "emission": torch.rand(5, 8, 3, generator=torch.Generator().manual_seed(2)) * 2 + 0.1},
+    "point": lambda: {"type": "point", "emission": (0.6, 0.5, 0.4), "position": (0.3, 0.5, 0.2)},
+    "spot": lambda: {"type": "spot", "emission": (3.0, 2.5, 2.0), "position": (-0.4, 0.6, 0.8), "direction": (0.5, -1.0, -0.5), "cutoff_angle": 30.0, "beam_width": 20.0},
+}
+
+
+@pytest.mark.parametrize("sky", sorted(SKIES))
+@pytest.mark.parametrize("options", [{}, {"strategy": "emitter"}])
+def test_the_fused_bounce_renders_emitters_of_several_types_as_the_torch_bounce(options, sky, unfused):
+    """Emitter samples choose among the area light and a second type (a sky, a map, a point, a
+    spot) by their power, rays that leave the box through its open front see the sky or map
+    (MIS-weighted), delta samples weigh 1, on the fused bounce."""
     from invrender.scene.emitters import Emitter
     from invrender.scene.materials import Material
 
+    spec = SKIES[sky]()
+    kind = spec.pop("type")
     mats = {"near": Material.of("diffuse", reflectance=(0.7, 0.6, 0.2)), "far": Material.of("diffuse", reflectance=(0.2, 0.5, 0.7))}
-    scene = _smooth_spheres(mats, sky=Emitter.of("constant", emission=(0.4, 0.5, 0.9)))
+    scene = _smooth_spheres(mats, sky=Emitter.of(kind, **spec))
     fused_scene = _fused_scene(scene, "path", **options)
-    assert fused_scene is not None and fused_scene.infinite and len(fused_scene.emitters) == 2
+    assert fused_scene is not None and fused_scene.infinite == (kind in ("constant", "envmap")) and len(fused_scene.emitters) == 2
     kw = dict(spp=16, seed=3, progress=False, integrator="path", **options)
     image = ir.render(scene, **kw)
     unfused()
