@@ -40,6 +40,7 @@ from collections.abc import Callable
 from typing import ClassVar
 
 import torch
+import torch.autograd.forward_ad as fwAD
 
 from invrender.errors import ParameterError, did_you_mean
 from invrender.scene.plugins import Declared
@@ -359,14 +360,15 @@ class LaneBSDF(BSDF):
                 value = (self.sampling_param if sampling else self.param)(key, sp)
             else:
                 value = self.constant_rgb(key, sp)
-            out[key] = value[:, 0] if size == 1 else tuple(value.unbind(1))
+            out[key] = _first_channel(value) if size == 1 else tuple(value.unbind(1))
         return out
 
     def constant_rgb(self, key: str, sp: ShadingPoint) -> torch.Tensor:
         """Constant ``key`` at each point (N, 3): an RGB constant, or a number repeated."""
         token = (key, "rgb", sp.wo.device)
         if token not in self._constant_tables:
-            rows = [c[key] if isinstance(c[key], (tuple, list)) else (c[key],) * 3 for c in self.constants]
+            values = [c.get(key, type(self).constants[key].default) for c in self.constants]
+            rows = [v if isinstance(v, (tuple, list)) else (v,) * 3 for v in values]
             self._constant_tables[token] = torch.tensor(rows, dtype=torch.float32, device=sp.wo.device).reshape(-1, 3)
         return self._constant_tables[token].index_select(0, sp.material)
 
@@ -390,3 +392,14 @@ class LaneBSDF(BSDF):
         world = {"frame": tuple(tuple(v.unbind(1)) for v in (sp.frame.s, sp.frame.t, sp.frame.n))} if form.world else {}
         wi, weight, pdf, delta = form.sample(TORCH, self.lane_values(sp, False), self.lane_values(sp, True), wo, sp.front, u_lobe, u_dir[:, 0], u_dir[:, 1], **world)
         return BSDFSample(sp.frame.to_world(torch.stack(wi, dim=1)), torch.stack(weight, dim=1), pdf, delta)
+
+
+def _first_channel(value: torch.Tensor) -> torch.Tensor:
+    """(N,) a three-channel parameter read as one number (a roughness): channel 0's value exactly
+    (a render is the same as with the number as a constant), the gradient of the channels' mean
+    (every channel moves alike)."""
+    first = value[:, 0]
+    if value.requires_grad or fwAD.unpack_dual(value).tangent is not None:
+        mean = value.mean(dim=1)
+        return first.detach() + (mean - mean.detach())
+    return first

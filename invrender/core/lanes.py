@@ -244,10 +244,10 @@ def material_rows(bsdf, keys, textures: TextureTable):
     (:class:`~invrender.core.bsdf.LaneForm`): ``(table (M * W,) float32, layout)``, W floats a row
     (:func:`material_width`), ``layout`` the entries ``(key, size, textured)`` in row order: a
     parameter's detached value or a constant, and where some material of the type reads the key
-    from a texture (added to ``textures``), four floats, the constant or zeros then the texture's
-    id (-1: none). None where a parameter is per vertex, a texture does not fit the table, or
+    from a texture (added to ``textures``), four floats, the constant (RGB) or zeros then the
+    texture's id (-1: none); a size-1 entry reads the first channel. None where a parameter is per vertex, a texture does not fit the table, or
     sampling reads other values than the parameters hold (a render that holds sampling fixed)."""
-    layout = tuple((key, size, size == 3 and any(key in v and v[key].ndim == 3 for v in bsdf.values)) for key, size in keys)
+    layout = tuple((key, size, any(key in v and v[key].ndim == 3 for v in bsdf.values)) for key, size in keys)
     rows = []
     for m, values in enumerate(bsdf.values):
         row = []
@@ -264,9 +264,9 @@ def material_rows(bsdf, keys, textures: TextureTable):
                     v = torch.zeros(3)
                 v = v.detach().float().reshape(-1).cpu()
             else:
-                c = bsdf.constants[m][key]
+                c = bsdf.constants[m].get(key, type(bsdf).constants[key].default)
                 v = torch.tensor(c if isinstance(c, (tuple, list)) else (c,) * 3, dtype=torch.float32)
-            row.append(v[:3] if size == 3 else v[:1])
+            row.append(v[:3] if size == 3 or textured else v[:1])
             if textured:
                 row.append(torch.tensor([float(texture)]))
         row = torch.cat(row) if row else torch.zeros(0)
@@ -288,7 +288,8 @@ def material_values(xp, table, m, layout, lookup=None):
     for key, size, textured in layout:
         out[key] = flat[at] if size == 1 else tuple(flat[at : at + 3])
         if textured:
-            out[key] = lookup(flat[at + 3], out[key])
+            rgb = lookup(flat[at + 3], tuple(flat[at : at + 3]))
+            out[key] = rgb[0] if size == 1 else rgb
         at += _floats(size, textured)
     return out
 

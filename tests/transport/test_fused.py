@@ -71,7 +71,7 @@ def test_the_fused_bounce_applies_only_where_nothing_needs_the_torch_bounce(tmp_
     assert _fused_scene(box, "path", hide_emitters=True) is None
     assert _fused_scene(ir.load_scene(str(FORWARD / "mesh_in_box.toml"), resolution=(8, 8))) is not None  # flat meshes: yes
     assert _fused_scene(ir.load_scene(str(FORWARD / "textured_floor.toml"), resolution=(8, 8))) is not None  # textures: yes
-    assert _fused_scene(ir.load_scene("cornell_specular", resolution=(8, 8))) is None  # mirror and glass
+    assert _fused_scene(ir.load_scene("cornell_specular", resolution=(8, 8))) is not None  # mirror, glass, GGX: in lane form
     # a plugin built on the diffuse BSDF that changes what it does: its own methods, the torch bounce
     from invrender.plugins.bsdfs.diffuse import Diffuse
 
@@ -237,3 +237,18 @@ def test_the_fused_bounce_renders_emitters_of_several_types_as_the_torch_bounce(
     close = (image - expected).abs() <= 1e-4 * float(expected.max())
     assert float(close.float().mean()) > 0.995
     assert abs(float(image.mean() / expected.mean()) - 1) < 2e-3
+
+
+@pytest.mark.parametrize("options", [{}, {"strategy": "emitter"}, {"strategy": "bsdf"}])
+def test_the_fused_bounce_renders_the_specular_box_as_the_torch_bounce(options, unfused):
+    """A mirror sphere, a glass sphere (delta lobes: no emitter samples, MIS weight 1 after them,
+    refraction from inside), a GGX block and diffuse walls, several types by masks."""
+    scene = ir.load_scene("cornell_specular", resolution=(24, 24), subdivisions=2)
+    assert len(_fused_scene(scene, "path", **options).materials) == 4
+    kw = dict(spp=16, seed=5, progress=False, integrator="path", **options)
+    image = ir.render(scene, **kw)
+    unfused()
+    expected = ir.render(scene, **kw)
+    close = (image - expected).abs() <= 1e-4 * float(expected.max())
+    assert float(close.float().mean()) > 0.99
+    assert abs(float(image.mean() / expected.mean()) - 1) < 3e-3

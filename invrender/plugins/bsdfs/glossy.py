@@ -26,26 +26,63 @@ G1(wo; alpha_s))``, the ratio exactly 1 in value: every estimator stays unbiased
 
 from __future__ import annotations
 
+import functools
 from typing import ClassVar
 
 import torch
 
 from invrender import registry
 from invrender.plugins.bsdfs.metal_iors import METAL_IORS
-from invrender.plugins.bsdfs.metals import CONDUCTOR_CONSTANTS, ConductorFresnel
-from invrender.plugins.bsdfs.microfacet import BECKMANN, GGX, Distribution, roughness_at, visible_reweight
+from invrender.plugins.bsdfs.metals import CONDUCTOR_CONSTANTS, ConductorFresnel, conductor_lanes
+from invrender.plugins.bsdfs.microfacet import BECKMANN, GGX, Distribution, normalized
 from invrender.scene.kinds import ROUGHNESS, SPECULAR_REFLECTANCE
 from invrender.scene.plugins import Constant, Param
-from invrender.core.bsdf import BSDF, BSDFSample, Lobe, ShadingPoint
-from invrender.vec import dot, normalize
+from invrender.core import lanes
+from invrender.core.bsdf import LaneBSDF, LaneForm, Lobe
 
 
 #: the range Mitsuba's ``alpha`` is read in (the roughness kind's (0, 1], its default 0.1)
 ALPHA = Constant(0.1, 0.0, 1.0, True, False)
 
 
+def eval_lanes(xp, p, ps, wo, wi, front, *, distribution: Distribution):
+    """``k_s F D G / (4 cos_o)`` (``f cos_i``; D and G at p's roughness) and the pdf
+    ``G1(wo) D(h) / (4 cos_o)`` (at ps's), 0 unless both directions lie above the normal."""
+    d = distribution
+    cos_o, cos_i = wo[2], wi[2]
+    h = normalized(xp, lanes.add(wo, wi))
+    both = (cos_o > 0.0) & (cos_i > 0.0)
+    quarter = 1.0 / (4.0 * xp.maximum(cos_o, 1e-12))
+    a, a_s = p["roughness"], ps["roughness"]
+    value = xp.select(both, d.D_lanes(xp, h[2], a) * d.G1_lanes(xp, cos_o, a) * d.G1_lanes(xp, cos_i, a) * quarter, 0.0)
+    F = conductor_lanes(xp, lanes.dot(wo, h), p["eta"], p["k"])
+    f = lanes.scale(lanes.scale(p["specular_reflectance"], F), value)
+    pdf = xp.select(both, d.G1_lanes(xp, cos_o, a_s) * d.D_lanes(xp, h[2], a_s) * quarter, 0.0)
+    return f, pdf
+
+
+def sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1, *, distribution: Distribution):
+    """A visible normal (of ps's roughness alpha_s), ``wo`` reflected about it: weight
+    ``k_s F G1(wi)`` times ``D(h; alpha) G1(wo; alpha) / (D(h; alpha_s) G1(wo; alpha_s))``, which is
+    1 in value (p and ps hold the same numbers) and carries the weight's derivative in alpha."""
+    d = distribution
+    above = wo[2] > 0.0
+    up = (xp.select(above, wo[0], 0.0), xp.select(above, wo[1], 0.0), xp.select(above, wo[2], 1.0))
+    a, a_s = p["roughness"], ps["roughness"]
+    h = d.visible_lanes(xp, up, a_s, u0, u1)
+    cos_d = lanes.dot(up, h)
+    wi = lanes.sub(lanes.scale(h, 2.0 * cos_d), up)
+    ok = above & (wi[2] > 0.0)
+    sampling = d.D_lanes(xp, h[2], a_s) * d.G1_lanes(xp, up[2], a_s)
+    pdf = xp.select(ok, sampling / (4.0 * xp.maximum(up[2], 1e-12)), 0.0)
+    ratio = xp.select(sampling > 0.0, d.D_lanes(xp, h[2], a) * d.G1_lanes(xp, up[2], a) / xp.select(sampling > 0.0, sampling, 1.0), 1.0)
+    g1 = xp.select(ok, d.G1_lanes(xp, wi[2], a) * ratio, 0.0)
+    weight = lanes.scale(lanes.scale(p["specular_reflectance"], conductor_lanes(xp, cos_d, p["eta"], p["k"])), g1)
+    return wi, weight, pdf, xp.full(False, u0)
+
+
 @registry.MATERIALS.register
-class Glossy(ConductorFresnel, BSDF):
+class Glossy(ConductorFresnel, LaneBSDF):
     type_name = "glossy"
     lobes = Lobe.GLOSSY
     params = {"specular_reflectance": Param(SPECULAR_REFLECTANCE, 1.0), "roughness": Param(ROUGHNESS, 0.1)}
@@ -54,53 +91,10 @@ class Glossy(ConductorFresnel, BSDF):
     #: the microfacet distribution
     distribution: ClassVar[Distribution] = GGX
 
-    def _local(self, sp: ShadingPoint, wi: torch.Tensor):
-        return sp.frame, sp.wo_local, sp.frame.to_local(wi)
-
-    def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        """``k_s F D G / (4 cos_o)`` (N, 3) (the cosine cos_i folded in; differentiable in alpha)."""
-        _, wo, wl = self._local(sp, wi)
-        alpha, _ = roughness_at(self, sp)
-        d = self.distribution
-        cos_o, cos_i = wo[:, 2], wl[:, 2]
-        h = normalize(wo + wl)
-        value = d.D(h[:, 2], alpha) * d.G1(cos_o, alpha) * d.G1(cos_i, alpha) / (4.0 * cos_o.clamp_min(1e-12))
-        value = torch.where((cos_o > 0) & (cos_i > 0), value, 0.0)
-        ks = self.param("specular_reflectance", sp)
-        fresnel = self.fresnel(sp, dot(wo, h))
-        return ks * value[:, None] if fresnel is None else ks * (fresnel * value[:, None])
-
-    def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        """``G1(wo) D(h) / (4 cos_o)`` (N,) (visible-normal sampling, at the detached alpha_s)."""
-        _, wo, wl = self._local(sp, wi)
-        _, alpha = roughness_at(self, sp)
-        d = self.distribution
-        cos_o, cos_i = wo[:, 2], wl[:, 2]
-        h = normalize(wo + wl)
-        p = d.G1(cos_o, alpha) * d.D(h[:, 2], alpha) / (4.0 * cos_o.clamp_min(1e-12))
-        return torch.where((cos_o > 0) & (cos_i > 0), p, 0.0)
-
-    def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
-        """A visible normal (of the detached alpha_s), ``wo`` reflected about it: weight
-        ``k_s F G1(wi)`` (times the reweighting to the attached alpha, 1 in value)."""
-        frame, wo = sp.frame, sp.wo_local
-        d = self.distribution
-        attached, alpha = roughness_at(self, sp)
-        above = wo[:, 2] > 0
-        wo_up = torch.where(above[:, None], wo, torch.tensor([0.0, 0.0, 1.0], device=wo.device))
-        h = d.sample_visible(wo_up, alpha, u_dir)
-        cos_d = dot(wo_up, h)
-        wl = 2.0 * cos_d[:, None] * h - wo_up
-        cos_i = wl[:, 2]
-        ok = above & (cos_i > 0)
-        pdf = torch.where(ok, d.G1(wo_up[:, 2], alpha) * d.D(h[:, 2], alpha) / (4.0 * wo_up[:, 2].clamp_min(1e-12)), 0.0)
-        ratio = visible_reweight(d, h[:, 2], wo_up[:, 2], attached, alpha)
-        g1 = d.G1(cos_i, alpha) if ratio is None else d.G1(cos_i, attached) * ratio
-        weight = self.param("specular_reflectance", sp) * torch.where(ok, g1, 0.0)[:, None]
-        fresnel = self.fresnel(sp, cos_d)
-        if fresnel is not None:
-            weight = weight * fresnel
-        return BSDFSample(frame.to_world(wl), weight, pdf, torch.zeros_like(ok))
+    def lane_form(self) -> LaneForm:
+        keys = (("specular_reflectance", 3), ("roughness", 1), ("eta", 3), ("k", 3))
+        bind = dict(distribution=self.distribution)
+        return LaneForm(keys, functools.partial(eval_lanes, **bind), functools.partial(sample_lanes, **bind))
 
     # ---- its aliases in the scene formats (read through the registry)
 

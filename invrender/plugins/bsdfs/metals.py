@@ -27,6 +27,7 @@ import torch
 from invrender.errors import SceneError
 from invrender.plugins.bsdfs.metal_iors import METAL_IORS
 from invrender.scene.plugins import Constant
+from invrender.core.compiled import TORCH
 from invrender.core.bsdf import ShadingPoint
 
 #: the conductor with a Fresnel term of 1 (Mitsuba's default ``material``): eta = 0, k = 1
@@ -52,16 +53,16 @@ def is_fresnel_one(eta, k) -> bool:
     return tuple(float(x) for x in eta) == NONE_ETA and tuple(float(x) for x in k) == NONE_K
 
 
-def fresnel_conductor(cos_i: torch.Tensor, eta: torch.Tensor, k: torch.Tensor) -> torch.Tensor:
-    """Unpolarized Fresnel reflectance (N, 3) of a conductor of index ``eta + i k`` (N, 3) each, for
-    cosines of incidence ``cos_i`` (N,) (module docstring; Mitsuba 3's ``fresnel_conductor``)."""
-    c = cos_i[:, None]
+def fresnel_conductor_lanes(xp, c, eta, k):
+    """Unpolarized Fresnel reflectance of a conductor of index ``eta + i k`` (one channel's arrays
+    or numbers) for cosines of incidence ``c``, written against the array interface (module
+    docstring; Mitsuba 3's ``fresnel_conductor``)."""
     c2 = c * c
     s2 = 1.0 - c2
     s4 = s2 * s2
     t1 = eta * eta - k * k - s2
-    a2b2 = (t1 * t1 + 4.0 * k * k * eta * eta).clamp_min(0.0).sqrt()
-    a = (0.5 * (a2b2 + t1)).clamp_min(0.0).sqrt()
+    a2b2 = xp.sqrt(xp.maximum(t1 * t1 + 4.0 * k * k * eta * eta, 0.0))
+    a = xp.sqrt(xp.maximum(0.5 * (a2b2 + t1), 0.0))
     term1 = a2b2 + c2
     term2 = 2.0 * c * a
     rs = (term1 - term2) / (term1 + term2)
@@ -69,6 +70,20 @@ def fresnel_conductor(cos_i: torch.Tensor, eta: torch.Tensor, k: torch.Tensor) -
     term4 = term2 * s2
     rp = rs * (term3 - term4) / (term3 + term4)
     return 0.5 * (rs + rp)
+
+
+def conductor_lanes(xp, cos_d, eta, k):
+    """F (a 3-tuple) of conductors of RGB indices ``eta``, ``k`` (3-tuples) at cosines ``cos_d``
+    (clamped to [0, 1]); exactly 1 where the index is the ``none`` conductor's (eta 0, k 1)."""
+    c = xp.minimum(xp.maximum(cos_d, 0.0), 1.0)
+    one = (eta[0] == 0.0) & (eta[1] == 0.0) & (eta[2] == 0.0) & (k[0] == 1.0) & (k[1] == 1.0) & (k[2] == 1.0)
+    return tuple(xp.select(one, 1.0, fresnel_conductor_lanes(xp, c, e, kk)) for e, kk in zip(eta, k))
+
+
+def fresnel_conductor(cos_i: torch.Tensor, eta: torch.Tensor, k: torch.Tensor) -> torch.Tensor:
+    """Unpolarized Fresnel reflectance (N, 3) of a conductor of index ``eta + i k`` (N, 3) each, for
+    cosines of incidence ``cos_i`` (N,): :func:`fresnel_conductor_lanes` as eager torch."""
+    return torch.stack([fresnel_conductor_lanes(TORCH, cos_i, eta[:, j], k[:, j]) for j in range(3)], dim=1)
 
 
 #: the constants of a conductor's complex index of refraction, RGB (``none``: eta 0, k 1)

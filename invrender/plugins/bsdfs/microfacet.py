@@ -29,7 +29,10 @@ Beckmann (Gaussian random surfaces; alpha is the RMS slope):
   Distribution of Visible Normals", EGSR 2014): ``wo`` stretched by alpha, slopes of the alpha = 1
   distribution drawn by Jakob's numerical inversion ("An Improved Visible Normal Sampling Routine
   for the Beckmann Distribution", 2014: an analytic first guess, three Newton steps in the erf
-  domain), rotated and unstretched. The samples follow the exact Smith normalization; ``pdf`` uses
+  domain; in float32, as Mitsuba's single-precision variants), rotated and unstretched.
+
+Each is written once against the array interface (``*_lanes``: :mod:`invrender.core.lanes`); the
+torch functions below evaluate them as eager torch, and the compiled bounce compiles them. The samples follow the exact Smith normalization; ``pdf`` uses
   the rational G1 (as Mitsuba's does), so the two differ by that approximation's error at most.
 """
 
@@ -41,44 +44,70 @@ from abc import ABC, abstractmethod
 import torch
 import torch.autograd.forward_ad as fwAD
 
+from invrender.core.compiled import TORCH
 from invrender.vec import dot, normalize
 
 
 # ---------------------------------------------------------------- GGX, as functions (the GGX material's originals)
 
 
-def ggx_D(cos_h: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
-    """GGX normal distribution D(h) (N,) for cosines of h with the normal ``cos_h`` (N,)."""
+def ggx_D_lanes(xp, cos_h, alpha):
+    """GGX normal distribution D(h) for cosines of h with the normal ``cos_h`` (the array
+    interface: :mod:`invrender.core.lanes`; arrays or (N,) tensors with ``TORCH``)."""
     a2 = alpha * alpha
     c2 = cos_h * cos_h
     d = c2 * (a2 - 1.0) + 1.0
-    return torch.where(cos_h > 0, a2 / (math.pi * d * d).clamp_min(1e-30), 0.0)
+    return xp.select(cos_h > 0.0, a2 / xp.maximum(math.pi * d * d, 1e-30), 0.0)
+
+
+def ggx_G1_lanes(xp, cos_v, alpha):
+    """GGX's Smith masking G1 of a direction with cosine ``cos_v`` to the normal (0 below)."""
+    c2 = xp.maximum(cos_v * cos_v, 1e-12)
+    tan2 = xp.maximum(1.0 - c2, 0.0) / c2
+    return xp.select(cos_v > 0.0, 2.0 / (1.0 + xp.sqrt(1.0 + alpha * alpha * tan2)), 0.0)
+
+
+def ggx_visible_lanes(xp, wo, alpha, u0, u1, alpha_y=None):
+    """Heitz (2018): a GGX normal (a 3-tuple, local frame) visible from ``wo`` (z > 0), from
+    uniforms ``u0``, ``u1``; anisotropic with roughness ``alpha`` along x and ``alpha_y`` along y
+    where ``alpha_y`` is given."""
+    ay = alpha if alpha_y is None else alpha_y
+    vh = normalized(xp, (alpha * wo[0], ay * wo[1], wo[2]))
+    lensq = vh[0] * vh[0] + vh[1] * vh[1]
+    inv = xp.select(lensq > 0.0, 1.0 / xp.sqrt(xp.maximum(lensq, 1e-30)), 0.0)
+    flat = lensq > 0.0
+    t1 = (xp.select(flat, -vh[1] * inv, 1.0), xp.select(flat, vh[0] * inv, 0.0), 0.0 * inv)
+    t2 = (vh[1] * t1[2] - vh[2] * t1[1], vh[2] * t1[0] - vh[0] * t1[2], vh[0] * t1[1] - vh[1] * t1[0])
+    r = xp.sqrt(u0)
+    phi = (2.0 * math.pi) * u1
+    p1, p2 = r * xp.cos(phi), r * xp.sin(phi)
+    s = 0.5 * (1.0 + vh[2])
+    p2 = (1.0 - s) * xp.sqrt(xp.maximum(1.0 - p1 * p1, 0.0)) + s * p2
+    p3 = xp.sqrt(xp.maximum(1.0 - p1 * p1 - p2 * p2, 0.0))
+    nh = tuple(p1 * a + p2 * b + p3 * c for a, b, c in zip(t1, t2, vh))
+    return normalized(xp, (alpha * nh[0], ay * nh[1], xp.maximum(nh[2], 1e-6)))
+
+
+def normalized(xp, v):
+    """``v / |v|`` (a 3-tuple; 0 stays 0)."""
+    length = xp.maximum(xp.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]), 1e-30)
+    return (v[0] / length, v[1] / length, v[2] / length)
+
+
+def ggx_D(cos_h: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
+    """GGX normal distribution D(h) (N,) for cosines of h with the normal ``cos_h`` (N,)."""
+    return ggx_D_lanes(TORCH, cos_h, alpha)
 
 
 def smith_G1(cos_v: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
     """GGX's Smith masking G1 (N,) of a direction with cosine ``cos_v`` (N,) to the normal (0 below)."""
-    c2 = (cos_v * cos_v).clamp_min(1e-12)
-    tan2 = (1.0 - c2).clamp_min(0.0) / c2
-    return torch.where(cos_v > 0, 2.0 / (1.0 + (1.0 + alpha * alpha * tan2).sqrt()), 0.0)
+    return ggx_G1_lanes(TORCH, cos_v, alpha)
 
 
 def sample_visible_normal(wo_local: torch.Tensor, alpha: torch.Tensor, u: torch.Tensor, alpha_y: torch.Tensor | None = None) -> torch.Tensor:
-    """Heitz (2018): a GGX normal (N, 3), local frame, visible from ``wo_local`` (N, 3) (z > 0);
-    anisotropic with roughness ``alpha`` along x and ``alpha_y`` along y where ``alpha_y`` is given."""
-    ay = alpha if alpha_y is None else alpha_y
-    vh = normalize(torch.stack([alpha * wo_local[:, 0], ay * wo_local[:, 1], wo_local[:, 2]], dim=1))
-    lensq = vh[:, 0] ** 2 + vh[:, 1] ** 2
-    inv = torch.where(lensq > 0, lensq.clamp_min(1e-30).rsqrt(), 0.0)
-    t1 = torch.where((lensq > 0)[:, None], torch.stack([-vh[:, 1] * inv, vh[:, 0] * inv, torch.zeros_like(inv)], dim=1), torch.tensor([1.0, 0.0, 0.0], device=u.device))
-    t2 = torch.linalg.cross(vh, t1)
-    r = u[:, 0].sqrt()
-    phi = (2.0 * math.pi) * u[:, 1]
-    p1, p2 = r * torch.cos(phi), r * torch.sin(phi)
-    s = 0.5 * (1.0 + vh[:, 2])
-    p2 = (1.0 - s) * (1.0 - p1 * p1).clamp_min(0.0).sqrt() + s * p2
-    p3 = (1.0 - p1 * p1 - p2 * p2).clamp_min(0.0).sqrt()
-    nh = p1[:, None] * t1 + p2[:, None] * t2 + p3[:, None] * vh
-    return normalize(torch.stack([alpha * nh[:, 0], ay * nh[:, 1], nh[:, 2].clamp_min(1e-6)], dim=1))
+    """Heitz (2018): a GGX normal (N, 3), local frame, visible from ``wo_local`` (N, 3) (z > 0):
+    :func:`ggx_visible_lanes` as eager torch."""
+    return torch.stack(ggx_visible_lanes(TORCH, tuple(wo_local.unbind(1)), alpha, u[:, 0], u[:, 1], alpha_y), dim=1)
 
 
 # ---------------------------------------------------------------- anisotropic GGX, on whole vectors
@@ -112,58 +141,78 @@ def ggx_visible_pdf_aniso(v: torch.Tensor, m: torch.Tensor, alpha_x: torch.Tenso
 # ---------------------------------------------------------------- Beckmann, as functions
 
 
-def beckmann_D(cos_h: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
-    """Beckmann normal distribution D(h) (N,) for cosines ``cos_h`` (N,) (0 where Mitsuba's is:
-    ``D cos_h <= 1e-20``)."""
-    c2 = (cos_h * cos_h).clamp_min(1e-30)
+def beckmann_D_lanes(xp, cos_h, alpha):
+    """Beckmann normal distribution D(h) for cosines ``cos_h`` (0 where Mitsuba's is: ``D cos_h <=
+    1e-20``), written against the array interface."""
+    c2 = xp.maximum(cos_h * cos_h, 1e-30)
     a2 = alpha * alpha
-    d = torch.exp(-((1.0 - c2).clamp_min(0.0) / c2) / a2) / (math.pi * a2 * c2 * c2)
-    return torch.where((cos_h > 0) & (d * cos_h > 1e-20), d, 0.0)
+    d = xp.exp(-(xp.maximum(1.0 - c2, 0.0) / c2) / a2) / (math.pi * a2 * c2 * c2)
+    return xp.select((cos_h > 0.0) & (d * cos_h > 1e-20), d, 0.0)
+
+
+def beckmann_G1_lanes(xp, cos_v, alpha):
+    """Beckmann's Smith masking G1, Walter et al.'s rational approximation (Mitsuba 3's form), for
+    cosines ``cos_v`` (1 at normal incidence, 0 below)."""
+    c2 = xp.maximum(cos_v * cos_v, 1e-30)
+    s2 = xp.maximum(1.0 - c2, 0.0)
+    a = xp.sqrt(c2 / xp.maximum(alpha * alpha * s2, 1e-30))  # 1 / (alpha tan theta)
+    g = xp.select(a >= 1.6, 1.0, (3.535 * a + 2.181 * a * a) / (1.0 + 2.276 * a + 2.577 * a * a))
+    return xp.select(cos_v > 0.0, xp.select(s2 > 0.0, g, 1.0), 0.0)
+
+
+#: the largest |erf| argument the slope inversion hands ``erfinv`` (float32's last value below 1)
+_ERF_EDGE = 1.0 - 2.0**-24
+
+
+def beckmann_slopes_lanes(xp, cos_theta, u0, u1):
+    """Slopes (a 2-tuple) of Beckmann normals of roughness 1 visible from a direction at
+    ``cos_theta`` in the xz plane (x towards it), from uniforms ``u0``, ``u1``: Jakob's inversion
+    (module docstring) in float32, as Mitsuba 3's single-precision variants compute it."""
+    c = xp.minimum(xp.maximum(cos_theta, 1e-7), 1.0)
+    v0, v1 = (xp.minimum(xp.maximum(u, 1e-6), 1.0 - 1e-6) for u in (u0, u1))
+    tan_t = xp.sqrt(xp.maximum(1.0 - c * c, 0.0)) / c
+    cot_t = 1.0 / xp.maximum(tan_t, 1e-30)
+    inv_sqrt_pi = 1.0 / math.sqrt(math.pi)
+    maxval = xp.erf(cot_t)
+    x = maxval - (maxval + 1.0) * xp.erf(xp.sqrt(-xp.log(v0)))
+    target = v0 * (1.0 + maxval + inv_sqrt_pi * tan_t * xp.exp(-cot_t * cot_t))
+    for _ in range(3):  # Newton steps in the erf domain
+        slope = xp.erfinv(xp.minimum(xp.maximum(x, -_ERF_EDGE), _ERF_EDGE))
+        value = 1.0 + x + inv_sqrt_pi * tan_t * xp.exp(-slope * slope) - target
+        x = x - value / (1.0 - slope * tan_t)
+    clamp = lambda y: xp.minimum(xp.maximum(y, -_ERF_EDGE), _ERF_EDGE)  # noqa: E731
+    return xp.erfinv(clamp(x)), xp.erfinv(clamp(2.0 * v1 - 1.0))
+
+
+def beckmann_visible_lanes(xp, wo, alpha, u0, u1):
+    """Heitz and d'Eon (2014) with Jakob's slopes: a Beckmann normal (a 3-tuple, local frame)
+    visible from ``wo`` (z > 0)."""
+    wp = normalized(xp, (alpha * wo[0], alpha * wo[1], wo[2]))
+    sin2 = wp[0] * wp[0] + wp[1] * wp[1]
+    tilted = sin2 > 1e-14
+    inv = 1.0 / xp.sqrt(xp.maximum(sin2, 1e-30))
+    cos_phi = xp.select(tilted, xp.minimum(xp.maximum(wp[0] * inv, -1.0), 1.0), 1.0)
+    sin_phi = xp.select(tilted, xp.minimum(xp.maximum(wp[1] * inv, -1.0), 1.0), 0.0)
+    s0, s1 = beckmann_slopes_lanes(xp, wp[2], u0, u1)
+    sx = (cos_phi * s0 - sin_phi * s1) * alpha
+    sy = (sin_phi * s0 + cos_phi * s1) * alpha
+    return normalized(xp, (-sx, -sy, 1.0 + 0.0 * sx))
+
+
+def beckmann_D(cos_h: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
+    """Beckmann normal distribution D(h) (N,) for cosines ``cos_h`` (N,)."""
+    return beckmann_D_lanes(TORCH, cos_h, alpha)
 
 
 def beckmann_G1(cos_v: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
-    """Beckmann's Smith masking G1 (N,), Walter et al.'s rational approximation (Mitsuba 3's form),
-    for cosines ``cos_v`` (N,) (1 at normal incidence, 0 below)."""
-    c2 = (cos_v * cos_v).clamp_min(1e-30)
-    s2 = (1.0 - c2).clamp_min(0.0)
-    a = (c2 / (alpha * alpha * s2).clamp_min(1e-30)).sqrt()  # 1 / (alpha tan theta)
-    g = torch.where(a >= 1.6, 1.0, (3.535 * a + 2.181 * a * a) / (1.0 + 2.276 * a + 2.577 * a * a))
-    return torch.where(cos_v > 0, torch.where(s2 > 0, g, 1.0), 0.0)
-
-
-def beckmann_slopes_11(cos_theta: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-    """Slopes (N, 2) of Beckmann normals of roughness 1 visible from a direction at ``cos_theta``
-    (N,) in the xz plane (x towards it), from uniforms ``u`` (N, 2): Jakob's inversion (module
-    docstring), in float64."""
-    c = cos_theta.double().clamp(1e-12, 1.0)
-    u = u.double().clamp(1e-6, 1.0 - 1e-6)
-    tan_t = (1.0 - c * c).clamp_min(0.0).sqrt() / c
-    cot_t = 1.0 / tan_t.clamp_min(1e-300)
-    inv_sqrt_pi = 1.0 / math.sqrt(math.pi)
-    maxval = torch.erf(cot_t)
-    x = maxval - (maxval + 1.0) * torch.erf(torch.sqrt(-torch.log(u[:, 0])))
-    target = u[:, 0] * (1.0 + maxval + inv_sqrt_pi * tan_t * torch.exp(-cot_t * cot_t))
-    edge = 1.0 - 1e-15
-    for _ in range(3):  # Newton steps in the erf domain
-        slope = torch.erfinv(x.clamp(-edge, edge))
-        value = 1.0 + x + inv_sqrt_pi * tan_t * torch.exp(-slope * slope) - target
-        x = x - value / (1.0 - slope * tan_t)
-    return torch.erfinv(torch.stack([x, 2.0 * u[:, 1] - 1.0], dim=1).clamp(-edge, edge))
+    """Beckmann's Smith masking G1 (N,) for cosines ``cos_v`` (N,)."""
+    return beckmann_G1_lanes(TORCH, cos_v, alpha)
 
 
 def beckmann_sample_visible(wo_local: torch.Tensor, alpha: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-    """Heitz and d'Eon (2014) with Jakob's slopes: a Beckmann normal (N, 3), local frame, visible
-    from ``wo_local`` (N, 3) (z > 0)."""
-    a = alpha.double()
-    wp = normalize(torch.stack([a * wo_local[:, 0].double(), a * wo_local[:, 1].double(), wo_local[:, 2].double()], dim=1))
-    sin2 = wp[:, 0] ** 2 + wp[:, 1] ** 2
-    inv = torch.where(sin2 > 1e-14, sin2.clamp_min(1e-300).rsqrt(), 0.0)
-    cos_phi = torch.where(sin2 > 1e-14, (wp[:, 0] * inv).clamp(-1, 1), 1.0)
-    sin_phi = torch.where(sin2 > 1e-14, (wp[:, 1] * inv).clamp(-1, 1), 0.0)
-    s = beckmann_slopes_11(wp[:, 2], u)
-    sx = (cos_phi * s[:, 0] - sin_phi * s[:, 1]) * a
-    sy = (sin_phi * s[:, 0] + cos_phi * s[:, 1]) * a
-    return normalize(torch.stack([-sx, -sy, torch.ones_like(sx)], dim=1)).to(wo_local.dtype)
+    """A Beckmann normal (N, 3) visible from ``wo_local`` (N, 3): :func:`beckmann_visible_lanes` as
+    eager torch."""
+    return torch.stack(beckmann_visible_lanes(TORCH, tuple(wo_local.unbind(1)), alpha, u[:, 0], u[:, 1]), dim=1)
 
 
 # ---------------------------------------------------------------- the interface materials use
@@ -176,6 +225,11 @@ class Distribution(ABC):
     #: the name scene files give it (Mitsuba's ``distribution``), and how messages spell it
     name: str
     label: str
+    #: its D, G1 and visible-normal sampling written against the array interface (``(xp, cos_h,
+    #: alpha)``, ``(xp, cos_v, alpha)``, ``(xp, wo, alpha, u0, u1)``): the torch methods evaluate them
+    D_lanes: staticmethod
+    G1_lanes: staticmethod
+    visible_lanes: staticmethod
 
     @abstractmethod
     def D(self, cos_h: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
@@ -200,6 +254,7 @@ class Distribution(ABC):
 
 class _GGX(Distribution):
     name, label = "ggx", "GGX"
+    D_lanes, G1_lanes, visible_lanes = staticmethod(ggx_D_lanes), staticmethod(ggx_G1_lanes), staticmethod(ggx_visible_lanes)
 
     def D(self, cos_h, alpha):
         return ggx_D(cos_h, alpha)
@@ -213,6 +268,7 @@ class _GGX(Distribution):
 
 class _Beckmann(Distribution):
     name, label = "beckmann", "Beckmann"
+    D_lanes, G1_lanes, visible_lanes = staticmethod(beckmann_D_lanes), staticmethod(beckmann_G1_lanes), staticmethod(beckmann_visible_lanes)
 
     def D(self, cos_h, alpha):
         return beckmann_D(cos_h, alpha)

@@ -13,10 +13,11 @@ import torch
 
 from invrender import registry
 from invrender.plugins.bsdfs.metal_iors import METAL_IORS
-from invrender.plugins.bsdfs.metals import CONDUCTOR_CONSTANTS, ConductorFresnel
+from invrender.plugins.bsdfs.metals import CONDUCTOR_CONSTANTS, ConductorFresnel, conductor_lanes
 from invrender.scene.kinds import SPECULAR_REFLECTANCE_RGB as SPECULAR_REFLECTANCE
 from invrender.scene.plugins import Param
-from invrender.core.bsdf import BSDFSample, DeltaBSDF, Lobe, ShadingPoint
+from invrender.core import lanes
+from invrender.core.bsdf import LaneBSDF, LaneForm, Lobe, ShadingPoint
 from invrender.vec import dot
 
 
@@ -25,25 +26,35 @@ def reflect(wo: torch.Tensor, n: torch.Tensor) -> torch.Tensor:
     return 2.0 * dot(wo, n)[:, None] * n - wo
 
 
+def eval_lanes(xp, p, ps, wo, wi, front):
+    """A delta lobe: no value, no density."""
+    zero = 0.0 * wo[2]
+    return (zero, zero, zero), zero
+
+
+def sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1):
+    """The reflection ``(-wo_x, -wo_y, wo_z)``, weight ``k_s F(cos_o)`` (zero where ``wo`` lies
+    below the shading normal), flagged delta."""
+    above = xp.select(wo[2] > 0.0, 1.0, 0.0)
+    weight = lanes.scale(lanes.scale(p["specular_reflectance"], conductor_lanes(xp, wo[2], p["eta"], p["k"])), above)
+    return (-wo[0], -wo[1], wo[2]), weight, 0.0 * wo[2], xp.full(True, u0)
+
+
 @registry.MATERIALS.register
-class Mirror(ConductorFresnel, DeltaBSDF):
+class Mirror(ConductorFresnel, LaneBSDF):
     type_name = "mirror"
     lobes = Lobe.DELTA_REFLECTION
     params = {"specular_reflectance": Param(SPECULAR_REFLECTANCE, 1.0)}
     constants = dict(CONDUCTOR_CONSTANTS)
     doc = "perfect specular reflector (eta, k: a named metal or given; default Fresnel 1), two-sided"
 
-    def specular_lobes(self, sp: ShadingPoint) -> list[tuple[torch.Tensor, torch.Tensor]]:
-        """The reflection, weight k_s F (zero where ``wo`` lies below the shading normal)."""
-        cos_o = dot(sp.n, sp.wo)
-        above = (cos_o > 0)[:, None].to(sp.wo.dtype)
-        weight = self.param("specular_reflectance", sp) * above
-        fresnel = self.fresnel(sp, cos_o)
-        return [(reflect(sp.wo, sp.n), weight if fresnel is None else weight * fresnel)]
+    def lane_form(self) -> LaneForm:
+        return LaneForm((("specular_reflectance", 3), ("eta", 3), ("k", 3)), eval_lanes, sample_lanes)
 
-    def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
-        ((wi, weight),) = self.specular_lobes(sp)
-        return self.delta_sample(wi, weight)
+    def specular_lobes(self, sp: ShadingPoint) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """The reflection, weight k_s F (the lane form's one sample)."""
+        bs = self.sample(sp, sp.wo.new_zeros(sp.count), sp.wo.new_zeros(sp.count, 2))
+        return [(bs.wi, bs.weight)]
 
     # ---- its aliases in the scene formats (read through the registry)
 
