@@ -287,6 +287,72 @@ def vertex(fused: FusedScene, hits: tuple, d, beta, pdf_dir, delta, keys, depth:
     return out
 
 
+def rho_tangents(xp, rho, emitted, direct, lit, material_hit, counts: tuple, materials: int) -> tuple:
+    """Per lane, one vertex's derivatives in the materials' reflectance (:class:`TangentFilm`): a
+    contribution C with n factors of rho_m has ``n C / rho_m`` (0 in a channel where rho_m is 0).
+
+    Args:
+        rho: (M * 4,) Float the materials' rho rows (RGB and a pad); emitted, direct: 3 Floats the
+            vertex's emission and direct light; lit: Bool the direct light's sample is unoccluded;
+            material_hit: UInt the vertex's material (its direct light has one more factor of it);
+            counts: M UInts the factors of each rho in the path's throughput.
+    Returns:
+        M 3-tuples of Floats: per material, the derivative of the lane's two contributions.
+    """
+    out, lit_direct = [], tuple(xp.select(lit, direct[c], 0.0) for c in range(3))
+    for m in range(materials):
+        r = xp.gather_rows(rho, xp.full(m, material_hit), 4)
+        n = xp.float(counts[m])
+        nd = xp.select(material_hit == m, n + 1.0, n)
+        keep = nd > 0.0
+        out.append(tuple(xp.select(keep & (r[c] > 0.0), (n * emitted[c] + nd * lit_direct[c]) / r[c], 0.0) for c in range(3)))
+    return tuple(out)
+
+
+def tangents_add(pixel, counts, rho, emitted, tangents: tuple, direct, occluded, scatter: bool, jacobian: torch.Tensor | None = None, places: torch.Tensor | None = None):
+    """One bounce's contributions in the scene's constant parameters (slots 0 .. M - 1 the materials'
+    rho, M .. the emitters' eps): with a ``jacobian`` (P, 3, S) float64 their derivatives added per
+    pixel, channel and slot (:func:`rho_tangents` run by :func:`~invrender.core.compiled.run`; the
+    factor beside eps for its emitter), and/or with ``places`` (S,) int64 their monomial codes
+    ``sum_s k_s places[s]`` (k_s the factors of slot s; -1 where there is no contribution: path
+    records' codes); then each path's vertex material counted in ``counts`` (N, M) int32 (its
+    throughput's factors of each rho) when the paths ``scatter`` on.
+
+    Args:
+        pixel: (N,) int64 film index; rho (M, 3); emitted, direct (N, 3) the bounce's contributions
+            (``direct`` zero where occluded); tangents: the extra outputs of :func:`vertex`;
+        occluded: (N,) bool the shadow rays' answers (None: no emitter samples).
+    Returns:
+        (codes of the emission (N,), of the direct light (N,)) int64 with ``places``, else None.
+    """
+    n, materials = pixel.shape[0], rho.shape[0]
+    emitted_factor, emitter_hit, direct_factor, emitter_sampled, material_hit = tangents
+    lit = emitter_sampled >= 0
+    lit = lit & ~occluded if occluded is not None else torch.zeros_like(lit)
+    hit = emitter_hit >= 0
+    codes = None
+    if places is not None:
+        base = (counts.to(torch.int64) * places[:materials]).sum(1)
+        to_emitter = places[materials:]
+        code_e = torch.where(hit, base + to_emitter.index_select(0, emitter_hit.clamp(min=0)), -1)
+        code_d = base + places.index_select(0, material_hit) + to_emitter.index_select(0, emitter_sampled.clamp(min=0))
+        codes = (code_e, torch.where(lit, code_d, -1))
+    if jacobian is not None and n:
+        slots = jacobian.shape[2]
+        rows = torch.nn.functional.pad(rho.detach().float(), (0, 1)).reshape(-1)
+        out = compiled.run(rho_tangents, pixel.device, rows, emitted, direct, lit, material_hit, tuple(counts.unbind(1)), materials=materials)
+        d_rho = torch.stack(out, dim=2).to(torch.float64)  # (N, 3, M)
+        jacobian.index_add_(0, pixel, torch.nn.functional.pad(d_rho, (0, slots - materials)))
+        flat, channel = jacobian.view(-1), torch.arange(3, device=pixel.device)
+        for took, emitter, factor in ((hit, emitter_hit, emitted_factor), (lit, emitter_sampled, direct_factor)):
+            k = took.nonzero()[:, 0]
+            at = (pixel.index_select(0, k)[:, None] * 3 + channel) * slots + materials + emitter.index_select(0, k)[:, None].to(torch.int64)
+            flat.index_add_(0, at.reshape(-1), factor.index_select(0, k).to(torch.float64).reshape(-1))
+    if scatter and n:
+        counts.view(-1).index_add_(0, torch.arange(n, device=pixel.device) * materials + material_hit, torch.ones(n, dtype=counts.dtype, device=pixel.device))
+    return codes
+
+
 def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film, settings) -> None:
     """Follow ``state``'s camera rays with the fused bounce and add each term to ``film`` (and,
     into a :class:`TangentFilm`, each pixel's derivatives); ``settings``: the integrator's
@@ -320,7 +386,7 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
             occluded = ctx.accel.occluded(shadow_o, shadow_d, shadow_t)
             direct.masked_fill_(occluded[:, None], 0.0)
         if coded is not None:  # path records: each contribution with its monomial's code
-            code_e, code_d = kernels.tangents_add(pixel, counts, rho, emitted, out[11:], direct, occluded, more, places=coded)
+            code_e, code_d = tangents_add(pixel, counts, rho, emitted, out[11:], direct, occluded, more, places=coded)
             film.add_coded(depth, pixel, code_e, emitted)  # term depth
             if occluded is not None:
                 film.add_coded(depth + 1, pixel, code_d, direct)  # term depth + 1
@@ -329,7 +395,7 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
             if occluded is not None:
                 film.add(depth + 1, pixel, direct)  # term depth + 1
             if tangents:
-                kernels.tangents_add(pixel, counts, rho, emitted, out[11:], direct, occluded, more, jacobian=film.jacobian)
+                tangents_add(pixel, counts, rho, emitted, out[11:], direct, occluded, more, jacobian=film.jacobian)
         if not more:
             break
         if depth + 1 >= rr_start or fused.absorbing:
