@@ -70,11 +70,9 @@ def child(args) -> dict:
     for name in PARAMS:
         scene.params[name].requires_grad_(True)
     # what the Mitsuba child has done before its baseline (its plugins loaded, its scene's BVH built):
-    # Warp's kernels loaded and the Embree scene built, one-time costs of a process
-    from invrender.backends import kernels
+    # the Embree scene built, a one-time cost of a process
     from invrender.backends.accel import intersector_for
 
-    kernels.load(torch.device("cpu"))
     intersector_for(scene.triangles)
     baseline = rss_mib()
 

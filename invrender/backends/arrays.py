@@ -304,10 +304,15 @@ class DrJitArrays:
         return self.UInt(x)
 
     def udiv(self, a, b):
-        return a // b
+        return a // self._divisor(b)
 
     def umod(self, a, b):
-        return a % b
+        return a % self._divisor(b)
+
+    def _divisor(self, b):
+        """``b`` at least 1: LLVM's vector division traps on the zeros of a kernel's unused tail
+        lanes (a divisor read per lane), where no lane of the array divides by zero."""
+        return self.dr.maximum(b, 1) if isinstance(b, self.UInt) and self.dr.width(b) > 1 else b
 
     def ult(self, a, b):
         return a < b
