@@ -26,23 +26,23 @@ the two give the same image within float rounding (``tests/transport/test_fused.
 decision that float rounding flips changes one path). Its compiled and eager evaluations agree lane
 by lane (``tests/transport/test_lanes.py``, ``tests/plugins/test_lane_forms.py``).
 
-It applies (:func:`tables`) where the Warp kernels run (:func:`~invrender.backends.kernels.enabled`:
-the derivative kernel below is still Warp's), the integrator's vertex step is the random walk's
+It applies (:func:`tables`) on the CPU and CUDA unless switched off
+(:func:`~invrender.backends.kernels.fused_bounce`), where the integrator's vertex step is the random walk's
 or the path tracer's own (``fused_direct``), every material type gives its lane form
 (:meth:`BSDF.lane_form <invrender.core.bsdf.BSDF.lane_form>`, its torch methods not overridden)
 with parameters that are colours or textures, every emitter type gives its lane form
 (:meth:`Light.lanes <invrender.core.lights.Light.lanes>`), the camera sees emitters, there is no
 ambient term, no parameter is per vertex, and no parameter carries a gradient or a forward-mode
 tangent; and, per chunk, where the film has no hooks (:func:`takes`: path records' and replay's
-adjoint films do). Everywhere else the torch bounce runs. ``INVRENDER_KERNELS=steps`` switches it
-off (the kernels of single steps stay), ``INVRENDER_KERNELS=torch`` with the other kernels;
-``INVRENDER_BOUNCE=torch`` runs the kernel as eager torch.
+adjoint films do). Everywhere else the torch bounce runs. ``INVRENDER_KERNELS=steps`` (or
+``torch``) switches it off; ``INVRENDER_BOUNCE=torch`` runs the kernel as eager torch.
 
 **Derivatives carried forward.** In a flat Lambertian scene lit by area emitters (``FusedScene.rho``)
 every factor of a path is linear in one of the scene's constant parameters (a material's rho, an
 emitter's eps), so each path counts its throughput's factors of each rho as it scatters
-(``counts``), and one more kernel per bounce (:func:`~invrender.backends.kernels.tangents_add`,
-Warp) turns a contribution C into what two callers need: its derivatives, ``n C / rho_m`` and the
+(``counts``), and one more step per bounce (:func:`tangents_add`: the lane function
+:func:`rho_tangents`, then torch's ``index_add_`` by pixel) turns a contribution C into what two
+callers need: its derivatives, ``n C / rho_m`` and the
 factor beside eps, summed per pixel into a :class:`TangentFilm` (path replay's gradient is then one
 contraction with ``dl/dI``, no adjoint trace: :mod:`invrender.estimators.replay`), or its
 monomial's code ``sum_s k_s R_s`` for a film that takes contributions by code (path records:
@@ -221,7 +221,7 @@ class TangentFilm(Film):
     Every factor of a Lambertian path is linear in one of them, so a contribution C with n factors
     of rho_m has derivative ``n C / rho_m`` (0 in a channel where rho_m is 0, as path replay
     gives there) and one with the factor eps_e the factor beside it; a path counts its throughput's
-    factors per material as it scatters (``kernels.tangents_add``).
+    factors per material as it scatters (:func:`tangents_add`).
     """
 
     def __init__(self, width: int, height: int, slots: int, device):
@@ -272,7 +272,7 @@ def vertex(fused: FusedScene, hits: tuple, d, beta, pdf_dir, delta, keys, depth:
         (N, 3) each adds if unoccluded (term depth + 1; tmax 0, a ray no backend traces, where the
         light sample adds nothing whatever the parameters), then the continued paths' o, d, beta
         (N, 3), pdf (N,), delta (N,) and alive (N,) bool (without ``more``: None, the direct light
-        zero). With ``tangents``, then also what :func:`~invrender.backends.kernels.tangents_add`
+        zero). With ``tangents``, then also what :func:`tangents_add`
         reads: the factors beside eps of the emission (N, 3) and of the direct light (N, 3), the
         emitters hit (N,) int32 (-1: none) and sampled (N,), and the materials hit (N,).
     """
