@@ -12,7 +12,7 @@ gradient is forward + backward (for invrender: ``render`` + ``mse_loss(...).back
 
 Every configuration runs in its own fresh subprocess (``--child``), which reports as JSON its peak
 RSS (``VmHWM``; see ``_measure.peak_rss_mib``) and its RSS after the imports, the scene load (for
-invrender with its Embree scene built and Warp's kernels loaded, as Mitsuba's child has loaded its
+invrender with its Embree scene built, as Mitsuba's child has loaded its
 plugins and built its scene) and the target load, but before the first gradient. The *increment* (peak minus that baseline) is the
 gradient's own memory; the absolute peak also counts torch/Dr.Jit and their libraries. Tables:
 

@@ -41,7 +41,7 @@ adjoint films do). Everywhere else the torch bounce runs. ``INVRENDER_KERNELS=st
 every factor of a path is linear in one of the scene's constant parameters (a material's rho, an
 emitter's eps), so each path counts its throughput's factors of each rho as it scatters
 (``counts``), and one more step per bounce (:func:`tangents_add`: the lane function
-:func:`rho_tangents`, then torch's ``index_add_`` by pixel) turns a contribution C into what two
+:func:`rho_tangents`, then torch's adds by pixel) turns a contribution C into what two
 callers need: its derivatives, ``n C / rho_m`` and the
 factor beside eps, summed per pixel into a :class:`TangentFilm` (path replay's gradient is then one
 contraction with ``dl/dI``, no adjoint trace: :mod:`invrender.estimators.replay`), or its
@@ -312,8 +312,8 @@ def rho_tangents(xp, rho, emitted, direct, lit, material_hit, counts: tuple, mat
 def tangents_add(pixel, counts, rho, emitted, tangents: tuple, direct, occluded, scatter: bool, jacobian: torch.Tensor | None = None, places: torch.Tensor | None = None):
     """One bounce's contributions in the scene's constant parameters (slots 0 .. M - 1 the materials'
     rho, M .. the emitters' eps): with a ``jacobian`` (P, 3, S) float64 their derivatives added per
-    pixel, channel and slot (:func:`rho_tangents` run by :func:`~invrender.core.compiled.run`; the
-    factor beside eps for its emitter), and/or with ``places`` (S,) int64 their monomial codes
+    pixel, channel and slot (:func:`rho_tangents` run by :func:`~invrender.core.compiled.run`, then
+    added by flat index; the factor beside eps for its emitter), and/or with ``places`` (S,) int64 their monomial codes
     ``sum_s k_s places[s]`` (k_s the factors of slot s; -1 where there is no contribution: path
     records' codes); then each path's vertex material counted in ``counts`` (N, M) int32 (its
     throughput's factors of each rho) when the paths ``scatter`` on.
@@ -341,15 +341,16 @@ def tangents_add(pixel, counts, rho, emitted, tangents: tuple, direct, occluded,
         slots = jacobian.shape[2]
         rows = torch.nn.functional.pad(rho.detach().float(), (0, 1)).reshape(-1)
         out = compiled.run(rho_tangents, pixel.device, rows, emitted, direct, lit, material_hit, tuple(counts.unbind(1)), materials=materials)
-        d_rho = torch.stack(out, dim=2).to(torch.float64)  # (N, 3, M)
-        jacobian.index_add_(0, pixel, torch.nn.functional.pad(d_rho, (0, slots - materials)))
-        flat, channel = jacobian.view(-1), torch.arange(3, device=pixel.device)
+        flat = jacobian.view(-1)  # (P * 3 * S,): added to by flat index (1-D scatter_add_: the fastest of torch's adds by index on the CPU)
+        row = (pixel[:, None] * 3 + torch.arange(3, device=pixel.device)) * slots  # (N, 3) each channel's slot 0
+        for m, d_rho in enumerate(out):
+            flat.scatter_add_(0, (row + m).view(-1), d_rho.to(torch.float64).view(-1))
         for took, emitter, factor in ((hit, emitter_hit, emitted_factor), (lit, emitter_sampled, direct_factor)):
             k = took.nonzero()[:, 0]
-            at = (pixel.index_select(0, k)[:, None] * 3 + channel) * slots + materials + emitter.index_select(0, k)[:, None].to(torch.int64)
-            flat.index_add_(0, at.reshape(-1), factor.index_select(0, k).to(torch.float64).reshape(-1))
+            at = row.index_select(0, k) + (materials + emitter.index_select(0, k).to(torch.int64))[:, None]
+            flat.scatter_add_(0, at.view(-1), factor.index_select(0, k).to(torch.float64).view(-1))
     if scatter and n:
-        counts.view(-1).index_add_(0, torch.arange(n, device=pixel.device) * materials + material_hit, torch.ones(n, dtype=counts.dtype, device=pixel.device))
+        counts.view(-1).scatter_add_(0, torch.arange(n, device=pixel.device) * materials + material_hit, torch.ones(n, dtype=counts.dtype, device=pixel.device))
     return codes
 
 
