@@ -3,15 +3,15 @@
     python bench/forward.py [--resolution 128] [--spp 64] [--max-depth 8] [--repeats 5]
     python bench/forward.py --mesh                  # also an 82k-triangle scene
     python bench/forward.py --memory-spp 65536      # peak RSS of a 64x64 render at that spp
-    python bench/forward.py --breakdown             # one worker's time: ray queries, Warp kernels, torch
+    python bench/forward.py --breakdown             # one worker's time: ray queries, compiled kernels, torch
     python bench/forward.py --rays                  # one render's ray queries: Embree's packets against embreex
 
 invrender with each intersection backend (``--backends``; default embree and warp on the CPU) and
 (when installed) Mitsuba 3 ``llvm_ad_rgb`` ``path`` render the same scene at the same settings in
 the same process, alternating, after one warm-up each; the median time of each gives the
 throughput and the ratio. Two more rows render with the first backend without the fused bounce
-(``INVRENDER_KERNELS=steps``: the kernels of single steps on) and without any kernel (their torch
-reference expressions, ``INVRENDER_KERNELS=torch``): what each gains; with ``embree``, one more with
+(``INVRENDER_KERNELS=steps``: the compiled single steps on) and as eager torch throughout
+(``INVRENDER_KERNELS=torch`` with ``INVRENDER_BOUNCE=torch``): what each gains; with ``embree``, one more with
 embreex's single rays instead of Embree's 16-ray packets (``INVRENDER_EMBREE=embreex``). ``--scenes`` times other
 scenes the same way (e.g. ``cornell_specular``, ``forward/textured_floor.toml``: the torch bounce). With a GPU present the same follows on CUDA (invrender's warp and torch
 backends, Mitsuba's ``cuda_ad_rgb``). Figures are printed, never asserted.
@@ -37,6 +37,7 @@ import invrender as ir  # noqa: E402
 from invrender.backends import embree_native  # noqa: E402
 from invrender.backends.embree_native import ENV as EMBREE_ENV  # noqa: E402
 from invrender.backends.kernels import ENV as KERNELS_ENV  # noqa: E402
+from invrender.backends.arrays import ENV as BOUNCE_ENV  # noqa: E402
 
 
 def sphere_in_box(n: int):
@@ -64,13 +65,14 @@ def throughput(args, results: Results) -> None:
     backends = args.backends.split(",") if args.backends else (["embree", "warp"] if device.type == "cpu" else ["warp", "torch"])
     if not args.no_torch_steps:
         backends.append(f"{backends[0]}/steps")  # the same without the fused bounce (the kernels of single steps on)
-        backends.append(f"{backends[0]}/torch")  # the same, with every kernel off (their torch reference)
+        backends.append(f"{backends[0]}/torch")  # the same, as eager torch throughout (the reference)
     if "embree" in backends and embree_native.library()[0] is not None:
         backends.append("embree/embreex")  # Embree's single rays through embreex instead of its 16-ray packets
     with_mitsuba = mitsuba_ref.available() and not args.no_mitsuba and device.type == "cpu"
     scenes = [ir.load_scene(name, resolution=(n, n)) for name in args.scenes.split(",")]
     if args.mesh:
         scenes.append(sphere_in_box(n))
+    bounce = os.environ.get(BOUNCE_ENV, "drjit")
     for scene in scenes:
         mi_scene = None
         if with_mitsuba:
@@ -80,6 +82,7 @@ def throughput(args, results: Results) -> None:
             backend, kernels = variant.split("/") if "/" in variant else (variant, "warp")
             os.environ[EMBREE_ENV] = "embreex" if kernels == "embreex" else "packets"
             os.environ[KERNELS_ENV] = "warp" if kernels == "embreex" else kernels
+            os.environ[BOUNCE_ENV] = "torch" if kernels == "torch" else bounce  # eager torch throughout
             if device.type == "cuda":
                 torch.cuda.synchronize()
             start = time.perf_counter()
@@ -89,7 +92,7 @@ def throughput(args, results: Results) -> None:
             return time.perf_counter() - start
 
         for b in backends:
-            ours(0, b)  # warm-up: builds the BVH, compiles Warp's kernels once
+            ours(0, b)  # warm-up: builds the BVH, compiles the kernels once
         if mi_scene is not None:
             mitsuba_ref.time_render(mi_scene, spp)  # warm-up: compiles the kernels
         times, mi_times = {b: [] for b in backends}, []
@@ -126,10 +129,10 @@ def throughput(args, results: Results) -> None:
 
 def breakdown(args, results: Results) -> None:
     """Where a render's time goes: the Cornell box rendered by one worker thread with Embree on one
-    thread, the time inside the ray queries and inside the kernels' launches (Warp's, and the
-    compiled bounce's: :func:`invrender.core.compiled.run`) measured, the
+    thread, the time inside the ray queries and inside the compiled steps (the bounce written once:
+    :func:`invrender.core.compiled.run`) measured, the
     rest being torch's operations and Python; with the fused bounce and without it."""
-    from invrender.backends import accel, kernels
+    from invrender.backends import accel
     from invrender.core import compiled, context
 
     torch.set_num_threads(1)  # one worker
@@ -147,7 +150,6 @@ def breakdown(args, results: Results) -> None:
 
     for kind in ("intersect", "occluded"):
         setattr(accel.EmbreeIntersector, kind, timed("rays", getattr(accel.EmbreeIntersector, kind)))
-    kernels.launch = timed("kernels", kernels.launch)
     compiled.run = timed("kernels", compiled.run)  # the bounce written once (Dr.Jit, or eager torch)
     build = context.TransportContext.build
     context.TransportContext.build = staticmethod(lambda scene, device, backend=None, threads=None, *a, **k: build(scene, device, backend, 1, *a, **k))
@@ -155,7 +157,7 @@ def breakdown(args, results: Results) -> None:
     scene = ir.load_scene("cornell_box", resolution=(n, n))
     heading = f"cornell_box {n}x{n}, {spp} spp, max_depth {args.max_depth}: one worker thread, Embree on one thread, medians of {args.repeats}"
     print(heading)
-    rows = results.table(heading, ["bounce", "total s", "ray queries s", "kernels s (Warp, Dr.Jit)", "torch and Python s", "share left to torch and Python"])
+    rows = results.table(heading, ["bounce", "total s", "ray queries s", "kernels s (Dr.Jit)", "torch and Python s", "share left to torch and Python"])
     for choice, label in (("warp", "fused"), ("steps", "unfused (kernels of single steps)")):
         os.environ[KERNELS_ENV] = choice
         ir.render(scene, spp=4, max_depth=args.max_depth, progress=False)
@@ -237,7 +239,7 @@ def main() -> int:
     parser.add_argument("--device", default="cpu", help="cpu or cuda (default: cpu; with a GPU present the CUDA figures follow the CPU ones)")
     parser.add_argument("--no-cuda", action="store_true", help="skip the CUDA figures even when a GPU is present")
     parser.add_argument("--memory-spp", type=int, default=0, help="instead: peak memory of a 64x64 render at this spp")
-    parser.add_argument("--breakdown", action="store_true", help="instead: where one worker's render time goes (ray queries, Warp kernels, torch), with and without the fused bounce")
+    parser.add_argument("--breakdown", action="store_true", help="instead: where one worker's render time goes (ray queries, compiled kernels, torch), with and without the fused bounce")
     parser.add_argument("--rays", action="store_true", help="instead: one render's ray queries traced by Embree's packets and by embreex's single rays, ns per ray")
     add_json_option(parser)
     args = parser.parse_args()

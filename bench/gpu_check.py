@@ -8,7 +8,7 @@ seed, and compares the two:
 - ``render_torch``, ``render_warp``: the Cornell box with the ``torch`` and ``warp`` intersection
   backends (images: largest pixel difference at most 1e-4 of the image's mean);
 - ``kernels``: the compiled bounce (Dr.Jit's CUDA backend on a GPU: the lane functions of
-  ``invrender.core.lanes`` and the plugins) and Warp's remaining kernels against their eager torch
+  ``invrender.core.lanes`` and the plugins, the camera samples among them) against their eager torch
   evaluation on the device (uniforms and camera samples bit for bit, images as above), and their
   image against the CPU's;
 - ``grad_replay``, ``grad_autodiff``: the L2 gradient of four parameters by path replay and by
@@ -129,7 +129,7 @@ def render_with(backend: str, kernel_choice: str | None):
 
 
 def check_kernels(sizes: Sizes, device: torch.device) -> dict:
-    """The compiled bounce and Warp's kernels against eager torch on ``device``; their image for the CPU's."""
+    """The compiled bounce (Dr.Jit) against eager torch on ``device``; its image for the CPU's."""
     from invrender.core.sampler import mirrored, path_keys, uniform
 
     pixel = torch.arange(200_000, device=device)
@@ -146,7 +146,8 @@ def check_kernels(sizes: Sizes, device: torch.device) -> dict:
     ids = torch.arange(5, sizes.resolution**2 * sizes.spp, 3, device=device)
     with Kernels("warp"):
         camera = driver._camera_samples(scene, RenderSettings(spp=sizes.spp, seed=3), ids)
-    expected_camera = driver._camera_samples_torch(scene, RenderSettings(spp=sizes.spp, seed=3), ids)
+    with Kernels("torch"):
+        expected_camera = driver._camera_samples(scene, RenderSettings(spp=sizes.spp, seed=3), ids)
     out["camera_samples"] = ("exact", camera[2])
     out["camera_samples_vs_torch"] = ("self", (camera[2], expected_camera[2], "exact"))
     images = {}
@@ -245,7 +246,7 @@ class Check:
 CHECKS = [
     Check("render_torch", "render, torch backend", render_with("torch", None)),
     Check("render_warp", "render, warp backend (Warp's BVH)", render_with("warp", None), ("warp",)),
-    Check("kernels", "compiled bounce (Dr.Jit) and Warp kernels against eager torch", check_kernels, ("warp",)),
+    Check("kernels", "compiled bounce (Dr.Jit) against eager torch", check_kernels, ()),
     Check("grad_replay", "L2 gradient of 4 parameters, path replay (the fused bounce's forward-mode derivatives)", gradient("replay")),
     Check("grad_replay_torch", "L2 gradient of 4 parameters, path replay with the torch bounce (adjoint pass)", gradient("replay", "torch")),
     Check("grad_autodiff", "L2 gradient of 4 parameters, autodiff", gradient("autodiff")),
@@ -259,7 +260,7 @@ CHECKS = [
 def missing(needs: tuple[str, ...], device: torch.device) -> str | None:
     """Why a check cannot run here (None: it can)."""
     for need in needs:
-        if need == "warp" and kernels.warp_kernels() is None:
+        if need == "warp" and packages.find("warp") is None:
             return f"warp-lang is not installed ({packages.install_hint('warp')})"
         if need == "group":
             if not torch.distributed.is_available():

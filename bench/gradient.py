@@ -12,7 +12,7 @@ gradient is forward + backward (for invrender: ``render`` + ``mse_loss(...).back
 
 Every configuration runs in its own fresh subprocess (``--child``), which reports as JSON its peak
 RSS (``VmHWM``; see ``_measure.peak_rss_mib``) and its RSS after the imports, the scene load (for
-invrender with its Embree scene built and Warp's kernels loaded, as Mitsuba's child has loaded its
+invrender with its Embree scene built, as Mitsuba's child has loaded its
 plugins and built its scene) and the target load, but before the first gradient. The *increment* (peak minus that baseline) is the
 gradient's own memory; the absolute peak also counts torch/Dr.Jit and their libraries. Tables:
 
@@ -70,11 +70,9 @@ def child(args) -> dict:
     for name in PARAMS:
         scene.params[name].requires_grad_(True)
     # what the Mitsuba child has done before its baseline (its plugins loaded, its scene's BVH built):
-    # Warp's kernels loaded and the Embree scene built, one-time costs of a process
-    from invrender.backends import kernels
+    # the Embree scene built, a one-time cost of a process
     from invrender.backends.accel import intersector_for
 
-    kernels.load(torch.device("cpu"))
     intersector_for(scene.triangles)
     baseline = rss_mib()
 

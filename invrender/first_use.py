@@ -1,9 +1,9 @@
 """The work a process does once before its first render: compiling (or loading from the disk cache)
-the Warp kernels (:func:`invrender.backends.kernels.load`) and the Embree packet wrapper
+the Warp BVH's kernels (:func:`invrender.backends.warp_bvh.load`) and the Embree packet wrapper
 (:mod:`invrender.backends.embree_native`). Announced and timed here.
 
-On a fresh machine the compilers take seconds (about 15 s on 2 cores for the CPU kernels and the
-wrapper); from the caches (``~/.cache/warp``, ``~/.cache/invrender``) well under one. So that a
+On a fresh machine the compilers take seconds (about 12 s on 2 cores for the BVH's CPU kernels, a
+few for the wrapper); from the caches (``~/.cache/warp``, ``~/.cache/invrender``) well under one. So that a
 first render does not sit silent meanwhile, a compile prints one line on stderr, once per process
 and thing compiled, while a render that shows progress is being set up (:func:`announcing`); and
 the seconds spent are counted (:func:`seconds`), so that a render's reported speed can leave them

@@ -13,7 +13,10 @@ instead of data-dependent shapes:
   :meth:`select` (``mask ? a : b``), :meth:`shr` (the logical right shift of a UInt),
   :meth:`bits24` (a UInt's low 24 bits as a Float), :meth:`u32` (a UInt constant),
   :meth:`gather_rows` (whole rows of 1, 2, 4, 8 or 16 floats of a table at UInt indices),
-  :meth:`uint` (a Float holding an integer as a UInt), :meth:`full`, :meth:`opaque`.
+  :meth:`uint` (a Float holding an integer as a UInt), :meth:`full`, :meth:`opaque`;
+- on UInt read as unsigned: :meth:`udiv`, :meth:`umod`, :meth:`ult` (``<``; Python's comparisons
+  are signed on :data:`TORCH`'s int32), :meth:`float` (the nearest Float);
+- :meth:`while_loop`: a loop whose lanes run until their condition fails (cycle walking).
 
 Tables are read by rows where they can be: Dr.Jit turns a row of a power-of-two width into packet
 loads, where single-element gathers become the CPU's vector-gather instruction, which on the CPUs
@@ -56,6 +59,16 @@ def _signed(x: int) -> int:
     """A 32-bit unsigned value as the int32 with the same bits."""
     x &= _U32
     return x - (1 << 32) if x >= 1 << 31 else x
+
+
+def _unsigned(x):
+    """The unsigned value of a UInt held as int32 (as int64), or of a Python int."""
+    return x.to(torch.int64) & _U32 if isinstance(x, torch.Tensor) else x & _U32
+
+
+def _int32(x):
+    """An unsigned 32-bit value (int64 tensor or Python int) as :data:`TORCH`'s UInt."""
+    return (x - ((x >> 31) << 32)).to(torch.int32) if isinstance(x, torch.Tensor) else _signed(x)
 
 
 class TorchArrays:
@@ -152,6 +165,42 @@ class TorchArrays:
     def uint(x):
         """A Float holding non-negative integers (< 2^24) as a UInt."""
         return x.to(torch.int32)
+
+    @staticmethod
+    def udiv(a, b):
+        """``a // b`` of UInt (or Python ints) read as unsigned."""
+        return _int32(_unsigned(a) // _unsigned(b))
+
+    @staticmethod
+    def umod(a, b):
+        """``a % b`` of UInt (or Python ints) read as unsigned."""
+        return _int32(_unsigned(a) % _unsigned(b))
+
+    @staticmethod
+    def ult(a, b):
+        """(N,) Bool ``a < b`` of UInt read as unsigned (the sign bits flipped, compared signed)."""
+        return (a ^ -0x80000000) < (b ^ -0x80000000)
+
+    @staticmethod
+    def float(x):
+        """A UInt (or Python int) read as unsigned, as the nearest Float."""
+        u = _unsigned(x)
+        return u.to(torch.float32) if isinstance(u, torch.Tensor) else float(u)
+
+    @staticmethod
+    def while_loop(state: tuple, args: tuple, cond, body) -> tuple:
+        """Run ``state = body(*state, *args)`` on each lane while ``cond(*state, *args)`` holds:
+        ``state`` a tuple of arrays, ``args`` arrays or numbers the loop reads. Eager: each round
+        computes the lanes still running only (new tensors; the inputs are not written)."""
+        state = [s.clone() for s in state]
+        k = cond(*state, *args).nonzero().squeeze(1)
+        while k.shape[0]:  # a synchronization per round
+            sub = [a.index_select(0, k) if isinstance(a, torch.Tensor) and a.ndim else a for a in args]
+            new = body(*(s.index_select(0, k) for s in state), *sub)
+            for s, v in zip(state, new):
+                s[k] = v
+            k = k[cond(*new, *sub)]
+        return tuple(state)
 
     @staticmethod
     def full(value, like):
@@ -261,6 +310,27 @@ class DrJitArrays:
 
     def uint(self, x):
         return self.UInt(x)
+
+    def udiv(self, a, b):
+        return a // self._divisor(b)
+
+    def umod(self, a, b):
+        return a % self._divisor(b)
+
+    def _divisor(self, b):
+        """``b`` at least 1: LLVM's vector division traps on the zeros of a kernel's unused tail
+        lanes (a divisor read per lane), where no lane of the array divides by zero."""
+        return self.dr.maximum(b, 1) if isinstance(b, self.UInt) and self.dr.width(b) > 1 else b
+
+    def ult(self, a, b):
+        return a < b
+
+    def float(self, x):
+        return self.Float(x)
+
+    def while_loop(self, state: tuple, args: tuple, cond, body) -> tuple:
+        """A symbolic loop, compiled into the kernel (each lane stops on its own)."""
+        return tuple(self.dr.while_loop(tuple(state), lambda *s: cond(*s, *args), lambda *s: tuple(body(*s, *args))))
 
     def full(self, value, like):
         """(Computed from ``like``, so a frozen kernel gives it ``like``'s size whatever that is;

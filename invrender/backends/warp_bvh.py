@@ -17,13 +17,115 @@ convention (Embree's) is the weights of the second and third, so the kernels con
 
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
+import threading
+
 import torch
 
-from invrender.backends import kernels, packages
-from invrender.backends.kernels import Vec3, launch
+from invrender import first_use
+from invrender.backends import packages
 
 wp = packages.require("warp", "the warp intersection backend", "use backend 'torch'")
-kernels.warp_kernels()  # wp.init(), quietly, before the first wp.Mesh
+
+
+@contextlib.contextmanager
+def quiet_stderr():
+    """File descriptor 2 on /dev/null meanwhile: Warp's native library and its compiler write there
+    directly, not through Python."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)
+            yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+def _init() -> None:
+    """``wp.init()`` without console output: no banner or compile timings, and on a machine without
+    a CUDA driver (where torch sees none either) not the native library's note that it found none."""
+    wp.config.log_level = wp.LOG_ERROR
+    wp.config.quiet = True
+    if torch.cuda.is_available():
+        wp.init()
+        return
+    with quiet_stderr():
+        wp.init()
+
+
+_init()  # before the first wp.Mesh
+
+_loaded: set[str] = set()
+_loading = threading.Lock()  # one thread at a time redirects stderr and compiles
+
+
+def load(device: torch.device) -> None:
+    """Compile (or load from Warp's cache, ``~/.cache/warp``) this module's kernels for ``device``,
+    once per process, before render threads launch them. Warp's own output, compiler warnings
+    included, is silenced; a compile (not a load from the cache) is announced in one line and its
+    time counted (:mod:`invrender.first_use`)."""
+    key = str(device)
+    if key in _loaded:
+        return
+    with _loading:
+        if key in _loaded:
+            return
+        wp_device = wp.device_from_torch(device)
+        with first_use.compiling(f"the warp_bvh kernels (Warp, {device.type})", _cached(wp_device)):
+            with quiet_stderr():
+                wp.load_module(sys.modules[__name__], device=wp_device)
+        _loaded.add(key)
+
+
+def _cached(device) -> bool:
+    """Are this module's kernels compiled for ``device`` in Warp's kernel cache already? Warp keeps
+    each build in a folder named by the module's identifier (a hash of its code and its block size,
+    1 on the CPU); True where that cannot be told (nothing is announced then)."""
+    try:
+        identifier = wp.get_module(__name__).get_module_identifier(block_dim=1 if device.is_cpu else None)
+        return os.path.isdir(os.path.join(wp.config.kernel_cache_dir, identifier))
+    except Exception:  # another Warp's internals: say nothing rather than something false
+        return True
+
+
+def launch(kernel, n: int, inputs: list, device: torch.device) -> None:
+    """Run ``kernel`` over ``n`` threads on ``device`` (on torch's current stream on CUDA).
+
+    ``inputs``: torch tensors (passed as Warp arrays of their dtype and shape, made contiguous:
+    outputs must be contiguous already, or the kernel writes into a copy), :class:`Vec3` tensors,
+    and scalars. Tensors go to Warp as launch descriptors, not ``wp.array`` objects (which cost
+    tens of microseconds each to build); the tensors they point to are held here until the launch
+    returns (on CUDA, torch's allocator orders their reuse after the kernel). Warp's CPU launches
+    run in the calling thread without the GIL, so the render's worker threads run theirs side by side.
+    """
+    if not n:
+        return
+    held, args = [], []
+    for x in inputs:
+        if isinstance(x, Vec3):
+            x = x.tensor.to(torch.float32).contiguous()
+            args.append(wp.from_torch(x, dtype=wp.vec3, return_ctype=True))
+        elif isinstance(x, torch.Tensor):
+            x = x.contiguous()
+            args.append(wp.from_torch(x, return_ctype=True))
+        else:
+            args.append(x)
+        held.append(x)
+    stream = wp.stream_from_torch(torch.cuda.current_stream(device)) if device.type == "cuda" else None
+    wp.launch(kernel, dim=n, inputs=args, device=wp.device_from_torch(device), stream=stream)
+
+
+class Vec3:
+    """A (N, 3) tensor to be passed to a kernel as an array of ``wp.vec3`` (see :func:`launch`)."""
+
+    __slots__ = ("tensor",)
+
+    def __init__(self, tensor: torch.Tensor):
+        self.tensor = tensor
 
 
 #: accel.RAY_LIMIT: rays with a component beyond it (or NaN, or infinite) are not traced
@@ -81,7 +183,7 @@ class WarpBVH:
         self._indices = torch.arange(points.shape[0], dtype=torch.int32, device=points.device)
         self.device = points.device
         self._mesh = wp.Mesh(points=wp.from_torch(points, dtype=wp.vec3), indices=wp.from_torch(self._indices))
-        kernels.load(self.device, __name__)  # compiled (or loaded) here, not in each render worker
+        load(self.device)  # compiled (or loaded) here, not in each render worker
 
     def _launch(self, kernel, n: int, inputs: list) -> None:
         launch(kernel, n, [self._mesh.id, *inputs], self.device)

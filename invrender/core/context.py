@@ -70,7 +70,7 @@ class TransportContext:
             built from instead of the render's own (:class:`~invrender.core.lights.Light`); None = none.
         """
         tris = scene.triangles.to(device)
-        kernels.load(device)  # compiled or loaded here, before any render thread launches them
+        kernels.fused_bounce(device)  # a bad INVRENDER_KERNELS is said here, before any work
         values = {**scene.params, **(params or {})}
         specs = [scene.material_spec(i) for i in range(len(scene.materials))]
         material_values = [{key: values[param_name(m, key)].to(device) for key in spec.spec.params} for m, spec in zip(scene.materials, specs)]

@@ -14,7 +14,6 @@ end in float64, so the image is the same whatever the number of workers.
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 import sys
 import threading
@@ -26,11 +25,10 @@ from tqdm.auto import tqdm
 
 from invrender.errors import ParameterError
 from invrender.scene.scene import Scene
-from invrender.backends import kernels
 from invrender.core import ranks
 from invrender.core.context import PathState
 from invrender.core.memory import keep_freed_blocks
-from invrender.core.sampler import bounce_salts, mirrored, multijitter, path_keys, seed_salt, uniform
+from invrender.core.camera_samples import camera_samples
 from invrender.validate import MAX_SPP, check_bool, check_choice, check_float, check_int
 
 #: working-set estimate per path in a chunk (state, hits, temporaries, backend copies), bytes
@@ -217,7 +215,7 @@ def film_weights(scene: Scene, settings: RenderSettings, device: torch.device) -
     border = float(scene.film.border)
     for start in range(0, total, step):
         ids = torch.arange(start, min(total, start + step), dtype=torch.int64, device=device)
-        samples = _camera_samples(scene, settings, ids) if settings.plan is None and kernels.enabled(device) else _camera_samples_torch(scene, settings, ids)
+        samples = _camera_samples(scene, settings, ids)
         rfilter.footprint(samples[2] - border, scene.width, scene.height).weights_into(weights)
     return weights
 
@@ -278,10 +276,7 @@ def camera_paths(scene: Scene, settings: RenderSettings, ids: torch.Tensor, posi
     Returns the :class:`PathState`, or (state, film positions (N, 2) float32) with ``positions``.
     """
     camera = scene.camera
-    if settings.plan is None and kernels.enabled(ids.device):
-        pixel, keys, film_xy, lens = _camera_samples(scene, settings, ids)
-    else:
-        pixel, keys, film_xy, lens = _camera_samples_torch(scene, settings, ids)
+    pixel, keys, film_xy, lens = _camera_samples(scene, settings, ids)
     border = scene.film.border
     if border:
         film_xy = film_xy - float(border)  # the grown grid's origin is border pixels up and left of the image's
@@ -295,47 +290,9 @@ def camera_paths(scene: Scene, settings: RenderSettings, ids: torch.Tensor, posi
     return (state, film_xy) if positions else state
 
 
-#: the sampler names of the camera-sample kernel's modes
-_MODES = {"stratified": 0, "independent": 1, "antithetic": 2}
-
-
 def _camera_samples(scene: Scene, settings: RenderSettings, ids: torch.Tensor):
-    """(pixel, keys, film positions, lens uniforms or None) of path ids ``ids`` (no plan) from one
-    kernel: the values of :func:`_camera_samples_torch`."""
-    spp = settings.spp
-    cells = (spp + 1) // 2 if settings.sampler == "antithetic" else spp
-    m = max(d for d in range(1, math.isqrt(cells) + 1) if cells % d == 0)  # sampler.multijitter's factors
-    lens = not scene.camera.is_pinhole
-    salts = bounce_salts(0, 4 if lens else 2, ids.device)
-    key_salt, pattern_salt = seed_salt(settings.seed), seed_salt(settings.seed ^ 0x5EED)
-    return kernels.camera_samples(ids, spp, sampled_size(scene)[0], _MODES[settings.sampler], key_salt, pattern_salt, cells, m, salts, lens)
-
-
-def _camera_samples_torch(scene: Scene, settings: RenderSettings, ids: torch.Tensor):
     """(pixel (N,) int64, keys (N,) int32, film positions (N, 2) in pixels, lens uniforms (N, 2) or
-    None for a pinhole camera) of path ids (N,): the torch reference (and the only way with a plan)."""
-    if settings.plan is None:
-        spp = settings.spp
-        pixel, sample = ids // spp, ids % spp
-        first = 0
-    else:
-        pixel, sample = settings.plan.locate(ids)
-        spp, first = settings.plan.count.to(ids.device)[pixel], settings.plan.first.to(ids.device)[pixel]
-    cell, cells = sample, spp
-    if settings.sampler == "antithetic":
-        cell, cells = sample // 2, (spp + 1) // 2
-        keys = mirrored(path_keys(settings.seed, pixel, first + 2 * cell), sample % 2 == 1)
-    else:
-        keys = path_keys(settings.seed, pixel, first + sample)
-    pinhole = scene.camera.is_pinhole
-    u = uniform(keys, 0, 2 if pinhole else 4)
-    if settings.sampler == "independent":
-        fx, fy = u[:, 0], u[:, 1]
-    else:
-        first = torch.as_tensor(first, dtype=torch.int64, device=ids.device)
-        pattern = path_keys(settings.seed ^ 0x5EED, pixel, first).long() & 0xFFFFFFFF  # one per pixel and pass
-        fx, fy = multijitter(pattern, cell, cells, u[:, :2]).unbind(1)
+    None for a pinhole camera) of path ids (N,) (:mod:`invrender.core.camera_samples`)."""
     width = sampled_size(scene)[0]
-    film_xy = torch.stack([(pixel % width).float() + fx, (pixel // width).float() + fy], dim=1)
-    return pixel, keys, film_xy, None if pinhole else u[:, 2:4]
+    return camera_samples(ids, settings.spp, width, settings.sampler, settings.seed, not scene.camera.is_pinhole, settings.plan)
 

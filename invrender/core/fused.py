@@ -26,23 +26,23 @@ the two give the same image within float rounding (``tests/transport/test_fused.
 decision that float rounding flips changes one path). Its compiled and eager evaluations agree lane
 by lane (``tests/transport/test_lanes.py``, ``tests/plugins/test_lane_forms.py``).
 
-It applies (:func:`tables`) where the Warp kernels run (:func:`~invrender.backends.kernels.enabled`:
-the derivative kernel below is still Warp's), the integrator's vertex step is the random walk's
+It applies (:func:`tables`) on the CPU and CUDA unless switched off
+(:func:`~invrender.backends.kernels.fused_bounce`), where the integrator's vertex step is the random walk's
 or the path tracer's own (``fused_direct``), every material type gives its lane form
 (:meth:`BSDF.lane_form <invrender.core.bsdf.BSDF.lane_form>`, its torch methods not overridden)
 with parameters that are colours or textures, every emitter type gives its lane form
 (:meth:`Light.lanes <invrender.core.lights.Light.lanes>`), the camera sees emitters, there is no
 ambient term, no parameter is per vertex, and no parameter carries a gradient or a forward-mode
 tangent; and, per chunk, where the film has no hooks (:func:`takes`: path records' and replay's
-adjoint films do). Everywhere else the torch bounce runs. ``INVRENDER_KERNELS=steps`` switches it
-off (the kernels of single steps stay), ``INVRENDER_KERNELS=torch`` with the other kernels;
-``INVRENDER_BOUNCE=torch`` runs the kernel as eager torch.
+adjoint films do). Everywhere else the torch bounce runs. ``INVRENDER_KERNELS=steps`` (or
+``torch``) switches it off; ``INVRENDER_BOUNCE=torch`` runs the kernel as eager torch.
 
 **Derivatives carried forward.** In a flat Lambertian scene lit by area emitters (``FusedScene.rho``)
 every factor of a path is linear in one of the scene's constant parameters (a material's rho, an
 emitter's eps), so each path counts its throughput's factors of each rho as it scatters
-(``counts``), and one more kernel per bounce (:func:`~invrender.backends.kernels.tangents_add`,
-Warp) turns a contribution C into what two callers need: its derivatives, ``n C / rho_m`` and the
+(``counts``), and one more step per bounce (:func:`tangents_add`: the lane function
+:func:`rho_tangents`, then torch's adds by pixel) turns a contribution C into what two
+callers need: its derivatives, ``n C / rho_m`` and the
 factor beside eps, summed per pixel into a :class:`TangentFilm` (path replay's gradient is then one
 contraction with ``dl/dI``, no adjoint trace: :mod:`invrender.estimators.replay`), or its
 monomial's code ``sum_s k_s R_s`` for a film that takes contributions by code (path records:
@@ -221,7 +221,7 @@ class TangentFilm(Film):
     Every factor of a Lambertian path is linear in one of them, so a contribution C with n factors
     of rho_m has derivative ``n C / rho_m`` (0 in a channel where rho_m is 0, as path replay
     gives there) and one with the factor eps_e the factor beside it; a path counts its throughput's
-    factors per material as it scatters (``kernels.tangents_add``).
+    factors per material as it scatters (:func:`tangents_add`).
     """
 
     def __init__(self, width: int, height: int, slots: int, device):
@@ -272,7 +272,7 @@ def vertex(fused: FusedScene, hits: tuple, d, beta, pdf_dir, delta, keys, depth:
         (N, 3) each adds if unoccluded (term depth + 1; tmax 0, a ray no backend traces, where the
         light sample adds nothing whatever the parameters), then the continued paths' o, d, beta
         (N, 3), pdf (N,), delta (N,) and alive (N,) bool (without ``more``: None, the direct light
-        zero). With ``tangents``, then also what :func:`~invrender.backends.kernels.tangents_add`
+        zero). With ``tangents``, then also what :func:`tangents_add`
         reads: the factors beside eps of the emission (N, 3) and of the direct light (N, 3), the
         emitters hit (N,) int32 (-1: none) and sampled (N,), and the materials hit (N,).
     """
@@ -292,6 +292,73 @@ def _take(x: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
     if x.ndim == 2 and x.stride(0) == 1 and x.shape[1] > 1:
         return x.t().index_select(1, index).t()
     return x.index_select(0, index)
+
+
+def rho_tangents(xp, rho, emitted, direct, lit, material_hit, counts: tuple, materials: int) -> tuple:
+    """Per lane, one vertex's derivatives in the materials' reflectance (:class:`TangentFilm`): a
+    contribution C with n factors of rho_m has ``n C / rho_m`` (0 in a channel where rho_m is 0).
+
+    Args:
+        rho: (M * 4,) Float the materials' rho rows (RGB and a pad); emitted, direct: 3 Floats the
+            vertex's emission and direct light; lit: Bool the direct light's sample is unoccluded;
+            material_hit: UInt the vertex's material (its direct light has one more factor of it);
+            counts: M UInts the factors of each rho in the path's throughput.
+    Returns:
+        M 3-tuples of Floats: per material, the derivative of the lane's two contributions.
+    """
+    out, lit_direct = [], tuple(xp.select(lit, direct[c], 0.0) for c in range(3))
+    for m in range(materials):
+        r = xp.gather_rows(rho, xp.full(m, material_hit), 4)
+        n = xp.float(counts[m])
+        nd = xp.select(material_hit == m, n + 1.0, n)
+        keep = nd > 0.0
+        out.append(tuple(xp.select(keep & (r[c] > 0.0), (n * emitted[c] + nd * lit_direct[c]) / r[c], 0.0) for c in range(3)))
+    return tuple(out)
+
+
+def tangents_add(pixel, counts, rho, emitted, tangents: tuple, direct, occluded, scatter: bool, jacobian: torch.Tensor | None = None, places: torch.Tensor | None = None):
+    """One bounce's contributions in the scene's constant parameters (slots 0 .. M - 1 the materials'
+    rho, M .. the emitters' eps): with a ``jacobian`` (P, 3, S) float64 their derivatives added per
+    pixel, channel and slot (:func:`rho_tangents` run by :func:`~invrender.core.compiled.run`, then
+    added by flat index; the factor beside eps for its emitter), and/or with ``places`` (S,) int64 their monomial codes
+    ``sum_s k_s places[s]`` (k_s the factors of slot s; -1 where there is no contribution: path
+    records' codes); then each path's vertex material counted in ``counts`` (N, M) int32 (its
+    throughput's factors of each rho) when the paths ``scatter`` on.
+
+    Args:
+        pixel: (N,) int64 film index; rho (M, 3); emitted, direct (N, 3) the bounce's contributions
+            (``direct`` zero where occluded); tangents: the extra outputs of :func:`vertex`;
+        occluded: (N,) bool the shadow rays' answers (None: no emitter samples).
+    Returns:
+        (codes of the emission (N,), of the direct light (N,)) int64 with ``places``, else None.
+    """
+    n, materials = pixel.shape[0], rho.shape[0]
+    emitted_factor, emitter_hit, direct_factor, emitter_sampled, material_hit = tangents
+    lit = emitter_sampled >= 0
+    lit = lit & ~occluded if occluded is not None else torch.zeros_like(lit)
+    hit = emitter_hit >= 0
+    codes = None
+    if places is not None:
+        base = (counts.to(torch.int64) * places[:materials]).sum(1)
+        to_emitter = places[materials:]
+        code_e = torch.where(hit, base + to_emitter.index_select(0, emitter_hit.clamp(min=0)), -1)
+        code_d = base + places.index_select(0, material_hit) + to_emitter.index_select(0, emitter_sampled.clamp(min=0))
+        codes = (code_e, torch.where(lit, code_d, -1))
+    if jacobian is not None and n:
+        slots = jacobian.shape[2]
+        rows = torch.nn.functional.pad(rho.detach().float(), (0, 1)).reshape(-1)
+        out = compiled.run(rho_tangents, pixel.device, rows, emitted, direct, lit, material_hit, tuple(counts.unbind(1)), materials=materials)
+        flat = jacobian.view(-1)  # (P * 3 * S,): added to by flat index (1-D scatter_add_: the fastest of torch's adds by index on the CPU)
+        row = (pixel[:, None] * 3 + torch.arange(3, device=pixel.device)) * slots  # (N, 3) each channel's slot 0
+        for m, d_rho in enumerate(out):
+            flat.scatter_add_(0, (row + m).view(-1), d_rho.to(torch.float64).reshape(-1))
+        for took, emitter, factor in ((hit, emitter_hit, emitted_factor), (lit, emitter_sampled, direct_factor)):
+            k = took.nonzero()[:, 0]
+            at = row.index_select(0, k) + (materials + emitter.index_select(0, k).to(torch.int64))[:, None]
+            flat.scatter_add_(0, at.view(-1), factor.index_select(0, k).to(torch.float64).reshape(-1))
+    if scatter and n:
+        counts.view(-1).scatter_add_(0, torch.arange(n, device=pixel.device) * materials + material_hit, torch.ones(n, dtype=counts.dtype, device=pixel.device))
+    return codes
 
 
 def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film, settings) -> None:
@@ -327,7 +394,7 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
             occluded = ctx.accel.occluded(shadow_o, shadow_d, shadow_t)
             direct.masked_fill_(occluded[:, None], 0.0)
         if coded is not None:  # path records: each contribution with its monomial's code
-            code_e, code_d = kernels.tangents_add(pixel, counts, rho, emitted, out[11:], direct, occluded, more, places=coded)
+            code_e, code_d = tangents_add(pixel, counts, rho, emitted, out[11:], direct, occluded, more, places=coded)
             film.add_coded(depth, pixel, code_e, emitted)  # term depth
             if occluded is not None:
                 film.add_coded(depth + 1, pixel, code_d, direct)  # term depth + 1
@@ -336,7 +403,7 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
             if occluded is not None:
                 film.add(depth + 1, pixel, direct)  # term depth + 1
             if tangents:
-                kernels.tangents_add(pixel, counts, rho, emitted, out[11:], direct, occluded, more, jacobian=film.jacobian)
+                tangents_add(pixel, counts, rho, emitted, out[11:], direct, occluded, more, jacobian=film.jacobian)
         if not more:
             break
         if depth + 1 >= rr_start or fused.absorbing:

@@ -6,7 +6,8 @@ is a tuple ``(x, y, z)`` of arrays; branches are masks (:meth:`select`), never d
 shapes. :func:`invrender.core.compiled.run` evaluates them on torch tensors.
 
 - the counter-based random numbers (:func:`uniform`, bit for bit those of
-  :func:`invrender.core.sampler.uniform`);
+  :func:`invrender.core.sampler.uniform`), path keys (:func:`path_key`) and the pixels'
+  multi-jittered patterns (:func:`permuted`, :func:`multijitter`);
 - the scene's tables as rows (:func:`triangle_rows`, :func:`light_rows`, :class:`Triangle`), a
   hit's geometry (:func:`hit`), the origin of a ray leaving a surface (:func:`spawn`), Veach's
   power heuristic, the choice of an emissive triangle by its cdf (:func:`pick_light`);
@@ -96,6 +97,66 @@ def uniform(xp, key, salt):
     flip = xp.u32(0) - (key & 1)
     h = lowbias32(xp, (key & xp.u32(0xFFFFFFFE)) ^ salt) ^ flip
     return xp.bits24(h) * (1.0 / 16777216.0)
+
+
+def path_key(xp, salt, pixel, sample):
+    """The key of the paths of UInt counters ``pixel`` and ``sample`` (their low 32 bits) for the
+    seed's ``salt`` (:func:`invrender.core.sampler.seed_salt`): ``lowbias32(lowbias32(pixel ^
+    salt) ^ sample)``, the lowest bit clear (:func:`invrender.core.sampler.path_keys`)."""
+    return lowbias32(xp, lowbias32(xp, pixel ^ salt) ^ sample) & xp.u32(0xFFFFFFFE)
+
+
+def _kensler(xp, x, p, w):
+    """One round of Kensler's permutation hash (2013) of UInt ``x`` by pattern ``p`` on the bits of
+    mask ``w``: xors with the pattern, odd multiplications modulo 2^32, masked xor-shifts."""
+    x = (x ^ p) * xp.u32(0xE170893D)
+    x = x ^ xp.shr(p, 16)
+    x = x ^ xp.shr(x & w, 4)
+    x = x ^ xp.shr(p, 8)
+    x = x * xp.u32(0x0929EB3F)
+    x = x ^ xp.shr(p, 23)
+    x = x ^ xp.shr(x & w, 1)
+    x = x * (xp.shr(p, 27) | 1)
+    x = x * xp.u32(0x6935FA69)
+    x = x ^ xp.shr(x & w, 11)
+    x = x * xp.u32(0x74DCB303)
+    x = x ^ xp.shr(x & w, 2)
+    x = x * xp.u32(0x9E501CC3)
+    x = x ^ xp.shr(x & w, 2)
+    x = (x * xp.u32(0xC860A3DF)) & w
+    return x ^ xp.shr(x, 5)
+
+
+def permuted(xp, i, n, p):
+    """Element ``i`` (UInt, < n) of the pseudo-random permutation of ``0 .. n - 1`` chosen by
+    pattern ``p`` (Kensler 2013, section 3): his hash, a bijection of the k-bit words (2^k >= n),
+    walked until it lands below n (cycle walking keeps it a bijection of 0 .. n - 1), then offset
+    by ``p`` modulo n. ``n`` (>= 1) and ``p``: UInt arrays or scalars."""
+    w = n - 1
+    for s in (1, 2, 4, 8, 16):
+        w = w | xp.shr(w, s)
+    x = _kensler(xp, i, p, w)
+    (x,) = xp.while_loop((x,), (n, p, w), lambda x, n, p, w: ~xp.ult(x, n), lambda x, n, p, w: (_kensler(xp, x, p, w),))
+    q = xp.umod(p, n)
+    t = n - q  # (x + p) mod n without leaving 32 bits: x + q below n, else x - (n - q)
+    return xp.select(xp.ult(x, t), x + q, x - t)
+
+
+def multijitter(xp, pattern, cell, cells, m, jitter):
+    """Film positions in the unit pixel of correlated multi-jittered samples
+    (:func:`invrender.core.sampler.multijitter` documents the construction): sample ``cell`` of
+    ``cells`` (factored ``m`` by ``cells / m``) of pattern ``pattern`` (UInt), placed in its
+    sub-cell by ``jitter`` (2 Floats in [0, 1)). Returns 2 Floats in [0, 1)."""
+    r = xp.udiv(cells, m)
+    s = permuted(xp, cell, cells, pattern * xp.u32(0x51633E2D))
+    col, row = xp.umod(s, m), xp.udiv(s, m)
+    sub_col = permuted(xp, row, r, pattern * xp.u32(0x63D83595))  # distinct per row: x strata distinct
+    sub_row = permuted(xp, col, m, pattern * xp.u32(0xA511E9B3))
+    fm, fr = xp.float(m), xp.float(r)
+    x = (xp.float(col) + (xp.float(sub_col) + jitter[0]) / fr) / fm
+    y = (xp.float(row) + (xp.float(sub_row) + jitter[1]) / fm) / fr
+    below = 1.0 - 2.0**-24
+    return xp.minimum(x, below), xp.minimum(y, below)
 
 
 # ---- tables, read by rows ----------------------------------------------------------------------

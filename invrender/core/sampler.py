@@ -76,8 +76,7 @@ def path_keys(seed: int, pixel: torch.Tensor, sample: torch.Tensor) -> torch.Ten
     Returns:
         (N,) int32 keys (bits read as unsigned), the lowest bit clear (not mirrored).
     """
-    k = _mix(_low32(pixel) ^ _signed(seed_salt(seed)))
-    return _mix(k ^ _low32(sample)) & -2
+    return lanes.path_key(TORCH, _signed(seed_salt(seed)), _low32(pixel), _low32(sample))
 
 
 def mirrored(keys: torch.Tensor, mirror: torch.Tensor | bool = True) -> torch.Tensor:
@@ -127,50 +126,17 @@ _U32 = 0xFFFFFFFF
 
 
 def _permuted(i: torch.Tensor, n: torch.Tensor, pattern: torch.Tensor) -> torch.Tensor:
-    """Element ``i`` of a pseudo-random permutation of ``0 .. n - 1`` chosen by ``pattern``.
-
-    Kensler's hash (2013, section 3): a bijection of the k-bit words (2^k >= n) made of xors with
-    the pattern, odd multiplications modulo 2^k and masked xor-shifts, walked until it lands below
-    n (cycle walking keeps it a bijection of 0 .. n - 1).
+    """Element ``i`` of a pseudo-random permutation of ``0 .. n - 1`` chosen by ``pattern``
+    (:func:`invrender.core.lanes.permuted`, Kensler's hash with cycle walking, evaluated by torch).
 
     Args:
         i: (N,) int64 in ``[0, n)``.
-        n: (N,) int64 permutation lengths >= 1 (< 2^31).
+        n: (N,) int64 permutation lengths >= 1 (< 2^32).
         pattern: (N,) int64 unsigned 32-bit pattern numbers.
     Returns:
         (N,) int64 in ``[0, n)``; for fixed (n, pattern) distinct i give distinct values.
     """
-    w = n - 1
-    for s in (1, 2, 4, 8, 16):
-        w = w | (w >> s)
-    p = pattern
-
-    def step(x, p, w):
-        x = ((x ^ p) * 0xE170893D) & _U32
-        x = x ^ (p >> 16)
-        x = x ^ ((x & w) >> 4)
-        x = x ^ (p >> 8)
-        x = (x * 0x0929EB3F) & _U32
-        x = x ^ (p >> 23)
-        x = x ^ ((x & w) >> 1)
-        x = (x * (1 | (p >> 27))) & _U32
-        x = (x * 0x6935FA69) & _U32
-        x = x ^ ((x & w) >> 11)
-        x = (x * 0x74DCB303) & _U32
-        x = x ^ ((x & w) >> 2)
-        x = (x * 0x9E501CC3) & _U32
-        x = x ^ ((x & w) >> 2)
-        x = ((x * 0xC860A3DF) & _U32) & w
-        return x ^ (x >> 5)
-
-    x = step(i, p, w)
-    out = x >= n
-    while bool(out.any()):  # a few rounds: each lands below n with probability > 1/2
-        k = out.nonzero().squeeze(1)
-        y = step(x[k], p[k], w[k])
-        x[k] = y
-        out[k] = y >= n[k]
-    return (x + p) % n
+    return lanes.permuted(TORCH, _low32(i), _low32(n), _low32(pattern)).to(torch.int64) & _U32
 
 
 def _columns(count: torch.Tensor) -> torch.Tensor:
@@ -206,11 +172,5 @@ def multijitter(pattern: torch.Tensor, sample: torch.Tensor, count: torch.Tensor
     """
     count = torch.as_tensor(count, dtype=torch.int64, device=sample.device).expand_as(sample)
     m = _columns(count) if count.numel() else count
-    r = count // m
-    s = _permuted(sample, count, (pattern * 0x51633E2D) & _U32)
-    col, row = s % m, s // m
-    sub_col = _permuted(row, r, (pattern * 0x63D83595) & _U32)  # distinct per row: x strata distinct
-    sub_row = _permuted(col, m, (pattern * 0xA511E9B3) & _U32)
-    x = (col.float() + (sub_col.float() + jitter[:, 0]) / r.float()) / m.float()
-    y = (row.float() + (sub_row.float() + jitter[:, 1]) / m.float()) / r.float()
-    return torch.stack([x, y], dim=1).clamp_max_(1.0 - 2.0**-24)
+    x, y = lanes.multijitter(TORCH, _low32(pattern), _low32(sample), _low32(count), _low32(m), jitter.unbind(1))
+    return torch.stack([x, y], dim=1)

@@ -10,6 +10,7 @@ import torch
 
 import invrender as ir
 from invrender.backends import kernels
+from invrender.core import fused as fused_bounce
 
 pytestmark = pytest.mark.warp
 FORWARD = Path(__file__).resolve().parents[2] / "forward"
@@ -20,8 +21,8 @@ NAMES = ["white.reflectance", "red.reflectance", "green.reflectance", "light.emi
 def test_fused_records_equal_the_tangent_decoded_ones(names, strategy, monkeypatch):
     scene = ir.load_scene("cornell_box", resolution=(16, 16))
     coded = []  # the bounces whose codes the kernels gave
-    tangents_add = kernels.tangents_add
-    monkeypatch.setattr(kernels, "tangents_add", lambda *a, **k: (coded.append(k.get("places") is not None), tangents_add(*a, **k))[1])
+    tangents_add = fused_bounce.tangents_add
+    monkeypatch.setattr(fused_bounce, "tangents_add", lambda *a, **k: (coded.append(k.get("places") is not None), tangents_add(*a, **k))[1])
     fused = ir.record_paths(scene, names, spp=16, max_depth=6, seed=3, progress=False, strategy=strategy)
     assert coded and all(coded)
     monkeypatch.setenv(kernels.ENV, "steps")  # the torch bounce, forward-mode tangents

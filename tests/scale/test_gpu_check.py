@@ -53,11 +53,12 @@ def test_cpu_smoke_test_runs_every_check(tmp_path):
 
 
 def test_without_warp_the_warp_checks_are_skipped_with_the_reason(tmp_path):
+    """The kernels check needs no Warp (the compiled bounce is Dr.Jit's): it runs."""
     done, summary = run(tmp_path, "--device", "cpu", "--quick", "--only", "render_torch,render_warp,kernels,throughput", blocked=True)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     status = {c["name"]: (c["status"], c.get("reason")) for c in summary["checks"]}
     why = "warp-lang is not installed (pip install warp-lang)"
-    assert status == {"render_torch": ("passed", None), "render_warp": ("skipped", why), "kernels": ("skipped", why)}
+    assert status == {"render_torch": ("passed", None), "render_warp": ("skipped", why), "kernels": ("passed", None)}
     skipped = {s["name"]: s["reason"] for s in summary["skipped"]}
     assert skipped["throughput warp"] == why and skipped["throughput embree"] == "embreex is not installed (pip install embreex)"
     assert f"skipped render_warp: {why}" in done.stdout

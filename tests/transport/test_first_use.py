@@ -9,7 +9,6 @@ import torch
 
 import invrender as ir
 from invrender import first_use
-from invrender.backends import kernels
 
 
 def test_a_compile_is_announced_once_and_only_where_progress_shows(capsys):
@@ -31,15 +30,14 @@ def test_a_compile_is_announced_once_and_only_where_progress_shows(capsys):
 
 
 @pytest.mark.warp
-def test_the_render_kernels_are_in_warps_cache_once_loaded():
-    """kernels._cached reads Warp's cache layout (a folder per module identifier, block size 1 on
+def test_the_bvh_kernels_are_in_warps_cache_once_loaded():
+    """warp_bvh._cached reads Warp's cache layout (a folder per module identifier, block size 1 on
     the CPU): after a load it must say cached, or a first use would never be told apart."""
+    from invrender.backends import warp_bvh
+
     cpu = torch.device("cpu")
-    if not kernels.enabled(cpu):
-        pytest.skip("the Warp kernels are switched off (INVRENDER_KERNELS)")
-    kernels.load(cpu)
-    wp = kernels.warp_kernels().wp
-    assert kernels._cached(wp, kernels.KERNELS, wp.device_from_torch(cpu))
+    warp_bvh.load(cpu)
+    assert warp_bvh._cached(warp_bvh.wp.device_from_torch(cpu))
 
 
 def test_render_cli_leaves_compiling_out_of_its_speed(tmp_path, monkeypatch, capsys):

@@ -1,6 +1,7 @@
-"""The fused primal bounce and the camera-sample kernel against the torch bounce and expressions
-they stand for (kept as the reference): the same images within float rounding, the camera's
-numbers bit for bit, and the torch bounce wherever the fused one does not apply."""
+"""The fused primal bounce against the torch bounce it stands for (kept as the reference) and the
+camera samples compiled against their eager torch evaluation: the same images within float
+rounding, the camera's numbers bit for bit (and as the former torch expressions gave them), and
+the torch bounce wherever the fused one does not apply."""
 
 from __future__ import annotations
 
@@ -12,13 +13,12 @@ import torch
 
 import invrender as ir
 from invrender.core import driver, fused
-from invrender.backends import kernels
+from invrender.backends import arrays, kernels
 from invrender.core.context import TransportContext
 from invrender.core.driver import RenderSettings
 from invrender.core.film import Film, PathFilm
 from invrender.plugins.integrators import make_integrator
 
-pytestmark = pytest.mark.warp
 FORWARD = Path(__file__).resolve().parents[2] / "forward"
 CPU = torch.device("cpu")
 
@@ -62,9 +62,9 @@ def test_the_fused_bounce_renders_the_torch_bounces_image(integrator, options, u
 def test_the_fused_bounce_applies_only_where_nothing_needs_the_torch_bounce(tmp_path, monkeypatch):
     box = ir.load_scene("cornell_box", resolution=(8, 8))
     assert _fused_scene(box) is not None
-    for choice in ("steps", "torch"):  # switched off, with or without the kernels of single steps
+    for choice in ("steps", "torch"):  # switched off (both names say the same now)
         monkeypatch.setenv(kernels.ENV, choice)
-        assert _fused_scene(box) is None and kernels.enabled(CPU) == (choice == "steps")
+        assert _fused_scene(box) is None and not kernels.fused_bounce(CPU)
     monkeypatch.delenv(kernels.ENV)
     assert _fused_scene(box, "path", hemisphere="uniform") is not None  # the lane form samples as the BSDF does
     assert _fused_scene(box, "utah") is None  # a vertex step of its own
@@ -142,28 +142,49 @@ def test_the_fused_bounces_derivatives_are_autodiffs(strategy, unfused):
             assert float(b.abs().max()) > 0 and (a - b).abs().max() < 1e-4 * float(b.abs().max())
 
 
+def _camera_samples_both_ways(monkeypatch, scene, settings, ids):
+    """The camera samples compiled (Dr.Jit) and as eager torch."""
+    got = driver._camera_samples(scene, settings, ids)
+    monkeypatch.setenv(arrays.ENV, "torch")
+    expected = driver._camera_samples(scene, settings, ids)
+    monkeypatch.delenv(arrays.ENV)
+    return got, expected
+
+
+#: keys and film positions of path ids 3, 5, 7 (sampler, spp, seed 123, cornell_box 24x20): the
+#: values the former torch expressions (and Warp's kernel) gave, bit for bit
+FORMER = {
+    ("stratified", 5): ([779660490, -348255248, 1043623692], [[0.9599143862724304, 0.13033129274845123], [1.336341381072998, 0.1691148281097412], [1.6254956722259521, 0.5860918164253235]]),
+    ("antithetic", 7): ([-242894807, 1191612429, -348255248], [[0.3525664806365967, 0.6730439066886902], [0.7886312007904053, 0.910433828830719], [1.170426607131958, 0.4613935351371765]]),
+    ("independent", 33): ([779660490, 136106338, 530251282], [[0.7995719313621521, 0.651656448841095], [0.7004150152206421, 0.038420140743255615], [0.6433205604553223, 0.10037928819656372]]),
+}
+
+
 @pytest.mark.parametrize("sampler", ["stratified", "independent", "antithetic"])
-def test_camera_samples_equal_the_torch_expressions_bit_for_bit(sampler):
+def test_camera_samples_compiled_equal_eager_torch_bit_for_bit(sampler, monkeypatch):
     for name, res in (("cornell_box", (24, 20)), (str(FORWARD / "cornell_far.toml"), (9, 7))):
         scene = ir.load_scene(name, resolution=res)
         for spp in (1, 5, 7, 16, 33):
             settings = RenderSettings(spp=spp, sampler=sampler, seed=123)
             ids = torch.arange(3, res[0] * res[1] * spp, 2, dtype=torch.int64)  # not consecutive, not from 0
-            got, expected = driver._camera_samples(scene, settings, ids), driver._camera_samples_torch(scene, settings, ids)
+            got, expected = _camera_samples_both_ways(monkeypatch, scene, settings, ids)
             for a, b in zip(got, expected):
                 assert (a is None and b is None) or (a.dtype == b.dtype and torch.equal(a, b)), (name, spp)
+            if name == "cornell_box" and (sampler, spp) in FORMER:
+                keys, film = FORMER[sampler, spp]
+                assert got[1][:3].tolist() == keys and got[2][:3].tolist() == film
 
 
-def test_a_thin_lens_camera_draws_its_lens_point_in_the_kernel():
+def test_a_thin_lens_camera_draws_its_lens_point_in_the_kernel(monkeypatch):
     scene = ir.load_scene("cornell_box", resolution=(8, 8))
     lens = dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, aperture_radius=0.05, focus_distance=3.0))
     if lens.camera.is_pinhole:
         pytest.skip("the camera has no thin-lens fields")
     ids = torch.arange(0, 64 * 4, dtype=torch.int64)
     settings = RenderSettings(spp=4, seed=1)
-    got, expected = driver._camera_samples(lens, settings, ids), driver._camera_samples_torch(lens, settings, ids)
+    got, expected = _camera_samples_both_ways(monkeypatch, lens, settings, ids)
     assert got[3] is not None and all(torch.equal(a, b) for a, b in zip(got, expected))
-    assert kernels.enabled(CPU)
+    assert 0.0 <= float(got[3].min()) and float(got[3].max()) < 1.0
 
 
 def _smooth_spheres(materials: dict, texture_sampling=None, sky=None) -> ir.Scene:

@@ -1,8 +1,8 @@
 """The compiled steps of a bounce (the lane functions of invrender.core.lanes and the plugins, run by
 Dr.Jit) against their eager torch evaluation and the formulas they stand for: the random numbers
 bit for bit, hit and emitter-sample geometry to float rounding, and the same images and gradients
-with either; Warp's remaining kernels (camera samples, the derivative kernel) switch off with
-INVRENDER_KERNELS=torch."""
+with either; the fused bounce switches off with INVRENDER_KERNELS=torch (or steps), and none of it
+needs Warp."""
 
 from __future__ import annotations
 
@@ -20,7 +20,6 @@ from invrender.plugins.emitters.area import Area
 from invrender.core.sampler import mirrored, path_keys, uniform
 from invrender.core.surface import surface_at
 
-pytestmark = pytest.mark.warp  # every test here runs the Warp kernels
 FORWARD = Path(__file__).resolve().parents[2] / "forward"
 CPU = torch.device("cpu")
 
@@ -28,7 +27,7 @@ CPU = torch.device("cpu")
 @pytest.fixture
 def reference(monkeypatch):
     """A context manager-free switch: call it to run everything as eager torch (the lane functions
-    and Warp's kernels' torch expressions)."""
+    evaluated by torch, the torch bounce)."""
 
     def use_torch(on: bool = True) -> None:
         monkeypatch.setenv(kernels.ENV, "torch" if on else "warp")
@@ -38,10 +37,11 @@ def reference(monkeypatch):
 
 
 def test_kernels_run_on_cpu_and_switch_off(reference, monkeypatch):
-    assert kernels.enabled(CPU)
+    assert kernels.fused_bounce(CPU)
     reference()
-    assert not kernels.enabled(CPU)
-    assert not kernels.enabled(torch.device("meta"))  # no Warp backend there: torch runs
+    assert not kernels.fused_bounce(CPU)
+    reference(False)
+    assert not kernels.fused_bounce(torch.device("meta"))  # no compiled backend there: torch runs
     monkeypatch.setenv(kernels.ENV, "wrap")
     with pytest.raises(ParameterError, match="INVRENDER_KERNELS must be 'warp', 'steps' or 'torch', got 'wrap'"):
         ir.render(ir.load_scene("cornell_box", resolution=(4, 4)), spp=1, progress=False)
