@@ -22,6 +22,10 @@ import math
 
 import torch
 
+#: the eager torch namespace, re-exported for plugins (which never import a backend) whose torch
+#: entry points evaluate their lane functions
+from invrender.backends.arrays import TORCH  # noqa: F401
+
 _M1, _M2 = 0x7FEB352D, 0x846CA68B
 
 

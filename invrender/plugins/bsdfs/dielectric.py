@@ -22,6 +22,7 @@ from invrender import registry
 from invrender.errors import SceneError
 from invrender.plugins.bsdfs.mirror import reflect
 from invrender.scene.plugins import Constant
+from invrender.core.lanes import TORCH
 from invrender.core.bsdf import BSDFSample, DeltaBSDF, Lobe, ShadingPoint
 from invrender.vec import dot
 
@@ -42,16 +43,23 @@ def check_relative_ior(where: str, int_ior: float, ext_ior: float) -> None:
                          f"[{1.0 / MAX_RELATIVE_IOR:g}, {MAX_RELATIVE_IOR:g}] (real media lie between 1 and about 4)")
 
 
-def fresnel_dielectric(cos_i: torch.Tensor, eta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Unpolarized Fresnel reflectance F (N,) and the transmitted cosine cos_t (N,) (0 under total
-    internal reflection), for incident cosines ``cos_i`` (N,) >= 0 and index ratios ``eta`` (N,)."""
+def fresnel_lanes(xp, cos_i, eta):
+    """Unpolarized Fresnel reflectance F and the transmitted cosine cos_t (0 under total internal
+    reflection), for incident cosines ``cos_i`` >= 0 and index ratios ``eta`` (transmitted over
+    incident), lane by lane against the array interface (:mod:`invrender.core.lanes`)."""
     cos2_t = 1.0 - (1.0 - cos_i * cos_i) / (eta * eta)
-    tir = cos2_t <= 0
-    cos_t = cos2_t.clamp_min(0.0).sqrt()
-    r_s = (cos_i - eta * cos_t) / (cos_i + eta * cos_t).clamp_min(1e-12)
-    r_p = (eta * cos_i - cos_t) / (eta * cos_i + cos_t).clamp_min(1e-12)
-    F = torch.where(tir, 1.0, 0.5 * (r_s * r_s + r_p * r_p))
+    tir = cos2_t <= 0.0
+    cos_t = xp.sqrt(xp.maximum(cos2_t, 0.0))
+    r_s = (cos_i - eta * cos_t) / xp.maximum(cos_i + eta * cos_t, 1e-12)
+    r_p = (eta * cos_i - cos_t) / xp.maximum(eta * cos_i + cos_t, 1e-12)
+    F = xp.select(tir, 1.0, 0.5 * (r_s * r_s + r_p * r_p))
     return F, cos_t
+
+
+def fresnel_dielectric(cos_i: torch.Tensor, eta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`fresnel_lanes` on torch tensors: F (N,) and cos_t (N,) for ``cos_i`` (N,) >= 0 and
+    ``eta`` (N,) (any float dtype; differentiable)."""
+    return fresnel_lanes(TORCH, cos_i, eta)
 
 
 @registry.MATERIALS.register
