@@ -20,7 +20,6 @@ TYPES = MATERIALS.names()
 #: materials still written in torch alone (the torch bounce renders them); shrinks to nothing
 NOT_YET = {
     "mirror",
-    "dielectric",
     "glossy",
     "glossy_beckmann",
     "plastic",
