@@ -27,7 +27,6 @@ NOT_YET = {
     "roughplastic_ggx",
     "roughdielectric",
     "roughdielectric_ggx",
-    "thindielectric",
     "principled",
     "principledthin",
 }
