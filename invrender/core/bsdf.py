@@ -393,11 +393,15 @@ class LaneBSDF(BSDF):
         return wo if wi is None else (wo, tuple(sp.frame.to_local(wi).unbind(1)))
 
     def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        if not self.has(Lobe.SMOOTH):  # delta lobes only: no density (the form's eval is 0), nothing to compute
+            return sp.wo.new_zeros(sp.count, 3)
         wo, wl = self._local(sp, wi)
         f, _ = self.lane_form().eval(TORCH, self.lane_values(sp, False), self.lane_values(sp, True), wo, wl, sp.front)
         return torch.stack(f, dim=1)
 
     def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        if not self.has(Lobe.SMOOTH):
+            return sp.wo.new_zeros(sp.count)
         wo, wl = self._local(sp, wi)
         ps = self.lane_values(sp, True)
         _, pdf = self.lane_form().eval(TORCH, ps, ps, wo, wl, sp.front)

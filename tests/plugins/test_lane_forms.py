@@ -19,10 +19,7 @@ from invrender.registry import MATERIALS
 TYPES = MATERIALS.names()
 #: materials still written in torch alone (the torch bounce renders them); shrinks to nothing
 NOT_YET = {
-    "mirror",
     "dielectric",
-    "glossy",
-    "glossy_beckmann",
     "plastic",
     "roughplastic",
     "roughplastic_ggx",
