@@ -22,10 +22,6 @@ import math
 
 import torch
 
-#: the eager torch namespace, re-exported for plugins (which never import a backend) whose torch
-#: entry points evaluate their lane functions
-from invrender.backends.arrays import TORCH  # noqa: F401
-
 _M1, _M2 = 0x7FEB352D, 0x846CA68B
 
 
@@ -53,6 +49,17 @@ def scale(a, s):
 
 def select3(xp, mask, a, b):
     return tuple(xp.select(mask, x, y) for x, y in zip(a, b))
+
+
+def normalize(xp, a):
+    """``a / |a|`` (zero vectors stay zero, as :func:`invrender.vec.normalize`)."""
+    length = xp.maximum(xp.sqrt(dot(a, a)), 1e-30)
+    return (a[0] / length, a[1] / length, a[2] / length)
+
+
+def reflect(a, n):
+    """``a`` mirrored about the unit vector ``n``: ``2 (a . n) n - a``."""
+    return sub(scale(n, 2.0 * dot(a, n)), a)
 
 
 # ---- shading frames ---------------------------------------------------------------------------

@@ -19,9 +19,6 @@ from invrender.registry import MATERIALS
 TYPES = MATERIALS.names()
 #: materials still written in torch alone (the torch bounce renders them); shrinks to nothing
 NOT_YET = {
-    "mirror",
-    "glossy",
-    "glossy_beckmann",
     "plastic",
     "roughplastic",
     "roughplastic_ggx",

@@ -21,8 +21,8 @@ import torch
 from invrender import registry
 from invrender.errors import SceneError
 from invrender.scene.plugins import Constant
-from invrender.core.lanes import TORCH, select3
-from invrender.core.bsdf import LaneBSDF, LaneForm, Lobe, ShadingPoint
+from invrender.core.lanes import select3
+from invrender.core.bsdf import TORCH, LaneBSDF, LaneForm, Lobe, ShadingPoint
 
 
 #: the widest relative index of refraction (interior over exterior) a material accepts, and its
@@ -41,7 +41,7 @@ def check_relative_ior(where: str, int_ior: float, ext_ior: float) -> None:
                          f"[{1.0 / MAX_RELATIVE_IOR:g}, {MAX_RELATIVE_IOR:g}] (real media lie between 1 and about 4)")
 
 
-def fresnel_lanes(xp, cos_i, eta):
+def fresnel_dielectric_lanes(xp, cos_i, eta):
     """Unpolarized Fresnel reflectance F and the transmitted cosine cos_t (0 under total internal
     reflection), for incident cosines ``cos_i`` >= 0 and index ratios ``eta`` (transmitted over
     incident), lane by lane against the array interface (:mod:`invrender.core.lanes`)."""
@@ -55,9 +55,9 @@ def fresnel_lanes(xp, cos_i, eta):
 
 
 def fresnel_dielectric(cos_i: torch.Tensor, eta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """:func:`fresnel_lanes` on torch tensors: F (N,) and cos_t (N,) for ``cos_i`` (N,) >= 0 and
+    """:func:`fresnel_dielectric_lanes` on torch tensors: F (N,) and cos_t (N,) for ``cos_i`` (N,) >= 0 and
     ``eta`` (N,) (any float dtype; differentiable)."""
-    return fresnel_lanes(TORCH, cos_i, eta)
+    return fresnel_dielectric_lanes(TORCH, cos_i, eta)
 
 
 def delta_eval_lanes(xp, p, ps, wo, wi, front):
@@ -73,7 +73,7 @@ def interface_lanes(xp, ior, wo, front):
     refracted direction is never taken."""
     eta = xp.select(front, ior, 1.0 / ior)
     cos_i = xp.maximum(wo[2], 0.0)
-    F, cos_t = fresnel_lanes(xp, cos_i, eta)
+    F, cos_t = fresnel_dielectric_lanes(xp, cos_i, eta)
     x, y, inv = -wo[0], -wo[1], 1.0 / eta
     # reflection mirrors wo about +z; refraction scales its tangential part by 1 / eta (Snell)
     # and goes down by cos_t (``-wo / eta + (cos_i / eta - cos_t) n`` where wo is above)

@@ -19,16 +19,16 @@ from __future__ import annotations
 import torch
 
 from invrender import registry
-from invrender.plugins.bsdfs.dielectric import MAX_RELATIVE_IOR, delta_eval_lanes, fresnel_lanes
+from invrender.plugins.bsdfs.dielectric import MAX_RELATIVE_IOR, delta_eval_lanes, fresnel_dielectric_lanes
 from invrender.scene.plugins import Constant
-from invrender.core.lanes import TORCH, select3
-from invrender.core.bsdf import LaneBSDF, LaneForm, Lobe, ShadingPoint
+from invrender.core.lanes import select3
+from invrender.core.bsdf import TORCH, LaneBSDF, LaneForm, Lobe, ShadingPoint
 
 
 def pane_lanes(xp, ior, wo):
     """The pane of index ``ior`` seen from local ``wo`` (normal +z, either side): ``(R, reflected
     wi, transmitted wi)``, ``R = 2 F / (1 + F)`` with F one interface's reflectance at ``|cos|``."""
-    F, _ = fresnel_lanes(xp, xp.abs(wo[2]), ior)
+    F, _ = fresnel_dielectric_lanes(xp, xp.abs(wo[2]), ior)
     R = 2.0 * F / (1.0 + F)
     x, y = -wo[0], -wo[1]
     return R, (x, y, wo[2]), (x, y, -wo[2])
