@@ -55,8 +55,8 @@ def fresnel_dielectric_lanes(xp, cos_i, eta):
 
 
 def fresnel_dielectric(cos_i: torch.Tensor, eta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """:func:`fresnel_dielectric_lanes` on torch tensors: F (N,) and cos_t (N,) for ``cos_i`` (N,) >= 0 and
-    ``eta`` (N,) (any float dtype; differentiable)."""
+    """:func:`fresnel_dielectric_lanes` on torch tensors: F (N,) and cos_t (N,) for ``cos_i`` (N,)
+    >= 0 and ``eta`` (N,) (any float dtype; differentiable)."""
     return fresnel_dielectric_lanes(TORCH, cos_i, eta)
 
 
@@ -91,6 +91,9 @@ def sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1):
 
 @registry.MATERIALS.register
 class Dielectric(LaneBSDF):
+    """Written once in lane form (:func:`sample_lanes`; :func:`delta_eval_lanes`: no density);
+    :meth:`specular_lobes` evaluates the same :func:`interface_lanes`."""
+
     type_name = "dielectric"
     lobes = Lobe.DELTA_REFLECTION | Lobe.DELTA_TRANSMISSION
     constants = {"ior": Constant(1.5, 1.0 / MAX_RELATIVE_IOR, MAX_RELATIVE_IOR, False, False)}

@@ -43,6 +43,9 @@ def sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1):
 
 @registry.MATERIALS.register
 class ThinDielectric(LaneBSDF):
+    """Written once in lane form (:func:`sample_lanes`; eval: no density); :meth:`specular_lobes`
+    evaluates the same :func:`pane_lanes`."""
+
     type_name = "thindielectric"
     lobes = Lobe.DELTA_REFLECTION | Lobe.DELTA_TRANSMISSION
     constants = {"ior": Constant(1.5, 1.0 / MAX_RELATIVE_IOR, MAX_RELATIVE_IOR, False, False)}
