@@ -4,7 +4,8 @@
 All light arriving from the mirror direction ``wi = 2 (wo . n) n - wo`` is reflected, scaled by
 ``specular_reflectance`` k_s and the conductor Fresnel term F(wo . n) of the complex index
 ``eta + i k`` (:mod:`invrender.plugins.bsdfs.metals`): a delta lobe of weight ``k_s F``. The default
-``eta = 0, k = 1`` is F = 1 (no Fresnel term computed: the weight is k_s exactly).
+``eta = 0, k = 1`` is F = 1 (where every material of the type has it no Fresnel term is computed:
+the weight is k_s exactly).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ def reflect(wo: torch.Tensor, n: torch.Tensor) -> torch.Tensor:
     return 2.0 * dot(wo, n)[:, None] * n - wo
 
 
-def eval_lanes(xp, p, ps, wo, wi, front, *, fresnel: bool):
+def eval_lanes(xp, p, ps, wo, wi, front):
     """A delta lobe has no density: ``f cos`` and the pdf are 0."""
     zero = 0.0 * wi[2]
     return (zero, zero, zero), zero
@@ -44,7 +45,7 @@ def sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1, *, fresnel: bool):
 
 @registry.MATERIALS.register
 class Mirror(ConductorFresnel, LaneBSDF):
-    """Written once in lane form (:func:`eval_lanes`, :func:`sample_lanes`; whether any material
+    """Written once in lane form (:func:`eval_lanes`, :func:`sample_lanes`, whether any material
     has a Fresnel term other than 1 bound when the form is built); :meth:`specular_lobes` is its
     sample."""
 
@@ -57,7 +58,7 @@ class Mirror(ConductorFresnel, LaneBSDF):
     def lane_form(self) -> LaneForm:
         fresnel = not self.fresnel_one
         keys = (("specular_reflectance", 3),) + self.fresnel_keys
-        return LaneForm(keys, functools.partial(eval_lanes, fresnel=fresnel), functools.partial(sample_lanes, fresnel=fresnel))
+        return LaneForm(keys, eval_lanes, functools.partial(sample_lanes, fresnel=fresnel))
 
     def specular_lobes(self, sp: ShadingPoint) -> list[tuple[torch.Tensor, torch.Tensor]]:
         """The reflection, weight k_s F (zero where ``wo`` lies below the shading normal)."""
