@@ -20,6 +20,7 @@ import torch
 
 from invrender import registry
 from invrender.errors import SceneError
+from invrender.plugins.bsdfs.mirror import eval_lanes as delta_eval_lanes  # no density: f cos and pdf 0
 from invrender.scene.plugins import Constant
 from invrender.core.lanes import select3
 from invrender.core.bsdf import TORCH, LaneBSDF, LaneForm, Lobe, ShadingPoint
@@ -60,12 +61,6 @@ def fresnel_dielectric(cos_i: torch.Tensor, eta: torch.Tensor) -> tuple[torch.Te
     return fresnel_dielectric_lanes(TORCH, cos_i, eta)
 
 
-def delta_eval_lanes(xp, p, ps, wo, wi, front):
-    """``eval`` of a material with delta lobes only: no density, ``f cos`` and pdf 0."""
-    zero = xp.full(0.0, wi[0])
-    return (zero, zero, zero), zero
-
-
 def interface_lanes(xp, ior, wo, front):
     """The smooth interface of relative index ``ior`` seen from local ``wo`` (normal +z): ``(F,
     reflected wi, refracted wi, eta)``, ``eta`` the index ratio transmitted over incident (``ior``
@@ -91,7 +86,7 @@ def sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1):
 
 @registry.MATERIALS.register
 class Dielectric(LaneBSDF):
-    """Written once in lane form (:func:`sample_lanes`; :func:`delta_eval_lanes`: no density);
+    """Written once in lane form (:func:`sample_lanes`; eval: the mirror's, no density);
     :meth:`specular_lobes` evaluates the same :func:`interface_lanes`."""
 
     type_name = "dielectric"

@@ -19,7 +19,8 @@ from __future__ import annotations
 import torch
 
 from invrender import registry
-from invrender.plugins.bsdfs.dielectric import MAX_RELATIVE_IOR, delta_eval_lanes, fresnel_dielectric_lanes
+from invrender.plugins.bsdfs.dielectric import MAX_RELATIVE_IOR, fresnel_dielectric_lanes
+from invrender.plugins.bsdfs.mirror import eval_lanes as delta_eval_lanes  # no density: f cos and pdf 0
 from invrender.scene.plugins import Constant
 from invrender.core.lanes import select3
 from invrender.core.bsdf import TORCH, LaneBSDF, LaneForm, Lobe, ShadingPoint
@@ -43,8 +44,8 @@ def sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1):
 
 @registry.MATERIALS.register
 class ThinDielectric(LaneBSDF):
-    """Written once in lane form (:func:`sample_lanes`; eval: no density); :meth:`specular_lobes`
-    evaluates the same :func:`pane_lanes`."""
+    """Written once in lane form (:func:`sample_lanes`; eval: the mirror's, no density);
+    :meth:`specular_lobes` evaluates the same :func:`pane_lanes`."""
 
     type_name = "thindielectric"
     lobes = Lobe.DELTA_REFLECTION | Lobe.DELTA_TRANSMISSION
