@@ -213,6 +213,18 @@ class LaneForm:
     world: bool = False
 
 
+def grey_channel(v: torch.Tensor) -> torch.Tensor:
+    """A grey parameter's value (N,) at points from its three equal channels ``v`` (N, 3): channel
+    0's value exactly (a render is bit-identical to one with the value as a constant) with the
+    gradient of the channels' mean (autograd and forward-mode tangents), so the three channels
+    move together."""
+    alpha = v[:, 0]
+    if v.requires_grad or fwAD.unpack_dual(v).tangent is not None:
+        m = v.mean(dim=1)
+        alpha = alpha.detach() + (m - m.detach())
+    return alpha
+
+
 class BSDF(Declared, ABC):
     """Base class of the materials: one instance holds every material of one type in a scene.
 
@@ -353,14 +365,18 @@ class LaneBSDF(BSDF):
 
     def lane_values(self, sp: ShadingPoint, sampling: bool) -> dict:
         """``p`` (or, with ``sampling``, ``ps``) of :class:`LaneForm` at the points ``sp``: each
-        key's (N,) columns, differentiable in the parameters (detached for sampling)."""
+        key's (N,) columns, differentiable in the parameters (detached for sampling); a grey
+        parameter (a roughness) read as one number by :func:`grey_channel`."""
         out = {}
         for key, size in self.lane_form().keys:
             if key in self.params:
                 value = (self.sampling_param if sampling else self.param)(key, sp)
+                if size == 1 and self.params[key].kind.grey:
+                    out[key] = grey_channel(value)
+                    continue
             else:
                 value = self.constant_rgb(key, sp)
-            out[key] = _first_channel(value) if size == 1 else tuple(value.unbind(1))
+            out[key] = value[:, 0] if size == 1 else tuple(value.unbind(1))
         return out
 
     def constant_rgb(self, key: str, sp: ShadingPoint) -> torch.Tensor:
@@ -377,11 +393,15 @@ class LaneBSDF(BSDF):
         return wo if wi is None else (wo, tuple(sp.frame.to_local(wi).unbind(1)))
 
     def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        if not self.has(Lobe.SMOOTH):  # delta lobes only: no density (the form's eval is 0), nothing to compute
+            return sp.wo.new_zeros(sp.count, 3)
         wo, wl = self._local(sp, wi)
         f, _ = self.lane_form().eval(TORCH, self.lane_values(sp, False), self.lane_values(sp, True), wo, wl, sp.front)
         return torch.stack(f, dim=1)
 
     def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        if not self.has(Lobe.SMOOTH):
+            return sp.wo.new_zeros(sp.count)
         wo, wl = self._local(sp, wi)
         ps = self.lane_values(sp, True)
         _, pdf = self.lane_form().eval(TORCH, ps, ps, wo, wl, sp.front)
@@ -393,13 +413,3 @@ class LaneBSDF(BSDF):
         wi, weight, pdf, delta = form.sample(TORCH, self.lane_values(sp, False), self.lane_values(sp, True), wo, sp.front, u_lobe, u_dir[:, 0], u_dir[:, 1], **world)
         return BSDFSample(sp.frame.to_world(torch.stack(wi, dim=1)), torch.stack(weight, dim=1), pdf, delta)
 
-
-def _first_channel(value: torch.Tensor) -> torch.Tensor:
-    """(N,) a three-channel parameter read as one number (a roughness): channel 0's value exactly
-    (a render is the same as with the number as a constant), the gradient of the channels' mean
-    (every channel moves alike)."""
-    first = value[:, 0]
-    if value.requires_grad or fwAD.unpack_dual(value).tangent is not None:
-        mean = value.mean(dim=1)
-        return first.detach() + (mean - mean.detach())
-    return first

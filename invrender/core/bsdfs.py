@@ -93,6 +93,10 @@ class Materials:
                 out.append((bsdf, index))
         return out
 
+    def has_rows(self, lobes: Lobe) -> torch.Tensor:
+        """(M,) bool: does each scene material's BSDF have any of ``lobes``?"""
+        return (self._lobe_table.index_select(0, self.slot_of) & int(lobes)) != 0
+
     def has(self, sp: ShadingPoint, lobes: Lobe) -> torch.Tensor:
         """(N,) bool: does each point's BSDF have any of ``lobes``?"""
         return (self._lobe_table.index_select(0, sp.slot) & int(lobes)) != 0

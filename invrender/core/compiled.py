@@ -79,8 +79,13 @@ def evaluate(xp, fn, *args, **static) -> tuple[torch.Tensor, ...]:
         return tuple(xp.to_torch(o) for o in fn(xp, *(_argument(xp, a) for a in args), **static))
     if xp.name.endswith("cuda"):
         torch.cuda.current_stream().synchronize()  # torch's writes done before Dr.Jit's stream reads them
-    out, widths = _frozen(xp, fn, static)(tuple(_argument(xp, a) for a in args))
-    xp.dr.sync_thread()
+    key = (xp.name, fn, tuple(sorted(static.items())))  # Python values choose the code: one recording each (lanes.signature)
+    frozen = _take_frozen(key, xp, fn, static)
+    try:
+        out, widths = frozen(tuple(_argument(xp, a) for a in args))
+        xp.dr.sync_thread()
+    finally:
+        _FROZEN.setdefault(key, []).append(frozen)  # free again (list.append is atomic)
     flat, at = [xp.to_torch(o) for o in out], 0
     results = []
     for k in widths:
@@ -89,27 +94,32 @@ def evaluate(xp, fn, *args, **static) -> tuple[torch.Tensor, ...]:
     return tuple(results)
 
 
-_FROZEN = threading.local()  # per thread: a frozen function's replays are not safe across threads
+#: per kind of call, the frozen functions not in use: a frozen function's replays are not safe
+#: across threads, so each concurrent caller takes its own (at most one recording per render
+#: worker, however many threads come and go)
+_FROZEN: dict[tuple, list] = {}
+_FROZEN_LOCK = threading.Lock()
 
 
-def _frozen(xp, fn, static: dict):
-    """``fn`` on ``xp`` traced once per kind of call and replayed (``drjit.freeze``): a call with
-    other array sizes or values but the same static arguments launches the recorded kernel without
-    tracing the Python function again (tracing a bounce costs about as much as running it on 2^16
-    lanes). Returns ``(outputs as flat arrays, their row widths)``."""
-    key = (xp.name, fn, tuple(sorted(static.items())))  # Python values choose the code: one recording each (lanes.signature)
-    frozen = _FROZEN.__dict__.setdefault("functions", {})
-    if key not in frozen:
+def _take_frozen(key: tuple, xp, fn, static: dict):
+    """A free frozen function for ``key``, or a new one: ``fn`` on ``xp`` traced once and replayed
+    (``drjit.freeze``): a call with other array sizes or values but the same static arguments
+    launches the recorded kernel without tracing the Python function again (tracing a bounce costs
+    about as much as running it on 2^16 lanes). It returns ``(the outputs' arrays, their widths)``;
+    hand it back to ``_FROZEN[key]`` after the call."""
+    with _FROZEN_LOCK:
+        free = _FROZEN.get(key)
+        if free:
+            return free.pop()
 
-        def body(args):
-            out = fn(xp, *args, **static)
-            widths = [len(o) if isinstance(o, tuple) else 0 for o in out]
-            flat = [c for o in out for c in (o if isinstance(o, tuple) else (o,))]
-            xp.dr.eval(*flat)  # one kernel
-            return flat, widths
+    def body(args):
+        out = fn(xp, *args, **static)
+        widths = [len(o) if isinstance(o, tuple) else 0 for o in out]
+        flat = [c for o in out for c in (o if isinstance(o, tuple) else (o,))]
+        xp.dr.eval(*flat)  # one kernel
+        return flat, widths
 
-        frozen[key] = xp.dr.freeze(body, warn_after=1 << 30)
-    return frozen[key]
+    return xp.dr.freeze(body, warn_after=1 << 30)
 
 
 def _argument(xp, a):

@@ -371,6 +371,9 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
     tangents = isinstance(film, TangentFilm) or coded is not None
     rho = fused.rho
     counts = torch.zeros(keys.shape[0], rho.shape[0] if tangents else 0, dtype=torch.int32, device=keys.device)  # factors of each rho in beta
+    # with materials of delta lobes only, shadow rays are cast from the others' vertices alone, as
+    # the torch bounce casts them (path replay's adjoint pass takes the same queries in order)
+    smooth = ctx.materials.has_rows(Lobe.SMOOTH).index_select(0, ctx.triangles.material) if ctx.materials.any_delta_only else None
     depth = 0
     while keys.shape[0]:
         hits = ctx.accel.intersect(o, d)
@@ -391,7 +394,12 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
         emitted, shadow_o, shadow_d, shadow_t, direct, o, d, beta, pdf, delta, alive = out[:11]
         occluded = None
         if more and fused.nee:
-            occluded = ctx.accel.occluded(shadow_o, shadow_d, shadow_t)
+            if smooth is None:
+                occluded = ctx.accel.occluded(shadow_o, shadow_d, shadow_t)
+            else:
+                cast = smooth.index_select(0, prim).nonzero()[:, 0]
+                occluded = torch.zeros_like(keys, dtype=torch.bool)
+                occluded[cast] = ctx.accel.occluded(*(_take(x, cast) for x in (shadow_o, shadow_d, shadow_t)))
             direct.masked_fill_(occluded[:, None], 0.0)
         if coded is not None:  # path records: each contribution with its monomial's code
             code_e, code_d = tangents_add(pixel, counts, rho, emitted, out[11:], direct, occluded, more, places=coded)

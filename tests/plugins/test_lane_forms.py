@@ -22,9 +22,6 @@ NOT_YET = {
     "plastic",
     "roughplastic",
     "roughplastic_ggx",
-    "roughdielectric",
-    "roughdielectric_ggx",
-    "thindielectric",
     "principled",
     "principledthin",
 }

@@ -20,10 +20,10 @@ import torch
 
 from invrender import registry
 from invrender.errors import SceneError
+from invrender.plugins.bsdfs.mirror import eval_lanes as delta_eval_lanes  # no density: f cos and pdf 0
 from invrender.scene.plugins import Constant
-from invrender.core import lanes
-from invrender.core.bsdf import LaneBSDF, LaneForm, Lobe, ShadingPoint
-from invrender.core.compiled import TORCH
+from invrender.core.lanes import select3
+from invrender.core.bsdf import TORCH, LaneBSDF, LaneForm, Lobe, ShadingPoint
 
 
 #: the widest relative index of refraction (interior over exterior) a material accepts, and its
@@ -42,63 +42,66 @@ def check_relative_ior(where: str, int_ior: float, ext_ior: float) -> None:
                          f"[{1.0 / MAX_RELATIVE_IOR:g}, {MAX_RELATIVE_IOR:g}] (real media lie between 1 and about 4)")
 
 
-def fresnel_lanes(xp, cos_i, eta):
+def fresnel_dielectric_lanes(xp, cos_i, eta):
     """Unpolarized Fresnel reflectance F and the transmitted cosine cos_t (0 under total internal
-    reflection) for incident cosines ``cos_i`` >= 0 and index ratios ``eta``, written against the
-    array interface (arrays, or tensors with ``TORCH``)."""
+    reflection), for incident cosines ``cos_i`` >= 0 and index ratios ``eta`` (transmitted over
+    incident), lane by lane against the array interface (:mod:`invrender.core.lanes`)."""
     cos2_t = 1.0 - (1.0 - cos_i * cos_i) / (eta * eta)
     tir = cos2_t <= 0.0
     cos_t = xp.sqrt(xp.maximum(cos2_t, 0.0))
     r_s = (cos_i - eta * cos_t) / xp.maximum(cos_i + eta * cos_t, 1e-12)
     r_p = (eta * cos_i - cos_t) / xp.maximum(eta * cos_i + cos_t, 1e-12)
-    return xp.select(tir, 1.0, 0.5 * (r_s * r_s + r_p * r_p)), cos_t
+    F = xp.select(tir, 1.0, 0.5 * (r_s * r_s + r_p * r_p))
+    return F, cos_t
 
 
 def fresnel_dielectric(cos_i: torch.Tensor, eta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """F (N,) and cos_t (N,) for cosines ``cos_i`` (N,) and ratios ``eta`` (N,):
-    :func:`fresnel_lanes` as eager torch."""
-    return fresnel_lanes(TORCH, cos_i, eta)
+    """:func:`fresnel_dielectric_lanes` on torch tensors: F (N,) and cos_t (N,) for ``cos_i`` (N,)
+    >= 0 and ``eta`` (N,) (any float dtype; differentiable)."""
+    return fresnel_dielectric_lanes(TORCH, cos_i, eta)
 
 
 def interface_lanes(xp, ior, wo, front):
-    """(F, reflected wi, refracted wi, eta) in the shading frame: ``eta`` the index ratio
-    transmitted over incident (``ior`` entering, ``1 / ior`` leaving)."""
+    """The smooth interface of relative index ``ior`` seen from local ``wo`` (normal +z): ``(F,
+    reflected wi, refracted wi, eta)``, ``eta`` the index ratio transmitted over incident (``ior``
+    from the front side, ``1 / ior`` from inside); under total internal reflection F is 1 and the
+    refracted direction is never taken."""
     eta = xp.select(front, ior, 1.0 / ior)
     cos_i = xp.maximum(wo[2], 0.0)
-    F, cos_t = fresnel_lanes(xp, cos_i, eta)
-    wt = (-wo[0] / eta, -wo[1] / eta, -wo[2] / eta + (cos_i / eta - cos_t))
-    return F, (-wo[0], -wo[1], wo[2]), wt, eta
-
-
-def eval_lanes(xp, p, ps, wo, wi, front):
-    """Delta lobes only: no value, no density."""
-    zero = 0.0 * wo[2]
-    return (zero, zero, zero), zero
+    F, cos_t = fresnel_dielectric_lanes(xp, cos_i, eta)
+    x, y, inv = -wo[0], -wo[1], 1.0 / eta
+    # reflection mirrors wo about +z; refraction scales its tangential part by 1 / eta (Snell)
+    # and goes down by cos_t (``-wo / eta + (cos_i / eta - cos_t) n`` where wo is above)
+    return F, (x, y, wo[2]), (x * inv, y * inv, -cos_t), eta
 
 
 def sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1):
-    """Reflection with probability F (weight 1), else refraction (weight ``1 / eta^2``), flagged delta."""
-    F, wr, wt, eta = interface_lanes(xp, p["ior"], wo, front)
+    """Reflection with probability F (weight 1), else refraction (weight ``1 / eta^2``); delta."""
+    F, wr, wt, eta = interface_lanes(xp, ps["ior"], wo, front)
     reflected = u_lobe < F
-    w = xp.select(reflected, 1.0, 1.0 / (eta * eta))
-    return lanes.select3(xp, reflected, wr, wt), (w, w, w), 0.0 * w, xp.full(True, u_lobe)
+    inv = 1.0 / eta
+    w = xp.select(reflected, 1.0, inv * inv)
+    return select3(xp, reflected, wr, wt), (w, w, w), xp.full(0.0, u_lobe), xp.full(True, u_lobe)
 
 
 @registry.MATERIALS.register
 class Dielectric(LaneBSDF):
+    """Written once in lane form (:func:`sample_lanes`; eval: the mirror's, no density);
+    :meth:`specular_lobes` evaluates the same :func:`interface_lanes`."""
+
     type_name = "dielectric"
     lobes = Lobe.DELTA_REFLECTION | Lobe.DELTA_TRANSMISSION
     constants = {"ior": Constant(1.5, 1.0 / MAX_RELATIVE_IOR, MAX_RELATIVE_IOR, False, False)}
     doc = "smooth glass: Fresnel reflection and refraction"
 
     def lane_form(self) -> LaneForm:
-        return LaneForm((("ior", 1),), eval_lanes, sample_lanes)
+        return LaneForm((("ior", 1),), delta_eval_lanes, sample_lanes)
 
     def specular_lobes(self, sp: ShadingPoint) -> list[tuple[torch.Tensor, torch.Tensor]]:
-        """Reflection with weight F, refraction with weight ``(1 - F) / eta^2`` (:func:`interface_lanes`)."""
+        """Reflection with weight F, refraction with weight ``(1 - F) / eta^2``."""
         F, wr, wt, eta = interface_lanes(TORCH, self.constant("ior", sp), tuple(sp.wo_local.unbind(1)), sp.front)
-        world = lambda v: sp.frame.to_world(torch.stack(v, dim=1))  # noqa: E731
-        return [(world(wr), F[:, None].expand(-1, 3)), (world(wt), ((1.0 - F) / (eta * eta))[:, None].expand(-1, 3))]
+        to_world = lambda w: sp.frame.to_world(torch.stack(w, dim=1))  # noqa: E731
+        return [(to_world(wr), F[:, None].expand(-1, 3)), (to_world(wt), ((1.0 - F) / (eta * eta))[:, None].expand(-1, 3))]
 
     # ---- its aliases in the scene formats (read through the registry)
 
