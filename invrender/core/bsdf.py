@@ -44,6 +44,7 @@ import torch
 from invrender.errors import ParameterError, did_you_mean
 from invrender.scene.plugins import Declared
 from invrender.backends.arrays import TORCH
+from invrender.core import lanes
 from invrender.core.frame import Frame
 from invrender.core.textures import gather_rgb
 from invrender.scene.textures import TextureSampling
@@ -353,15 +354,28 @@ class LaneBSDF(BSDF):
 
     def lane_values(self, sp: ShadingPoint, sampling: bool) -> dict:
         """``p`` (or, with ``sampling``, ``ps``) of :class:`LaneForm` at the points ``sp``: each
-        key's (N,) columns, differentiable in the parameters (detached for sampling)."""
+        key's (N,) columns, differentiable in the parameters (detached for sampling); a key of more
+        than 3 floats (:meth:`lane_rows`) as a :class:`~invrender.core.lanes.Row`."""
         out = {}
         for key, size in self.lane_form().keys:
             if key in self.params:
                 value = (self.sampling_param if sampling else self.param)(key, sp)
+            elif (rows := self.lane_rows(key, sampling, sp.wo.device)) is not None:
+                if size > 3:
+                    out[key] = lanes.Row(rows.reshape(-1), sp.material * size)
+                    continue
+                value = rows.index_select(0, sp.material)
             else:
                 value = self.constant_rgb(key, sp)
             out[key] = value[:, 0] if size == 1 else tuple(value.unbind(1))
         return out
+
+    def lane_rows(self, key: str, sampling: bool, device) -> torch.Tensor | None:
+        """(M, size) the values of :class:`LaneForm` key ``key`` for this BSDF's M materials where
+        the material derives them from its constants and values (a relative index, a table of a
+        rough interface): differentiable in the values, or, with ``sampling``, of the values
+        sampling reads, detached; None (the default) for a parameter or a constant."""
+        return None
 
     def constant_rgb(self, key: str, sp: ShadingPoint) -> torch.Tensor:
         """Constant ``key`` at each point (N, 3): an RGB constant, or a number repeated."""

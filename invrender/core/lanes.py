@@ -195,9 +195,11 @@ def material_width(keys) -> int:
 
 def material_rows(bsdf, keys) -> torch.Tensor | None:
     """(M * W,) float32 the table of ``bsdf``'s M materials' values for its lane form's ``keys``
-    (:func:`material_width` W floats a row): a parameter's detached value, a constant; None where a
-    parameter is not one colour for every material (a texture, per-vertex values) or sampling reads
-    other values than the parameters hold (a render that holds sampling fixed)."""
+    (:func:`material_width` W floats a row): a parameter's detached value, a constant, or what the
+    material derives from them (:meth:`~invrender.core.bsdf.LaneBSDF.lane_rows`: a key of any size);
+    None where a parameter is not one colour for every material (a texture, per-vertex values) or
+    sampling reads other values than the parameters hold (a render that holds sampling fixed)."""
+    derived = {key: bsdf.lane_rows(key, True, "cpu") for key, _ in keys if key not in bsdf.params} if hasattr(bsdf, "lane_rows") else {}
     rows = []
     for m, values in enumerate(bsdf.values):
         row = []
@@ -207,27 +209,50 @@ def material_rows(bsdf, keys) -> torch.Tensor | None:
                 if v.ndim != 1 or not torch.equal(v.detach(), vs):
                     return None
                 v = v.detach().float().reshape(-1)
+            elif derived.get(key) is not None:
+                v = derived[key][m].detach().float().reshape(-1)
             else:
                 c = bsdf.constants[m][key]
                 v = torch.tensor(c if isinstance(c, (tuple, list)) else (c,) * 3, dtype=torch.float32)
-            row.append(v.to("cpu")[:3] if size == 3 else v.to("cpu")[:1])
+            row.append(v.to("cpu")[:size])
         row = torch.cat(row) if row else torch.zeros(0)
         rows.append(torch.nn.functional.pad(row, (0, material_width(keys) - row.shape[0])))
     return torch.stack(rows).reshape(-1).contiguous()
 
 
+class Row:
+    """A key of more than 3 floats a material holds (a table, :meth:`~invrender.core.bsdf.LaneBSDF.lane_rows`),
+    which lanes read at positions they compute (:func:`row_at`) rather than whole: each lane's
+    entries are ``table[start + j]``, ``start`` (N,) indices into the flat ``table``."""
+
+    __slots__ = ("table", "start")
+
+    def __init__(self, table, start):
+        self.table, self.start = table, start
+
+
+def row_at(xp, row: Row, j):
+    """Entry ``j`` (UInt, per lane: :meth:`uint` of a Float) of each lane's :class:`Row`."""
+    return xp.gather_rows(row.table, row.start + j, 1)[0]
+
+
 def material_values(xp, table, m, keys):
     """``p`` of :class:`~invrender.core.bsdf.LaneForm` for lanes of materials ``m`` (UInt) from
-    their table (:func:`material_rows`): key -> a Float (size 1) or a 3-tuple (size 3)."""
+    their table (:func:`material_rows`): key -> a Float (size 1), a 3-tuple (size 3) or a
+    :class:`Row` (larger); rows are gathered only as far as the small keys reach."""
     width = material_width(keys)
+    reach, at = 0, 0
+    for _, size in keys:
+        at += size
+        reach = at if size <= 3 else reach
     if width <= 16:
         flat = xp.gather_rows(table, m, width)
     else:
         chunks = width // 16
-        flat = sum((xp.gather_rows(table, m * chunks + j, 16) for j in range(chunks)), ())
+        flat = sum((xp.gather_rows(table, m * chunks + j, 16) for j in range(-(-reach // 16))), ())
     out, at = {}, 0
     for key, size in keys:
-        out[key] = flat[at] if size == 1 else tuple(flat[at : at + 3])
+        out[key] = flat[at] if size == 1 else tuple(flat[at : at + 3]) if size == 3 else Row(table, m * width + at)
         at += size
     return out
 

@@ -23,7 +23,6 @@ NOT_YET = {
     "dielectric",
     "glossy",
     "glossy_beckmann",
-    "plastic",
     "roughplastic",
     "roughplastic_ggx",
     "roughdielectric",
