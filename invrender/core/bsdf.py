@@ -40,6 +40,7 @@ from collections.abc import Callable
 from typing import ClassVar
 
 import torch
+import torch.autograd.forward_ad as fwAD
 
 from invrender.errors import ParameterError, did_you_mean
 from invrender.scene.plugins import Declared
@@ -192,22 +193,37 @@ class LaneForm:
       ``f |cos| / pdf`` (a 3-tuple; zero where no valid direction was drawn), its pdf and a Bool,
       True for a delta lobe.
 
-    ``p`` and ``ps`` hold each lane's material values, ``p[key]`` a 3-tuple of Floats (size 3) or a
-    Float (size 1) for every ``(key, size)`` of :attr:`keys`: ``p`` the values ``f`` and the weight
+    ``p`` and ``ps`` hold each lane's material values, ``p[key]`` a 3-tuple of Floats (size 3), a
+    Float (size 1) or, for a table of more floats a material derives (:meth:`LaneBSDF.lane_rows`: a
+    rough interface's transmittance), a :class:`~invrender.core.lanes.Row` the functions read at
+    positions they compute (:func:`~invrender.core.lanes.row_at`), for every ``(key, size)`` of
+    :attr:`keys`: ``p`` the values ``f`` and the weight
     are differentiated in, ``ps`` the detached ones sampling and pdfs read
     (:meth:`BSDF.sampling_param`; the same arrays in the compiled bounce). ``front`` (Bool) is True
     where ``wo`` lies on the triangle's front (outside) side. Python values the code depends on (a
     sampling choice, a distribution) are bound when :meth:`BSDF.lane_form` builds the form.
 
     Attributes:
-        keys: ``((key, size), ...)`` the parameters and constants the functions read, in order
-            (size 1 of an RGB parameter: its first channel).
+        keys: ``((key, size), ...)`` the parameters, constants and derived values the functions
+            read, in order (size 1 of an RGB parameter: its first channel).
         eval, sample: the two functions.
     """
 
     keys: tuple[tuple[str, int], ...]
     eval: Callable
     sample: Callable
+
+
+def grey_channel(v: torch.Tensor) -> torch.Tensor:
+    """A grey parameter's value (N,) at points from its three equal channels ``v`` (N, 3): channel
+    0's value exactly (a render is bit-identical to one with the value as a constant) with the
+    gradient of the channels' mean (autograd and forward-mode tangents), so the three channels
+    move together."""
+    alpha = v[:, 0]
+    if v.requires_grad or fwAD.unpack_dual(v).tangent is not None:
+        m = v.mean(dim=1)
+        alpha = alpha.detach() + (m - m.detach())
+    return alpha
 
 
 class BSDF(Declared, ABC):
@@ -354,12 +370,16 @@ class LaneBSDF(BSDF):
 
     def lane_values(self, sp: ShadingPoint, sampling: bool) -> dict:
         """``p`` (or, with ``sampling``, ``ps``) of :class:`LaneForm` at the points ``sp``: each
-        key's (N,) columns, differentiable in the parameters (detached for sampling); a key of more
-        than 3 floats (:meth:`lane_rows`) as a :class:`~invrender.core.lanes.Row`."""
+        key's (N,) columns, differentiable in the parameters (detached for sampling); a grey
+        parameter (a roughness) read as one number by :func:`grey_channel`; a key of more than 3
+        floats (:meth:`lane_rows`) as a :class:`~invrender.core.lanes.Row`."""
         out = {}
         for key, size in self.lane_form().keys:
             if key in self.params:
                 value = (self.sampling_param if sampling else self.param)(key, sp)
+                if size == 1 and self.params[key].kind.grey:
+                    out[key] = grey_channel(value)
+                    continue
             elif (rows := self.lane_rows(key, sampling, sp.wo.device)) is not None:
                 if size > 3:
                     out[key] = lanes.Row(rows.reshape(-1), sp.material * size)
@@ -390,11 +410,15 @@ class LaneBSDF(BSDF):
         return wo if wi is None else (wo, tuple(sp.frame.to_local(wi).unbind(1)))
 
     def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        if not self.has(Lobe.SMOOTH):  # delta lobes only: no density (the form's eval is 0), nothing to compute
+            return sp.wo.new_zeros(sp.count, 3)
         wo, wl = self._local(sp, wi)
         f, _ = self.lane_form().eval(TORCH, self.lane_values(sp, False), self.lane_values(sp, True), wo, wl, sp.front)
         return torch.stack(f, dim=1)
 
     def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
+        if not self.has(Lobe.SMOOTH):
+            return sp.wo.new_zeros(sp.count)
         wo, wl = self._local(sp, wi)
         ps = self.lane_values(sp, True)
         _, pdf = self.lane_form().eval(TORCH, ps, ps, wo, wl, sp.front)

@@ -51,6 +51,17 @@ def select3(xp, mask, a, b):
     return tuple(xp.select(mask, x, y) for x, y in zip(a, b))
 
 
+def normalize(xp, a):
+    """``a / |a|`` (zero vectors stay zero, as :func:`invrender.vec.normalize`)."""
+    length = xp.maximum(xp.sqrt(dot(a, a)), 1e-30)
+    return (a[0] / length, a[1] / length, a[2] / length)
+
+
+def reflect(a, n):
+    """``a`` mirrored about the unit vector ``n``: ``2 (a . n) n - a``."""
+    return sub(scale(n, 2.0 * dot(a, n)), a)
+
+
 # ---- shading frames ---------------------------------------------------------------------------
 
 

@@ -12,6 +12,8 @@ import pytest
 import torch
 
 import invrender as ir
+from invrender.backends import arrays
+from invrender.core import compiled, lanes
 from invrender.errors import SceneError
 from invrender.plugins.bsdfs import checks, metals
 from invrender.plugins.bsdfs.glossy import Glossy, GlossyBeckmann
@@ -20,6 +22,7 @@ from invrender.plugins.bsdfs.microfacet import BECKMANN, DISTRIBUTIONS, GGX
 from invrender.plugins.bsdfs.mirror import Mirror
 
 GOLD = METAL_IORS["Au"]
+XP = arrays.drjit_arrays(torch.device("cpu"))
 
 
 def exact_fresnel(cos_i: float, eta: float, k: float) -> float:
@@ -145,6 +148,45 @@ def test_fresnel_one_computes_no_fresnel_term():
     sp2.material[1] = 1
     f = mixed.fresnel(sp2, torch.tensor([0.6, 0.6]))
     assert f[0].tolist() == [1.0, 1.0, 1.0] and f[1].tolist() == pytest.approx([exact_fresnel(0.6, e, k) for e, k in zip(*GOLD)], rel=1e-5)
+
+
+@pytest.mark.skipif(XP is None, reason="Dr.Jit's LLVM backend is not available")
+@pytest.mark.parametrize("cls", [Glossy, GlossyBeckmann, Mirror])
+def test_gold_lane_forms_compiled_equal_eager(cls):
+    """With a Fresnel term (the registry's lane-form test covers the defaults, F = 1): Dr.Jit's
+    compiled lanes give the eager torch ones, lane by lane, finite everywhere, and the eager ones
+    are the material's methods."""
+    extra = {"roughness": 0.2} if "roughness" in cls.params else {}
+    bsdf = checks.instance(cls, eta=GOLD[0], k=GOLD[1], specular_reflectance=0.7, **extra)
+    form = bsdf.lane_form()
+    assert dict(form.keys)["eta"] == 3
+    table = lanes.material_rows(bsdf, form.keys)
+    n = 4096
+    g = torch.Generator().manual_seed(3)
+    wo, wi = (torch.nn.functional.normalize(torch.randn(n, 3, generator=g), dim=1) for _ in range(2))
+    wo[: n // 4, 2] *= 0.02  # grazing
+    wo[n // 2 :, 2] = wo[n // 2 :, 2].abs()
+    u = torch.rand(3, n, generator=g)
+    front = torch.rand(n, generator=g) < 0.5
+
+    def run(xp, table, m, wo, wi, front, u_lobe, u0, u1):
+        p = lanes.material_values(xp, table, m, form.keys)
+        return form.eval(xp, p, p, wo, wi, front) + form.sample(xp, p, p, wo, front, u_lobe, u0, u1)
+
+    args = (table, torch.zeros(n, dtype=torch.int32), wo, wi, front, u[0], u[1], u[2])
+    eager, jit = compiled.evaluate(arrays.TORCH, run, *args), compiled.evaluate(XP, run, *args)
+    for a, b in zip(eager, jit):
+        if a.dtype == torch.bool:
+            assert torch.equal(a, b)
+            continue
+        assert bool(torch.isfinite(b).all())
+        assert float(((a - b).abs() <= 1e-4 * a.abs().amax().clamp_min(1.0) + 1e-4 * a.abs()).float().mean()) > 0.999
+    # the eager lanes are the methods (the shading frame at normal +z is the identity)
+    sp = checks.shading_point(0.0, n)
+    sp = type(sp)(wo, sp.n, sp.ng, front, sp.uv, sp.material, sp.slot)
+    bs = bsdf.sample(sp, u[0], u[1:].T.contiguous())
+    assert torch.allclose(bs.weight, eager[3], atol=1e-6) and torch.allclose(bs.pdf, eager[4], atol=1e-6)
+    assert torch.allclose(bsdf.eval(sp, wi), eager[0], atol=1e-6) and torch.allclose(bs.wi, eager[2], atol=1e-6)
 
 
 # ---------------------------------------------------------------- TOML

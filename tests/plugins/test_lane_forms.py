@@ -19,15 +19,6 @@ from invrender.registry import MATERIALS
 TYPES = MATERIALS.names()
 #: materials still written in torch alone (the torch bounce renders them); shrinks to nothing
 NOT_YET = {
-    "mirror",
-    "dielectric",
-    "glossy",
-    "glossy_beckmann",
-    "roughplastic",
-    "roughplastic_ggx",
-    "roughdielectric",
-    "roughdielectric_ggx",
-    "thindielectric",
     "principled",
     "principledthin",
 }

@@ -20,10 +20,10 @@ import torch
 
 from invrender import registry
 from invrender.errors import SceneError
-from invrender.plugins.bsdfs.mirror import reflect
+from invrender.plugins.bsdfs.mirror import eval_lanes as delta_eval_lanes  # no density: f cos and pdf 0
 from invrender.scene.plugins import Constant
-from invrender.core.bsdf import BSDFSample, DeltaBSDF, Lobe, ShadingPoint
-from invrender.vec import dot
+from invrender.core.lanes import select3
+from invrender.core.bsdf import TORCH, LaneBSDF, LaneForm, Lobe, ShadingPoint
 
 
 #: the widest relative index of refraction (interior over exterior) a material accepts, and its
@@ -42,47 +42,66 @@ def check_relative_ior(where: str, int_ior: float, ext_ior: float) -> None:
                          f"[{1.0 / MAX_RELATIVE_IOR:g}, {MAX_RELATIVE_IOR:g}] (real media lie between 1 and about 4)")
 
 
-def fresnel_dielectric(cos_i: torch.Tensor, eta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Unpolarized Fresnel reflectance F (N,) and the transmitted cosine cos_t (N,) (0 under total
-    internal reflection), for incident cosines ``cos_i`` (N,) >= 0 and index ratios ``eta`` (N,)."""
+def fresnel_dielectric_lanes(xp, cos_i, eta):
+    """Unpolarized Fresnel reflectance F and the transmitted cosine cos_t (0 under total internal
+    reflection), for incident cosines ``cos_i`` >= 0 and index ratios ``eta`` (transmitted over
+    incident), lane by lane against the array interface (:mod:`invrender.core.lanes`)."""
     cos2_t = 1.0 - (1.0 - cos_i * cos_i) / (eta * eta)
-    tir = cos2_t <= 0
-    cos_t = cos2_t.clamp_min(0.0).sqrt()
-    r_s = (cos_i - eta * cos_t) / (cos_i + eta * cos_t).clamp_min(1e-12)
-    r_p = (eta * cos_i - cos_t) / (eta * cos_i + cos_t).clamp_min(1e-12)
-    F = torch.where(tir, 1.0, 0.5 * (r_s * r_s + r_p * r_p))
+    tir = cos2_t <= 0.0
+    cos_t = xp.sqrt(xp.maximum(cos2_t, 0.0))
+    r_s = (cos_i - eta * cos_t) / xp.maximum(cos_i + eta * cos_t, 1e-12)
+    r_p = (eta * cos_i - cos_t) / xp.maximum(eta * cos_i + cos_t, 1e-12)
+    F = xp.select(tir, 1.0, 0.5 * (r_s * r_s + r_p * r_p))
     return F, cos_t
 
 
+def fresnel_dielectric(cos_i: torch.Tensor, eta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`fresnel_dielectric_lanes` on torch tensors: F (N,) and cos_t (N,) for ``cos_i`` (N,)
+    >= 0 and ``eta`` (N,) (any float dtype; differentiable)."""
+    return fresnel_dielectric_lanes(TORCH, cos_i, eta)
+
+
+def interface_lanes(xp, ior, wo, front):
+    """The smooth interface of relative index ``ior`` seen from local ``wo`` (normal +z): ``(F,
+    reflected wi, refracted wi, eta)``, ``eta`` the index ratio transmitted over incident (``ior``
+    from the front side, ``1 / ior`` from inside); under total internal reflection F is 1 and the
+    refracted direction is never taken."""
+    eta = xp.select(front, ior, 1.0 / ior)
+    cos_i = xp.maximum(wo[2], 0.0)
+    F, cos_t = fresnel_dielectric_lanes(xp, cos_i, eta)
+    x, y, inv = -wo[0], -wo[1], 1.0 / eta
+    # reflection mirrors wo about +z; refraction scales its tangential part by 1 / eta (Snell)
+    # and goes down by cos_t (``-wo / eta + (cos_i / eta - cos_t) n`` where wo is above)
+    return F, (x, y, wo[2]), (x * inv, y * inv, -cos_t), eta
+
+
+def sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1):
+    """Reflection with probability F (weight 1), else refraction (weight ``1 / eta^2``); delta."""
+    F, wr, wt, eta = interface_lanes(xp, ps["ior"], wo, front)
+    reflected = u_lobe < F
+    inv = 1.0 / eta
+    w = xp.select(reflected, 1.0, inv * inv)
+    return select3(xp, reflected, wr, wt), (w, w, w), xp.full(0.0, u_lobe), xp.full(True, u_lobe)
+
+
 @registry.MATERIALS.register
-class Dielectric(DeltaBSDF):
+class Dielectric(LaneBSDF):
+    """Written once in lane form (:func:`sample_lanes`; eval: the mirror's, no density);
+    :meth:`specular_lobes` evaluates the same :func:`interface_lanes`."""
+
     type_name = "dielectric"
     lobes = Lobe.DELTA_REFLECTION | Lobe.DELTA_TRANSMISSION
     constants = {"ior": Constant(1.5, 1.0 / MAX_RELATIVE_IOR, MAX_RELATIVE_IOR, False, False)}
     doc = "smooth glass: Fresnel reflection and refraction"
 
-    def _interface(self, sp: ShadingPoint):
-        """(F, reflected wi, refracted wi, eta) at each point."""
-        ior = self.constant("ior", sp)
-        eta = torch.where(sp.front, ior, 1.0 / ior)  # transmitted over incident
-        cos_i = dot(sp.n, sp.wo).clamp_min(0.0)
-        F, cos_t = fresnel_dielectric(cos_i, eta)
-        wr = reflect(sp.wo, sp.n)
-        wt = -sp.wo / eta[:, None] + (cos_i / eta - cos_t)[:, None] * sp.n
-        return F, wr, wt, eta
+    def lane_form(self) -> LaneForm:
+        return LaneForm((("ior", 1),), delta_eval_lanes, sample_lanes)
 
     def specular_lobes(self, sp: ShadingPoint) -> list[tuple[torch.Tensor, torch.Tensor]]:
         """Reflection with weight F, refraction with weight ``(1 - F) / eta^2``."""
-        F, wr, wt, eta = self._interface(sp)
-        return [(wr, F[:, None].expand(-1, 3)), (wt, ((1.0 - F) / (eta * eta))[:, None].expand(-1, 3))]
-
-    def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
-        """Reflection with probability F (weight 1), else refraction (weight ``1 / eta^2``)."""
-        F, wr, wt, eta = self._interface(sp)
-        reflected = u_lobe < F
-        wi = torch.where(reflected[:, None], wr, wt)
-        weight = torch.where(reflected, 1.0, 1.0 / (eta * eta))[:, None].expand(-1, 3)
-        return self.delta_sample(wi, weight)
+        F, wr, wt, eta = interface_lanes(TORCH, self.constant("ior", sp), tuple(sp.wo_local.unbind(1)), sp.front)
+        to_world = lambda w: sp.frame.to_world(torch.stack(w, dim=1))  # noqa: E731
+        return [(to_world(wr), F[:, None].expand(-1, 3)), (to_world(wt), ((1.0 - F) / (eta * eta))[:, None].expand(-1, 3))]
 
     # ---- its aliases in the scene formats (read through the registry)
 

@@ -10,7 +10,8 @@ Models for Refraction through Rough Surfaces", EGSR 2007):
 
 F is the conductor Fresnel term of the complex index ``eta + i k`` (RGB constants, a named metal
 or given: :mod:`invrender.plugins.bsdfs.metals`); the default ``eta = 0, k = 1`` (Mitsuba's material
-``none``) is F = 1 exactly, and then no Fresnel term is computed at all.
+``none``) is F = 1 exactly, and where every material of the type has it no Fresnel term is computed
+at all (a flag of the lane form).
 
 Directions are sampled from the distribution of visible normals (Heitz, "Sampling the GGX
 Distribution of Visible Normals", JCGT 7(4), 2018; Heitz and d'Eon 2014 for Beckmann): a normal
@@ -26,26 +27,72 @@ G1(wo; alpha_s))``, the ratio exactly 1 in value: every estimator stays unbiased
 
 from __future__ import annotations
 
+import functools
 from typing import ClassVar
-
-import torch
 
 from invrender import registry
 from invrender.plugins.bsdfs.metal_iors import METAL_IORS
-from invrender.plugins.bsdfs.metals import CONDUCTOR_CONSTANTS, ConductorFresnel
-from invrender.plugins.bsdfs.microfacet import BECKMANN, GGX, Distribution, roughness_at, visible_reweight
+from invrender.plugins.bsdfs.metals import CONDUCTOR_CONSTANTS, ConductorFresnel, fresnel_lanes
+from invrender.plugins.bsdfs.microfacet import BECKMANN, GGX, Distribution
 from invrender.scene.kinds import ROUGHNESS, SPECULAR_REFLECTANCE
 from invrender.scene.plugins import Constant, Param
-from invrender.core.bsdf import BSDF, BSDFSample, Lobe, ShadingPoint
-from invrender.vec import dot, normalize
+from invrender.core import lanes
+from invrender.core.bsdf import LaneBSDF, LaneForm, Lobe
+from invrender.core.lanes import scale
 
 
 #: the range Mitsuba's ``alpha`` is read in (the roughness kind's (0, 1], its default 0.1)
 ALPHA = Constant(0.1, 0.0, 1.0, True, False)
 
 
+def _visible(xp, d: Distribution, cos_h, cos_o, alpha_s):
+    """``D(h; alpha_s)``, ``G1(wo; alpha_s)`` and the pdf ``G1(wo) D(h) / (4 cos_o)`` of a
+    reflection about h (detached roughness: sampling's)."""
+    D, g1 = d.D_lanes(xp, cos_h, alpha_s), d.G1_lanes(xp, cos_o, alpha_s)
+    return D, g1, g1 * D / (4.0 * xp.maximum(cos_o, 1e-12))
+
+
+def eval_lanes(xp, p, ps, wo, wi, front, *, distribution: Distribution, fresnel: bool):
+    """``k_s F D G / (4 cos_o)`` (the cosine cos_i folded in; roughness ``p``'s) and the pdf
+    ``G1(wo) D(h) / (4 cos_o)`` (``ps``'s), both 0 unless ``wo`` and ``wi`` lie above the normal."""
+    d = distribution
+    alpha, alpha_s = p["roughness"], ps["roughness"]
+    cos_o, cos_i = wo[2], wi[2]
+    h = lanes.normalize(xp, lanes.add(wo, wi))
+    D_s, g1_s, pdf = _visible(xp, d, h[2], cos_o, alpha_s)
+    D, g1_o = (D_s, g1_s) if alpha is alpha_s else (d.D_lanes(xp, h[2], alpha), d.G1_lanes(xp, cos_o, alpha))
+    on = (cos_o > 0.0) & (cos_i > 0.0)
+    value = xp.select(on, D * g1_o * d.G1_lanes(xp, cos_i, alpha) / (4.0 * xp.maximum(cos_o, 1e-12)), 0.0)
+    f = fresnel_lanes(xp, p, lanes.dot(wo, h), scale(p["specular_reflectance"], value), fresnel=fresnel)
+    return f, xp.select(on, pdf, 0.0)
+
+
+def sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1, *, distribution: Distribution, fresnel: bool):
+    """A visible normal h (roughness ``ps``'s), ``wo`` reflected about it: weight ``k_s F G1(wi)``
+    times ``D(h; alpha) G1(wo; alpha) / (D(h; alpha_s) G1(wo; alpha_s))`` (``p``'s roughness over
+    ``ps``'s: 1 in value, the roughness gradient of ``f``), 0 where ``wo`` or ``wi`` lies below."""
+    d = distribution
+    alpha, alpha_s = p["roughness"], ps["roughness"]
+    above = wo[2] > 0.0
+    wo_up = (xp.select(above, wo[0], 0.0), xp.select(above, wo[1], 0.0), xp.select(above, wo[2], 1.0))
+    h = d.sample_visible_lanes(xp, wo_up, alpha_s, u0, u1)
+    cos_d = lanes.dot(wo_up, h)
+    wi = lanes.sub(scale(h, 2.0 * cos_d), wo_up)
+    ok = above & (wi[2] > 0.0)
+    D_s, g1_s, pdf = _visible(xp, d, h[2], wo_up[2], alpha_s)
+    g1 = d.G1_lanes(xp, wi[2], alpha)
+    if alpha is not alpha_s:  # the same lanes where p is ps (a ratio of exactly 1 otherwise)
+        ratio = d.D_lanes(xp, h[2], alpha) * d.G1_lanes(xp, wo_up[2], alpha) / xp.select(D_s * g1_s > 0.0, D_s * g1_s, 1.0)
+        g1 = g1 * xp.select(D_s * g1_s > 0.0, ratio, 1.0)
+    weight = fresnel_lanes(xp, p, cos_d, scale(p["specular_reflectance"], xp.select(ok, g1, 0.0)), fresnel=fresnel)
+    return wi, weight, xp.select(ok, pdf, 0.0), xp.full(False, u0)
+
+
 @registry.MATERIALS.register
-class Glossy(ConductorFresnel, BSDF):
+class Glossy(ConductorFresnel, LaneBSDF):
+    """Written once in lane form (:func:`eval_lanes`, :func:`sample_lanes`), its distribution and
+    whether any material has a Fresnel term other than 1 bound when the form is built."""
+
     type_name = "glossy"
     lobes = Lobe.GLOSSY
     params = {"specular_reflectance": Param(SPECULAR_REFLECTANCE, 1.0), "roughness": Param(ROUGHNESS, 0.1)}
@@ -54,53 +101,10 @@ class Glossy(ConductorFresnel, BSDF):
     #: the microfacet distribution
     distribution: ClassVar[Distribution] = GGX
 
-    def _local(self, sp: ShadingPoint, wi: torch.Tensor):
-        return sp.frame, sp.wo_local, sp.frame.to_local(wi)
-
-    def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        """``k_s F D G / (4 cos_o)`` (N, 3) (the cosine cos_i folded in; differentiable in alpha)."""
-        _, wo, wl = self._local(sp, wi)
-        alpha, _ = roughness_at(self, sp)
-        d = self.distribution
-        cos_o, cos_i = wo[:, 2], wl[:, 2]
-        h = normalize(wo + wl)
-        value = d.D(h[:, 2], alpha) * d.G1(cos_o, alpha) * d.G1(cos_i, alpha) / (4.0 * cos_o.clamp_min(1e-12))
-        value = torch.where((cos_o > 0) & (cos_i > 0), value, 0.0)
-        ks = self.param("specular_reflectance", sp)
-        fresnel = self.fresnel(sp, dot(wo, h))
-        return ks * value[:, None] if fresnel is None else ks * (fresnel * value[:, None])
-
-    def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        """``G1(wo) D(h) / (4 cos_o)`` (N,) (visible-normal sampling, at the detached alpha_s)."""
-        _, wo, wl = self._local(sp, wi)
-        _, alpha = roughness_at(self, sp)
-        d = self.distribution
-        cos_o, cos_i = wo[:, 2], wl[:, 2]
-        h = normalize(wo + wl)
-        p = d.G1(cos_o, alpha) * d.D(h[:, 2], alpha) / (4.0 * cos_o.clamp_min(1e-12))
-        return torch.where((cos_o > 0) & (cos_i > 0), p, 0.0)
-
-    def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
-        """A visible normal (of the detached alpha_s), ``wo`` reflected about it: weight
-        ``k_s F G1(wi)`` (times the reweighting to the attached alpha, 1 in value)."""
-        frame, wo = sp.frame, sp.wo_local
-        d = self.distribution
-        attached, alpha = roughness_at(self, sp)
-        above = wo[:, 2] > 0
-        wo_up = torch.where(above[:, None], wo, torch.tensor([0.0, 0.0, 1.0], device=wo.device))
-        h = d.sample_visible(wo_up, alpha, u_dir)
-        cos_d = dot(wo_up, h)
-        wl = 2.0 * cos_d[:, None] * h - wo_up
-        cos_i = wl[:, 2]
-        ok = above & (cos_i > 0)
-        pdf = torch.where(ok, d.G1(wo_up[:, 2], alpha) * d.D(h[:, 2], alpha) / (4.0 * wo_up[:, 2].clamp_min(1e-12)), 0.0)
-        ratio = visible_reweight(d, h[:, 2], wo_up[:, 2], attached, alpha)
-        g1 = d.G1(cos_i, alpha) if ratio is None else d.G1(cos_i, attached) * ratio
-        weight = self.param("specular_reflectance", sp) * torch.where(ok, g1, 0.0)[:, None]
-        fresnel = self.fresnel(sp, cos_d)
-        if fresnel is not None:
-            weight = weight * fresnel
-        return BSDFSample(frame.to_world(wl), weight, pdf, torch.zeros_like(ok))
+    def lane_form(self) -> LaneForm:
+        keys = (("specular_reflectance", 3), ("roughness", 1)) + self.fresnel_keys
+        bound = {"distribution": self.distribution, "fresnel": not self.fresnel_one}
+        return LaneForm(keys, functools.partial(eval_lanes, **bound), functools.partial(sample_lanes, **bound))
 
     # ---- its aliases in the scene formats (read through the registry)
 

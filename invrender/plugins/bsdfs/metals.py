@@ -27,7 +27,7 @@ import torch
 from invrender.errors import SceneError
 from invrender.plugins.bsdfs.metal_iors import METAL_IORS
 from invrender.scene.plugins import Constant
-from invrender.core.bsdf import ShadingPoint
+from invrender.core.bsdf import TORCH, ShadingPoint
 
 #: the conductor with a Fresnel term of 1 (Mitsuba's default ``material``): eta = 0, k = 1
 NONE = "none"
@@ -52,23 +52,41 @@ def is_fresnel_one(eta, k) -> bool:
     return tuple(float(x) for x in eta) == NONE_ETA and tuple(float(x) for x in k) == NONE_K
 
 
-def fresnel_conductor(cos_i: torch.Tensor, eta: torch.Tensor, k: torch.Tensor) -> torch.Tensor:
-    """Unpolarized Fresnel reflectance (N, 3) of a conductor of index ``eta + i k`` (N, 3) each, for
-    cosines of incidence ``cos_i`` (N,) (module docstring; Mitsuba 3's ``fresnel_conductor``)."""
-    c = cos_i[:, None]
-    c2 = c * c
+def fresnel_conductor_lanes(xp, cos_i, eta, k):
+    """Unpolarized Fresnel reflectance of a conductor of index ``eta + i k`` for cosines of
+    incidence ``cos_i`` in [0, 1] (module docstring; Mitsuba 3's ``fresnel_conductor``), written
+    against the array interface (:mod:`invrender.core.lanes`): ``eta``, ``k`` 3-tuples (RGB) give
+    a 3-tuple, arrays (broadcasting against ``cos_i``) an array."""
+    if isinstance(eta, tuple):
+        return tuple(fresnel_conductor_lanes(xp, cos_i, e, kk) for e, kk in zip(eta, k))
+    c2 = cos_i * cos_i
     s2 = 1.0 - c2
-    s4 = s2 * s2
     t1 = eta * eta - k * k - s2
-    a2b2 = (t1 * t1 + 4.0 * k * k * eta * eta).clamp_min(0.0).sqrt()
-    a = (0.5 * (a2b2 + t1)).clamp_min(0.0).sqrt()
+    a2b2 = xp.sqrt(xp.maximum(t1 * t1 + 4.0 * k * k * eta * eta, 0.0))
+    a = xp.sqrt(xp.maximum(0.5 * (a2b2 + t1), 0.0))
     term1 = a2b2 + c2
-    term2 = 2.0 * c * a
+    term2 = 2.0 * cos_i * a
     rs = (term1 - term2) / (term1 + term2)
-    term3 = a2b2 * c2 + s4
+    term3 = a2b2 * c2 + s2 * s2
     term4 = term2 * s2
     rp = rs * (term3 - term4) / (term3 + term4)
     return 0.5 * (rs + rp)
+
+
+def fresnel_conductor(cos_i: torch.Tensor, eta: torch.Tensor, k: torch.Tensor) -> torch.Tensor:
+    """:func:`fresnel_conductor_lanes` on torch: reflectance (N, 3) of indices ``eta + i k`` (N, 3)
+    each for cosines ``cos_i`` (N,)."""
+    return fresnel_conductor_lanes(TORCH, cos_i[:, None], eta, k)
+
+
+def fresnel_lanes(xp, p, cos_d, weight, *, fresnel: bool):
+    """``weight`` (a 3-tuple) times the conductor Fresnel term of ``p["eta"]``, ``p["k"]`` at
+    cosines ``cos_d`` (clamped to [0, 1]) in lane form; ``weight`` itself without ``fresnel`` (every
+    material eta 0, k 1: :attr:`ConductorFresnel.fresnel_one`, nothing computed or multiplied)."""
+    if not fresnel:
+        return weight
+    F = fresnel_conductor_lanes(xp, xp.minimum(xp.maximum(cos_d, 0.0), 1.0), p["eta"], p["k"])
+    return (weight[0] * F[0], weight[1] * F[1], weight[2] * F[2])
 
 
 #: the constants of a conductor's complex index of refraction, RGB (``none``: eta 0, k 1)
@@ -85,10 +103,22 @@ class ConductorFresnel:
     #: the TOML key naming a preset of constants (:meth:`from_name`)
     toml_named = "material"
 
+    @property
+    def fresnel_one(self) -> bool:
+        """Does every material of this instance have eta 0, k 1 (F = 1: nothing to compute or
+        multiply; the lane forms bind it)?"""
+        return all(is_fresnel_one(c.get("eta", NONE_ETA), c.get("k", NONE_K)) for c in self.constants)
+
+    @property
+    def fresnel_keys(self) -> tuple[tuple[str, int], ...]:
+        """The lane form's keys of the Fresnel term (:func:`fresnel_lanes`): none where
+        :attr:`fresnel_one`."""
+        return () if self.fresnel_one else (("eta", 3), ("k", 3))
+
     def fresnel(self, sp: ShadingPoint, cos_d: torch.Tensor) -> torch.Tensor | None:
-        """F (N, 3) at cosines ``cos_d`` (N,) of ``wo`` with the microfacet normal; None where every
-        material of this instance has eta 0, k 1 (F = 1: nothing to compute or multiply)."""
-        if all(is_fresnel_one(c.get("eta", NONE_ETA), c.get("k", NONE_K)) for c in self.constants):
+        """F (N, 3) at cosines ``cos_d`` (N,) of ``wo`` with the microfacet normal; None where
+        :attr:`fresnel_one`."""
+        if self.fresnel_one:
             return None
         eta, k = self.constant("eta", sp), self.constant("k", sp)
         one = ((eta == 0.0) & (k == 1.0)).all(1)

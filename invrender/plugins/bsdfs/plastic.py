@@ -70,7 +70,7 @@ import torch
 
 from invrender import registry
 from invrender.errors import ParameterError, SceneError
-from invrender.plugins.bsdfs.dielectric import check_relative_ior, fresnel_dielectric
+from invrender.plugins.bsdfs.dielectric import check_relative_ior, fresnel_dielectric, fresnel_dielectric_lanes
 from invrender.plugins.bsdfs.glossy import ALPHA
 from invrender.plugins.bsdfs.microfacet import BECKMANN, DISTRIBUTIONS, GGX, Distribution, fwAD_active
 from invrender.plugins.bsdfs.mirror import reflect
@@ -346,16 +346,20 @@ def rough_sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1, *, distribution: Di
     return wi, weight, xp.select(ok, pdf, 0.0), xp.full(False, u0)
 
 
-def _smooth_diffuse(xp, p, c_o, c_i):
+def _smooth_diffuse(xp, p, c_o, c_i, F_o):
     """``f cos / (c_i / pi)`` of the smooth plastic's diffuse lobe, ``rho' (1 - F_o)(1 - F_i) /
-    eta^2`` (a 3-tuple; 0 unless both directions lie above the normal)."""
+    eta^2`` (a 3-tuple; 0 unless both directions lie above the normal), ``F_o`` the Fresnel term at
+    ``c_o``."""
     eta = p["eta"]
-    t = (1.0 - _coating_fresnel(xp, c_o, eta)) * (1.0 - _coating_fresnel(xp, c_i, eta)) / (eta * eta)
+    t = (1.0 - F_o) * (1.0 - _coating_fresnel(xp, c_i, eta)) / (eta * eta)
     return scale(base_lanes(xp, p), xp.select((c_o > 0.0) & (c_i > 0.0), t, 0.0))
 
 
 def _smooth_choice(xp, ps, c_o):
-    return lobe_choice_lanes(xp, _coating_fresnel(xp, c_o, ps["eta"]), ps["specular_sampling_weight"])
+    """``(P_s, F_o)``: the specular lobe's probability and the Fresnel term at ``c_o`` (``eta`` is a
+    constant: ``f`` and sampling read the same one)."""
+    F_o = _coating_fresnel(xp, c_o, ps["eta"])
+    return lobe_choice_lanes(xp, F_o, ps["specular_sampling_weight"]), F_o
 
 
 def smooth_eval_lanes(xp, p, ps, wo, wi, front):
@@ -363,20 +367,21 @@ def smooth_eval_lanes(xp, p, ps, wo, wi, front):
     lobe has no density)."""
     c_o, c_i = wo[2], wi[2]
     cos = xp.maximum(c_i, 0.0) * (1.0 / math.pi)
-    pdf = xp.select(c_o > 0.0, (1.0 - _smooth_choice(xp, ps, c_o)) * cos, 0.0)
-    return scale(_smooth_diffuse(xp, p, c_o, c_i), cos), pdf
+    p_s, F_o = _smooth_choice(xp, ps, c_o)
+    pdf = xp.select(c_o > 0.0, (1.0 - p_s) * cos, 0.0)
+    return scale(_smooth_diffuse(xp, p, c_o, c_i, F_o), cos), pdf
 
 
 def smooth_sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1):
     """The coating's reflection with probability P_s (weight ``k_s F / P_s``, delta), else a
     cosine-weighted direction (weight ``rho' (1 - F_o)(1 - F_i) / (eta^2 (1 - P_s))``)."""
     c_o = wo[2]
-    p_s = _smooth_choice(xp, ps, c_o)
+    p_s, F_o = _smooth_choice(xp, ps, c_o)
     spec = (u_lobe < p_s) & (c_o > 0.0)
     wi = select3(xp, spec, (-wo[0], -wo[1], wo[2]), cosine_hemisphere_lanes(xp, u0, u1))
     c_i = wi[2]
-    w_spec = scale(p["specular_reflectance"], _coating_fresnel(xp, c_o, p["eta"]) / xp.maximum(p_s, 1e-30))
-    w_diff = scale(_smooth_diffuse(xp, p, c_o, c_i), 1.0 / xp.maximum(1.0 - p_s, 1e-30))
+    w_spec = scale(p["specular_reflectance"], F_o / xp.maximum(p_s, 1e-30))
+    w_diff = scale(_smooth_diffuse(xp, p, c_o, c_i, F_o), 1.0 / xp.maximum(1.0 - p_s, 1e-30))
     pdf = xp.select(spec | (c_o <= 0.0), 0.0, (1.0 - p_s) * xp.maximum(c_i, 0.0) * (1.0 / math.pi))
     return wi, select3(xp, spec, w_spec, w_diff), pdf, spec
 
@@ -502,11 +507,3 @@ class RoughPlasticGGX(RoughPlastic):
     doc = "rough plastic with a GGX coating (Mitsuba's roughplastic, distribution ggx), two-sided"
     distribution = GGX
 
-
-# ---- PLACEHOLDER until the dielectric lanes (branch hB) are merged
-def fresnel_dielectric_lanes(xp, cos_i, eta):
-    cos2_t = 1.0 - (1.0 - cos_i * cos_i) / (eta * eta)
-    cos_t = xp.sqrt(xp.maximum(cos2_t, 0.0))
-    r_s = (cos_i - eta * cos_t) / xp.maximum(cos_i + eta * cos_t, 1e-12)
-    r_p = (eta * cos_i - cos_t) / xp.maximum(eta * cos_i + cos_t, 1e-12)
-    return xp.select(cos2_t <= 0.0, 1.0, 0.5 * (r_s * r_s + r_p * r_p)), cos_t

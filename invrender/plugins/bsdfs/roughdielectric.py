@@ -7,7 +7,7 @@ Walter et al., "Microfacet Models for Refraction through Rough Surfaces" (EGSR 2
 distributions of :mod:`invrender.plugins.bsdfs.microfacet`. In the shading frame (normal ``n`` turned
 to ``wo``, so ``c_o = wo.z > 0``), with ``eta`` the index ratio transmitted over incident
 (``int_ior / ext_ior`` from outside, its inverse from inside) and ``F`` the dielectric Fresnel term
-(:func:`~invrender.plugins.bsdfs.dielectric.fresnel_dielectric`):
+(:func:`~invrender.plugins.bsdfs.dielectric.fresnel_dielectric_lanes`):
 
 - reflection (``wi`` on ``wo``'s side): ``h = normalize(wo + wi)``,
   ``f cos = k_r F(wo.h) D(h) G1(wo) G1(wi) / (4 c_o)``;
@@ -31,8 +31,8 @@ the weights are ``k_r G1(wi)`` and ``k_t G1(wi) / eta^2``.
 The roughness alpha (``NAME.roughness``, kind ``roughness``) is differentiable as the glossy
 conductor's (:mod:`invrender.plugins.bsdfs.glossy`): ``eval`` reads it attached, sampling and ``pdf``
 detached, and the weight carries ``D(h; alpha) G1(wo; alpha) / (D(h; alpha_s) G1(wo; alpha_s))``
-(:func:`~invrender.plugins.bsdfs.microfacet.visible_reweight`, exactly 1 in value) and ``G1(wi;
-alpha)``, for both lobes: every estimator stays unbiased in alpha.
+(:meth:`~invrender.plugins.bsdfs.microfacet.Distribution.reweight_lanes`'s factor, exactly 1 in
+value) and ``G1(wi; alpha)``, for both lobes: every estimator stays unbiased in alpha.
 
 Lobes: glossy reflection and glossy transmission, so next-event estimation gathers light from
 either side (docs/integrators.md).
@@ -40,22 +40,23 @@ either side (docs/integrators.md).
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import ClassVar
 
 import numpy as np
-import torch
 
 from invrender import registry
 from invrender.errors import SceneError
-from invrender.plugins.bsdfs.dielectric import check_relative_ior, fresnel_dielectric
+from invrender.plugins.bsdfs.dielectric import check_relative_ior, fresnel_dielectric_lanes
 from invrender.plugins.bsdfs.glossy import ALPHA
-from invrender.plugins.bsdfs.microfacet import BECKMANN, GGX, Distribution, roughness_at, visible_reweight
+from invrender.plugins.bsdfs.microfacet import BECKMANN, GGX, Distribution
 from invrender.scene.formats.mitsuba.bsdfs import NAMED_IOR
 from invrender.scene.kinds import ROUGHNESS, SPECULAR_REFLECTANCE
 from invrender.scene.plugins import Constant, Param
-from invrender.core.bsdf import BSDF, BSDFSample, Lobe, ShadingPoint
-from invrender.vec import dot, normalize
+from invrender.core import lanes
+from invrender.core.bsdf import LaneBSDF, LaneForm, Lobe
+from invrender.core.lanes import scale, select3
 
 #: the interface's indices of refraction (Mitsuba's defaults: bk7 inside, air outside)
 INTERFACE_CONSTANTS = {
@@ -66,8 +67,89 @@ INTERFACE_CONSTANTS = {
 }
 
 
+def _eta(xp, p, front):
+    """The index ratio transmitted over incident: ``int_ior / ext_ior`` from outside (``front``),
+    its inverse from inside."""
+    eta = p["int_ior"] / p["ext_ior"]
+    return xp.select(front, eta, 1.0 / eta)
+
+
+def _lobe_density(xp, reflected, F, eta, d_o, d_i, denom):
+    """The lobe's choice probability times the Jacobian from h to ``wi``: ``F / (4 wo.h)``
+    (reflection) or ``(1 - F) eta^2 |wi.h| / (wo.h + eta wi.h)^2`` (refraction), each times ``wo.h``
+    (the visible density's, which :func:`eval_lanes` and :func:`sample_lanes` leave out)."""
+    return xp.select(reflected, F * 0.25, (1.0 - F) * eta * eta * xp.abs(d_i) * d_o / denom)
+
+
+def eval_lanes(xp, p, ps, wo, wi, front, *, distribution: Distribution):
+    """``f cos`` of the lobe ``wi``'s side takes (module docstring; roughness ``p``'s) and the pdf
+    (``ps``'s): 0 unless ``wo`` lies above the normal, ``wo.h > 0`` and ``wi`` lies on h's side
+    that its own side asks."""
+    d = distribution
+    alpha, alpha_s = p["roughness"], ps["roughness"]
+    eta = _eta(xp, ps, front)
+    c_o, c_i = wo[2], wi[2]
+    reflected = c_i > 0.0
+    # the (generalized) half-vector, turned up
+    h = lanes.normalize(xp, lanes.add(wo, scale(wi, xp.select(reflected, 1.0, eta))))
+    h = scale(h, xp.select(h[2] < 0.0, -1.0, 1.0))
+    d_o, d_i = lanes.dot(wo, h), lanes.dot(wi, h)
+    ok = (c_o > 0.0) & (c_i != 0.0) & (d_o > 0.0) & (d_i * c_i > 0.0)
+    F, _ = fresnel_dielectric_lanes(xp, xp.minimum(xp.maximum(d_o, 0.0), 1.0), eta)
+    s = d_o + eta * d_i
+    denom = xp.maximum(s * s, 1e-12)
+    inv_o = 1.0 / xp.maximum(c_o, 1e-12)
+    D_s, g1_s = d.D_lanes(xp, h[2], alpha_s), d.G1_lanes(xp, c_o, alpha_s)
+    pdf = xp.select(ok, g1_s * D_s * inv_o * _lobe_density(xp, reflected, F, eta, d_o, d_i, denom), 0.0)
+    D, g1_o = (D_s, g1_s) if alpha is alpha_s else (d.D_lanes(xp, h[2], alpha), d.G1_lanes(xp, c_o, alpha))
+    common = D * g1_o * d.G1_lanes(xp, xp.abs(c_i), alpha) * inv_o
+    f_r = xp.select(ok & reflected, F * common * 0.25, 0.0)
+    f_t = xp.select(ok & ~reflected, (1.0 - F) * common * d_o * xp.abs(d_i) / denom, 0.0)
+    f = lanes.add(scale(p["specular_reflectance"], f_r), scale(p["specular_transmittance"], f_t))
+    return f, pdf
+
+
+def sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1, *, distribution: Distribution):
+    """A visible normal h (roughness ``ps``'s); reflection about it with probability F (weight
+    ``k_r G1(wi)``), else refraction through it (weight ``k_t G1(wi) / eta^2``), times ``D(h;
+    alpha) G1(wo; alpha) / (D(h; alpha_s) G1(wo; alpha_s))`` (``p``'s roughness over ``ps``'s: 1
+    in value, the roughness gradient of ``f``); 0 where ``wo`` lies below or ``wi`` on the wrong
+    side."""
+    d = distribution
+    alpha, alpha_s = p["roughness"], ps["roughness"]
+    eta = _eta(xp, ps, front)
+    above = wo[2] > 0.0
+    wo_up = (xp.select(above, wo[0], 0.0), xp.select(above, wo[1], 0.0), xp.select(above, wo[2], 1.0))
+    h = d.sample_visible_lanes(xp, wo_up, alpha_s, u0, u1)
+    d_o = xp.minimum(xp.maximum(lanes.dot(wo_up, h), 0.0), 1.0)
+    F, cos_t = fresnel_dielectric_lanes(xp, d_o, eta)
+    reflected = u_lobe < F
+    inv = 1.0 / eta
+    w_r = lanes.sub(scale(h, 2.0 * d_o), wo_up)
+    w_t = lanes.sub(scale(h, d_o * inv - cos_t), scale(wo_up, inv))
+    wi = select3(xp, reflected, w_r, w_t)
+    c_i = wi[2]
+    ok = above & (d_o > 0.0) & xp.select(reflected, c_i > 0.0, (c_i < 0.0) & (cos_t > 0.0))
+    d_i = lanes.dot(wi, h)
+    s = d_o + eta * d_i
+    denom = xp.maximum(s * s, 1e-12)
+    D_s, g1_s = d.D_lanes(xp, h[2], alpha_s), d.G1_lanes(xp, wo_up[2], alpha_s)
+    pdf = g1_s * D_s / xp.maximum(wo_up[2], 1e-12) * _lobe_density(xp, reflected, F, eta, d_o, d_i, denom)
+    g1 = d.G1_lanes(xp, xp.abs(c_i), alpha)
+    if alpha is not alpha_s:  # the same lanes where p is ps (a ratio of exactly 1 otherwise)
+        den = D_s * g1_s
+        ratio = d.D_lanes(xp, h[2], alpha) * d.G1_lanes(xp, wo_up[2], alpha) / xp.select(den > 0.0, den, 1.0)
+        g1 = g1 * xp.select(den > 0.0, ratio, 1.0)
+    g1 = xp.select(ok, g1, 0.0)
+    weight = select3(xp, reflected, scale(p["specular_reflectance"], g1), scale(p["specular_transmittance"], g1 * inv * inv))
+    return wi, weight, xp.select(ok, pdf, 0.0), xp.full(False, u0)
+
+
 @registry.MATERIALS.register
-class RoughDielectric(BSDF):
+class RoughDielectric(LaneBSDF):
+    """Written once in lane form (:func:`eval_lanes`, :func:`sample_lanes`), its distribution bound
+    when the form is built."""
+
     type_name = "roughdielectric"
     lobes = Lobe.GLOSSY | Lobe.GLOSSY_TRANSMISSION
     params = {
@@ -79,76 +161,10 @@ class RoughDielectric(BSDF):
     #: the microfacet distribution
     distribution: ClassVar[Distribution] = BECKMANN
 
-    def _eta(self, sp: ShadingPoint) -> torch.Tensor:
-        """(N,) the index ratio transmitted over incident (``int_ior / ext_ior`` from outside)."""
-        eta = self.constant("int_ior", sp) / self.constant("ext_ior", sp)
-        return torch.where(sp.front, eta, 1.0 / eta)
-
-    def _terms(self, sp: ShadingPoint, wl: torch.Tensor, alpha: torch.Tensor, value: bool):
-        """``(f cos (N, 3) or None, pdf (N,))`` at local directions ``wl`` (N, 3); ``f`` at roughness
-        ``alpha`` (N,), the pdf at the detached sampling roughness."""
-        wo = sp.wo_local
-        eta = self._eta(sp)
-        c_o, c_i = wo[:, 2], wl[:, 2]
-        reflected = c_i > 0
-        h = normalize(wo + wl * torch.where(reflected, 1.0, eta)[:, None])
-        h = h * torch.where(h[:, 2] < 0, -1.0, 1.0)[:, None]
-        d_o, d_i = dot(wo, h), dot(wl, h)
-        ok = (c_o > 0) & (c_i != 0) & (d_o > 0) & (d_i * c_i > 0)
-        F = fresnel_dielectric(d_o.clamp(0.0, 1.0), eta)[0]
-        denom = (d_o + eta * d_i).square().clamp_min(1e-12)
-        d = self.distribution
-        alpha_s = roughness_at(self, sp)[1]
-        visible = d.G1(c_o, alpha_s) * d.D(h[:, 2], alpha_s) / c_o.clamp_min(1e-12)  # / wo.h, times the Jacobian's wo.h
-        pdf = visible * torch.where(reflected, F / 4.0, (1.0 - F) * eta * eta * d_i.abs() * d_o / denom)
-        pdf = torch.where(ok, pdf, 0.0)
-        if not value:
-            return None, pdf
-        common = d.D(h[:, 2], alpha) * d.G1(c_o, alpha) * d.G1(c_i.abs(), alpha) / c_o.clamp_min(1e-12)
-        f_r = torch.where(ok & reflected, F * common / 4.0, 0.0)
-        f_t = torch.where(ok & ~reflected, (1.0 - F) * common * d_o * d_i.abs() / denom, 0.0)
-        f = self.param("specular_reflectance", sp) * f_r[:, None] + self.constant("specular_transmittance", sp) * f_t[:, None]
-        return f, pdf
-
-    def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        """``f cos`` (N, 3) of the lobe ``wi``'s side takes (differentiable in alpha)."""
-        return self._terms(sp, sp.frame.to_local(wi), roughness_at(self, sp)[0], value=True)[0]
-
-    def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        """The visible normal's density times ``F`` or ``1 - F`` times the Jacobian (N,), at the
-        detached alpha_s."""
-        wl = sp.frame.to_local(wi)
-        return self._terms(sp, wl, wl.new_zeros(wl.shape[0]), value=False)[1]
-
-    def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
-        """A visible normal (of the detached alpha_s); reflection about it with probability F
-        (weight ``k_r G1(wi)``), else refraction (weight ``k_t G1(wi) / eta^2``), times the
-        reweighting to the attached alpha (1 in value)."""
-        wo = sp.wo_local
-        d = self.distribution
-        attached, alpha = roughness_at(self, sp)
-        eta = self._eta(sp)
-        above = wo[:, 2] > 0
-        wo_up = torch.where(above[:, None], wo, torch.tensor([0.0, 0.0, 1.0], device=wo.device))
-        h = d.sample_visible(wo_up, alpha, u_dir)
-        d_o = dot(wo_up, h).clamp(0.0, 1.0)
-        F, cos_t = fresnel_dielectric(d_o, eta)
-        reflected = u_lobe < F
-        w_r = 2.0 * d_o[:, None] * h - wo_up
-        w_t = -wo_up / eta[:, None] + (d_o / eta - cos_t)[:, None] * h
-        wl = torch.where(reflected[:, None], w_r, w_t)
-        c_i = wl[:, 2]
-        ok = above & (d_o > 0) & torch.where(reflected, c_i > 0, (c_i < 0) & (cos_t > 0))
-        d_i = dot(wl, h)
-        denom = (d_o + eta * d_i).square().clamp_min(1e-12)
-        visible = d.G1(wo_up[:, 2], alpha) * d.D(h[:, 2], alpha) / wo_up[:, 2].clamp_min(1e-12)
-        pdf = visible * torch.where(reflected, F / 4.0, (1.0 - F) * eta * eta * d_i.abs() * d_o / denom)
-        ratio = visible_reweight(d, h[:, 2], wo_up[:, 2], attached, alpha)
-        g1 = d.G1(c_i.abs(), alpha) if ratio is None else d.G1(c_i.abs(), attached) * ratio
-        g1 = torch.where(ok, g1, 0.0)
-        k_r, k_t = self.param("specular_reflectance", sp), self.constant("specular_transmittance", sp)
-        weight = torch.where(reflected[:, None], k_r, k_t / (eta * eta)[:, None]) * g1[:, None]
-        return BSDFSample(sp.frame.to_world(wl), weight, torch.where(ok, pdf, 0.0), torch.zeros_like(ok))
+    def lane_form(self) -> LaneForm:
+        keys = (("specular_reflectance", 3), ("roughness", 1), ("int_ior", 1), ("ext_ior", 1), ("specular_transmittance", 3))
+        bound = {"distribution": self.distribution}
+        return LaneForm(keys, functools.partial(eval_lanes, **bound), functools.partial(sample_lanes, **bound))
 
     @classmethod
     def resolve(cls, where: str, values: dict, constants: dict, given: set) -> dict:

@@ -19,38 +19,47 @@ from __future__ import annotations
 import torch
 
 from invrender import registry
-from invrender.plugins.bsdfs.dielectric import MAX_RELATIVE_IOR, fresnel_dielectric
-from invrender.plugins.bsdfs.mirror import reflect
+from invrender.plugins.bsdfs.dielectric import MAX_RELATIVE_IOR, fresnel_dielectric_lanes
+from invrender.plugins.bsdfs.mirror import eval_lanes as delta_eval_lanes  # no density: f cos and pdf 0
 from invrender.scene.plugins import Constant
-from invrender.core.bsdf import BSDFSample, DeltaBSDF, Lobe, ShadingPoint
-from invrender.vec import dot
+from invrender.core.lanes import select3
+from invrender.core.bsdf import TORCH, LaneBSDF, LaneForm, Lobe, ShadingPoint
+
+
+def pane_lanes(xp, ior, wo):
+    """The pane of index ``ior`` seen from local ``wo`` (normal +z, either side): ``(R, reflected
+    wi, transmitted wi)``, ``R = 2 F / (1 + F)`` with F one interface's reflectance at ``|cos|``."""
+    F, _ = fresnel_dielectric_lanes(xp, xp.abs(wo[2]), ior)
+    R = 2.0 * F / (1.0 + F)
+    x, y = -wo[0], -wo[1]
+    return R, (x, y, wo[2]), (x, y, -wo[2])
+
+
+def sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1):
+    """Reflection with probability R, else transmission straight through; both weight 1, delta."""
+    R, wr, wt = pane_lanes(xp, ps["ior"], wo)
+    one = xp.full(1.0, u_lobe)
+    return select3(xp, u_lobe < R, wr, wt), (one, one, one), xp.full(0.0, u_lobe), xp.full(True, u_lobe)
 
 
 @registry.MATERIALS.register
-class ThinDielectric(DeltaBSDF):
+class ThinDielectric(LaneBSDF):
+    """Written once in lane form (:func:`sample_lanes`; eval: the mirror's, no density);
+    :meth:`specular_lobes` evaluates the same :func:`pane_lanes`."""
+
     type_name = "thindielectric"
     lobes = Lobe.DELTA_REFLECTION | Lobe.DELTA_TRANSMISSION
     constants = {"ior": Constant(1.5, 1.0 / MAX_RELATIVE_IOR, MAX_RELATIVE_IOR, False, False)}
     doc = "a thin pane of glass: reflection, and transmission straight through"
 
-    def _pane(self, sp: ShadingPoint) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """(R (N,), reflected wi (N, 3), transmitted wi (N, 3)) at each point."""
-        ior = self.constant("ior", sp)
-        cos_i = dot(sp.n, sp.wo).abs()
-        F, _ = fresnel_dielectric(cos_i, torch.broadcast_to(ior, cos_i.shape))
-        R = 2.0 * F / (1.0 + F)
-        return R, reflect(sp.wo, sp.n), -sp.wo
+    def lane_form(self) -> LaneForm:
+        return LaneForm((("ior", 1),), delta_eval_lanes, sample_lanes)
 
     def specular_lobes(self, sp: ShadingPoint) -> list[tuple[torch.Tensor, torch.Tensor]]:
         """Reflection with weight R, transmission straight through with weight 1 - R."""
-        R, wr, wt = self._pane(sp)
-        return [(wr, R[:, None].expand(-1, 3)), (wt, (1.0 - R)[:, None].expand(-1, 3))]
-
-    def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
-        """Reflection with probability R, else transmission; both weight 1."""
-        R, wr, wt = self._pane(sp)
-        wi = torch.where((u_lobe < R)[:, None], wr, wt)
-        return self.delta_sample(wi, torch.ones_like(wi))
+        R, wr, wt = pane_lanes(TORCH, self.constant("ior", sp), tuple(sp.wo_local.unbind(1)))
+        to_world = lambda w: sp.frame.to_world(torch.stack(w, dim=1))  # noqa: E731
+        return [(to_world(wr), R[:, None].expand(-1, 3)), (to_world(wt), (1.0 - R)[:, None].expand(-1, 3))]
 
     # ---- its aliases in the scene formats (read through the registry)
 
