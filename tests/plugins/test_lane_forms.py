@@ -19,7 +19,6 @@ from invrender.registry import MATERIALS
 TYPES = MATERIALS.names()
 #: materials still written in torch alone (the torch bounce renders them); shrinks to nothing
 NOT_YET = {
-    "principled",
     "principledthin",
 }
 XP = arrays.drjit_arrays(torch.device("cpu"))
