@@ -79,7 +79,6 @@ from invrender.scene.kinds import REFLECTANCE, ROUGHNESS
 from invrender.scene.kinds import SPECULAR_REFLECTANCE_RGB as SPECULAR_REFLECTANCE
 from invrender.scene.plugins import Constant, Param
 from invrender.core.bsdf import LaneBSDF, LaneForm, Lobe, ShadingPoint
-from invrender.backends.arrays import TORCH
 from invrender.core import lanes
 from invrender.core.lanes import scale, select3
 from invrender.vec import dot
@@ -118,12 +117,6 @@ def fresnel_diffuse_reflectance(eta: float) -> float:
 def _mean(value) -> float:
     """The mean of a colour (a number, an RGB triple or a texture; arrays or tensors)."""
     return float(np.mean(np.asarray(value.detach().cpu() if torch.is_tensor(value) else value, dtype=np.float64)))
-
-
-def cosine_hemisphere(u: torch.Tensor) -> torch.Tensor:
-    """Cosine-distributed local directions (N, 3) about +z from uniforms ``u`` (N, 2)
-    (:func:`cosine_hemisphere_lanes`)."""
-    return torch.stack(cosine_hemisphere_lanes(TORCH, u[:, 0], u[:, 1]), dim=1)
 
 
 def _rough_quadrature(distribution: str, alpha: float, eta: float, nodes: tuple[int, int]) -> tuple[np.ndarray, float]:
@@ -274,8 +267,8 @@ class Coated(LaneBSDF):
 
 
 def cosine_hemisphere_lanes(xp, u0, u1):
-    """Cosine-distributed local directions about +z (a 3-tuple) from uniforms ``u0``, ``u1`` (N,)
-    (the disk mapping of :func:`cosine_hemisphere`)."""
+    """Cosine-distributed local directions about +z (a 3-tuple) from uniforms ``u0``, ``u1`` (N,):
+    Malley's method (the unit disk's polar mapping, lifted to the hemisphere)."""
     r = xp.sqrt(u0)
     phi = (2.0 * math.pi) * u1
     return (r * xp.cos(phi), r * xp.sin(phi), xp.sqrt(xp.maximum(1.0 - u0, 0.0)))

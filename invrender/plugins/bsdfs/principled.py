@@ -58,12 +58,11 @@ import torch
 from invrender import registry
 from invrender.core import lanes
 from invrender.core.bsdf import BSDF, LaneBSDF, LaneForm, Lobe, ShadingPoint
-from invrender.plugins.bsdfs.dielectric import MAX_RELATIVE_IOR, fresnel_dielectric, fresnel_dielectric_lanes
-from invrender.plugins.bsdfs.microfacet import ggx_D_aniso_lanes, ggx_G1_aniso_lanes, ggx_sample_visible_lanes, ggx_visible_pdf_aniso_lanes, roughness_at
+from invrender.plugins.bsdfs.dielectric import MAX_RELATIVE_IOR, fresnel_dielectric_lanes
+from invrender.plugins.bsdfs.microfacet import ggx_D_aniso_lanes, ggx_G1_aniso_lanes, ggx_sample_visible_lanes, ggx_visible_pdf_aniso_lanes
 from invrender.plugins.bsdfs.plastic import cosine_hemisphere_lanes
 from invrender.scene import kinds
 from invrender.scene.plugins import Constant, Param
-from invrender.vec import dot
 
 #: Rec. 709 luminance weights (Mitsuba's ``luminance`` of an RGB colour)
 LUMINANCE = (0.212671, 0.715160, 0.072169)
@@ -89,104 +88,6 @@ WEIGHTS = {
 # ---------------------------------------------------------------- the helpers both principled materials use
 
 
-def luminance(rgb: torch.Tensor) -> torch.Tensor:
-    """(N,) luminance of linear RGB colours (N, 3)."""
-    return LUMINANCE[0] * rgb[:, 0] + LUMINANCE[1] * rgb[:, 1] + LUMINANCE[2] * rgb[:, 2]
-
-
-def tint_colour(base: torch.Tensor) -> torch.Tensor:
-    """(N, 3) the base colour over its luminance (white where the luminance is 0)."""
-    lum = luminance(base)[:, None]
-    return torch.where(lum > 0, base / torch.where(lum > 0, lum, 1.0), 1.0)
-
-
-def schlick_weight(cos: torch.Tensor) -> torch.Tensor:
-    """(N,) ``(1 - cos)^5``, ``1 - cos`` clamped to [0, 1]."""
-    m = (1.0 - cos).clamp(0.0, 1.0)
-    return m.square().square() * m
-
-
-def schlick_r0(eta: torch.Tensor) -> torch.Tensor:
-    """(N,) normal-incidence reflectance ``((eta - 1) / (eta + 1))^2``."""
-    return ((eta - 1.0) / (eta + 1.0)).square()
-
-
-def fresnel(cos_i: torch.Tensor, eta: torch.Tensor) -> torch.Tensor:
-    """(N,) exact dielectric Fresnel reflectance at signed cosines ``cos_i`` (N,) of an interface
-    of relative index ``eta`` (N,) (the index inverted where ``cos_i < 0``: arriving from inside)."""
-    return fresnel_dielectric(cos_i.abs(), torch.where(cos_i >= 0, eta, 1.0 / eta))[0]
-
-
-def schlick(r0: torch.Tensor, cos_i: torch.Tensor, eta: torch.Tensor) -> torch.Tensor:
-    """Schlick's Fresnel ``r0 + (1 - r0) (1 - cos)^5`` (shape of ``r0``: (N,) or (N, 3)) at signed
-    cosines ``cos_i`` (N,), with the transmitted cosine for ``cos`` where the incident side is the
-    denser one (Mitsuba's ``calc_schlick``)."""
-    eta_it = torch.where(cos_i >= 0, eta, 1.0 / eta)
-    cos2_t = 1.0 - (1.0 - cos_i * cos_i) / (eta_it * eta_it)
-    w = torch.where(eta_it > 1.0, schlick_weight(cos_i.abs()), schlick_weight(cos2_t.clamp_min(0.0).sqrt()))
-    if r0.ndim == 2:
-        w = w[:, None]
-    return w * (1.0 - r0) + r0
-
-
-def distribution_alphas(anisotropic: torch.Tensor, roughness: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """(alpha_x, alpha_y), each (N,): ``max(0.001, r^2 / s)`` and ``max(0.001, r^2 s)``, ``s =
-    sqrt(1 - 0.9 anisotropic)`` (Burley 2012's mapping)."""
-    r2 = roughness.square()
-    aspect = (1.0 - 0.9 * anisotropic).clamp_min(0.0).sqrt()
-    return (r2 / aspect.clamp_min(1e-6)).clamp_min(0.001), (r2 * aspect).clamp_min(0.001)
-
-
-def diffuse_retro(c_a: torch.Tensor, c_b: torch.Tensor, cos_d: torch.Tensor, roughness: torch.Tensor, flatness: torch.Tensor) -> torch.Tensor:
-    """(N,) Burley's diffuse with retro-reflection, blended by ``flatness`` towards the fake
-    subsurface lobe: ``lerp(f_d + f_r, f_ss, flatness)`` (times ``base_color / pi`` makes f)."""
-    Fo, Fi = schlick_weight(c_b.abs()), schlick_weight(c_a.abs())
-    f_diff = (1.0 - 0.5 * Fi) * (1.0 - 0.5 * Fo)
-    Rr = 2.0 * roughness * cos_d.square()
-    f_retro = Rr * (Fo + Fi + Fo * Fi * (Rr - 1.0))
-    Fss90 = 0.5 * Rr
-    Fss = (1.0 + (Fss90 - 1.0) * Fo) * (1.0 + (Fss90 - 1.0) * Fi)
-    f_ss = 1.25 * (Fss * (1.0 / (c_b.abs() + c_a.abs()).clamp_min(1e-12) - 0.5) + 0.5)
-    return (f_diff + f_retro) * (1.0 - flatness) + f_ss * flatness
-
-
-def sheen_colour(base: torch.Tensor, sheen_tint: torch.Tensor) -> torch.Tensor:
-    """(N, 3) ``lerp(1, c_tint, sheen_tint)``."""
-    return 1.0 + sheen_tint[:, None] * (tint_colour(base) - 1.0)
-
-
-def compatible(h: torch.Tensor, a: torch.Tensor, b: torch.Tensor, c_a: torch.Tensor, reflection: bool) -> torch.Tensor:
-    """(N,) bool: do the macro- and the microsurface agree on the sides of ``a`` and ``b``
-    (``b`` on ``a``'s side of ``h`` for a reflection, on the other for a transmission)? ``h`` is
-    turned to ``a``'s side of the macrosurface (sign of ``c_a``) first."""
-    s = torch.where(c_a >= 0, 1.0, -1.0)
-    d_a, d_b = dot(a, h) * s, dot(b, h) * s
-    return (d_a > 0) & ((d_b > 0) if reflection else (d_b < 0))
-
-
-def gtr1_D(cos_h: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
-    """(N,) Burley's GTR1 density ``(alpha^2 - 1) / (pi log(alpha^2) (1 + (alpha^2 - 1) cos^2))``
-    (0 where ``D cos <= 1e-20``)."""
-    a2 = alpha.square()
-    d = (a2 - 1.0) / (math.pi * torch.log(a2) * (1.0 + (a2 - 1.0) * cos_h.square()))
-    return torch.where(d * cos_h > 1e-20, d, 0.0)
-
-
-def gtr1_sample(alpha: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-    """GTR1 normals (N, 3) (density ``D cos``) from uniforms ``u`` (N, 2)."""
-    phi = (2.0 * math.pi) * u[:, 0]
-    a2 = alpha.square()
-    cos2 = (1.0 - a2.pow(1.0 - u[:, 1])) / (1.0 - a2)
-    sin_t, cos_t = (1.0 - cos2).clamp_min(0.0).sqrt(), cos2.clamp_min(0.0).sqrt()
-    return torch.stack([torch.cos(phi) * sin_t, torch.sin(phi) * sin_t, cos_t], dim=1)
-
-
-def safe(x: torch.Tensor) -> torch.Tensor:
-    """``x`` with zeros replaced by 1 (a denominator whose zero lanes are masked out later, so that
-    neither the value nor the gradient of the masked lanes is NaN)."""
-    return torch.where(x == 0, 1.0, x)
-
-
 def params_with(weights: dict) -> dict:
     """The parameters of a principled material with the blend ``weights`` (name -> kind, default 0):
     ``base_color`` and ``roughness`` (default 0.5) first, as Mitsuba declares them."""
@@ -197,14 +98,16 @@ def params_with(weights: dict) -> dict:
 ETA = Constant(1.5, 1.0 / MAX_RELATIVE_IOR, MAX_RELATIVE_IOR, False, False)
 
 
-# ---------------------------------------------------------------- the principled BSDF in lane form
+# ---------------------------------------------------------------- the lane functions both principled materials use
 
 
 def _scale3(xp, v, s):
+    """``v * s`` (a 3-tuple times a Float)."""
     return (v[0] * s, v[1] * s, v[2] * s)
 
 
 def luminance_lanes(c):
+    """The luminance of linear RGB colours ``c`` (a 3-tuple)."""
     return LUMINANCE[0] * c[0] + LUMINANCE[1] * c[1] + LUMINANCE[2] * c[2]
 
 
@@ -230,7 +133,8 @@ def fresnel_lanes(xp, cos_i, eta):
 
 def schlick_lanes(xp, r0, cos_i, eta):
     """Schlick's ``r0 + (1 - r0) (1 - cos)^5`` (``r0`` a Float or a 3-tuple) with Mitsuba's
-    ``calc_schlick`` choice of cosine (:func:`schlick`)."""
+    ``calc_schlick`` choice of cosine: the transmitted one where the incident side is the denser
+    (index ratio ``eta`` inverted where ``cos_i < 0``)."""
     eta_it = xp.select(cos_i >= 0.0, eta, 1.0 / eta)
     cos2_t = 1.0 - (1.0 - cos_i * cos_i) / (eta_it * eta_it)
     w = xp.select(eta_it > 1.0, schlick_weight_lanes(xp, xp.abs(cos_i)), schlick_weight_lanes(xp, xp.sqrt(xp.maximum(cos2_t, 0.0))))
@@ -240,14 +144,16 @@ def schlick_lanes(xp, r0, cos_i, eta):
 
 
 def alphas_lanes(xp, anisotropic, roughness):
-    """(alpha_x, alpha_y) of :func:`distribution_alphas`."""
+    """(alpha_x, alpha_y): ``max(0.001, r^2 / s)`` and ``max(0.001, r^2 s)``, ``s = sqrt(1 - 0.9
+    anisotropic)`` (Burley 2012's mapping)."""
     r2 = roughness * roughness
     aspect = xp.sqrt(xp.maximum(1.0 - 0.9 * anisotropic, 0.0))
     return xp.maximum(r2 / xp.maximum(aspect, 1e-6), 0.001), xp.maximum(r2 * aspect, 0.001)
 
 
 def diffuse_retro_lanes(xp, c_a, c_b, cos_d, roughness, flatness):
-    """:func:`diffuse_retro` in lanes."""
+    """Burley's diffuse with retro-reflection, blended by ``flatness`` towards the fake subsurface
+    lobe: ``lerp(f_d + f_r, f_ss, flatness)`` (times ``base_color / pi`` makes f)."""
     Fo, Fi = schlick_weight_lanes(xp, xp.abs(c_b)), schlick_weight_lanes(xp, xp.abs(c_a))
     f_diff = (1.0 - 0.5 * Fi) * (1.0 - 0.5 * Fo)
     Rr = 2.0 * roughness * (cos_d * cos_d)
@@ -259,21 +165,24 @@ def diffuse_retro_lanes(xp, c_a, c_b, cos_d, roughness, flatness):
 
 
 def compatible_lanes(xp, h, a, b, c_a, reflection: bool):
-    """:func:`compatible` in lanes."""
+    """Do the macro- and the microsurface agree on the sides of ``a`` and ``b`` (``b`` on ``a``'s
+    side of ``h`` for a reflection, on the other for a transmission)? ``h`` is turned to ``a``'s
+    side of the macrosurface (sign of ``c_a``) first."""
     s = xp.select(c_a >= 0.0, 1.0, -1.0)
     d_a, d_b = lanes.dot(a, h) * s, lanes.dot(b, h) * s
     return (d_a > 0.0) & ((d_b > 0.0) if reflection else (d_b < 0.0))
 
 
 def gtr1_D_lanes(xp, cos_h, alpha):
-    """:func:`gtr1_D` in lanes."""
+    """Burley's GTR1 density ``(alpha^2 - 1) / (pi log(alpha^2) (1 + (alpha^2 - 1) cos^2))`` (0 where
+    ``D cos <= 1e-20``)."""
     a2 = alpha * alpha
     d = (a2 - 1.0) / (math.pi * xp.log(a2) * (1.0 + (a2 - 1.0) * (cos_h * cos_h)))
     return xp.select(d * cos_h > 1e-20, d, 0.0)
 
 
 def gtr1_sample_lanes(xp, alpha, u0, u1):
-    """:func:`gtr1_sample` in lanes (a 3-tuple)."""
+    """GTR1 normals (a 3-tuple; density ``D cos``) from uniforms ``u0``, ``u1``."""
     phi = (2.0 * math.pi) * u0
     a2 = alpha * alpha
     cos2 = (1.0 - xp.exp((1.0 - u1) * xp.log(a2))) / (1.0 - a2)
@@ -282,7 +191,12 @@ def gtr1_sample_lanes(xp, alpha, u0, u1):
 
 
 def safe_lanes(xp, x):
+    """``x`` with zeros replaced by 1 (a denominator whose zero lanes are masked out later, so that
+    neither the value nor the gradient of the masked lanes is NaN)."""
     return xp.select(x == 0.0, 1.0, x)
+
+
+# ---------------------------------------------------------------- the principled BSDF
 
 
 def _sided(xp, p, front):
@@ -292,6 +206,8 @@ def _sided(xp, p, front):
 
 
 def _half_lanes(xp, p, a, b):
+    """The geometry of a direction pair in the front-side frame: ``(c_a, c_b, front, reflect,
+    refract, eta, eta_path, h, a.h, b.h, F)``."""
     c_a, c_b = a[2], b[2]
     front = c_a > 0.0
     reflect, refract = c_a * c_b > 0.0, c_a * c_b < 0.0
@@ -303,9 +219,10 @@ def _half_lanes(xp, p, a, b):
     return c_a, c_b, front, reflect, refract, eta, eta_path, h, d_a, d_b, fresnel_lanes(xp, d_a, eta)
 
 
-def principled_value_lanes(xp, p, a, b):
-    """``f |c_b|`` (a 3-tuple) in the front-side frame, parameters ``p`` (module docstring)."""
-    c_a, c_b, front, reflect, refract, eta, eta_path, h, d_a, d_b, F = _half_lanes(xp, p, a, b)
+def principled_value_lanes(xp, p, a, b, half):
+    """``f |c_b|`` (a 3-tuple) in the front-side frame, parameters ``p`` (module docstring), ``half``
+    the pair's geometry (:func:`_half_lanes`)."""
+    c_a, c_b, front, reflect, refract, eta, eta_path, h, d_a, d_b, F = half
     active = c_a != 0.0
     base = p["base_color"]
     r, m, st = p["roughness"], p["metallic"], p["spec_trans"]
@@ -320,7 +237,8 @@ def principled_value_lanes(xp, p, a, b):
     tint = p["spec_tint"]
     r0 = (eta_it - 1.0) / (eta_it + 1.0)
     s_base = schlick_lanes(xp, base, d_a, eta)
-    s_tint = schlick_lanes(xp, _scale3(xp, tint_lanes(xp, base), r0 * r0), d_a, eta)
+    c_tint = tint_lanes(xp, base)
+    s_tint = schlick_lanes(xp, _scale3(xp, c_tint, r0 * r0), d_a, eta)
     F_front = tuple((1.0 - m) * (1.0 - tint) * F + m * x + (1.0 - m) * tint * y for x, y in zip(s_base, s_tint))
     on = active & reflect & compat_r & (F > 0.0)
     spec = xp.select(on, D * G / (4.0 * abs_a), 0.0)
@@ -342,7 +260,7 @@ def principled_value_lanes(xp, p, a, b):
     diff = xp.select(on, brdf * xp.abs(c_b) * (1.0 / math.pi) * diffuse_retro_lanes(xp, c_a, c_b, d_b, r, p["flatness"]), 0.0)
     sh = xp.select(on, p["sheen"] * (1.0 - m) * schlick_weight_lanes(xp, xp.abs(d_b)) * xp.abs(c_b), 0.0)
     sheen_tint = p["sheen_tint"]
-    return tuple(v + cc + c * diff + (1.0 + sheen_tint * (k - 1.0)) * sh for v, c, k in zip(value, base, tint_lanes(xp, base)))
+    return tuple(v + cc + c * diff + (1.0 + sheen_tint * (k - 1.0)) * sh for v, c, k in zip(value, base, c_tint))
 
 
 def _probabilities_lanes(xp, ps, front, F):
@@ -361,9 +279,10 @@ def _probabilities_lanes(xp, ps, front, F):
     return p_d * inv, p_c * inv, p_t * inv, p_r * inv
 
 
-def principled_pdf_lanes(xp, ps, a, b):
-    """The sampling density of ``b`` in the front-side frame (detached parameters ``ps``)."""
-    c_a, c_b, front, reflect, refract, eta, eta_path, h, d_a, d_b, F = _half_lanes(xp, ps, a, b)
+def principled_pdf_lanes(xp, ps, a, b, half):
+    """The sampling density of ``b`` in the front-side frame (detached parameters ``ps``), ``half``
+    the pair's geometry (:func:`_half_lanes`)."""
+    c_a, c_b, front, reflect, refract, eta, eta_path, h, d_a, d_b, F = half
     p_d, p_c, p_t, p_r = _probabilities_lanes(xp, ps, front, F)
     ax, ay = alphas_lanes(xp, ps["anisotropic"], ps["roughness"])
     q = d_a + eta_path * d_b
@@ -383,7 +302,8 @@ def principled_eval_lanes(xp, p, ps, wo, wi, front):
     probabilities (``ps``), in the front side's frame (:func:`_sided`)."""
     s = _sided(xp, ps, front)
     a, b = (wo[0], wo[1], wo[2] * s), (wi[0], wi[1], wi[2] * s)
-    return principled_value_lanes(xp, p, a, b), principled_pdf_lanes(xp, ps, a, b)
+    half = _half_lanes(xp, ps, a, b)  # eta is a constant: the same geometry for f and the pdf
+    return principled_value_lanes(xp, p, a, b, half), principled_pdf_lanes(xp, ps, a, b, half)
 
 
 def principled_sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1):
@@ -421,10 +341,11 @@ def principled_sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1):
     ok = (c_a != 0.0) & (front_side | opaque_back)
     ok = ok & xp.select(transmit, compatible_lanes(xp, h, a, b, c_a, False) & (c_a * c_b < 0.0), c_a * c_b > 0.0)
     ok = ok & (diffuse | transmit | compatible_lanes(xp, h_r, a, b, c_a, True))
-    pdf = xp.select(ok, principled_pdf_lanes(xp, ps, a, b), 0.0)
+    half = _half_lanes(xp, ps, a, b)
+    pdf = xp.select(ok, principled_pdf_lanes(xp, ps, a, b, half), 0.0)
     ok = ok & (pdf > 0.0)
     inv = 1.0 / safe_lanes(xp, pdf)
-    weight = tuple(xp.select(ok, v * inv, 0.0) for v in principled_value_lanes(xp, p, a, b))
+    weight = tuple(xp.select(ok, v * inv, 0.0) for v in principled_value_lanes(xp, p, a, b, half))
     return (b[0], b[1], b[2] * s), weight, xp.select(ok, pdf, 0.0), xp.full(False, u0)
 
 
@@ -434,29 +355,8 @@ PRINCIPLED_KEYS = (("base_color", 3), ("roughness", 1), *((k, 1) for k in WEIGHT
 
 
 class PrincipledBase(BSDF):
-    """What both principled materials share: parameter reading (attached for ``eval``, detached
-    for sampling), the front-side frame, and the Mitsuba export."""
-
-    def grey(self, key: str, sp: ShadingPoint) -> tuple[torch.Tensor, torch.Tensor]:
-        """A blend weight at the points: ``(attached (N,), detached sampling value (N,))``."""
-        return roughness_at(self, sp, key)
-
-    def sided(self, sp: ShadingPoint) -> torch.Tensor:
-        """(N, 3) the factor taking invrender's local frame (normal turned to ``wo``) to the front
-        side's (Mitsuba's: normal along the triangle's front): z negated behind, unless the
-        material is two-sided and opaque."""
-        flip = ~sp.front & ~((self.constant("two_sided", sp) > 0.5) & ~self._transmits(sp))
-        z = torch.where(flip, -1.0, 1.0)
-        return torch.stack([torch.ones_like(z), torch.ones_like(z), z], dim=1)
-
-    def _transmits(self, sp: ShadingPoint) -> torch.Tensor:
-        """(N,) bool: has the point's material a transmission lobe (spec_trans not 0 everywhere in
-        the values sampling reads; Mitsuba's ``m_has_spec_trans``)?"""
-        token = ("has_spec_trans", sp.wo.device)
-        if token not in self._constant_tables:
-            flags = [bool((v["spec_trans"] != 0).any()) for v in self.sampling_values]
-            self._constant_tables[token] = torch.tensor(flags, dtype=torch.bool, device=sp.wo.device)
-        return self._constant_tables[token].index_select(0, sp.material)
+    """What both principled materials share: the diffuse albedo, path records' refusal and the
+    Mitsuba reading (each is written once as lane functions: :class:`~invrender.core.bsdf.LaneBSDF`)."""
 
     def diffuse_reflectance(self, sp: ShadingPoint) -> torch.Tensor:
         return self.param("base_color", sp)
