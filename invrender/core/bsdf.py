@@ -390,6 +390,17 @@ class LaneBSDF(BSDF):
             out[key] = value[:, 0] if size == 1 else tuple(value.unbind(1))
         return out
 
+    def _both_values(self, sp: ShadingPoint) -> tuple[dict, dict]:
+        """``(p, ps)``: one dict for both (a form may then skip its second evaluation: ``p is ps``)
+        where nothing is differentiated and sampling reads the values themselves."""
+        ps = self.lane_values(sp, True)
+        for values, frozen in zip(self.values, self.sampling_values):
+            for key, v in values.items():
+                vs = frozen[key]
+                if v.requires_grad or fwAD.unpack_dual(v).tangent is not None or (v.data_ptr() != vs.data_ptr() and not torch.equal(v, vs)):
+                    return self.lane_values(sp, False), ps
+        return ps, ps
+
     def lane_rows(self, key: str, sampling: bool, device) -> torch.Tensor | None:
         """(M, size) the values of :class:`LaneForm` key ``key`` for this BSDF's M materials where
         the material derives them from its constants and values (a relative index, a table of a
@@ -413,7 +424,7 @@ class LaneBSDF(BSDF):
         if not self.has(Lobe.SMOOTH):  # delta lobes only: no density (the form's eval is 0), nothing to compute
             return sp.wo.new_zeros(sp.count, 3)
         wo, wl = self._local(sp, wi)
-        f, _ = self.lane_form().eval(TORCH, self.lane_values(sp, False), self.lane_values(sp, True), wo, wl, sp.front)
+        f, _ = self.lane_form().eval(TORCH, *self._both_values(sp), wo, wl, sp.front)
         return torch.stack(f, dim=1)
 
     def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
@@ -426,5 +437,5 @@ class LaneBSDF(BSDF):
 
     def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
         wo = self._local(sp)
-        wi, weight, pdf, delta = self.lane_form().sample(TORCH, self.lane_values(sp, False), self.lane_values(sp, True), wo, sp.front, u_lobe, u_dir[:, 0], u_dir[:, 1])
+        wi, weight, pdf, delta = self.lane_form().sample(TORCH, *self._both_values(sp), wo, sp.front, u_lobe, u_dir[:, 0], u_dir[:, 1])
         return BSDFSample(sp.frame.to_world(torch.stack(wi, dim=1)), torch.stack(weight, dim=1), pdf, delta)
