@@ -45,6 +45,7 @@ import torch.autograd.forward_ad as fwAD
 from invrender.errors import ParameterError, did_you_mean
 from invrender.scene.plugins import Declared
 from invrender.backends.arrays import TORCH
+from invrender.core import lanes
 from invrender.core.frame import Frame
 from invrender.core.textures import gather_rgb
 from invrender.scene.textures import TextureSampling
@@ -192,16 +193,19 @@ class LaneForm:
       ``f |cos| / pdf`` (a 3-tuple; zero where no valid direction was drawn), its pdf and a Bool,
       True for a delta lobe.
 
-    ``p`` and ``ps`` hold each lane's material values, ``p[key]`` a 3-tuple of Floats (size 3) or a
-    Float (size 1) for every ``(key, size)`` of :attr:`keys`: ``p`` the values ``f`` and the weight
+    ``p`` and ``ps`` hold each lane's material values, ``p[key]`` a 3-tuple of Floats (size 3), a
+    Float (size 1) or, for a table of more floats a material derives (:meth:`LaneBSDF.lane_rows`: a
+    rough interface's transmittance), a :class:`~invrender.core.lanes.Row` the functions read at
+    positions they compute (:func:`~invrender.core.lanes.row_at`), for every ``(key, size)`` of
+    :attr:`keys`: ``p`` the values ``f`` and the weight
     are differentiated in, ``ps`` the detached ones sampling and pdfs read
     (:meth:`BSDF.sampling_param`; the same arrays in the compiled bounce). ``front`` (Bool) is True
     where ``wo`` lies on the triangle's front (outside) side. Python values the code depends on (a
     sampling choice, a distribution) are bound when :meth:`BSDF.lane_form` builds the form.
 
     Attributes:
-        keys: ``((key, size), ...)`` the parameters and constants the functions read, in order
-            (size 1 of an RGB parameter: its first channel).
+        keys: ``((key, size), ...)`` the parameters, constants and derived values the functions
+            read, in order (size 1 of an RGB parameter: its first channel).
         eval, sample: the two functions.
         world: ``sample`` also takes the shading frame, ``frame=(s, t, n)`` (world 3-vectors), for
             a construction tied to world axes (the diffuse lobe's tangent sphere).
@@ -366,7 +370,8 @@ class LaneBSDF(BSDF):
     def lane_values(self, sp: ShadingPoint, sampling: bool) -> dict:
         """``p`` (or, with ``sampling``, ``ps``) of :class:`LaneForm` at the points ``sp``: each
         key's (N,) columns, differentiable in the parameters (detached for sampling); a grey
-        parameter (a roughness) read as one number by :func:`grey_channel`."""
+        parameter (a roughness) read as one number by :func:`grey_channel`; a key of more than 3
+        floats (:meth:`lane_rows`) as a :class:`~invrender.core.lanes.Row`."""
         out = {}
         for key, size in self.lane_form().keys:
             if key in self.params:
@@ -374,10 +379,33 @@ class LaneBSDF(BSDF):
                 if size == 1 and self.params[key].kind.grey:
                     out[key] = grey_channel(value)
                     continue
+            elif (rows := self.lane_rows(key, sampling, sp.wo.device)) is not None:
+                if size > 3:
+                    out[key] = lanes.Row(rows.reshape(-1), sp.material * size)
+                    continue
+                value = rows.index_select(0, sp.material)
             else:
                 value = self.constant_rgb(key, sp)
             out[key] = value[:, 0] if size == 1 else tuple(value.unbind(1))
         return out
+
+    def _both_values(self, sp: ShadingPoint) -> tuple[dict, dict]:
+        """``(p, ps)``: one dict for both (a form may then skip its second evaluation: ``p is ps``)
+        where nothing is differentiated and sampling reads the values themselves."""
+        ps = self.lane_values(sp, True)
+        for values, frozen in zip(self.values, self.sampling_values):
+            for key, v in values.items():
+                vs = frozen[key]
+                if v.requires_grad or fwAD.unpack_dual(v).tangent is not None or (v.data_ptr() != vs.data_ptr() and not torch.equal(v, vs)):
+                    return self.lane_values(sp, False), ps
+        return ps, ps
+
+    def lane_rows(self, key: str, sampling: bool, device) -> torch.Tensor | None:
+        """(M, size) the values of :class:`LaneForm` key ``key`` for this BSDF's M materials where
+        the material derives them from its constants and values (a relative index, a table of a
+        rough interface): differentiable in the values, or, with ``sampling``, of the values
+        sampling reads, detached; None (the default) for a parameter or a constant."""
+        return None
 
     def constant_rgb(self, key: str, sp: ShadingPoint) -> torch.Tensor:
         """Constant ``key`` at each point (N, 3): an RGB constant, or a number repeated."""
@@ -396,7 +424,7 @@ class LaneBSDF(BSDF):
         if not self.has(Lobe.SMOOTH):  # delta lobes only: no density (the form's eval is 0), nothing to compute
             return sp.wo.new_zeros(sp.count, 3)
         wo, wl = self._local(sp, wi)
-        f, _ = self.lane_form().eval(TORCH, self.lane_values(sp, False), self.lane_values(sp, True), wo, wl, sp.front)
+        f, _ = self.lane_form().eval(TORCH, *self._both_values(sp), wo, wl, sp.front)
         return torch.stack(f, dim=1)
 
     def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
@@ -410,6 +438,6 @@ class LaneBSDF(BSDF):
     def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
         wo, form = self._local(sp), self.lane_form()
         world = {"frame": tuple(tuple(v.unbind(1)) for v in (sp.frame.s, sp.frame.t, sp.frame.n))} if form.world else {}
-        wi, weight, pdf, delta = form.sample(TORCH, self.lane_values(sp, False), self.lane_values(sp, True), wo, sp.front, u_lobe, u_dir[:, 0], u_dir[:, 1], **world)
+        wi, weight, pdf, delta = form.sample(TORCH, *self._both_values(sp), wo, sp.front, u_lobe, u_dir[:, 0], u_dir[:, 1], **world)
         return BSDFSample(sp.frame.to_world(torch.stack(wi, dim=1)), torch.stack(weight, dim=1), pdf, delta)
 

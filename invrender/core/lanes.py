@@ -317,9 +317,11 @@ def material_rows(bsdf, keys, textures: TextureTable):
     (:func:`material_width`), ``layout`` the entries ``(key, size, textured)`` in row order: a
     parameter's detached value or a constant, and where some material of the type reads the key
     from a texture (added to ``textures``), four floats, the constant (RGB) or zeros then the
-    texture's id (-1: none); a size-1 entry reads the first channel. None where a parameter is per vertex, a texture does not fit the table, or
+    texture's id (-1: none); a size-1 entry reads the first channel; a key the material derives
+    from its values (:meth:`~invrender.core.bsdf.LaneBSDF.lane_rows`) of any size. None where a parameter is per vertex, a texture does not fit the table, or
     sampling reads other values than the parameters hold (a render that holds sampling fixed)."""
     layout = tuple((key, size, any(key in v and v[key].ndim == 3 for v in bsdf.values)) for key, size in keys)
+    derived = {key: bsdf.lane_rows(key, True, "cpu") for key, _ in keys if key not in bsdf.params} if hasattr(bsdf, "lane_rows") else {}
     rows = []
     for m, values in enumerate(bsdf.values):
         row = []
@@ -335,10 +337,12 @@ def material_rows(bsdf, keys, textures: TextureTable):
                         return None
                     v = torch.zeros(3)
                 v = v.detach().float().reshape(-1).cpu()
+            elif derived.get(key) is not None:
+                v = derived[key][m].detach().float().reshape(-1).cpu()
             else:
                 c = bsdf.constants[m].get(key, type(bsdf).constants[key].default)
                 v = torch.tensor(c if isinstance(c, (tuple, list)) else (c,) * 3, dtype=torch.float32)
-            row.append(v[:3] if size == 3 or textured else v[:1])
+            row.append(v[:3] if textured else v[:size])
             if textured:
                 row.append(torch.tensor([float(texture)]))
         row = torch.cat(row) if row else torch.zeros(0)
@@ -346,19 +350,40 @@ def material_rows(bsdf, keys, textures: TextureTable):
     return torch.stack(rows).reshape(-1).contiguous(), layout
 
 
+class Row:
+    """A key of more than 3 floats a material holds (a table, :meth:`~invrender.core.bsdf.LaneBSDF.lane_rows`),
+    which lanes read at positions they compute (:func:`row_at`) rather than whole: each lane's
+    entries are ``table[start + j]``, ``start`` (N,) indices into the flat ``table``."""
+
+    __slots__ = ("table", "start")
+
+    def __init__(self, table, start):
+        self.table, self.start = table, start
+
+
+def row_at(xp, row: Row, j):
+    """Entry ``j`` (UInt, per lane: :meth:`uint` of a Float) of each lane's :class:`Row`."""
+    return xp.gather_rows(row.table, row.start + j, 1)[0]
+
+
 def material_values(xp, table, m, layout, lookup=None):
     """``p`` of :class:`~invrender.core.bsdf.LaneForm` for lanes of materials ``m`` (UInt) from
-    their table (:func:`material_rows`): key -> a Float (size 1) or a 3-tuple (size 3), a textured
-    entry read through ``lookup(texture id, constant)`` (:func:`texture_lookup`)."""
+    their table (:func:`material_rows`): key -> a Float (size 1), a 3-tuple (size 3) or a
+    :class:`Row` (larger), a textured entry read through ``lookup(texture id, constant)``
+    (:func:`texture_lookup`); rows are gathered only as far as the small keys reach."""
     width = material_width(layout)
+    reach, at = 0, 0
+    for _, size, textured in layout:
+        at += _floats(size, textured)
+        reach = at if size <= 3 else reach
     if width <= 16:
         flat = xp.gather_rows(table, m, width)
     else:
         chunks = width // 16
-        flat = sum((xp.gather_rows(table, m * chunks + j, 16) for j in range(chunks)), ())
+        flat = sum((xp.gather_rows(table, m * chunks + j, 16) for j in range(-(-reach // 16))), ())
     out, at = {}, 0
     for key, size, textured in layout:
-        out[key] = flat[at] if size == 1 else tuple(flat[at : at + 3])
+        out[key] = flat[at] if size == 1 else tuple(flat[at : at + 3]) if size == 3 else Row(table, m * width + at)
         if textured:
             rgb = lookup(flat[at + 3], tuple(flat[at : at + 3]))
             out[key] = rgb[0] if size == 1 else rgb

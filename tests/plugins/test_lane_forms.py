@@ -18,13 +18,7 @@ from invrender.registry import MATERIALS
 
 TYPES = MATERIALS.names()
 #: materials still written in torch alone (the torch bounce renders them); shrinks to nothing
-NOT_YET = {
-    "plastic",
-    "roughplastic",
-    "roughplastic_ggx",
-    "principled",
-    "principledthin",
-}
+NOT_YET: set[str] = set()
 XP = arrays.drjit_arrays(torch.device("cpu"))
 
 

@@ -70,16 +70,18 @@ import torch
 
 from invrender import registry
 from invrender.errors import ParameterError, SceneError
-from invrender.plugins.bsdfs.dielectric import check_relative_ior, fresnel_dielectric
+from invrender.plugins.bsdfs.dielectric import check_relative_ior, fresnel_dielectric, fresnel_dielectric_lanes
 from invrender.plugins.bsdfs.glossy import ALPHA
-from invrender.plugins.bsdfs.microfacet import BECKMANN, DISTRIBUTIONS, GGX, Distribution, fwAD_active, roughness_at
+from invrender.plugins.bsdfs.microfacet import BECKMANN, DISTRIBUTIONS, GGX, Distribution, fwAD_active
 from invrender.plugins.bsdfs.mirror import reflect
 from invrender.scene.formats.mitsuba.bsdfs import NAMED_IOR
 from invrender.scene.kinds import REFLECTANCE, ROUGHNESS
 from invrender.scene.kinds import SPECULAR_REFLECTANCE_RGB as SPECULAR_REFLECTANCE
 from invrender.scene.plugins import Constant, Param
-from invrender.core.bsdf import BSDF, BSDFSample, Lobe, ShadingPoint
-from invrender.vec import dot, normalize
+from invrender.core.bsdf import LaneBSDF, LaneForm, Lobe, ShadingPoint
+from invrender.core import lanes
+from invrender.core.lanes import scale, select3
+from invrender.vec import dot
 
 #: a rough plastic's roughness: the roughness kind, one number per material (its tables are a
 #: material's, not a texel's: a map is refused as for any RGB-only parameter)
@@ -98,6 +100,10 @@ COATING_CONSTANTS = {
 }
 
 
+#: the lane form's keys both plastics read (the rough one adds its roughness and tables)
+COATING_KEYS = (("reflectance", 3), ("specular_reflectance", 3), ("eta", 1), ("internal", 1), ("nonlinear", 1), ("specular_sampling_weight", 1))
+
+
 def fresnel_diffuse_reflectance(eta: float) -> float:
     """Mitsuba 3's diffuse Fresnel reflectance ``2 int_0^1 F(mu, eta) mu dmu`` of an interface of
     relative index ``eta``, by its fits: Egan and Hilgeman (1973) for ``eta < 1``, d'Eon and Irving
@@ -111,13 +117,6 @@ def fresnel_diffuse_reflectance(eta: float) -> float:
 def _mean(value) -> float:
     """The mean of a colour (a number, an RGB triple or a texture; arrays or tensors)."""
     return float(np.mean(np.asarray(value.detach().cpu() if torch.is_tensor(value) else value, dtype=np.float64)))
-
-
-def cosine_hemisphere(u: torch.Tensor) -> torch.Tensor:
-    """Cosine-distributed local directions (N, 3) about +z from uniforms ``u`` (N, 2)."""
-    r = u[:, 0].sqrt()
-    phi = (2.0 * math.pi) * u[:, 1]
-    return torch.stack([r * torch.cos(phi), r * torch.sin(phi), (1.0 - u[:, 0]).clamp_min(0.0).sqrt()], dim=1)
 
 
 def _rough_quadrature(distribution: str, alpha: float, eta: float, nodes: tuple[int, int]) -> tuple[np.ndarray, float]:
@@ -185,7 +184,7 @@ def rough_table_slopes(distribution: str, alpha: float, eta: float, nodes: tuple
     return tuple(float(t) for t in (Tp - Tm) / (2.0 * h)), (Rp - Rm) / (2.0 * h)
 
 
-class Coated(BSDF):
+class Coated(LaneBSDF):
     """What both plastics share: a diffuse base under a dielectric coating of index ``eta``, the
     specular sampling weight, Mitsuba's properties and export. Subclasses give the coating."""
 
@@ -204,23 +203,11 @@ class Coated(BSDF):
         """(N,) the relative index of the coating."""
         return self.constant("int_ior", sp) / self.constant("ext_ior", sp)
 
-    def _spec_weight(self, sp: ShadingPoint) -> torch.Tensor:
-        """(N,) the specular sampling weight of each point's material (a constant: :meth:`resolve`)."""
-        return self.constant("specular_sampling_weight", sp)
-
-    @staticmethod
-    def _lobe_choice(a: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
-        """(N,) probability of the specular lobe, ``a w / (a w + (1 - a)(1 - w))``."""
-        s, d = a * w, (1.0 - a) * (1.0 - w)
-        return torch.where(s + d > 0, s / (s + d).clamp_min(1e-30), 0.0)
-
-    def _base(self, sp: ShadingPoint, internal: torch.Tensor) -> torch.Tensor:
-        """(N, 3) ``rho / (1 - F_dr)`` or, nonlinear, ``rho / (1 - rho F_dr)``, with the internal
-        reflectance ``internal`` (N,)."""
-        rho = self.param("reflectance", sp)
-        nonlinear = self.constant("nonlinear", sp)[:, None] > 0.5
-        F = internal[:, None]
-        return rho / torch.where(nonlinear, 1.0 - rho * F, 1.0 - F)
+    def lane_rows(self, key: str, sampling: bool, device) -> torch.Tensor | None:
+        """``eta``: the coating's relative index ``int_ior / ext_ior`` (M, 1)."""
+        if key == "eta":
+            return self._per_material("eta", device, lambda i: self.constants[i]["int_ior"] / self.constants[i]["ext_ior"])[:, None]
+        return None
 
     def diffuse_reflectance(self, sp: ShadingPoint) -> torch.Tensor:
         return self.param("reflectance", sp)
@@ -279,6 +266,119 @@ class Coated(BSDF):
         return {}
 
 
+def cosine_hemisphere_lanes(xp, u0, u1):
+    """Cosine-distributed local directions about +z (a 3-tuple) from uniforms ``u0``, ``u1`` (N,):
+    Malley's method (the unit disk's polar mapping, lifted to the hemisphere)."""
+    r = xp.sqrt(u0)
+    phi = (2.0 * math.pi) * u1
+    return (r * xp.cos(phi), r * xp.sin(phi), xp.sqrt(xp.maximum(1.0 - u0, 0.0)))
+
+
+def lobe_choice_lanes(xp, a, w):
+    """The probability of the specular lobe, ``a w / (a w + (1 - a)(1 - w))`` (module docstring)."""
+    s, d = a * w, (1.0 - a) * (1.0 - w)
+    return xp.select(s + d > 0.0, s / xp.maximum(s + d, 1e-30), 0.0)
+
+
+def base_lanes(xp, p):
+    """``rho / (1 - F_dr)`` or, nonlinear, ``rho / (1 - rho F_dr)`` (a 3-tuple), with the internal
+    reflectance ``p["internal"]``."""
+    F = p["internal"]
+    nonlinear = p["nonlinear"] > 0.5
+    return tuple(r / xp.select(nonlinear, 1.0 - r * F, 1.0 - F) for r in p["reflectance"])
+
+
+def _coating_fresnel(xp, cos, eta):
+    return fresnel_dielectric_lanes(xp, xp.minimum(xp.maximum(cos, 0.0), 1.0), eta)[0]
+
+
+def transmittance_lanes(xp, table, cos):
+    """The rough interface's transmittance T at cosines ``cos``, linear in its table (a
+    :class:`~invrender.core.lanes.Row` of :data:`TABLE_SIZE` entries; Mitsuba's ``lerp_gather``)."""
+    x = xp.minimum(xp.maximum(cos, 0.0), 1.0) * float(TABLE_SIZE - 1)
+    i = xp.minimum(xp.floor(x), float(TABLE_SIZE - 2))
+    j = xp.uint(i)
+    t0 = lanes.row_at(xp, table, j)
+    return t0 + (lanes.row_at(xp, table, j + 1) - t0) * (x - i)
+
+
+def rough_eval_lanes(xp, p, ps, wo, wi, front, *, distribution: Distribution):
+    """The rough plastic's ``f cos``, the coating's microfacet reflection plus the diffuse base (at
+    the attached roughness and tables), and its pdf ``P_s D G1(wo) / (4 c_o) + (1 - P_s) c_i / pi``
+    (at the detached ones)."""
+    d = distribution
+    c_o, c_i = wo[2], wi[2]
+    ok = (c_o > 0.0) & (c_i > 0.0)
+    h = lanes.normalize(xp, lanes.add(wo, wi))
+    inv_4co = 1.0 / (4.0 * xp.maximum(c_o, 1e-12))
+    p_s = lobe_choice_lanes(xp, 1.0 - transmittance_lanes(xp, ps["transmittance"], c_o), ps["specular_sampling_weight"])
+    D, g_o = d.D_lanes(xp, h[2], ps["roughness"]), d.G1_lanes(xp, c_o, ps["roughness"])
+    pdf = xp.select(ok, p_s * D * g_o * inv_4co + (1.0 - p_s) * c_i * (1.0 / math.pi), 0.0)
+    alpha = p["roughness"]
+    if p is not ps:  # f at its own roughness (the same values where the pdf's are passed for both)
+        D, g_o = d.D_lanes(xp, h[2], alpha), d.G1_lanes(xp, c_o, alpha)
+    F = _coating_fresnel(xp, lanes.dot(wo, h), p["eta"])
+    spec = xp.select(ok, F * D * g_o * d.G1_lanes(xp, c_i, alpha) * inv_4co, 0.0)
+    T_o, T_i = transmittance_lanes(xp, p["transmittance"], c_o), transmittance_lanes(xp, p["transmittance"], c_i)
+    diff = xp.select(ok, c_i * T_o * T_i / (math.pi * p["eta"] * p["eta"]), 0.0)
+    return lanes.add(scale(p["specular_reflectance"], spec), scale(base_lanes(xp, p), diff)), pdf
+
+
+def rough_sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1, *, distribution: Distribution):
+    """A visible normal's reflection with probability P_s, else a cosine-weighted direction (both
+    at the detached roughness); weight ``f cos / pdf`` of both lobes (``f`` attached)."""
+    above = wo[2] > 0.0
+    one = xp.full(1.0, u0)
+    wo_up = select3(xp, above, wo, (0.0 * one, 0.0 * one, one))
+    p_s = lobe_choice_lanes(xp, 1.0 - transmittance_lanes(xp, ps["transmittance"], wo_up[2]), ps["specular_sampling_weight"])
+    h = distribution.sample_visible_lanes(xp, wo_up, ps["roughness"], u0, u1)
+    wi = select3(xp, u_lobe < p_s, lanes.reflect(wo_up, h), cosine_hemisphere_lanes(xp, u0, u1))
+    f, pdf = rough_eval_lanes(xp, p, ps, wo, wi, front, distribution=distribution)
+    ok = above & (pdf > 0.0)
+    weight = tuple(xp.select(ok, x / xp.maximum(pdf, 1e-30), 0.0) for x in f)
+    return wi, weight, xp.select(ok, pdf, 0.0), xp.full(False, u0)
+
+
+def _smooth_diffuse(xp, p, c_o, c_i, F_o):
+    """``f cos / (c_i / pi)`` of the smooth plastic's diffuse lobe, ``rho' (1 - F_o)(1 - F_i) /
+    eta^2`` (a 3-tuple; 0 unless both directions lie above the normal), ``F_o`` the Fresnel term at
+    ``c_o``."""
+    eta = p["eta"]
+    t = (1.0 - F_o) * (1.0 - _coating_fresnel(xp, c_i, eta)) / (eta * eta)
+    return scale(base_lanes(xp, p), xp.select((c_o > 0.0) & (c_i > 0.0), t, 0.0))
+
+
+def _smooth_choice(xp, ps, c_o):
+    """``(P_s, F_o)``: the specular lobe's probability and the Fresnel term at ``c_o`` (``eta`` is a
+    constant: ``f`` and sampling read the same one)."""
+    F_o = _coating_fresnel(xp, c_o, ps["eta"])
+    return lobe_choice_lanes(xp, F_o, ps["specular_sampling_weight"]), F_o
+
+
+def smooth_eval_lanes(xp, p, ps, wo, wi, front):
+    """The smooth plastic's diffuse lobe ``f cos`` and its pdf ``(1 - P_s) c_i / pi`` (the delta
+    lobe has no density)."""
+    c_o, c_i = wo[2], wi[2]
+    cos = xp.maximum(c_i, 0.0) * (1.0 / math.pi)
+    p_s, F_o = _smooth_choice(xp, ps, c_o)
+    pdf = xp.select(c_o > 0.0, (1.0 - p_s) * cos, 0.0)
+    return scale(_smooth_diffuse(xp, p, c_o, c_i, F_o), cos), pdf
+
+
+def smooth_sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1):
+    """The coating's reflection with probability P_s (weight ``k_s F / P_s``, delta), else a
+    cosine-weighted direction (weight ``rho' (1 - F_o)(1 - F_i) / (eta^2 (1 - P_s))``)."""
+    c_o = wo[2]
+    p_s, F_o = _smooth_choice(xp, ps, c_o)
+    spec = (u_lobe < p_s) & (c_o > 0.0)
+    wi = select3(xp, spec, (-wo[0], -wo[1], wo[2]), cosine_hemisphere_lanes(xp, u0, u1))
+    c_i = wi[2]
+    w_spec = scale(p["specular_reflectance"], F_o / xp.maximum(p_s, 1e-30))
+    w_diff = scale(_smooth_diffuse(xp, p, c_o, c_i, F_o), 1.0 / xp.maximum(1.0 - p_s, 1e-30))
+    pdf = xp.select(spec | (c_o <= 0.0), 0.0, (1.0 - p_s) * xp.maximum(c_i, 0.0) * (1.0 / math.pi))
+    return wi, select3(xp, spec, w_spec, w_diff), pdf, spec
+
+
 @registry.MATERIALS.register
 class Plastic(Coated):
     type_name = "plastic"
@@ -287,57 +387,21 @@ class Plastic(Coated):
     doc = "smooth plastic: a diffuse base under a smooth dielectric coating (Mitsuba's plastic), two-sided"
     mitsuba_type = "plastic"
 
-    def _internal(self, sp: ShadingPoint) -> torch.Tensor:
-        def fdr(i: int) -> float:
-            c = self.constants[i]
-            return fresnel_diffuse_reflectance(c["ext_ior"] / c["int_ior"])
+    def lane_form(self) -> LaneForm:
+        return LaneForm(COATING_KEYS, smooth_eval_lanes, smooth_sample_lanes)
 
-        return self._per_material("fdr_int", sp.wo.device, fdr).index_select(0, sp.material)
-
-    def _fresnel(self, sp: ShadingPoint, cos: torch.Tensor) -> torch.Tensor:
-        return fresnel_dielectric(cos.clamp(0.0, 1.0), self._eta(sp))[0]
-
-    def _diffuse(self, sp: ShadingPoint, c_o: torch.Tensor, c_i: torch.Tensor) -> torch.Tensor:
-        """(N, 3) ``f cos / (c_i / pi)`` of the diffuse lobe: ``rho' (1 - F_o)(1 - F_i) / eta^2``."""
-        eta = self._eta(sp)
-        t = (1.0 - self._fresnel(sp, c_o)) * (1.0 - self._fresnel(sp, c_i)) / (eta * eta)
-        return self._base(sp, self._internal(sp)) * torch.where((c_o > 0) & (c_i > 0), t, 0.0)[:, None]
-
-    def _p_spec(self, sp: ShadingPoint, c_o: torch.Tensor) -> torch.Tensor:
-        return self._lobe_choice(self._fresnel(sp, c_o), self._spec_weight(sp))
-
-    def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        """The diffuse lobe's ``f cos`` (N, 3) (the delta lobe has no density)."""
-        c_o, c_i = dot(sp.n, sp.wo), dot(sp.n, wi)
-        return self._diffuse(sp, c_o, c_i) * (c_i.clamp_min(0.0) / math.pi)[:, None]
-
-    def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        """``(1 - P_s) c_i / pi`` (N,)."""
-        c_o, c_i = dot(sp.n, sp.wo), dot(sp.n, wi)
-        p = (1.0 - self._p_spec(sp, c_o)) * c_i.clamp_min(0.0) / math.pi
-        return torch.where(c_o > 0, p, 0.0)
+    def lane_rows(self, key: str, sampling: bool, device) -> torch.Tensor | None:
+        """``eta`` and ``internal``: the diffuse Fresnel reflectance F_dr seen from inside (index
+        ``1 / eta``) by Mitsuba's fits (:func:`fresnel_diffuse_reflectance`)."""
+        if key == "internal":
+            return self._per_material("fdr_int", device, lambda i: fresnel_diffuse_reflectance(self.constants[i]["ext_ior"] / self.constants[i]["int_ior"]))[:, None]
+        return super().lane_rows(key, sampling, device)
 
     def specular_lobes(self, sp: ShadingPoint) -> list[tuple[torch.Tensor, torch.Tensor]]:
         """The coating's reflection, weight ``k_s F(c_o)``."""
         c_o = dot(sp.n, sp.wo)
-        F = torch.where(c_o > 0, self._fresnel(sp, c_o), 0.0)
+        F = torch.where(c_o > 0, fresnel_dielectric(c_o.clamp(0.0, 1.0), self._eta(sp))[0], 0.0)
         return [(reflect(sp.wo, sp.n), self.param("specular_reflectance", sp) * F[:, None])]
-
-    def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
-        """The reflection with probability P_s (weight ``k_s F / P_s``), else a cosine-weighted
-        direction (weight ``rho' (1 - F_o)(1 - F_i) / (eta^2 (1 - P_s))``)."""
-        c_o = dot(sp.n, sp.wo)
-        p_s = self._p_spec(sp, c_o)
-        spec = (u_lobe < p_s) & (c_o > 0)
-        wd = sp.frame.to_world(cosine_hemisphere(u_dir))
-        wi = torch.where(spec[:, None], reflect(sp.wo, sp.n), wd)
-        c_i = dot(sp.n, wi)
-        F_o = self._fresnel(sp, c_o)
-        w_spec = self.param("specular_reflectance", sp) * (F_o / p_s.clamp_min(1e-30))[:, None]
-        w_diff = self._diffuse(sp, c_o, c_i) / (1.0 - p_s).clamp_min(1e-30)[:, None]
-        weight = torch.where(spec[:, None], w_spec, w_diff)
-        pdf = torch.where(spec | (c_o <= 0), 0.0, (1.0 - p_s) * c_i.clamp_min(0.0) / math.pi)
-        return BSDFSample(wi, weight, pdf, spec)
 
     mitsuba_plugins = ("plastic",)
 
@@ -376,11 +440,22 @@ class RoughPlastic(Coated):
         R = torch.tensor([r[1] for r in rows], dtype=torch.float32, device=device)
         return T, R
 
-    def _tables(self, sp: ShadingPoint, sampling: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+    def lane_form(self) -> LaneForm:
+        d = self.distribution
+        keys = COATING_KEYS + (("roughness", 1), ("transmittance", TABLE_SIZE))
+        return LaneForm(keys, functools.partial(rough_eval_lanes, distribution=d), functools.partial(rough_sample_lanes, distribution=d))
+
+    def lane_rows(self, key: str, sampling: bool, device) -> torch.Tensor | None:
+        """``transmittance`` (M, 64) and ``internal`` (M, 1): :meth:`tables`."""
+        if key in ("transmittance", "internal"):
+            T, R = self.tables(device, sampling)
+            return T if key == "transmittance" else R[:, None]
+        return super().lane_rows(key, sampling, device)
+
+    def tables(self, device, sampling: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
         """(M, 64) transmittance tables and (M,) internal reflectances of this BSDF's materials, at
         the roughness ``eval`` reads (attached: to first order in alpha, by the tables' slopes) or,
         ``sampling``, at the detached one sampling and ``pdf`` read."""
-        device = sp.wo.device
         token = ("rough_tables", device, sampling)
         alphas = self._alphas(self.sampling_values if sampling else self.values)
         if token not in self._constant_tables:
@@ -388,74 +463,12 @@ class RoughPlastic(Coated):
         T, R = self._constant_tables[token]
         if sampling or not any(a.requires_grad or fwAD_active(a) for a in alphas):
             return T, R
-        key = (id(self), "rough_tables_attached")  # per point set: each chunk's graph its own
-        if key not in sp.cache:
-            slopes = ("rough_table_slopes", device)
-            if slopes not in self._constant_tables:
-                self._constant_tables[slopes] = self._table_rows(alphas, device, rough_table_slopes)
-            dT, dR = self._constant_tables[slopes]
-            delta = torch.stack([a.mean() - a.mean().detach() for a in alphas]).to(device, torch.float32)  # 0 in value
-            sp.cache[key] = (T + dT * delta[:, None], R + dR * delta)
-        return sp.cache[key]
-
-    def _transmittance(self, sp: ShadingPoint, table: torch.Tensor, cos: torch.Tensor) -> torch.Tensor:
-        """(N,) T at cosines ``cos`` (N,), linear in the table (Mitsuba's ``lerp_gather``)."""
-        x = cos.clamp(0.0, 1.0) * (TABLE_SIZE - 1)
-        i = x.long().clamp_max(TABLE_SIZE - 2)
-        flat = sp.material * TABLE_SIZE + i  # into the (M * 64,) table: no (N, 64) rows
-        t0, t1 = table.reshape(-1).index_select(0, flat), table.reshape(-1).index_select(0, flat + 1)
-        return t0 + (t1 - t0) * (x - i)
-
-    def _terms(self, sp: ShadingPoint, wl: torch.Tensor, value: bool = True) -> tuple[torch.Tensor | None, torch.Tensor]:
-        """``(f cos (N, 3) or None, pdf (N,))`` at local directions ``wl`` (N, 3): ``f`` at the
-        attached roughness, ``pdf`` (and the lobe choice in it) at the detached one."""
-        wo = sp.wo_local
-        d = self.distribution
-        alpha, alpha_s = roughness_at(self, sp)
-        eta = self._eta(sp)
-        c_o, c_i = wo[:, 2], wl[:, 2]
-        ok = (c_o > 0) & (c_i > 0)
-        h = normalize(wo + wl)
-        g_o, D = d.G1(c_o, alpha_s), d.D(h[:, 2], alpha_s)
-        T_s, _ = self._tables(sp, sampling=True)
-        p_s = self._lobe_choice(1.0 - self._transmittance(sp, T_s, c_o), self._spec_weight(sp))
-        inv_4co = 1.0 / (4.0 * c_o.clamp_min(1e-12))
-        pdf = torch.where(ok, p_s * D * g_o * inv_4co + (1.0 - p_s) * c_i / math.pi, 0.0)
-        if not value:
-            return None, pdf
-        if alpha.requires_grad or fwAD_active(alpha) or not torch.equal(alpha, alpha_s):
-            g_o, D = d.G1(c_o, alpha), d.D(h[:, 2], alpha)
-        F = fresnel_dielectric(dot(wo, h).clamp(0.0, 1.0), eta)[0]
-        spec = torch.where(ok, F * D * g_o * d.G1(c_i, alpha) * inv_4co, 0.0)
-        T_table, R_int = self._tables(sp)
-        T_o, T_i = self._transmittance(sp, T_table, c_o), self._transmittance(sp, T_table, c_i)
-        diff = torch.where(ok, c_i * T_o * T_i / (math.pi * eta * eta), 0.0)
-        f = self.param("specular_reflectance", sp) * spec[:, None] + self._base(sp, R_int.index_select(0, sp.material)) * diff[:, None]
-        return f, pdf
-
-    def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        """``f cos`` (N, 3): the coating's microfacet reflection plus the diffuse base."""
-        return self._terms(sp, sp.frame.to_local(wi))[0]
-
-    def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        """``P_s D G1(wo) / (4 c_o) + (1 - P_s) c_i / pi`` (N,) (at the detached roughness)."""
-        return self._terms(sp, sp.frame.to_local(wi), value=False)[1]
-
-    def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
-        """A visible normal's reflection with probability P_s, else a cosine-weighted direction
-        (both at the detached roughness); weight ``f cos / pdf`` of both lobes (``f`` attached)."""
-        wo = sp.wo_local
-        above = wo[:, 2] > 0
-        wo_up = torch.where(above[:, None], wo, torch.tensor([0.0, 0.0, 1.0], device=wo.device))
-        T_s, _ = self._tables(sp, sampling=True)
-        p_s = self._lobe_choice(1.0 - self._transmittance(sp, T_s, wo_up[:, 2]), self._spec_weight(sp))
-        h = self.distribution.sample_visible(wo_up, roughness_at(self, sp)[1], u_dir)
-        w_spec = 2.0 * dot(wo_up, h)[:, None] * h - wo_up
-        wl = torch.where((u_lobe < p_s)[:, None], w_spec, cosine_hemisphere(u_dir))
-        f, pdf = self._terms(sp, wl)
-        ok = above & (pdf > 0)
-        weight = torch.where(ok[:, None], f / pdf.clamp_min(1e-30)[:, None], 0.0)
-        return BSDFSample(sp.frame.to_world(wl), weight, torch.where(ok, pdf, 0.0), torch.zeros_like(ok))
+        slopes = ("rough_table_slopes", device)
+        if slopes not in self._constant_tables:
+            self._constant_tables[slopes] = self._table_rows(alphas, device, rough_table_slopes)
+        dT, dR = self._constant_tables[slopes]
+        delta = torch.stack([a.mean() - a.mean().detach() for a in alphas]).to(device, torch.float32)  # 0 in value
+        return T + dT * delta[:, None], R + dR * delta
 
     mitsuba_plugins = ("roughplastic",)
 
@@ -486,3 +499,4 @@ class RoughPlasticGGX(RoughPlastic):
     type_name = "roughplastic_ggx"
     doc = "rough plastic with a GGX coating (Mitsuba's roughplastic, distribution ggx), two-sided"
     distribution = GGX
+

@@ -56,13 +56,13 @@ import numpy as np
 import torch
 
 from invrender import registry
-from invrender.core.bsdf import BSDF, BSDFSample, Lobe, ShadingPoint
-from invrender.plugins.bsdfs.dielectric import MAX_RELATIVE_IOR, fresnel_dielectric
-from invrender.plugins.bsdfs.microfacet import ggx_D_aniso, ggx_G1_aniso, ggx_visible_pdf_aniso, roughness_at, sample_visible_normal
-from invrender.plugins.bsdfs.plastic import cosine_hemisphere
+from invrender.core import lanes
+from invrender.core.bsdf import BSDF, LaneBSDF, LaneForm, Lobe, ShadingPoint
+from invrender.plugins.bsdfs.dielectric import MAX_RELATIVE_IOR, fresnel_dielectric_lanes
+from invrender.plugins.bsdfs.microfacet import ggx_D_aniso_lanes, ggx_G1_aniso_lanes, ggx_sample_visible_lanes, ggx_visible_pdf_aniso_lanes
+from invrender.plugins.bsdfs.plastic import cosine_hemisphere_lanes
 from invrender.scene import kinds
 from invrender.scene.plugins import Constant, Param
-from invrender.vec import dot, normalize
 
 #: Rec. 709 luminance weights (Mitsuba's ``luminance`` of an RGB colour)
 LUMINANCE = (0.212671, 0.715160, 0.072169)
@@ -88,104 +88,6 @@ WEIGHTS = {
 # ---------------------------------------------------------------- the helpers both principled materials use
 
 
-def luminance(rgb: torch.Tensor) -> torch.Tensor:
-    """(N,) luminance of linear RGB colours (N, 3)."""
-    return LUMINANCE[0] * rgb[:, 0] + LUMINANCE[1] * rgb[:, 1] + LUMINANCE[2] * rgb[:, 2]
-
-
-def tint_colour(base: torch.Tensor) -> torch.Tensor:
-    """(N, 3) the base colour over its luminance (white where the luminance is 0)."""
-    lum = luminance(base)[:, None]
-    return torch.where(lum > 0, base / torch.where(lum > 0, lum, 1.0), 1.0)
-
-
-def schlick_weight(cos: torch.Tensor) -> torch.Tensor:
-    """(N,) ``(1 - cos)^5``, ``1 - cos`` clamped to [0, 1]."""
-    m = (1.0 - cos).clamp(0.0, 1.0)
-    return m.square().square() * m
-
-
-def schlick_r0(eta: torch.Tensor) -> torch.Tensor:
-    """(N,) normal-incidence reflectance ``((eta - 1) / (eta + 1))^2``."""
-    return ((eta - 1.0) / (eta + 1.0)).square()
-
-
-def fresnel(cos_i: torch.Tensor, eta: torch.Tensor) -> torch.Tensor:
-    """(N,) exact dielectric Fresnel reflectance at signed cosines ``cos_i`` (N,) of an interface
-    of relative index ``eta`` (N,) (the index inverted where ``cos_i < 0``: arriving from inside)."""
-    return fresnel_dielectric(cos_i.abs(), torch.where(cos_i >= 0, eta, 1.0 / eta))[0]
-
-
-def schlick(r0: torch.Tensor, cos_i: torch.Tensor, eta: torch.Tensor) -> torch.Tensor:
-    """Schlick's Fresnel ``r0 + (1 - r0) (1 - cos)^5`` (shape of ``r0``: (N,) or (N, 3)) at signed
-    cosines ``cos_i`` (N,), with the transmitted cosine for ``cos`` where the incident side is the
-    denser one (Mitsuba's ``calc_schlick``)."""
-    eta_it = torch.where(cos_i >= 0, eta, 1.0 / eta)
-    cos2_t = 1.0 - (1.0 - cos_i * cos_i) / (eta_it * eta_it)
-    w = torch.where(eta_it > 1.0, schlick_weight(cos_i.abs()), schlick_weight(cos2_t.clamp_min(0.0).sqrt()))
-    if r0.ndim == 2:
-        w = w[:, None]
-    return w * (1.0 - r0) + r0
-
-
-def distribution_alphas(anisotropic: torch.Tensor, roughness: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """(alpha_x, alpha_y), each (N,): ``max(0.001, r^2 / s)`` and ``max(0.001, r^2 s)``, ``s =
-    sqrt(1 - 0.9 anisotropic)`` (Burley 2012's mapping)."""
-    r2 = roughness.square()
-    aspect = (1.0 - 0.9 * anisotropic).clamp_min(0.0).sqrt()
-    return (r2 / aspect.clamp_min(1e-6)).clamp_min(0.001), (r2 * aspect).clamp_min(0.001)
-
-
-def diffuse_retro(c_a: torch.Tensor, c_b: torch.Tensor, cos_d: torch.Tensor, roughness: torch.Tensor, flatness: torch.Tensor) -> torch.Tensor:
-    """(N,) Burley's diffuse with retro-reflection, blended by ``flatness`` towards the fake
-    subsurface lobe: ``lerp(f_d + f_r, f_ss, flatness)`` (times ``base_color / pi`` makes f)."""
-    Fo, Fi = schlick_weight(c_b.abs()), schlick_weight(c_a.abs())
-    f_diff = (1.0 - 0.5 * Fi) * (1.0 - 0.5 * Fo)
-    Rr = 2.0 * roughness * cos_d.square()
-    f_retro = Rr * (Fo + Fi + Fo * Fi * (Rr - 1.0))
-    Fss90 = 0.5 * Rr
-    Fss = (1.0 + (Fss90 - 1.0) * Fo) * (1.0 + (Fss90 - 1.0) * Fi)
-    f_ss = 1.25 * (Fss * (1.0 / (c_b.abs() + c_a.abs()).clamp_min(1e-12) - 0.5) + 0.5)
-    return (f_diff + f_retro) * (1.0 - flatness) + f_ss * flatness
-
-
-def sheen_colour(base: torch.Tensor, sheen_tint: torch.Tensor) -> torch.Tensor:
-    """(N, 3) ``lerp(1, c_tint, sheen_tint)``."""
-    return 1.0 + sheen_tint[:, None] * (tint_colour(base) - 1.0)
-
-
-def compatible(h: torch.Tensor, a: torch.Tensor, b: torch.Tensor, c_a: torch.Tensor, reflection: bool) -> torch.Tensor:
-    """(N,) bool: do the macro- and the microsurface agree on the sides of ``a`` and ``b``
-    (``b`` on ``a``'s side of ``h`` for a reflection, on the other for a transmission)? ``h`` is
-    turned to ``a``'s side of the macrosurface (sign of ``c_a``) first."""
-    s = torch.where(c_a >= 0, 1.0, -1.0)
-    d_a, d_b = dot(a, h) * s, dot(b, h) * s
-    return (d_a > 0) & ((d_b > 0) if reflection else (d_b < 0))
-
-
-def gtr1_D(cos_h: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
-    """(N,) Burley's GTR1 density ``(alpha^2 - 1) / (pi log(alpha^2) (1 + (alpha^2 - 1) cos^2))``
-    (0 where ``D cos <= 1e-20``)."""
-    a2 = alpha.square()
-    d = (a2 - 1.0) / (math.pi * torch.log(a2) * (1.0 + (a2 - 1.0) * cos_h.square()))
-    return torch.where(d * cos_h > 1e-20, d, 0.0)
-
-
-def gtr1_sample(alpha: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-    """GTR1 normals (N, 3) (density ``D cos``) from uniforms ``u`` (N, 2)."""
-    phi = (2.0 * math.pi) * u[:, 0]
-    a2 = alpha.square()
-    cos2 = (1.0 - a2.pow(1.0 - u[:, 1])) / (1.0 - a2)
-    sin_t, cos_t = (1.0 - cos2).clamp_min(0.0).sqrt(), cos2.clamp_min(0.0).sqrt()
-    return torch.stack([torch.cos(phi) * sin_t, torch.sin(phi) * sin_t, cos_t], dim=1)
-
-
-def safe(x: torch.Tensor) -> torch.Tensor:
-    """``x`` with zeros replaced by 1 (a denominator whose zero lanes are masked out later, so that
-    neither the value nor the gradient of the masked lanes is NaN)."""
-    return torch.where(x == 0, 1.0, x)
-
-
 def params_with(weights: dict) -> dict:
     """The parameters of a principled material with the blend ``weights`` (name -> kind, default 0):
     ``base_color`` and ``roughness`` (default 0.5) first, as Mitsuba declares them."""
@@ -196,30 +98,265 @@ def params_with(weights: dict) -> dict:
 ETA = Constant(1.5, 1.0 / MAX_RELATIVE_IOR, MAX_RELATIVE_IOR, False, False)
 
 
+# ---------------------------------------------------------------- the lane functions both principled materials use
+
+
+def _scale3(xp, v, s):
+    """``v * s`` (a 3-tuple times a Float)."""
+    return (v[0] * s, v[1] * s, v[2] * s)
+
+
+def luminance_lanes(c):
+    """The luminance of linear RGB colours ``c`` (a 3-tuple)."""
+    return LUMINANCE[0] * c[0] + LUMINANCE[1] * c[1] + LUMINANCE[2] * c[2]
+
+
+def tint_lanes(xp, base):
+    """The base colour over its luminance (white where the luminance is 0), a 3-tuple."""
+    lum = luminance_lanes(base)
+    pos = lum > 0.0
+    inv = 1.0 / xp.select(pos, lum, 1.0)
+    return tuple(xp.select(pos, b * inv, 1.0) for b in base)
+
+
+def schlick_weight_lanes(xp, cos):
+    """``(1 - cos)^5``, ``1 - cos`` clamped to [0, 1]."""
+    m = xp.minimum(xp.maximum(1.0 - cos, 0.0), 1.0)
+    m2 = m * m
+    return m2 * m2 * m
+
+
+def fresnel_lanes(xp, cos_i, eta):
+    """Exact dielectric Fresnel reflectance at signed cosines (the index inverted from inside)."""
+    return fresnel_dielectric_lanes(xp, xp.abs(cos_i), xp.select(cos_i >= 0.0, eta, 1.0 / eta))[0]
+
+
+def schlick_lanes(xp, r0, cos_i, eta):
+    """Schlick's ``r0 + (1 - r0) (1 - cos)^5`` (``r0`` a Float or a 3-tuple) with Mitsuba's
+    ``calc_schlick`` choice of cosine: the transmitted one where the incident side is the denser
+    (index ratio ``eta`` inverted where ``cos_i < 0``)."""
+    eta_it = xp.select(cos_i >= 0.0, eta, 1.0 / eta)
+    cos2_t = 1.0 - (1.0 - cos_i * cos_i) / (eta_it * eta_it)
+    w = xp.select(eta_it > 1.0, schlick_weight_lanes(xp, xp.abs(cos_i)), schlick_weight_lanes(xp, xp.sqrt(xp.maximum(cos2_t, 0.0))))
+    if isinstance(r0, tuple):
+        return tuple(w * (1.0 - r) + r for r in r0)
+    return w * (1.0 - r0) + r0
+
+
+def alphas_lanes(xp, anisotropic, roughness):
+    """(alpha_x, alpha_y): ``max(0.001, r^2 / s)`` and ``max(0.001, r^2 s)``, ``s = sqrt(1 - 0.9
+    anisotropic)`` (Burley 2012's mapping)."""
+    r2 = roughness * roughness
+    aspect = xp.sqrt(xp.maximum(1.0 - 0.9 * anisotropic, 0.0))
+    return xp.maximum(r2 / xp.maximum(aspect, 1e-6), 0.001), xp.maximum(r2 * aspect, 0.001)
+
+
+def diffuse_retro_lanes(xp, c_a, c_b, cos_d, roughness, flatness):
+    """Burley's diffuse with retro-reflection, blended by ``flatness`` towards the fake subsurface
+    lobe: ``lerp(f_d + f_r, f_ss, flatness)`` (times ``base_color / pi`` makes f)."""
+    Fo, Fi = schlick_weight_lanes(xp, xp.abs(c_b)), schlick_weight_lanes(xp, xp.abs(c_a))
+    f_diff = (1.0 - 0.5 * Fi) * (1.0 - 0.5 * Fo)
+    Rr = 2.0 * roughness * (cos_d * cos_d)
+    f_retro = Rr * (Fo + Fi + Fo * Fi * (Rr - 1.0))
+    Fss90 = 0.5 * Rr
+    Fss = (1.0 + (Fss90 - 1.0) * Fo) * (1.0 + (Fss90 - 1.0) * Fi)
+    f_ss = 1.25 * (Fss * (1.0 / xp.maximum(xp.abs(c_b) + xp.abs(c_a), 1e-12) - 0.5) + 0.5)
+    return (f_diff + f_retro) * (1.0 - flatness) + f_ss * flatness
+
+
+def compatible_lanes(xp, h, a, b, c_a, reflection: bool):
+    """Do the macro- and the microsurface agree on the sides of ``a`` and ``b`` (``b`` on ``a``'s
+    side of ``h`` for a reflection, on the other for a transmission)? ``h`` is turned to ``a``'s
+    side of the macrosurface (sign of ``c_a``) first."""
+    s = xp.select(c_a >= 0.0, 1.0, -1.0)
+    d_a, d_b = lanes.dot(a, h) * s, lanes.dot(b, h) * s
+    return (d_a > 0.0) & ((d_b > 0.0) if reflection else (d_b < 0.0))
+
+
+def gtr1_D_lanes(xp, cos_h, alpha):
+    """Burley's GTR1 density ``(alpha^2 - 1) / (pi log(alpha^2) (1 + (alpha^2 - 1) cos^2))`` (0 where
+    ``D cos <= 1e-20``)."""
+    a2 = alpha * alpha
+    d = (a2 - 1.0) / (math.pi * xp.log(a2) * (1.0 + (a2 - 1.0) * (cos_h * cos_h)))
+    return xp.select(d * cos_h > 1e-20, d, 0.0)
+
+
+def gtr1_sample_lanes(xp, alpha, u0, u1):
+    """GTR1 normals (a 3-tuple; density ``D cos``) from uniforms ``u0``, ``u1``."""
+    phi = (2.0 * math.pi) * u0
+    a2 = alpha * alpha
+    cos2 = (1.0 - xp.exp((1.0 - u1) * xp.log(a2))) / (1.0 - a2)
+    sin_t, cos_t = xp.sqrt(xp.maximum(1.0 - cos2, 0.0)), xp.sqrt(xp.maximum(cos2, 0.0))
+    return (xp.cos(phi) * sin_t, xp.sin(phi) * sin_t, cos_t)
+
+
+def safe_lanes(xp, x):
+    """``x`` with zeros replaced by 1 (a denominator whose zero lanes are masked out later, so that
+    neither the value nor the gradient of the masked lanes is NaN)."""
+    return xp.select(x == 0.0, 1.0, x)
+
+
+# ---------------------------------------------------------------- the principled BSDF
+
+
+def _sided(xp, p, front):
+    """-1 where invrender's frame (normal towards ``wo``) is flipped to the front side's, else 1."""
+    flip = ~front & ~((p["two_sided"] > 0.5) & ~(p["has_spec_trans"] > 0.5))
+    return xp.select(flip, -1.0, 1.0)
+
+
+def _half_lanes(xp, p, a, b):
+    """The geometry of a direction pair in the front-side frame: ``(c_a, c_b, front, reflect,
+    refract, eta, eta_path, h, a.h, b.h, F)``."""
+    c_a, c_b = a[2], b[2]
+    front = c_a > 0.0
+    reflect, refract = c_a * c_b > 0.0, c_a * c_b < 0.0
+    eta = p["eta"]
+    eta_path = xp.select(front, eta, 1.0 / eta)
+    h = lanes.normalize(xp, lanes.add(a, _scale3(xp, b, xp.select(reflect, 1.0, eta_path))))
+    h = _scale3(xp, h, xp.select(h[2] < 0.0, -1.0, 1.0))
+    d_a, d_b = lanes.dot(a, h), lanes.dot(b, h)
+    return c_a, c_b, front, reflect, refract, eta, eta_path, h, d_a, d_b, fresnel_lanes(xp, d_a, eta)
+
+
+def principled_value_lanes(xp, p, a, b, half):
+    """``f |c_b|`` (a 3-tuple) in the front-side frame, parameters ``p`` (module docstring), ``half``
+    the pair's geometry (:func:`_half_lanes`)."""
+    c_a, c_b, front, reflect, refract, eta, eta_path, h, d_a, d_b, F = half
+    active = c_a != 0.0
+    base = p["base_color"]
+    r, m, st = p["roughness"], p["metallic"], p["spec_trans"]
+    brdf, bsdf = (1.0 - m) * (1.0 - st), (1.0 - m) * st
+    ax, ay = alphas_lanes(xp, p["anisotropic"], r)
+    D = ggx_D_aniso_lanes(xp, h, ax, ay)
+    G = ggx_G1_aniso_lanes(xp, a, h, ax, ay) * ggx_G1_aniso_lanes(xp, b, h, ax, ay)
+    compat_r, compat_t = compatible_lanes(xp, h, a, b, c_a, True), compatible_lanes(xp, h, a, b, c_a, False)
+    abs_a = safe_lanes(xp, xp.abs(c_a))
+    # main specular reflection: the principled Fresnel blend (front) or the dielectric's (back)
+    eta_it = xp.select(d_a >= 0.0, eta, 1.0 / eta)
+    tint = p["spec_tint"]
+    r0 = (eta_it - 1.0) / (eta_it + 1.0)
+    s_base = schlick_lanes(xp, base, d_a, eta)
+    c_tint = tint_lanes(xp, base)
+    s_tint = schlick_lanes(xp, _scale3(xp, c_tint, r0 * r0), d_a, eta)
+    F_front = tuple((1.0 - m) * (1.0 - tint) * F + m * x + (1.0 - m) * tint * y for x, y in zip(s_base, s_tint))
+    on = active & reflect & compat_r & (F > 0.0)
+    spec = xp.select(on, D * G / (4.0 * abs_a), 0.0)
+    value = tuple(xp.select(front, x, bsdf * F) * spec for x in F_front)
+    # main specular transmission (radiance: 1 / eta_path^2 times Walter's eta_path^2)
+    on = active & refract & compat_t & (F < 1.0)
+    q = d_a + eta_path * d_b
+    t = xp.abs((1.0 - F) * D * G * d_a * d_b / (abs_a * safe_lanes(xp, q * q)))
+    t = xp.select(on, bsdf * t, 0.0)
+    value = tuple(v + xp.sqrt(xp.maximum(c, 1e-12)) * t for v, c in zip(value, base))
+    # clearcoat: GTR1, Schlick with R0 = 0.04, GGX masking of alpha 0.25
+    on = active & reflect & compat_r & front
+    alpha_cc = 0.1 + (0.001 - 0.1) * p["clearcoat_gloss"]
+    quarter = 0.0 * c_a + 0.25
+    G_cc = ggx_G1_aniso_lanes(xp, a, h, quarter, quarter) * ggx_G1_aniso_lanes(xp, b, h, quarter, quarter)
+    cc = xp.select(on, 0.25 * p["clearcoat"] * schlick_lanes(xp, 0.0 * d_a + 0.04, d_a, eta) * gtr1_D_lanes(xp, h[2], alpha_cc) * G_cc * xp.abs(c_b), 0.0)
+    # diffuse with retro-reflection (and the fake subsurface by flatness), and sheen
+    on = active & reflect & front
+    diff = xp.select(on, brdf * xp.abs(c_b) * (1.0 / math.pi) * diffuse_retro_lanes(xp, c_a, c_b, d_b, r, p["flatness"]), 0.0)
+    sh = xp.select(on, p["sheen"] * (1.0 - m) * schlick_weight_lanes(xp, xp.abs(d_b)) * xp.abs(c_b), 0.0)
+    sheen_tint = p["sheen_tint"]
+    return tuple(v + cc + c * diff + (1.0 + sheen_tint * (k - 1.0)) * sh for v, c, k in zip(value, base, c_tint))
+
+
+def _probabilities_lanes(xp, ps, front, F):
+    """The lobe probabilities ``(diffuse, clearcoat, transmission, reflection)`` at the detached
+    parameters ``ps`` for Fresnel reflectance ``F``."""
+    m, st = ps["metallic"], ps["spec_trans"]
+    has_st = ps["has_spec_trans"] > 0.5
+    brdf, bsdf = (1.0 - m) * (1.0 - st), xp.select(has_st, (1.0 - m) * st, 0.0)
+    r_spec = ps["main_specular_sampling_rate"]
+    p_r = xp.select(front, r_spec * (1.0 - bsdf * (1.0 - F)), F)
+    p_t = xp.select(has_st, xp.select(front, r_spec * bsdf * (1.0 - F), 1.0 - F), 0.0)
+    p_c = xp.select(front, 0.25 * ps["clearcoat"] * ps["clearcoat_sampling_rate"], 0.0)
+    p_d = xp.select(front, brdf * ps["diffuse_reflectance_sampling_rate"], 0.0)
+    total = p_r + p_t + p_c + p_d
+    inv = xp.select(total > 0.0, 1.0 / safe_lanes(xp, total), 0.0)
+    return p_d * inv, p_c * inv, p_t * inv, p_r * inv
+
+
+def principled_pdf_lanes(xp, ps, a, b, half):
+    """The sampling density of ``b`` in the front-side frame (detached parameters ``ps``), ``half``
+    the pair's geometry (:func:`_half_lanes`)."""
+    c_a, c_b, front, reflect, refract, eta, eta_path, h, d_a, d_b, F = half
+    p_d, p_c, p_t, p_r = _probabilities_lanes(xp, ps, front, F)
+    ax, ay = alphas_lanes(xp, ps["anisotropic"], ps["roughness"])
+    q = d_a + eta_path * d_b
+    jacobian = xp.abs(xp.select(reflect, 1.0 / safe_lanes(xp, 4.0 * d_b), eta_path * eta_path * d_b / safe_lanes(xp, q * q)))
+    up = _scale3(xp, a, xp.select(c_a < 0.0, -1.0, 1.0))
+    visible = ggx_visible_pdf_aniso_lanes(xp, up, h, ax, ay) * jacobian
+    mirror = compatible_lanes(xp, h, a, b, c_a, True) & reflect
+    through = compatible_lanes(xp, h, a, b, c_a, False) & refract & (ps["has_spec_trans"] > 0.5)
+    alpha_cc = 0.1 + (0.001 - 0.1) * ps["clearcoat_gloss"]
+    coat = xp.select(h[2] < 0.0, 0.0, h[2] * gtr1_D_lanes(xp, h[2], alpha_cc)) * jacobian
+    pdf = xp.select(mirror, p_r * visible + p_c * coat, 0.0) + xp.select(reflect, p_d * c_b * (1.0 / math.pi), 0.0) + xp.select(through, p_t * visible, 0.0)
+    return xp.select(c_a != 0.0, pdf, 0.0)
+
+
+def principled_eval_lanes(xp, p, ps, wo, wi, front):
+    """``f |cos theta_i|`` of all lobes (``p``) and the lobes' densities mixed by their
+    probabilities (``ps``), in the front side's frame (:func:`_sided`)."""
+    s = _sided(xp, ps, front)
+    a, b = (wo[0], wo[1], wo[2] * s), (wi[0], wi[1], wi[2] * s)
+    half = _half_lanes(xp, ps, a, b)  # eta is a constant: the same geometry for f and the pdf
+    return principled_value_lanes(xp, p, a, b, half), principled_pdf_lanes(xp, ps, a, b, half)
+
+
+def principled_sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1):
+    """Mitsuba's procedure: a visible GGX normal from ``u0, u1`` fixes ``F`` and so the lobe
+    probabilities; ``u_lobe`` picks diffuse, clearcoat, transmission or reflection in that order;
+    ``u0, u1`` draw the lobe's direction (cosine-weighted, a GTR1 normal, or the visible normal
+    refracted or reflected). Weight ``f cos / pdf`` (``f`` at ``p``)."""
+    s = _sided(xp, ps, front)
+    a = (wo[0], wo[1], wo[2] * s)
+    c_a = a[2]
+    front_side = c_a > 0.0
+    up = _scale3(xp, a, xp.select(c_a < 0.0, -1.0, 1.0))
+    ax, ay = alphas_lanes(xp, ps["anisotropic"], ps["roughness"])
+    one = 0.0 * c_a + 1.0
+    h = ggx_sample_visible_lanes(xp, lanes.select3(xp, up[2] > 0.0, up, (0.0 * one, 0.0 * one, one)), ax, ay, u0, u1)
+    eta = ps["eta"]
+    d_a = lanes.dot(a, h)
+    F = fresnel_lanes(xp, d_a, eta)
+    p_d, p_c, p_t, _ = _probabilities_lanes(xp, ps, front_side, F)
+    diffuse = u_lobe < p_d
+    coat = ~diffuse & (u_lobe < p_d + p_c)
+    transmit = ~diffuse & ~coat & (u_lobe < p_d + p_c + p_t)
+    # reflection about the visible normal, or about a GTR1 normal for the clearcoat
+    alpha_cc = 0.1 + (0.001 - 0.1) * ps["clearcoat_gloss"]
+    h_r = lanes.select3(xp, coat, gtr1_sample_lanes(xp, alpha_cc, u0, u1), h)
+    w_r = lanes.reflect(a, h_r)
+    # refraction through the visible normal (Mitsuba's refract, its signed cosine)
+    eta_ti = xp.select(d_a >= 0.0, 1.0 / eta, eta)
+    cos2_t = 1.0 - eta_ti * eta_ti * (1.0 - d_a * d_a)
+    cos_t = -xp.sqrt(xp.maximum(cos2_t, 0.0)) * xp.select(d_a >= 0.0, 1.0, -1.0)
+    w_t = lanes.sub(_scale3(xp, h, d_a * eta_ti + cos_t), _scale3(xp, a, eta_ti))
+    b = lanes.select3(xp, diffuse, cosine_hemisphere_lanes(xp, u0, u1), lanes.select3(xp, transmit, w_t, w_r))
+    c_b = b[2]
+    opaque_back = (ps["has_spec_trans"] > 0.5) & (ps["spec_trans"] * (1.0 - ps["metallic"]) > 0.0)
+    ok = (c_a != 0.0) & (front_side | opaque_back)
+    ok = ok & xp.select(transmit, compatible_lanes(xp, h, a, b, c_a, False) & (c_a * c_b < 0.0), c_a * c_b > 0.0)
+    ok = ok & (diffuse | transmit | compatible_lanes(xp, h_r, a, b, c_a, True))
+    half = _half_lanes(xp, ps, a, b)
+    pdf = xp.select(ok, principled_pdf_lanes(xp, ps, a, b, half), 0.0)
+    ok = ok & (pdf > 0.0)
+    inv = 1.0 / safe_lanes(xp, pdf)
+    weight = tuple(xp.select(ok, v * inv, 0.0) for v in principled_value_lanes(xp, p, a, b, half))
+    return (b[0], b[1], b[2] * s), weight, xp.select(ok, pdf, 0.0), xp.full(False, u0)
+
+
+#: the lane form's keys of the principled BSDF
+PRINCIPLED_KEYS = (("base_color", 3), ("roughness", 1), *((k, 1) for k in WEIGHTS), ("eta", 1), ("main_specular_sampling_rate", 1),
+                   ("clearcoat_sampling_rate", 1), ("diffuse_reflectance_sampling_rate", 1), ("two_sided", 1), ("has_spec_trans", 1))  # fmt: skip
+
+
 class PrincipledBase(BSDF):
-    """What both principled materials share: parameter reading (attached for ``eval``, detached
-    for sampling), the front-side frame, and the Mitsuba export."""
-
-    def grey(self, key: str, sp: ShadingPoint) -> tuple[torch.Tensor, torch.Tensor]:
-        """A blend weight at the points: ``(attached (N,), detached sampling value (N,))``."""
-        return roughness_at(self, sp, key)
-
-    def sided(self, sp: ShadingPoint) -> torch.Tensor:
-        """(N, 3) the factor taking invrender's local frame (normal turned to ``wo``) to the front
-        side's (Mitsuba's: normal along the triangle's front): z negated behind, unless the
-        material is two-sided and opaque."""
-        flip = ~sp.front & ~((self.constant("two_sided", sp) > 0.5) & ~self._transmits(sp))
-        z = torch.where(flip, -1.0, 1.0)
-        return torch.stack([torch.ones_like(z), torch.ones_like(z), z], dim=1)
-
-    def _transmits(self, sp: ShadingPoint) -> torch.Tensor:
-        """(N,) bool: has the point's material a transmission lobe (spec_trans not 0 everywhere in
-        the values sampling reads; Mitsuba's ``m_has_spec_trans``)?"""
-        token = ("has_spec_trans", sp.wo.device)
-        if token not in self._constant_tables:
-            flags = [bool((v["spec_trans"] != 0).any()) for v in self.sampling_values]
-            self._constant_tables[token] = torch.tensor(flags, dtype=torch.bool, device=sp.wo.device)
-        return self._constant_tables[token].index_select(0, sp.material)
+    """What both principled materials share: the diffuse albedo, path records' refusal and the
+    Mitsuba reading (each is written once as lane functions: :class:`~invrender.core.bsdf.LaneBSDF`)."""
 
     def diffuse_reflectance(self, sp: ShadingPoint) -> torch.Tensor:
         return self.param("base_color", sp)
@@ -238,7 +375,7 @@ class PrincipledBase(BSDF):
 
 
 @registry.MATERIALS.register
-class Principled(PrincipledBase):
+class Principled(PrincipledBase, LaneBSDF):
     type_name = "principled"
     lobes = Lobe.DIFFUSE | Lobe.GLOSSY | Lobe.GLOSSY_TRANSMISSION
     params = params_with(WEIGHTS)
@@ -251,141 +388,18 @@ class Principled(PrincipledBase):
     }
     doc = "Disney's principled BSDF (Mitsuba's principled): diffuse with retro-reflection, sheen, GGX specular with metallic and tint, GTR1 clearcoat, rough transmission"
 
-    def _half(self, sp: ShadingPoint, a: torch.Tensor, b: torch.Tensor):
-        """The geometry of a direction pair in the front-side frame: ``(c_a, c_b, front, reflect,
-        refract, eta, eta_path, h, a.h, b.h, F)``."""
-        c_a, c_b = a[:, 2], b[:, 2]
-        front = c_a > 0
-        reflect, refract = c_a * c_b > 0, c_a * c_b < 0
-        eta = self.constant("eta", sp)
-        eta_path = torch.where(front, eta, 1.0 / eta)
-        h = normalize(a + b * torch.where(reflect, 1.0, eta_path)[:, None])
-        h = h * torch.where(h[:, 2] < 0, -1.0, 1.0)[:, None]
-        d_a, d_b = dot(a, h), dot(b, h)
-        return c_a, c_b, front, reflect, refract, eta, eta_path, h, d_a, d_b, fresnel(d_a, eta)
+    def lane_form(self) -> LaneForm:
+        return LaneForm(PRINCIPLED_KEYS, principled_eval_lanes, principled_sample_lanes)
 
-    def _value(self, sp: ShadingPoint, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-        """``f |c_b|`` (N, 3) in the front-side frame, parameters attached (module docstring)."""
-        c_a, c_b, front, reflect, refract, eta, eta_path, h, d_a, d_b, F = self._half(sp, a, b)
-        active = c_a != 0
-        base = self.param("base_color", sp)
-        w = {k: self.grey(k, sp)[0] for k in WEIGHTS}
-        r = self.grey("roughness", sp)[0]
-        m, st = w["metallic"], w["spec_trans"]
-        brdf, bsdf = (1.0 - m) * (1.0 - st), (1.0 - m) * st
-        ax, ay = distribution_alphas(w["anisotropic"], r)
-        D = ggx_D_aniso(h, ax, ay)
-        G = ggx_G1_aniso(a, h, ax, ay) * ggx_G1_aniso(b, h, ax, ay)
-        compat_r, compat_t = compatible(h, a, b, c_a, True), compatible(h, a, b, c_a, False)
-        abs_a = safe(c_a.abs())
-        # main specular reflection: the principled Fresnel blend (front) or the dielectric's (back)
-        eta_it = torch.where(d_a >= 0, eta, 1.0 / eta)
-        tint = w["spec_tint"]
-        F_schlick = m[:, None] * schlick(base, d_a, eta) + ((1.0 - m) * tint)[:, None] * schlick(tint_colour(base) * schlick_r0(eta_it)[:, None], d_a, eta)
-        F_front = ((1.0 - m) * (1.0 - tint) * F)[:, None] + F_schlick
-        F_p = torch.where(front[:, None], F_front, (bsdf * F)[:, None])
-        on = active & reflect & compat_r & (F > 0)
-        value = F_p * torch.where(on, D * G / (4.0 * abs_a), 0.0)[:, None]
-        # main specular transmission (radiance: 1 / eta_path^2 times Walter's eta_path^2)
-        on = active & refract & compat_t & (F < 1)
-        t = ((1.0 - F) * D * G * d_a * d_b / (abs_a * safe((d_a + eta_path * d_b).square()))).abs()
-        value = value + base.clamp_min(1e-12).sqrt() * torch.where(on, bsdf * t, 0.0)[:, None]
-        # clearcoat: GTR1, Schlick with R0 = 0.04, GGX masking of alpha 0.25
-        cc = w["clearcoat"]
-        on = active & reflect & compat_r & front
-        alpha_cc = 0.1 + (0.001 - 0.1) * w["clearcoat_gloss"]
-        quarter = torch.full_like(c_a, 0.25)  # the clearcoat's masking: GGX of alpha 0.25
-        G_cc = ggx_G1_aniso(a, h, quarter, quarter) * ggx_G1_aniso(b, h, quarter, quarter)
-        value = value + torch.where(on, 0.25 * cc * schlick(torch.full_like(d_a, 0.04), d_a, eta) * gtr1_D(h[:, 2], alpha_cc) * G_cc * c_b.abs(), 0.0)[:, None]
-        # diffuse with retro-reflection (and the fake subsurface by flatness)
-        on = active & reflect & front
-        lobe = diffuse_retro(c_a, c_b, d_b, r, w["flatness"])
-        value = value + base * torch.where(on, brdf * c_b.abs() / math.pi * lobe, 0.0)[:, None]
-        # sheen
-        sh = w["sheen"]
-        on = active & reflect & front
-        value = value + sheen_colour(base, w["sheen_tint"]) * torch.where(on, sh * (1.0 - m) * schlick_weight(d_b.abs()) * c_b.abs(), 0.0)[:, None]
-        return value
-
-    def _probabilities(self, sp: ShadingPoint, front: torch.Tensor, F: torch.Tensor):
-        """The lobe probabilities ``(diffuse, clearcoat, transmission, reflection)`` (N,) each, at
-        the detached parameters, for Fresnel reflectance ``F`` (N,)."""
-        m, st, cc = (self.grey(k, sp)[1] for k in ("metallic", "spec_trans", "clearcoat"))
-        has_st = self._transmits(sp)
-        brdf, bsdf = (1.0 - m) * (1.0 - st), torch.where(has_st, (1.0 - m) * st, 0.0)
-        r_spec, r_cc, r_diff = (self.constant(k, sp) for k in ("main_specular_sampling_rate", "clearcoat_sampling_rate", "diffuse_reflectance_sampling_rate"))
-        p_r = torch.where(front, r_spec * (1.0 - bsdf * (1.0 - F)), F)
-        p_t = torch.where(has_st, torch.where(front, r_spec * bsdf * (1.0 - F), 1.0 - F), 0.0)
-        p_c = torch.where(front, 0.25 * cc * r_cc, 0.0)
-        p_d = torch.where(front, brdf * r_diff, 0.0)
-        total = p_r + p_t + p_c + p_d
-        inv = torch.where(total > 0, 1.0 / safe(total), 0.0)
-        return p_d * inv, p_c * inv, p_t * inv, p_r * inv
-
-    def _pdf(self, sp: ShadingPoint, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-        """(N,) the sampling density of ``b`` in the front-side frame (detached parameters)."""
-        c_a, c_b, front, reflect, refract, eta, eta_path, h, d_a, d_b, F = self._half(sp, a, b)
-        p_d, p_c, p_t, p_r = self._probabilities(sp, front, F)
-        ax, ay = distribution_alphas(self.grey("anisotropic", sp)[1], self.grey("roughness", sp)[1])
-        jacobian = torch.where(reflect, 1.0 / safe(4.0 * d_b), eta_path.square() * d_b / safe((d_a + eta_path * d_b).square())).abs()
-        up = a * torch.where(c_a < 0, -1.0, 1.0)[:, None]
-        visible = ggx_visible_pdf_aniso(up, h, ax, ay) * jacobian
-        mirror = compatible(h, a, b, c_a, True) & reflect
-        through = compatible(h, a, b, c_a, False) & refract & self._transmits(sp)
-        alpha_cc = 0.1 + (0.001 - 0.1) * self.grey("clearcoat_gloss", sp)[1]
-        coat = torch.where(h[:, 2] < 0, 0.0, h[:, 2] * gtr1_D(h[:, 2], alpha_cc)) * jacobian
-        pdf = torch.where(mirror, p_r * visible + p_c * coat, 0.0) + torch.where(reflect, p_d * c_b / math.pi, 0.0) + torch.where(through, p_t * visible, 0.0)
-        return torch.where(c_a != 0, pdf, 0.0)
-
-    def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        """``f |cos theta_i|`` (N, 3) of all lobes (differentiable in every parameter)."""
-        s = self.sided(sp)
-        return self._value(sp, sp.wo_local * s, sp.frame.to_local(wi) * s)
-
-    def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        """(N,) the lobes' densities mixed by their (detached) probabilities."""
-        s = self.sided(sp)
-        return self._pdf(sp, sp.wo_local * s, sp.frame.to_local(wi) * s)
-
-    def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
-        """Mitsuba's procedure: a visible GGX normal from ``u_dir`` fixes ``F`` and so the lobe
-        probabilities; ``u_lobe`` picks diffuse, clearcoat, transmission or reflection in that order;
-        ``u_dir`` draws the lobe's direction (cosine-weighted, a GTR1 normal, or the visible normal
-        refracted or reflected). Weight ``f cos / pdf`` (``f`` attached)."""
-        s = self.sided(sp)
-        a = sp.wo_local * s
-        c_a = a[:, 2]
-        front = c_a > 0
-        sign = torch.where(c_a < 0, -1.0, 1.0)
-        up = a * sign[:, None]
-        ax, ay = distribution_alphas(self.grey("anisotropic", sp)[1], self.grey("roughness", sp)[1])
-        h = sample_visible_normal(torch.where((up[:, 2] > 0)[:, None], up, torch.tensor([0.0, 0.0, 1.0], device=a.device)), ax, u_dir, ay)
-        eta = self.constant("eta", sp)
-        d_a = dot(a, h)
-        F = fresnel(d_a, eta)
-        p_d, p_c, p_t, _ = self._probabilities(sp, front, F)
-        diffuse = u_lobe < p_d
-        coat = ~diffuse & (u_lobe < p_d + p_c)
-        transmit = ~diffuse & ~coat & (u_lobe < p_d + p_c + p_t)
-        # reflection about the visible normal, or about a GTR1 normal for the clearcoat
-        alpha_cc = 0.1 + (0.001 - 0.1) * self.grey("clearcoat_gloss", sp)[1]
-        h_r = torch.where(coat[:, None], gtr1_sample(alpha_cc, u_dir), h)
-        w_r = 2.0 * dot(a, h_r)[:, None] * h_r - a
-        # refraction through the visible normal (Mitsuba's refract, its signed cosine)
-        eta_ti = torch.where(d_a >= 0, 1.0 / eta, eta)
-        cos2_t = 1.0 - eta_ti.square() * (1.0 - d_a.square())
-        cos_t = -cos2_t.clamp_min(0.0).sqrt() * torch.where(d_a >= 0, 1.0, -1.0)
-        w_t = h * (d_a * eta_ti + cos_t)[:, None] - a * eta_ti[:, None]
-        b = torch.where(diffuse[:, None], cosine_hemisphere(u_dir), torch.where(transmit[:, None], w_t, w_r))
-        c_b = b[:, 2]
-        ok = (c_a != 0) & (front | (self._transmits(sp) & (self.grey("spec_trans", sp)[1] * (1.0 - self.grey("metallic", sp)[1]) > 0)))
-        ok = ok & torch.where(transmit, compatible(h, a, b, c_a, False) & (c_a * c_b < 0), c_a * c_b > 0)
-        ok = ok & torch.where(diffuse | transmit, True, compatible(h_r, a, b, c_a, True))
-        pdf = torch.where(ok, self._pdf(sp, a, b), 0.0)
-        ok = ok & (pdf > 0)
-        value = self._value(sp, a, b)
-        weight = torch.where(ok[:, None], value / safe(pdf)[:, None], 0.0)
-        return BSDFSample(sp.frame.to_world(b * s), weight, torch.where(ok, pdf, 0.0), torch.zeros_like(ok))
+    def lane_rows(self, key: str, sampling: bool, device) -> torch.Tensor | None:
+        """``has_spec_trans`` (M, 1): 1 where the material transmits (:meth:`_transmits`)."""
+        if key == "has_spec_trans":
+            token = ("has_spec_trans_rows", device)
+            if token not in self._constant_tables:
+                flags = [float(bool((v["spec_trans"] != 0).any())) for v in self.sampling_values]
+                self._constant_tables[token] = torch.tensor(flags, dtype=torch.float32, device=device)[:, None]
+            return self._constant_tables[token]
+        return None
 
     @classmethod
     def resolve(cls, where: str, values: dict, constants: dict, given: set) -> dict:

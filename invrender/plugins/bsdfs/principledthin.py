@@ -28,19 +28,18 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import torch
 
 from invrender import registry
-from invrender.core.bsdf import BSDFSample, Lobe, ShadingPoint
-from invrender.plugins.bsdfs.microfacet import ggx_D_aniso, ggx_G1_aniso, ggx_visible_pdf_aniso, sample_visible_normal
-from invrender.plugins.bsdfs.plastic import cosine_hemisphere
+from invrender.core import lanes
+from invrender.core.bsdf import LaneBSDF, LaneForm, Lobe
+from invrender.plugins.bsdfs.microfacet import ggx_D_aniso_lanes, ggx_G1_aniso_lanes, ggx_sample_visible_lanes, ggx_visible_pdf_aniso_lanes
+from invrender.plugins.bsdfs.plastic import cosine_hemisphere_lanes
 from invrender.plugins.bsdfs.principled import (
-    ETA, WEIGHTS, PrincipledBase, compatible, params_with, diffuse_retro, distribution_alphas, fresnel, read_common, safe, schlick, schlick_r0, schlick_weight, sheen_colour,
-    tint_colour, _numpy,
+    ETA, WEIGHTS, PrincipledBase, alphas_lanes, compatible_lanes, diffuse_retro_lanes, fresnel_lanes, params_with, read_common, safe_lanes, schlick_lanes,
+    schlick_weight_lanes, tint_lanes, _numpy,
 )  # fmt: skip
 from invrender.scene import kinds
 from invrender.scene.plugins import Constant
-from invrender.vec import dot, normalize
 
 #: the weights the thin sheet has (no metallic, no clearcoat)
 THIN_WEIGHTS = {k: WEIGHTS[k] for k in ("spec_tint", "anisotropic", "sheen", "sheen_tint", "spec_trans", "flatness")}
@@ -48,8 +47,125 @@ THIN_WEIGHTS = {k: WEIGHTS[k] for k in ("spec_tint", "anisotropic", "sheen", "sh
 RATES = ("specular_reflectance_sampling_rate", "specular_transmittance_sampling_rate", "diffuse_reflectance_sampling_rate", "diffuse_transmittance_sampling_rate")
 
 
+def _probabilities_lanes(xp, ps):
+    """The lobe probabilities (specular reflection, specular transmission, diffuse reflection,
+    diffuse transmission) at the detached spec_trans."""
+    st = ps["spec_trans"]
+    dt = 0.5 * ps["diff_trans"]
+    r_sr, r_st, r_dr, r_dt = (ps[k] for k in RATES)
+    p = (0.5 * st * r_sr, 0.5 * st * r_st, r_dr * (1.0 - st) * (1.0 - dt), r_dt * (1.0 - st) * dt)
+    total = p[0] + p[1] + p[2] + p[3]
+    inv = xp.select(total > 0.0, 1.0 / safe_lanes(xp, total), 0.0)
+    return tuple(q * inv for q in p)
+
+
+def _half_lanes(xp, a, b):
+    """``normalize(a + b_r)``, ``b_r`` = ``b`` with ``|z|``."""
+    return lanes.normalize(xp, (a[0] + b[0], a[1] + b[1], a[2] + xp.abs(b[2])))
+
+
+def thin_value_lanes(xp, p, a, b, h):
+    """``f |c_b|`` (a 3-tuple; module docstring) at parameters ``p``; ``c_a >= 0``, ``h`` the half
+    vector (:func:`_half_lanes`)."""
+    c_a, c_b = a[2], b[2]
+    active = c_a != 0.0
+    reflect, refract = c_b > 0.0, c_b < 0.0
+    base = p["base_color"]
+    r, st, dt, eta = p["roughness"], p["spec_trans"], 0.5 * p["diff_trans"], p["eta"]
+    d_a = lanes.dot(a, h)
+    F = fresnel_lanes(xp, d_a, eta)
+    inv_4ca = 1.0 / safe_lanes(xp, 4.0 * c_a)
+    # specular reflection, its Fresnel term tinted by spec_tint
+    ax, ay = alphas_lanes(xp, p["anisotropic"], r)
+    on = active & reflect & compatible_lanes(xp, h, a, b, c_a, True)
+    r0 = (eta - 1.0) / (eta + 1.0)
+    c_tint = tint_lanes(xp, base)
+    s_tint = schlick_lanes(xp, tuple(c * (r0 * r0) for c in c_tint), d_a, eta)
+    g = ggx_D_aniso_lanes(xp, h, ax, ay) * ggx_G1_aniso_lanes(xp, a, h, ax, ay) * ggx_G1_aniso_lanes(xp, b, h, ax, ay) * inv_4ca
+    spec = xp.select(on, st * g, 0.0)
+    value = tuple((F + p["spec_tint"] * (s - F)) * spec for s in s_tint)
+    # specular transmission: the roughness scaled by the index
+    ax_t, ay_t = alphas_lanes(xp, p["anisotropic"], (0.65 * eta - 0.35) * r)
+    on = active & refract & compatible_lanes(xp, h, a, b, c_a, False)
+    g = ggx_D_aniso_lanes(xp, h, ax_t, ay_t) * ggx_G1_aniso_lanes(xp, a, h, ax_t, ay_t) * ggx_G1_aniso_lanes(xp, b, h, ax_t, ay_t) * inv_4ca
+    trans = xp.select(on, st * (1.0 - F) * g, 0.0)
+    # diffuse with retro-reflection and flatness, and sheen; diffuse transmission
+    on = active & reflect & (dt < 1.0)
+    cos_d = lanes.dot(h, b)
+    diff = xp.select(on, (1.0 - st) * c_b * (1.0 / math.pi) * (1.0 - dt) * diffuse_retro_lanes(xp, c_a, c_b, cos_d, r, p["flatness"]), 0.0)
+    sh = xp.select(on, p["sheen"] * (1.0 - st) * schlick_weight_lanes(xp, xp.abs(cos_d)) * (1.0 - dt) * xp.abs(c_b), 0.0)
+    on = active & refract & (dt > 0.0)
+    diff_t = xp.select(on, (1.0 - st) * dt * (1.0 / math.pi) * xp.abs(c_b), 0.0)
+    sheen_tint = p["sheen_tint"]
+    return tuple(v + c * (trans + diff + diff_t) + (1.0 + sheen_tint * (k - 1.0)) * sh for v, c, k in zip(value, base, c_tint))
+
+
+def thin_pdf_lanes(xp, ps, a, b, h):
+    """The sampling density of ``b`` (``c_a >= 0``) at the detached parameters ``ps``."""
+    c_a, c_b = a[2], b[2]
+    reflect, refract = c_b > 0.0, c_b < 0.0
+    p_sr, p_st, p_dr, p_dt = _probabilities_lanes(xp, ps)
+    r, aniso, eta = ps["roughness"], ps["anisotropic"], ps["eta"]
+    jacobian = xp.abs(1.0 / safe_lanes(xp, 4.0 * lanes.dot((b[0], b[1], xp.abs(c_b)), h)))
+    ax, ay = alphas_lanes(xp, aniso, r)
+    ax_t, ay_t = alphas_lanes(xp, aniso, (0.65 * eta - 0.35) * r)
+    mirror = compatible_lanes(xp, h, a, b, c_a, True) & reflect
+    through = compatible_lanes(xp, h, a, b, c_a, False) & refract
+    pdf = xp.select(mirror, p_sr * ggx_visible_pdf_aniso_lanes(xp, a, h, ax, ay) * jacobian, 0.0)
+    pdf = pdf + xp.select(through, p_st * ggx_visible_pdf_aniso_lanes(xp, a, h, ax_t, ay_t) * jacobian, 0.0)
+    pdf = pdf + xp.select(reflect, p_dr * c_b * (1.0 / math.pi), 0.0) + xp.select(refract, p_dt * -c_b * (1.0 / math.pi), 0.0)
+    return xp.select(c_a != 0.0, pdf, 0.0)
+
+
+def _mirrored(xp, wo, wi):
+    """``(a, b, s)``: the local directions mirrored through the origin where ``wo`` lies below (the
+    sheet is symmetric), so that ``c_a >= 0``; ``s`` the sign."""
+    s = xp.select(wo[2] < 0.0, -1.0, 1.0)
+    return lanes.scale(wo, s), lanes.scale(wi, s), s
+
+
+def thin_eval_lanes(xp, p, ps, wo, wi, front):
+    """``f |cos theta_i|`` of all lobes (``p``) and their densities mixed by their probabilities (``ps``)."""
+    a, b, _ = _mirrored(xp, wo, wi)
+    h = _half_lanes(xp, a, b)
+    return thin_value_lanes(xp, p, a, b, h), thin_pdf_lanes(xp, ps, a, b, h)
+
+
+def thin_sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1):
+    """``u_lobe`` picks specular reflection, specular transmission, diffuse reflection or diffuse
+    transmission (in that order); ``u0, u1`` draw a visible GGX normal (reflected about, and for
+    transmission mirrored below) or a cosine-weighted direction (below for transmission). Weight
+    ``f cos / pdf`` (``f`` at ``p``)."""
+    a, _, s = _mirrored(xp, wo, wo)
+    p_sr, p_st, p_dr, _ = _probabilities_lanes(xp, ps)
+    spec_r = u_lobe < p_sr
+    spec_t = ~spec_r & (u_lobe < p_sr + p_st)
+    diff_r = ~spec_r & ~spec_t & (u_lobe < p_sr + p_st + p_dr)
+    diff_t = ~spec_r & ~spec_t & ~diff_r & (0.5 * ps["diff_trans"] > 0.0)
+    k = xp.select(spec_t, 0.65 * ps["eta"] - 0.35, 1.0)
+    ax, ay = alphas_lanes(xp, ps["anisotropic"], k * ps["roughness"])
+    one = 0.0 * a[2] + 1.0
+    h = ggx_sample_visible_lanes(xp, lanes.select3(xp, a[2] > 0.0, a, (0.0 * one, 0.0 * one, one)), ax, ay, u0, u1)
+    w_r = lanes.reflect(a, h)
+    cos = cosine_hemisphere_lanes(xp, u0, u1)
+    b = lanes.select3(xp, spec_r, w_r, lanes.select3(xp, spec_t, (w_r[0], w_r[1], -w_r[2]), lanes.select3(xp, diff_r, cos, lanes.scale(cos, -1.0))))
+    ok = (a[2] != 0.0) & (spec_r | spec_t | diff_r | diff_t)
+    ok = ok & (~spec_r | (compatible_lanes(xp, h, a, b, a[2], True) & (b[2] > 0.0)))
+    ok = ok & (~spec_t | (compatible_lanes(xp, h, a, b, a[2], False) & (b[2] < 0.0)))
+    hb = _half_lanes(xp, a, b)
+    pdf = xp.select(ok, thin_pdf_lanes(xp, ps, a, b, hb), 0.0)
+    ok = ok & (pdf > 0.0)
+    inv = 1.0 / safe_lanes(xp, pdf)
+    weight = tuple(xp.select(ok, v * inv, 0.0) for v in thin_value_lanes(xp, p, a, b, hb))
+    return lanes.scale(b, s), weight, xp.select(ok, pdf, 0.0), xp.full(False, u0)
+
+
+#: the lane form's keys of the thin sheet
+THIN_KEYS = (("base_color", 3), ("roughness", 1), *((k, 1) for k in THIN_WEIGHTS), ("eta", 1), ("diff_trans", 1), *((k, 1) for k in RATES))
+
+
 @registry.MATERIALS.register
-class PrincipledThin(PrincipledBase):
+class PrincipledThin(PrincipledBase, LaneBSDF):
     type_name = "principledthin"
     lobes = Lobe.DIFFUSE | Lobe.GLOSSY | Lobe.GLOSSY_TRANSMISSION
     params = params_with(THIN_WEIGHTS)
@@ -60,122 +176,8 @@ class PrincipledThin(PrincipledBase):
     }
     doc = "Disney's thin principled BSDF (Mitsuba's principledthin): a two-sided sheet with diffuse, sheen, GGX specular reflection and transmission, diffuse transmission"
 
-    def _mirror(self, sp: ShadingPoint, wl: torch.Tensor):
-        """``(a, b)``: the local directions mirrored through the origin where ``a`` lies below
-        (the sheet is symmetric), so that ``c_a >= 0``."""
-        a = sp.wo_local
-        s = torch.where(a[:, 2] < 0, -1.0, 1.0)[:, None]
-        return a * s, wl * s, s
-
-    def _probabilities(self, sp: ShadingPoint):
-        """The lobe probabilities (specular reflection, specular transmission, diffuse reflection,
-        diffuse transmission), (N,) each, at the detached spec_trans."""
-        st = self.grey("spec_trans", sp)[1]
-        dt = 0.5 * self.constant("diff_trans", sp)
-        r_sr, r_st, r_dr, r_dt = (self.constant(k, sp) for k in RATES)
-        p = (0.5 * st * r_sr, 0.5 * st * r_st, r_dr * (1.0 - st) * (1.0 - dt), r_dt * (1.0 - st) * dt)
-        total = p[0] + p[1] + p[2] + p[3]
-        inv = torch.where(total > 0, 1.0 / safe(total), 0.0)
-        return tuple(q * inv for q in p)
-
-    def _half(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-        """(N, 3) ``normalize(a + b_r)``, ``b_r`` = ``b`` with ``|z|``."""
-        b_r = torch.stack([b[:, 0], b[:, 1], b[:, 2].abs()], dim=1)
-        return normalize(a + b_r)
-
-    def _value(self, sp: ShadingPoint, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-        """``f |c_b|`` (N, 3) (module docstring), parameters attached; ``c_a >= 0``."""
-        c_a, c_b = a[:, 2], b[:, 2]
-        active = c_a != 0
-        reflect, refract = c_b > 0, c_b < 0
-        base = self.param("base_color", sp)
-        w = {k: self.grey(k, sp)[0] for k in THIN_WEIGHTS}
-        r = self.grey("roughness", sp)[0]
-        st, dt = w["spec_trans"], 0.5 * self.constant("diff_trans", sp)
-        eta = self.constant("eta", sp)
-        h = self._half(a, b)
-        d_a = dot(a, h)
-        F = fresnel(d_a, eta)
-        inv_4ca = 1.0 / safe(4.0 * c_a)
-        # specular reflection, its Fresnel term tinted by spec_tint
-        ax, ay = distribution_alphas(w["anisotropic"], r)
-        on = active & reflect & compatible(h, a, b, c_a, True)
-        F_thin = F[:, None] + w["spec_tint"][:, None] * (schlick(tint_colour(base) * schlick_r0(eta)[:, None], d_a, eta) - F[:, None])
-        g = ggx_D_aniso(h, ax, ay) * ggx_G1_aniso(a, h, ax, ay) * ggx_G1_aniso(b, h, ax, ay) * inv_4ca
-        value = F_thin * torch.where(on, st * g, 0.0)[:, None]
-        # specular transmission: the roughness scaled by the index
-        ax_t, ay_t = distribution_alphas(w["anisotropic"], (0.65 * eta - 0.35) * r)
-        on = active & refract & compatible(h, a, b, c_a, False)
-        g = ggx_D_aniso(h, ax_t, ay_t) * ggx_G1_aniso(a, h, ax_t, ay_t) * ggx_G1_aniso(b, h, ax_t, ay_t) * inv_4ca
-        value = value + base * torch.where(on, st * (1.0 - F) * g, 0.0)[:, None]
-        # diffuse with retro-reflection and flatness, and sheen
-        on = active & reflect & (dt < 1)
-        cos_d = dot(h, b)
-        lobe = diffuse_retro(c_a, c_b, cos_d, r, w["flatness"])
-        value = value + base * torch.where(on, (1.0 - st) * c_b / math.pi * (1.0 - dt) * lobe, 0.0)[:, None]
-        sheen = sheen_colour(base, w["sheen_tint"]) * torch.where(on, w["sheen"] * (1.0 - st) * schlick_weight(cos_d.abs()) * (1.0 - dt) * c_b.abs(), 0.0)[:, None]
-        value = value + sheen
-        # diffuse transmission
-        on = active & refract & (dt > 0)
-        return value + base * torch.where(on, (1.0 - st) * dt / math.pi * c_b.abs(), 0.0)[:, None]
-
-    def _pdf(self, sp: ShadingPoint, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-        """(N,) the sampling density of ``b`` (``c_a >= 0``), detached parameters."""
-        c_a, c_b = a[:, 2], b[:, 2]
-        reflect, refract = c_b > 0, c_b < 0
-        p_sr, p_st, p_dr, p_dt = self._probabilities(sp)
-        r, aniso = self.grey("roughness", sp)[1], self.grey("anisotropic", sp)[1]
-        eta = self.constant("eta", sp)
-        h = self._half(a, b)
-        b_r = torch.stack([b[:, 0], b[:, 1], c_b.abs()], dim=1)
-        jacobian = (1.0 / safe(4.0 * dot(b_r, h))).abs()
-        ax, ay = distribution_alphas(aniso, r)
-        ax_t, ay_t = distribution_alphas(aniso, (0.65 * eta - 0.35) * r)
-        mirror = compatible(h, a, b, c_a, True) & reflect
-        through = compatible(h, a, b, c_a, False) & refract
-        pdf = torch.where(mirror, p_sr * ggx_visible_pdf_aniso(a, h, ax, ay) * jacobian, 0.0)
-        pdf = pdf + torch.where(through, p_st * ggx_visible_pdf_aniso(a, h, ax_t, ay_t) * jacobian, 0.0)
-        pdf = pdf + torch.where(reflect, p_dr * c_b / math.pi, 0.0) + torch.where(refract, p_dt * -c_b / math.pi, 0.0)
-        return torch.where(c_a != 0, pdf, 0.0)
-
-    def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        """``f |cos theta_i|`` (N, 3) of all lobes (differentiable in every parameter)."""
-        a, b, _ = self._mirror(sp, sp.frame.to_local(wi))
-        return self._value(sp, a, b)
-
-    def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        """(N,) the lobes' densities mixed by their (detached) probabilities."""
-        a, b, _ = self._mirror(sp, sp.frame.to_local(wi))
-        return self._pdf(sp, a, b)
-
-    def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
-        """``u_lobe`` picks specular reflection, specular transmission, diffuse reflection or
-        diffuse transmission (in that order); ``u_dir`` draws a visible GGX normal (reflected
-        about, and for transmission mirrored below) or a cosine-weighted direction (below for
-        transmission). Weight ``f cos / pdf`` (``f`` attached)."""
-        a, _, s = self._mirror(sp, sp.wo_local)
-        p_sr, p_st, p_dr, _ = self._probabilities(sp)
-        r, aniso = self.grey("roughness", sp)[1], self.grey("anisotropic", sp)[1]
-        eta = self.constant("eta", sp)
-        spec_r = u_lobe < p_sr
-        spec_t = ~spec_r & (u_lobe < p_sr + p_st)
-        diff_r = ~spec_r & ~spec_t & (u_lobe < p_sr + p_st + p_dr)
-        diff_t = ~spec_r & ~spec_t & ~diff_r & (0.5 * self.constant("diff_trans", sp) > 0)
-        scale = torch.where(spec_t, 0.65 * eta - 0.35, 1.0)
-        ax, ay = distribution_alphas(aniso, scale * r)
-        up = torch.where((a[:, 2] > 0)[:, None], a, torch.tensor([0.0, 0.0, 1.0], device=a.device))
-        h = sample_visible_normal(up, ax, u_dir, ay)
-        w_r = 2.0 * dot(a, h)[:, None] * h - a
-        w_t = w_r * torch.tensor([1.0, 1.0, -1.0], device=a.device)
-        cos = cosine_hemisphere(u_dir)
-        b = torch.where(spec_r[:, None], w_r, torch.where(spec_t[:, None], w_t, torch.where(diff_r[:, None], cos, -cos)))
-        ok = (a[:, 2] != 0) & (spec_r | spec_t | diff_r | diff_t)
-        ok = ok & torch.where(spec_r, compatible(h, a, b, a[:, 2], True) & (b[:, 2] > 0), True)
-        ok = ok & torch.where(spec_t, compatible(h, a, b, a[:, 2], False) & (b[:, 2] < 0), True)
-        pdf = torch.where(ok, self._pdf(sp, a, b), 0.0)
-        ok = ok & (pdf > 0)
-        weight = torch.where(ok[:, None], self._value(sp, a, b) / safe(pdf)[:, None], 0.0)
-        return BSDFSample(sp.frame.to_world(b * s), weight, torch.where(ok, pdf, 0.0), torch.zeros_like(ok))
+    def lane_form(self) -> LaneForm:
+        return LaneForm(THIN_KEYS, thin_eval_lanes, thin_sample_lanes)
 
     # ---- its aliases in the scene formats (read through the registry)
 
