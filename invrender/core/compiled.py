@@ -80,12 +80,21 @@ def evaluate(xp, fn, *args, **static) -> tuple[torch.Tensor, ...]:
     if xp.name.endswith("cuda"):
         torch.cuda.current_stream().synchronize()  # torch's writes done before Dr.Jit's stream reads them
     key = (xp.name, fn, tuple(sorted(static.items())))  # Python values choose the code: one recording each (lanes.signature)
-    frozen = _take_frozen(key, xp, fn, static)
+    frozen, inputs = _take_frozen(key, xp, fn, static), tuple(_argument(xp, a) for a in args)
     try:
-        out, widths = frozen(tuple(_argument(xp, a) for a in args))
-        xp.dr.sync_thread()
+        if frozen.n_recordings:
+            out, widths = frozen(inputs)
+        else:
+            with _RECORDING:  # one recording at a time (concurrent recordings can fail)
+                out, widths = frozen(inputs)
+    except RuntimeError:  # a recording that failed: this call traced as it is, the function dropped
+        with _RECORDING:
+            out, widths = frozen.f(inputs)
+        frozen = None
     finally:
-        _FROZEN.setdefault(key, []).append(frozen)  # free again (list.append is atomic)
+        if frozen is not None:
+            _FROZEN.setdefault(key, []).append(frozen)  # free again (list.append is atomic)
+    xp.dr.sync_thread()
     flat, at = [xp.to_torch(o) for o in out], 0
     results = []
     for k in widths:
@@ -99,6 +108,7 @@ def evaluate(xp, fn, *args, **static) -> tuple[torch.Tensor, ...]:
 #: worker, however many threads come and go)
 _FROZEN: dict[tuple, list] = {}
 _FROZEN_LOCK = threading.Lock()
+_RECORDING = threading.Lock()
 
 
 def _take_frozen(key: tuple, xp, fn, static: dict):

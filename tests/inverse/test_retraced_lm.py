@@ -49,7 +49,9 @@ def test_jacobian_columns_match_central_differences():
     renders = retraced._Renders([scene], U, {n: v.float() for n, v in start.items()}, retraced.retrace_integrator(FitSettings(max_depth=3).model), 4, [(3, 4)], "stratified")
     w = torch.rand(100, 3, generator=torch.Generator().manual_seed(0), dtype=torch.float64) + 0.5
     J, image = renders.jacobian(0, start, 1, w)
-    assert J.shape == (300, 4) and torch.equal(image, renders.image(0, start, 1))
+    assert J.shape == (300, 4)
+    # the same paths: the forward-mode render is the torch bounce's, the plain one the compiled bounce's (float rounding)
+    torch.testing.assert_close(image, renders.image(0, start, 1), rtol=1e-4, atol=1e-6)
     u = U.vector(start)
     for k, h in enumerate([1e-3, 1e-3, 1e-3, 1e-3]):
         e = torch.zeros(4, dtype=torch.float64)
