@@ -79,8 +79,13 @@ def evaluate(xp, fn, *args, **static) -> tuple[torch.Tensor, ...]:
         return tuple(xp.to_torch(o) for o in fn(xp, *(_argument(xp, a) for a in args), **static))
     if xp.name.endswith("cuda"):
         torch.cuda.current_stream().synchronize()  # torch's writes done before Dr.Jit's stream reads them
+    # the lanes: the rows of the 3-vector arguments (else the longest array; tables are flat)
+    lanes = max((a.shape[0] for a in _tensors(args) if a.ndim == 2), default=max((a.shape[0] for a in _tensors(args)), default=0))
+    if lanes < FREEZE_LANES:
+        return evaluate(TORCH, fn, *args, **static)  # small calls as eager torch: no kernel to pay back
+    inputs = tuple(_argument(xp, a) for a in args)
     key = (xp.name, fn, tuple(sorted(static.items())))  # Python values choose the code: one recording each (lanes.signature)
-    frozen, inputs = _take_frozen(key, xp, fn, static), tuple(_argument(xp, a) for a in args)
+    frozen = _take_frozen(key, xp, fn, static)
     try:
         if frozen.n_recordings:
             out, widths = frozen(inputs)
@@ -94,6 +99,16 @@ def evaluate(xp, fn, *args, **static) -> tuple[torch.Tensor, ...]:
     finally:
         if frozen is not None:
             _FROZEN.setdefault(key, []).append(frozen)  # free again (list.append is atomic)
+    return _results(xp, out, widths)
+
+
+#: calls on fewer lanes run as eager torch (their own kernel would not pay back its recording, and
+#: a frozen kernel replayed with a lane count as small as its tables' sizes can mistake one for the other)
+FREEZE_LANES = 4096
+
+
+def _results(xp, out, widths) -> tuple[torch.Tensor, ...]:
+    """The evaluated arrays ``out`` as torch tensors: (N,) each, or (N, k) by columns per k-tuple."""
     xp.dr.sync_thread()
     flat, at = [xp.to_torch(o) for o in out], 0
     results = []
@@ -122,6 +137,12 @@ def _take_frozen(key: tuple, xp, fn, static: dict):
         if free:
             return free.pop()
 
+    return xp.dr.freeze(_body(xp, fn, static), warn_after=1 << 30)
+
+
+def _body(xp, fn, static: dict):
+    """``fn`` on ``xp`` as one kernel: ``inputs -> (the outputs' arrays, their widths)``."""
+
     def body(args):
         out = fn(xp, *args, **static)
         widths = [len(o) if isinstance(o, tuple) else 0 for o in out]
@@ -129,7 +150,16 @@ def _take_frozen(key: tuple, xp, fn, static: dict):
         xp.dr.eval(*flat)  # one kernel
         return flat, widths
 
-    return xp.dr.freeze(body, warn_after=1 << 30)
+    return body
+
+
+def _tensors(args):
+    """The torch tensors among ``args`` (nested in tuples too)."""
+    for a in args:
+        if isinstance(a, torch.Tensor):
+            yield a
+        elif isinstance(a, (tuple, list)):
+            yield from _tensors(a)
 
 
 def _argument(xp, a):
