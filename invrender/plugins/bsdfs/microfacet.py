@@ -226,10 +226,8 @@ class Distribution(ABC):
     #: ``(xp, cos_v, alpha)``: Smith's masking of directions at cosines ``cos_v`` (0 below)
     G1_lanes: Callable
 
-    @staticmethod
-    def sample_visible_lanes(xp, wo, alpha, u0, u1):
-        """A normal (a 3-tuple) visible from ``wo`` (a 3-tuple, z > 0) from uniforms ``u0``, ``u1``."""
-        raise NotImplementedError
+    #: ``(xp, wo, alpha, u0, u1)``: a normal (a 3-tuple) visible from ``wo`` (z > 0) from uniforms ``u0``, ``u1``
+    sample_visible_lanes: Callable
 
     def visible_pdf_lanes(self, xp, cos_o, cos_h, wo_dot_h, alpha):
         """Density of :meth:`sample_visible_lanes` drawing a normal at ``cos_h`` with ``wo . h =
