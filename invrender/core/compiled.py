@@ -81,9 +81,9 @@ def evaluate(xp, fn, *args, **static) -> tuple[torch.Tensor, ...]:
         torch.cuda.current_stream().synchronize()  # torch's writes done before Dr.Jit's stream reads them
     # the lanes: the rows of the 3-vector arguments (else the longest array; tables are flat)
     lanes = max((a.shape[0] for a in _tensors(args) if a.ndim == 2), default=max((a.shape[0] for a in _tensors(args)), default=0))
-    if lanes < FREEZE_LANES:
-        return evaluate(TORCH, fn, *args, **static)  # small calls as eager torch: no kernel to pay back
     inputs = tuple(_argument(xp, a) for a in args)
+    if lanes < FREEZE_LANES:  # traced as it is: the same kernel's arithmetic, whatever the chunking
+        return _results(xp, *_body(xp, fn, static)(inputs))
     key = (xp.name, fn, tuple(sorted(static.items())))  # Python values choose the code: one recording each (lanes.signature)
     frozen = _take_frozen(key, xp, fn, static)
     try:
@@ -102,8 +102,9 @@ def evaluate(xp, fn, *args, **static) -> tuple[torch.Tensor, ...]:
     return _results(xp, out, widths)
 
 
-#: calls on fewer lanes run as eager torch (their own kernel would not pay back its recording, and
-#: a frozen kernel replayed with a lane count as small as its tables' sizes can mistake one for the other)
+#: calls on fewer lanes are traced, not frozen: a frozen kernel replayed with a lane count as small
+#: as its tables' sizes can mistake one for the other (tracing them, not evaluating them as eager
+#: torch, keeps an image the same bits however its paths are split into chunks and workers)
 FREEZE_LANES = 4096
 
 
