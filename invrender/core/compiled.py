@@ -19,6 +19,7 @@ parameters).
 
 from __future__ import annotations
 
+import functools
 import os
 import threading
 
@@ -85,21 +86,25 @@ def evaluate(xp, fn, *args, **static) -> tuple[torch.Tensor, ...]:
     if lanes < FREEZE_LANES:  # traced as it is: the same kernel's arithmetic, whatever the chunking
         return _results(xp, *_body(xp, fn, static)(inputs))
     key = (xp.name, fn, tuple(sorted(static.items())))  # Python values choose the code: one recording each (lanes.signature)
-    frozen = _take_frozen(key, xp, fn, static)
-    try:
-        if frozen.n_recordings:
-            out, widths = frozen(inputs)
-        else:
-            with _RECORDING:  # one recording at a time (concurrent recordings can fail)
+    if key not in _TRACED:
+        frozen = _take_frozen(key, xp, fn, static)
+        try:
+            if frozen.n_recordings:
                 out, widths = frozen(inputs)
-    except RuntimeError:  # a recording that failed: this call traced as it is, the function dropped
-        with _RECORDING:
-            out, widths = frozen.f(inputs)
-        frozen = None
-    finally:
-        if frozen is not None:
-            _FROZEN.setdefault(key, []).append(frozen)  # free again (list.append is atomic)
-    return _results(xp, out, widths)
+            else:
+                with _RECORDING:  # one recording at a time (concurrent recordings can fail)
+                    out, widths = frozen(inputs)
+            if all(xp.dr.width(o) == lanes for o in out):
+                _FROZEN.setdefault(key, []).append(frozen)  # free again (list.append is atomic)
+                return _results(xp, out, widths)
+        except RuntimeError:  # a recording that failed
+            pass
+        # a replay that returned an array of another call's length (a point light's zero emission,
+        # seen with two render workers) or a recording that failed: this kind of call is traced
+        # from now on, its frozen functions dropped
+        _TRACED.add(key)
+    with _RECORDING:
+        return _results(xp, *_body(xp, fn, static)(inputs))
 
 
 #: calls on fewer lanes are traced, not frozen: a frozen kernel replayed with a lane count as small
@@ -125,6 +130,8 @@ def _results(xp, out, widths) -> tuple[torch.Tensor, ...]:
 _FROZEN: dict[tuple, list] = {}
 _FROZEN_LOCK = threading.Lock()
 _RECORDING = threading.Lock()
+#: the kinds of call whose frozen replays went wrong: traced on every call
+_TRACED: set[tuple] = set()
 
 
 def _take_frozen(key: tuple, xp, fn, static: dict):
@@ -142,13 +149,20 @@ def _take_frozen(key: tuple, xp, fn, static: dict):
 
 
 def _body(xp, fn, static: dict):
-    """``fn`` on ``xp`` as one kernel: ``inputs -> (the outputs' arrays, their widths)``."""
+    """``fn`` on ``xp`` as one kernel: ``inputs -> (the outputs' arrays, their widths)``.
+
+    Its closure holds a partial and Dr.Jit's ``eval`` only: a frozen function traverses the
+    variables its function closes over on every call, hashing what it finds, and it does so holding
+    Dr.Jit's lock; a hash written in Python (:class:`~invrender.core.lanes.Material`'s) could then
+    hand the GIL to another render worker that waits for that lock holding it (a deadlock seen
+    with two workers). A partial's arguments are not traversed."""
+    call, evaluate = functools.partial(fn, xp, **static), xp.dr.eval
 
     def body(args):
-        out = fn(xp, *args, **static)
+        out = call(*args)
         widths = [len(o) if isinstance(o, tuple) else 0 for o in out]
         flat = [c for o in out for c in (o if isinstance(o, tuple) else (o,))]
-        xp.dr.eval(*flat)  # one kernel
+        evaluate(*flat)  # one kernel
         return flat, widths
 
     return body

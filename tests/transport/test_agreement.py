@@ -81,17 +81,36 @@ def test_different_seeds_differ(cbox32):
     assert not torch.equal(a, b)
 
 
-def test_two_workers_give_the_same_image(cbox32):
+def point_lit_box():
+    """The Cornell box's walls lit by a point light instead of its area light (no emission is ever
+    hit: the compiled bounce's emitted light is zero on every lane)."""
+    from invrender.scene.emitters import Emitter
+    from invrender.scene.scene import build_scene
+    from invrender.scene.shapes import Mesh
+
+    box = ir.load_scene("cornell_box", resolution=(32, 32))
+    t = box.triangles
+    corners = t.corners().numpy()
+    walls = [Mesh(corners[i], [[0, 1, 2]], None, box.materials[int(t.material[i])], None) for i in range(t.count)]
+    reflectance = {m: box.params[f"{m}.reflectance"] for m in box.materials}
+    return build_scene(walls, reflectance, {"lamp": Emitter.of("point", emission=(1.0, 1.0, 1.0), position=(0.0, 0.5, 0.0))}, box.camera, (32, 32), name="point_box")
+
+
+@pytest.mark.parametrize("lit", ["area", "point"])
+def test_two_workers_give_the_same_image(cbox32, lit):
     """On the CPU one worker thread per core traces chunks into its own film: the image is the
-    same as with one worker (the test session runs single-threaded, so force two here)."""
-    one = ir.render(cbox32, spp=8, seed=4, progress=False)
+    same as with one worker (the test session runs single-threaded, so force two here). With the
+    point light, two workers' chunks replayed a frozen kernel with lane counts whose zero
+    emission came back at another call's length."""
+    scene = cbox32 if lit == "area" else point_lit_box()
+    one = ir.render(scene, spp=32, seed=4, progress=False)
     threads = torch.get_num_threads()
     torch.set_num_threads(2)
     try:
         from invrender.core.driver import cpu_workers
 
         assert cpu_workers(torch.device("cpu")) == 2
-        two = ir.render(cbox32, spp=8, seed=4, progress=False)
+        two = ir.render(scene, spp=32, seed=4, progress=False)
     finally:
         torch.set_num_threads(threads)
     assert torch.equal(one, two)
