@@ -121,9 +121,20 @@ def projector_light(triangles):
     return Projector([0, 1], values, constants, triangles)
 
 
+def rgb_projector_light(triangles):
+    """Projectors without images: rows of 32 floats (their frames), no texture table."""
+    values = [{"emission": torch.tensor([0.5, 1.0, 2.0])}, {"emission": torch.tensor([3.0, 1.0, 1.0])}]
+    constants = [
+        {"position": [-2.0, 0.0, 0.0], "direction": unit([1.0, 0.1, 0.0]), "up": unit([0.0, 1.0, 0.0]), "fov": 60.0, "scale": 1.0},
+        {"position": [0.3, 0.2, 2.0], "direction": unit([0.0, -0.2, -1.0]), "up": unit([1.0, 1.0, 0.0]), "fov": 120.0, "scale": 0.5},
+    ]
+    return Projector([0, 1], values, constants, triangles)
+
+
 DELTA = {"point": point_light, "spot": spot_light, "directional": directional_light}
-#: delta lights projecting images (their lanes read a texture table)
+#: delta lights projecting images (their lanes read a texture table), and projectors without
 TEXTURED = {"spot_texture": textured_spot_light, "projector": projector_light}
+WIDE = {"projector_rgb": rgb_projector_light}
 
 
 def close_lanes(a: torch.Tensor, b: torch.Tensor, rtol: float, atol: float) -> torch.Tensor:
@@ -148,12 +159,13 @@ def assert_agree(eager, compiled_, rtol=1e-5, atol=1e-6, share=1.0):
 # ---------------------------------------------------------------- delta lights
 
 
-@pytest.mark.parametrize("kind", sorted(DELTA) + sorted(TEXTURED))
+@pytest.mark.parametrize("kind", sorted(DELTA) + sorted(TEXTURED) + sorted(WIDE))
 def test_delta_lanes_compiled_equal_eager_and_the_torch_method(kind, triangles):
-    light = {**DELTA, **TEXTURED}[kind](triangles)
+    light = {**DELTA, **TEXTURED, **WIDE}[kind](triangles)
     ll = light.lanes()
     assert ll.delta and ll.escaped is None and ll.hit is None
     assert light.textured == (kind in TEXTURED) and len(ll.tables) == (4 if kind in TEXTURED else 2)
+    assert light.width == (delta.ROW if kind in DELTA else delta.TEXTURED_ROW)
     u, x, nx = lanes_inputs()
     static = light._static
     args = (*light.lane_tables[:2], u[:, 0], x, nx, OFFSET)

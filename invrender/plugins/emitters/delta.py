@@ -131,11 +131,18 @@ class DeltaLight(Light):
         wide, its lane functions reading textures)?"""
         return any(t is not None for t in self.textures)
 
+    @functools.cached_property
+    def width(self) -> int:
+        """Floats per emitter in :attr:`lane_tables`' rows: :data:`TEXTURED_ROW` where the instance
+        is :attr:`textured` or an emitter's :meth:`member_row` needs more than :data:`ROW` holds,
+        else :data:`ROW`."""
+        wide = self.textured or any(len(self.member_row(i)) > ROW - OWN for i in range(len(self.emitters)))
+        return TEXTURED_ROW if wide else ROW
+
     @property
     def _static(self) -> dict:
         """The lane functions' static arguments."""
-        textured = self.textured
-        return {"size": len(self.emitters), "arrive": type(self).arrive, "width": TEXTURED_ROW if textured else ROW, "project": type(self).project if textured else None}
+        return {"size": len(self.emitters), "arrive": type(self).arrive, "width": self.width, "project": type(self).project if self.textured else None}
 
     @property
     def power(self) -> float:
@@ -153,8 +160,7 @@ class DeltaLight(Light):
     def lane_tables(self) -> tuple[torch.Tensor, ...]:
         """``(choice (E * 2,), rows (E * W,))`` float32 on the render device, made once: the
         choice's cdf as a light table (:func:`invrender.core.lanes.light_rows`, the emitter's index
-        in place of a triangle's) and per emitter a row of W floats (:data:`ROW`, or
-        :data:`TEXTURED_ROW` where the instance is :attr:`textured`): its probability, its
+        in place of a triangle's) and per emitter a row of W floats (:attr:`width`): its probability, its
         intensity (detached :meth:`member_intensity`), then :meth:`member_row`. A textured
         instance's tables go on with its textures' (:meth:`invrender.core.lanes.TextureTable.tables`:
         rows, texels), each emitter's texture id in column :data:`TEXTURE` of its row."""
@@ -162,7 +168,7 @@ class DeltaLight(Light):
         textured = self.textured
         choice = lanes.light_rows(self._cdf, torch.arange(n, device=self.device))
         intensity = self.intensities().detach().float().cpu()
-        rows = torch.zeros(n, TEXTURED_ROW if textured else ROW, dtype=torch.float32)
+        rows = torch.zeros(n, self.width, dtype=torch.float32)
         table = lanes.TextureTable()
         for i in range(n):
             own = [float(v) for v in self.member_row(i)]
