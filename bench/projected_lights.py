@@ -118,7 +118,7 @@ def main() -> None:
         s = ir.load_scene(str(path))
         for depth in (8, 2):
             ours = [ir.render(s, spp=args.spp, max_depth=depth, seed=k, progress=False, filter="box").mean((0, 1)).tolist() for k in range(args.seeds)]
-            mi_scene = mi.load_file(str(path), integrator="path")
+            mi_scene = mi.load_file(str(path))
             theirs = []
             for k in range(args.seeds):
                 params = mi.load_dict({"type": "path", "max_depth": depth})
