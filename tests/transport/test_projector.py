@@ -212,3 +212,8 @@ def test_bad_projected_images_in_python_are_one_line_errors():
             Emitter.of(kind, **entries)
         assert words in str(info.value) and "\n" not in str(info.value), str(info.value)
     Emitter.of("spot", direction=[0.0, -1.0, 0.0])  # without an image, up is read by nothing
+    nan = torch.ones(2, 3, 3)
+    nan[0, 1, 2] = float("nan")
+    for kind in ("projector", "spot"):
+        with pytest.raises(ir.ParameterError, match="lamp.emission: values must be finite"):
+            build_scene([Mesh(*cube(), material="box")], {"box": 0.5}, {"lamp": Emitter.of(kind, emission=nan)}, Camera(origin=(3, 2, 3), target=(0, 0, 0), up=(0, 1, 0), fov=35.0), (8, 8))

@@ -83,7 +83,7 @@ class DeltaLight(Light):
 
     #: ``arrive(xp, row, o, nx, offset) -> (wl, tmax, factor, facing)``: from shadow-ray origins
     #: ``o`` (3-tuple) with geometric normals ``nx`` towards the emitters of table rows ``row``
-    #: (:data:`ROW` Floats), the unit directions, where the rays stop, the factor of the intensity
+    #: (:attr:`width` Floats), the unit directions, where the rays stop, the factor of the intensity
     #: that arrives (``Le = I factor``) and whether it can light x (a staticmethod of the type)
     arrive: ClassVar[Callable]
     #: ``project(xp, row, wl) -> (u, v)``: for types that can project a texture, the texture
