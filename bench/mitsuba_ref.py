@@ -43,8 +43,8 @@ material's module of ``invrender/plugins/bsdfs/``: the two-sided ones wrapped in
 as ``rgb``, textures as linear ``bitmap`` (raw, bilinear, repeat)), and the rest as follows:
 
     emitter     -> area(radiance = rgb) on the mesh (one-sided, the front = counter-clockwise side);
-                   emitters that are not surfaces (constant, point, spot, directional) by their
-                   type's to_mitsuba, at the scene's top level
+                   emitters that are not surfaces (constant, envmap, point, spot, projector,
+                   directional) by their type's to_mitsuba, at the scene's top level
     camera      -> perspective or thinlens (aperture_radius, focus_distance), fov and fov_axis,
                    to_world = look_at(origin, target, up); hdrfilm with the scene's resolution
 

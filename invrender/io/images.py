@@ -29,7 +29,7 @@ from invrender.io.atomic import atomic_file
 from invrender.io.native import last_line, native_output
 
 WRITE_SUFFIXES = (".exr", ".png", ".jpg", ".jpeg")
-READ_SUFFIXES = (".exr", ".hdr", ".png", ".jpg", ".jpeg")
+READ_SUFFIXES = (".exr", ".hdr", ".png", ".jpg", ".jpeg", ".bmp")
 
 
 def write_image(path: str | os.PathLike, image: torch.Tensor, quality: int = 95) -> None:
@@ -83,7 +83,8 @@ def read_image(path: str | os.PathLike, device: torch.device | str | None = None
     Args:
         path: ``.exr`` (R, G, B channels; a Y-only file is replicated to grey, alpha is dropped),
             ``.hdr`` (Radiance RGBE, linear), or
-            ``.png`` (8 or 16 bits) / ``.jpg`` / ``.jpeg`` (decoded from sRGB to linear; alpha dropped).
+            ``.png`` (8 or 16 bits) / ``.jpg`` / ``.jpeg`` / ``.bmp`` (decoded from sRGB to linear,
+            as Mitsuba reads them; alpha dropped).
         device: device of the returned tensor (default CPU).
 
     Returns:
@@ -216,7 +217,7 @@ def _read_hdr(path: Path) -> torch.Tensor:
 
 
 def _read_srgb(path: Path) -> torch.Tensor:
-    """Read a PNG (8 or 16 bits, every code kept: OpenCV's reader) or a JPEG as a (H, W, 3)
+    """Read a PNG (8 or 16 bits, every code kept: OpenCV's reader), a JPEG or a BMP as a (H, W, 3)
     float32 linear tensor."""
     if path.suffix.lower() == ".png":
         codes = _read_png_codes(path).values.permute(2, 0, 1)

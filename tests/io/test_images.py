@@ -83,6 +83,14 @@ def test_jpeg_is_read_as_linear(tmp_path):
     assert torch.allclose(read_image(tmp_path / "w.jpg"), torch.ones(2, 3, 3))
 
 
+def test_bmp_is_read_as_linear_srgb(tmp_path):
+    """A BMP (Mitsuba's scenes use some, e.g. a projector's slide) decodes as a PNG of the same codes."""
+    codes = np.array([[[255, 0, 10], [188, 188, 188]], [[0, 255, 128], [1, 2, 3]]], dtype=np.uint8)
+    Image.fromarray(codes).save(tmp_path / "s.bmp")
+    Image.fromarray(codes).save(tmp_path / "s.png")
+    assert torch.equal(read_image(tmp_path / "s.bmp"), read_image(tmp_path / "s.png"))
+
+
 @pytest.mark.parametrize("name", ["p.jpg", "p.JPEG"])
 def test_jpeg_is_written_as_srgb_8_bit_at_its_quality(tmp_path, name):
     """A smooth linear ramp written as a camera stores it: sRGB codes (0.5 -> 188), JPEG-compressed;

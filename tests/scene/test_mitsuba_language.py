@@ -175,13 +175,13 @@ def test_every_problem_is_listed_in_one_error(tmp_path):
         <float name="sheen" value="1"/></bsdf></shape>
     <shape type="hair"/>
     <shape type="rectangle"><medium type="homogeneous" name="interior"/></shape>
-    <emitter type="projector"/>
+    <emitter type="sunsky"/>
     <integrator type="prb"/>
     <shape type="rectangle"><bsdf type="pplastic"/></shape>
     <shape type="rectangle"><string name="filename" value="{long}"/></shape>""".replace("{long}", "x" * 300))
     message = error_of(path)
     assert message.startswith(f"{path}: 8 problems stop this scene from loading: (1) s.xml:{line_of(path, 'roughness')}: "), message
-    for i, words in enumerate(["'roughness'", "'sheen'", "'hair'", "<medium> is not supported", "'projector'"], 1):
+    for i, words in enumerate(["'roughness'", "'sheen'", "'hair'", "<medium> is not supported", "'sunsky'"], 1):
         assert f"({i}) " in message and words in message.split(f"({i}) ")[1], (i, message)
     assert message.endswith("... and 3 more") and "prb" not in message
     assert "x" * 60 not in message  # long values abbreviated

@@ -356,7 +356,7 @@ BAD = {
     "unknown element": ('<shape type="rectangle"><colour name="x" value="1"/></shape>', "<colour", "unknown element <colour>"),
     "unsupported shape": ('<shape type="hair"/>', "hair", "unsupported shape type 'hair' (supported: rectangle, cube, sphere, disk, cylinder, obj, ply, serialized)"),
     "unsupported bsdf": ('<shape type="rectangle"><bsdf type="hair"/></shape>', "hair", "unsupported bsdf type 'hair'"),
-    "unsupported emitter": ('<shape type="rectangle"/>\n<emitter type="projector"/>', "projector", "unsupported emitter type 'projector' (supported: area"),
+    "unsupported emitter": ('<shape type="rectangle"/>\n<emitter type="sunsky"/>', "sunsky", "unsupported emitter type 'sunsky' (supported: area"),
     "emitter in shape": ('<shape type="rectangle"><emitter type="spot"/></shape>', "spot", "an emitter of type 'spot' is a point or a direction (a delta light), not emitted by a shape"),
     # conductors: named metals, eta/k and Beckmann load (test_conductors_...); what stays outside the subset
     "conductor material": ('<shape type="rectangle"><bsdf type="conductor">\n<string name="material" value="Unobtainium"/></bsdf></shape>', "Unobtainium", "unknown conductor material 'Unobtainium' (known: none, a-C, Ag, Al,"),

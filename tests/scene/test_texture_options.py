@@ -151,6 +151,38 @@ def test_mesh_attribute_from_ply_renders_interpolated_colours(tmp_path):
     assert grey.params["material_1.reflectance"][:, 1].tolist() == pytest.approx([0.1, 0.2, 0.3, 0.4])
 
 
+FACE_COLOURS = [(0.9, 0.2, 0.1), (0.1, 0.3, 0.8)]
+
+
+def test_face_attributes_from_ply_are_constant_over_each_face(tmp_path):
+    """Mitsuba's ``face_color`` (a PLY face's ``r g b``) and ``face_<x>`` (``<x>_0``): each face
+    reads its own value, not interpolated; the mesh's vertex attributes still interpolate."""
+    v = [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)]
+    lines = ["ply", "format ascii 1.0", "element vertex 4"] + [f"property float {a}" for a in ("x", "y", "z", "r", "g", "b")]
+    lines += ["element face 2", "property list uchar int vertex_indices", "property float r", "property float g", "property float b", "property float weight_0", "end_header"]
+    lines += [" ".join(str(x) for x in (*p, *c)) for p, c in zip(v, COLOURS)]
+    lines += ["3 0 1 2 " + " ".join(map(str, FACE_COLOURS[0])) + " 0.25", "3 0 2 3 " + " ".join(map(str, FACE_COLOURS[1])) + " 0.75", ""]
+    (tmp_path / "f.ply").write_text("\n".join(lines))
+    body = """<shape type="ply"><string name="filename" value="f.ply"/><bsdf type="diffuse">
+    <texture type="mesh_attribute" name="reflectance"><string name="name" value="{}"/></texture></bsdf></shape>
+    <emitter type="constant"/><integrator type="path"><integer name="max_depth" value="2"/></integrator>"""
+    scene = ir.load_scene(write(tmp_path, body.format("face_color"), camera="orthographic", w=8))
+    rho = scene.params["material_1.reflectance"]  # three vertices of its own per face, carrying the face's colour
+    assert rho.shape == (6, 3) and torch.allclose(rho, torch.tensor(FACE_COLOURS).repeat_interleave(3, 0))
+    image = ir.render(scene, spp=16, seed=1, integrator={"type": "path", "strategy": "bsdf"}, max_depth=2)
+    c = (torch.arange(8) + 0.5) / 4 - 1
+    x, y = c[None, :].expand(8, 8), -c[:, None].expand(8, 8)
+    lower = y < x  # face 0 below the diagonal, face 1 above
+    away = (x - y).abs() > 0.3
+    expected = torch.where(lower[..., None], torch.tensor(FACE_COLOURS[0]), torch.tensor(FACE_COLOURS[1]))
+    assert float((image - expected).abs()[away].max()) < 1e-4  # a constant per face: no variance
+    weight = ir.load_scene(write(tmp_path, body.format("face_weight"), name="w.xml", camera="orthographic", w=8))
+    assert weight.params["material_1.reflectance"][:, 0].tolist() == pytest.approx([0.25] * 3 + [0.75] * 3)
+    # the vertex colours of the unwelded mesh: each corner its vertex's
+    vertex = ir.load_scene(write(tmp_path, body.format("vertex_color"), name="v.xml", camera="orthographic", w=8))
+    assert torch.allclose(vertex.params["material_1.reflectance"], torch.tensor(COLOURS)[[0, 1, 2, 0, 2, 3]])
+
+
 def test_bitmap_options_load_and_render(tmp_path):
     ir.write_image(tmp_path / "t.exr", TEXELS)
     body = """<shape type="rectangle"><bsdf type="diffuse"><texture type="bitmap" name="reflectance"><string name="filename" value="t.exr"/>
@@ -212,7 +244,7 @@ BAD = {
     "filter type": (RECTANGLE.format('<texture type="bitmap" name="reflectance"><string name="filename" value="t.exr"/>\n<string name="filter_type" value="bicubic"/></texture>'),
                     "filter_type 'bicubic' is not supported (supported: bilinear, nearest)"),
     "attribute without a name": (RECTANGLE.format('\n<texture type="mesh_attribute" name="reflectance"/>'), 'missing <string name="name">'),
-    "face attribute": (RECTANGLE.format('<texture type="mesh_attribute" name="reflectance">\n<string name="name" value="face_color"/></texture>'), "mesh attribute 'face_color' is not supported"),
+    "unprefixed attribute": (RECTANGLE.format('<texture type="mesh_attribute" name="reflectance">\n<string name="name" value="color"/></texture>'), "mesh attribute 'color' is not supported (supported: vertex_color, vertex_<x>, face_color, face_<x>)"),
     "unknown group": ('<shape type="instance">\n<ref id="nowhere"/></shape>', "reference to unknown id 'nowhere'"),
     "instance of a bsdf": ('<bsdf type="diffuse" id="b"/><shape type="instance">\n<ref id="b"/></shape><shape type="rectangle"/>', 'an instance refers to a shapegroup, got <bsdf type="diffuse">'),
     "emitting group": ('<shape type="shapegroup" id="g">\n<shape type="rectangle"><emitter type="area"/></shape></shape><shape type="instance"><ref id="g"/></shape>', "a shape in a shapegroup cannot emit"),

@@ -233,6 +233,8 @@ SKIES = {
     "envmap": lambda: {"type": "envmap", "emission": torch.rand(5, 8, 3, generator=torch.Generator().manual_seed(2)) * 2 + 0.1},
     "point": lambda: {"type": "point", "emission": (0.6, 0.5, 0.4), "position": (0.3, 0.5, 0.2)},
     "spot": lambda: {"type": "spot", "emission": (3.0, 2.5, 2.0), "position": (-0.4, 0.6, 0.8), "direction": (0.5, -1.0, -0.5), "cutoff_angle": 30.0, "beam_width": 20.0},
+    "spot_texture": lambda: {"type": "spot", "emission": torch.rand(6, 5, 3, generator=torch.Generator().manual_seed(4)) * 4, "position": (-0.4, 0.6, 0.8), "direction": (0.5, -1.0, -0.5), "cutoff_angle": 30.0, "beam_width": 20.0},
+    "projector": lambda: {"type": "projector", "emission": torch.rand(4, 6, 3, generator=torch.Generator().manual_seed(5)) + 0.2, "position": (-0.4, 0.6, 0.8), "direction": (0.5, -1.0, -0.5), "fov": 50.0},
 }
 
 

@@ -1,5 +1,6 @@
 """Emitters in lane form (:class:`~invrender.core.lights.LightLanes`): ``envmap``, ``point``, ``spot``
-and ``directional`` written once against the array interface.
+(with and without a projected image), ``projector`` and ``directional`` written once against the
+array interface.
 
 - Compiled (Dr.Jit's LLVM backend) and eager torch evaluations of the lane functions agree lane by
   lane: the emitters and texels chosen, and every float to rounding.
@@ -24,6 +25,7 @@ from invrender.plugins.emitters import delta, envmap
 from invrender.plugins.emitters.directional import Directional
 from invrender.plugins.emitters.envmap import Envmap, quaternion_of
 from invrender.plugins.emitters.point import Point
+from invrender.plugins.emitters.projector import Projector
 from invrender.plugins.emitters.spot import Spot
 from invrender.scene.camera import Camera
 from invrender.scene.emitters import Emitter
@@ -95,7 +97,44 @@ def envmap_light(triangles):
     return Envmap([0, 1, 2, 3], [{"emission": m} for m in maps], constants, triangles)
 
 
+def textured_spot_light(triangles):
+    """Two spots projecting images (one through its falloff ramp, one over a wide cone) and one
+    without: the instance reads textures, the third emitter none."""
+    g = torch.Generator().manual_seed(5)
+    values = [{"emission": torch.rand(5, 7, 3, generator=g) * 4}, {"emission": torch.rand(3, 2, 3, generator=g) + 0.1}, {"emission": torch.tensor([1.0, 1.0, 6.0])}]
+    constants = [
+        {"position": [0.0, 2.0, 0.0], "direction": unit([0.1, -1.0, 0.2]), "up": unit([0.0, 0.2, 1.0]), "cutoff_angle": 25.0, "beam_width": 10.0},
+        {"position": [0.5, -2.0, 0.3], "direction": unit([0.0, 1.0, 0.1]), "up": unit([1.0, 0.0, 0.0]), "cutoff_angle": 70.0, "beam_width": 70.0},
+        {"position": [2.0, 0.5, -1.0], "direction": unit([-1.0, -0.2, 0.4]), "up": unit([0.0, 1.0, 0.0]), "cutoff_angle": 35.0, "beam_width": 35.0},
+    ]
+    return Spot([0, 1, 2], values, constants, triangles)
+
+
+def projector_light(triangles):
+    """A projector with an image (wide, through a wide field of view) and one with an RGB value."""
+    g = torch.Generator().manual_seed(6)
+    values = [{"emission": torch.rand(4, 9, 3, generator=g) + 0.05}, {"emission": torch.tensor([0.5, 1.0, 2.0])}]
+    constants = [
+        {"position": [0.0, 2.5, 0.5], "direction": unit([0.1, -1.0, -0.2]), "up": unit([0.0, 0.0, 1.0]), "fov": 100.0, "scale": 2.0},
+        {"position": [-2.0, 0.0, 0.0], "direction": unit([1.0, 0.1, 0.0]), "up": unit([0.0, 1.0, 0.0]), "fov": 40.0, "scale": 1.0},
+    ]
+    return Projector([0, 1], values, constants, triangles)
+
+
+def rgb_projector_light(triangles):
+    """Projectors without images: rows of 32 floats (their frames), no texture table."""
+    values = [{"emission": torch.tensor([0.5, 1.0, 2.0])}, {"emission": torch.tensor([3.0, 1.0, 1.0])}]
+    constants = [
+        {"position": [-2.0, 0.0, 0.0], "direction": unit([1.0, 0.1, 0.0]), "up": unit([0.0, 1.0, 0.0]), "fov": 60.0, "scale": 1.0},
+        {"position": [0.3, 0.2, 2.0], "direction": unit([0.0, -0.2, -1.0]), "up": unit([1.0, 1.0, 0.0]), "fov": 120.0, "scale": 0.5},
+    ]
+    return Projector([0, 1], values, constants, triangles)
+
+
 DELTA = {"point": point_light, "spot": spot_light, "directional": directional_light}
+#: delta lights projecting images (their lanes read a texture table), and projectors without
+TEXTURED = {"spot_texture": textured_spot_light, "projector": projector_light}
+WIDE = {"projector_rgb": rgb_projector_light}
 
 
 def close_lanes(a: torch.Tensor, b: torch.Tensor, rtol: float, atol: float) -> torch.Tensor:
@@ -120,14 +159,16 @@ def assert_agree(eager, compiled_, rtol=1e-5, atol=1e-6, share=1.0):
 # ---------------------------------------------------------------- delta lights
 
 
-@pytest.mark.parametrize("kind", sorted(DELTA))
+@pytest.mark.parametrize("kind", sorted(DELTA) + sorted(TEXTURED) + sorted(WIDE))
 def test_delta_lanes_compiled_equal_eager_and_the_torch_method(kind, triangles):
-    light = DELTA[kind](triangles)
+    light = {**DELTA, **TEXTURED, **WIDE}[kind](triangles)
     ll = light.lanes()
     assert ll.delta and ll.escaped is None and ll.hit is None
+    assert light.textured == (kind in TEXTURED) and len(ll.tables) == (4 if kind in TEXTURED else 2)
+    assert light.width == (delta.ROW if kind in DELTA else delta.TEXTURED_ROW)
     u, x, nx = lanes_inputs()
-    static = dict(size=len(light.emitters), arrive=type(light).arrive)
-    args = (*light.lane_tables, u[:, 0], x, nx, OFFSET)
+    static = light._static
+    args = (*light.lane_tables[:2], u[:, 0], x, nx, OFFSET)
     eager = compiled.evaluate(TORCH, delta.delta_geometry, *args, **static)
     jit = compiled.evaluate(drjit(), delta.delta_geometry, *args, **static)
     assert_agree(eager[:1], jit[:1], share=0.999)  # the emitters chosen
@@ -142,6 +183,8 @@ def test_delta_lanes_compiled_equal_eager_and_the_torch_method(kind, triangles):
     for got, want in zip((ls.o, ls.wl, ls.tmax, ls.Le, ls.pdf, ls.facing), compiled.evaluate(compiled.namespace(x.device), sample, *lane_args)):
         torch.testing.assert_close(got, want, rtol=1e-6, atol=1e-7)
     assert bool(ls.delta.all())
+    lit = ls.Le.amax(1) > 0
+    assert float(lit.float().mean()) > 0.1 and bool(torch.isfinite(ls.Le).all()), float(lit.float().mean())
 
 
 @pytest.mark.parametrize("kind", sorted(DELTA))

@@ -18,5 +18,6 @@ from invrender.plugins.emitters.envmap import Envmap
 from invrender.plugins.emitters.point import Point
 from invrender.plugins.emitters.spot import Spot
 from invrender.plugins.emitters.directional import Directional
+from invrender.plugins.emitters.projector import Projector
 
-__all__ = ["Area", "Constant", "Envmap", "Point", "Spot", "Directional"]
+__all__ = ["Area", "Constant", "Envmap", "Point", "Spot", "Directional", "Projector"]

@@ -8,7 +8,7 @@ Emitters (``<emitter type=...>``)
     front side) are nested in the ``<shape>`` that emits, or declared at the top level with an
     ``id`` and attached by a ``<ref id=.../>`` in the shape (one declared so that no shape
     references is an error); types that emit from outside the scene
-    and delta lights (``point``, ``spot``, ``directional``) are children of ``<scene>``. The message for an unsupported type lists the registry's. Every type accepts
+    and delta lights (``point``, ``spot``, ``projector``, ``directional``) are children of ``<scene>``. The message for an unsupported type lists the registry's. Every type accepts
     Mitsuba's ``sampling_weight`` at its default 1 only (:data:`.reader.AT_DEFAULT`).
 """
 

@@ -87,6 +87,14 @@ class PluginReader:
         value = self._ctx.get(self._obj, name, "point", None)
         return default if value is None else np.asarray(value, dtype=np.float64)
 
+    def field_of_view(self, size: tuple[int, int]) -> tuple[float, str]:
+        """(fov in degrees, fov_axis) from ``fov`` and ``fov_axis`` or ``focal_length``, as a
+        perspective sensor with a film of ``size`` (width, height) reads them
+        (:func:`.sensor.field_of_view`)."""
+        from invrender.scene.formats.mitsuba.sensor import field_of_view
+
+        return field_of_view(self._ctx, self._obj, size)
+
     def filename(self, name: str = "filename") -> Path:
         """A ``<string>`` naming a file relative to the scene file's folder; an error naming the
         property when the file does not exist."""

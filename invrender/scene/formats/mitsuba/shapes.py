@@ -102,6 +102,8 @@ def shape(ctx: Context, obj: Obj, emitter_name) -> tuple[Mesh, int]:
     mesh = mesh.transformed(matrix)
     if compute_normals:  # as Mitsuba does: angle-weighted, from the world-space triangles
         mesh = Mesh(mesh.vertices, mesh.faces, mesh.uvs, "", None, _vertex_normals(mesh.vertices, mesh.faces), attributes=mesh.attributes)
+    if any(k.startswith("face_") for k in mesh.attributes or {}):
+        mesh = _unwelded(mesh)
     found = []  # its own problems, its BSDF's and its emitter's: each checked
     try:
         ctx.finish(obj, tuple(supported), ("bsdf", "emitter"))
@@ -214,21 +216,41 @@ _PLY_SUFFIXES = (("x", "y", "z", "w"), ("0", "1", "2", "3"))
 
 
 def _ply_attributes(mesh) -> dict[str, np.ndarray] | None:
-    """A PLY file's per-vertex attributes as Mitsuba 3.9.1 reads them (measured): ``r g b`` or
-    ``red green blue`` become ``vertex_color`` (values as stored: 8-bit colours stay 0..255, as
-    Mitsuba warns), ``<prefix>_x, _y, _z`` or ``<prefix>_0, _1, _2`` (one or three of them)
-    become ``vertex_<prefix>`` (Mitsuba's own writer stores ``vertex_color`` as ``color_0..2``);
-    other properties are ignored, as Mitsuba ignores them. None when there are none."""
-    raw = (mesh.metadata.get("_ply_raw") or {}).get("vertex", {}).get("data")
-    if isinstance(raw, np.ndarray) and raw.dtype.names:  # a binary file's structured array
-        raw = {name: raw[name] for name in raw.dtype.names}
-    if not isinstance(raw, dict):
-        return None
-    columns = {k: np.asarray(v, dtype=np.float64).reshape(len(mesh.vertices), -1)[:, 0] for k, v in raw.items() if np.asarray(v).size == len(mesh.vertices)}
+    """A PLY file's per-vertex and per-face attributes as Mitsuba 3.9.1 reads them (measured):
+    properties ``r g b`` or ``red green blue`` of the vertices become ``vertex_color`` (values as
+    stored: 8-bit colours stay 0..255, as Mitsuba warns), ``<prefix>_x, _y, _z`` or ``<prefix>_0,
+    _1, _2`` (one or three of them) become ``vertex_<prefix>`` (Mitsuba's own writer stores
+    ``vertex_color`` as ``color_0..2``); the faces' properties beside their vertex indices become
+    ``face_color`` and ``face_<prefix>`` by the same rules, (F, C) one row per face; other
+    properties are ignored, as Mitsuba ignores them. None when there are none."""
+    out = {}
+    for element, count in (("vertex", len(mesh.vertices)), ("face", len(mesh.faces))):
+        raw = (mesh.metadata.get("_ply_raw") or {}).get(element, {}).get("data")
+        if isinstance(raw, np.ndarray) and raw.dtype.names:  # a binary file's structured array
+            raw = {name: raw[name] for name in raw.dtype.names}
+        if not isinstance(raw, dict):
+            continue
+        columns = {}
+        for k, v in raw.items():
+            if k in ("vertex_indices", "vertex_index"):
+                continue
+            try:
+                a = np.asarray(v, dtype=np.float64)
+            except (TypeError, ValueError):  # a list property: not an attribute
+                continue
+            if a.size == count:
+                columns[k] = a.reshape(count)
+        out.update(_grouped(columns, element))
+    return out or None
+
+
+def _grouped(columns: dict[str, np.ndarray], element: str) -> dict[str, np.ndarray]:
+    """The attributes ``<element>_color`` and ``<element>_<prefix>`` of one PLY element's scalar
+    properties ``columns`` (name -> (n,)), by :func:`_ply_attributes`'s rules."""
     out = {}
     for names in (("r", "g", "b"), ("red", "green", "blue")):
         if all(n in columns for n in names):
-            out["vertex_color"] = np.stack([columns[n] for n in names], axis=1)
+            out[f"{element}_color"] = np.stack([columns[n] for n in names], axis=1)
     for prefix in dict.fromkeys(k.rpartition("_")[0] for k in columns if k.rpartition("_")[0]):
         for suffixes in _PLY_SUFFIXES:
             channels = []
@@ -237,8 +259,23 @@ def _ply_attributes(mesh) -> dict[str, np.ndarray] | None:
                     break
                 channels.append(columns[f"{prefix}_{suffix}"])
             if len(channels) in (1, 3):
-                out[f"vertex_{prefix}"] = np.stack(channels, axis=1)
-    return out or None
+                out[f"{element}_{prefix}"] = np.stack(channels, axis=1)
+    return out
+
+
+def _unwelded(mesh: Mesh) -> Mesh:
+    """``mesh`` with three vertices of its own per face (positions, normals, UVs and vertex
+    attributes copied to them), so that a face attribute ((F, C), ``face_*``) becomes a per-vertex
+    one equal at the face's three corners: interpolated barycentrically at a hit it is the face's
+    value, as Mitsuba's ``mesh_attribute`` reads a face attribute (constant over the face)."""
+    f = np.asarray(mesh.faces, dtype=np.int64)
+    corners = f.reshape(-1)
+    n = len(f)
+    attributes = {k: np.repeat(np.asarray(a), 3, axis=0) if k.startswith("face_") else np.asarray(a)[corners] for k, a in mesh.attributes.items()}
+    return Mesh(
+        np.asarray(mesh.vertices)[corners], np.arange(3 * n, dtype=np.int64).reshape(n, 3), None if mesh.uvs is None else np.asarray(mesh.uvs)[corners],
+        mesh.material, mesh.emitter, None if mesh.normals is None else np.asarray(mesh.normals)[corners], mesh.sphere, attributes,
+    )  # fmt: skip
 
 
 def _file_has_normals(path: Path, kind: str) -> bool:

@@ -21,12 +21,13 @@ Bitmap textures (``<texture type="bitmap">``)
     lands where Mitsuba puts it; they are stored in invrender's convention (``v`` flipped, and
     ``to_uv`` converted to match).
 
-Vertex attributes (``<texture type="mesh_attribute">``)
+Mesh attributes (``<texture type="mesh_attribute">``)
     ``name`` (``vertex_color`` or ``vertex_<x>``: a PLY file's colours or extra vertex properties,
-    or a serialized mesh's colours) and ``scale`` (default 1), on material parameters: the
-    attribute of each shape using the material, interpolated barycentrically at the hit
-    (:class:`~invrender.scene.textures.VertexAttribute`). Face attributes (``face_*``) are
-    not supported.
+    or a serialized mesh's colours; ``face_color`` or ``face_<x>``: a PLY file's face properties)
+    and ``scale`` (default 1), on material parameters: the attribute of each shape using the
+    material, interpolated barycentrically at the hit (:class:`~invrender.scene.textures.VertexAttribute`);
+    a face attribute is constant over each face, as Mitsuba reads it (a mesh with face attributes
+    is read with three vertices of its own per face, which carry its face's value).
 
 Checkerboard textures (``<texture type="checkerboard">``)
     ``color0`` (default 0.4), ``color1`` (default 0.2), each an ``<rgb>``, ``<float>`` or constant
@@ -92,9 +93,9 @@ def mesh_attribute(ctx: Context, tex: Obj) -> VertexAttribute:
     ctx.check_broken(tex)
     name = ctx.get(tex, "name", "string")
     if name is None:
-        raise ctx.error(tex.node, "missing <string name=\"name\"> (the vertex attribute: vertex_color, vertex_<x>)", tex)
-    if not name.startswith("vertex_"):
-        raise ctx.error(tex.props["name"].node, f"mesh attribute {name!r} is not supported (supported: per-vertex attributes, vertex_color or vertex_<x>)", tex)
+        raise ctx.error(tex.node, "missing <string name=\"name\"> (the mesh attribute: vertex_color, vertex_<x>, face_color, face_<x>)", tex)
+    if not name.startswith(("vertex_", "face_")):
+        raise ctx.error(tex.props["name"].node, f"mesh attribute {name!r} is not supported (supported: vertex_color, vertex_<x>, face_color, face_<x>)", tex)
     scale = float(ctx.get(tex, "scale", "float", 1.0))
     if not (math.isfinite(scale) and scale >= 0):
         raise ctx.error(tex.props["scale"].node, f"'scale' must be a finite number >= 0, got {scale:g}", tex)
