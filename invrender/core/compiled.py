@@ -82,9 +82,9 @@ def evaluate(xp, fn, *args, **static) -> tuple[torch.Tensor, ...]:
         torch.cuda.current_stream().synchronize()  # torch's writes done before Dr.Jit's stream reads them
     # the lanes: the rows of the 3-vector arguments (else the longest array; tables are flat)
     lanes = max((a.shape[0] for a in _tensors(args) if a.ndim == 2), default=max((a.shape[0] for a in _tensors(args)), default=0))
+    if lanes < FREEZE_LANES:  # padded: the same frozen kernel's arithmetic, whatever the chunking
+        return tuple(r[:lanes] for r in evaluate(xp, fn, *_padded(args, lanes), **static))
     inputs = tuple(_argument(xp, a) for a in args)
-    if lanes < FREEZE_LANES:  # traced as it is: the same kernel's arithmetic, whatever the chunking
-        return _results(xp, *_body(xp, fn, static)(inputs))
     key = (xp.name, fn, tuple(sorted(static.items())))  # Python values choose the code: one recording each (lanes.signature)
     if key not in _TRACED:
         frozen = _take_frozen(key, xp, fn, static)
@@ -100,17 +100,38 @@ def evaluate(xp, fn, *args, **static) -> tuple[torch.Tensor, ...]:
         except RuntimeError:  # a recording that failed
             pass
         # a replay that returned an array of another call's length (a point light's zero emission,
-        # seen with two render workers) or a recording that failed: this kind of call is traced
-        # from now on, its frozen functions dropped
+        # seen with two render workers; a recording whose lanes had a table's length can mistake
+        # one for the other) or a recording that failed: this kind of call is traced from now on,
+        # its frozen functions dropped
         _TRACED.add(key)
     with _RECORDING:
         return _results(xp, *_body(xp, fn, static)(inputs))
 
 
-#: calls on fewer lanes are traced, not frozen: a frozen kernel replayed with a lane count as small
-#: as its tables' sizes can mistake one for the other (tracing them, not evaluating them as eager
-#: torch, keeps an image the same bits however its paths are split into chunks and workers)
+#: calls on fewer lanes run on about this many (:func:`_padded`): small calls (the last bounces of a
+#: chunk) replay one frozen kernel rather than being traced each (a few ms) or run as eager torch
+#: (whose rounding differs: an image would depend on how its paths are split into chunks and
+#: workers)
 FREEZE_LANES = 4096
+
+
+def _padded(args, lanes: int):
+    """``args`` with every tensor of ``lanes`` rows padded by copies of its first row to
+    ``FREEZE_LANES + lanes % 16`` rows (3-vectors stored by columns stay so). A flat table of
+    ``lanes`` floats by coincidence only grows past its end, which no lane reads, and keeps its
+    length's divisibility by the 4, 8 or 16 floats of its rows."""
+    out = []
+    for a in args:
+        if isinstance(a, (tuple, list)):
+            a = tuple(_padded(a, lanes))
+        elif isinstance(a, torch.Tensor) and a.ndim and a.shape[0] == lanes:
+            pad = FREEZE_LANES + lanes % 16 - lanes
+            if a.ndim == 2:
+                a = torch.cat([a.t(), a.t()[:, :1].expand(-1, pad)], dim=1).t()  # by columns
+            else:
+                a = torch.cat([a, a[:1].expand(pad)])
+        out.append(a)
+    return out
 
 
 def _results(xp, out, widths) -> tuple[torch.Tensor, ...]:
