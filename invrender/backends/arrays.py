@@ -71,63 +71,15 @@ def _int32(x):
     return (x - ((x >> 31) << 32)).to(torch.int32) if isinstance(x, torch.Tensor) else _signed(x)
 
 
+#: the interface's elementwise functions: the library's own of the same name in both namespaces
+#: (``copysign(a, b)``: ``|a|`` with the sign of ``b``)
+ELEMENTWISE = ("sqrt", "cos", "sin", "abs", "exp", "log", "floor", "atan2", "acos", "tan", "erf", "erfinv", "copysign")
+
+
 class TorchArrays:
     """The array interface on torch tensors (module docstring): eager and differentiable."""
 
     name = "torch"
-
-    @staticmethod
-    def sqrt(x):
-        return torch.sqrt(x)
-
-    @staticmethod
-    def cos(x):
-        return torch.cos(x)
-
-    @staticmethod
-    def sin(x):
-        return torch.sin(x)
-
-    @staticmethod
-    def abs(x):
-        return torch.abs(x)
-
-    @staticmethod
-    def exp(x):
-        return torch.exp(x)
-
-    @staticmethod
-    def log(x):
-        return torch.log(x)
-
-    @staticmethod
-    def floor(x):
-        return torch.floor(x)
-
-    @staticmethod
-    def atan2(y, x):
-        return torch.atan2(y, x)
-
-    @staticmethod
-    def acos(x):
-        return torch.acos(x)
-
-    @staticmethod
-    def tan(x):
-        return torch.tan(x)
-
-    @staticmethod
-    def erf(x):
-        return torch.erf(x)
-
-    @staticmethod
-    def erfinv(x):
-        return torch.erfinv(x)
-
-    @staticmethod
-    def copysign(a, b):
-        """``|a|`` with the sign of ``b``."""
-        return torch.copysign(a, b)
 
     @staticmethod
     def minimum(a, b):
@@ -226,6 +178,9 @@ class TorchArrays:
         return torch.stack(x).t() if isinstance(x, tuple) else x
 
 
+for _f in ELEMENTWISE:
+    setattr(TorchArrays, _f, staticmethod(getattr(torch, _f)))
+
 #: the torch namespace (module docstring)
 TORCH = TorchArrays()
 
@@ -239,45 +194,8 @@ class DrJitArrays:
         self.Float, self.UInt, self.Bool, self.Int64, self._Int32 = backend.Float, backend.UInt32, backend.Bool, backend.Int64, backend.Int32
         self._rows = {2: backend.Array2f, 4: backend.Array4f}
         self._Matrix4f = backend.Matrix4f
-
-    def sqrt(self, x):
-        return self.dr.sqrt(x)
-
-    def cos(self, x):
-        return self.dr.cos(x)
-
-    def sin(self, x):
-        return self.dr.sin(x)
-
-    def abs(self, x):
-        return self.dr.abs(x)
-
-    def exp(self, x):
-        return self.dr.exp(x)
-
-    def log(self, x):
-        return self.dr.log(x)
-
-    def floor(self, x):
-        return self.dr.floor(x)
-
-    def atan2(self, y, x):
-        return self.dr.atan2(y, x)
-
-    def acos(self, x):
-        return self.dr.acos(x)
-
-    def tan(self, x):
-        return self.dr.tan(x)
-
-    def erf(self, x):
-        return self.dr.erf(x)
-
-    def erfinv(self, x):
-        return self.dr.erfinv(x)
-
-    def copysign(self, a, b):
-        return self.dr.copysign(a, b)
+        for f in ELEMENTWISE:
+            setattr(self, f, getattr(dr, f))
 
     def minimum(self, a, b):
         return self.dr.minimum(a, b)

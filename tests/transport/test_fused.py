@@ -187,6 +187,19 @@ def test_a_thin_lens_camera_draws_its_lens_point_in_the_kernel(monkeypatch):
     assert 0.0 <= float(got[3].min()) and float(got[3].max()) < 1.0
 
 
+def _renders_as_torch(scene, unfused, kw: dict, agree: float, mean: float) -> torch.Tensor:
+    """Render ``scene`` with the fused bounce, then (``unfused``) with the torch bounce on the same
+    random bits: more than ``agree`` of the pixels equal to float rounding (a roulette decision
+    that rounding flips changes a path) and the means within ``mean``. Returns the torch image."""
+    image = ir.render(scene, progress=False, **kw)
+    unfused()
+    expected = ir.render(scene, progress=False, **kw)
+    close = (image - expected).abs() <= 1e-4 * float(expected.max())
+    assert float(close.float().mean()) > agree
+    assert abs(float(image.mean() / expected.mean()) - 1) < mean
+    return expected
+
+
 def _smooth_spheres(materials: dict, texture_sampling=None, sky=None) -> ir.Scene:
     """The Cornell box with its boxes replaced by two smooth-shaded spheres of the given materials
     (names ``near``, ``far``), the walls one-sided from behind (``white``)."""
@@ -218,14 +231,8 @@ def test_the_fused_bounce_renders_smooth_one_sided_and_mixed_materials_as_the_to
     mats = {"near": Material.of("diffuse", reflectance=texture), "far": Material.of("diffuse", reflectance=texture.flip(0)[:3])}
     scene = _smooth_spheres(mats, {"far.reflectance": TextureSampling("nearest", "mirror", (2.0, 0.5, 0.1, -0.3, 3.0, 0.2))})
     assert _fused_scene(scene, "path", **options) is not None
-    kw = dict(spp=16, seed=7, progress=False, integrator="path", **options)
-    image = ir.render(scene, **kw)
-    unfused()
-    expected = ir.render(scene, **kw)
+    expected = _renders_as_torch(scene, unfused, dict(spp=16, seed=7, integrator="path", **options), agree=0.995, mean=2e-3)
     assert float(expected.mean()) > 0.05
-    close = (image - expected).abs() <= 1e-4 * float(expected.max())
-    assert float(close.float().mean()) > 0.995  # float rounding; a roulette decision it flips changes a path
-    assert abs(float(image.mean() / expected.mean()) - 1) < 2e-3
 
 
 SKIES = {
@@ -253,13 +260,7 @@ def test_the_fused_bounce_renders_emitters_of_several_types_as_the_torch_bounce(
     scene = _smooth_spheres(mats, sky=Emitter.of(kind, **spec))
     fused_scene = _fused_scene(scene, "path", **options)
     assert fused_scene is not None and fused_scene.infinite == (kind in ("constant", "envmap")) and len(fused_scene.emitters) == 2
-    kw = dict(spp=16, seed=3, progress=False, integrator="path", **options)
-    image = ir.render(scene, **kw)
-    unfused()
-    expected = ir.render(scene, **kw)
-    close = (image - expected).abs() <= 1e-4 * float(expected.max())
-    assert float(close.float().mean()) > 0.995
-    assert abs(float(image.mean() / expected.mean()) - 1) < 2e-3
+    _renders_as_torch(scene, unfused, dict(spp=16, seed=3, integrator="path", **options), agree=0.995, mean=2e-3)
 
 
 @pytest.mark.parametrize("options", [{}, {"strategy": "emitter"}, {"strategy": "bsdf"}])
@@ -268,10 +269,4 @@ def test_the_fused_bounce_renders_the_specular_box_as_the_torch_bounce(options, 
     refraction from inside), a GGX block and diffuse walls, several types by masks."""
     scene = ir.load_scene("cornell_specular", resolution=(24, 24), subdivisions=2)
     assert len(_fused_scene(scene, "path", **options).materials) == 4
-    kw = dict(spp=16, seed=5, progress=False, integrator="path", **options)
-    image = ir.render(scene, **kw)
-    unfused()
-    expected = ir.render(scene, **kw)
-    close = (image - expected).abs() <= 1e-4 * float(expected.max())
-    assert float(close.float().mean()) > 0.99
-    assert abs(float(image.mean() / expected.mean()) - 1) < 3e-3
+    _renders_as_torch(scene, unfused, dict(spp=16, seed=5, integrator="path", **options), agree=0.99, mean=3e-3)
