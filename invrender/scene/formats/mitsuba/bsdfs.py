@@ -34,12 +34,15 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import torch
 
 from invrender import registry
 from invrender.scene.formats.mitsuba.context import Context
-from invrender.scene.formats.mitsuba.parser import Obj
+from invrender.scene.formats.mitsuba.parser import Obj, Ref
 from invrender.scene.formats.mitsuba.reader import PluginReader
-from invrender.scene.materials import Material
+from invrender.scene.formats.mitsuba.textures import bitmap
+from invrender.scene.materials import PERTURBATIONS, Material, NormalPerturbation
+from invrender.scene.textures import DEFAULT
 
 #: Mitsuba 3's named indices of refraction (include/mitsuba/render/ior.h; Hecht, Optics, ~589 nm)
 NAMED_IOR = {
@@ -70,6 +73,9 @@ NAMED_IOR = {
 
 #: the wrapper plugin, read here: every other BSDF plugin is a material type's (``mitsuba_plugins``)
 TWOSIDED = "twosided"
+#: the wrappers that perturb their nested BSDF's shading normal, read here into its material's
+#: ``perturbation`` (:class:`~invrender.scene.materials.NormalPerturbation`)
+PERTURBING = PERTURBATIONS
 
 
 def plugins() -> dict:
@@ -93,6 +99,8 @@ def convert_bsdf(ctx: Context, bsdf: Obj, outer: Obj | None = None) -> Material:
     material class that names it in ``mitsuba_plugins`` (its ``from_mitsuba``; inside a
     ``twosided`` ``outer``, then its ``from_mitsuba_twosided`` where it has one)."""
     known = plugins()
+    if bsdf.type in PERTURBING:
+        return _perturbed(ctx, bsdf, outer)
     if bsdf.type == TWOSIDED:
         inner = ctx.nested(bsdf, "bsdf")
         if not inner or len(inner) > 2 or (len(inner) == 2 and inner[0] is not inner[1]):
@@ -103,7 +111,12 @@ def convert_bsdf(ctx: Context, bsdf: Obj, outer: Obj | None = None) -> Material:
             # as Mitsuba's twosided, which rejects BSDFs with a transmission component
             raise ctx.error(inner[0].node, f"twosided cannot wrap a {inner[0].type} BSDF", bsdf)
         ctx.finish(bsdf, (), ("bsdf",))
-        return dataclasses.replace(convert_bsdf(ctx, inner[0], outer=bsdf), one_sided=False)
+        spec = convert_bsdf(ctx, inner[0], outer=bsdf)
+        if inner[0].type in PERTURBING:  # the map perturbs the frame turned to the side the ray arrives from
+            if _transmits(spec.spec) and not hasattr(spec.spec, "from_mitsuba_twosided"):
+                raise ctx.error(inner[0].node, f"twosided cannot wrap a {inner[0].type} of a BSDF that transmits", bsdf)
+            spec = dataclasses.replace(spec, perturbation=dataclasses.replace(spec.perturbation, on_turned=True))
+        return dataclasses.replace(spec, one_sided=False)
     if bsdf.type not in known:
         raise ctx.error(bsdf.node, f"unsupported bsdf type {bsdf.type!r} (supported: {', '.join([*known, TWOSIDED])})", bsdf)
     cls = known[bsdf.type]
@@ -115,6 +128,50 @@ def convert_bsdf(ctx: Context, bsdf: Obj, outer: Obj | None = None) -> Material:
     spec = Material.of(type_name, f"{ctx.where}:{bsdf.node.line}: {bsdf.describe()}", **entries)
     # Mitsuba's BSDFs are black from behind unless wrapped in twosided; those that transmit are two-sided
     return dataclasses.replace(spec, one_sided=not _transmits(spec.spec))
+
+
+def _perturbed(ctx: Context, bsdf: Obj, outer: Obj | None) -> Material:
+    """Mitsuba's ``normalmap`` (the texture ``normalmap``: tangent-space normals encoded ``(n + 1) /
+    2``) or ``bumpmap`` (one nested texture: a height, ``scale`` default 1) around one BSDF, with
+    ``flip_invalid_normals`` and ``use_shadowing_function`` (default true): the nested BSDF's
+    material with the perturbation (:mod:`invrender.core.shading` gives the conventions). One
+    perturbation per material; a normal map's texel of zero length or not a number is an error."""
+    inner = ctx.nested(bsdf, "bsdf")
+    if len(inner) != 1:
+        raise ctx.error(bsdf.node, f"{bsdf.type} must wrap exactly one BSDF", bsdf)
+    if inner[0].type in PERTURBING:
+        raise ctx.error(inner[0].node, f"a {inner[0].type} inside a {bsdf.type} is not supported (one normal perturbation per material)", bsdf)
+    if bsdf.type == "normalmap":
+        prop = bsdf.props.get("normalmap")
+        texture = ctx.resolve(prop.value) if prop is not None and isinstance(prop.value, (Ref, Obj)) else None
+        if texture is None or texture.tag != "texture":
+            raise ctx.error(bsdf.node if prop is None else prop.node, "normalmap needs a <texture name=\"normalmap\" type=\"bitmap\">", bsdf)
+        bsdf.used.add("normalmap")
+    else:
+        textures = ctx.nested(bsdf, "texture")
+        if len(textures) != 1:
+            raise ctx.error(bsdf.node, "bumpmap needs exactly one nested <texture> (the height)", bsdf)
+        texture = textures[0]
+    if texture.type != "bitmap":
+        raise ctx.error(texture.node, f"a {bsdf.type}'s texture must be a bitmap, got {texture.type!r}", bsdf)
+    texels = bitmap(ctx, texture)
+    where = f"{ctx.where}:{texture.node.line}: {bsdf.type} {texture.props['filename'].value!r}"
+    if bsdf.type == "normalmap":
+        n = 2.0 * texels - 1.0
+        length = np.linalg.norm(n, axis=-1)
+        if not np.isfinite(n).all() or not (length > 1e-6).all():
+            bad = np.argwhere(~np.isfinite(length) | ~(length > 1e-6))[0]
+            raise ctx.error(texture.node, f"{texture.props['filename'].value}: the normal at texel (row {bad[0]}, column {bad[1]}) is {'not a number' if not np.isfinite(length[tuple(bad)]) else 'of zero length'}: a normal map's texels must encode directions ((n + 1) / 2)", bsdf)
+    scale = float(ctx.get(bsdf, "scale", "float", 1.0)) if bsdf.type == "bumpmap" else 1.0
+    if not np.isfinite(scale):
+        raise ctx.error(bsdf.props["scale"].node, f"'scale' must be a finite number, got {scale:g}", bsdf)
+    flip = bool(ctx.get(bsdf, "flip_invalid_normals", "boolean", True))
+    shadowing = bool(ctx.get(bsdf, "use_shadowing_function", "boolean", True))
+    ctx.finish(bsdf, ("normalmap", "scale", "flip_invalid_normals", "use_shadowing_function") if bsdf.type == "normalmap" else ("scale", "flip_invalid_normals", "use_shadowing_function"), ("bsdf", "texture"))
+    spec = convert_bsdf(ctx, inner[0], outer=outer)
+    sampling = ctx.texture_sampling.get(id(texture), DEFAULT)
+    perturbation = NormalPerturbation(bsdf.type, torch.as_tensor(texels, dtype=torch.float32), None if sampling == DEFAULT else sampling, scale, False, flip, shadowing, where)
+    return dataclasses.replace(spec, perturbation=perturbation)
 
 
 def _transmits(cls) -> bool:

@@ -9,7 +9,7 @@ Colours
 
 Bitmap textures (``<texture type="bitmap">``)
     ``filename`` (relative to the XML file; EXR linear, PNG/JPEG sRGB-decoded, like Mitsuba's
-    ``raw=false``; ``raw=true`` only for EXR), ``filter_type`` ``bilinear`` (the default) or
+    ``raw=false``; with ``raw=true`` PNG/JPEG values as stored: normal and height maps), ``filter_type`` ``bilinear`` (the default) or
     ``nearest``, ``wrap_mode`` ``repeat`` (the default), ``clamp`` or ``mirror``, and ``to_uv`` (a
     ``<transform>``; its 2D part, as Mitsuba reads it), with Mitsuba 3's semantics
     (:mod:`invrender.core.textures` gives the arithmetic). Options other than the defaults are
@@ -145,12 +145,10 @@ def read_bitmap(ctx: Context, tex: Obj) -> np.ndarray:
     ctx.texture_sampling[id(tex)] = TextureSampling(options["filter_type"], options["wrap_mode"], to_uv)
     path = ctx.find_file(tex.props["filename"].node, filename) or ctx.base / filename
     raw = ctx.get(tex, "raw", "boolean", False)
-    if raw and path.suffix.lower() != ".exr":
-        raise ctx.error(tex.props["raw"].node, "raw=true is supported for EXR files only (PNG/JPEG are always sRGB-decoded)", tex)
     ctx.finish(tex, ("filename", "filter_type", "wrap_mode", "raw", "to_uv"))
     from invrender.io.images import read_image  # lazily: images need kornia/OpenEXR
 
     try:
-        return read_image(path).numpy().astype(np.float64)
+        return read_image(path, raw=raw).numpy().astype(np.float64)
     except InvRenderError as e:
         raise ctx.error(tex.props["filename"].node, one_line(e), tex) from None
