@@ -293,3 +293,34 @@ def test_the_fused_bounce_renders_anisotropic_materials_in_the_uv_frame_as_the_t
     close = (image - expected).abs() <= 1e-4 * float(expected.max())
     assert float(close.float().mean()) > 0.995  # float rounding; a roulette decision it flips changes a path
     assert abs(float(image.mean() / expected.mean()) - 1) < 2e-3
+
+
+@pytest.mark.parametrize("options", [{}, {"strategy": "emitter"}, {"max_depth": 4, "rr_depth": -1}])
+def test_the_fused_bounce_renders_normal_and_bump_maps_as_the_torch_bounce(options, unfused):
+    """Perturbed shading normals (:mod:`invrender.core.shading`): a normal map (the frame turned to
+    the ray's side, as ``twosided`` around it) on a glossy sphere, a bump map (bilinear, mirrored,
+    with ``to_uv``) on a diffuse one: the compiled and the torch bounce perturb alike."""
+    from invrender.scene.materials import Material, NormalPerturbation
+    from invrender.scene.textures import TextureSampling
+
+    g = torch.Generator().manual_seed(3)
+    n = torch.nn.functional.normalize(torch.randn(6, 9, 3, generator=g) * torch.tensor([0.4, 0.4, 0.0]) + torch.tensor([0.0, 0.0, 1.0]), dim=-1)
+    normal_map = NormalPerturbation("normalmap", (n + 1) / 2, on_turned=True)
+    bump = NormalPerturbation("bumpmap", torch.rand(7, 5, 3, generator=g), TextureSampling("bilinear", "mirror", (2.0, 0.5, 0.1, -0.3, 3.0, 0.2)), scale=0.05)
+    mats = {
+        "near": dataclasses.replace(Material.of("glossy", roughness=0.2), perturbation=normal_map),
+        "far": dataclasses.replace(Material.of("diffuse", reflectance=(0.7, 0.6, 0.5)), perturbation=bump),
+    }
+    scene = _smooth_spheres(mats)
+    fs = _fused_scene(scene, "path", **options)
+    assert fs is not None and fs.lanes[5][2] is not None  # the perturbations' textures
+    kw = dict(spp=16, seed=7, progress=False, integrator="path", **options)
+    image = ir.render(scene, **kw)
+    unfused()
+    expected = ir.render(scene, **kw)
+    assert float(expected.mean()) > 0.05
+    close = (image - expected).abs() <= 1e-4 * float(expected.max())
+    assert float(close.float().mean()) > 0.995  # float rounding; a roulette decision it flips changes a path
+    assert abs(float(image.mean() / expected.mean()) - 1) < 2e-3
+    plain = ir.render(_smooth_spheres({k: dataclasses.replace(m, perturbation=None) for k, m in mats.items()}), **kw)
+    assert float((plain - expected).abs().mean()) > 0.01 * float(expected.mean())  # the maps change the image

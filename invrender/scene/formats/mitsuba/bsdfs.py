@@ -135,7 +135,8 @@ def _perturbed(ctx: Context, bsdf: Obj, outer: Obj | None) -> Material:
     2``) or ``bumpmap`` (one nested texture: a height, ``scale`` default 1) around one BSDF, with
     ``flip_invalid_normals`` and ``use_shadowing_function`` (default true): the nested BSDF's
     material with the perturbation (:mod:`invrender.core.shading` gives the conventions). One
-    perturbation per material; a normal map's texel of zero length or not a number is an error."""
+    perturbation per material; a normal map's texel not a number or of length below 0.5 (no
+    direction: a grey texel) is an error."""
     inner = ctx.nested(bsdf, "bsdf")
     if len(inner) != 1:
         raise ctx.error(bsdf.node, f"{bsdf.type} must wrap exactly one BSDF", bsdf)
@@ -157,11 +158,12 @@ def _perturbed(ctx: Context, bsdf: Obj, outer: Obj | None) -> Material:
     texels = bitmap(ctx, texture)
     where = f"{ctx.where}:{texture.node.line}: {bsdf.type} {texture.props['filename'].value!r}"
     if bsdf.type == "normalmap":
-        n = 2.0 * texels - 1.0
-        length = np.linalg.norm(n, axis=-1)
-        if not np.isfinite(n).all() or not (length > 1e-6).all():
-            bad = np.argwhere(~np.isfinite(length) | ~(length > 1e-6))[0]
-            raise ctx.error(texture.node, f"{texture.props['filename'].value}: the normal at texel (row {bad[0]}, column {bad[1]}) is {'not a number' if not np.isfinite(length[tuple(bad)]) else 'of zero length'}: a normal map's texels must encode directions ((n + 1) / 2)", bsdf)
+        length = np.linalg.norm(2.0 * texels - 1.0, axis=-1)
+        bad = ~np.isfinite(length) | (length < 0.5)  # a unit normal's texel, 8-bit quantized, is within 0.01 of length 1
+        if bad.any():
+            i, j = np.argwhere(bad)[0]
+            what = "not a number" if not np.isfinite(length[i, j]) else f"of length {length[i, j]:.3g}"
+            raise ctx.error(texture.node, f"{texture.props['filename'].value}: the normal at texel (row {i}, column {j}) is {what}: a normal map's texels encode unit normals n as (n + 1) / 2", bsdf)
     scale = float(ctx.get(bsdf, "scale", "float", 1.0)) if bsdf.type == "bumpmap" else 1.0
     if not np.isfinite(scale):
         raise ctx.error(bsdf.props["scale"].node, f"'scale' must be a finite number, got {scale:g}", bsdf)
