@@ -131,11 +131,11 @@ def convert_bsdf(ctx: Context, bsdf: Obj, outer: Obj | None = None) -> Material:
 
 
 def _perturbed(ctx: Context, bsdf: Obj, outer: Obj | None) -> Material:
-    """Mitsuba's ``normalmap`` (the texture ``normalmap``: tangent-space normals encoded ``(n + 1) /
-    2``) or ``bumpmap`` (one nested texture: a height, ``scale`` default 1) around one BSDF, with
+    """Mitsuba's ``normalmap`` (the texture ``normalmap``, a bitmap or a ``rawconstant``: tangent-space
+    normals encoded ``(n + 1) / 2``) or ``bumpmap`` (one nested texture: a height, ``scale`` default 1) around one BSDF, with
     ``flip_invalid_normals`` and ``use_shadowing_function`` (default true): the nested BSDF's
     material with the perturbation (:mod:`invrender.core.shading` gives the conventions). One
-    perturbation per material; a normal map's texel not a number or of length below 0.5 (no
+    perturbation per material; a normal map's texel not a number or of length below 0.01 (no
     direction: a grey texel) is an error."""
     inner = ctx.nested(bsdf, "bsdf")
     if len(inner) != 1:
@@ -153,17 +153,24 @@ def _perturbed(ctx: Context, bsdf: Obj, outer: Obj | None) -> Material:
         if len(textures) != 1:
             raise ctx.error(bsdf.node, "bumpmap needs exactly one nested <texture> (the height)", bsdf)
         texture = textures[0]
-    if texture.type != "bitmap":
-        raise ctx.error(texture.node, f"a {bsdf.type}'s texture must be a bitmap, got {texture.type!r}", bsdf)
-    texels = bitmap(ctx, texture)
-    where = f"{ctx.where}:{texture.node.line}: {bsdf.type} {texture.props['filename'].value!r}"
+    if texture.type == "rawconstant":  # one value everywhere (Mitsuba's tests: the identity map 0.5 0.5 1)
+        value = ctx.take(texture, "value", ("vector", "point", "rgb", "float"), "a <vector>")
+        texels = np.broadcast_to(np.asarray(0.5 if value is None else value.value, dtype=np.float64), (1, 1, 3)).copy()
+        ctx.finish(texture, ("value",))
+        name = "rawconstant"
+    elif texture.type == "bitmap":
+        texels = bitmap(ctx, texture)
+        name = texture.props["filename"].value
+    else:
+        raise ctx.error(texture.node, f"a {bsdf.type}'s texture must be a bitmap or a rawconstant, got {texture.type!r}", bsdf)
+    where = f"{ctx.where}:{texture.node.line}: {bsdf.type} {name!r}"
     if bsdf.type == "normalmap":
         length = np.linalg.norm(2.0 * texels - 1.0, axis=-1)
-        bad = ~np.isfinite(length) | (length < 0.5)  # a unit normal's texel, 8-bit quantized, is within 0.01 of length 1
+        bad = ~np.isfinite(length) | (length < 0.01)  # no direction (a grey texel: 0.0068); files do hold short normals (0.45), normalized
         if bad.any():
             i, j = np.argwhere(bad)[0]
             what = "not a number" if not np.isfinite(length[i, j]) else f"of length {length[i, j]:.3g}"
-            raise ctx.error(texture.node, f"{texture.props['filename'].value}: the normal at texel (row {i}, column {j}) is {what}: a normal map's texels encode unit normals n as (n + 1) / 2", bsdf)
+            raise ctx.error(texture.node, f"{name}: the normal at texel (row {i}, column {j}) is {what}: a normal map's texels encode unit normals n as (n + 1) / 2", bsdf)
     scale = float(ctx.get(bsdf, "scale", "float", 1.0)) if bsdf.type == "bumpmap" else 1.0
     if not np.isfinite(scale):
         raise ctx.error(bsdf.props["scale"].node, f"'scale' must be a finite number, got {scale:g}", bsdf)
