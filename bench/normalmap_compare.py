@@ -3,7 +3,8 @@ rough-plastic BSDF under it, ``twosided`` both ways round) and a sphere with a `
 Beckmann ``roughconductor`` under it) beside a plane with a ``bumpmap`` over ``diffuse``, lit by a
 rectangular area light at a low angle and a dim constant sky, one XML file per scene read by both
 renderers: channel means with Monte Carlo standard errors over seeds (box filter, max_depth 8),
-target within 1%. The textures are made here (8-bit PNGs read raw, as Mitsuba's files read them):
+target within 1% (``--json PATH`` writes the normal maps' figures there and the bump maps' to
+bumpmap_compare.json beside it). The textures are made here (8-bit PNGs read raw, as Mitsuba's files read them):
 a normal map of a bumpy sine field and a height map of the same field.
 
     python bench/normalmap_compare.py [--resolution 64] [--spp 64] [--mitsuba-spp 256] [--seeds 2]
@@ -111,13 +112,15 @@ def bumpmap_scene(folder: Path) -> str:
 
 def main() -> int:
     args = parser(__doc__, spp=64, seeds=2).parse_args()
-    worst = 0
+    worst, json_path = 0, args.json
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         for name, heading, scene in (
             ("normalmap_compare", "Normal maps (plane, diffuse and roughplastic) vs Mitsuba 3", normalmap_scene(folder)),
             ("bumpmap_compare", "Bump maps (sphere, roughconductor; plane, diffuse) vs Mitsuba 3", bumpmap_scene(folder)),
         ):
+            # --json names the normal maps' file; the bump maps' goes beside it
+            args.json = None if json_path is None else (json_path if name == "normalmap_compare" else json_path.with_name("bumpmap_compare.json"))
             worst = max(worst, compare(args, name, heading, heading.split(" vs ")[0], scene))
     return worst
 
