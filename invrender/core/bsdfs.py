@@ -68,6 +68,10 @@ class Materials:
         self.any_smooth_transmission = any(b.has(Lobe.GLOSSY_TRANSMISSION) for b in self.bsdfs)
         #: every BSDF is purely Lambertian (its sample weight is rho, never zero on a flat scene)
         self.all_diffuse = all(b.lobes == Lobe.DIFFUSE for b in self.bsdfs)
+        if self.perturbations is not None:  # perturbed normals: not a flat scene, weights can be zero (a light between the normals)
+            self.all_diffuse = False
+            for b in self.bsdfs:
+                b.flat = False
         #: (K, L) bool: is material l of BSDF slot k one-sided (black from behind)? None: none is
         self._one_sided = None
         if one_sided is not None and any(one_sided):
