@@ -120,7 +120,7 @@ def main() -> int:
             ("bumpmap_compare", "Bump maps (sphere, roughconductor; plane, diffuse) vs Mitsuba 3", bumpmap_scene(folder)),
         ):
             # --json names the normal maps' file; the bump maps' goes beside it
-            args.json = None if json_path is None else (json_path if name == "normalmap_compare" else json_path.with_name("bumpmap_compare.json"))
+            args.json = None if json_path is None else (json_path if name == "normalmap_compare" else Path(json_path).with_name("bumpmap_compare.json"))
             worst = max(worst, compare(args, name, heading, heading.split(" vs ")[0], scene))
     return worst
 
