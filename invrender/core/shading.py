@@ -92,6 +92,15 @@ def tables(ctx):
     ``perturb = (texture rows, texels)`` (a :class:`~invrender.core.lanes.TextureTable` of the
     perturbations' textures) where some material's normal is perturbed."""
     materials = ctx.materials
+    token = (id(ctx.triangles), str(ctx.triangles.p0.device))
+    cache = materials.__dict__.setdefault("_shading_tables", {})  # one build per render (the chunks' contexts share the materials)
+    if token not in cache:
+        cache[token] = _tables(ctx)
+    return cache[token]
+
+
+def _tables(ctx):
+    materials = ctx.materials
     perturbations = getattr(materials, "perturbations", None) or [None] * len(materials.slot_of)
     tangent = [bool(getattr(b.lane_form(), "tangent", False)) for b in materials.bsdfs]
     slot = materials.slot_of.tolist()
