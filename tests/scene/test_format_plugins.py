@@ -98,7 +98,7 @@ def test_unregistered_is_unknown(tmp_path, tinted):
     registry.MATERIALS.unregister("test_tinted")
     with pytest.raises(SceneError, match="unknown material type 'test_tinted'"):
         ir.load_scene(toml_scene(tmp_path, 'type = "test_tinted"'))
-    with pytest.raises(SceneError, match=r"unsupported bsdf type 'test_tinted' \(supported: diffuse, conductor, dielectric, roughconductor, plastic, roughplastic, roughdielectric, thindielectric, principled, principledthin, twosided\)"):
+    with pytest.raises(SceneError, match=r"unsupported bsdf type 'test_tinted' \(supported: diffuse, conductor, dielectric, roughconductor, plastic, roughplastic, roughdielectric, thindielectric, principled, principledthin, twosided, normalmap, bumpmap\)"):
         ir.load_scene(xml_scene(tmp_path, '<bsdf type="test_tinted"/>'))
 
 

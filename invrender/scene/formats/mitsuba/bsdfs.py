@@ -118,7 +118,7 @@ def convert_bsdf(ctx: Context, bsdf: Obj, outer: Obj | None = None) -> Material:
             spec = dataclasses.replace(spec, perturbation=dataclasses.replace(spec.perturbation, on_turned=True))
         return dataclasses.replace(spec, one_sided=False)
     if bsdf.type not in known:
-        raise ctx.error(bsdf.node, f"unsupported bsdf type {bsdf.type!r} (supported: {', '.join([*known, TWOSIDED])})", bsdf)
+        raise ctx.error(bsdf.node, f"unsupported bsdf type {bsdf.type!r} (supported: {', '.join([*known, TWOSIDED, *PERTURBING])})", bsdf)
     cls = known[bsdf.type]
     entries = cls.from_mitsuba(BsdfReader(ctx, bsdf))
     if outer is not None and hasattr(cls, "from_mitsuba_twosided"):
