@@ -79,7 +79,7 @@ def test_xml_plugin(tmp_path, tinted):
         ir.load_scene(xml_scene(tmp_path, '<bsdf type="test_tinted"><float name="tint" value="2"/></bsdf>'))
     with pytest.raises(SceneError, match=r"unsupported property 'alpha' \(supported: specular_reflectance, tint\)"):
         ir.load_scene(xml_scene(tmp_path, '<bsdf type="test_tinted"><float name="alpha" value="1"/></bsdf>'))
-    with pytest.raises(SceneError, match=r"unsupported bsdf type 'hair' \(supported: diffuse, conductor, dielectric, roughconductor, plastic, roughplastic, roughdielectric, thindielectric, principled, principledthin, test_tinted, twosided\)"):
+    with pytest.raises(SceneError, match=r"unsupported bsdf type 'hair' \(supported: diffuse, conductor, dielectric, roughconductor, plastic, roughplastic, roughdielectric, thindielectric, principled, principledthin, test_tinted, twosided, normalmap, bumpmap\)"):
         ir.load_scene(xml_scene(tmp_path, '<bsdf type="hair"/>'))
 
 
