@@ -117,6 +117,9 @@ class ShadingPoint:
         corners: (N, 3) int64 rows of the hit triangles' corners in per-vertex parameters, or
             None (the scene has none).
         bary: (N, 3) barycentric weights of those corners, or None.
+        bend: where some material's normal is perturbed (a normal or bump map), what its value
+            and pdf are masked and weighted by (:func:`invrender.core.lanes.bend_lanes`: the base
+            normal (N, 3), the perturbed one (N, 3), alpha^2 (N,), perturbed (N,) bool); else None.
     """
 
     wo: torch.Tensor
@@ -129,10 +132,13 @@ class ShadingPoint:
     cache: dict = field(default_factory=dict, compare=False, repr=False)
     corners: torch.Tensor | None = None
     bary: torch.Tensor | None = None
+    bend: tuple | None = None
 
     def select(self, index: torch.Tensor) -> "ShadingPoint":
         """The points at ``index`` (M,) int64 (with their frames, where already built)."""
         vertex = {} if self.corners is None else {"corners": self.corners.index_select(0, index), "bary": self.bary.index_select(0, index)}
+        if self.bend is not None:
+            vertex["bend"] = tuple(v.index_select(0, index) for v in self.bend)
         out = ShadingPoint(*(getattr(self, f).index_select(0, index) for f in _POINT_FIELDS), **vertex)
         if "frame" in self.__dict__:
             out.__dict__["frame"] = Frame(*(v.index_select(0, index) for v in (self.frame.s, self.frame.t, self.frame.n)))
@@ -145,7 +151,8 @@ class ShadingPoint:
     @functools.cached_property
     def frame(self) -> Frame:
         """The shading frames (z = ``n``), built on first use and shared by every BSDF call at
-        these points."""
+        these points (given where a material needs the UV tangent frame or a perturbed normal:
+        :meth:`invrender.core.context.TransportContext.shading_point`)."""
         return Frame.from_normal(self.n)
 
     @functools.cached_property
@@ -209,12 +216,17 @@ class LaneForm:
         eval, sample: the two functions.
         world: ``sample`` also takes the shading frame, ``frame=(s, t, n)`` (world 3-vectors), for
             a construction tied to world axes (the diffuse lobe's tangent sphere).
+        tangent: the functions depend on the direction of the frame's tangent (an anisotropic
+            roughness): they run in the UV tangent frame, s from the mesh's dp/du as Mitsuba builds
+            it (:mod:`invrender.core.shading`); else (the default) in any frame about the normal
+            (:func:`invrender.core.lanes.frame`, whose bits isotropic renders keep).
     """
 
     keys: tuple[tuple[str, int], ...]
     eval: Callable
     sample: Callable
     world: bool = False
+    tangent: bool = False
 
 
 def grey_channel(v: torch.Tensor) -> torch.Tensor:

@@ -33,12 +33,17 @@ class Materials:
         one_sided: per scene material, is its back side black (``Material.one_sided``: Mitsuba's
             BSDFs without ``twosided``)? None = every material two-sided. Ignored for types that
             transmit.
+        perturbations: per scene material, its normal or bump map
+            (:class:`~invrender.scene.materials.NormalPerturbation`) or None; None = none.
     """
 
     def __init__(
         self, types: list[str], values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], device, flat: bool = False, sampling: BSDFSampling | None = None,
         sampling_values: list[dict[str, torch.Tensor]] | None = None, one_sided: list[bool] | None = None, texture_sampling: list[dict] | None = None,
+        perturbations: list | None = None,
     ):  # fmt: skip
+        #: per scene material, its normal perturbation or None (:mod:`invrender.core.shading`)
+        self.perturbations = list(perturbations) if perturbations is not None and any(p is not None for p in perturbations) else None
         present = list(dict.fromkeys(types))  # first-seen order
         self.bsdfs: list[BSDF] = []
         slot_of, local_of = [], []
@@ -63,6 +68,10 @@ class Materials:
         self.any_smooth_transmission = any(b.has(Lobe.GLOSSY_TRANSMISSION) for b in self.bsdfs)
         #: every BSDF is purely Lambertian (its sample weight is rho, never zero on a flat scene)
         self.all_diffuse = all(b.lobes == Lobe.DIFFUSE for b in self.bsdfs)
+        if self.perturbations is not None:  # perturbed normals: not a flat scene, weights can be zero (a light between the normals)
+            self.all_diffuse = False
+            for b in self.bsdfs:
+                b.flat = False
         #: (K, L) bool: is material l of BSDF slot k one-sided (black from behind)? None: none is
         self._one_sided = None
         if one_sided is not None and any(one_sided):
@@ -73,13 +82,20 @@ class Materials:
                 self._one_sided = table.to(device)
                 self.all_diffuse = False  # a back-side hit's weight is zero
 
-    def shading_point(self, material: torch.Tensor, wo, n, ng, front, uv, corners=None, bary=None) -> ShadingPoint:
+    def shading_point(self, material: torch.Tensor, wo, n, ng, front, uv, corners=None, bary=None, frame=None, bend=None) -> ShadingPoint:
         """The :class:`ShadingPoint` of hits on scene materials ``material`` (N,) int64 (``corners``
-        and ``bary``: for per-vertex parameters, see :class:`ShadingPoint`)."""
+        and ``bary``: for per-vertex parameters, see :class:`ShadingPoint`; ``frame``: the shading
+        frames where they are not the default's, with ``bend``: :mod:`invrender.core.shading`)."""
         vertex = {} if corners is None else {"corners": corners, "bary": bary}
+        if bend is not None:
+            vertex["bend"] = bend
         if self.single:  # local index = scene index; no dispatch
-            return ShadingPoint(wo, n, ng, front, uv, material, torch.zeros_like(material), **vertex)
-        return ShadingPoint(wo, n, ng, front, uv, self.local_of[material], self.slot_of[material], **vertex)
+            sp = ShadingPoint(wo, n, ng, front, uv, material, torch.zeros_like(material), **vertex)
+        else:
+            sp = ShadingPoint(wo, n, ng, front, uv, self.local_of[material], self.slot_of[material], **vertex)
+        if frame is not None:
+            sp.__dict__["frame"] = frame
+        return sp
 
     def groups(self, sp: ShadingPoint) -> list[tuple[BSDF, torch.Tensor | None]]:
         """``[(bsdf, index of its hits)]``; the index is None when one BSDF takes every hit."""
@@ -119,24 +135,31 @@ class Materials:
         return (~(self._one_sided[sp.slot, sp.material] & ~sp.front)).to(sp.wo.dtype)
 
     def eval(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
-        """``f |cos theta_i|`` (N, 3) of each hit's BSDF (0 at the back of a one-sided material)."""
+        """``f |cos theta_i|`` (N, 3) of each hit's BSDF (0 at the back of a one-sided material;
+        masked and weighted where a normal is perturbed: :func:`~invrender.core.lanes.bend_lanes`)."""
         f = self._dispatch(sp, lambda b, p, i: b.eval(p, wi if i is None else wi[i]))
         lit = self._lit(sp)
-        return f if lit is None else f * lit[:, None]
+        f = f if lit is None else f * lit[:, None]
+        return f if sp.bend is None else f * _bend(sp, wi)[0][:, None]
 
     def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
         """Solid-angle pdf (N,) of each hit's BSDF sampling ``wi`` (0 at the back of a one-sided
         material: it samples nothing there)."""
         pdf = self._dispatch(sp, lambda b, p, i: b.pdf(p, wi if i is None else wi[i]))
         lit = self._lit(sp)
-        return pdf if lit is None else pdf * lit
+        pdf = pdf if lit is None else pdf * lit
+        return pdf if sp.bend is None else torch.where(_bend(sp, wi)[1], pdf, 0.0)
 
     def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
         """One direction per hit from its BSDF (weight and pdf 0 at the back of a one-sided
         material: the path ends there)."""
         s = self._dispatch(sp, lambda b, p, i: b.sample(p, u_lobe if i is None else u_lobe[i], u_dir if i is None else u_dir[i]))
         lit = self._lit(sp)
-        return s if lit is None else BSDFSample(s.wi, s.weight * lit[:, None], s.pdf * lit, s.delta)
+        s = s if lit is None else BSDFSample(s.wi, s.weight * lit[:, None], s.pdf * lit, s.delta)
+        if sp.bend is None:
+            return s
+        g, kept = _bend(sp, s.wi)
+        return BSDFSample(s.wi, s.weight * g[:, None], torch.where(kept, s.pdf, 0.0), s.delta)
 
     def one_sided_rows(self) -> torch.Tensor:
         """(M,) bool: is each scene material one-sided (black from behind)?"""
@@ -147,7 +170,7 @@ class Materials:
     def fused_albedo(self) -> torch.Tensor | None:
         """(M, 3) rho per scene material where one BSDF type holds them all, none one-sided, and
         it gives its table (:meth:`BSDF.fused_albedo`); else None."""
-        if not self.single or self._one_sided is not None:
+        if not self.single or self._one_sided is not None or self.perturbations is not None:
             return None
         return self.bsdfs[0].fused_albedo()
 
@@ -162,6 +185,16 @@ class Materials:
         kd = self._dispatch(sp, call)
         lit = self._lit(sp)
         return kd if lit is None else kd * lit[:, None]
+
+
+def _bend(sp: ShadingPoint, wi: torch.Tensor):
+    """:func:`invrender.core.lanes.bend_lanes` at the points ``sp`` for directions ``wi`` (N, 3):
+    (factor (N,), pdf mask (N,) bool)."""
+    from invrender.backends.arrays import TORCH
+    from invrender.core.lanes import bend_lanes
+
+    nb, npert, alpha2, perturbed = sp.bend
+    return bend_lanes(TORCH, (tuple(nb.unbind(1)), tuple(npert.unbind(1)), alpha2, perturbed), tuple(wi.unbind(1)))
 
 
 def _empty_like(part, n: int):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass
 
 import torch
@@ -11,7 +12,8 @@ from invrender.scene.kinds import param_name
 from invrender.scene.scene import AMBIENT, Scene, Triangles, scene_extent
 from invrender.backends import kernels
 from invrender.backends.accel import intersector_for
-from invrender.core import compiled, lanes
+from invrender.core import compiled, lanes, shading
+from invrender.core.frame import Frame
 from invrender.core.bsdfs import BSDFSampling, Materials, ShadingPoint
 from invrender.core.lights import Lights
 from invrender.core.surface import Surface
@@ -88,7 +90,7 @@ class TransportContext:
             lights=Lights([e.type for e in emitters], light_values, [dict(e.constants) for e in emitters], tris, frozen),
             materials=Materials(
                 [s.type for s in specs], material_values, [dict(s.constants) for s in specs], device, flat=not tris.any_smooth, sampling=sampling, sampling_values=frozen_materials,
-                one_sided=[s.one_sided for s in specs],
+                one_sided=[s.one_sided for s in specs], perturbations=[getattr(s, "perturbation", None) for s in specs],
                 texture_sampling=[{key: scene.texture_sampling[param_name(m, key)] for key in spec.spec.params if param_name(m, key) in scene.texture_sampling} for m, spec in zip(scene.materials, specs)],
             ),
             eps=eps,
@@ -102,12 +104,25 @@ class TransportContext:
         """(N,) int64 scene material of each hit."""
         return self.triangles.material.index_select(0, s.tri)
 
+    @functools.cached_property
+    def shading(self) -> tuple:
+        """The shading frames' tables (:func:`invrender.core.shading.tables`): ``(frames,
+        perturb)``, None each where no material needs the UV frame or has a perturbed normal."""
+        return shading.tables(self)
+
     def shading_point(self, s: Surface, wo: torch.Tensor) -> ShadingPoint:
-        """The hits as their BSDFs see them, for outgoing directions ``wo`` (N, 3)."""
-        if self.per_vertex:
-            corners = self.triangles.vertex.index_select(0, s.tri)
-            return self.materials.shading_point(self.material(s), wo, s.ns, s.n, s.front, s.uv, corners, s.bary)
-        return self.materials.shading_point(self.material(s), wo, s.ns, s.n, s.front, s.uv)
+        """The hits as their BSDFs see them, for outgoing directions ``wo`` (N, 3): in the UV
+        tangent frame, or the perturbed one, where a material needs it (:mod:`invrender.core.shading`,
+        the functions the compiled bounce runs)."""
+        material = self.material(s)
+        vertex = {"corners": self.triangles.vertex.index_select(0, s.tri), "bary": s.bary} if self.per_vertex else {}
+        frames, perturb = self.shading
+        if frames is None:
+            return self.materials.shading_point(material, wo, s.ns, s.n, s.front, s.uv, **vertex)
+        out = compiled.run(shading.shading_point_lanes, wo.device, frames, perturb, s.ns, s.n, s.front, s.tri, s.bary[:, 1].contiguous(), s.bary[:, 2].contiguous(), wo, material.to(torch.int32))
+        frame = Frame(*out[:3])
+        bend = None if perturb is None else tuple(out[4:])
+        return self.materials.shading_point(material, wo, frame.n, s.n, out[3], s.uv, frame=frame, bend=bend, **vertex)
 
     def emission(self, emitter: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
         """Surface emission eps (N, 3) of scene emitters ``emitter`` (N,) int64 (-1 = none) at

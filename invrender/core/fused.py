@@ -63,7 +63,7 @@ from invrender.backends import kernels
 from invrender.core.context import PathState, TransportContext
 from invrender.core.film import Film
 from invrender.core.ranks import sum_across_ranks, world
-from invrender.core import compiled, lanes
+from invrender.core import compiled, lanes, shading
 from invrender.core.compiled import Opaque
 from invrender.core.bsdf import LaneBSDF, Lobe
 from invrender.core.sampler import bounce_salt_values
@@ -101,7 +101,7 @@ class FusedScene:
         infinite: some emitter is infinitely far away (rays that leave the scene see it).
         lanes: the tables as the lane functions read them: triangles (T * 16,), per emitter type
             its tables and its share (:func:`~invrender.core.lanes.shares`), the material index (M * 4,), per material type its table, the vertex
-            normals (T * 16,) or None, the textures (uvs, rows, texels) or None
+            normals (T * 16,) or None with the shading frames' tables (:func:`invrender.core.shading.tables`), the textures (uvs, rows, texels) or None
             (:mod:`invrender.core.lanes`).
     """
 
@@ -148,7 +148,7 @@ def tables(ctx: TransportContext, direct, hemisphere: str) -> FusedScene | None:
         tuple(tuple(Opaque(float(x)) for x in share) for share in lanes.shares(ctx.lights)),
         index.reshape(-1).contiguous(),
         tuple(t for _, t in forms),
-        lanes.normal_rows(ctx.triangles) if ctx.triangles.any_smooth else None,
+        (lanes.normal_rows(ctx.triangles) if ctx.triangles.any_smooth else None, *shading.tables(ctx)),
         None if textures.empty else (lanes.uv_rows(ctx.triangles), *textures.tables(device)),
     )
     rho, eps = materials.fused_albedo(), None

@@ -90,6 +90,128 @@ def to_world(f, v):
     return add(add(scale(f[0], v[0]), scale(f[1], v[1])), scale(f[2], v[2]))
 
 
+#: floats per scene material in the shading table (:func:`invrender.core.shading.tables`): UV frame
+#: (1.0) or not, the perturbation (0 none, 1 normal map, 2 bump map), its texture's id, the bump
+#: map's scale, the base frame turned to the ray's side (``twosided`` around the map), flip invalid
+#: normals, the shadowing term, a pad
+SHADING_ROW = 8
+#: Rec. 709 luminance (Mitsuba's ``luminance``: a bump map's height of an RGB texel)
+LUMINANCE = (0.212671, 0.715160, 0.072169)
+
+
+def cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def shading_frame(xp, frames, perturb, ns, ng, front, prim, b1, b2, wo, mat):
+    """The shading frame (:mod:`invrender.core.shading` gives the conventions: Mitsuba's) of hits on triangles ``prim`` (UInt) at barycentrics (b1, b2) of scene
+    materials ``mat`` (UInt), seen along ``-wo``: ``ns``, ``ng`` the shading and geometric normals
+    turned to ``wo``'s side (``front``: the triangle's front). ``frames``, ``perturb``: :func:`invrender.core.shading.tables`
+    (``frames`` not None).
+
+    Returns:
+        ``(s, t, n)`` the frame (world 3-vectors; z the normal turned to ``wo``), ``front`` as the
+        material sees it (the perturbed normal's outer side), and the bend :func:`bend_lanes`
+        reads: the base normal, the perturbed one (3-vectors), alpha^2 of the shadowing term (0:
+        none) and whether the lane is perturbed (Bool); None without ``perturb``.
+    """
+    tangents, uvs, rows = frames
+    duff = frame(xp, ns)
+    r = xp.gather_rows(rows, mat, SHADING_ROW)
+    side = xp.select(front, 1.0, -1.0)
+    n_front = scale(ns, side)
+    g = xp.gather_rows(tangents, prim, 8)
+    dpdu, dpdv = g[0:3], g[3:6]
+    s = _orthogonal(xp, dpdu, n_front)
+    t = cross(n_front, s)
+    use = r[0] > 0.5
+    base = (select3(xp, use, s, duff[0]), select3(xp, use, t, duff[1]), ns)
+    if perturb is None:
+        return base, front, None
+    texrows, texels = perturb
+    kind = r[1]
+    perturbed = kind > 0.5
+    sigma = xp.select(r[4] > 0.5, side, 1.0)
+    nb = scale(n_front, sigma)
+    B = (s, t, nb)
+    a = to_local(B, wo)
+    # the texture's four texels and weights at the hit's uv
+    uv = uv_at(xp, uvs, prim, b1, b2)
+    tex = xp.gather_rows(texrows, xp.uint(xp.maximum(r[2], 0.0)), 16)
+    index, weight = _filter(xp, uv, tex)
+    first = xp.uint(tex[0])
+    texel = [xp.gather_rows(texels, first + i, 4)[:3] for i in index]
+    rgb = None
+    for c, w in zip(texel, weight):
+        rgb = scale(c, w) if rgb is None else add(rgb, scale(c, w))
+    # normal map: tangent-space normal 2 c - 1
+    p_map = (2.0 * rgb[0] - 1.0, 2.0 * rgb[1] - 1.0, 2.0 * rgb[2] - 1.0)
+    # bump map: the bilinear filter's gradient of the luminance over uv, times scale
+    lum = [LUMINANCE[0] * c[0] + LUMINANCE[1] * c[1] + LUMINANCE[2] * c[2] for c in texel]
+    fx, fy = weight[1] + weight[3], weight[2] + weight[3]
+    df_dx = (1.0 - fy) * (lum[1] - lum[0]) + fy * (lum[3] - lum[2])
+    df_dy = (1.0 - fx) * (lum[2] - lum[0]) + fx * (lum[3] - lum[1])
+    w, h = tex[1], tex[2]
+    ta, tb, td, te = tex[5], tex[6], tex[8], tex[9]  # to_uv: u' = a u + b v + c, v' = d u + e v + f; x = u' w, y = (1 - v') h
+    g_u = r[3] * (df_dx * w * ta - df_dy * h * td)
+    g_v = r[3] * (df_dx * w * tb - df_dy * h * te)
+    du = add(dpdu, scale(n_front, g_u - dot(n_front, dpdu)))
+    dv = add(dpdv, scale(n_front, g_v - dot(n_front, dpdv)))
+    bump = normalize(xp, cross(du, dv))
+    bump = scale(bump, xp.select(dot(scale(ng, side), bump) < 0.0, -1.0, 1.0))  # to the geometric normal's (front) side
+    bump = to_local((s, t, n_front), bump)
+    is_bump = kind > 1.5
+    p = select3(xp, is_bump, bump, p_map)
+    # flip invalid normals: the camera's direction on the perturbed normal's side of the base frame
+    flip = (r[5] > 0.5) & (a[2] * dot(a, p) <= 0.0)
+    p = (xp.select(flip, -p[0], p[0]), xp.select(flip, -p[1], p[1]), p[2])
+    pn = normalize(xp, p)
+    # the perturbed frame in B: s' from x (normal map) or dp/du in B (bump map), made orthogonal to p
+    along = select3(xp, is_bump, to_local(B, dpdu), (1.0 + 0.0 * a[0], 0.0 * a[0], 0.0 * a[0]))
+    sp = _orthogonal(xp, along, pn)
+    tp = cross(pn, sp)
+    Pw = tuple(to_world(B, v) for v in (sp, tp, pn))
+    z = dot(wo, Pw[2])
+    turn = xp.select(z < 0.0, -1.0, 1.0)
+    out = (select3(xp, perturbed, Pw[0], base[0]), select3(xp, perturbed, Pw[1], base[1]), select3(xp, perturbed, scale(Pw[2], turn), base[2]))
+    front_m = xp.select(perturbed, ~((z > 0.0) ^ (sigma > 0.0)), front)
+    pz2 = pn[2] * pn[2]
+    tan2_p = xp.maximum(1.0 - pz2, 0.0) / xp.maximum(pz2, 1e-30)
+    alpha2 = xp.select(perturbed & (r[6] > 0.5), xp.minimum(0.125 * tan2_p, 1.0), 0.0)
+    return out, front_m, (select3(xp, perturbed, nb, ns), select3(xp, perturbed, Pw[2], ns), alpha2, perturbed)
+
+
+def _orthogonal(xp, v, n):
+    """``v`` made orthogonal to the unit ``n`` and normalized (Gram-Schmidt); the coordinate
+    system's first axis of ``n`` where nothing is left of ``v``."""
+    o = sub(v, scale(n, dot(n, v)))
+    length2 = dot(o, o)
+    ok = length2 > 1e-24
+    u = scale(o, 1.0 / xp.sqrt(xp.select(ok, length2, 1.0)))
+    return select3(xp, ok, u, frame(xp, n)[0])
+
+
+def _filter(xp, uv, tex):
+    """The four texel indices and weights of a texture row ``tex`` (:class:`~invrender.core.TextureTable`) at ``uv``."""
+    from invrender.core.textures import filter_lanes
+
+    return filter_lanes(xp, uv[0], uv[1], tex[2], tex[1], tex[3] > 0.5, tex[4], tex[5:11])
+
+
+def bend_lanes(xp, bend, wi):
+    """The factor of a perturbed normal on a material's value for world direction ``wi``: 0 unless
+    ``wi`` lies on the same side of the base normal and of the perturbed one, else the shadowing
+    term ``2 / (1 + sqrt(1 + alpha^2 tan^2))`` at ``wi``'s angle to the base normal (1 where alpha^2
+    is 0); and the pdf's mask (a Bool). ``bend``: :func:`shading_frame`'s."""
+    nb, npert, alpha2, perturbed = bend
+    cb, cp = dot(wi, nb), dot(wi, npert)
+    active = ~perturbed | (cb * cp > 0.0)
+    c2 = xp.maximum(cb * cb, 1e-30)
+    tan2 = xp.maximum(1.0 - c2, 0.0) / c2
+    g = xp.select(alpha2 > 0.0, 2.0 / (1.0 + xp.sqrt(1.0 + alpha2 * tan2)), 1.0)
+    return xp.select(active, g, 0.0), active
+
+
 # ---- random numbers ----------------------------------------------------------------------------
 
 
@@ -539,7 +661,7 @@ class Material(_Static):
 
     def key(self) -> tuple:
         f = self.form
-        return (signature(f.eval), signature(f.sample), f.keys, f.world, self.layout, self.smooth, self.smooth_transmission)
+        return (signature(f.eval), signature(f.sample), f.keys, f.world, f.tangent, self.layout, self.smooth, self.smooth_transmission)
 
     @property
     def textured(self) -> bool:
@@ -550,9 +672,10 @@ class Point:
     """The materials at N hit points, dispatched by type with masks: each type's lane functions
     run on every lane and a lane keeps its own type's answer (one type: no masks)."""
 
-    def __init__(self, xp, types, tables, index, mat, f, wo, front, lookup):
+    def __init__(self, xp, types, tables, index, mat, f, wo, front, lookup, front_m=None):
         row = xp.gather_rows(index, mat, MATERIAL_ROW)
-        self.xp, self.types, self.frame, self.wo, self.front = xp, types, f, wo, front
+        self.xp, self.types, self.frame, self.wo = xp, types, f, wo
+        self.front = front if front_m is None else front_m  # the side the materials see (a perturbed normal's)
         slot, local = xp.uint(row[0]), xp.uint(row[1])
         self.lit = ~((row[2] > 0.5) & ~front)  # a one-sided material is black from behind
         self.mine = [slot == k for k in range(len(types))] if len(types) > 1 else [None]
@@ -664,7 +787,7 @@ def escaped_vertex(xp, tables, share, d, beta, pdf_dir, delta, *, emitters, firs
 
 
 def path_vertex(
-    xp, tri_table, emitter_tables, share, material_index, material_tables, normals, textures, prim, b1, b2, t, d, beta, pdf_dir, delta, keys, salts, offset: float, *,
+    xp, tri_table, emitter_tables, share, material_index, material_tables, shading, textures, prim, b1, b2, t, d, beta, pdf_dir, delta, keys, salts, offset: float, *,
     materials, emitters, first: bool, mis: bool, nee_only: bool, nee: bool, more: bool, roulette: bool, absorbing: bool, tangents: bool,
 ):  # fmt: skip
     """One primal bounce of N paths: the random walk's and the path tracer's vertex
@@ -676,7 +799,8 @@ def path_vertex(
             its (lo, p, choice) (:func:`shares`, as scalars); material_index (M * 4,)
             per scene material its type's slot, index in that type, one-sided flag
             (:data:`MATERIAL_ROW`); material_tables: per type, :func:`material_rows`;
-            normals: (T * 16,) the vertex normals (:func:`normal_rows`), or None (no shading normals);
+            shading: (the vertex normals (T * 16,) (:func:`normal_rows`) or None (no shading
+            normals), the UV frames' and the perturbations' tables (:func:`invrender.core.shading.tables`));
             textures: (uv table (:func:`uv_rows`), texture rows, texels) (:class:`TextureTable`), or
             None (no material reads a texture).
         prim, b1, b2, t: (N,) the paths' closest hits (all valid); d, beta: 3-tuples of (N,) the
@@ -718,11 +842,16 @@ def path_vertex(
     tangent_out = (factor_e, xp.select(seen, em, none), mat) if tangents else ()
     if not more:
         return (emitted,) + _tangents(xp, tangent_out, None, None)
+    normals, frames, perturb = shading
     ns = n if normals is None else shading_normal(xp, normals, prim, b1, b2, front)
-    f = frame(xp, ns)
     wo = scale(d, -1.0)
+    front_m, bend = None, None
+    if frames is None:
+        f = frame(xp, ns)
+    else:  # UV tangent frames, perturbed normals (invrender.core.shading)
+        f, front_m, bend = shading_frame(xp, frames, perturb, ns, n, front, prim, b1, b2, wo, mat)
     lookup = None if textures is None else texture_lookup(xp, textures[1], textures[2], uv_at(xp, textures[0], prim, b1, b2))
-    point = Point(xp, materials, material_tables, material_index, mat, f, to_local(f, wo), front, lookup)
+    point = Point(xp, materials, material_tables, material_index, mat, f, to_local(f, wo), front, lookup, front_m)
     # term depth + 1: one emitter sample (its shadow ray is cast by the caller) where the BSDF has a smooth lobe
     smooth = point.any("smooth")
     if nee and smooth is not False:
@@ -736,6 +865,9 @@ def path_vertex(
             tmax, facing, pdf = xp.select(back, tmaxb, tmax), xp.select(back, facingb, facing), xp.select(back, pdfb, pdf)
             sampled = None if sampled is None else xp.select(back, sampledb, sampled)
         f_cos, bsdf_pdf = point.eval(to_local(f, wl))
+        if bend is not None:  # a perturbed normal's masks and shadowing term
+            g, kept = bend_lanes(xp, bend, wl)
+            f_cos, bsdf_pdf = scale(f_cos, g), xp.select(kept, bsdf_pdf, 0.0)
         if mis:
             mis_w = power_heuristic(xp, pdf, bsdf_pdf)
             inv = (1.0 if light_delta is True else xp.select(light_delta, 1.0, mis_w) if light_delta is not False else mis_w) / pdf
@@ -755,6 +887,9 @@ def path_vertex(
     # the BSDF sample, the new ray and Russian roulette
     wi, weight, pdf_next, delta_next = point.sample(uniform(xp, keys, salts[6]), uniform(xp, keys, salts[0]), uniform(xp, keys, salts[1]))
     wi = to_world(f, wi)
+    if bend is not None:
+        g, kept = bend_lanes(xp, bend, wi)
+        weight, pdf_next = scale(weight, g), xp.select(kept, pdf_next, 0.0)
     o_next = spawn(xp, p, n, wi, offset)
     b = scale(beta, weight)
     alive = c == c  # every path (c is never NaN for a valid hit)

@@ -77,7 +77,7 @@ def write_image(path: str | os.PathLike, image: torch.Tensor, quality: int = 95)
         raise ImageError(f"cannot write image {path}: {_reason(e)}") from None
 
 
-def read_image(path: str | os.PathLike, device: torch.device | str | None = None) -> torch.Tensor:
+def read_image(path: str | os.PathLike, device: torch.device | str | None = None, raw: bool = False) -> torch.Tensor:
     """Read an image file as linear radiance.
 
     Args:
@@ -86,6 +86,8 @@ def read_image(path: str | os.PathLike, device: torch.device | str | None = None
             ``.png`` (8 or 16 bits) / ``.jpg`` / ``.jpeg`` / ``.bmp`` (decoded from sRGB to linear,
             as Mitsuba reads them; alpha dropped).
         device: device of the returned tensor (default CPU).
+        raw: PNG and JPEG values as stored (codes over their largest), not decoded from sRGB
+            (Mitsuba's bitmap ``raw``: normal maps, height maps).
 
     Returns:
         (H, W, 3) float32 tensor of linear RGB, row 0 at the top.
@@ -95,7 +97,7 @@ def read_image(path: str | os.PathLike, device: torch.device | str | None = None
     """
     path, suffix = _readable(path)
     try:
-        rgb = _read_exr(path) if suffix == ".exr" else _read_hdr(path) if suffix == ".hdr" else _read_srgb(path)
+        rgb = _read_exr(path) if suffix == ".exr" else _read_hdr(path) if suffix == ".hdr" else _read_srgb(path, raw)
     except ImageError:
         raise
     except Exception as e:  # OpenEXR raises RuntimeError/ValueError, PIL OSError/SyntaxError/...
@@ -216,14 +218,16 @@ def _read_hdr(path: Path) -> torch.Tensor:
     return torch.from_numpy(np.ascontiguousarray(bgr[..., ::-1], dtype=np.float32))
 
 
-def _read_srgb(path: Path) -> torch.Tensor:
+def _read_srgb(path: Path, raw: bool = False) -> torch.Tensor:
     """Read a PNG (8 or 16 bits, every code kept: OpenCV's reader), a JPEG or a BMP as a (H, W, 3)
-    float32 linear tensor."""
+    float32 linear tensor (``raw``: the codes as they are, not decoded)."""
     if path.suffix.lower() == ".png":
-        codes = _read_png_codes(path).values.permute(2, 0, 1)
-        return kornia.color.rgb_to_linear_rgb(codes).permute(1, 2, 0).contiguous()
+        codes = _read_png_codes(path).values
+        return codes.contiguous() if raw else kornia.color.rgb_to_linear_rgb(codes.permute(2, 0, 1)).permute(1, 2, 0).contiguous()
     with Image.open(path) as img:
         img.load()
+        if raw:
+            return torch.from_numpy(np.asarray(img.convert("RGB"), dtype=np.float32) / 255.0).contiguous()
         return decode_srgb(img)
 
 

@@ -12,7 +12,9 @@ lists the types itself.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+
+import torch
 
 from invrender import registry
 from invrender.scene.plugins import Constant, Param, PluginSpec
@@ -21,6 +23,39 @@ from invrender.scene.plugins import Constant, Param, PluginSpec
 MATERIAL_TYPES = registry.MATERIALS
 
 DEFAULT_TYPE = "diffuse"
+
+
+#: the kinds of normal perturbation (Mitsuba's wrapper plugins of the same names)
+PERTURBATIONS = ("normalmap", "bumpmap")
+
+
+@dataclass(frozen=True)
+class NormalPerturbation:
+    """A material's shading normal perturbed by a texture, as Mitsuba's ``normalmap`` and
+    ``bumpmap`` wrap a BSDF (the conventions: :mod:`invrender.core.shading`).
+
+    Attributes:
+        kind: ``"normalmap"`` (the texture's RGB ``c`` is the tangent-space normal ``2 c - 1``) or
+            ``"bumpmap"`` (its luminance is a height, differentiated over uv).
+        texture: (h, w, 3) float32 the texels (row 0 at the top, invrender's UV convention).
+        sampling: how the texture is read (:class:`~invrender.scene.textures.TextureSampling`;
+            None: bilinear, repeat).
+        scale: the bump map's height scale (Mitsuba's ``scale``, default 1).
+        on_turned: ``twosided`` wraps the map: it perturbs the frame turned to the side the ray
+            arrives from (else the front side's frame, as a map wrapping ``twosided`` does).
+        flip_invalid: Mitsuba's ``flip_invalid_normals`` (default true).
+        shadowing: Mitsuba's ``use_shadowing_function`` (default true).
+        source: where it was read (for messages).
+    """
+
+    kind: str
+    texture: torch.Tensor = field(compare=False, repr=False)
+    sampling: object = None
+    scale: float = 1.0
+    on_turned: bool = False
+    flip_invalid: bool = True
+    shadowing: bool = True
+    source: str = ""
 
 
 @dataclass(frozen=True)
@@ -33,9 +68,12 @@ class Material(PluginSpec):
             finds a black surface, as Mitsuba's BSDFs do unless wrapped in ``twosided`` (the XML
             reader sets it for those); False (the default): both sides reflect alike. Materials
             that transmit are always two-sided.
+        perturbation: its shading normal perturbed by a normal or bump map
+            (:class:`NormalPerturbation`), or None.
     """
 
     one_sided: bool = False
+    perturbation: NormalPerturbation | None = None
 
     registry = registry.MATERIALS
     noun = "material"
@@ -48,4 +86,4 @@ def material_type(name, where: str = "material"):
     return MATERIAL_TYPES.get(name, where)
 
 
-__all__ = ["Constant", "DEFAULT_TYPE", "MATERIAL_TYPES", "Material", "Param", "material_type"]
+__all__ = ["Constant", "DEFAULT_TYPE", "MATERIAL_TYPES", "Material", "NormalPerturbation", "PERTURBATIONS", "Param", "material_type"]

@@ -65,11 +65,18 @@ def _eval(xp, table, m, wo, wi, front, u_lobe, u0, u1, *, form, layout):
     return f, pdf, ws, weight, pdf_s, delta
 
 
+#: the types with an anisotropic form (the constant ``alpha_v``), checked in that form too
+ANISOTROPIC = [n for n in TYPES if "alpha_v" in MATERIALS[n].constants]
+
+
 @pytest.mark.skipif(XP is None, reason="Dr.Jit's LLVM backend is not available")
-@pytest.mark.parametrize("name", [n for n in TYPES if n not in NOT_YET])
+@pytest.mark.parametrize("name", [n for n in TYPES if n not in NOT_YET] + [f"{n}:anisotropic" for n in ANISOTROPIC])
 def test_compiled_lane_form_equals_eager(name):
+    name, _, variant = name.partition(":")
     cls = MATERIALS[name]
     extra = {"spec_trans": 0.5} if "spec_trans" in cls.params else {}
+    if variant:
+        extra = {"alpha_v": 0.4}
     bsdf = checks.instance(cls, **extra)
     form = bsdf.lane_form()
     table, layout = lanes.material_rows(bsdf, form.keys, lanes.TextureTable())

@@ -195,7 +195,8 @@ def test_toml_and_mitsuba_xml(tmp_path):
 @pytest.mark.parametrize(
     "bsdf, message",
     [
-        ('<float name="alpha_u" value="0.1"/><float name="alpha_v" value="0.2"/>', "'alpha_u' \\(anisotropic roughness\\) is not supported: give one 'alpha'"),
+        ('<float name="alpha_u" value="0.1"/>', "'alpha_u' needs 'alpha_v' too"),
+        ('<float name="alpha" value="0.1"/><float name="alpha_u" value="0.1"/><float name="alpha_v" value="0.2"/>', "give either 'alpha' or 'alpha_u' and 'alpha_v'"),
         ('<string name="distribution" value="phong"/>', "distribution"),
         ('<float name="alpha" value="1.5"/>', "alpha"),
         ('<float name="int_ior" value="-1"/>', "int_ior"),

@@ -449,7 +449,7 @@ def test_gltf_material_types(tmp_path):
     none = {"eta": (0.0, 0.0, 0.0), "k": (1.0, 1.0, 1.0)}  # conductor material none: Fresnel 1
     assert types["chrome"] == ("mirror", none) and types["polished"] == ("mirror", none)
     assert types["glass"] == ("dielectric", {"ior": 1.33}) and types["frosted"] == ("dielectric", {"ior": 1.5})
-    assert types["plastic"][0] == "principled" and types["bare"] == ("glossy", none) and alpha["bare"] == 1.0  # a partial metal: principled
+    assert types["plastic"][0] == "principled" and types["bare"] == ("glossy", {**none, "alpha_v": 0.0}) and alpha["bare"] == 1.0  # a partial metal: principled; isotropic
     assert types["plastic"][1]["eta"] == pytest.approx(1.5) and types["plastic"][1]["two_sided"] == 1.0
     assert float(scene.params["plastic.metallic"][0]) == pytest.approx(0.3) and alpha["plastic"] == pytest.approx(0.1)  # its roughness: glTF's perceptual one
     assert types["brushed"][0] == "principled" and alpha["brushed"] == pytest.approx(0.04)

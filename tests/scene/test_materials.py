@@ -74,7 +74,7 @@ def test_material_types_load_with_their_parameters_and_constants(tmp_path):
     types = {m: scene.material_spec(i).type for i, m in enumerate(scene.materials)}
     assert types == {"floor": "diffuse", "chrome": "mirror", "glass": "dielectric", "brushed": "glossy"}
     assert scene.material_spec(2).constants == {"ior": 1.33}
-    assert scene.material_spec(3).constants == {"eta": (0.0, 0.0, 0.0), "k": (1.0, 1.0, 1.0)}  # material none
+    assert scene.material_spec(3).constants == {"eta": (0.0, 0.0, 0.0), "k": (1.0, 1.0, 1.0), "alpha_v": 0.0}  # material none, isotropic
     assert set(scene.params) == {"floor.reflectance", "chrome.specular_reflectance", "brushed.specular_reflectance", "brushed.roughness", "lamp.emission"}
     torch.testing.assert_close(scene.params["brushed.roughness"], torch.full((3,), 0.3))  # a parameter now (differentiable)
     torch.testing.assert_close(scene.params["brushed.specular_reflectance"], torch.full((3,), 0.5))
@@ -89,7 +89,7 @@ def test_type_defaults_to_diffuse_and_defaults_follow_mitsuba(tmp_path):
     scene = ir.load_scene(write(tmp_path, floor=""), resolution=(8, 8))
     torch.testing.assert_close(scene.params["floor.reflectance"], torch.full((3,), 0.5))
     m = Material.of("glossy")
-    assert m.constants == {"eta": (0.0, 0.0, 0.0), "k": (1.0, 1.0, 1.0)} and m.values == {"specular_reflectance": 1.0, "roughness": 0.1}
+    assert m.constants == {"eta": (0.0, 0.0, 0.0), "k": (1.0, 1.0, 1.0), "alpha_v": 0.0} and m.values == {"specular_reflectance": 1.0, "roughness": 0.1}
     assert Material.of("dielectric").constants == {"ior": 1.5}
 
 

@@ -270,3 +270,44 @@ def test_the_fused_bounce_renders_the_specular_box_as_the_torch_bounce(options, 
     scene = ir.load_scene("cornell_specular", resolution=(24, 24), subdivisions=2)
     assert len(_fused_scene(scene, "path", **options).materials) == 4
     _renders_as_torch(scene, unfused, dict(spp=16, seed=5, integrator="path", **options), agree=0.99, mean=3e-3)
+
+
+@pytest.mark.parametrize("options", [{}, {"strategy": "emitter"}])
+def test_the_fused_bounce_renders_anisotropic_materials_in_the_uv_frame_as_the_torch_bounce(options, unfused):
+    """Anisotropic roughness (the UV tangent frame, :mod:`invrender.core.shading`) on a smooth
+    sphere: the compiled bounce and the torch bounce build the same frames."""
+    from invrender.scene.materials import Material
+
+    mats = {"near": Material.of("glossy", roughness=0.05, alpha_v=0.4), "far": Material.of("roughdielectric_ggx", roughness=0.4, alpha_v=0.08)}
+    scene = _smooth_spheres(mats)
+    fs = _fused_scene(scene, "path", **options)
+    assert fs is not None and fs.lanes[5][1] is not None  # the UV frames' tables
+    kw = dict(spp=16, seed=7, integrator="path", **options)
+    expected = _renders_as_torch(scene, unfused, kw, agree=0.995, mean=2e-3)
+    assert float(expected.mean()) > 0.05
+
+
+@pytest.mark.parametrize("options", [{}, {"strategy": "emitter"}, {"max_depth": 4, "rr_depth": -1}])
+def test_the_fused_bounce_renders_normal_and_bump_maps_as_the_torch_bounce(options, unfused):
+    """Perturbed shading normals (:mod:`invrender.core.shading`): a normal map (the frame turned to
+    the ray's side, as ``twosided`` around it) on a glossy sphere, a bump map (bilinear, mirrored,
+    with ``to_uv``) on a diffuse one: the compiled and the torch bounce perturb alike."""
+    from invrender.scene.materials import Material, NormalPerturbation
+    from invrender.scene.textures import TextureSampling
+
+    g = torch.Generator().manual_seed(3)
+    n = torch.nn.functional.normalize(torch.randn(6, 9, 3, generator=g) * torch.tensor([0.4, 0.4, 0.0]) + torch.tensor([0.0, 0.0, 1.0]), dim=-1)
+    normal_map = NormalPerturbation("normalmap", (n + 1) / 2, on_turned=True)
+    bump = NormalPerturbation("bumpmap", torch.rand(7, 5, 3, generator=g), TextureSampling("bilinear", "mirror", (2.0, 0.5, 0.1, -0.3, 3.0, 0.2)), scale=0.05)
+    mats = {
+        "near": dataclasses.replace(Material.of("glossy", roughness=0.2), perturbation=normal_map),
+        "far": dataclasses.replace(Material.of("diffuse", reflectance=(0.7, 0.6, 0.5)), perturbation=bump),
+    }
+    scene = _smooth_spheres(mats)
+    fs = _fused_scene(scene, "path", **options)
+    assert fs is not None and fs.lanes[5][2] is not None  # the perturbations' textures
+    kw = dict(spp=16, seed=7, integrator="path", **options)
+    expected = _renders_as_torch(scene, unfused, kw, agree=0.995, mean=2e-3)
+    assert float(expected.mean()) > 0.05
+    plain = ir.render(_smooth_spheres({k: dataclasses.replace(m, perturbation=None) for k, m in mats.items()}), progress=False, **kw)
+    assert float((plain - expected).abs().mean()) > 0.01 * float(expected.mean())  # the maps change the image

@@ -13,6 +13,12 @@ or given: :mod:`invrender.plugins.bsdfs.metals`); the default ``eta = 0, k = 1``
 ``none``) is F = 1 exactly, and where every material of the type has it no Fresnel term is computed
 at all (a flag of the lane form).
 
+Anisotropic (the constant ``alpha_v`` > 0, Mitsuba's ``alpha_u``/``alpha_v``): roughness alpha_u
+(``roughness``) along the shading frame's tangent s and alpha_v along t, the frame Mitsuba builds
+from the mesh's dp/du (docs/rendering.md#shading-frames-and-anisotropy), D and G1 in their anisotropic forms
+(Mitsuba's). A type none of whose materials is anisotropic keeps the isotropic code (and its
+random bits) in any frame.
+
 Directions are sampled from the distribution of visible normals (Heitz, "Sampling the GGX
 Distribution of Visible Normals", JCGT 7(4), 2018; Heitz and d'Eon 2014 for Beckmann): a normal
 h is drawn with density ``G1(wo) max(0, wo.h) D(h) / cos_o`` and ``wo`` is reflected about it, so
@@ -33,7 +39,7 @@ from typing import ClassVar
 from invrender import registry
 from invrender.plugins.bsdfs.metal_iors import METAL_IORS
 from invrender.plugins.bsdfs.metals import CONDUCTOR_CONSTANTS, ConductorFresnel, fresnel_lanes
-from invrender.plugins.bsdfs.microfacet import BECKMANN, GGX, Distribution
+from invrender.plugins.bsdfs.microfacet import BECKMANN, GGX, Distribution, Microfacets
 from invrender.scene.kinds import ROUGHNESS, SPECULAR_REFLECTANCE
 from invrender.scene.plugins import Constant, Param
 from invrender.core import lanes
@@ -43,46 +49,75 @@ from invrender.core.lanes import scale
 
 #: the range Mitsuba's ``alpha`` is read in (the roughness kind's (0, 1], its default 0.1)
 ALPHA = Constant(0.1, 0.0, 1.0, True, False)
+#: the roughness along the shading frame's tangent t (Mitsuba's ``alpha_v``; ``roughness`` is then
+#: ``alpha_u``, along s): 0, the default, is the same as ``roughness`` (isotropic)
+ALPHA_V = Constant(0.0, 0.0, 1.0, False, False)
 
 
-def _visible(xp, d: Distribution, cos_h, cos_o, alpha_s):
-    """``D(h; alpha_s)``, ``G1(wo; alpha_s)`` and the pdf ``G1(wo) D(h) / (4 cos_o)`` of a
-    reflection about h (detached roughness: sampling's)."""
-    D, g1 = d.D_lanes(xp, cos_h, alpha_s), d.G1_lanes(xp, cos_o, alpha_s)
-    return D, g1, g1 * D / (4.0 * xp.maximum(cos_o, 1e-12))
+def anisotropic(bsdf) -> bool:
+    """Does some material of ``bsdf`` (a microfacet type with the constant ``alpha_v``) have a
+    roughness along t of its own? Its lane form is then the anisotropic one, in the UV tangent
+    frame (:attr:`~invrender.core.bsdf.LaneForm.tangent`); else the isotropic one, in any frame."""
+    return any(c.get("alpha_v", 0.0) > 0.0 for c in bsdf.constants)
 
 
-def eval_lanes(xp, p, ps, wo, wi, front, *, distribution: Distribution, fresnel: bool):
+def read_alphas(bsdf, label: str) -> dict:
+    """Mitsuba's ``alpha`` (isotropic) or ``alpha_u`` and ``alpha_v`` (anisotropic: along the
+    tangent s from dp/du and along t; not beside ``alpha``) as invrender's ``roughness`` (alpha_u)
+    and ``alpha_v`` constants."""
+    given = [k for k in ("alpha_u", "alpha_v") if bsdf.has(k)]
+    if not given:
+        return {"roughness": bsdf.number("alpha", ALPHA, f"{label} roughness", "a <float> (textured roughness is not supported)")}
+    if bsdf.has("alpha"):
+        raise bsdf.error("alpha", "give either 'alpha' or 'alpha_u' and 'alpha_v', not both (as Mitsuba)")
+    if len(given) == 1:
+        missing = ({"alpha_u", "alpha_v"} - set(given)).pop()
+        raise bsdf.error(given[0], f"'{given[0]}' needs '{missing}' too (as Mitsuba)")
+    alpha_u = bsdf.number("alpha_u", ALPHA, f"{label} roughness along the tangent", "a <float> (textured roughness is not supported)")
+    alpha_v = bsdf.number("alpha_v", ALPHA, f"{label} roughness along the bitangent", "a <float> (textured roughness is not supported)")
+    return {"roughness": alpha_u, "alpha_v": alpha_v}
+
+
+def mitsuba_alphas(alpha: float, constants: dict) -> dict:
+    """Mitsuba's ``alpha``, or ``alpha_u``/``alpha_v`` where the material is anisotropic."""
+    alpha_v = float(constants.get("alpha_v", 0.0))
+    return {"alpha_u": alpha, "alpha_v": alpha_v} if alpha_v > 0.0 else {"alpha": alpha}
+
+
+def eval_lanes(xp, p, ps, wo, wi, front, *, distribution: Distribution, fresnel: bool, anisotropic: bool = False):
     """``k_s F D G / (4 cos_o)`` (the cosine cos_i folded in; roughness ``p``'s) and the pdf
-    ``G1(wo) D(h) / (4 cos_o)`` (``ps``'s), both 0 unless ``wo`` and ``wi`` lie above the normal."""
-    d = distribution
-    alpha, alpha_s = p["roughness"], ps["roughness"]
+    ``G1(wo) D(h) / (4 cos_o)`` (``ps``'s), both 0 unless ``wo`` and ``wi`` lie above the normal;
+    ``anisotropic``: roughness ``alpha_u`` along the frame's tangent s, ``alpha_v`` along t."""
+    m_s = Microfacets.of(xp, distribution, ps, anisotropic)
+    m = m_s if p["roughness"] is ps["roughness"] else Microfacets.of(xp, distribution, p, anisotropic)
     cos_o, cos_i = wo[2], wi[2]
     h = lanes.normalize(xp, lanes.add(wo, wi))
-    D_s, g1_s, pdf = _visible(xp, d, h[2], cos_o, alpha_s)
-    D, g1_o = (D_s, g1_s) if alpha is alpha_s else (d.D_lanes(xp, h[2], alpha), d.G1_lanes(xp, cos_o, alpha))
+    D_s, g1_s = m_s.D(h), m_s.G1(wo, h)
+    pdf = g1_s * D_s / (4.0 * xp.maximum(cos_o, 1e-12))
+    D, g1_o = (D_s, g1_s) if m is m_s else (m.D(h), m.G1(wo, h))
     on = (cos_o > 0.0) & (cos_i > 0.0)
-    value = xp.select(on, D * g1_o * d.G1_lanes(xp, cos_i, alpha) / (4.0 * xp.maximum(cos_o, 1e-12)), 0.0)
+    value = xp.select(on, D * g1_o * m.G1(wi, h) / (4.0 * xp.maximum(cos_o, 1e-12)), 0.0)
     f = fresnel_lanes(xp, p, lanes.dot(wo, h), scale(p["specular_reflectance"], value), fresnel=fresnel)
     return f, xp.select(on, pdf, 0.0)
 
 
-def sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1, *, distribution: Distribution, fresnel: bool):
+def sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1, *, distribution: Distribution, fresnel: bool, anisotropic: bool = False):
     """A visible normal h (roughness ``ps``'s), ``wo`` reflected about it: weight ``k_s F G1(wi)``
     times ``D(h; alpha) G1(wo; alpha) / (D(h; alpha_s) G1(wo; alpha_s))`` (``p``'s roughness over
     ``ps``'s: 1 in value, the roughness gradient of ``f``), 0 where ``wo`` or ``wi`` lies below."""
-    d = distribution
-    alpha, alpha_s = p["roughness"], ps["roughness"]
+    m_s = Microfacets.of(xp, distribution, ps, anisotropic)
+    m = m_s if p["roughness"] is ps["roughness"] else Microfacets.of(xp, distribution, p, anisotropic)
     above = wo[2] > 0.0
     wo_up = (xp.select(above, wo[0], 0.0), xp.select(above, wo[1], 0.0), xp.select(above, wo[2], 1.0))
-    h = d.sample_visible_lanes(xp, wo_up, alpha_s, u0, u1)
+    h = m_s.sample(wo_up, u0, u1)
     cos_d = lanes.dot(wo_up, h)
     wi = lanes.sub(scale(h, 2.0 * cos_d), wo_up)
     ok = above & (wi[2] > 0.0)
-    D_s, g1_s, pdf = _visible(xp, d, h[2], wo_up[2], alpha_s)
-    g1 = d.G1_lanes(xp, wi[2], alpha)
-    if alpha is not alpha_s:  # the same lanes where p is ps (a ratio of exactly 1 otherwise)
-        ratio = d.D_lanes(xp, h[2], alpha) * d.G1_lanes(xp, wo_up[2], alpha) / xp.select(D_s * g1_s > 0.0, D_s * g1_s, 1.0)
+    D_s, g1_s = m_s.D(h), m_s.G1(wo_up, h)
+    pdf = g1_s * D_s / (4.0 * xp.maximum(wo_up[2], 1e-12))
+    g1 = m.G1(wi, h)
+    if m is not m_s:  # the same lanes where p is ps (a ratio of exactly 1 otherwise)
+        ratio = m.D(h) * m.G1(wo_up, h) / xp.select(D_s * g1_s > 0.0, D_s * g1_s, 1.0)
         g1 = g1 * xp.select(D_s * g1_s > 0.0, ratio, 1.0)
     weight = fresnel_lanes(xp, p, cos_d, scale(p["specular_reflectance"], xp.select(ok, g1, 0.0)), fresnel=fresnel)
     return wi, weight, xp.select(ok, pdf, 0.0), xp.full(False, u0)
@@ -96,15 +131,16 @@ class Glossy(ConductorFresnel, LaneBSDF):
     type_name = "glossy"
     lobes = Lobe.GLOSSY
     params = {"specular_reflectance": Param(SPECULAR_REFLECTANCE, 1.0), "roughness": Param(ROUGHNESS, 0.1)}
-    constants = dict(CONDUCTOR_CONSTANTS)
-    doc = "GGX rough conductor (eta, k: a named metal or given; default Fresnel 1), two-sided"
+    constants = {**CONDUCTOR_CONSTANTS, "alpha_v": ALPHA_V}
+    doc = "GGX rough conductor (eta, k: a named metal or given; default Fresnel 1; alpha_v: anisotropic), two-sided"
     #: the microfacet distribution
     distribution: ClassVar[Distribution] = GGX
 
     def lane_form(self) -> LaneForm:
-        keys = (("specular_reflectance", 3), ("roughness", 1)) + self.fresnel_keys
-        bound = {"distribution": self.distribution, "fresnel": not self.fresnel_one}
-        return LaneForm(keys, functools.partial(eval_lanes, **bound), functools.partial(sample_lanes, **bound))
+        aniso = anisotropic(self)
+        keys = (("specular_reflectance", 3), ("roughness", 1)) + self.fresnel_keys + ((("alpha_v", 1),) if aniso else ())
+        bound = {"distribution": self.distribution, "fresnel": not self.fresnel_one, "anisotropic": aniso}
+        return LaneForm(keys, functools.partial(eval_lanes, **bound), functools.partial(sample_lanes, **bound), tangent=aniso)
 
     # ---- its aliases in the scene formats (read through the registry)
 
@@ -114,7 +150,8 @@ class Glossy(ConductorFresnel, LaneBSDF):
     @classmethod
     def from_mitsuba(cls, bsdf) -> dict:
         """Mitsuba's ``roughconductor``: ``distribution`` beckmann (Mitsuba's default: type
-        glossy_beckmann) or ggx (type glossy), isotropic ``alpha`` (the roughness, default 0.1),
+        glossy_beckmann) or ggx (type glossy), ``alpha`` (the roughness, default 0.1) or ``alpha_u``
+        and ``alpha_v`` (anisotropic: the roughness and the constant ``alpha_v``),
         ``material`` (a named metal, default none) or ``eta``/``k``, ``specular_reflectance`` (a
         colour or a bitmap texture),
         ``sample_visible`` (read; invrender always samples visible normals)."""
@@ -122,13 +159,10 @@ class Glossy(ConductorFresnel, LaneBSDF):
         ks = bsdf.colour("specular_reflectance", SPECULAR_REFLECTANCE, 1.0)
         name = (bsdf.string("distribution", allowed=("beckmann", "ggx")) or "beckmann").lower()
         target = GlossyBeckmann if name == "beckmann" else Glossy
-        for key in ("alpha_u", "alpha_v"):
-            if bsdf.has(key):
-                raise bsdf.error(key, f"'{key}' (anisotropic roughness) is not supported: give one 'alpha'")
-        alpha = bsdf.number("alpha", ALPHA, f"{target.distribution.label} roughness", "a <float> (textured roughness is not supported)")
+        alphas = read_alphas(bsdf, target.distribution.label)
         bsdf.boolean("sample_visible")  # either way the same BRDF (invrender always samples visible normals)
-        bsdf.finish(("material", "eta", "k", "specular_reflectance", "distribution", "alpha", "sample_visible"))
-        return {"type": target.type_name, "specular_reflectance": ks, "roughness": alpha, **ior}
+        bsdf.finish(("material", "eta", "k", "specular_reflectance", "distribution", "alpha", "alpha_u", "alpha_v", "sample_visible"))
+        return {"type": target.type_name, "specular_reflectance": ks, **alphas, **ior}
 
     @classmethod
     def from_gltf(cls, material) -> dict | None:
@@ -140,7 +174,7 @@ class Glossy(ConductorFresnel, LaneBSDF):
         alpha = values["roughness"]
         if alpha.ndim != 1:
             raise ValueError("a roughness map has no Mitsuba counterpart here (alpha is written as one number)")
-        inner = {"type": "roughconductor", **cls.mitsuba_ior(constants), "distribution": cls.distribution.name, "alpha": float(alpha[0])}
+        inner = {"type": "roughconductor", **cls.mitsuba_ior(constants), "distribution": cls.distribution.name, **mitsuba_alphas(float(alpha[0]), constants)}
         return {"type": "twosided", "bsdf": {**inner, "sample_visible": True, "specular_reflectance": values["specular_reflectance"]}}
 
 

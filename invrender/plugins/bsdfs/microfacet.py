@@ -13,8 +13,10 @@ A material holds one :class:`Distribution` (:data:`GGX` or :data:`BECKMANN`, by 
 
 Each is written once as a lane function (``*_lanes``, against the array interface of
 :mod:`invrender.core.lanes`: the materials' lane forms call them, eager or compiled); the torch
-methods and helpers are the same functions evaluated with ``TORCH``. The anisotropic GGX terms
-(``ggx_*_aniso``, the principled materials') likewise.
+methods and helpers are the same functions evaluated with ``TORCH``. The anisotropic terms of both
+(``*_aniso_lanes``: roughness ``alpha_u`` along the shading frame's tangent s, ``alpha_v`` along t,
+Mitsuba's forms; the anisotropic conductors and dielectrics and the principled materials read them)
+likewise.
 
 GGX (Trowbridge-Reitz; Walter et al., "Microfacet Models for Refraction through Rough Surfaces",
 EGSR 2007):
@@ -165,18 +167,47 @@ def beckmann_slopes_11_lanes(xp, cos_theta, u0, u1):
     return xp.erfinv(edge(x)), xp.erfinv(edge(2.0 * u1 - 1.0))
 
 
+def beckmann_D_aniso_lanes(xp, m, alpha_x, alpha_y):
+    """Anisotropic Beckmann density D(m) of local normals ``m`` (a 3-tuple), roughness ``alpha_x``
+    along x and ``alpha_y`` along y: ``exp(-((mx/ax)^2 + (my/ay)^2) / mz^2) / (pi ax ay mz^4)``, 0
+    where ``D mz <= 1e-20`` (Mitsuba's mask, also where m points below)."""
+    c2 = xp.maximum(m[2] * m[2], 1e-18)
+    x, y = m[0] / alpha_x, m[1] / alpha_y
+    d = xp.exp(-(x * x + y * y) / c2) / (math.pi * alpha_x * alpha_y * c2 * c2)
+    return xp.select((m[2] > 0.0) & (d * m[2] > 1e-20), d, 0.0)
+
+
+def beckmann_G1_aniso_lanes(xp, v, m, alpha_x, alpha_y):
+    """Anisotropic Beckmann Smith masking G1 of directions ``v`` on microfacets ``m`` (3-tuples):
+    the rational approximation of :func:`beckmann_G1_lanes` at ``a = vz / sqrt(ax^2 vx^2 + ay^2
+    vy^2)``, 1 at normal incidence, 0 where ``v`` sees the microfacet's back (Mitsuba's ``smith_g1``)."""
+    x, y = alpha_x * v[0], alpha_y * v[1]
+    xy = x * x + y * y
+    a = xp.sqrt(v[2] * v[2] / xp.maximum(xy, 1e-30))
+    b = xp.minimum(a, 1.6)
+    g = xp.select(a >= 1.6, 1.0, (3.535 * b + 2.181 * b * b) / (1.0 + 2.276 * b + 2.577 * b * b))
+    g = xp.select(xy == 0.0, 1.0, g)
+    return xp.select(dot(v, m) * v[2] <= 0.0, 0.0, g)
+
+
 def beckmann_sample_visible_lanes(xp, wo, alpha, u0, u1):
     """Heitz and d'Eon (2014) with Jakob's slopes: a Beckmann normal (a 3-tuple, local frame)
     visible from ``wo`` (z > 0)."""
-    wp = normalize(xp, (alpha * wo[0], alpha * wo[1], wo[2]))
+    return beckmann_sample_visible_aniso_lanes(xp, wo, alpha, alpha, u0, u1)
+
+
+def beckmann_sample_visible_aniso_lanes(xp, wo, alpha_x, alpha_y, u0, u1):
+    """:func:`beckmann_sample_visible_lanes` of roughness ``alpha_x`` along x and ``alpha_y`` along
+    y: ``wo`` stretched by them, the slopes rotated and unstretched."""
+    wp = normalize(xp, (alpha_x * wo[0], alpha_y * wo[1], wo[2]))
     sin2 = wp[0] * wp[0] + wp[1] * wp[1]
     tilted = sin2 > 1e-14
     inv = xp.select(tilted, 1.0 / xp.sqrt(xp.maximum(sin2, 1e-30)), 0.0)
     cos_phi = xp.select(tilted, xp.minimum(xp.maximum(wp[0] * inv, -1.0), 1.0), 1.0)
     sin_phi = xp.select(tilted, xp.minimum(xp.maximum(wp[1] * inv, -1.0), 1.0), 0.0)
     s0, s1 = beckmann_slopes_11_lanes(xp, wp[2], u0, u1)
-    sx = (cos_phi * s0 - sin_phi * s1) * alpha
-    sy = (sin_phi * s0 + cos_phi * s1) * alpha
+    sx = (cos_phi * s0 - sin_phi * s1) * alpha_x
+    sy = (sin_phi * s0 + cos_phi * s1) * alpha_y
     return normalize(xp, (-sx, -sy, 0.0 * sx + 1.0))
 
 
@@ -229,6 +260,15 @@ class Distribution(ABC):
     #: ``(xp, wo, alpha, u0, u1)``: a normal (a 3-tuple) visible from ``wo`` (z > 0) from uniforms ``u0``, ``u1``
     sample_visible_lanes: Callable
 
+    #: the anisotropic forms, roughness ``alpha_x`` along the tangent s (x) and ``alpha_y`` along t
+    #: (y), as Mitsuba's ``alpha_u``, ``alpha_v``: ``(xp, m, alpha_x, alpha_y)`` the density D(m) of
+    #: a local normal ``m`` (a 3-tuple); ``(xp, v, m, alpha_x, alpha_y)`` the masking of direction
+    #: ``v`` on microfacet ``m`` (0 where ``v`` sees its back: Mitsuba's ``smith_g1``);
+    #: ``(xp, wo, alpha_x, alpha_y, u0, u1)`` a visible normal
+    D_aniso_lanes: Callable
+    G1_aniso_lanes: Callable
+    sample_visible_aniso_lanes: Callable
+
     def visible_pdf_lanes(self, xp, cos_o, cos_h, wo_dot_h, alpha):
         """Density of :meth:`sample_visible_lanes` drawing a normal at ``cos_h`` with ``wo . h =
         wo_dot_h`` for ``wo`` at ``cos_o``: ``G1(wo) max(0, wo.h) D(h) / cos_o``."""
@@ -268,6 +308,10 @@ class _GGX(Distribution):
     D_lanes = staticmethod(ggx_D_lanes)
     G1_lanes = staticmethod(ggx_G1_lanes)
 
+    D_aniso_lanes = staticmethod(ggx_D_aniso_lanes)
+    G1_aniso_lanes = staticmethod(ggx_G1_aniso_lanes)
+    sample_visible_aniso_lanes = staticmethod(ggx_sample_visible_lanes)
+
     @staticmethod
     def sample_visible_lanes(xp, wo, alpha, u0, u1):
         return ggx_sample_visible_lanes(xp, wo, alpha, alpha, u0, u1)
@@ -278,6 +322,9 @@ class _Beckmann(Distribution):
     D_lanes = staticmethod(beckmann_D_lanes)
     G1_lanes = staticmethod(beckmann_G1_lanes)
     sample_visible_lanes = staticmethod(beckmann_sample_visible_lanes)
+    D_aniso_lanes = staticmethod(beckmann_D_aniso_lanes)
+    G1_aniso_lanes = staticmethod(beckmann_G1_aniso_lanes)
+    sample_visible_aniso_lanes = staticmethod(beckmann_sample_visible_aniso_lanes)
 
     def sample_visible(self, wo_local: torch.Tensor, alpha: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         """As :meth:`Distribution.sample_visible`, computed in float64 (the torch materials'
@@ -321,3 +368,45 @@ def visible_reweight(d: Distribution, cos_h: torch.Tensor, cos_o: torch.Tensor, 
     if not alpha.requires_grad and not fwAD_active(alpha) and torch.equal(alpha, alpha_s):
         return None
     return d.reweight_lanes(TORCH, cos_h, cos_o, alpha, alpha_s.detach())
+
+
+# ---------------------------------------------------------------- a roughness as lane functions read it
+
+
+class Microfacets:
+    """A distribution at one roughness per lane, isotropic or anisotropic, as the microfacet
+    materials' lane functions read it: :meth:`D` of a local normal, :meth:`G1` of a direction on
+    a microfacet and :meth:`sample` of a visible normal. Isotropic (``alpha_y`` None): the
+    distribution's isotropic lane functions of the cosines alone (the same operations as they
+    were called before anisotropy existed, so isotropic renders keep their bits); anisotropic:
+    ``alpha_x`` along the shading frame's tangent s, ``alpha_y`` along t (Mitsuba's ``alpha_u``,
+    ``alpha_v``)."""
+
+    __slots__ = ("xp", "d", "alpha_x", "alpha_y")
+
+    def __init__(self, xp, d: Distribution, alpha_x, alpha_y=None):
+        self.xp, self.d, self.alpha_x, self.alpha_y = xp, d, alpha_x, alpha_y
+
+    @staticmethod
+    def of(xp, d: Distribution, p: dict, anisotropic: bool) -> "Microfacets":
+        """The roughness of a material's values ``p``: ``roughness`` (alpha_u), and where the form
+        is ``anisotropic``, ``alpha_v`` (0: the same as alpha_u)."""
+        ax = p["roughness"]
+        return Microfacets(xp, d, ax, xp.select(p["alpha_v"] > 0.0, p["alpha_v"], ax) if anisotropic else None)
+
+    def D(self, m):
+        if self.alpha_y is None:
+            return self.d.D_lanes(self.xp, m[2], self.alpha_x)
+        return self.d.D_aniso_lanes(self.xp, m, self.alpha_x, self.alpha_y)
+
+    def G1(self, v, m):
+        """Masking of ``v`` on ``m``; the isotropic form reads ``|v_z|``'s cosine only (``v`` is
+        given as seen from its own side)."""
+        if self.alpha_y is None:
+            return self.d.G1_lanes(self.xp, v[2], self.alpha_x)
+        return self.d.G1_aniso_lanes(self.xp, v, m, self.alpha_x, self.alpha_y)
+
+    def sample(self, wo, u0, u1):
+        if self.alpha_y is None:
+            return self.d.sample_visible_lanes(self.xp, wo, self.alpha_x, u0, u1)
+        return self.d.sample_visible_aniso_lanes(self.xp, wo, self.alpha_x, self.alpha_y, u0, u1)

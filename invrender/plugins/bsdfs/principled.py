@@ -389,7 +389,9 @@ class Principled(PrincipledBase, LaneBSDF):
     doc = "Disney's principled BSDF (Mitsuba's principled): diffuse with retro-reflection, sheen, GGX specular with metallic and tint, GTR1 clearcoat, rough transmission"
 
     def lane_form(self) -> LaneForm:
-        return LaneForm(PRINCIPLED_KEYS, principled_eval_lanes, principled_sample_lanes)
+        # an anisotropic lobe turns with the UV tangent frame (Mitsuba's dp/du); an isotropic one keeps any frame
+        anisotropic = any(bool((v["anisotropic"] != 0).any()) for v in self.sampling_values)
+        return LaneForm(PRINCIPLED_KEYS, principled_eval_lanes, principled_sample_lanes, tangent=anisotropic)
 
     def lane_rows(self, key: str, sampling: bool, device) -> torch.Tensor | None:
         """``has_spec_trans`` (M, 1): 1 where the material transmits (:meth:`_transmits`)."""

@@ -177,7 +177,9 @@ class PrincipledThin(PrincipledBase, LaneBSDF):
     doc = "Disney's thin principled BSDF (Mitsuba's principledthin): a two-sided sheet with diffuse, sheen, GGX specular reflection and transmission, diffuse transmission"
 
     def lane_form(self) -> LaneForm:
-        return LaneForm(THIN_KEYS, thin_eval_lanes, thin_sample_lanes)
+        # an anisotropic lobe turns with the UV tangent frame (Mitsuba's dp/du); an isotropic one keeps any frame
+        anisotropic = any(bool((v["anisotropic"] != 0).any()) for v in self.sampling_values)
+        return LaneForm(THIN_KEYS, thin_eval_lanes, thin_sample_lanes, tangent=anisotropic)
 
     # ---- its aliases in the scene formats (read through the registry)
 

@@ -34,6 +34,11 @@ detached, and the weight carries ``D(h; alpha) G1(wo; alpha) / (D(h; alpha_s) G1
 (:meth:`~invrender.plugins.bsdfs.microfacet.Distribution.reweight_lanes`'s factor, exactly 1 in
 value) and ``G1(wi; alpha)``, for both lobes: every estimator stays unbiased in alpha.
 
+Anisotropic (the constant ``alpha_v`` > 0, Mitsuba's ``alpha_u``/``alpha_v``): as the glossy
+conductors (:mod:`invrender.plugins.bsdfs.glossy`), in the UV tangent frame, D and G1 of the
+half-vector in their anisotropic forms (from inside, the frame's z flipped and the half-vector
+turned up: D and G1 are even in each coordinate, so the values are Mitsuba's).
+
 Lobes: glossy reflection and glossy transmission, so next-event estimation gathers light from
 either side (docs/integrators.md).
 """
@@ -49,8 +54,8 @@ import numpy as np
 from invrender import registry
 from invrender.errors import SceneError
 from invrender.plugins.bsdfs.dielectric import check_relative_ior, fresnel_dielectric_lanes
-from invrender.plugins.bsdfs.glossy import ALPHA
-from invrender.plugins.bsdfs.microfacet import BECKMANN, GGX, Distribution
+from invrender.plugins.bsdfs.glossy import ALPHA_V, anisotropic, mitsuba_alphas, read_alphas
+from invrender.plugins.bsdfs.microfacet import BECKMANN, GGX, Distribution, Microfacets
 from invrender.scene.formats.mitsuba.bsdfs import NAMED_IOR
 from invrender.scene.kinds import ROUGHNESS, SPECULAR_REFLECTANCE
 from invrender.scene.plugins import Constant, Param
@@ -81,12 +86,18 @@ def _lobe_density(xp, reflected, F, eta, d_o, d_i, denom):
     return xp.select(reflected, F * 0.25, (1.0 - F) * eta * eta * xp.abs(d_i) * d_o / denom)
 
 
-def eval_lanes(xp, p, ps, wo, wi, front, *, distribution: Distribution):
+def _g1_in(m: Microfacets, xp, wi, h):
+    """Masking of ``wi`` (on either side) on ``h``: the isotropic form at ``|cos|``, the anisotropic
+    one of ``wi`` itself (its sign is checked against ``h``'s side)."""
+    return m.G1((wi[0], wi[1], xp.abs(wi[2])), h) if m.alpha_y is None else m.G1(wi, h)
+
+
+def eval_lanes(xp, p, ps, wo, wi, front, *, distribution: Distribution, anisotropic: bool = False):
     """``f cos`` of the lobe ``wi``'s side takes (module docstring; roughness ``p``'s) and the pdf
     (``ps``'s): 0 unless ``wo`` lies above the normal, ``wo.h > 0`` and ``wi`` lies on h's side
     that its own side asks."""
-    d = distribution
-    alpha, alpha_s = p["roughness"], ps["roughness"]
+    m_s = Microfacets.of(xp, distribution, ps, anisotropic)
+    m = m_s if p["roughness"] is ps["roughness"] else Microfacets.of(xp, distribution, p, anisotropic)
     eta = _eta(xp, ps, front)
     c_o, c_i = wo[2], wi[2]
     reflected = c_i > 0.0
@@ -99,28 +110,28 @@ def eval_lanes(xp, p, ps, wo, wi, front, *, distribution: Distribution):
     s = d_o + eta * d_i
     denom = xp.maximum(s * s, 1e-12)
     inv_o = 1.0 / xp.maximum(c_o, 1e-12)
-    D_s, g1_s = d.D_lanes(xp, h[2], alpha_s), d.G1_lanes(xp, c_o, alpha_s)
+    D_s, g1_s = m_s.D(h), m_s.G1(wo, h)
     pdf = xp.select(ok, g1_s * D_s * inv_o * _lobe_density(xp, reflected, F, eta, d_o, d_i, denom), 0.0)
-    D, g1_o = (D_s, g1_s) if alpha is alpha_s else (d.D_lanes(xp, h[2], alpha), d.G1_lanes(xp, c_o, alpha))
-    common = D * g1_o * d.G1_lanes(xp, xp.abs(c_i), alpha) * inv_o
+    D, g1_o = (D_s, g1_s) if m is m_s else (m.D(h), m.G1(wo, h))
+    common = D * g1_o * _g1_in(m, xp, wi, h) * inv_o
     f_r = xp.select(ok & reflected, F * common * 0.25, 0.0)
     f_t = xp.select(ok & ~reflected, (1.0 - F) * common * d_o * xp.abs(d_i) / denom, 0.0)
     f = lanes.add(scale(p["specular_reflectance"], f_r), scale(p["specular_transmittance"], f_t))
     return f, pdf
 
 
-def sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1, *, distribution: Distribution):
+def sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1, *, distribution: Distribution, anisotropic: bool = False):
     """A visible normal h (roughness ``ps``'s); reflection about it with probability F (weight
     ``k_r G1(wi)``), else refraction through it (weight ``k_t G1(wi) / eta^2``), times ``D(h;
     alpha) G1(wo; alpha) / (D(h; alpha_s) G1(wo; alpha_s))`` (``p``'s roughness over ``ps``'s: 1
     in value, the roughness gradient of ``f``); 0 where ``wo`` lies below or ``wi`` on the wrong
     side."""
-    d = distribution
-    alpha, alpha_s = p["roughness"], ps["roughness"]
+    m_s = Microfacets.of(xp, distribution, ps, anisotropic)
+    m = m_s if p["roughness"] is ps["roughness"] else Microfacets.of(xp, distribution, p, anisotropic)
     eta = _eta(xp, ps, front)
     above = wo[2] > 0.0
     wo_up = (xp.select(above, wo[0], 0.0), xp.select(above, wo[1], 0.0), xp.select(above, wo[2], 1.0))
-    h = d.sample_visible_lanes(xp, wo_up, alpha_s, u0, u1)
+    h = m_s.sample(wo_up, u0, u1)
     d_o = xp.minimum(xp.maximum(lanes.dot(wo_up, h), 0.0), 1.0)
     F, cos_t = fresnel_dielectric_lanes(xp, d_o, eta)
     reflected = u_lobe < F
@@ -133,12 +144,12 @@ def sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1, *, distribution: Distribu
     d_i = lanes.dot(wi, h)
     s = d_o + eta * d_i
     denom = xp.maximum(s * s, 1e-12)
-    D_s, g1_s = d.D_lanes(xp, h[2], alpha_s), d.G1_lanes(xp, wo_up[2], alpha_s)
+    D_s, g1_s = m_s.D(h), m_s.G1(wo_up, h)
     pdf = g1_s * D_s / xp.maximum(wo_up[2], 1e-12) * _lobe_density(xp, reflected, F, eta, d_o, d_i, denom)
-    g1 = d.G1_lanes(xp, xp.abs(c_i), alpha)
-    if alpha is not alpha_s:  # the same lanes where p is ps (a ratio of exactly 1 otherwise)
+    g1 = _g1_in(m, xp, wi, h)
+    if m is not m_s:  # the same lanes where p is ps (a ratio of exactly 1 otherwise)
         den = D_s * g1_s
-        ratio = d.D_lanes(xp, h[2], alpha) * d.G1_lanes(xp, wo_up[2], alpha) / xp.select(den > 0.0, den, 1.0)
+        ratio = m.D(h) * m.G1(wo_up, h) / xp.select(den > 0.0, den, 1.0)
         g1 = g1 * xp.select(den > 0.0, ratio, 1.0)
     g1 = xp.select(ok, g1, 0.0)
     weight = select3(xp, reflected, scale(p["specular_reflectance"], g1), scale(p["specular_transmittance"], g1 * inv * inv))
@@ -156,15 +167,16 @@ class RoughDielectric(LaneBSDF):
         "specular_reflectance": Param(SPECULAR_REFLECTANCE, 1.0),
         "roughness": Param(ROUGHNESS, 0.1),
     }
-    constants = dict(INTERFACE_CONSTANTS)
+    constants = {**INTERFACE_CONSTANTS, "alpha_v": ALPHA_V}
     doc = "rough glass: Beckmann microfacet reflection and refraction (Mitsuba's roughdielectric, its default distribution)"
     #: the microfacet distribution
     distribution: ClassVar[Distribution] = BECKMANN
 
     def lane_form(self) -> LaneForm:
-        keys = (("specular_reflectance", 3), ("roughness", 1), ("int_ior", 1), ("ext_ior", 1), ("specular_transmittance", 3))
-        bound = {"distribution": self.distribution}
-        return LaneForm(keys, functools.partial(eval_lanes, **bound), functools.partial(sample_lanes, **bound))
+        aniso = anisotropic(self)
+        keys = (("specular_reflectance", 3), ("roughness", 1), ("int_ior", 1), ("ext_ior", 1), ("specular_transmittance", 3)) + ((("alpha_v", 1),) if aniso else ())
+        bound = {"distribution": self.distribution, "anisotropic": aniso}
+        return LaneForm(keys, functools.partial(eval_lanes, **bound), functools.partial(sample_lanes, **bound), tangent=aniso)
 
     @classmethod
     def resolve(cls, where: str, values: dict, constants: dict, given: set) -> dict:
@@ -182,22 +194,20 @@ class RoughDielectric(LaneBSDF):
     @classmethod
     def from_mitsuba(cls, bsdf) -> dict:
         """Mitsuba's ``roughdielectric``: ``distribution`` beckmann (its default: type
-        roughdielectric) or ggx (type roughdielectric_ggx), isotropic ``alpha`` (the roughness,
-        default 0.1), ``int_ior``/``ext_ior`` (numbers or named media, default bk7 / air),
+        roughdielectric) or ggx (type roughdielectric_ggx), ``alpha`` (the roughness,
+        default 0.1) or ``alpha_u`` and ``alpha_v`` (anisotropic: the roughness and the constant
+        ``alpha_v``, as the glossy conductors read them), ``int_ior``/``ext_ior`` (numbers or named media, default bk7 / air),
         ``specular_reflectance`` (a colour or a bitmap texture) and ``specular_transmittance``
         (a colour), default 1, ``sample_visible`` (read; invrender always samples visible normals)."""
         name = (bsdf.string("distribution", allowed=("beckmann", "ggx")) or "beckmann").lower()
         target = RoughDielectric if name == "beckmann" else RoughDielectricGGX
-        for key in ("alpha_u", "alpha_v"):
-            if bsdf.has(key):
-                raise bsdf.error(key, f"'{key}' (anisotropic roughness) is not supported: give one 'alpha'")
-        alpha = bsdf.number("alpha", ALPHA, f"{target.distribution.label} roughness", "a <float> (textured roughness is not supported)")
+        alphas = read_alphas(bsdf, target.distribution.label)
         int_ior, ext_ior = bsdf.ior("int_ior", "bk7"), bsdf.ior("ext_ior", "air")
         kr = bsdf.colour("specular_reflectance", SPECULAR_REFLECTANCE, 1.0)
         kt = bsdf.colour("specular_transmittance", SPECULAR_REFLECTANCE, 1.0, texture=False)
         bsdf.boolean("sample_visible")
-        bsdf.finish(("distribution", "alpha", "int_ior", "ext_ior", "specular_reflectance", "specular_transmittance", "sample_visible"))
-        return {"type": target.type_name, "roughness": alpha, "int_ior": int_ior, "ext_ior": ext_ior, "specular_reflectance": kr, "specular_transmittance": kt}
+        bsdf.finish(("distribution", "alpha", "alpha_u", "alpha_v", "int_ior", "ext_ior", "specular_reflectance", "specular_transmittance", "sample_visible"))
+        return {"type": target.type_name, **alphas, "int_ior": int_ior, "ext_ior": ext_ior, "specular_reflectance": kr, "specular_transmittance": kt}
 
     @classmethod
     def to_mitsuba(cls, values: dict, constants: dict) -> dict:
@@ -207,7 +217,7 @@ class RoughDielectric(LaneBSDF):
         return {
             "type": "roughdielectric",
             "distribution": cls.distribution.name,
-            "alpha": float(alpha[0]),
+            **mitsuba_alphas(float(alpha[0]), constants),
             "int_ior": float(constants["int_ior"]),
             "ext_ior": float(constants["ext_ior"]),
             "specular_reflectance": values["specular_reflectance"],

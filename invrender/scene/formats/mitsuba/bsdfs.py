@@ -34,12 +34,15 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import torch
 
 from invrender import registry
 from invrender.scene.formats.mitsuba.context import Context
-from invrender.scene.formats.mitsuba.parser import Obj
+from invrender.scene.formats.mitsuba.parser import Obj, Ref
 from invrender.scene.formats.mitsuba.reader import PluginReader
-from invrender.scene.materials import Material
+from invrender.scene.formats.mitsuba.textures import bitmap
+from invrender.scene.materials import PERTURBATIONS, Material, NormalPerturbation
+from invrender.scene.textures import DEFAULT
 
 #: Mitsuba 3's named indices of refraction (include/mitsuba/render/ior.h; Hecht, Optics, ~589 nm)
 NAMED_IOR = {
@@ -70,6 +73,9 @@ NAMED_IOR = {
 
 #: the wrapper plugin, read here: every other BSDF plugin is a material type's (``mitsuba_plugins``)
 TWOSIDED = "twosided"
+#: the wrappers that perturb their nested BSDF's shading normal, read here into its material's
+#: ``perturbation`` (:class:`~invrender.scene.materials.NormalPerturbation`)
+PERTURBING = PERTURBATIONS
 
 
 def plugins() -> dict:
@@ -93,6 +99,8 @@ def convert_bsdf(ctx: Context, bsdf: Obj, outer: Obj | None = None) -> Material:
     material class that names it in ``mitsuba_plugins`` (its ``from_mitsuba``; inside a
     ``twosided`` ``outer``, then its ``from_mitsuba_twosided`` where it has one)."""
     known = plugins()
+    if bsdf.type in PERTURBING:
+        return _perturbed(ctx, bsdf, outer)
     if bsdf.type == TWOSIDED:
         inner = ctx.nested(bsdf, "bsdf")
         if not inner or len(inner) > 2 or (len(inner) == 2 and inner[0] is not inner[1]):
@@ -103,9 +111,14 @@ def convert_bsdf(ctx: Context, bsdf: Obj, outer: Obj | None = None) -> Material:
             # as Mitsuba's twosided, which rejects BSDFs with a transmission component
             raise ctx.error(inner[0].node, f"twosided cannot wrap a {inner[0].type} BSDF", bsdf)
         ctx.finish(bsdf, (), ("bsdf",))
-        return dataclasses.replace(convert_bsdf(ctx, inner[0], outer=bsdf), one_sided=False)
+        spec = convert_bsdf(ctx, inner[0], outer=bsdf)
+        if inner[0].type in PERTURBING:  # the map perturbs the frame turned to the side the ray arrives from
+            if _transmits(spec.spec) and not hasattr(spec.spec, "from_mitsuba_twosided"):
+                raise ctx.error(inner[0].node, f"twosided cannot wrap a {inner[0].type} of a BSDF that transmits", bsdf)
+            spec = dataclasses.replace(spec, perturbation=dataclasses.replace(spec.perturbation, on_turned=True))
+        return dataclasses.replace(spec, one_sided=False)
     if bsdf.type not in known:
-        raise ctx.error(bsdf.node, f"unsupported bsdf type {bsdf.type!r} (supported: {', '.join([*known, TWOSIDED])})", bsdf)
+        raise ctx.error(bsdf.node, f"unsupported bsdf type {bsdf.type!r} (supported: {', '.join([*known, TWOSIDED, *PERTURBING])})", bsdf)
     cls = known[bsdf.type]
     entries = cls.from_mitsuba(BsdfReader(ctx, bsdf))
     if outer is not None and hasattr(cls, "from_mitsuba_twosided"):
@@ -115,6 +128,59 @@ def convert_bsdf(ctx: Context, bsdf: Obj, outer: Obj | None = None) -> Material:
     spec = Material.of(type_name, f"{ctx.where}:{bsdf.node.line}: {bsdf.describe()}", **entries)
     # Mitsuba's BSDFs are black from behind unless wrapped in twosided; those that transmit are two-sided
     return dataclasses.replace(spec, one_sided=not _transmits(spec.spec))
+
+
+def _perturbed(ctx: Context, bsdf: Obj, outer: Obj | None) -> Material:
+    """Mitsuba's ``normalmap`` (the texture ``normalmap``, a bitmap or a ``rawconstant``: tangent-space
+    normals encoded ``(n + 1) / 2``) or ``bumpmap`` (one nested texture: a height, ``scale`` default 1) around one BSDF, with
+    ``flip_invalid_normals`` and ``use_shadowing_function`` (default true): the nested BSDF's
+    material with the perturbation (:mod:`invrender.core.shading` gives the conventions). One
+    perturbation per material; a normal map's texel not a number or of length below 0.01 (no
+    direction: a grey texel) is an error."""
+    inner = ctx.nested(bsdf, "bsdf")
+    if len(inner) != 1:
+        raise ctx.error(bsdf.node, f"{bsdf.type} must wrap exactly one BSDF", bsdf)
+    if inner[0].type in PERTURBING:
+        raise ctx.error(inner[0].node, f"a {inner[0].type} inside a {bsdf.type} is not supported (one normal perturbation per material)", bsdf)
+    if bsdf.type == "normalmap":
+        prop = bsdf.props.get("normalmap")
+        texture = ctx.resolve(prop.value) if prop is not None and isinstance(prop.value, (Ref, Obj)) else None
+        if texture is None or texture.tag != "texture":
+            raise ctx.error(bsdf.node if prop is None else prop.node, "normalmap needs a <texture name=\"normalmap\" type=\"bitmap\">", bsdf)
+        bsdf.used.add("normalmap")
+    else:
+        textures = ctx.nested(bsdf, "texture")
+        if len(textures) != 1:
+            raise ctx.error(bsdf.node, "bumpmap needs exactly one nested <texture> (the height)", bsdf)
+        texture = textures[0]
+    if texture.type == "rawconstant":  # one value everywhere (Mitsuba's tests: the identity map 0.5 0.5 1)
+        value = ctx.take(texture, "value", ("vector", "point", "rgb", "float"), "a <vector>")
+        texels = np.broadcast_to(np.asarray(0.5 if value is None else value.value, dtype=np.float64), (1, 1, 3)).copy()
+        ctx.finish(texture, ("value",))
+        name = "rawconstant"
+    elif texture.type == "bitmap":
+        texels = bitmap(ctx, texture)
+        name = texture.props["filename"].value
+    else:
+        raise ctx.error(texture.node, f"a {bsdf.type}'s texture must be a bitmap or a rawconstant, got {texture.type!r}", bsdf)
+    where = f"{ctx.where}:{texture.node.line}: {bsdf.type} {name!r}"
+    if bsdf.type == "normalmap":
+        length = np.linalg.norm(2.0 * texels - 1.0, axis=-1)
+        bad = ~np.isfinite(length) | (length < 0.01)  # no direction (a grey texel: 0.0068); files do hold short normals (0.45), normalized
+        if bad.any():
+            i, j = np.argwhere(bad)[0]
+            what = "not a number" if not np.isfinite(length[i, j]) else f"of length {length[i, j]:.3g}"
+            raise ctx.error(texture.node, f"{name}: the normal at texel (row {i}, column {j}) is {what}: a normal map's texels encode unit normals n as (n + 1) / 2", bsdf)
+    scale = float(ctx.get(bsdf, "scale", "float", 1.0)) if bsdf.type == "bumpmap" else 1.0
+    if not np.isfinite(scale):
+        raise ctx.error(bsdf.props["scale"].node, f"'scale' must be a finite number, got {scale:g}", bsdf)
+    flip = bool(ctx.get(bsdf, "flip_invalid_normals", "boolean", True))
+    shadowing = bool(ctx.get(bsdf, "use_shadowing_function", "boolean", True))
+    ctx.finish(bsdf, ("normalmap", "scale", "flip_invalid_normals", "use_shadowing_function") if bsdf.type == "normalmap" else ("scale", "flip_invalid_normals", "use_shadowing_function"), ("bsdf", "texture"))
+    spec = convert_bsdf(ctx, inner[0], outer=outer)
+    sampling = ctx.texture_sampling.get(id(texture), DEFAULT)
+    perturbation = NormalPerturbation(bsdf.type, torch.as_tensor(texels, dtype=torch.float32), None if sampling == DEFAULT else sampling, scale, False, flip, shadowing, where)
+    return dataclasses.replace(spec, perturbation=perturbation)
 
 
 def _transmits(cls) -> bool:

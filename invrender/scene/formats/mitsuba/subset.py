@@ -11,7 +11,7 @@ def plugin_types() -> dict[str, tuple[str, ...]]:
     """Object element (``"bsdf"``, ``"shape"``, ...) -> the plugin types (``type="..."``) read."""
     return {
         "shape": (*shapes.SHAPE_TYPES, *instances.SHAPE_TYPES),
-        "bsdf": (*bsdfs.plugins(), bsdfs.TWOSIDED),
+        "bsdf": (*bsdfs.plugins(), bsdfs.TWOSIDED, *bsdfs.PERTURBING),
         "emitter": tuple(emitters.plugins()),
         "integrator": (*integrator.plugins(), integrator.MOMENT, *integrator.VOLUMETRIC),
         "texture": tuple(textures.TEXTURE_TYPES),

@@ -9,7 +9,8 @@ Colours
 
 Bitmap textures (``<texture type="bitmap">``)
     ``filename`` (relative to the XML file; EXR linear, PNG/JPEG sRGB-decoded, like Mitsuba's
-    ``raw=false``; ``raw=true`` only for EXR), ``filter_type`` ``bilinear`` (the default) or
+    ``raw=false``; with ``raw=true`` PNG/JPEG values as stored: normal and height maps), ``format``
+    (Mitsuba's storage: read, invrender keeps float32 texels), ``filter_type`` ``bilinear`` (the default) or
     ``nearest``, ``wrap_mode`` ``repeat`` (the default), ``clamp`` or ``mirror``, and ``to_uv`` (a
     ``<transform>``; its 2D part, as Mitsuba reads it), with Mitsuba 3's semantics
     (:mod:`invrender.core.textures` gives the arithmetic). Options other than the defaults are
@@ -56,6 +57,8 @@ from invrender.scene.textures import DEFAULT, FILTERS, WRAPS, SampledTexture, Te
 
 #: the texture plugins read
 TEXTURE_TYPES = ("bitmap", "checkerboard", "mesh_attribute")
+#: a bitmap's ``format`` values (its storage in Mitsuba; invrender keeps float32 texels for each)
+BITMAP_FORMATS = ("auto", "variant", "float16", "fp16", "uint8")
 
 
 def colour(ctx: Context, obj: Obj, name: str, kind: ParamKind, default: float, texture: bool = True):
@@ -146,12 +149,13 @@ def read_bitmap(ctx: Context, tex: Obj) -> np.ndarray:
     ctx.texture_sampling[id(tex)] = TextureSampling(options["filter_type"], options["wrap_mode"], to_uv)
     path = ctx.find_file(tex.props["filename"].node, filename) or ctx.base / filename
     raw = ctx.get(tex, "raw", "boolean", False)
-    if raw and path.suffix.lower() != ".exr":
-        raise ctx.error(tex.props["raw"].node, "raw=true is supported for EXR files only (PNG/JPEG are always sRGB-decoded)", tex)
-    ctx.finish(tex, ("filename", "filter_type", "wrap_mode", "raw", "to_uv"))
+    storage = ctx.get(tex, "format", "string", "auto")  # how Mitsuba stores the texels: invrender holds float32 whatever it says
+    if storage not in BITMAP_FORMATS:
+        raise ctx.error(tex.props["format"].node, f"format {storage!r} is not one of Mitsuba's ({', '.join(BITMAP_FORMATS)})", tex)
+    ctx.finish(tex, ("filename", "filter_type", "wrap_mode", "raw", "to_uv", "format"))
     from invrender.io.images import read_image  # lazily: images need kornia/OpenEXR
 
     try:
-        return read_image(path).numpy().astype(np.float64)
+        return read_image(path, raw=raw).numpy().astype(np.float64)
     except InvRenderError as e:
         raise ctx.error(tex.props["filename"].node, one_line(e), tex) from None
