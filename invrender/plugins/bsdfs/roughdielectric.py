@@ -145,6 +145,20 @@ def sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1, *, distribution: Distribu
     return wi, weight, xp.select(ok, pdf, 0.0), xp.full(False, u0)
 
 
+def read_alpha(bsdf, distribution: Distribution):
+    """A Mitsuba ``alpha``: a ``<float>`` in (0, 1] (default 0.1), or a texture (bitmap,
+    checkerboard; a colour too) read as one number per texel as Mitsuba's ``eval_1`` does (a
+    bitmap's luminance), each in (0, 1]: a roughness map (h, w, 3) of grey texels."""
+    if not bsdf.has("alpha") or bsdf.tag("alpha") in ("float", "integer"):
+        return bsdf.number("alpha", ALPHA, f"{distribution.label} roughness", "a <float> or a texture")
+    from invrender.plugins.bsdfs.principled import PrincipledBase
+
+    alpha = PrincipledBase.read_weight(bsdf, "alpha", ROUGHNESS, 0.1)
+    if float(np.min(alpha)) <= 0:
+        raise bsdf.error("alpha", f"'alpha' ({distribution.label} roughness) must lie in (0, 1], got values down to {float(np.min(alpha)):g}")
+    return alpha
+
+
 @registry.MATERIALS.register
 class RoughDielectric(LaneBSDF):
     """Written once in lane form (:func:`eval_lanes`, :func:`sample_lanes`), its distribution bound
@@ -185,13 +199,15 @@ class RoughDielectric(LaneBSDF):
         roughdielectric) or ggx (type roughdielectric_ggx), isotropic ``alpha`` (the roughness,
         default 0.1), ``int_ior``/``ext_ior`` (numbers or named media, default bk7 / air),
         ``specular_reflectance`` (a colour or a bitmap texture) and ``specular_transmittance``
-        (a colour), default 1, ``sample_visible`` (read; invrender always samples visible normals)."""
+        (a colour), default 1, ``sample_visible`` (read; invrender always samples visible normals).
+        ``alpha`` may be a texture (a bitmap or checkerboard), read as one number per texel as
+        Mitsuba's ``eval_1`` reads it (:func:`read_alpha`)."""
         name = (bsdf.string("distribution", allowed=("beckmann", "ggx")) or "beckmann").lower()
         target = RoughDielectric if name == "beckmann" else RoughDielectricGGX
         for key in ("alpha_u", "alpha_v"):
             if bsdf.has(key):
                 raise bsdf.error(key, f"'{key}' (anisotropic roughness) is not supported: give one 'alpha'")
-        alpha = bsdf.number("alpha", ALPHA, f"{target.distribution.label} roughness", "a <float> (textured roughness is not supported)")
+        alpha = read_alpha(bsdf, target.distribution)
         int_ior, ext_ior = bsdf.ior("int_ior", "bk7"), bsdf.ior("ext_ior", "air")
         kr = bsdf.colour("specular_reflectance", SPECULAR_REFLECTANCE, 1.0)
         kt = bsdf.colour("specular_transmittance", SPECULAR_REFLECTANCE, 1.0, texture=False)
@@ -202,12 +218,10 @@ class RoughDielectric(LaneBSDF):
     @classmethod
     def to_mitsuba(cls, values: dict, constants: dict) -> dict:
         alpha = values["roughness"]
-        if alpha.ndim != 1:
-            raise ValueError("a roughness map has no Mitsuba counterpart here (alpha is written as one number)")
         return {
             "type": "roughdielectric",
             "distribution": cls.distribution.name,
-            "alpha": float(alpha[0]),
+            "alpha": float(alpha[0]) if alpha.ndim == 1 else alpha,  # a map: a (grey) bitmap
             "int_ior": float(constants["int_ior"]),
             "ext_ior": float(constants["ext_ior"]),
             "specular_reflectance": values["specular_reflectance"],

@@ -40,6 +40,10 @@ class PluginReader:
         """Does the element give property ``name``?"""
         return name in self._obj.props
 
+    def tag(self, name: str) -> str:
+        """The element of property ``name`` (``"float"``, ``"rgb"``, ``"texture"``, ``"ref"``, ...)."""
+        return self._obj.props[name].tag
+
     def error(self, name: str | None, message: str) -> SceneError:
         """A one-line error at property ``name``'s line (the ``<bsdf>``'s for None), to raise."""
         node = self._obj.node if name is None else self._obj.props[name].node
@@ -98,9 +102,10 @@ class PluginReader:
             raise self.error(name, f"file not found: {self._ctx.base / value}")
         return path
 
-    def finish(self, supported: tuple) -> None:
-        """Errors for the properties nothing read (listing ``supported``) and for nested objects;
-        the properties of :data:`AT_DEFAULT` are accepted at their Mitsuba default value."""
+    def finish(self, supported: tuple, children: tuple = ()) -> None:
+        """Errors for the properties nothing read (listing ``supported``) and for nested objects
+        other than ``children`` tags (a blend's ``bsdf``); the properties of :data:`AT_DEFAULT` are
+        accepted at their Mitsuba default value."""
         obj = self._obj
         for key in (obj.type, "*"):
             for name, default in AT_DEFAULT.get((obj.tag, key), {}).items():
@@ -112,4 +117,4 @@ class PluginReader:
                 ok = prop.tag in ("float", "integer", "rgb", "spectrum") and np.allclose(np.asarray(value, dtype=np.float64), default, rtol=0, atol=1e-9)
                 if not ok:
                     raise self.error(name, f"'{name}' other than {default:g} (Mitsuba's default) is not supported by invrender's {obj.type}")
-        self._ctx.finish(obj, supported)
+        self._ctx.finish(obj, supported, children)
