@@ -231,3 +231,21 @@ def test_variants_are_built_once_and_not_listed():
     assert MATERIALS["blendbsdf(diffuse, mirror)"] is MATERIALS["blendbsdf(diffuse,mirror)"]
     assert "blendbsdf(diffuse,mirror)" not in MATERIALS.names()
     assert math.isclose(MATERIALS["mask(glossy)"].params["opacity"].default, 0.5)
+
+
+def test_path_records_refuse_a_blends_parameters():
+    """A blend's value sums its two materials: no parameter of it is one monomial of a path's weight."""
+    from invrender.estimators.records import record_obstacle
+    from tests.transport.test_fused import _smooth_spheres
+
+    scene = _smooth_spheres({"near": Material.of("blendbsdf(diffuse,diffuse)"), "far": Material.of("mask(diffuse)")})
+    assert "sums its two materials" in record_obstacle(scene, ["near.bsdf_0.reflectance"])
+    assert record_obstacle(scene, ["far.bsdf.reflectance"]) is None  # a mask's opacity is a constant factor
+    assert "not a polynomial" in record_obstacle(scene, ["far.opacity"])
+    # and a mask's nested reflectance is recorded: the record re-evaluated elsewhere is the render there
+    from invrender.estimators.records import record_paths
+
+    records = record_paths(scene, ["far.bsdf.reflectance"], spp=2, max_depth=4, seed=3, progress=False)
+    value = torch.tensor([0.2, 0.7, 0.3])
+    expected = ir.render(scene.with_params({"far.bsdf.reflectance": value}), spp=2, max_depth=4, seed=3, progress=False)
+    assert torch.allclose(records.image({"far.bsdf.reflectance": value}).float(), expected, atol=1e-5)
