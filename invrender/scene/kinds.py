@@ -45,6 +45,8 @@ class ParamKind:
             parameters that enter non-linearly (roughness).
         grey: one number stored as three equal channels (the RGB form every parameter shares);
             the BSDF reads their mean.
+        differentiable: False for a value the renderer reads detached (a mask's opacity decides
+            visibility, which is never differentiated): it may be set, not fitted or differentiated.
     """
 
     key: str
@@ -58,6 +60,7 @@ class ParamKind:
     positive: bool = False
     polynomial: bool = True
     grey: bool = False
+    differentiable: bool = True
 
     def check(self, name: str, value: torch.Tensor) -> None:
         """A :class:`ParameterError` naming ``name`` when ``value`` lies outside this kind's range."""
@@ -148,7 +151,7 @@ BLEND_WEIGHT = _weight("weight", "w", "weight of a blendbsdf's second material, 
 #: a mask's opacity (Mitsuba's ``mask``): light passes straight through with probability 1 - opacity.
 #: It decides what is seen, and geometry is never differentiated here: the material reads it
 #: detached, so its derivative is zero (not a parameter to fit)
-OPACITY = _weight("opacity", "opacity", "opacity of a mask (read detached: visibility is fixed), in [0, 1]")
+OPACITY = dataclasses.replace(_weight("opacity", "opacity", "opacity of a mask (read detached: visibility is fixed), in [0, 1]"), differentiable=False)
 
 #: every kind of a scene parameter, by key
 KINDS: dict[str, ParamKind] = {k.key: k for k in (REFLECTANCE, SPECULAR_REFLECTANCE, EMISSION, ROUGHNESS, *PRINCIPLED_KINDS, BLEND_WEIGHT, OPACITY)}

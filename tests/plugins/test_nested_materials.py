@@ -249,3 +249,34 @@ def test_path_records_refuse_a_blends_parameters():
     value = torch.tensor([0.2, 0.7, 0.3])
     expected = ir.render(scene.with_params({"far.bsdf.reflectance": value}), spp=2, max_depth=4, seed=3, progress=False)
     assert torch.allclose(records.image({"far.bsdf.reflectance": value}).float(), expected, atol=1e-5)
+
+
+def test_gradients_of_a_blend_and_a_masked_material_match_finite_differences():
+    """A blend's weight and nested reflectance, a mask's nested reflectance: autodiff and path replay
+    against central differences (common random numbers); the opacity is refused (read detached)."""
+    from invrender.errors import ParameterError
+    from invrender.inverse.gradcheck import gradcheck
+    from tests.transport.test_fused import _smooth_spheres
+
+    scene = _smooth_spheres({"near": Material.of("blendbsdf(diffuse,glossy)", weight=0.4), "far": Material.of("mask(pplastic)", opacity=0.6)})
+    rows = gradcheck(scene, ["near.weight", "near.bsdf_0.reflectance", "far.bsdf.reflectance"], spp=8, max_depth=3)
+    assert len(rows) == 7
+    for row in rows:
+        assert max(row.rel_errors.values()) < 0.02, row
+    with pytest.raises(ParameterError, match="far.opacity: the opacity is read detached"):
+        gradcheck(scene, ["far.opacity"])
+    assert float(scene.with_params({"far.opacity": 0.2}).params["far.opacity"][0]) == pytest.approx(0.2)  # set, not fitted
+
+
+def test_two_instances_of_a_composite_share_one_compiled_kernel():
+    """The lane forms of two instances of one combination are equal as the compiled kernels' keys
+    compare them (the nested forms' functions by what they compute), another combination's not."""
+    from invrender.core import lanes
+
+    def key(name):
+        form = checks.instance(MATERIALS[name]).lane_form()
+        return lanes.Material(form, (), True, False).key()
+
+    assert key("mask(blendbsdf(glossy,mirror))") == key("mask(blendbsdf(glossy,mirror))")
+    assert hash(key("blendbsdf(roughplastic,mirror)")) == hash(key("blendbsdf(roughplastic,mirror)"))
+    assert key("mask(blendbsdf(glossy,mirror))") != key("mask(blendbsdf(glossy_beckmann,mirror))")
