@@ -115,6 +115,22 @@ def test_a_mask_passes_light_straight_through():
     assert float(values["bsdf.reflectance"].grad.abs().sum()) > 0
 
 
+def test_a_one_sided_nested_material_is_black_from_behind():
+    """blend(one-sided diffuse, glass) seen from behind: only the glass's share, w f_1; the blend's
+    samples of the diffuse weigh nothing there."""
+    bsdf = _bsdf("blendbsdf(diffuse,roughdielectric)", weight=0.6, one_sided_0=True)
+    glass = checks.instance(MATERIALS["roughdielectric"])
+    n = 20_000
+    sp = checks.shading_point(0.5, n, front=False)
+    wi = checks.local_directions(torch.rand(n, generator=torch.Generator().manual_seed(5)) * 2 - 1, torch.rand(n, generator=torch.Generator().manual_seed(6)) * 6.28)
+    assert torch.allclose(bsdf.eval(sp, wi), 0.6 * glass.eval(sp, wi), atol=1e-6) and torch.allclose(bsdf.pdf(sp, wi), 0.6 * glass.pdf(sp, wi), atol=1e-6)
+    g = torch.Generator().manual_seed(7)
+    bs = bsdf.sample(sp, torch.rand(n, generator=g), torch.rand(n, 2, generator=g))
+    assert float((bs.weight.amax(1) > 0).float().mean()) < 0.62  # the diffuse's 40% of samples weigh nothing
+    front = checks.shading_point(0.5, 8)
+    assert float(bsdf.eval(front, wi[:8]).amax()) > 0
+
+
 def test_a_blends_weight_is_differentiable():
     """d eval / d w = f_1 - f_0 (autograd through the lane form)."""
     bsdf = _bsdf("blendbsdf(diffuse,glossy)", weight=0.4, **{"bsdf_0.reflectance": 0.3})
@@ -193,8 +209,11 @@ def test_the_mitsuba_loader_reads_blends_masks_pplastic_and_textured_roughness(t
     glass = _load(tmp_path, """<bsdf type="roughdielectric"><texture type="checkerboard" name="alpha"><float name="color0" value="0.05"/><float name="color1" value="0.3"/></texture></bsdf>""")
     alpha = glass.params[f"{glass.materials[0]}.roughness"]
     assert glass.material_specs[0].type == "roughdielectric" and alpha.ndim == 3 and {round(float(v), 4) for v in alpha.unique()} >= {0.05, 0.3}
-    one_sided = _load(tmp_path, """<bsdf type="blendbsdf"><bsdf type="diffuse"/><bsdf type="plastic"/></bsdf>""")
-    assert one_sided.material_specs[0].one_sided and one_sided.material_specs[0].type == "blendbsdf(diffuse,plastic)"
+    one_sided = _load(tmp_path, """<bsdf type="blendbsdf"><bsdf type="diffuse"/><bsdf type="twosided"><bsdf type="plastic"/></bsdf></bsdf>""").material_specs[0]
+    assert one_sided.type == "blendbsdf(diffuse,plastic)" and not one_sided.one_sided
+    assert one_sided.constants["one_sided_0"] == 1.0 and one_sided.constants["one_sided_1"] == 0.0  # each nested material's side, as in Mitsuba
+    wrapped = _load(tmp_path, """<bsdf type="twosided"><bsdf type="blendbsdf"><bsdf type="diffuse"/><bsdf type="plastic"/></bsdf></bsdf>""").material_specs[0]
+    assert wrapped.constants["one_sided_0"] == 0.0 and wrapped.constants["one_sided_1"] == 0.0
     masked = _load(tmp_path, """<bsdf type="mask"><bsdf type="diffuse"/></bsdf>""")
     assert masked.material_specs[0].constants["nested_one_sided"] == 1.0
 
@@ -206,7 +225,7 @@ def test_the_mitsuba_loader_reads_blends_masks_pplastic_and_textured_roughness(t
         ("""<bsdf type="blendbsdf"><float name="weight" value="1.5"/><bsdf type="diffuse"/><bsdf type="diffuse"/></bsdf>""", "'weight'"),
         ("""<bsdf type="blendbsdf"><float name="weight" value="nan"/><bsdf type="diffuse"/><bsdf type="diffuse"/></bsdf>""", "weight"),
         ("""<bsdf type="blendbsdf"><bsdf type="diffuse"/><bsdf type="hair"/></bsdf>""", "unsupported bsdf type 'hair'"),
-        ("""<bsdf type="blendbsdf"><bsdf type="diffuse"/><bsdf type="twosided"><bsdf type="diffuse"/></bsdf></bsdf>""", "one-sided and a twosided"),
+        ("""<bsdf type="twosided"><bsdf type="blendbsdf"><bsdf type="diffuse"/><bsdf type="dielectric"/></bsdf></bsdf>""", "twosided cannot wrap a blendbsdf(diffuse,dielectric)"),
         ("""<bsdf type="mask"><bsdf type="diffuse"/><bsdf type="diffuse"/></bsdf>""", "needs one nested BSDF, got 2"),
         ("""<bsdf type="mask"><float name="opacity" value="-0.1"/><bsdf type="diffuse"/></bsdf>""", "'opacity'"),
         ("""<bsdf type="pplastic"><float name="eta" value="1.4"/><float name="int_ior" value="1.5"/></bsdf>""", "not both"),

@@ -19,9 +19,10 @@ map) is differentiable.
   diffuse of albedo 0.2 has directional albedo 0.6, invrender's mean sample weight, and Mitsuba's
   sampler returns 0.512 (10^6 samples at 0.5 rad); bench/blend_mask_compare.py renders both.
 
-Lobes: both materials'. One-sided when both nested materials are (Mitsuba's without ``twosided``:
-the Mitsuba loader marks it so; a blend of a one-sided and a two-sided material that do not
-transmit is refused).
+Lobes: both materials'. The constants ``one_sided_0`` and ``one_sided_1`` make a nested material
+black from behind (Mitsuba's nested BSDFs that reflect only, not wrapped in ``twosided``; the
+Mitsuba loader sets them, and clears them where a ``twosided`` wraps the blend): its ``f`` and pdf
+are 0 there and a sample of it has weight 0, the other material unchanged.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ import torch
 
 from invrender import registry
 from invrender.scene.kinds import BLEND_WEIGHT
-from invrender.scene.plugins import Param
+from invrender.scene.plugins import Constant, Param
 from invrender.core.bsdf import LaneForm, Lobe, ShadingPoint
 from invrender.core.lanes import add, scale, select3
 from invrender.plugins.bsdfs.composite import Composite, nested_pair, with_frame
@@ -42,12 +43,18 @@ from invrender.plugins.bsdfs.composite import Composite, nested_pair, with_frame
 BELOW_ONE = 1.0 - 2.0**-24
 
 
+def _lit(xp, ps, front):
+    """Per nested material, 1.0 where it is seen (0 from behind a one-sided one)."""
+    return tuple(xp.select(front | (ps[f"one_sided_{k}"] < 0.5), 1.0, 0.0) for k in (0, 1))
+
+
 def eval_lanes(xp, p, ps, wo, wi, front, *, evals, samples, worlds, prefixes):
     """``(1 - w) f_0 cos + w f_1 cos`` (w and ``f`` of ``p``) and ``(1 - w_s) pdf_0 + w_s pdf_1``
     (of ``ps``)."""
     w, w_s = p["weight"], ps["weight"]
+    lit0, lit1 = _lit(xp, ps, front)
     (f0, pdf0), (f1, pdf1) = (e(xp, *nested_pair(p, ps, pre), wo, wi, front) for e, pre in zip(evals, prefixes))
-    return add(scale(f0, 1.0 - w), scale(f1, w)), (1.0 - w_s) * pdf0 + w_s * pdf1
+    return add(scale(f0, (1.0 - w) * lit0), scale(f1, w * lit1)), (1.0 - w_s) * pdf0 * lit0 + w_s * pdf1 * lit1
 
 
 def sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1, *, evals, samples, worlds, prefixes, frame=None):
@@ -62,8 +69,12 @@ def sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1, *, evals, samples, worlds
     s0, s1 = (with_frame(s, world, frame)(xp, *pair, wo, front, u, u0, u1) for s, world, pair, u in zip(samples, worlds, pairs, (u_first, u_second)))
     wi = select3(xp, second, s1[0], s0[0])
     delta = xp.select(second, s1[3], s0[3])
+    lit0, lit1 = _lit(xp, ps, front)
+    s0 = (s0[0], scale(s0[1], lit0), s0[2] * lit0, s0[3])
+    s1 = (s1[0], scale(s1[1], lit1), s1[2] * lit1, s1[3])
     # the mixture at wi: the chosen material's f cos from its sample (weight x pdf), the other's eval
     (e0, q0), (e1, q1) = (e(xp, *pair, wo, wi, front) for e, pair in zip(evals, pairs))
+    e0, q0, e1, q1 = scale(e0, lit0), q0 * lit0, scale(e1, lit1), q1 * lit1
     f0 = select3(xp, second, e0, scale(s0[1], s0[2]))
     f1 = select3(xp, second, scale(s1[1], s1[2]), e1)
     pdf = (1.0 - w_s) * xp.select(second, q0, s0[2]) + w_s * xp.select(second, s1[2], q1)
@@ -72,7 +83,9 @@ def sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1, *, evals, samples, worlds
     # a delta sample: the nested weight, times the blend's factor over its choice probability
     ratio = xp.select(second, w / xp.maximum(w_s, 1e-30), (1.0 - w) / xp.maximum(1.0 - w_s, 1e-30))
     chosen = select3(xp, second, s1[1], s0[1])
-    weight = select3(xp, delta, scale(chosen, ratio), scale(f, inv))
+    # a sample of a material seen from behind its one side: none (its weight and pdf are 0)
+    seen = xp.select(second, lit1, lit0)
+    weight = scale(select3(xp, delta, scale(chosen, ratio), scale(f, inv)), seen)
     return wi, weight, xp.select(delta, 0.0, pdf), delta
 
 
@@ -85,13 +98,14 @@ class Blend(Composite):
     doc = "blend of two materials, (1 - w) f_0 + w f_1 (Mitsuba's blendbsdf; type blendbsdf(TYPE0,TYPE1), plain blendbsdf = blendbsdf(diffuse,mirror))"
     slots = ("bsdf_0.", "bsdf_1.")
     own_params = {"weight": Param(BLEND_WEIGHT, 0.5)}
+    own_constants = {f"one_sided_{k}": Constant(False, 0.0, 1.0, False, False, boolean=True) for k in (0, 1)}
     default_nested = ("diffuse", "mirror")
     _variants = {}
 
     def lane_form(self) -> LaneForm:
         forms = self.nested_forms()
         bound = self.bound(forms)
-        keys = (("weight", 1),) + self.nested_keys(forms)
+        keys = (("weight", 1), ("one_sided_0", 1), ("one_sided_1", 1)) + self.nested_keys(forms)
         return LaneForm(keys, functools.partial(eval_lanes, **bound), functools.partial(sample_lanes, **bound), world=any(f.world for f in forms))
 
     def _weight(self, sp: ShadingPoint) -> torch.Tensor:
@@ -131,12 +145,18 @@ class Blend(Composite):
             raise bsdf.error(None, f"a blendbsdf needs two nested BSDFs, got {len(nested)}")
         weight = PrincipledBase.read_weight(bsdf, "weight", BLEND_WEIGHT, 0.5)
         bsdf.finish(("weight",), children=("bsdf",))
-        opaque = [m for m in nested if not m.spec.has(Lobe.TRANSMISSION)]
-        if len({m.one_sided for m in opaque}) > 1:
-            raise bsdf.error(None, "a blendbsdf of a one-sided and a twosided BSDF is not supported: wrap both in twosided or neither")
-        one_sided = bool(opaque) and all(m.one_sided for m in opaque)
+        sides = {f"one_sided_{k}": m.one_sided and not m.spec.has(Lobe.TRANSMISSION) for k, m in enumerate(nested)}
         type_name = f"blendbsdf({nested[0].type},{nested[1].type})"
-        return {"type": type_name, "weight": weight, **cls.nested_entries(zip(cls.slots, nested)), "one_sided": one_sided}
+        # the nested materials say which side each has (one_sided_k); the blend itself is two-sided
+        return {"type": type_name, "weight": weight, **cls.nested_entries(zip(cls.slots, nested)), **sides, "one_sided": False}
+
+    @classmethod
+    def from_mitsuba_twosided(cls, entries: dict, error) -> dict:
+        """Mitsuba's ``twosided`` around it: both nested materials shaded from behind as in front;
+        refused where one transmits (Mitsuba's twosided rejects a BSDF with a transmission lobe)."""
+        if registry.MATERIALS[entries["type"]].has(Lobe.TRANSMISSION):
+            raise error(f"twosided cannot wrap a {entries['type']} BSDF (a transmission lobe)")
+        return {**entries, "one_sided_0": False, "one_sided_1": False}
 
     @classmethod
     def to_mitsuba(cls, values: dict, constants: dict) -> dict:
