@@ -209,6 +209,8 @@ def test_the_mitsuba_loader_reads_blends_masks_pplastic_and_textured_roughness(t
     glass = _load(tmp_path, """<bsdf type="roughdielectric"><texture type="checkerboard" name="alpha"><float name="color0" value="0.05"/><float name="color1" value="0.3"/></texture></bsdf>""")
     alpha = glass.params[f"{glass.materials[0]}.roughness"]
     assert glass.material_specs[0].type == "roughdielectric" and alpha.ndim == 3 and {round(float(v), 4) for v in alpha.unique()} >= {0.05, 0.3}
+    smooth = _load(tmp_path, """<bsdf type="roughdielectric"><texture type="checkerboard" name="alpha"><float name="color0" value="0"/></texture></bsdf>""")
+    assert float(smooth.params[f"{smooth.materials[0]}.roughness"].min()) == pytest.approx(1e-4)  # Mitsuba's microfacet clamps alpha to 1e-4
     one_sided = _load(tmp_path, """<bsdf type="blendbsdf"><bsdf type="diffuse"/><bsdf type="twosided"><bsdf type="plastic"/></bsdf></bsdf>""").material_specs[0]
     assert one_sided.type == "blendbsdf(diffuse,plastic)" and not one_sided.one_sided
     assert one_sided.constants["one_sided_0"] == 1.0 and one_sided.constants["one_sided_1"] == 0.0  # each nested material's side, as in Mitsuba
@@ -229,7 +231,8 @@ def test_the_mitsuba_loader_reads_blends_masks_pplastic_and_textured_roughness(t
         ("""<bsdf type="mask"><bsdf type="diffuse"/><bsdf type="diffuse"/></bsdf>""", "needs one nested BSDF, got 2"),
         ("""<bsdf type="mask"><float name="opacity" value="-0.1"/><bsdf type="diffuse"/></bsdf>""", "'opacity'"),
         ("""<bsdf type="pplastic"><float name="eta" value="1.4"/><float name="int_ior" value="1.5"/></bsdf>""", "not both"),
-        ("""<bsdf type="roughdielectric"><texture type="checkerboard" name="alpha"><float name="color0" value="0"/></texture></bsdf>""", "'alpha'"),
+        ("""<bsdf type="roughdielectric"><texture type="checkerboard" name="alpha"><float name="color0" value="-0.1"/></texture></bsdf>""", "'alpha'"),
+        ("""<bsdf type="roughdielectric"><float name="alpha" value="nan"/></bsdf>""", "finite"),
     ],
 )
 def test_bad_nested_materials_are_one_line_errors(tmp_path, bsdf, message):

@@ -49,7 +49,6 @@ import numpy as np
 from invrender import registry
 from invrender.errors import SceneError
 from invrender.plugins.bsdfs.dielectric import check_relative_ior, fresnel_dielectric_lanes
-from invrender.plugins.bsdfs.glossy import ALPHA
 from invrender.plugins.bsdfs.microfacet import BECKMANN, GGX, Distribution
 from invrender.scene.formats.mitsuba.bsdfs import NAMED_IOR
 from invrender.scene.kinds import ROUGHNESS, SPECULAR_REFLECTANCE
@@ -145,18 +144,21 @@ def sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1, *, distribution: Distribu
     return wi, weight, xp.select(ok, pdf, 0.0), xp.full(False, u0)
 
 
+#: the smallest alpha Mitsuba's microfacet distributions use (``MicrofacetDistribution::configure``)
+MIN_ALPHA = 1e-4
+
+
 def read_alpha(bsdf, distribution: Distribution):
-    """A Mitsuba ``alpha``: a ``<float>`` in (0, 1] (default 0.1), or a texture (bitmap,
+    """A Mitsuba ``alpha``: a ``<float>`` in [0, 1] (default 0.1), or a texture (bitmap,
     checkerboard; a colour too) read as one number per texel as Mitsuba's ``eval_1`` does (a
-    bitmap's luminance), each in (0, 1]: a roughness map (h, w, 3) of grey texels."""
+    bitmap's luminance), each in [0, 1]: a roughness map (h, w, 3) of grey texels. Values below
+    1e-4 are read as 1e-4, as Mitsuba's microfacet distributions clamp them (a checkerboard of 0
+    and 0.4 is half smooth)."""
     if not bsdf.has("alpha") or bsdf.tag("alpha") in ("float", "integer"):
-        return bsdf.number("alpha", ALPHA, f"{distribution.label} roughness", "a <float> or a texture")
+        return max(bsdf.number("alpha", Constant(0.1, 0.0, 1.0, False, False), f"{distribution.label} roughness", "a <float> or a texture"), MIN_ALPHA)
     from invrender.plugins.bsdfs.principled import PrincipledBase
 
-    alpha = PrincipledBase.read_weight(bsdf, "alpha", ROUGHNESS, 0.1)
-    if float(np.min(alpha)) <= 0:
-        raise bsdf.error("alpha", f"'alpha' ({distribution.label} roughness) must lie in (0, 1], got values down to {float(np.min(alpha)):g}")
-    return alpha
+    return np.maximum(PrincipledBase.read_weight(bsdf, "alpha", ROUGHNESS, 0.1), MIN_ALPHA)
 
 
 @registry.MATERIALS.register
