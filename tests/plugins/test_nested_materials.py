@@ -209,6 +209,9 @@ def test_the_mitsuba_loader_reads_blends_masks_pplastic_and_textured_roughness(t
     glass = _load(tmp_path, """<bsdf type="roughdielectric"><texture type="checkerboard" name="alpha"><float name="color0" value="0.05"/><float name="color1" value="0.3"/></texture></bsdf>""")
     alpha = glass.params[f"{glass.materials[0]}.roughness"]
     assert glass.material_specs[0].type == "roughdielectric" and alpha.ndim == 3 and {round(float(v), 4) for v in alpha.unique()} >= {0.05, 0.3}
+    board = _load(tmp_path, """<bsdf type="diffuse"><texture type="checkerboard" name="reflectance"><float name="color0" value="0.05"/><float name="color1" value="0.3"/></texture></bsdf>""")
+    rho = board.params[f"{board.materials[0]}.reflectance"]
+    assert torch.allclose(alpha, 0.35 - rho, atol=1e-6)  # Mitsuba's checkerboard eval_1 swaps the colours of its eval
     smooth = _load(tmp_path, """<bsdf type="roughdielectric"><texture type="checkerboard" name="alpha"><float name="color0" value="0"/></texture></bsdf>""")
     assert float(smooth.params[f"{smooth.materials[0]}.roughness"].min()) == pytest.approx(1e-4)  # Mitsuba's microfacet clamps alpha to 1e-4
     one_sided = _load(tmp_path, """<bsdf type="blendbsdf"><bsdf type="diffuse"/><bsdf type="twosided"><bsdf type="plastic"/></bsdf></bsdf>""").material_specs[0]

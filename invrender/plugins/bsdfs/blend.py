@@ -138,12 +138,10 @@ class Blend(Composite):
         """Mitsuba's ``blendbsdf``: ``weight`` (a number, a colour or a bitmap read as one number as
         Mitsuba's ``eval_1`` does, default 0.5) and two nested BSDFs, in the file's order (any
         material type, ``twosided`` ones too)."""
-        from invrender.plugins.bsdfs.principled import PrincipledBase
-
         nested = bsdf.nested_materials()
         if len(nested) != 2:
             raise bsdf.error(None, f"a blendbsdf needs two nested BSDFs, got {len(nested)}")
-        weight = PrincipledBase.read_weight(bsdf, "weight", BLEND_WEIGHT, 0.5)
+        weight = bsdf.grey("weight", BLEND_WEIGHT, 0.5)
         bsdf.finish(("weight",), children=("bsdf",))
         sides = {f"one_sided_{k}": m.one_sided and not m.spec.has(Lobe.TRANSMISSION) for k, m in enumerate(nested)}
         type_name = f"blendbsdf({nested[0].type},{nested[1].type})"

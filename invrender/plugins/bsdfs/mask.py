@@ -114,12 +114,10 @@ class Mask(Composite):
         """Mitsuba's ``mask``: ``opacity`` (a number, a colour or a bitmap read as one number as
         Mitsuba's ``eval_1`` does: a bitmap's luminance; default 0.5) and one nested BSDF (any
         material type; not wrapped in ``twosided``, it is black from behind)."""
-        from invrender.plugins.bsdfs.principled import PrincipledBase
-
         nested = bsdf.nested_materials()
         if len(nested) != 1:
             raise bsdf.error(None, f"a mask needs one nested BSDF, got {len(nested)}")
-        opacity = PrincipledBase.read_weight(bsdf, "opacity", OPACITY, 0.5)
+        opacity = bsdf.grey("opacity", OPACITY, 0.5)
         bsdf.finish(("opacity",), children=("bsdf",))
         inner = nested[0]
         one_sided = inner.one_sided and not inner.spec.has(Lobe.TRANSMISSION)

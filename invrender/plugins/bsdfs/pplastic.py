@@ -29,7 +29,6 @@ import functools
 import math
 from typing import ClassVar
 
-import numpy as np
 import torch
 
 from invrender import registry
@@ -37,7 +36,7 @@ from invrender.errors import SceneError
 from invrender.plugins.bsdfs.dielectric import check_relative_ior, fresnel_dielectric_lanes
 from invrender.plugins.bsdfs.microfacet import BECKMANN, GGX, Distribution
 from invrender.plugins.bsdfs.plastic import COATING_CONSTANTS, _mean, cosine_hemisphere_lanes
-from invrender.plugins.bsdfs.roughdielectric import MIN_ALPHA
+from invrender.plugins.bsdfs.roughdielectric import MIN_ALPHA, at_least
 from invrender.scene.kinds import REFLECTANCE, ROUGHNESS, SPECULAR_REFLECTANCE
 from invrender.scene.plugins import Param
 from invrender.core import lanes
@@ -138,8 +137,6 @@ class PolarizedPlastic(LaneBSDF):
         beckmann (its default: type pplastic) or ggx (type pplastic_ggx), isotropic ``alpha`` (a
         number or a bitmap read as one number, as Mitsuba's ``eval_1``: its luminance; default
         0.1; below 1e-4 read as 1e-4, as Mitsuba clamps it), ``sample_visible`` (read; invrender always samples visible normals)."""
-        from invrender.plugins.bsdfs.principled import PrincipledBase
-
         name = (bsdf.string("distribution", allowed=("beckmann", "ggx")) or "beckmann").lower()
         target = PolarizedPlastic if name == "beckmann" else PolarizedPlasticGGX
         for key in ("alpha_u", "alpha_v"):
@@ -153,7 +150,7 @@ class PolarizedPlastic(LaneBSDF):
             int_ior, ext_ior = bsdf.ior("eta", "polypropylene"), 1.0
         else:
             int_ior, ext_ior = bsdf.ior("int_ior", "polypropylene"), bsdf.ior("ext_ior", "air")
-        alpha = np.maximum(PrincipledBase.read_weight(bsdf, "alpha", ROUGHNESS, 0.1), MIN_ALPHA)  # as Mitsuba's microfacet clamps it
+        alpha = at_least(bsdf.grey("alpha", ROUGHNESS, 0.1), MIN_ALPHA)  # as Mitsuba's microfacet clamps it
         bsdf.boolean("sample_visible")
         bsdf.finish(("diffuse_reflectance", "specular_reflectance", "int_ior", "ext_ior", "eta", "distribution", "alpha", "sample_visible"))
         return {"type": target.type_name, "reflectance": rho, "specular_reflectance": ks, "roughness": alpha, "int_ior": int_ior, "ext_ior": ext_ior}

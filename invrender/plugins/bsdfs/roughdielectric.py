@@ -53,6 +53,7 @@ from invrender.plugins.bsdfs.microfacet import BECKMANN, GGX, Distribution
 from invrender.scene.formats.mitsuba.bsdfs import NAMED_IOR
 from invrender.scene.kinds import ROUGHNESS, SPECULAR_REFLECTANCE
 from invrender.scene.plugins import Constant, Param
+from invrender.scene.textures import SampledTexture, VertexAttribute
 from invrender.core import lanes
 from invrender.core.bsdf import LaneBSDF, LaneForm, Lobe
 from invrender.core.lanes import scale, select3
@@ -156,9 +157,15 @@ def read_alpha(bsdf, distribution: Distribution):
     and 0.4 is half smooth)."""
     if not bsdf.has("alpha") or bsdf.tag("alpha") in ("float", "integer"):
         return max(bsdf.number("alpha", Constant(0.1, 0.0, 1.0, False, False), f"{distribution.label} roughness", "a <float> or a texture"), MIN_ALPHA)
-    from invrender.plugins.bsdfs.principled import PrincipledBase
+    return at_least(bsdf.grey("alpha", ROUGHNESS, 0.1), MIN_ALPHA)
 
-    return np.maximum(PrincipledBase.read_weight(bsdf, "alpha", ROUGHNESS, 0.1), MIN_ALPHA)
+
+def at_least(value, low: float):
+    """A value read from a scene file (an array, a :class:`SampledTexture`'s texels) with every
+    number below ``low`` raised to it; a vertex attribute as it is (checked when the scene is built)."""
+    if isinstance(value, SampledTexture):
+        return SampledTexture(np.maximum(np.asarray(value.texels, dtype=np.float64), low), value.sampling)
+    return value if isinstance(value, VertexAttribute) else np.maximum(value, low)
 
 
 @registry.MATERIALS.register
