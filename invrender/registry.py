@@ -79,7 +79,15 @@ class Registry(Generic[T]):
         self._classes.pop(name, None)
 
     def get(self, name, where: str = "") -> type[T]:
-        """The class called ``name``; a one-line error naming ``where`` and the known names otherwise."""
+        """The class called ``name``; a one-line error naming ``where`` and the known names otherwise.
+
+        A name with arguments, ``"base(arg, ...)"``, is the class ``base`` builds for them with its
+        ``variant(name, where)`` (a material made of nested materials, ``"blendbsdf(diffuse,mirror)"``):
+        found, not listed (iterating the registry sees the registered names only)."""
+        if isinstance(name, str) and "(" in name and name not in self._classes:
+            base = self._classes.get(name.partition("(")[0].strip())
+            if base is not None and hasattr(base, "variant"):
+                return base.variant(name, where)
         if not isinstance(name, str) or name not in self._classes:
             prefix = f"{where}: " if where else ""
             raise self.error(f"{prefix}unknown {self.what} {name!r}{did_you_mean(name, self._classes) if isinstance(name, str) else ''} (known: {', '.join(self._classes)})")

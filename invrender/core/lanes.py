@@ -625,8 +625,10 @@ MATERIAL_ROW = 4
 def signature(fn):
     """What a lane function computes, as a value: the function and the Python values bound to it
     (a ``functools.partial``'s), so that equal forms of two renders share one compiled recording."""
-    if isinstance(fn, functools.partial):
-        return (signature(fn.func), tuple(fn.args), tuple(sorted(fn.keywords.items())))
+    if isinstance(fn, functools.partial):  # bound values may be lane functions too (a material's nested ones)
+        return (signature(fn.func), tuple(signature(a) for a in fn.args), tuple((k, signature(v)) for k, v in sorted(fn.keywords.items())))
+    if isinstance(fn, tuple):
+        return tuple(signature(v) for v in fn)
     return fn
 
 

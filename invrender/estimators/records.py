@@ -603,6 +603,9 @@ def record_obstacle(scene: Scene, names) -> str | None:
         if not kind.polynomial:
             return f"{n} is a {kind.key}, not a polynomial factor of a path's weight"
         owner, _, key = n.rpartition(".")
+        if owner not in scene.materials:  # a nested material's parameter (a blend's "NAME.bsdf_0.reflectance"): its material's
+            outer = next((m for m in scene.materials if n.startswith(m + ".")), None)
+            owner, key = (outer, n[len(outer) + 1 :]) if outer is not None else (owner, key)
         if owner in scene.materials:
             spec = scene.material_spec(scene.materials.index(owner))
             why = spec.spec.not_polynomial(key, spec.constants)

@@ -45,6 +45,8 @@ class ParamKind:
             parameters that enter non-linearly (roughness).
         grey: one number stored as three equal channels (the RGB form every parameter shares);
             the BSDF reads their mean.
+        differentiable: False for a value the renderer reads detached (a mask's opacity decides
+            visibility, which is never differentiated): it may be set, not fitted or differentiated.
     """
 
     key: str
@@ -58,6 +60,7 @@ class ParamKind:
     positive: bool = False
     polynomial: bool = True
     grey: bool = False
+    differentiable: bool = True
 
     def check(self, name: str, value: torch.Tensor) -> None:
         """A :class:`ParameterError` naming ``name`` when ``value`` lies outside this kind's range."""
@@ -140,8 +143,18 @@ FLATNESS = _weight("flatness", "flatness", "blend of a principled material's dif
 #: the principled materials' kinds, by key
 PRINCIPLED_KINDS = (BASE_COLOR, METALLIC, SPEC_TINT, ANISOTROPIC, SHEEN, SHEEN_TINT, CLEARCOAT, CLEARCOAT_GLOSS, SPEC_TRANS, FLATNESS)
 
+# ---- materials made of nested materials (invrender.plugins.bsdfs.blend, .mask)
+
+#: the weight of a blend's second material (Mitsuba's blendbsdf ``weight``): the material is
+#: ``(1 - w) f_0 + w f_1``, a sum, so not one monomial
+BLEND_WEIGHT = _weight("weight", "w", "weight of a blendbsdf's second material, in [0, 1]")
+#: a mask's opacity (Mitsuba's ``mask``): light passes straight through with probability 1 - opacity.
+#: It decides what is seen, and geometry is never differentiated here: the material reads it
+#: detached, so its derivative is zero (not a parameter to fit)
+OPACITY = dataclasses.replace(_weight("opacity", "opacity", "opacity of a mask (read detached: visibility is fixed), in [0, 1]"), differentiable=False)
+
 #: every kind of a scene parameter, by key
-KINDS: dict[str, ParamKind] = {k.key: k for k in (REFLECTANCE, SPECULAR_REFLECTANCE, EMISSION, ROUGHNESS, *PRINCIPLED_KINDS)}
+KINDS: dict[str, ParamKind] = {k.key: k for k in (REFLECTANCE, SPECULAR_REFLECTANCE, EMISSION, ROUGHNESS, *PRINCIPLED_KINDS, BLEND_WEIGHT, OPACITY)}
 
 
 def _short(value: torch.Tensor) -> str:

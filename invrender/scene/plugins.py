@@ -147,7 +147,7 @@ class PluginSpec:
         values = {k: entries.get(k, p.default) for k, p in spec.params.items()}
         constants = {k: c.check(where, k, entries.get(k, c.default)) for k, c in spec.constants.items()}
         constants = spec.resolve(where, values, constants, {k for k in spec.constants if k in entries})
-        return cls(type, values, constants)
+        return cls(spec.type_name, values, constants)  # a name with arguments as the registry spells it: "blendbsdf(diffuse,mirror)"
 
     @property
     def spec(self):

@@ -227,7 +227,7 @@ class Scene:
         """
         values = dict(values or {})
         if values:
-            check_names(self.params, list(values))
+            check_names(self.params, list(values), differentiated=False)
         replaced = {k: _checked_value(k, v, self.params[k] if self.params[k].ndim == 2 else None) for k, v in values.items()}
         params = {**self.params, **replaced}
         if detach:
@@ -338,9 +338,11 @@ class Params(dict):
         raise unknown_parameter(key, self)
 
 
-def check_names(params, names) -> list[str]:
+def check_names(params, names, differentiated: bool = True) -> list[str]:
     """Validate parameter names against ``params`` (a scene's dict): a list or a comma-separated
-    string of names, each known, none twice, at least one. Returns the names as a list."""
+    string of names, each known, none twice, at least one, and with ``differentiated`` (names to
+    fit or differentiate) none of a kind the renderer reads detached (a mask's opacity). Returns
+    the names as a list."""
     if isinstance(names, str):
         names = [n.strip() for n in names.split(",") if n.strip()]
     try:
@@ -358,6 +360,11 @@ def check_names(params, names) -> list[str]:
         raise unknown_parameter(unknown[0], params)
     if len(set(names)) != len(names):
         raise ParameterError("a parameter is named twice")
+    if differentiated:
+        for n in names:
+            kind = kind_of(n)
+            if not kind.differentiable:
+                raise ParameterError(f"{n}: the {kind.key} is read detached (it decides visibility, which invrender never differentiates): set it with scene.with_params, it cannot be fitted or differentiated")
     return names
 
 

@@ -79,7 +79,7 @@ def test_xml_plugin(tmp_path, tinted):
         ir.load_scene(xml_scene(tmp_path, '<bsdf type="test_tinted"><float name="tint" value="2"/></bsdf>'))
     with pytest.raises(SceneError, match=r"unsupported property 'alpha' \(supported: specular_reflectance, tint\)"):
         ir.load_scene(xml_scene(tmp_path, '<bsdf type="test_tinted"><float name="alpha" value="1"/></bsdf>'))
-    with pytest.raises(SceneError, match=r"unsupported bsdf type 'hair' \(supported: diffuse, conductor, dielectric, roughconductor, plastic, roughplastic, roughdielectric, thindielectric, principled, principledthin, test_tinted, twosided, normalmap, bumpmap\)"):
+    with pytest.raises(SceneError, match=r"unsupported bsdf type 'hair' \(supported: diffuse, conductor, dielectric, roughconductor, plastic, roughplastic, roughdielectric, thindielectric, principled, principledthin, pplastic, blendbsdf, mask, test_tinted, twosided, normalmap, bumpmap\)"):
         ir.load_scene(xml_scene(tmp_path, '<bsdf type="hair"/>'))
 
 
@@ -98,7 +98,7 @@ def test_unregistered_is_unknown(tmp_path, tinted):
     registry.MATERIALS.unregister("test_tinted")
     with pytest.raises(SceneError, match="unknown material type 'test_tinted'"):
         ir.load_scene(toml_scene(tmp_path, 'type = "test_tinted"'))
-    with pytest.raises(SceneError, match=r"unsupported bsdf type 'test_tinted' \(supported: diffuse, conductor, dielectric, roughconductor, plastic, roughplastic, roughdielectric, thindielectric, principled, principledthin, twosided, normalmap, bumpmap\)"):
+    with pytest.raises(SceneError, match=r"unsupported bsdf type 'test_tinted' \(supported: diffuse, conductor, dielectric, roughconductor, plastic, roughplastic, roughdielectric, thindielectric, principled, principledthin, pplastic, blendbsdf, mask, twosided, normalmap, bumpmap\)"):
         ir.load_scene(xml_scene(tmp_path, '<bsdf type="test_tinted"/>'))
 
 

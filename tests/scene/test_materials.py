@@ -95,7 +95,7 @@ def test_type_defaults_to_diffuse_and_defaults_follow_mitsuba(tmp_path):
 
 def test_every_kind_and_type_is_registered_once():
     principled = {"base_color", "metallic", "spec_tint", "anisotropic", "sheen", "sheen_tint", "clearcoat", "clearcoat_gloss", "spec_trans", "flatness"}
-    assert set(KINDS) == {"reflectance", "specular_reflectance", "emission", "roughness", *principled}
+    assert set(KINDS) == {"reflectance", "specular_reflectance", "emission", "roughness", *principled, "weight", "opacity"}
     assert kind_of("white.reflectance").reparam == "sigmoid" and kind_of("light.emission").reparam == "exp"
     assert kind_of("a.b.specular_reflectance").upper == 1.0
     with pytest.raises(ParameterError, match="not a parameter name"):
@@ -108,7 +108,7 @@ def test_every_kind_and_type_is_registered_once():
 @pytest.mark.parametrize(
     "floor, camera, message",
     [
-        ('type = "hair"', "", r"\[materials.floor\]: unknown material type 'hair' \(known: diffuse, mirror, dielectric, glossy, glossy_beckmann, plastic, roughplastic, roughplastic_ggx, roughdielectric, roughdielectric_ggx, thindielectric, principled, principledthin\)"),
+        ('type = "hair"', "", r"\[materials.floor\]: unknown material type 'hair' \(known: diffuse, mirror, dielectric, glossy, glossy_beckmann, plastic, roughplastic, roughplastic_ggx, roughdielectric, roughdielectric_ggx, thindielectric, principled, principledthin, pplastic, pplastic_ggx, blendbsdf, mask\)"),
         ('type = "diffuse"\nroughness = 0.2', "", r"\[materials.floor\]: unknown key 'roughness'"),
         ('type = "glossy"\nroughness = 0', "", r"floor.roughness: roughness alpha must lie in \(0, 1\], got values in \[0, 0\]"),
         ('type = "glossy"\nroughness = 1.5', "", r"floor.roughness: roughness alpha must lie in \(0, 1\], got values in \[1.5, 1.5\]"),

@@ -177,7 +177,7 @@ def test_every_problem_is_listed_in_one_error(tmp_path):
     <shape type="rectangle"><medium type="homogeneous" name="interior"/></shape>
     <emitter type="sunsky"/>
     <integrator type="prb"/>
-    <shape type="rectangle"><bsdf type="pplastic"/></shape>
+    <shape type="rectangle"><bsdf type="polarizer"/></shape>
     <shape type="rectangle"><string name="filename" value="{long}"/></shape>""".replace("{long}", "x" * 300))
     message = error_of(path)
     assert message.startswith(f"{path}: 8 problems stop this scene from loading: (1) s.xml:{line_of(path, 'roughness')}: "), message

@@ -10,15 +10,18 @@ The table of types (docs/plugins.md) is generated from these declarations
 (:func:`invrender.scene.plugins.plugin_table`).
 """
 
-from invrender.plugins.bsdfs import diffuse, mirror, dielectric, glossy, plastic, roughdielectric, thindielectric, principled, principledthin  # noqa: F401  (registration order)
+from invrender.plugins.bsdfs import diffuse, mirror, dielectric, glossy, plastic, roughdielectric, thindielectric, principled, principledthin, pplastic, blend, mask  # noqa: F401  (registration order)
 from invrender.plugins.bsdfs.dielectric import Dielectric
+from invrender.plugins.bsdfs.blend import Blend
 from invrender.plugins.bsdfs.diffuse import Diffuse
 from invrender.plugins.bsdfs.glossy import Glossy
+from invrender.plugins.bsdfs.mask import Mask
 from invrender.plugins.bsdfs.mirror import Mirror
 from invrender.plugins.bsdfs.principled import Principled
 from invrender.plugins.bsdfs.principledthin import PrincipledThin
 from invrender.plugins.bsdfs.plastic import Plastic, RoughPlastic, RoughPlasticGGX
+from invrender.plugins.bsdfs.pplastic import PolarizedPlastic
 from invrender.plugins.bsdfs.roughdielectric import RoughDielectric, RoughDielectricGGX
 from invrender.plugins.bsdfs.thindielectric import ThinDielectric
 
-__all__ = ["Diffuse", "Mirror", "Dielectric", "Glossy", "Plastic", "RoughPlastic", "RoughPlasticGGX", "RoughDielectric", "RoughDielectricGGX", "ThinDielectric", "Principled", "PrincipledThin"]
+__all__ = ["Diffuse", "Mirror", "Dielectric", "Glossy", "Plastic", "RoughPlastic", "RoughPlasticGGX", "RoughDielectric", "RoughDielectricGGX", "ThinDielectric", "Principled", "PrincipledThin", "PolarizedPlastic", "Blend", "Mask"]

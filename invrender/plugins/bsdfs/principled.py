@@ -368,10 +368,9 @@ class PrincipledBase(BSDF):
     @staticmethod
     def read_weight(bsdf, key: str, kind, default: float) -> np.ndarray:
         """A blend weight of a Mitsuba file: a number, or a colour or bitmap reduced to one number
-        as Mitsuba's ``eval_1`` does (a constant colour's channel mean, a bitmap's luminance)."""
-        value = np.asarray(bsdf.colour(key, kind, default), dtype=np.float64)
-        grey = value.mean(-1) if value.ndim == 1 else value @ np.asarray(LUMINANCE)
-        return np.broadcast_to(np.asarray(grey)[..., None], value.shape).copy()
+        as Mitsuba's ``eval_1`` does (a constant colour's channel mean, a bitmap's luminance; the
+        reader's :meth:`~invrender.scene.formats.mitsuba.reader.PluginReader.grey`)."""
+        return bsdf.grey(key, kind, default)
 
 
 @registry.MATERIALS.register

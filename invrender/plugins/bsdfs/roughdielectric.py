@@ -59,6 +59,7 @@ from invrender.plugins.bsdfs.microfacet import BECKMANN, GGX, Distribution, Micr
 from invrender.scene.formats.mitsuba.bsdfs import NAMED_IOR
 from invrender.scene.kinds import ROUGHNESS, SPECULAR_REFLECTANCE
 from invrender.scene.plugins import Constant, Param
+from invrender.scene.textures import SampledTexture, VertexAttribute
 from invrender.core import lanes
 from invrender.core.bsdf import LaneBSDF, LaneForm, Lobe
 from invrender.core.lanes import scale, select3
@@ -156,6 +157,29 @@ def sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1, *, distribution: Distribu
     return wi, weight, xp.select(ok, pdf, 0.0), xp.full(False, u0)
 
 
+#: the smallest alpha Mitsuba's microfacet distributions use (``MicrofacetDistribution::configure``)
+MIN_ALPHA = 1e-4
+
+
+def read_alpha(bsdf, distribution: Distribution):
+    """A Mitsuba ``alpha``: a ``<float>`` in [0, 1] (default 0.1), or a texture (bitmap,
+    checkerboard; a colour too) read as one number per texel as Mitsuba's ``eval_1`` does (a
+    bitmap's luminance), each in [0, 1]: a roughness map (h, w, 3) of grey texels. Values below
+    1e-4 are read as 1e-4, as Mitsuba's microfacet distributions clamp them (a checkerboard of 0
+    and 0.4 is half smooth)."""
+    if not bsdf.has("alpha") or bsdf.tag("alpha") in ("float", "integer"):
+        return max(bsdf.number("alpha", Constant(0.1, 0.0, 1.0, False, False), f"{distribution.label} roughness", "a <float> or a texture"), MIN_ALPHA)
+    return at_least(bsdf.grey("alpha", ROUGHNESS, 0.1), MIN_ALPHA)
+
+
+def at_least(value, low: float):
+    """A value read from a scene file (an array, a :class:`SampledTexture`'s texels) with every
+    number below ``low`` raised to it; a vertex attribute as it is (checked when the scene is built)."""
+    if isinstance(value, SampledTexture):
+        return SampledTexture(np.maximum(np.asarray(value.texels, dtype=np.float64), low), value.sampling)
+    return value if isinstance(value, VertexAttribute) else np.maximum(value, low)
+
+
 @registry.MATERIALS.register
 class RoughDielectric(LaneBSDF):
     """Written once in lane form (:func:`eval_lanes`, :func:`sample_lanes`), its distribution bound
@@ -198,10 +222,15 @@ class RoughDielectric(LaneBSDF):
         default 0.1) or ``alpha_u`` and ``alpha_v`` (anisotropic: the roughness and the constant
         ``alpha_v``, as the glossy conductors read them), ``int_ior``/``ext_ior`` (numbers or named media, default bk7 / air),
         ``specular_reflectance`` (a colour or a bitmap texture) and ``specular_transmittance``
-        (a colour), default 1, ``sample_visible`` (read; invrender always samples visible normals)."""
+        (a colour), default 1, ``sample_visible`` (read; invrender always samples visible normals).
+        ``alpha`` may be a texture (a bitmap or checkerboard), read as one number per texel as
+        Mitsuba's ``eval_1`` reads it (:func:`read_alpha`)."""
         name = (bsdf.string("distribution", allowed=("beckmann", "ggx")) or "beckmann").lower()
         target = RoughDielectric if name == "beckmann" else RoughDielectricGGX
-        alphas = read_alphas(bsdf, target.distribution.label)
+        if bsdf.has("alpha_u") or bsdf.has("alpha_v"):  # anisotropic: numbers
+            alphas = read_alphas(bsdf, target.distribution.label)
+        else:  # a number or a roughness map
+            alphas = {"roughness": read_alpha(bsdf, target.distribution)}
         int_ior, ext_ior = bsdf.ior("int_ior", "bk7"), bsdf.ior("ext_ior", "air")
         kr = bsdf.colour("specular_reflectance", SPECULAR_REFLECTANCE, 1.0)
         kt = bsdf.colour("specular_transmittance", SPECULAR_REFLECTANCE, 1.0, texture=False)
@@ -212,12 +241,10 @@ class RoughDielectric(LaneBSDF):
     @classmethod
     def to_mitsuba(cls, values: dict, constants: dict) -> dict:
         alpha = values["roughness"]
-        if alpha.ndim != 1:
-            raise ValueError("a roughness map has no Mitsuba counterpart here (alpha is written as one number)")
         return {
             "type": "roughdielectric",
             "distribution": cls.distribution.name,
-            **mitsuba_alphas(float(alpha[0]), constants),
+            **(mitsuba_alphas(float(alpha[0]), constants) if alpha.ndim == 1 else {"alpha": alpha}),  # a map: a (grey) bitmap
             "int_ior": float(constants["int_ior"]),
             "ext_ior": float(constants["ext_ior"]),
             "specular_reflectance": values["specular_reflectance"],

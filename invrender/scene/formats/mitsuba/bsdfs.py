@@ -123,11 +123,13 @@ def convert_bsdf(ctx: Context, bsdf: Obj, outer: Obj | None = None) -> Material:
     entries = cls.from_mitsuba(BsdfReader(ctx, bsdf))
     if outer is not None and hasattr(cls, "from_mitsuba_twosided"):
         entries = cls.from_mitsuba_twosided(entries, lambda message: ctx.error(bsdf.node, message, outer))
-    # a plugin standing for several types names the one it read (roughconductor: its distribution)
+    # a plugin standing for several types names the one it read (roughconductor: its distribution;
+    # a material of nested ones: theirs, and whether it is one-sided by theirs)
     type_name = entries.pop("type", cls.type_name)
+    one_sided = entries.pop("one_sided", None)
     spec = Material.of(type_name, f"{ctx.where}:{bsdf.node.line}: {bsdf.describe()}", **entries)
     # Mitsuba's BSDFs are black from behind unless wrapped in twosided; those that transmit are two-sided
-    return dataclasses.replace(spec, one_sided=not _transmits(spec.spec))
+    return dataclasses.replace(spec, one_sided=not _transmits(spec.spec) if one_sided is None else one_sided)
 
 
 def _perturbed(ctx: Context, bsdf: Obj, outer: Obj | None) -> Material:
@@ -193,6 +195,11 @@ class BsdfReader(PluginReader):
     """One ``<bsdf>`` as a material class's ``from_mitsuba`` reads it: the getters of
     :class:`~.reader.PluginReader` and those only BSDFs need (indices of refraction, the Fresnel
     term of conductors)."""
+
+    def nested_materials(self) -> list[Material]:
+        """The BSDFs nested in this one (a blend's, a mask's), each converted as a top-level one
+        (``twosided`` unwrapped), in the file's order."""
+        return [convert_bsdf(self._ctx, b) for b in self._ctx.nested(self._obj, "bsdf")]
 
     def ior(self, name: str, default: str) -> float:
         """An index of refraction: a positive number or one of Mitsuba's named media

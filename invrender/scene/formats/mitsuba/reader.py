@@ -10,10 +10,14 @@ import numpy as np
 
 from invrender.errors import SceneError
 from invrender.scene.formats.mitsuba.context import Context
-from invrender.scene.formats.mitsuba.parser import Obj
+from invrender.scene.formats.mitsuba.parser import Obj, Ref
 from invrender.scene.formats.mitsuba.textures import colour
 from invrender.scene.kinds import ParamKind
 from invrender.scene.plugins import Constant
+from invrender.scene.textures import SampledTexture, VertexAttribute
+
+#: Rec. 709 luminance of linear RGB, as Mitsuba's ``luminance`` (a bitmap's ``eval_1``)
+LUMINANCE = (0.212671, 0.715160, 0.072169)
 
 
 #: (element, Mitsuba plugin or "*" for any) -> properties accepted at Mitsuba's default value only
@@ -40,6 +44,10 @@ class PluginReader:
         """Does the element give property ``name``?"""
         return name in self._obj.props
 
+    def tag(self, name: str) -> str:
+        """The element of property ``name`` (``"float"``, ``"rgb"``, ``"texture"``, ``"ref"``, ...)."""
+        return self._obj.props[name].tag
+
     def error(self, name: str | None, message: str) -> SceneError:
         """A one-line error at property ``name``'s line (the ``<bsdf>``'s for None), to raise."""
         node = self._obj.node if name is None else self._obj.props[name].node
@@ -50,6 +58,34 @@ class PluginReader:
         (h, w, 3), linear, checked against ``kind``'s range (:mod:`.textures`); ``default``
         (grey) when absent."""
         return colour(self._ctx, self._obj, name, kind, default, texture)
+
+    def grey(self, name: str, kind: ParamKind, default: float):
+        """A property Mitsuba reads as one number (``Texture::eval_1``: a blend's weight, a mask's
+        opacity, a roughness): a colour's channel mean, a texture's luminance per texel, as
+        (3,) or (h, w, 3) equal channels (a :class:`SampledTexture`'s texels likewise). A
+        checkerboard's ``eval_1`` puts ``color0`` where Mitsuba's ``eval`` puts ``color1`` and the
+        reverse (checkerboard.cpp, 3.9.1), so its grey map is the complement of the baked board:
+        ``g0 + g1 - g``."""
+        value = self.colour(name, kind, default)
+        texels = value.texels if isinstance(value, SampledTexture) else value
+        if isinstance(texels, VertexAttribute):
+            return value
+        texels = np.asarray(texels, dtype=np.float64)
+        grey = texels.mean(-1) if texels.ndim == 1 else texels @ np.asarray(LUMINANCE)
+        board = self._texture(name)
+        if board is not None and board.type == "checkerboard":
+            g0, g1 = (float(np.dot(np.broadcast_to(np.asarray(board.props[k].value if k in board.props else d, dtype=np.float64), (3,)), LUMINANCE)) for k, d in (("color0", 0.4), ("color1", 0.2)))
+            grey = g0 + g1 - grey
+        out = np.broadcast_to(np.asarray(grey)[..., None], texels.shape).copy()
+        return SampledTexture(out, value.sampling) if isinstance(value, SampledTexture) else out
+
+    def _texture(self, name: str) -> Obj | None:
+        """The ``<texture>`` object property ``name`` holds (a ``<ref>`` followed), or None."""
+        prop = self._obj.props.get(name)
+        if prop is None or not isinstance(prop.value, (Obj, Ref)):
+            return None
+        target = self._ctx.resolve(prop.value)
+        return target if target.tag == "texture" else None
 
     def string(self, name: str, default: str | None = None, allowed: tuple = ()) -> str | None:
         """A ``<string>``, ``default`` when absent; with ``allowed``, one of those (compared
@@ -106,9 +142,10 @@ class PluginReader:
             raise self.error(name, f"file not found: {self._ctx.base / value}")
         return path
 
-    def finish(self, supported: tuple) -> None:
-        """Errors for the properties nothing read (listing ``supported``) and for nested objects;
-        the properties of :data:`AT_DEFAULT` are accepted at their Mitsuba default value."""
+    def finish(self, supported: tuple, children: tuple = ()) -> None:
+        """Errors for the properties nothing read (listing ``supported``) and for nested objects
+        other than ``children`` tags (a blend's ``bsdf``); the properties of :data:`AT_DEFAULT` are
+        accepted at their Mitsuba default value."""
         obj = self._obj
         for key in (obj.type, "*"):
             for name, default in AT_DEFAULT.get((obj.tag, key), {}).items():
@@ -120,4 +157,4 @@ class PluginReader:
                 ok = prop.tag in ("float", "integer", "rgb", "spectrum") and np.allclose(np.asarray(value, dtype=np.float64), default, rtol=0, atol=1e-9)
                 if not ok:
                     raise self.error(name, f"'{name}' other than {default:g} (Mitsuba's default) is not supported by invrender's {obj.type}")
-        self._ctx.finish(obj, supported)
+        self._ctx.finish(obj, supported, children)
