@@ -119,6 +119,19 @@ def _mean(value) -> float:
     return float(np.mean(np.asarray(value.detach().cpu() if torch.is_tensor(value) else value, dtype=np.float64)))
 
 
+def coating_constants(where: str, values: dict, constants: dict, given: set, distinct: str | None) -> dict:
+    """A coated material's constants (the plastics'): the indices must differ where Mitsuba's
+    plugin ``distinct`` requires it and their ratio be one real media have; the specular sampling
+    weight ``mean(k_s) / (mean(rho) + mean(k_s))`` (0.5 when both are 0) unless given."""
+    if distinct is not None and constants["int_ior"] == constants["ext_ior"]:
+        raise SceneError(f"{where}: 'int_ior' and 'ext_ior' must differ (both {constants['int_ior']:g}), as Mitsuba's {distinct} requires")
+    check_relative_ior(where, constants["int_ior"], constants["ext_ior"])
+    if "specular_sampling_weight" not in given:
+        d, s = (_mean(values[k]) for k in ("reflectance", "specular_reflectance"))
+        constants = {**constants, "specular_sampling_weight": s / (d + s) if d + s > 0 else 0.5}
+    return constants
+
+
 def _rough_quadrature(distribution: str, alpha: float, eta: float, nodes: tuple[int, int]) -> tuple[np.ndarray, float]:
     """``(T, R_int)`` of :func:`rough_tables`, in float64."""
     d = DISTRIBUTIONS[distribution]
@@ -229,13 +242,7 @@ class Coated(LaneBSDF):
         and texels; 0.5 when both are 0) from the values the scene is built with, unless given;
         the rough plastic's indices must differ (as Mitsuba's); the coating's ratio of indices must
         be one real media have (:func:`~invrender.plugins.bsdfs.dielectric.check_relative_ior`)."""
-        if constants["int_ior"] == constants["ext_ior"] and cls.has(Lobe.GLOSSY):
-            raise SceneError(f"{where}: 'int_ior' and 'ext_ior' must differ (both {constants['int_ior']:g}), as Mitsuba's roughplastic requires")
-        check_relative_ior(where, constants["int_ior"], constants["ext_ior"])
-        if "specular_sampling_weight" not in given:
-            d, s = (_mean(values[k]) for k in ("reflectance", "specular_reflectance"))
-            constants = {**constants, "specular_sampling_weight": s / (d + s) if d + s > 0 else 0.5}
-        return constants
+        return coating_constants(where, values, constants, given, "roughplastic" if cls.has(Lobe.GLOSSY) else None)
 
     # ---- its aliases in the scene formats (read through the registry)
 

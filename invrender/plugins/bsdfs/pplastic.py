@@ -32,10 +32,9 @@ from typing import ClassVar
 import torch
 
 from invrender import registry
-from invrender.errors import SceneError
-from invrender.plugins.bsdfs.dielectric import check_relative_ior, fresnel_dielectric_lanes
+from invrender.plugins.bsdfs.dielectric import fresnel_dielectric_lanes
 from invrender.plugins.bsdfs.microfacet import BECKMANN, GGX, Distribution
-from invrender.plugins.bsdfs.plastic import COATING_CONSTANTS, _mean, cosine_hemisphere_lanes
+from invrender.plugins.bsdfs.plastic import COATING_CONSTANTS, coating_constants, cosine_hemisphere_lanes
 from invrender.plugins.bsdfs.roughdielectric import MIN_ALPHA, at_least
 from invrender.scene.kinds import REFLECTANCE, ROUGHNESS, SPECULAR_REFLECTANCE
 from invrender.scene.plugins import Param
@@ -117,13 +116,7 @@ class PolarizedPlastic(LaneBSDF):
     @classmethod
     def resolve(cls, where: str, values: dict, constants: dict, given: set) -> dict:
         """The indices must differ (as Mitsuba's); the sampling weight from the values unless given."""
-        if constants["int_ior"] == constants["ext_ior"]:
-            raise SceneError(f"{where}: 'int_ior' and 'ext_ior' must differ (both {constants['int_ior']:g}), as Mitsuba's pplastic requires")
-        check_relative_ior(where, constants["int_ior"], constants["ext_ior"])
-        if "specular_sampling_weight" not in given:
-            d, s = (_mean(values[k]) for k in ("reflectance", "specular_reflectance"))
-            constants = {**constants, "specular_sampling_weight": s / (d + s) if d + s > 0 else 0.5}
-        return constants
+        return coating_constants(where, values, constants, given, "pplastic")
 
     # ---- its aliases in the scene formats (read through the registry)
 
