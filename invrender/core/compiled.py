@@ -84,27 +84,24 @@ def evaluate(xp, fn, *args, **static) -> tuple[torch.Tensor, ...]:
     lanes = max((a.shape[0] for a in _tensors(args) if a.ndim == 2), default=max((a.shape[0] for a in _tensors(args)), default=0))
     if lanes < FREEZE_LANES:  # padded: the same frozen kernel's arithmetic, whatever the chunking
         return tuple(r[:lanes] for r in evaluate(xp, fn, *_padded(args, lanes), **static))
-    inputs = tuple(_argument(xp, a) for a in args)
-    key = (xp.name, fn, tuple(sorted(static.items())))  # Python values choose the code: one recording each (lanes.signature)
-    if key not in _TRACED:
-        frozen = _take_frozen(key, xp, fn, static)
-        try:
-            if frozen.n_recordings:
+    with _DRJIT:
+        inputs = tuple(_argument(xp, a) for a in args)
+        key = (xp.name, fn, tuple(sorted(static.items())))  # Python values choose the code: one recording each (lanes.signature)
+        frozen = _FROZEN.get(key)
+        if frozen is None:
+            frozen = _FROZEN[key] = xp.dr.freeze(_body(xp, fn, static), warn_after=1 << 30)
+        if frozen is not _TRACED:
+            try:
                 out, widths = frozen(inputs)
-            else:
-                with _RECORDING:  # one recording at a time (concurrent recordings can fail)
-                    out, widths = frozen(inputs)
-            if all(xp.dr.width(o) == lanes for o in out):
-                _FROZEN.setdefault(key, []).append(frozen)  # free again (list.append is atomic)
-                return _results(xp, out, widths)
-        except RuntimeError:  # a recording that failed
-            pass
-        # a replay that returned an array of another call's length (a point light's zero emission,
-        # seen with two render workers; a recording whose lanes had a table's length can mistake
-        # one for the other) or a recording that failed: this kind of call is traced from now on,
-        # its frozen functions dropped
-        _TRACED.add(key)
-    with _RECORDING:
+                if all(xp.dr.width(o) == lanes for o in out):
+                    return _results(xp, out, widths)
+            except RuntimeError:  # a recording that failed
+                pass
+            # a replay that returned an array of another call's length (a point light's zero
+            # emission, seen with two render workers; a recording whose lanes had a table's length
+            # can mistake one for the other) or a recording that failed: this kind of call is
+            # traced from now on
+            _FROZEN[key] = _TRACED
         return _results(xp, *_body(xp, fn, static)(inputs))
 
 
@@ -145,28 +142,19 @@ def _results(xp, out, widths) -> tuple[torch.Tensor, ...]:
     return tuple(results)
 
 
-#: per kind of call, the frozen functions not in use: a frozen function's replays are not safe
-#: across threads, so each concurrent caller takes its own (at most one recording per render
-#: worker, however many threads come and go)
-_FROZEN: dict[tuple, list] = {}
-_FROZEN_LOCK = threading.Lock()
-_RECORDING = threading.Lock()
-#: the kinds of call whose frozen replays went wrong: traced on every call
-_TRACED: set[tuple] = set()
-
-
-def _take_frozen(key: tuple, xp, fn, static: dict):
-    """A free frozen function for ``key``, or a new one: ``fn`` on ``xp`` traced once and replayed
-    (``drjit.freeze``): a call with other array sizes or values but the same static arguments
-    launches the recorded kernel without tracing the Python function again (tracing a bounce costs
-    about as much as running it on 2^16 lanes). It returns ``(the outputs' arrays, their widths)``;
-    hand it back to ``_FROZEN[key]`` after the call."""
-    with _FROZEN_LOCK:
-        free = _FROZEN.get(key)
-        if free:
-            return free.pop()
-
-    return xp.dr.freeze(_body(xp, fn, static), warn_after=1 << 30)
+#: per kind of call (the function and its static arguments), ``fn`` on ``xp`` traced once and
+#: replayed (``drjit.freeze``): a call with other array sizes or values but the same static
+#: arguments launches the recorded kernel without tracing the Python function again (tracing a
+#: bounce costs about as much as running it on 2^16 lanes); :data:`_TRACED` for a kind of call
+#: whose replays went wrong, traced on every call
+_FROZEN: dict[tuple, object] = {}
+_TRACED = object()
+#: held by every compiled call: Dr.Jit's frozen functions are not safe across threads (a replay
+#: beside another thread's recording crashed a fit's process; concurrent recordings failed), so
+#: compiled calls run one at a time; the render workers' ray queries and torch work still overlap
+#: them (measured: no slower than concurrent calls on the Cornell box and the specular box, 2
+#: workers on 2 cores)
+_DRJIT = threading.Lock()
 
 
 def _body(xp, fn, static: dict):
