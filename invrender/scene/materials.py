@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
 import torch
 
 from invrender import registry
@@ -58,6 +59,25 @@ class NormalPerturbation:
     source: str = ""
 
 
+#: the shortest normal a normal map's texel may encode (a grey texel, 0.5 0.5 0.5 in 8 bits, is
+#: 0.0068 long: no direction); shorter ones are errors, longer ones are normalized when read
+#: (files do hold short normals, 0.45)
+MIN_NORMAL_LENGTH = 0.01
+
+
+def normal_map_problem(texels) -> str | None:
+    """What is wrong with a normal map's texels (h, w, 3) (each texel ``c`` encodes the
+    tangent-space normal ``2 c - 1``): the first texel whose normal is not a number or shorter than
+    :data:`MIN_NORMAL_LENGTH`, in words; None when every texel has a direction."""
+    length = np.linalg.norm(2.0 * np.asarray(texels, dtype=np.float64) - 1.0, axis=-1)
+    bad = ~np.isfinite(length) | (length < MIN_NORMAL_LENGTH)
+    if not bad.any():
+        return None
+    i, j = np.argwhere(bad)[0]
+    what = "not a number" if not np.isfinite(length[i, j]) else f"of length {length[i, j]:.3g}"
+    return f"the normal at texel (row {i}, column {j}) is {what}: a normal map's texels encode unit normals n as (n + 1) / 2"
+
+
 @dataclass(frozen=True)
 class Material(PluginSpec):
     """A material of a scene being built (:class:`~invrender.scene.plugins.PluginSpec`): its type
@@ -86,4 +106,4 @@ def material_type(name, where: str = "material"):
     return MATERIAL_TYPES.get(name, where)
 
 
-__all__ = ["Constant", "DEFAULT_TYPE", "MATERIAL_TYPES", "Material", "NormalPerturbation", "PERTURBATIONS", "Param", "material_type"]
+__all__ = ["Constant", "DEFAULT_TYPE", "MATERIAL_TYPES", "Material", "NormalPerturbation", "PERTURBATIONS", "Param", "material_type", "normal_map_problem"]

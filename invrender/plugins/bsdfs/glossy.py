@@ -166,8 +166,9 @@ class Glossy(ConductorFresnel, LaneBSDF):
 
     @classmethod
     def from_gltf(cls, material) -> dict | None:
-        """A metal (the smoothest are mirrors first): k_s = its colour, roughness = GGX alpha (``roughnessFactor``^2)."""
-        return {"specular_reflectance": material.metal_colour, "roughness": min(material.alpha, 1.0)} if material.metal else None
+        """A metal (the smoothest are mirrors first): k_s = its colour, roughness = GGX alpha (glTF's
+        perceptual roughness squared; a map where ``metallicRoughnessTexture`` varies it)."""
+        return {"specular_reflectance": material.metal_colour, "roughness": material.alpha} if material.metal else None
 
     @classmethod
     def to_mitsuba(cls, values: dict, constants: dict) -> dict:
