@@ -12,6 +12,7 @@ lists the types itself.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -98,6 +99,14 @@ class Material(PluginSpec):
     registry = registry.MATERIALS
     noun = "material"
     default_type = DEFAULT_TYPE
+
+    def perturbed(self, perturbation: NormalPerturbation) -> Material:
+        """This material with its shading normal perturbed by ``perturbation``, as a scene format
+        without Mitsuba's wrappers (TOML, glTF) states it: the map perturbs the frame turned to the
+        side the ray arrives from (``on_turned``: the material is two-sided), except where the
+        material transmits (the front side's frame, as Mitsuba's ``normalmap`` around a dielectric)."""
+        lobes = self.spec.lobes
+        return dataclasses.replace(self, perturbation=dataclasses.replace(perturbation, on_turned=not bool(lobes & type(lobes).TRANSMISSION)))
 
 
 def material_type(name, where: str = "material"):

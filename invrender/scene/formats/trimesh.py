@@ -62,7 +62,6 @@ colour), read as follows.
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import math
@@ -254,12 +253,7 @@ def _registered_material(view: GltfMaterial) -> Material:
         entries = cls.from_gltf(view)
         if entries is not None:
             spec = Material.of(cls.type_name, view.where, **entries)
-            if view.normal_map is None:
-                return spec
-            # the map perturbs the frame turned to the side the ray arrives from (the material is
-            # two-sided), except where the material transmits (as Mitsuba's normalmap around a dielectric)
-            on_turned = not bool(spec.spec.lobes & type(spec.spec.lobes).TRANSMISSION)
-            return dataclasses.replace(spec, perturbation=dataclasses.replace(view.normal_map, on_turned=on_turned))
+            return spec if view.normal_map is None else spec.perturbed(view.normal_map)
     raise SceneError(f"{view.where}: no registered material type reads it (known: {', '.join(registry.MATERIALS)})")
 
 
