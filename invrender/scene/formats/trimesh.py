@@ -19,14 +19,47 @@ colour), read as follows.
   ``roughnessFactor`` is perceptual roughness r and GGX alpha = r^2, the glTF spec's convention.
   A primitive without any material is the exception to the spec (whose default material is
   metallic): it gets the grey diffuse of an OBJ face without a material.
-- A metallic factor strictly between 0 and 1 (an opaque material, not a mirror) is a ``principled``
-  material: glTF's metallic-roughness model is the Disney model's core (base colour, metallic,
-  perceptual roughness r with alpha = r^2, a dielectric F0 of 0.04 = ``eta`` 1.5, or ``ior``).
-- What invrender's types cannot hold is dropped: ``metallicRoughnessTexture`` (factors only),
-  a conductor's texture (its
+- ``metallicRoughnessTexture`` (linear, as the spec says: not sRGB-decoded) multiplies the
+  factors, its B channel the metallic value and its G channel the perceptual roughness; a channel
+  that is uniform over the texture gives a number, one that varies a grey map (a texture value of
+  the parameter). A metallic value strictly between 0 and 1, or varying (an opaque material, not a
+  mirror), is a ``principled`` material: glTF's metallic-roughness model is the Disney model's core
+  (base colour, metallic, perceptual roughness r with alpha = r^2, a dielectric F0 of 0.04 =
+  ``eta`` 1.5, or ``ior``), metallic and roughness maps included. A uniform metal's roughness map
+  is the conductor's alpha map (r^2, at least 1e-4, Mitsuba's smallest alpha); a mirror takes a
+  metal only where alpha is below 1e-3 everywhere. A uniformly non-metallic material's roughness
+  is not read (a diffuse surface).
+- ``KHR_materials_transmission``: ``transmissionFactor`` 1 on a smooth (alpha below 1e-3),
+  non-metallic material is clear glass of the material's ``ior`` (``dielectric``: its base colour
+  ignored); any other transmission of a material that is not a metal is ``principled``'s
+  ``spec_trans`` (a rough refracting interface tinted by the base colour). ``transmissionTexture``
+  and ``KHR_materials_volume`` are not read (every transmitting material is a solid interface,
+  thin-walled or not).
+- ``normalTexture`` (linear; its ``scale`` s) wraps the material in a ``normalmap`` perturbation
+  (:class:`~invrender.scene.materials.NormalPerturbation`, as Mitsuba's wrapper: the texels
+  re-encoded so that they hold the spec's ``(2 c - 1) (s, s, 1)``, normalized after filtering).
+  Tangent space: Mitsuba's and the spec's for a file without ``TANGENT`` (``s`` along dp/du, ``t =
+  n x s``: the green channel points up the image, the spec's "+Y up", OpenGL's); trimesh turns
+  glTF's downward v up (``v -> 1 - v``) and the images stay as stored, as for ``baseColorTexture``.
+  The map perturbs the frame turned to the side the ray arrives from (the materials are two-sided),
+  the front's frame for glass (:meth:`~invrender.scene.materials.Material.perturbed`). A texel of
+  no direction (grey) is an error. ``TANGENT`` attributes are not read (MikkTSpace's smoothed,
+  per-vertex tangents differ from dp/du, and on mirrored UV islands glTF's bitangent flips with the
+  tangent's ``w`` where ``t = n x s`` does not).
+- ``KHR_texture_transform`` on a material texture (base colour, metallic-roughness, normal) is its
+  ``to_uv`` (:func:`_texture_sampling`); on ``emissiveTexture`` it is not applied (a warning).
+  ``texCoord`` other than 0 and the samplers' wrap and filter modes are not read (TEXCOORD_0,
+  repeat, bilinear).
+- What invrender's types cannot hold is dropped: a conductor's texture (its
   ``specular_reflectance`` is RGB only: the linear mean of ``baseColorTexture`` x
-  ``baseColorFactor``), partial transmission (any ``transmissionFactor`` > 0 is clear glass, its
-  base colour ignored), normal, occlusion and alpha.
+  ``baseColorFactor``), occlusion (baked ambient occlusion: a path tracer computes it) and alpha
+  (``alphaMode``). Material extensions other than ``KHR_materials_emissive_strength``,
+  ``KHR_materials_ior`` and ``KHR_materials_transmission`` are named in a warning and not read:
+  ``KHR_materials_specular`` (a dielectric F0 scale and colour; principled's F0 follows ``eta``),
+  ``KHR_materials_clearcoat`` (a GGX coat of any roughness over an attenuated base; principled's
+  clearcoat is an additive GTR1 lobe of alpha 0.001 to 0.1 scaled by 1/4), ``KHR_materials_sheen``
+  (the Charlie distribution with a colour; principled's sheen is a Schlick-weighted lobe), and the
+  rest (volume, iridescence, anisotropy, dispersion, diffuse transmission, ...).
 - glTF base colour = ``baseColorFactor`` RGB (linear, read exactly from the file's JSON; trimesh
   rounds it to 8 bits) x ``baseColorTexture`` RGB (8-bit sRGB-encoded per the glTF spec, decoded
   to linear). eps = ``emissiveFactor`` x ``KHR_materials_emissive_strength.emissiveStrength`` (read
