@@ -234,13 +234,18 @@ def _read_srgb(path: Path, raw: bool = False) -> torch.Tensor:
 def decode_srgb(img: Image.Image) -> torch.Tensor:
     """An sRGB-encoded PIL image (8 bits per channel, or 16-bit grey) -> (H, W, 3) float32 linear
     tensor, row 0 at the top; alpha dropped, grey replicated."""
+    linear = kornia.color.rgb_to_linear_rgb(image_codes(img).permute(2, 0, 1))
+    return linear.permute(1, 2, 0).contiguous()
+
+
+def image_codes(img: Image.Image) -> torch.Tensor:
+    """A PIL image's values as stored (8 bits per channel, or 16-bit grey), not decoded: (H, W, 3)
+    float32 codes over the top code, row 0 at the top; alpha dropped, grey replicated. What a
+    texture holding data rather than colour is (normal maps, glTF's metallic-roughness texture)."""
     if img.mode.startswith("I;16"):
         grey = np.asarray(img, dtype=np.float32) / 65535.0
-        srgb = np.repeat(grey[..., None], 3, axis=-1)
-    else:
-        srgb = np.asarray(img.convert("RGB"), dtype=np.float32) / 255.0
-    linear = kornia.color.rgb_to_linear_rgb(torch.from_numpy(srgb).permute(2, 0, 1))
-    return linear.permute(1, 2, 0).contiguous()
+        return torch.from_numpy(np.ascontiguousarray(np.repeat(grey[..., None], 3, axis=-1)))
+    return torch.from_numpy(np.asarray(img.convert("RGB"), dtype=np.float32) / 255.0).contiguous()
 
 
 @dataclass(frozen=True)

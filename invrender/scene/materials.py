@@ -12,8 +12,10 @@ lists the types itself.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
+import numpy as np
 import torch
 
 from invrender import registry
@@ -58,6 +60,25 @@ class NormalPerturbation:
     source: str = ""
 
 
+#: the shortest normal a normal map's texel may encode (a grey texel, 0.5 0.5 0.5 in 8 bits, is
+#: 0.0068 long: no direction); shorter ones are errors, longer ones are normalized when read
+#: (files do hold short normals, 0.45)
+MIN_NORMAL_LENGTH = 0.01
+
+
+def normal_map_problem(texels) -> str | None:
+    """What is wrong with a normal map's texels (h, w, 3) (each texel ``c`` encodes the
+    tangent-space normal ``2 c - 1``): the first texel whose normal is not a number or shorter than
+    :data:`MIN_NORMAL_LENGTH`, in words; None when every texel has a direction."""
+    length = np.linalg.norm(2.0 * np.asarray(texels, dtype=np.float64) - 1.0, axis=-1)
+    bad = ~np.isfinite(length) | (length < MIN_NORMAL_LENGTH)
+    if not bad.any():
+        return None
+    i, j = np.argwhere(bad)[0]
+    what = "not a number" if not np.isfinite(length[i, j]) else f"of length {length[i, j]:.3g}"
+    return f"the normal at texel (row {i}, column {j}) is {what}: a normal map's texels encode unit normals n as (n + 1) / 2"
+
+
 @dataclass(frozen=True)
 class Material(PluginSpec):
     """A material of a scene being built (:class:`~invrender.scene.plugins.PluginSpec`): its type
@@ -79,6 +100,14 @@ class Material(PluginSpec):
     noun = "material"
     default_type = DEFAULT_TYPE
 
+    def perturbed(self, perturbation: NormalPerturbation) -> Material:
+        """This material with its shading normal perturbed by ``perturbation``, as a scene format
+        without Mitsuba's wrappers (TOML, glTF) states it: the map perturbs the frame turned to the
+        side the ray arrives from (``on_turned``: the material is two-sided), except where the
+        material transmits (the front side's frame, as Mitsuba's ``normalmap`` around a dielectric)."""
+        lobes = self.spec.lobes
+        return dataclasses.replace(self, perturbation=dataclasses.replace(perturbation, on_turned=not bool(lobes & type(lobes).TRANSMISSION)))
+
 
 def material_type(name, where: str = "material"):
     """The plugin class of material type ``name``; a one-line :class:`SceneError` naming ``where``
@@ -86,4 +115,4 @@ def material_type(name, where: str = "material"):
     return MATERIAL_TYPES.get(name, where)
 
 
-__all__ = ["Constant", "DEFAULT_TYPE", "MATERIAL_TYPES", "Material", "NormalPerturbation", "PERTURBATIONS", "Param", "material_type"]
+__all__ = ["Constant", "DEFAULT_TYPE", "MATERIAL_TYPES", "Material", "NormalPerturbation", "PERTURBATIONS", "Param", "material_type", "normal_map_problem"]

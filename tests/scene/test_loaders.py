@@ -432,8 +432,8 @@ def test_gltf_material_types(tmp_path):
     materials = [
         gltf_material("gold", baseColorFactor=[1.0, 0.766, 0.336, 1.0], metallicFactor=1.0, roughnessFactor=0.5),
         gltf_material("chrome", baseColorFactor=[0.9, 0.8, 0.7, 1.0], roughnessFactor=0.0),  # metallic omitted: 1
-        gltf_material("glass", glass),
-        gltf_material("frosted", {"KHR_materials_transmission": {"transmissionFactor": 0.5}}, metallicFactor=0.0),
+        gltf_material("glass", glass, metallicFactor=0.0, roughnessFactor=0.0),  # clear glass: full transmission, smooth, not metallic
+        gltf_material("frosted", {"KHR_materials_transmission": {"transmissionFactor": 0.5}}, metallicFactor=0.0),  # partial and rough: principled
         gltf_material("plastic", baseColorFactor=[0.2, 0.4, 0.6, 1.0], metallicFactor=0.3, roughnessFactor=0.1),
         {"name": "bare"},  # every glTF default: metallic 1, roughness 1, white
         gltf_material("polished", metallicFactor=0.5, roughnessFactor=0.03),  # alpha 9e-4: a mirror
@@ -448,7 +448,8 @@ def test_gltf_material_types(tmp_path):
     assert types["gold"][0] == "glossy" and alpha["gold"] == pytest.approx(0.25)
     none = {"eta": (0.0, 0.0, 0.0), "k": (1.0, 1.0, 1.0)}  # conductor material none: Fresnel 1
     assert types["chrome"] == ("mirror", none) and types["polished"] == ("mirror", none)
-    assert types["glass"] == ("dielectric", {"ior": 1.33}) and types["frosted"] == ("dielectric", {"ior": 1.5})
+    assert types["glass"] == ("dielectric", {"ior": 1.33}) and types["frosted"][0] == "principled"
+    assert float(scene.params["frosted.spec_trans"][0]) == 0.5 and float(scene.params["frosted.metallic"][0]) == 0.0 and alpha["frosted"] == 1.0
     assert types["plastic"][0] == "principled" and types["bare"] == ("glossy", {**none, "alpha_v": 0.0}) and alpha["bare"] == 1.0  # a partial metal: principled; isotropic
     assert types["plastic"][1]["eta"] == pytest.approx(1.5) and types["plastic"][1]["two_sided"] == 1.0
     assert float(scene.params["plastic.metallic"][0]) == pytest.approx(0.3) and alpha["plastic"] == pytest.approx(0.1)  # its roughness: glTF's perceptual one
@@ -459,7 +460,7 @@ def test_gltf_material_types(tmp_path):
     assert torch.allclose(p["plastic.base_color"], torch.tensor([0.2, 0.4, 0.6]))
     assert torch.equal(p["bare.specular_reflectance"], torch.ones(3))
     assert torch.allclose(p["patina.specular_reflectance"], torch.tensor([0.25, 0.125, 0.25]), atol=0.003)  # texture mean x factor
-    assert not any(k.startswith(("glass.", "frosted.")) for k in p)
+    assert not any(k.startswith("glass.") for k in p)
     assert "plastic.specular_reflectance" not in p and "gold.reflectance" not in p
 
 
@@ -475,7 +476,7 @@ def test_bundled_assets_stay_diffuse_and_flat():
         (gltf_material("x", metallicFactor=1.5), "material 'x': glTF metallicFactor must lie in [0, 1], got 1.5"),
         (gltf_material("x", {"KHR_materials_transmission": {"transmissionFactor": "yes"}}), "glTF transmissionFactor must be a number"),
         (gltf_material("x", roughnessFactor=2.0), "glTF roughnessFactor must lie in [0, 1]"),
-        (gltf_material("x", {"KHR_materials_transmission": {"transmissionFactor": 1}, "KHR_materials_ior": {"ior": 0}}), "'ior' must lie in [0.01, 100], got 0"),
+        (gltf_material("x", {"KHR_materials_transmission": {"transmissionFactor": 1}, "KHR_materials_ior": {"ior": 0}}, metallicFactor=0, roughnessFactor=0), "'ior' must lie in [0.01, 100], got 0"),
     ],
 )
 def test_bad_gltf_material_factors(tmp_path, material, words):

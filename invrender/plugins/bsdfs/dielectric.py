@@ -117,8 +117,11 @@ class Dielectric(LaneBSDF):
 
     @classmethod
     def from_gltf(cls, material) -> dict | None:
-        """Any transmission (``transmissionFactor`` > 0): clear glass of the material's ``ior``."""
-        return {"ior": material.ior} if material.transmission > 0 else None
+        """Clear glass: full transmission (``transmissionFactor`` 1), not metallic, smooth (GGX alpha
+        below 1e-3): of the material's ``ior`` (its base colour is not read). Any other
+        transmission is a principled material's ``spec_trans``."""
+        clear = material.transmission >= 1.0 and not material.partial_metal and not material.metal and material.smooth  # metallic 0
+        return {"ior": material.ior} if clear else None
 
     @classmethod
     def to_mitsuba(cls, values: dict, constants: dict) -> dict:

@@ -36,12 +36,15 @@ from __future__ import annotations
 import functools
 from typing import ClassVar
 
+import numpy as np
+
 from invrender import registry
 from invrender.plugins.bsdfs.metal_iors import METAL_IORS
 from invrender.plugins.bsdfs.metals import CONDUCTOR_CONSTANTS, ConductorFresnel, fresnel_lanes
 from invrender.plugins.bsdfs.microfacet import BECKMANN, GGX, Distribution, Microfacets
 from invrender.scene.kinds import ROUGHNESS, SPECULAR_REFLECTANCE
 from invrender.scene.plugins import Constant, Param
+from invrender.scene.textures import SampledTexture, VertexAttribute
 from invrender.core import lanes
 from invrender.core.bsdf import LaneBSDF, LaneForm, Lobe
 from invrender.core.lanes import scale
@@ -61,20 +64,43 @@ def anisotropic(bsdf) -> bool:
     return any(c.get("alpha_v", 0.0) > 0.0 for c in bsdf.constants)
 
 
+#: the smallest alpha Mitsuba's microfacet distributions use (``MicrofacetDistribution::configure``)
+MIN_ALPHA = 1e-4
+
+
+def at_least(value, low: float):
+    """A value read from a scene file (an array, a :class:`SampledTexture`'s texels) with every
+    number below ``low`` raised to it; a vertex attribute as it is (checked when the scene is built)."""
+    if isinstance(value, SampledTexture):
+        return SampledTexture(np.maximum(np.asarray(value.texels, dtype=np.float64), low), value.sampling)
+    return value if isinstance(value, VertexAttribute) else np.maximum(value, low)
+
+
+def alpha_map(bsdf):
+    """Mitsuba's isotropic ``alpha`` where a texture gives it (bitmap, checkerboard; a colour too):
+    one number per texel as Mitsuba's ``eval_1`` reads it (a bitmap's luminance), each in [0, 1], a
+    roughness map (h, w, 3) of grey texels, values below 1e-4 read as 1e-4 as Mitsuba's microfacet
+    distributions clamp them (a checkerboard of 0 and 0.4 is half smooth); None where ``alpha`` is
+    a number or absent."""
+    if not bsdf.has("alpha") or bsdf.tag("alpha") in ("float", "integer"):
+        return None
+    return at_least(bsdf.grey("alpha", ROUGHNESS, 0.1), MIN_ALPHA)
+
+
 def read_alphas(bsdf, label: str) -> dict:
     """Mitsuba's ``alpha`` (isotropic) or ``alpha_u`` and ``alpha_v`` (anisotropic: along the
     tangent s from dp/du and along t; not beside ``alpha``) as invrender's ``roughness`` (alpha_u)
     and ``alpha_v`` constants."""
     given = [k for k in ("alpha_u", "alpha_v") if bsdf.has(k)]
     if not given:
-        return {"roughness": bsdf.number("alpha", ALPHA, f"{label} roughness", "a <float> (textured roughness is not supported)")}
+        return {"roughness": bsdf.number("alpha", ALPHA, f"{label} roughness", "a <float> or a texture")}
     if bsdf.has("alpha"):
         raise bsdf.error("alpha", "give either 'alpha' or 'alpha_u' and 'alpha_v', not both (as Mitsuba)")
     if len(given) == 1:
         missing = ({"alpha_u", "alpha_v"} - set(given)).pop()
         raise bsdf.error(given[0], f"'{given[0]}' needs '{missing}' too (as Mitsuba)")
-    alpha_u = bsdf.number("alpha_u", ALPHA, f"{label} roughness along the tangent", "a <float> (textured roughness is not supported)")
-    alpha_v = bsdf.number("alpha_v", ALPHA, f"{label} roughness along the bitangent", "a <float> (textured roughness is not supported)")
+    alpha_u = bsdf.number("alpha_u", ALPHA, f"{label} roughness along the tangent", "a <float> (a texture only for the isotropic alpha)")
+    alpha_v = bsdf.number("alpha_v", ALPHA, f"{label} roughness along the bitangent", "a <float> (a texture only for the isotropic alpha)")
     return {"roughness": alpha_u, "alpha_v": alpha_v}
 
 
@@ -150,8 +176,9 @@ class Glossy(ConductorFresnel, LaneBSDF):
     @classmethod
     def from_mitsuba(cls, bsdf) -> dict:
         """Mitsuba's ``roughconductor``: ``distribution`` beckmann (Mitsuba's default: type
-        glossy_beckmann) or ggx (type glossy), ``alpha`` (the roughness, default 0.1) or ``alpha_u``
-        and ``alpha_v`` (anisotropic: the roughness and the constant ``alpha_v``),
+        glossy_beckmann) or ggx (type glossy), ``alpha`` (the roughness, default 0.1; a number,
+        or a texture: a roughness map, :func:`alpha_map`) or ``alpha_u`` and ``alpha_v``
+        (anisotropic, numbers: the roughness and the constant ``alpha_v``),
         ``material`` (a named metal, default none) or ``eta``/``k``, ``specular_reflectance`` (a
         colour or a bitmap texture),
         ``sample_visible`` (read; invrender always samples visible normals)."""
@@ -159,22 +186,23 @@ class Glossy(ConductorFresnel, LaneBSDF):
         ks = bsdf.colour("specular_reflectance", SPECULAR_REFLECTANCE, 1.0)
         name = (bsdf.string("distribution", allowed=("beckmann", "ggx")) or "beckmann").lower()
         target = GlossyBeckmann if name == "beckmann" else Glossy
-        alphas = read_alphas(bsdf, target.distribution.label)
+        textured = None if bsdf.has("alpha_u") or bsdf.has("alpha_v") else alpha_map(bsdf)
+        alphas = read_alphas(bsdf, target.distribution.label) if textured is None else {"roughness": textured}
         bsdf.boolean("sample_visible")  # either way the same BRDF (invrender always samples visible normals)
         bsdf.finish(("material", "eta", "k", "specular_reflectance", "distribution", "alpha", "alpha_u", "alpha_v", "sample_visible"))
         return {"type": target.type_name, "specular_reflectance": ks, **alphas, **ior}
 
     @classmethod
     def from_gltf(cls, material) -> dict | None:
-        """A metal (the smoothest are mirrors first): k_s = its colour, roughness = GGX alpha (``roughnessFactor``^2)."""
-        return {"specular_reflectance": material.metal_colour, "roughness": min(material.alpha, 1.0)} if material.metal else None
+        """A metal (the smoothest are mirrors first): k_s = its colour, roughness = GGX alpha (glTF's
+        perceptual roughness squared; a map where ``metallicRoughnessTexture`` varies it)."""
+        return {"specular_reflectance": material.metal_colour, "roughness": material.alpha} if material.metal else None
 
     @classmethod
     def to_mitsuba(cls, values: dict, constants: dict) -> dict:
         alpha = values["roughness"]
-        if alpha.ndim != 1:
-            raise ValueError("a roughness map has no Mitsuba counterpart here (alpha is written as one number)")
-        inner = {"type": "roughconductor", **cls.mitsuba_ior(constants), "distribution": cls.distribution.name, **mitsuba_alphas(float(alpha[0]), constants)}
+        alphas = mitsuba_alphas(float(alpha[0]), constants) if alpha.ndim == 1 else {"alpha": alpha}  # a map: a (grey) bitmap
+        inner = {"type": "roughconductor", **cls.mitsuba_ior(constants), "distribution": cls.distribution.name, **alphas}
         return {"type": "twosided", "bsdf": {**inner, "sample_visible": True, "specular_reflectance": values["specular_reflectance"]}}
 
 

@@ -82,8 +82,8 @@ class Mirror(ConductorFresnel, LaneBSDF):
 
     @classmethod
     def from_gltf(cls, material) -> dict | None:
-        """A metal with GGX alpha below 1e-3 (an MTL ``illum 3`` with Ks): k_s = its colour."""
-        if material.metal and material.alpha < 1e-3:
+        """A metal with GGX alpha below 1e-3 everywhere (an MTL ``illum 3`` with Ks): k_s = its colour."""
+        if material.metal and material.smooth:
             return {"specular_reflectance": material.metal_colour}
         return None
 

@@ -491,7 +491,7 @@ class RoughPlastic(Coated):
         for key in ("alpha_u", "alpha_v"):
             if bsdf.has(key):
                 raise bsdf.error(key, f"'{key}' (anisotropic roughness) is not supported: give one 'alpha' (Mitsuba's roughplastic is isotropic)")
-        alpha = bsdf.number("alpha", ALPHA, f"{target.distribution.label} roughness", "a <float> (textured roughness is not supported)")
+        alpha = bsdf.number("alpha", ALPHA, f"{target.distribution.label} roughness", "a <float> (Mitsuba's roughplastic takes no texture)")
         bsdf.boolean("sample_visible")
         bsdf.finish(("diffuse_reflectance", "specular_reflectance", "int_ior", "ext_ior", "nonlinear", "distribution", "alpha", "sample_visible"))
         return {"type": target.type_name, **entries, "roughness": alpha}

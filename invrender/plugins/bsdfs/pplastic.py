@@ -35,7 +35,7 @@ from invrender import registry
 from invrender.plugins.bsdfs.dielectric import fresnel_dielectric_lanes
 from invrender.plugins.bsdfs.microfacet import BECKMANN, GGX, Distribution
 from invrender.plugins.bsdfs.plastic import COATING_CONSTANTS, coating_constants, cosine_hemisphere_lanes
-from invrender.plugins.bsdfs.roughdielectric import MIN_ALPHA, at_least
+from invrender.plugins.bsdfs.glossy import MIN_ALPHA, at_least
 from invrender.scene.kinds import REFLECTANCE, ROUGHNESS, SPECULAR_REFLECTANCE
 from invrender.scene.plugins import Param
 from invrender.core import lanes

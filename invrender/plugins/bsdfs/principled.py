@@ -445,13 +445,16 @@ class Principled(PrincipledBase, LaneBSDF):
 
     @classmethod
     def from_gltf(cls, material) -> dict | None:
-        """An opaque glTF material with a metallic factor strictly between 0 and 1: base_color =
-        its base colour (a texture too), metallic, roughness = sqrt(alpha) (glTF's perceptual
-        roughness; at least 1e-4), eta = its ``ior`` (1.5 by default: F0 = 0.04, glTF's), two-sided
+        """A glTF material whose metallic value lies strictly between 0 and 1 or varies (a
+        ``metallicRoughnessTexture``), or that transmits and is not a metal (and not clear glass,
+        which the dielectric takes): base_color = its base colour (a texture too), metallic (a
+        map too), roughness = glTF's perceptual roughness (a map too; at least 1e-4), spec_trans =
+        ``transmissionFactor``, eta = its ``ior`` (1.5 by default: F0 = 0.04, glTF's), two-sided
         as invrender's other glTF materials."""
-        if not 0.0 < material.metallic < 1.0 or material.transmission > 0:
+        if not (material.partial_metal or (material.transmission > 0 and not material.metal)):
             return None
-        return {"base_color": material.base_colour, "metallic": material.metallic, "roughness": max(math.sqrt(material.alpha), 1e-4), "eta": material.ior, "two_sided": True}
+        entries = {"base_color": material.base_colour, "metallic": material.metallic, "roughness": material.roughness, "eta": material.ior, "two_sided": True}
+        return entries | ({"spec_trans": material.transmission} if material.transmission > 0 else {})
 
     @classmethod
     def from_mitsuba_twosided(cls, entries: dict, error) -> dict:

@@ -54,12 +54,11 @@ import numpy as np
 from invrender import registry
 from invrender.errors import SceneError
 from invrender.plugins.bsdfs.dielectric import check_relative_ior, fresnel_dielectric_lanes
-from invrender.plugins.bsdfs.glossy import ALPHA_V, anisotropic, mitsuba_alphas, read_alphas
+from invrender.plugins.bsdfs.glossy import ALPHA_V, MIN_ALPHA, alpha_map, anisotropic, mitsuba_alphas, read_alphas
 from invrender.plugins.bsdfs.microfacet import BECKMANN, GGX, Distribution, Microfacets
 from invrender.scene.formats.mitsuba.bsdfs import NAMED_IOR
 from invrender.scene.kinds import ROUGHNESS, SPECULAR_REFLECTANCE
 from invrender.scene.plugins import Constant, Param
-from invrender.scene.textures import SampledTexture, VertexAttribute
 from invrender.core import lanes
 from invrender.core.bsdf import LaneBSDF, LaneForm, Lobe
 from invrender.core.lanes import scale, select3
@@ -157,27 +156,13 @@ def sample_lanes(xp, p, ps, wo, front, u_lobe, u0, u1, *, distribution: Distribu
     return wi, weight, xp.select(ok, pdf, 0.0), xp.full(False, u0)
 
 
-#: the smallest alpha Mitsuba's microfacet distributions use (``MicrofacetDistribution::configure``)
-MIN_ALPHA = 1e-4
-
-
 def read_alpha(bsdf, distribution: Distribution):
-    """A Mitsuba ``alpha``: a ``<float>`` in [0, 1] (default 0.1), or a texture (bitmap,
-    checkerboard; a colour too) read as one number per texel as Mitsuba's ``eval_1`` does (a
-    bitmap's luminance), each in [0, 1]: a roughness map (h, w, 3) of grey texels. Values below
-    1e-4 are read as 1e-4, as Mitsuba's microfacet distributions clamp them (a checkerboard of 0
-    and 0.4 is half smooth)."""
-    if not bsdf.has("alpha") or bsdf.tag("alpha") in ("float", "integer"):
-        return max(bsdf.number("alpha", Constant(0.1, 0.0, 1.0, False, False), f"{distribution.label} roughness", "a <float> or a texture"), MIN_ALPHA)
-    return at_least(bsdf.grey("alpha", ROUGHNESS, 0.1), MIN_ALPHA)
-
-
-def at_least(value, low: float):
-    """A value read from a scene file (an array, a :class:`SampledTexture`'s texels) with every
-    number below ``low`` raised to it; a vertex attribute as it is (checked when the scene is built)."""
-    if isinstance(value, SampledTexture):
-        return SampledTexture(np.maximum(np.asarray(value.texels, dtype=np.float64), low), value.sampling)
-    return value if isinstance(value, VertexAttribute) else np.maximum(value, low)
+    """A Mitsuba ``alpha``: a ``<float>`` in [0, 1] (default 0.1, at least 1e-4), or a texture read
+    as a roughness map (:func:`~invrender.plugins.bsdfs.glossy.alpha_map`)."""
+    textured = alpha_map(bsdf)
+    if textured is not None:
+        return textured
+    return max(bsdf.number("alpha", Constant(0.1, 0.0, 1.0, False, False), f"{distribution.label} roughness", "a <float> or a texture"), MIN_ALPHA)
 
 
 @registry.MATERIALS.register

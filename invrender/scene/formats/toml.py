@@ -55,6 +55,14 @@ allowed keys). Out-of-range colours (rho outside [0, 1], eps < 0) are
     specular_reflectance = [0.95, 0.8, 0.5]   # k_s in [0, 1] (default 1), differentiable
     material = "none"                  # or a named metal, or eta / k, as for a mirror (default none: Fresnel 1)
 
+    [materials.bumpy]                  # any material's shading normal may be perturbed by one map (Mitsuba's wrappers):
+    reflectance = 0.6
+    normalmap = "normals.png"          # tangent-space normals n stored as (n + 1) / 2 (OpenGL's: green up), read as
+                                       # stored (not sRGB-decoded); or a table with the options below
+    # bumpmap = { file = "height.png", scale = 0.05 }   # a height (its luminance, read as stored) times scale
+                                       # (default 1); both tables also take flip_invalid_normals and
+                                       # use_shadowing_function (true / false, default true, Mitsuba's)
+
     [materials.tiles]                  # a colour that may be a texture may also be a procedural one (baked, bilinear):
     reflectance = { checkerboard = { color0 = [0.8, 0.8, 0.8], color1 = 0.2, scale = 4, translate = [0, 0], resolution = 512 } }
                                        # Mitsuba's checkerboard (defaults 0.4, 0.2, scale 1, no translation, 512^2 texels)
@@ -72,6 +80,12 @@ allowed keys). Out-of-range colours (rho outside [0, 1], eps < 0) are
     file = "bunny.obj"                 # mesh only, required there: relative to this file, any format trimesh
                                        # reads (OBJ, glTF, GLB, PLY, STL); all its parts merged, in world space
     transform = [{ scale = [0.23, 0.19, 0.19] }, { rotate = { axis = [1, 0, 0], angle = 90 } }, { translate = [0, 0.99, 0.01] }]
+
+A material's ``normalmap`` or ``bumpmap`` perturbs its shading normal as Mitsuba's wrappers of the
+same names do (:mod:`invrender.core.shading`: the tangent frame of the mesh's UVs, ``s`` along
+dp/du, ``t = n x s``, so a normal map's green channel points towards +v, up the image); the map
+perturbs the frame turned to the side the ray arrives from (TOML materials are two-sided, as a map
+inside Mitsuba's ``twosided``), the front side's frame for a material that transmits.
 
 ``transform`` is a list of steps applied in the order listed (above: scale, then rotate, then
 translate): ``{ translate = [x, y, z] }``, ``{ scale = s }`` or ``{ scale = [x, y, z] }`` (non-zero),
@@ -106,7 +120,7 @@ from invrender.scene.formats.trimesh import mesh_arrays
 from invrender.scene.formats.values import CHECKERBOARD_RESOLUTION, checkerboard, is_number, one_line, show
 from invrender.scene.emitters import Emitter
 from invrender.scene.film import FilmOptions
-from invrender.scene.materials import Material
+from invrender.scene.materials import PERTURBATIONS, Material, NormalPerturbation, normal_map_problem
 from invrender.scene.plugins import PluginSpec
 from invrender.scene.scene import Scene, build_scene
 from invrender.scene.shapes import PRIMITIVES, Mesh, primitive, rotate, scale, translate
@@ -282,7 +296,8 @@ def _plugin(doc, cls: type[PluginSpec], where: str, base: Path) -> PluginSpec:
     spec = cls.registry.get(kind, where)
     transform_key = getattr(spec, "toml_transform", None)  # a type reading a rotation (envmap's to_world)
     named_key = getattr(spec, "toml_named", None)  # a type reading a named preset of constants (a conductor's material = "Au")
-    check_keys(doc, spec.keys | {"type"} | {k for k in (transform_key, named_key) if k}, where)
+    perturbation_keys = set(PERTURBATIONS) if cls is Material else set()
+    check_keys(doc, spec.keys | {"type"} | {k for k in (transform_key, named_key) if k} | perturbation_keys, where)
     entries = {}
     if transform_key and transform_key in doc:
         entries.update(spec.from_transform(_transform(doc[transform_key], where, transform_key), where))
@@ -294,7 +309,51 @@ def _plugin(doc, cls: type[PluginSpec], where: str, base: Path) -> PluginSpec:
     for key in spec.constants:
         if key in doc:
             entries[key] = doc[key]
-    return cls.of(kind, where, **entries)
+    made = cls.of(kind, where, **entries)
+    perturbation = _perturbation(doc, where, base) if perturbation_keys else None
+    return made if perturbation is None else made.perturbed(perturbation)
+
+
+#: the keys of a ``normalmap = { ... }`` or ``bumpmap = { ... }`` table (``scale``: bump maps only)
+PERTURBATION_KEYS = {"file", "scale", "flip_invalid_normals", "use_shadowing_function"}
+
+
+def _perturbation(doc: dict, where: str, base: Path) -> NormalPerturbation | None:
+    """A material table's ``normalmap`` or ``bumpmap`` (one of them): a file name, or a table
+    ``{ file = ..., scale = ... (bump maps), flip_invalid_normals = ..., use_shadowing_function =
+    ... }``; the image read as stored (raw: not sRGB-decoded), a normal map's texels each encoding
+    a direction. None when the table has neither."""
+    given = [k for k in PERTURBATIONS if k in doc]
+    if not given:
+        return None
+    if len(given) > 1:
+        raise SceneError(f"{where}: give either 'normalmap' or 'bumpmap', not both (one normal perturbation per material)")
+    kind = given[0]
+    w = f"{where} {kind}"
+    value = doc[kind]
+    if isinstance(value, str):
+        value = {"file": value}
+    if not isinstance(value, dict):
+        raise SceneError(f"{where}: '{kind}' must be an image file name or a table {{ file = ..., ... }}, got {show(value)}")
+    check_keys(value, PERTURBATION_KEYS - ({"scale"} if kind == "normalmap" else set()), w)
+    from invrender.io import read_image  # lazily: images need kornia/OpenEXR
+
+    path = base / string(value, "file", w, required=True)
+    if not path.is_file():
+        raise SceneError(f"{w}: image file not found: {path}")
+    try:
+        texels = read_image(path, raw=True)
+    except InvRenderError as e:
+        raise SceneError(f"{w}: {one_line(e)}") from None
+    if kind == "normalmap" and (problem := normal_map_problem(texels.numpy())) is not None:
+        raise SceneError(f"{w}: {path.name}: {problem}")
+    flags = {}
+    for key in ("flip_invalid_normals", "use_shadowing_function"):
+        flags[key] = value.get(key, True)
+        if not isinstance(flags[key], bool):
+            raise SceneError(f"{w}: '{key}' must be true or false, got {show(flags[key])}")
+    scale = number(value, "scale", w) if "scale" in value else 1.0
+    return NormalPerturbation(kind, texels, None, scale, False, flags["flip_invalid_normals"], flags["use_shadowing_function"], w)
 
 
 def _colour_or_texture(doc, kind: str, where: str, base: Path, others: set | None = None, texture: bool = True):

@@ -19,14 +19,47 @@ colour), read as follows.
   ``roughnessFactor`` is perceptual roughness r and GGX alpha = r^2, the glTF spec's convention.
   A primitive without any material is the exception to the spec (whose default material is
   metallic): it gets the grey diffuse of an OBJ face without a material.
-- A metallic factor strictly between 0 and 1 (an opaque material, not a mirror) is a ``principled``
-  material: glTF's metallic-roughness model is the Disney model's core (base colour, metallic,
-  perceptual roughness r with alpha = r^2, a dielectric F0 of 0.04 = ``eta`` 1.5, or ``ior``).
-- What invrender's types cannot hold is dropped: ``metallicRoughnessTexture`` (factors only),
-  a conductor's texture (its
+- ``metallicRoughnessTexture`` (linear, as the spec says: not sRGB-decoded) multiplies the
+  factors, its B channel the metallic value and its G channel the perceptual roughness; a channel
+  that is uniform over the texture gives a number, one that varies a grey map (a texture value of
+  the parameter). A metallic value strictly between 0 and 1, or varying (an opaque material, not a
+  mirror), is a ``principled`` material: glTF's metallic-roughness model is the Disney model's core
+  (base colour, metallic, perceptual roughness r with alpha = r^2, a dielectric F0 of 0.04 =
+  ``eta`` 1.5, or ``ior``), metallic and roughness maps included. A uniform metal's roughness map
+  is the conductor's alpha map (r^2, at least 1e-4, Mitsuba's smallest alpha); a mirror takes a
+  metal only where alpha is below 1e-3 everywhere. A uniformly non-metallic material's roughness
+  is not read (a diffuse surface).
+- ``KHR_materials_transmission``: ``transmissionFactor`` 1 on a smooth (alpha below 1e-3),
+  non-metallic material is clear glass of the material's ``ior`` (``dielectric``: its base colour
+  ignored); any other transmission of a material that is not a metal is ``principled``'s
+  ``spec_trans`` (a rough refracting interface tinted by the base colour). ``transmissionTexture``
+  and ``KHR_materials_volume`` are not read (every transmitting material is a solid interface,
+  thin-walled or not).
+- ``normalTexture`` (linear; its ``scale`` s) wraps the material in a ``normalmap`` perturbation
+  (:class:`~invrender.scene.materials.NormalPerturbation`, as Mitsuba's wrapper: the texels
+  re-encoded so that they hold the spec's ``(2 c - 1) (s, s, 1)``, normalized after filtering).
+  Tangent space: Mitsuba's and the spec's for a file without ``TANGENT`` (``s`` along dp/du, ``t =
+  n x s``: the green channel points up the image, the spec's "+Y up", OpenGL's); trimesh turns
+  glTF's downward v up (``v -> 1 - v``) and the images stay as stored, as for ``baseColorTexture``.
+  The map perturbs the frame turned to the side the ray arrives from (the materials are two-sided),
+  the front's frame for glass (:meth:`~invrender.scene.materials.Material.perturbed`). A texel of
+  no direction (grey) is an error. ``TANGENT`` attributes are not read (MikkTSpace's smoothed,
+  per-vertex tangents differ from dp/du, and on mirrored UV islands glTF's bitangent flips with the
+  tangent's ``w`` where ``t = n x s`` does not).
+- ``KHR_texture_transform`` on a material texture (base colour, metallic-roughness, normal) is its
+  ``to_uv`` (:func:`_texture_sampling`); on ``emissiveTexture`` it is not applied (a warning).
+  ``texCoord`` other than 0 and the samplers' wrap and filter modes are not read (TEXCOORD_0,
+  repeat, bilinear).
+- What invrender's types cannot hold is dropped: a conductor's texture (its
   ``specular_reflectance`` is RGB only: the linear mean of ``baseColorTexture`` x
-  ``baseColorFactor``), partial transmission (any ``transmissionFactor`` > 0 is clear glass, its
-  base colour ignored), normal, occlusion and alpha.
+  ``baseColorFactor``), occlusion (baked ambient occlusion: a path tracer computes it) and alpha
+  (``alphaMode``). Material extensions other than ``KHR_materials_emissive_strength``,
+  ``KHR_materials_ior`` and ``KHR_materials_transmission`` are named in a warning and not read:
+  ``KHR_materials_specular`` (a dielectric F0 scale and colour; principled's F0 follows ``eta``),
+  ``KHR_materials_clearcoat`` (a GGX coat of any roughness over an attenuated base; principled's
+  clearcoat is an additive GTR1 lobe of alpha 0.001 to 0.1 scaled by 1/4), ``KHR_materials_sheen``
+  (the Charlie distribution with a colour; principled's sheen is a Schlick-weighted lobe), and the
+  rest (volume, iridescence, anisotropy, dispersion, diffuse transmission, ...).
 - glTF base colour = ``baseColorFactor`` RGB (linear, read exactly from the file's JSON; trimesh
   rounds it to 8 bits) x ``baseColorTexture`` RGB (8-bit sRGB-encoded per the glTF spec, decoded
   to linear). eps = ``emissiveFactor`` x ``KHR_materials_emissive_strength.emissiveStrength`` (read
@@ -66,10 +99,12 @@ import hashlib
 import json
 import math
 import struct
+import warnings
 from functools import cached_property
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from invrender import registry
 from invrender.errors import SceneError
@@ -77,7 +112,8 @@ from invrender.scene.camera import Camera
 from invrender.scene.formats.studio import studio_camera, studio_parts
 from invrender.scene.formats.values import is_number, one_line, show
 from invrender.validate import FLOAT32_MAX
-from invrender.scene.materials import Material
+from invrender.scene.materials import Material, NormalPerturbation, normal_map_problem
+from invrender.scene.textures import SampledTexture, TextureSampling, mitsuba_to_uv
 from invrender.scene.scene import Scene, build_scene
 from invrender.scene.shapes import Mesh
 
@@ -249,7 +285,8 @@ def _registered_material(view: GltfMaterial) -> Material:
     for cls in readers:
         entries = cls.from_gltf(view)
         if entries is not None:
-            return Material.of(cls.type_name, view.where, **entries)
+            spec = Material.of(cls.type_name, view.where, **entries)
+            return spec if view.normal_map is None else spec.perturbed(view.normal_map)
     raise SceneError(f"{view.where}: no registered material type reads it (known: {', '.join(registry.MATERIALS)})")
 
 
@@ -261,17 +298,29 @@ class GltfMaterial:
     diffuse (rho 0.8), no emission. Every value is read when first asked for, so a value no
     material type asks for is never checked.
 
+    A value that may vary over the surface (a *map*) is a float where it does not, else a texture
+    value: (h, w, 3) texels (grey for one number per texel), or a
+    :class:`~invrender.scene.textures.SampledTexture` where the texture has a
+    ``KHR_texture_transform``.
+
     Attributes:
         where: the file and the material's name, for messages.
         transmission: ``transmissionFactor`` in [0, 1] (0: opaque).
         ior: the index of refraction ``ior`` > 0 (1.5 by default).
-        metallic: glTF ``metallicFactor`` in [0, 1] (MTL: 1 for a metal, else 0).
-        metal: a conductor (glTF ``metallicFactor`` >= 0.5; MTL ``illum 3`` with a non-zero
-            ``Ks``); partial metals are principled materials.
-        alpha: GGX alpha in [0, 1] (glTF ``roughnessFactor`` squared; 0 for an MTL mirror).
-        base_colour: linear RGB (3,) or texture (h, w, 3): what a diffuse surface reflects.
+        metallic: glTF ``metallicFactor`` (x ``metallicRoughnessTexture``'s B) in [0, 1], a map
+            (MTL: 1 for a metal, else 0).
+        metal: a conductor (a uniform metallic >= 0.5; MTL ``illum 3`` with a non-zero ``Ks``).
+        partial_metal: the metallic value lies strictly between 0 and 1, or varies (a principled
+            material's).
+        alpha: GGX alpha in [0, 1] (glTF perceptual roughness squared; 0 for an MTL mirror), a map
+            (its texels at least 1e-4, Mitsuba's smallest alpha).
+        roughness: perceptual roughness (sqrt alpha), at least 1e-4, a map.
+        smooth: alpha below 1e-3 everywhere (a mirror where it is a metal).
+        base_colour: linear RGB (3,) or a texture value: what a diffuse surface reflects.
         metal_colour: linear RGB (3,): what a metal reflects (a texture by its linear mean).
         emission: eps (3,) or (h, w, 3) linear, or None when it does not emit.
+        normal_map: the ``normalmap`` perturbation of its shading normal
+            (:class:`~invrender.scene.materials.NormalPerturbation`), or None.
     """
 
     transmission = 0.0
@@ -280,9 +329,22 @@ class GltfMaterial:
     metal = False
     alpha = 1.0
     emission = None
+    normal_map = None
 
     def __init__(self, where: str):
         self.where = where
+
+    @property
+    def partial_metal(self) -> bool:
+        return not np.isscalar(self.metallic) or 0.0 < self.metallic < 1.0
+
+    @property
+    def roughness(self):
+        return max(math.sqrt(self.alpha), 1e-4)
+
+    @property
+    def smooth(self) -> bool:
+        return self.alpha < 1e-3
 
     @property
     def base_colour(self) -> np.ndarray:
@@ -307,10 +369,19 @@ class _PbrMaterial(GltfMaterial):
             self._base = np.asarray(material.baseColorFactor, dtype=np.float64)[:3] / 255.0
         else:
             self._base = np.ones(3)
+        unread = sorted(k for k in self._extensions if k.startswith("KHR_materials_") and k not in READ_EXTENSIONS)
+        if unread:
+            warnings.warn(f"{where}: {', '.join(unread)} not read (no counterpart in invrender's materials: the module docstring of {__name__} says what maps)", stacklevel=4)
 
     def _extension(self, name: str) -> dict:
         value = self._extensions.get(name, {})
         return value if isinstance(value, dict) else {}
+
+    def _sampled(self, texels: np.ndarray, info):
+        """``texels`` as a texture value: with the ``KHR_texture_transform`` of the textureInfo
+        ``info`` (a :class:`SampledTexture`), else as they are."""
+        sampling = _texture_sampling(info, self.where)
+        return texels if sampling is None else SampledTexture(texels, sampling)
 
     @cached_property
     def transmission(self) -> float:
@@ -321,26 +392,85 @@ class _PbrMaterial(GltfMaterial):
         return _gltf_number(self._extension("KHR_materials_ior"), "ior", None, 1.5, self.where, high=math.inf)
 
     @cached_property
-    def metallic(self) -> float:
-        return _gltf_number(self._pbr, "metallicFactor", self._material.metallicFactor, 1.0, self.where)
+    def _metal_rough(self) -> tuple:
+        """(metallic, perceptual roughness): the factors times ``metallicRoughnessTexture``'s B and
+        G channels (linear, as the spec says), each a float where the texture's channel is uniform,
+        else (h, w, 3) grey texels."""
+        m = _gltf_number(self._pbr, "metallicFactor", self._material.metallicFactor, 1.0, self.where)
+        r = _gltf_number(self._pbr, "roughnessFactor", self._material.roughnessFactor, 1.0, self.where)
+        image = getattr(self._material, "metallicRoughnessTexture", None)
+        if image is None:
+            return m, r
+        codes = _image_codes(image)
+
+        def channel(c: int, factor: float):
+            values = factor * codes[..., c]
+            return float(values.flat[0]) if values.min() == values.max() else np.repeat(values[..., None], 3, axis=-1)
+
+        return channel(2, m), channel(1, r)
+
+    @cached_property
+    def metallic(self):
+        m = self._metal_rough[0]
+        return m if np.isscalar(m) else self._sampled(m, self._pbr.get("metallicRoughnessTexture"))
 
     @cached_property
     def metal(self) -> bool:
-        return self.metallic >= 0.5
+        m = self._metal_rough[0]
+        return np.isscalar(m) and m >= 0.5
+
+    @property
+    def partial_metal(self) -> bool:
+        m = self._metal_rough[0]
+        return not np.isscalar(m) or 0.0 < m < 1.0
+
+    def _rough_map(self, fn):
+        """``fn`` of the perceptual roughness: a float, or a map with the texture's transform."""
+        r = self._metal_rough[1]
+        return fn(r) if np.isscalar(r) else self._sampled(fn(r), self._pbr.get("metallicRoughnessTexture"))
 
     @cached_property
-    def alpha(self) -> float:
-        return _gltf_number(self._pbr, "roughnessFactor", self._material.roughnessFactor, 1.0, self.where) ** 2  # perceptual roughness squared
+    def alpha(self):
+        return self._rough_map(lambda r: r * r if np.isscalar(r) else np.maximum(r * r, 1e-4))  # perceptual roughness squared
 
     @cached_property
-    def base_colour(self) -> np.ndarray:
-        return _times_texture(self._base, self._material.baseColorTexture)
+    def roughness(self):
+        return self._rough_map(lambda r: max(r, 1e-4) if np.isscalar(r) else np.maximum(r, 1e-4))
+
+    @property
+    def smooth(self) -> bool:
+        r = self._metal_rough[1]
+        return float(np.max(r)) ** 2 < 1e-3
+
+    @cached_property
+    def base_colour(self):
+        texels = _times_texture(self._base, self._material.baseColorTexture)
+        return texels if texels.ndim == 1 else self._sampled(texels, self._pbr.get("baseColorTexture"))
 
     @cached_property
     def metal_colour(self) -> np.ndarray:
         if self._material.baseColorTexture is None:
             return self._base
         return self._base * _times_texture(np.ones(3), self._material.baseColorTexture).reshape(-1, 3).mean(0)
+
+    @cached_property
+    def normal_map(self) -> NormalPerturbation | None:
+        """``normalTexture`` (linear, tangent-space ``2 c - 1`` as Mitsuba's ``normalmap``) with its
+        ``scale`` s: the texels re-encoded so that they hold ``(2 c - 1) (s, s, 1)`` (normalized
+        after filtering, as the spec's shader does), and its ``KHR_texture_transform``."""
+        image = getattr(self._material, "normalTexture", None)
+        if image is None:
+            return None
+        info = self._entry.get("normalTexture") if isinstance(self._entry.get("normalTexture"), dict) else {}
+        scale = info.get("scale", 1.0)
+        if not is_number(scale) or not math.isfinite(scale):
+            raise SceneError(f"{self.where}: glTF normalTexture scale must be a finite number, got {show(scale)}")
+        n = (2.0 * _image_codes(image) - 1.0) * np.array([scale, scale, 1.0])
+        texels = (n + 1.0) / 2.0
+        if (problem := normal_map_problem(texels)) is not None:
+            raise SceneError(f"{self.where}: normalTexture: {problem}")
+        sampling = _texture_sampling(info, self.where)
+        return NormalPerturbation("normalmap", torch.as_tensor(texels, dtype=torch.float32), sampling, source=f"{self.where}: normalTexture")
 
     @cached_property
     def emission(self) -> np.ndarray | None:
@@ -356,7 +486,11 @@ class _PbrMaterial(GltfMaterial):
         else:
             factor = np.zeros(3)
         eps = factor * float(strength)
-        return _times_texture(eps, material.emissiveTexture) if np.any(eps != 0) else None
+        if not np.any(eps != 0):
+            return None
+        if material.emissiveTexture is not None and _texture_sampling(entry.get("emissiveTexture"), self.where) is not None:
+            warnings.warn(f"{self.where}: the emissiveTexture's KHR_texture_transform is not applied (emitters read their textures with the defaults)", stacklevel=4)
+        return _times_texture(eps, material.emissiveTexture)
 
 
 class _MtlMaterial(GltfMaterial):
@@ -399,6 +533,38 @@ class _MtlMaterial(GltfMaterial):
         return _times_texture(kd, self._material.image)
 
 
+#: the glTF material extensions read (``KHR_materials_*``; the others are named in a warning)
+READ_EXTENSIONS = ("KHR_materials_emissive_strength", "KHR_materials_ior", "KHR_materials_transmission")
+
+
+def _texture_sampling(info, where: str) -> TextureSampling | None:
+    """The :class:`TextureSampling` of a glTF textureInfo's ``KHR_texture_transform`` (``offset``
+    o, ``rotation`` r, ``scale`` s: ``uv' = o + R S uv`` with ``R = [[cos r, sin r], [-sin r, cos
+    r]]``, the matrix the extension's own example implies: offset (0, 1), rotation pi/2 and scale
+    0.5 read the image's lower-left quadrant); None without one. glTF's texture coordinates point
+    down as Mitsuba's do, so the matrix converts as a Mitsuba ``to_uv``. Its ``texCoord`` is not
+    read (trimesh reads TEXCOORD_0 only)."""
+    extensions = info.get("extensions") if isinstance(info, dict) else None
+    ext = extensions.get("KHR_texture_transform") if isinstance(extensions, dict) else None
+    if not isinstance(ext, dict):
+        return None
+    offset, rotation, scale = ext.get("offset", [0.0, 0.0]), ext.get("rotation", 0.0), ext.get("scale", [1.0, 1.0])
+    pair = lambda v: isinstance(v, list) and len(v) == 2 and all(is_number(x) and math.isfinite(x) for x in v)  # noqa: E731
+    if not (pair(offset) and pair(scale) and is_number(rotation) and math.isfinite(rotation)):
+        raise SceneError(f"{where}: KHR_texture_transform needs offset and scale as 2 finite numbers and rotation as one, got {show(ext)}")
+    c, s = math.cos(rotation), math.sin(rotation)
+    matrix = [[c * scale[0], s * scale[1], offset[0]], [-s * scale[0], c * scale[1], offset[1]], [0.0, 0.0, 1.0]]
+    to_uv = mitsuba_to_uv(matrix)
+    return None if to_uv is None else TextureSampling(to_uv=to_uv)
+
+
+def _image_codes(image) -> np.ndarray:
+    """A PIL image's values as stored (a data texture: linear, not sRGB-decoded), (h, w, 3) float64."""
+    from invrender.io.images import image_codes  # lazily: images need kornia/OpenEXR
+
+    return image_codes(image).numpy().astype(np.float64)
+
+
 def _gltf_number(table: dict, key: str, fallback, default: float, where: str, high: float = 1.0) -> float:
     """A glTF material number in [0, ``high``]: the JSON's, else trimesh's ``fallback`` (what it
     parsed, e.g. from KHR_materials_pbrSpecularGlossiness), else the spec's ``default``."""
@@ -423,8 +589,10 @@ def _mtl_illum(value, material: str, path: Path) -> int | None:
 
 
 def _material_key(spec: Material) -> tuple:
-    """What tells two materials apart: type, values (fingerprinted) and constants."""
-    return (spec.type, tuple((k, _fingerprint(v)) for k, v in sorted(spec.values.items())), tuple(sorted(spec.constants.items())))
+    """What tells two materials apart: type, values (fingerprinted), constants and normal map."""
+    p = spec.perturbation
+    perturbation = None if p is None else (p, _fingerprint(p.texture.numpy()))
+    return (spec.type, tuple((k, _fingerprint(v)) for k, v in sorted(spec.values.items())), tuple(sorted(spec.constants.items())), perturbation)
 
 
 def _json_material(material, json_materials: list) -> dict:
@@ -481,6 +649,8 @@ def _times_texture(factor: np.ndarray, image) -> np.ndarray:
 def _fingerprint(value) -> str | None:
     if value is None:
         return None
+    if isinstance(value, SampledTexture):
+        return f"{value.sampling}:{_fingerprint(value.texels)}"
     a = np.ascontiguousarray(value, dtype=np.float64)
     return f"{a.shape}:{hashlib.sha1(a.tobytes()).hexdigest()}"
 

@@ -41,7 +41,7 @@ from invrender.scene.formats.mitsuba.context import Context
 from invrender.scene.formats.mitsuba.parser import Obj, Ref
 from invrender.scene.formats.mitsuba.reader import PluginReader
 from invrender.scene.formats.mitsuba.textures import bitmap
-from invrender.scene.materials import PERTURBATIONS, Material, NormalPerturbation
+from invrender.scene.materials import PERTURBATIONS, Material, NormalPerturbation, normal_map_problem
 from invrender.scene.textures import DEFAULT
 
 #: Mitsuba 3's named indices of refraction (include/mitsuba/render/ior.h; Hecht, Optics, ~589 nm)
@@ -166,13 +166,8 @@ def _perturbed(ctx: Context, bsdf: Obj, outer: Obj | None) -> Material:
     else:
         raise ctx.error(texture.node, f"a {bsdf.type}'s texture must be a bitmap or a rawconstant, got {texture.type!r}", bsdf)
     where = f"{ctx.where}:{texture.node.line}: {bsdf.type} {name!r}"
-    if bsdf.type == "normalmap":
-        length = np.linalg.norm(2.0 * texels - 1.0, axis=-1)
-        bad = ~np.isfinite(length) | (length < 0.01)  # no direction (a grey texel: 0.0068); files do hold short normals (0.45), normalized
-        if bad.any():
-            i, j = np.argwhere(bad)[0]
-            what = "not a number" if not np.isfinite(length[i, j]) else f"of length {length[i, j]:.3g}"
-            raise ctx.error(texture.node, f"{name}: the normal at texel (row {i}, column {j}) is {what}: a normal map's texels encode unit normals n as (n + 1) / 2", bsdf)
+    if bsdf.type == "normalmap" and (problem := normal_map_problem(texels)) is not None:
+        raise ctx.error(texture.node, f"{name}: {problem}", bsdf)
     scale = float(ctx.get(bsdf, "scale", "float", 1.0)) if bsdf.type == "bumpmap" else 1.0
     if not np.isfinite(scale):
         raise ctx.error(bsdf.props["scale"].node, f"'scale' must be a finite number, got {scale:g}", bsdf)
