@@ -179,7 +179,8 @@ def _worker(conn, args) -> None:
 def measure(path: Path, args, mi, mitsuba_ref, ir, SceneError) -> dict:
     out: dict = {}
     try:
-        mscene = mi.load_file(str(path))
+        with mitsuba_ref.whole_pool():  # Mitsuba loads in parallel: with the pool invrender's kernels leave (none) its EXR reads waited minutes
+            mscene = mi.load_file(str(path))
     except Exception as e:
         return {"mitsuba_error": str(e).replace("\n", " ")[:400]}
     try:
