@@ -111,7 +111,7 @@ FIT_OPTIONS = (('steps', 'int', "Adam's steps, at most (it stops earlier on a pl
  ('lr_normals',
   'float',
   'Adam step size for shading normals (NAME.normals, NAME.normalmap), on the unnormalized normal, so about radians '
-  '(0.02: about a degree per step); the normals are normalized after each step. (default: 0.02)'),
+  '(0.05: about 3 degrees a step); the normals are normalized after each step. (default: 0.05)'),
  ('lr_final', 'float', 'the step sizes decay along a cosine to this fraction of themselves. (default: 0.05)'),
  ('beta2',
   'float',

@@ -81,7 +81,7 @@ class FitSettings:
         lr_sensor: Adam step size for the sensor's exposure and white balance, in log units
             (sensor.py).
         lr_normals: Adam step size for shading normals (``NAME.normals``, ``NAME.normalmap``),
-            on the unnormalized normal, so about radians (0.02: about a degree per step); the
+            on the unnormalized normal, so about radians (0.05: about 3 degrees a step); the
             normals are normalized after each step.
         lr_final: the step sizes decay along a cosine to this fraction of themselves.
         beta2: Adam's second-moment decay. Shorter than the usual 0.999 so that the step size does
@@ -155,7 +155,7 @@ class FitSettings:
     lr: float = 0.15
     lr_emission: float = 0.15
     lr_sensor: float = 0.05
-    lr_normals: float = 0.02
+    lr_normals: float = 0.05
     lr_final: float = 0.05
     beta2: float = 0.95
     spp: int = 16

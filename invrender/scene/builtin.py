@@ -247,13 +247,21 @@ def plane_views(count: int = 4) -> list[Camera]:
     return views
 
 
+def tinted_sky(h: int = 16, w: int = 32) -> torch.Tensor:
+    """normal_plane's environment: (h, w, 3) radiance whose red, green and blue grow linearly with
+    the direction's x, y (up) and z, ``0.5 + 0.4 d`` (deterministic). Light that varies along
+    every axis makes a surface's shading depend on its normal's every component (a sky symmetric
+    about the zenith leaves a normal's turn about it unseen)."""
+    return (0.5 + 0.4 * map_directions(h, w)).float()
+
+
 def normal_plane(resolution=(48, 48), normalmap_size=(16, 16), normalmap=None, map_size=(16, 32)) -> Scene:
     """A 2 x 2 plane (``plane``, y = 0, facing +y, its vertex normals +y) of GGX rough plastic (a
     grey base under a coating of roughness 0.25) wrapped in a normal map (``plane.normalmap``:
-    :func:`bumpy_normals` of ``normalmap_size``, or the given ``normalmap`` texels) under
-    ``sky_spheres``'s ``envmap`` ``sky`` (:func:`sky_map` of ``map_size``: a sky, a ground and a
-    sun), seen from above by the first of :func:`plane_views`. The scene of normal-map fitting
-    (docs/fitting.md#normals): four views of it determine the map's normals.
+    :func:`bumpy_normals` of ``normalmap_size``, or the given ``normalmap`` texels) under an
+    ``envmap`` ``sky`` (:func:`tinted_sky` of ``map_size``), seen from above by the first of
+    :func:`plane_views`. The scene of normal-map fitting (docs/fitting.md#normals): four views of
+    it determine the map's normals.
     """
     h, w = _map_size("normal_plane", "normalmap_size", normalmap_size)
     texels = bumpy_normals(h, w) if normalmap is None else _texture("normal_plane", "normalmap", normalmap)
@@ -262,7 +270,7 @@ def normal_plane(resolution=(48, 48), normalmap_size=(16, 16), normalmap=None, m
     plane = dataclasses.replace(plane, normals=np.tile([0.0, 1.0, 0.0], (len(plane.vertices), 1)))  # Mitsuba's rectangle carries its normals
     coating = Material.of("roughplastic_ggx", reflectance=(0.45, 0.45, 0.45), roughness=0.25)
     material = dataclasses.replace(coating, perturbation=NormalPerturbation("normalmap", texels, source="normal_plane"))
-    return build_scene([plane], {"plane": material}, {"sky": Emitter.of("envmap", emission=sky_map(mh, mw))}, plane_views()[0], resolution, name="normal_plane")
+    return build_scene([plane], {"plane": material}, {"sky": Emitter.of("envmap", emission=tinted_sky(mh, mw))}, plane_views()[0], resolution, name="normal_plane")
 
 
 BUILTIN_SCENES = {

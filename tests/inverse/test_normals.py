@@ -91,18 +91,18 @@ def test_gradcheck_within_two_percent():
 
 
 def test_adam_recovers_a_small_normal_map():
-    """From a flat start, Adam brings a 4 x 4 map's normals from 17 degrees off on average to well
-    below that (a broken gradient would leave them flat or send them away)."""
+    """From a flat start, Adam (its default step) brings a 4 x 4 map's normals from 17 degrees off
+    on average to a few (a broken gradient would leave them flat or send them away)."""
     scene = plane(size=4, resolution=24)
     truth = scene.params["plane.normalmap"].clone()
     views = plane_views()
     targets = [ir.render(scene.with_camera(c), spp=128, max_depth=2, seed=100 + k, progress=False) for k, c in enumerate(views)]
     flat = scene.with_params({"plane.normalmap": torch.tensor([0.5, 0.5, 1.0]).expand(4, 4, 3).clone()}, detach=True)
     start = float(angles(flat.params["plane.normalmap"], truth).mean())
-    res = ir.fit(flat, targets, ["plane.normalmap"], cameras=views, steps=60, spp=4, spp_final=8, max_depth=2, lr_normals=0.05, progress=False, plateau_window=0)
+    res = ir.fit(flat, targets, ["plane.normalmap"], cameras=views, steps=40, spp=4, spp_final=8, max_depth=2, progress=False, plateau_window=0)
     assert res.solver == "adam"
     end = angles(res.params["plane.normalmap"], truth)
-    assert start > 15 and float(end.mean()) < 0.6 * start and float(end.median()) < 5, (start, end)
+    assert start > 15 and float(end.mean()) < 0.3 * start and float(end.median()) < 0.25 * start, (start, end)
     assert bool(((2 * res.params["plane.normalmap"] - 1).norm(dim=-1) - 1).abs().max() < 1e-5)  # unit normals after every step
 
 
