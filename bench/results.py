@@ -35,6 +35,7 @@ BENCHMARKS = [
     ("envmap_compare", "an environment map against Mitsuba 3 (diffuse and GGX spheres)", "python bench/envmap_compare.py --resolution 64 --spp 512 --seeds 8 --max-depth 8 2", "~2 min", "environment.md#against-mitsuba-3"),
     ("fit_cornell", "the acceptance fit (Adam, lm, Mitsuba `prb` + Adam)", "python bench/fit_cornell.py", "~13 min", "fitting.md#measured"),
     ("fit_recipes", "every shipped fit recipe with both solvers", "python bench/fit_recipes.py", "~40 min", "fitting.md#every-recipe-with-both-solvers"),
+    ("normalmap_fit", "fitting a normal map: normal_plane's 16x16 map from four views (Adam)", "python bench/normalmap_fit.py", "~10 min", "fitting.md#normals"),
     ("inverse_lighting", "inverse lighting: the transport matrix against Mitsuba 3 `prb` + Adam", "python bench/inverse_lighting.py", "~15 min", "environment.md#against-mitsuba-3-prb--adam"),
     ("sampling_ablation", "the sampling-strategy ablation", "python bench/sampling_ablation.py", "~10 min", "sampling.md#measured"),
     ("pixel_samples", "error against samples per pixel, per pixel sampler", "python bench/pixel_samples.py", "~15 min", "sampling.md#pixel-samples"),

@@ -6,7 +6,7 @@ Plugins registered outside the package are not here: ``invrender plugins`` lists
 one."""
 
 # fmt: off
-BUILTIN_SCENES = ('cornell_box', 'cornell_specular', 'cornell_materials', 'furnace', 'sky_spheres')
+BUILTIN_SCENES = ('cornell_box', 'cornell_specular', 'cornell_materials', 'furnace', 'sky_spheres', 'normal_plane')
 SCENE_SUFFIXES = ('.toml', '.xml', '.gltf', '.glb', '.obj', '.ply', '.stl')
 INTEGRATORS = ('random_walk', 'path', 'distributed', 'radiosity', 'utah', 'whitted')
 INTEGRATORS_HELP = """\
@@ -108,6 +108,10 @@ FIT_OPTIONS = (('steps', 'int', "Adam's steps, at most (it stops earlier on a pl
  ('lr_sensor',
   'float',
   "Adam step size for the sensor's exposure and white balance, in log units (sensor.py). (default: 0.05)"),
+ ('lr_normals',
+  'float',
+  'Adam step size for shading normals (NAME.normals, NAME.normalmap), on the unnormalized normal, so about radians '
+  '(0.05: about 3 degrees a step); the normals are normalized after each step. (default: 0.05)'),
  ('lr_final', 'float', 'the step sizes decay along a cosine to this fraction of themselves. (default: 0.05)'),
  ('beta2',
   'float',

@@ -120,6 +120,10 @@ class ShadingPoint:
         bend: where some material's normal is perturbed (a normal or bump map), what its value
             and pdf are masked and weighted by (:func:`invrender.core.lanes.bend_lanes`: the base
             normal (N, 3), the perturbed one (N, 3), alpha^2 (N,), perturbed (N,) bool); else None.
+        sampling: the same points as sampling sees them, where their shading frame can differ
+            from this one (differentiated normals: this frame carries a derivative, or a render
+            holds sampling at other normals): detached, in the frame of the normals sampling is
+            held at; None where sampling reads this frame.
     """
 
     wo: torch.Tensor
@@ -133,12 +137,15 @@ class ShadingPoint:
     corners: torch.Tensor | None = None
     bary: torch.Tensor | None = None
     bend: tuple | None = None
+    sampling: "ShadingPoint | None" = None
 
     def select(self, index: torch.Tensor) -> "ShadingPoint":
         """The points at ``index`` (M,) int64 (with their frames, where already built)."""
         vertex = {} if self.corners is None else {"corners": self.corners.index_select(0, index), "bary": self.bary.index_select(0, index)}
         if self.bend is not None:
             vertex["bend"] = tuple(v.index_select(0, index) for v in self.bend)
+        if self.sampling is not None:
+            vertex["sampling"] = self.sampling.select(index)
         out = ShadingPoint(*(getattr(self, f).index_select(0, index) for f in _POINT_FIELDS), **vertex)
         if "frame" in self.__dict__:
             out.__dict__["frame"] = Frame(*(v.index_select(0, index) for v in (self.frame.s, self.frame.t, self.frame.n)))
@@ -162,6 +169,7 @@ class ShadingPoint:
 
 
 _POINT_FIELDS = ("wo", "n", "ng", "front", "uv", "material", "slot")
+
 
 
 @dataclass(frozen=True)

@@ -35,15 +35,19 @@ class Materials:
             transmit.
         perturbations: per scene material, its normal or bump map
             (:class:`~invrender.scene.materials.NormalPerturbation`) or None; None = none.
+        sampling_perturbations: the same, as sampling reads them where a render holds sampling
+            at other normal maps (``sampling_params``); None = ``perturbations``.
     """
 
     def __init__(
         self, types: list[str], values: list[dict[str, torch.Tensor]], constants: list[dict[str, float]], device, flat: bool = False, sampling: BSDFSampling | None = None,
         sampling_values: list[dict[str, torch.Tensor]] | None = None, one_sided: list[bool] | None = None, texture_sampling: list[dict] | None = None,
-        perturbations: list | None = None,
+        perturbations: list | None = None, sampling_perturbations: list | None = None,
     ):  # fmt: skip
         #: per scene material, its normal perturbation or None (:mod:`invrender.core.shading`)
         self.perturbations = list(perturbations) if perturbations is not None and any(p is not None for p in perturbations) else None
+        #: per scene material, the perturbation sampling reads where a render holds it elsewhere; None = the same
+        self.sampling_perturbations = None if self.perturbations is None or sampling_perturbations is None else list(sampling_perturbations)
         present = list(dict.fromkeys(types))  # first-seen order
         self.bsdfs: list[BSDF] = []
         slot_of, local_of = [], []
@@ -144,7 +148,8 @@ class Materials:
 
     def pdf(self, sp: ShadingPoint, wi: torch.Tensor) -> torch.Tensor:
         """Solid-angle pdf (N,) of each hit's BSDF sampling ``wi`` (0 at the back of a one-sided
-        material: it samples nothing there)."""
+        material: it samples nothing there), in the frame sampling reads (:attr:`ShadingPoint.sampling`)."""
+        sp = sp if sp.sampling is None else sp.sampling
         pdf = self._dispatch(sp, lambda b, p, i: b.pdf(p, wi if i is None else wi[i]))
         lit = self._lit(sp)
         pdf = pdf if lit is None else pdf * lit
@@ -152,7 +157,24 @@ class Materials:
 
     def sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
         """One direction per hit from its BSDF (weight and pdf 0 at the back of a one-sided
-        material: the path ends there)."""
+        material: the path ends there).
+
+        Where the points' shading frame can differ from the one sampling reads (differentiated
+        normals: :attr:`ShadingPoint.sampling`), the direction is drawn in the sampling frame, as
+        sampling never depends on a differentiated parameter, and the weight of a sample of a lobe
+        with a density is ``eval(wi) / pdf``, the pdf the sampling frame's: the same value where
+        the frames agree, differentiable in the frame at the fixed world direction ``wi`` (a delta
+        lobe's weight is the sampling frame's: its direction would have to turn with the normal,
+        which is not followed)."""
+        if sp.sampling is not None:
+            s = self._sample(sp.sampling, u_lobe, u_dir)
+            pdf = s.pdf.detach()
+            smooth = (~s.delta & (pdf > 0))[:, None]
+            weight = torch.where(smooth, self.eval(sp, s.wi) / torch.where(pdf > 0, pdf, 1.0)[:, None], s.weight)
+            return BSDFSample(s.wi.detach(), weight, pdf, s.delta)
+        return self._sample(sp, u_lobe, u_dir)
+
+    def _sample(self, sp: ShadingPoint, u_lobe: torch.Tensor, u_dir: torch.Tensor) -> BSDFSample:
         s = self._dispatch(sp, lambda b, p, i: b.sample(p, u_lobe if i is None else u_lobe[i], u_dir if i is None else u_dir[i]))
         lit = self._lit(sp)
         s = s if lit is None else BSDFSample(s.wi, s.weight * lit[:, None], s.pdf * lit, s.delta)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import functools
 from dataclasses import dataclass
 
 import torch
@@ -16,7 +15,8 @@ from invrender.core import compiled, lanes, shading
 from invrender.core.frame import Frame
 from invrender.core.bsdfs import BSDFSampling, Materials, ShadingPoint
 from invrender.core.lights import Lights
-from invrender.core.surface import Surface
+from invrender.core.surface import Surface, VertexNormals, carries_derivative
+from invrender.backends.arrays import TORCH
 from invrender.core.textures import gather_rgb
 from invrender.vec import dot
 
@@ -42,6 +42,8 @@ class TransportContext:
             triangles' corner rows and barycentric weights)?
         extra: what an integrator's pre-pass computed for its ``trace`` (None without one).
         hide_emitters: camera rays see no emission (the integrator's ``hide_emitters``).
+        normals: the vertex normals hits shade with (:class:`~invrender.core.surface.VertexNormals`:
+            differentiable in the ``"<material>.normals"`` parameters); None = the triangles' own.
     """
 
     triangles: Triangles
@@ -55,6 +57,7 @@ class TransportContext:
     per_vertex: bool = False
     extra: object = None
     hide_emitters: bool = False
+    normals: VertexNormals | None = None
 
     @staticmethod
     def build(
@@ -79,7 +82,7 @@ class TransportContext:
         emitters = [scene.emitter_spec(i) for i in range(len(scene.emitters))]
         light_values = [{key: values[param_name(e, key)].to(device) for key in spec.spec.params} for e, spec in zip(scene.emitters, emitters)]
         eps = [v.get("emission", torch.zeros(3, device=device)) for v in light_values]
-        frozen = frozen_materials = None
+        frozen = frozen_materials = sampled_from = None
         if sampling_params:
             sampled_from = {**values, **sampling_params}
             frozen = [{key: sampled_from[param_name(e, key)].detach().to(device) for key in spec.spec.params} for e, spec in zip(scene.emitters, emitters)]
@@ -90,7 +93,8 @@ class TransportContext:
             lights=Lights([e.type for e in emitters], light_values, [dict(e.constants) for e in emitters], tris, frozen),
             materials=Materials(
                 [s.type for s in specs], material_values, [dict(s.constants) for s in specs], device, flat=not tris.any_smooth, sampling=sampling, sampling_values=frozen_materials,
-                one_sided=[s.one_sided for s in specs], perturbations=[getattr(s, "perturbation", None) for s in specs],
+                one_sided=[s.one_sided for s in specs], perturbations=[_perturbation(s, m, values, device) for m, s in zip(scene.materials, specs)],
+                sampling_perturbations=_held_perturbations(scene, specs, values, sampled_from, device),
                 texture_sampling=[{key: scene.texture_sampling[param_name(m, key)] for key in spec.spec.params if param_name(m, key) in scene.texture_sampling} for m, spec in zip(scene.materials, specs)],
             ),
             eps=eps,
@@ -98,13 +102,14 @@ class TransportContext:
             ray_offset=1e-4 * max(scene_extent(tris), 1e-3),
             textured=any(p.ndim == 3 for p in [v for m in light_values + material_values for v in m.values()]),
             per_vertex=any(p.ndim == 2 for m in material_values for p in m.values()),
+            normals=_vertex_normals(scene, tris, values, sampled_from, device),
         )
 
     def material(self, s: Surface) -> torch.Tensor:
         """(N,) int64 scene material of each hit."""
         return self.triangles.material.index_select(0, s.tri)
 
-    @functools.cached_property
+    @property
     def shading(self) -> tuple:
         """The shading frames' tables (:func:`invrender.core.shading.tables`): ``(frames,
         perturb)``, None each where no material needs the UV frame or has a perturbed normal."""
@@ -116,10 +121,35 @@ class TransportContext:
         the functions the compiled bounce runs)."""
         material = self.material(s)
         vertex = {"corners": self.triangles.vertex.index_select(0, s.tri), "bary": s.bary} if self.per_vertex else {}
-        frames, perturb = self.shading
+        sp = self._point(s, wo, material, vertex, s.ns, *shading.tables(self))
+        if self._turns(s):  # differentiated normals: sampling reads the frame at the values it is held at, detached
+            ns = s.ns.detach() if self.normals is None else self.normals.sampling_normal(s)
+            with torch.no_grad():
+                sampling = self._point(s, wo, material, vertex, ns, *shading.tables(self, sampling=True))
+            sp.__dict__["sampling"] = sampling
+        return sp
+
+    def _turns(self, s: Surface) -> bool:
+        """Can the shading frame at the hits ``s`` differ from the one sampling reads: it carries a
+        derivative (a differentiated ``"<material>.normals"`` or ``"<material>.normalmap"``), or
+        sampling is held at other normals (``sampling_params``)?"""
+        if carries_derivative(s.ns) or getattr(self.materials, "sampling_perturbations", None) is not None:
+            return True
+        if self.normals is not None and self.normals.sampling is not None:
+            return True
+        return any(p is not None and carries_derivative(p.texture) for p in self.materials.perturbations or [])
+
+    def _point(self, s: Surface, wo, material, vertex: dict, ns, frames, perturb) -> ShadingPoint:
+        """The :class:`ShadingPoint` of hits ``s`` of shading normal ``ns`` with the shading tables
+        ``frames``, ``perturb`` (:func:`invrender.core.shading.tables`); eager torch where a
+        normal carries a derivative, else compiled."""
         if frames is None:
-            return self.materials.shading_point(material, wo, s.ns, s.n, s.front, s.uv, **vertex)
-        out = compiled.run(shading.shading_point_lanes, wo.device, frames, perturb, s.ns, s.n, s.front, s.tri, s.bary[:, 1].contiguous(), s.bary[:, 2].contiguous(), wo, material.to(torch.int32))
+            return self.materials.shading_point(material, wo, ns, s.n, s.front, s.uv, **vertex)
+        args = (frames, perturb, ns, s.n, s.front, s.tri, s.bary[:, 1].contiguous(), s.bary[:, 2].contiguous(), wo, material.to(torch.int32))
+        if carries_derivative(ns) or (perturb is not None and carries_derivative(perturb[1])):  # differentiable normals: eager torch
+            out = compiled.evaluate(TORCH, shading.shading_point_lanes, *args)
+        else:
+            out = compiled.run(shading.shading_point_lanes, wo.device, *args)
         frame = Frame(*out[:3])
         bend = None if perturb is None else tuple(out[4:])
         return self.materials.shading_point(material, wo, frame.n, s.n, out[3], s.uv, frame=frame, bend=bend, **vertex)
@@ -134,6 +164,42 @@ class TransportContext:
         the geometric side ``wi`` points to (so refracted rays start inside)."""
         (origin,) = compiled.run(_spawn, wi.device, s.p, s.n, wi, float(self.ray_offset))
         return origin
+
+
+def _perturbation(spec, material: str, values: dict, device):
+    """A material's normal perturbation (None: none) as this render reads it: a normal map's
+    texels are the parameter ``"<material>.normalmap"`` (differentiable), a bump map's the spec's."""
+    p = getattr(spec, "perturbation", None)
+    name = param_name(material, "normalmap")
+    if p is None or p.kind != "normalmap" or name not in values:
+        return p
+    return dataclasses.replace(p, texture=values[name].to(device))
+
+
+def _held_perturbations(scene: Scene, specs, values: dict, sampled_from: dict | None, device) -> list | None:
+    """Per scene material, the normal perturbation sampling reads where ``sampling_params`` hold a
+    normal map at other texels than the render's (a finite difference's); None where none does."""
+    if sampled_from is None:
+        return None
+    held = [_perturbation(s, m, sampled_from, device) for m, s in zip(scene.materials, specs)]
+    names = [param_name(m, "normalmap") for m in scene.materials]
+    if all(n not in values or torch.equal(values[n].detach().to(device), sampled_from[n].detach().to(device)) for n in names):
+        return None
+    return [None if p is None else dataclasses.replace(p, texture=p.texture.detach()) for p in held]
+
+
+def _vertex_normals(scene: Scene, triangles: Triangles, values: dict, sampled_from: dict | None, device) -> VertexNormals | None:
+    """The render's vertex normals (:class:`~invrender.core.surface.VertexNormals`, with the ones
+    sampling is held at where ``sampling_params`` give others), None where no triangle has any."""
+    if not triangles.any_smooth:
+        return None
+    names = [n for n in (param_name(m, "normals") for m in scene.materials) if n in values]
+    own = [values[n].to(device) for n in names]
+    held = None
+    if sampled_from is not None:
+        held = [sampled_from[n].detach().to(device) for n in names]
+        held = None if all(torch.equal(a.detach(), b) for a, b in zip(own, held)) else held
+    return VertexNormals(triangles, own, held)
 
 
 def _spawn(xp, p, n, wi, offset: float):

@@ -126,6 +126,10 @@ def tables(ctx: TransportContext, direct, hemisphere: str) -> FusedScene | None:
         return None
     if ctx.hide_emitters or ctx.ambient is not None or ctx.per_vertex:
         return None
+    if (ctx.normals is not None and (ctx.normals.carries_derivative or ctx.normals.sampling is not None)) or ctx.materials.sampling_perturbations is not None:
+        return None  # differentiated normals, or sampling held at other ones: the torch bounce follows them
+    if any(p is not None and _carries_derivative(p.texture) for p in ctx.materials.perturbations or []):
+        return None
     emitters = _emitters(ctx.lights)
     if emitters is None:
         return None
@@ -148,7 +152,7 @@ def tables(ctx: TransportContext, direct, hemisphere: str) -> FusedScene | None:
         tuple(tuple(Opaque(float(x)) for x in share) for share in lanes.shares(ctx.lights)),
         index.reshape(-1).contiguous(),
         tuple(t for _, t in forms),
-        (lanes.normal_rows(ctx.triangles) if ctx.triangles.any_smooth else None, *shading.tables(ctx)),
+        (ctx.normals.rows() if ctx.normals is not None else None, *shading.tables(ctx)),
         None if textures.empty else (lanes.uv_rows(ctx.triangles), *textures.tables(device)),
     )
     rho, eps = materials.fused_albedo(), None

@@ -407,9 +407,10 @@ class TextureTable:
     def __init__(self):
         self._texels, self._rows, self._count = [], [], 0
 
-    def add(self, value: torch.Tensor, sampling) -> int | None:
+    def add(self, value: torch.Tensor, sampling, graph: bool = False) -> int | None:
         """The id of texture ``value`` (h, w, 3) read by ``sampling`` (None: the default), or None
-        where the table would outgrow :attr:`LIMIT`."""
+        where the table would outgrow :attr:`LIMIT`; with ``graph`` its texels keep their autograd
+        graph (a differentiated normal map, read by the torch bounce), else detached."""
         from invrender.core.textures import WRAP_CODES
         from invrender.scene.textures import DEFAULT
 
@@ -419,7 +420,7 @@ class TextureTable:
             return None
         to_uv = sampling.to_uv or (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
         self._rows.append([float(self._count), float(w), float(h), float(sampling.filter == "nearest"), WRAP_CODES[sampling.wrap], *to_uv] + [0.0] * 5)
-        self._texels.append(torch.nn.functional.pad(value.detach().float().reshape(-1, 3).cpu(), (0, 1)))
+        self._texels.append(torch.nn.functional.pad((value if graph else value.detach()).float().reshape(-1, 3).cpu(), (0, 1)))
         self._count += h * w
         return len(self._rows) - 1
 

@@ -49,6 +49,7 @@ from __future__ import annotations
 import torch
 
 from invrender.core import lanes
+from invrender.core.surface import carries_derivative
 
 #: the perturbations' codes in the shading table (:data:`~invrender.core.lanes.SHADING_ROW`)
 KINDS = {"normalmap": 1.0, "bumpmap": 2.0}
@@ -84,24 +85,31 @@ class _TorchF64:
     select = staticmethod(torch.where)
 
 
-def tables(ctx):
+def tables(ctx, sampling: bool = False):
     """The shading tables of the render ``ctx`` (:class:`~invrender.core.context.TransportContext`):
     ``(frames, perturb)``, each None where nothing needs it: ``frames = (tangents (T * 8,), uvs
     (T * 8,), rows (M * 8,))`` (:func:`tangent_rows`, :func:`~invrender.core.lanes.uv_rows`, one
     :data:`~invrender.core.lanes.SHADING_ROW` per scene material) where some material needs the UV frame;
     ``perturb = (texture rows, texels)`` (a :class:`~invrender.core.lanes.TextureTable` of the
-    perturbations' textures) where some material's normal is perturbed."""
+    perturbations' textures) where some material's normal is perturbed. The texels keep their
+    autograd graph where a normal map's texels carry a derivative (grad on: a table of their own);
+    with ``sampling``, the tables sampling reads: detached, of the normal maps sampling is held
+    at (``Materials.sampling_perturbations``) where a render holds it fixed."""
     materials = ctx.materials
-    token = (id(ctx.triangles), str(ctx.triangles.p0.device))
+    perturbations = getattr(materials, "perturbations", None) or []
+    held = sampling and getattr(materials, "sampling_perturbations", None) is not None
+    if held:
+        perturbations = materials.sampling_perturbations
+    graph = not sampling and any(p is not None and carries_derivative(p.texture) for p in perturbations)  # a normal map's texels differentiated
+    token = (id(ctx.triangles), str(ctx.triangles.p0.device), graph, held)
     cache = materials.__dict__.setdefault("_shading_tables", {})  # one build per render (the chunks' contexts share the materials)
     if token not in cache:
-        cache[token] = _tables(ctx)
+        cache[token] = _tables(ctx, perturbations or [None] * len(materials.slot_of), graph)
     return cache[token]
 
 
-def _tables(ctx):
+def _tables(ctx, perturbations: list, graph: bool):
     materials = ctx.materials
-    perturbations = getattr(materials, "perturbations", None) or [None] * len(materials.slot_of)
     tangent = [bool(getattr(b.lane_form(), "tangent", False)) for b in materials.bsdfs]
     slot = materials.slot_of.tolist()
     if not any(tangent) and all(p is None for p in perturbations):
@@ -110,7 +118,7 @@ def _tables(ctx):
     for m, p in enumerate(perturbations):
         row = [1.0 if tangent[slot[m]] or p is not None else 0.0] + [0.0] * (lanes.SHADING_ROW - 1)
         if p is not None:
-            texture = textures.add(p.texture, p.sampling)
+            texture = textures.add(p.texture, p.sampling, graph=graph)
             if texture is None:
                 from invrender.errors import SceneError
 

@@ -598,6 +598,8 @@ def record_obstacle(scene: Scene, names) -> str | None:
     infinite = [e for i, e in enumerate(scene.emitters) if EMITTERS[scene.emitter_spec(i).type].infinite]
     for n in names:
         kind = kind_of(n)
+        if kind.adam_only:
+            return f"{n} is a shading normal ({kind.key}: it turns the frame every BSDF is evaluated in), not a polynomial factor of a path's weight"
         if scene.params[n].ndim == 2:
             return f"{n} is per vertex (a mesh attribute), which path records do not follow"
         if not kind.polynomial:
@@ -618,6 +620,9 @@ def record_obstacle(scene: Scene, names) -> str | None:
     return None
 
 
+#: what a refusal of :func:`record_paths` suggests for shading normals (``NAME.normals``,
+#: ``NAME.normalmap``), which neither records nor forward-mode re-traced renders follow
+ADAM_ONLY = "fit it with Adam (ir.fit's solver 'adam', which it chooses for normals)"
 #: what a refusal of :func:`record_paths` suggests instead
 INSTEAD = "ir.fit fits it with solver 'lm' or 'gauss_newton' on re-traced renders (forward-mode Jacobians), as ir.identifiability analyses it, or with solver 'adam'"
 
@@ -664,7 +669,8 @@ def record_paths(
     names = check_names(scene.params, params)
     why = record_obstacle(scene, names)
     if why:
-        raise ParameterError(f"{why}: path records cannot represent it; {INSTEAD}")
+        normals = [n for n in names if kind_of(n).adam_only]
+        raise ParameterError(f"{why}: path records cannot represent it; {ADAM_ONLY if normals else INSTEAD}")
     if not scene.film.is_box and any(scene.params[n].ndim == 3 for n in names):
         raise ParameterError(f"path records of textured parameters support the box filter only, and scene {scene.name!r} has the {scene.film.filter.type_name!r} filter: record with filter='box' or fit with solver 'adam'")
     if isinstance(max_depth, bool) or not isinstance(max_depth, int) or max_depth < 1:

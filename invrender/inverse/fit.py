@@ -80,6 +80,9 @@ class FitSettings:
         lr_emission: Adam step size for emissions, in log(eps) units (0.05 = 5% per step).
         lr_sensor: Adam step size for the sensor's exposure and white balance, in log units
             (sensor.py).
+        lr_normals: Adam step size for shading normals (``NAME.normals``, ``NAME.normalmap``),
+            on the unnormalized normal, so about radians (0.05: about 3 degrees a step); the
+            normals are normalized after each step.
         lr_final: the step sizes decay along a cosine to this fraction of themselves.
         beta2: Adam's second-moment decay. Shorter than the usual 0.999 so that the step size does
             not stay scaled down by the large gradients of the first steps (a fit is a few hundred
@@ -152,6 +155,7 @@ class FitSettings:
     lr: float = 0.15
     lr_emission: float = 0.15
     lr_sensor: float = 0.05
+    lr_normals: float = 0.05
     lr_final: float = 0.05
     beta2: float = 0.95
     spp: int = 16
@@ -194,7 +198,7 @@ class FitSettings:
             raise ParameterError(f"unknown solver {self.solver!r}{did_you_mean(self.solver, SOLVERS)} (known: {', '.join(SOLVERS)})")
         if self.solver not in ("adam", "auto") and (model.terms_kept < 1 or self.loss != "relative_l2"):
             raise ParameterError(f"solver {self.solver!r} needs a finite max_depth >= 1 and the relative_l2 loss (got max_depth {model.terms_kept}, loss {self.loss!r})")
-        for name in ("lr", "lr_emission", "lr_sensor", "lr_final", "precision"):
+        for name in ("lr", "lr_emission", "lr_sensor", "lr_normals", "lr_final", "precision"):
             if name == "precision" and self.precision is None:
                 continue
             check_float("fit setting ", name, getattr(self, name), positive=True)
@@ -407,6 +411,8 @@ def fit(
                     grad_norm = math.sqrt(sum(float(raw[n].grad.double().pow(2).sum()) for n in raw if raw[n].grad is not None))
                     before = copy.deepcopy((_leaves(raw), optimizer.state_dict())) if checkpoint is not None else None
                     optimizer.step()
+                    for n in scene_names:
+                        kind_of(n).renormalize_(raw[n])  # a normal back to unit length
                     values = _values(raw, scene_names, sensor, names)
                     bad = nonfinite_params(values) or nonfinite_params(raw)  # a value exp() overflowed, or a leaf
                     if bad:  # the update itself overflowed (a learning rate far too large): undo it

@@ -148,6 +148,9 @@ def check(scene: Scene, names: list[str], sensor: Sensor, what: str) -> None:
     re-traced fit cannot do: fit the sensor, or more than
     :data:`MAX_RENDERS` forward-mode renders per Jacobian (textures: one per texel)."""
     why = record_obstacle(scene, names)
+    normals = [n for n in names if kind_of(n).adam_only]
+    if normals:
+        raise ParameterError(f"{what} on re-traced renders cannot follow {normals[0]}, a shading normal (forward-mode renders do not turn the shading frame): fit it with solver 'adam'")
     if sensor.size:
         raise ParameterError(f"{what} on re-traced renders ({why}) cannot fit the sensor's exposure or white balance; fix them (sensor options) or use solver 'adam'")
     count = Unknowns.of({n: scene.params[n] for n in names}).renders()

@@ -47,7 +47,7 @@ from invrender.scene.scene import Scene
 SOLVERS = ("auto", "adam", "lm", "gauss_newton", "transport_matrix", "joint")
 #: settings only Adam reads: one given (without a least-squares one) asks for Adam
 #: (not ``spp_final``: the transport matrix's samples too)
-ADAM_SETTINGS = ("steps", "lr", "lr_emission", "lr_sensor", "lr_final", "beta2", "estimator", "plateau_window")
+ADAM_SETTINGS = ("steps", "lr", "lr_emission", "lr_sensor", "lr_normals", "lr_final", "beta2", "estimator", "plateau_window")
 #: settings only the least-squares solvers read: one given rules out the transport matrix and
 #: Adam's own settings choosing Adam
 LEAST_SQUARES_SETTINGS = ("rounds", "precision", "prior_weight", "smoothness")

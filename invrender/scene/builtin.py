@@ -1,18 +1,20 @@
 """Built-in scenes by name: ``cornell_box`` (the default), ``cornell_specular``,
-``cornell_materials``, ``furnace`` and ``sky_spheres``."""
+``cornell_materials``, ``furnace``, ``sky_spheres`` and ``normal_plane``."""
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 import math
 import numbers
 
+import numpy as np
 import torch
 
 from invrender.errors import SceneError, did_you_mean
 from invrender.scene.camera import Camera
 from invrender.scene.emitters import Emitter
-from invrender.scene.materials import Material
+from invrender.scene.materials import Material, NormalPerturbation
 from invrender.scene.scene import Scene, build_scene
 from invrender.scene.shapes import Mesh, primitive, rotate, scale, sphere, translate
 
@@ -214,7 +216,67 @@ def sky_spheres(resolution=(64, 64), map_size=(16, 32), subdivisions: int = 4, s
     return build_scene(shapes, materials, {"sky": Emitter.of("envmap", emission=texture)}, SKY_CAMERA, resolution, name="sky_spheres")
 
 
-BUILTIN_SCENES = {"cornell_box": cornell_box, "cornell_specular": cornell_specular, "cornell_materials": cornell_materials, "furnace": furnace, "sky_spheres": sky_spheres}
+#: normal_plane: the bumps' tilts from the plane's normal, in degrees (least, most)
+BUMP_TILTS = (10.0, 25.0)
+#: normal_plane: its cameras' elevation above the plane and distance from its centre
+PLANE_VIEW_ELEVATION, PLANE_VIEW_DISTANCE = 50.0, 2.7
+
+
+def bumpy_normals(h: int = 16, w: int = 16) -> torch.Tensor:
+    """normal_plane's normal map: (h, w, 3) texels ``c = (n + 1) / 2`` of tangent-space unit normals
+    ``n`` tilted from +z by between ``BUMP_TILTS`` degrees, tilt and azimuth varying from texel to
+    texel in a fixed pattern (deterministic)."""
+    i = torch.arange(h, dtype=torch.float64)[:, None].expand(h, w)
+    j = torch.arange(w, dtype=torch.float64)[None, :].expand(h, w)
+    lo, hi = BUMP_TILTS
+    tilt = torch.deg2rad(lo + (hi - lo) * torch.remainder(7 * i + 3 * j, 5) / 4)
+    azimuth = 2 * math.pi * torch.remainder(0.37 * i + 0.61 * j + 0.13 * i * j, 1.0)
+    n = torch.stack([torch.sin(tilt) * torch.cos(azimuth), torch.sin(tilt) * torch.sin(azimuth), torch.cos(tilt)], dim=-1)
+    return ((n + 1) / 2).float()
+
+
+def plane_views(count: int = 4) -> list[Camera]:
+    """normal_plane's cameras: ``count`` views evenly spaced in azimuth around the plane, each
+    ``PLANE_VIEW_ELEVATION`` degrees above it, looking at its centre (the first is the scene's)."""
+    e = math.radians(PLANE_VIEW_ELEVATION)
+    views = []
+    for k in range(count):
+        a = 2 * math.pi * (k + 0.125) / count
+        origin = PLANE_VIEW_DISTANCE * torch.tensor([math.cos(e) * math.sin(a), math.sin(e), math.cos(e) * math.cos(a)])
+        views.append(Camera(origin=tuple(origin.tolist()), target=(0, 0, 0), up=(0, 1, 0), fov=40.0, fov_axis="smaller"))
+    return views
+
+
+def tinted_sky(h: int = 16, w: int = 32) -> torch.Tensor:
+    """normal_plane's environment: (h, w, 3) radiance whose red, green and blue grow linearly with
+    the direction's x, y (up) and z, ``0.5 + 0.4 d`` (deterministic). Light that varies along
+    every axis makes a surface's shading depend on its normal's every component (a sky symmetric
+    about the zenith leaves a normal's turn about it unseen)."""
+    return (0.5 + 0.4 * map_directions(h, w)).float()
+
+
+def normal_plane(resolution=(48, 48), normalmap_size=(16, 16), normalmap=None, map_size=(16, 32)) -> Scene:
+    """A 2 x 2 plane (``plane``, y = 0, facing +y, its vertex normals +y) of GGX rough plastic (a
+    grey base under a coating of roughness 0.25) wrapped in a normal map (``plane.normalmap``:
+    :func:`bumpy_normals` of ``normalmap_size``, or the given ``normalmap`` texels) under an
+    ``envmap`` ``sky`` (:func:`tinted_sky` of ``map_size``), seen from above by the first of
+    :func:`plane_views`. The scene of normal-map fitting (docs/fitting.md#normals): four views of
+    it determine the map's normals.
+    """
+    h, w = _map_size("normal_plane", "normalmap_size", normalmap_size)
+    texels = bumpy_normals(h, w) if normalmap is None else _texture("normal_plane", "normalmap", normalmap)
+    mh, mw = _map_size("normal_plane", "map_size", map_size)
+    plane = _shape("rectangle", rotate([1, 0, 0], -90), "plane")
+    plane = dataclasses.replace(plane, normals=np.tile([0.0, 1.0, 0.0], (len(plane.vertices), 1)))  # Mitsuba's rectangle carries its normals
+    coating = Material.of("roughplastic_ggx", reflectance=(0.45, 0.45, 0.45), roughness=0.25)
+    material = dataclasses.replace(coating, perturbation=NormalPerturbation("normalmap", texels, source="normal_plane"))
+    return build_scene([plane], {"plane": material}, {"sky": Emitter.of("envmap", emission=tinted_sky(mh, mw))}, plane_views()[0], resolution, name="normal_plane")
+
+
+BUILTIN_SCENES = {
+    "cornell_box": cornell_box, "cornell_specular": cornell_specular, "cornell_materials": cornell_materials, "furnace": furnace, "sky_spheres": sky_spheres,
+    "normal_plane": normal_plane,
+}  # fmt: skip
 
 
 #: sky_spheres: the most texels its map may have (h * w; 2^24 texels are 192 MiB of float32 RGB)
@@ -266,7 +328,7 @@ def _texture(scene: str, key: str, value) -> torch.Tensor:
 
 #: how each keyword option of the built-in scenes is checked before the scene is made (resolution:
 #: by build_scene)
-OPTION_CHECKS = {"subdivisions": _subdivisions, "map_size": _map_size, "rho": _rgb_option, "eps": _rgb_option, "sky": _texture}
+OPTION_CHECKS = {"subdivisions": _subdivisions, "map_size": _map_size, "normalmap_size": _map_size, "rho": _rgb_option, "eps": _rgb_option, "sky": _texture, "normalmap": _texture}
 
 
 def builtin_scene(name: str, **kwargs) -> Scene:

@@ -33,10 +33,11 @@ class ParamKind:
         symbol: its symbol in the rendering equation (``"rho"``, ``"eps"``, ``"k_s"``).
         upper: values lie in ``[0, upper]``; ``math.inf`` = unbounded above.
         texture: may vary over the surface as an (h, w, 3) texture (else an RGB triple only).
-        reparam: how ``fit`` keeps values in range: ``"sigmoid"`` (value = sigmoid(x), in (0, 1))
-            or ``"exp"`` (value = exp(x), > 0).
+        reparam: how ``fit`` keeps values in range: ``"sigmoid"`` (value = sigmoid(x), in (0, 1)),
+            ``"exp"`` (value = exp(x), > 0) or ``"unit"`` (a normal = x / |x|: :attr:`unit`).
         lr_setting: the :class:`~invrender.inverse.fit.FitSettings` field holding its Adam step
-            (``"lr"`` for [0, 1] kinds, in logit units; ``"lr_emission"``, in log units).
+            (``"lr"`` for [0, 1] kinds, in logit units; ``"lr_emission"``, in log units;
+            ``"lr_normals"`` for normals, about radians).
         fd_step: ``gradcheck``'s central-difference step, relative to the value (absolute below 1).
         doc: one line for messages and docs.
         positive: values must be > 0 (the range is ``(0, upper]``), not merely >= 0.
@@ -47,6 +48,14 @@ class ParamKind:
             the BSDF reads their mean.
         differentiable: False for a value the renderer reads detached (a mask's opacity decides
             visibility, which is never differentiated): it may be set, not fitted or differentiated.
+        unit: a direction, not an amount (the shading normals, :data:`NORMALS` and
+            :data:`NORMALMAP`): ``"vector"``, the value is unit 3-vectors (any sign); ``"texel"``,
+            the value is a normal map's texels ``c`` in [0, 1], the tangent-space normal
+            ``2 c - 1``. Either way a normal must be finite and of length >= :data:`MIN_NORMAL`
+            (a grey texel has none); vertex normals set are normalized (a normal map's texels are
+            kept as given: the renderer normalizes after filtering, as Mitsuba does). ``fit`` moves the unnormalized
+            vector (``reparam`` ``"unit"``) and normalizes it after each Adam step; only Adam fits
+            them (:attr:`adam_only`).
     """
 
     key: str
@@ -61,9 +70,18 @@ class ParamKind:
     polynomial: bool = True
     grey: bool = False
     differentiable: bool = True
+    unit: str | None = None
+
+    @property
+    def adam_only(self) -> bool:
+        """Only Adam fits it: a normal turns the frame every BSDF is evaluated in, which neither
+        path records (not a polynomial factor) nor forward-mode re-traced renders follow."""
+        return self.unit is not None
 
     def check(self, name: str, value: torch.Tensor) -> None:
         """A :class:`ParameterError` naming ``name`` when ``value`` lies outside this kind's range."""
+        if self.unit is not None:
+            return self._check_unit(name, value)
         if value.ndim == 3 and not self.texture:
             raise ParameterError(f"{name}: {self.key} must be an RGB triple, not a texture")
         if self.grey and value.shape[-1] == 3 and not bool((value == value[..., :1]).all()):
@@ -74,19 +92,63 @@ class ParamKind:
             expected = f"lie in {low}, {self.upper:g}]" if math.isfinite(self.upper) else ("be > 0" if self.positive else "be >= 0")
             raise ParameterError(f"{name}: {self.key} {self.symbol} must {expected}, got values in [{lo:.4g}, {hi:.4g}]")
 
+    def _check_unit(self, name: str, value: torch.Tensor) -> None:
+        """The checks of a normal's kind (:attr:`unit`): the shape, the texels' range, every
+        normal of length >= :data:`MIN_NORMAL` (finiteness is checked before)."""
+        if self.unit == "texel":
+            if value.ndim != 3:
+                raise ParameterError(f"{name}: a normal map is an (h, w, 3) texture of texels c, the normals 2 c - 1, got shape {tuple(value.shape)}")
+            lo, hi = float(value.min()), float(value.max())
+            if lo < 0 or hi > 1:
+                raise ParameterError(f"{name}: a normal map's texels c must lie in [0, 1] (the normal is 2 c - 1), got values in [{lo:.4g}, {hi:.4g}]")
+        length = self.normals(value).norm(dim=-1)
+        short = length < MIN_NORMAL
+        if bool(short.any()):
+            where = [int(i) for i in short.nonzero()[0]]
+            at = f"texel (row {where[0]}, column {where[1]})" if value.ndim == 3 else f"row {where[0]}"
+            raise ParameterError(f"{name}: the normal at {at} has length {float(length[tuple(where)]):.3g} (below {MIN_NORMAL:g}: no direction); a normal must be a non-zero vector")
+
+    def normals(self, value: torch.Tensor) -> torch.Tensor:
+        """The (unnormalized) normals a value of a :attr:`unit` kind holds: the vectors themselves,
+        or a normal map's ``2 c - 1``."""
+        return 2.0 * value - 1.0 if self.unit == "texel" else value
+
+    def normalized(self, value: torch.Tensor) -> torch.Tensor:
+        """A value as a scene keeps it: vertex normals (``unit == "vector"``) made unit length
+        (differentiable); any other value (a normal map's texels too) as it is."""
+        if self.unit != "vector":
+            return value
+        return value / value.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+    def renormalize_(self, raw: torch.Tensor) -> None:
+        """Bring ``fit``'s unconstrained vectors of a :attr:`unit` kind back to unit length in place
+        (after an Adam step), so that a step of a given size turns them by the same angle."""
+        if self.unit is not None:
+            with torch.no_grad():
+                raw.div_(raw.norm(dim=-1, keepdim=True).clamp_min(1e-12))
+
     def to_raw(self, value: torch.Tensor) -> torch.Tensor:
         """The unconstrained tensor ``fit`` moves, from a value (detached copy)."""
         v = value.detach().clone()
+        if self.reparam == "unit":
+            n = self.normals(v)
+            return n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
         if self.reparam == "exp":
             return v.clamp_min(POSITIVE_MIN).log()
         return torch.logit(v.clamp(UNIT_MIN, 1.0 - UNIT_MIN))
 
     def from_raw(self, raw: torch.Tensor) -> torch.Tensor:
         """The value (differentiable) from the unconstrained tensor."""
+        if self.reparam == "unit":
+            n = raw / raw.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+            return 0.5 * (n + 1.0) if self.unit == "texel" else n
         return raw.exp() if self.reparam == "exp" else torch.sigmoid(raw)
 
     def fd_interval(self, value: float) -> float:
-        """Central-difference step at ``value``, kept inside the range on both sides."""
+        """Central-difference step at ``value``, kept inside the range on both sides (a normal's
+        component: the step itself; the renderer normalizes a normal, so no range binds it)."""
+        if self.unit is not None:
+            return self.fd_step
         step = self.fd_step * max(1.0, abs(value))
         if math.isfinite(self.upper):
             step = min(step, max(value, 1e-6), max(self.upper - value, 1e-6))
@@ -153,8 +215,27 @@ BLEND_WEIGHT = _weight("weight", "w", "weight of a blendbsdf's second material, 
 #: detached, so its derivative is zero (not a parameter to fit)
 OPACITY = dataclasses.replace(_weight("opacity", "opacity", "opacity of a mask (read detached: visibility is fixed), in [0, 1]"), differentiable=False)
 
+# ---- shading normals: directions, fitted by Adam alone
+
+#: shortest normal a value may hold (the Mitsuba reader's bound for a normal map's texels: a grey
+#: texel, 2 c - 1 = 0, has no direction)
+MIN_NORMAL = 0.01
+#: the vertex normals of the meshes of a material (``"<material>.normals"``): (V, 3) unit vectors,
+#: one row per vertex of those meshes (meshes in scene order), interpolated over each triangle
+#: into its shading normal; only materials whose every mesh carries vertex normals have them
+NORMALS = ParamKind(
+    "normals", "n", 1.0, False, "unit", "lr_normals", 1e-2, "vertex normals n of a material's meshes, unit 3-vectors (V, 3)",
+    polynomial=False, unit="vector",
+)  # fmt: skip
+#: a normal map's texels (``"<material>.normalmap"``, the material a ``normalmap`` wraps): (h, w, 3)
+#: texels c in [0, 1], the tangent-space normal 2 c - 1 (Mitsuba's encoding)
+NORMALMAP = ParamKind(
+    "normalmap", "c_n", 1.0, True, "unit", "lr_normals", 1e-2, "normal map texels c of a material, tangent-space normal 2 c - 1, (h, w, 3) in [0, 1]",
+    polynomial=False, unit="texel",
+)  # fmt: skip
+
 #: every kind of a scene parameter, by key
-KINDS: dict[str, ParamKind] = {k.key: k for k in (REFLECTANCE, SPECULAR_REFLECTANCE, EMISSION, ROUGHNESS, *PRINCIPLED_KINDS, BLEND_WEIGHT, OPACITY)}
+KINDS: dict[str, ParamKind] = {k.key: k for k in (REFLECTANCE, SPECULAR_REFLECTANCE, EMISSION, ROUGHNESS, *PRINCIPLED_KINDS, BLEND_WEIGHT, OPACITY, NORMALS, NORMALMAP)}
 
 
 def _short(value: torch.Tensor) -> str:

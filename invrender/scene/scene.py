@@ -9,7 +9,11 @@ What can be differentiated lives in ``scene.params``, a flat dict of dotted name
 - ``"<material>.specular_reflectance"``: a mirror's or glossy conductor's k_s, shape (3,), in [0, 1];
 - ``"<emitter>.emission"``: emitted radiance eps, shape (3,) or (h, w, 3), values >= 0;
 - ``"ambient.emission"`` (only when the scene sets one): the ambient radiance eps0 of the Utah,
-  Whitted and distributed models, shape (3,), values >= 0.
+  Whitted and distributed models, shape (3,), values >= 0;
+- ``"<material>.normals"``: the vertex normals of the meshes of a material whose every mesh has
+  them, shape (V, 3), unit vectors (rows: those meshes' vertices, meshes in order);
+- ``"<material>.normalmap"``: the texels of the normal map a material is wrapped in, (h, w, 3) in
+  [0, 1] (the tangent-space normal 2 c - 1).
 
 Material types and their constants (``ior``, ``roughness``) are in ``scene.material_specs``
 (:mod:`invrender.scene.materials`).
@@ -33,7 +37,7 @@ import torch
 from invrender import validate
 from invrender.errors import ParameterError, SceneError, UnknownParameterError, did_you_mean
 from invrender.scene.camera import Camera
-from invrender.scene.kinds import kind_of, param_name
+from invrender.scene.kinds import MIN_NORMAL, NORMALS, kind_of, param_name
 from invrender.scene.emitters import Emitter
 from invrender.scene.film import FilmOptions
 from invrender.scene.materials import Material
@@ -71,6 +75,9 @@ class Triangles:
         spheres: (S, 4) float32 rows ``[cx, cy, cz, radius]`` of those spheres, world units.
         vertex: (T, 3) int64 row of each corner in per-vertex parameters (scene vertices numbered
             mesh after mesh, :class:`~invrender.scene.textures.VertexAttribute`).
+        normal_row: (T, 3) int64 row of each corner in the scene's vertex normals parameters
+            (``"<material>.normals"``, one after another in the order of ``Scene.materials``), -1
+            where its material has none; None where no material has them.
     """
 
     p0: torch.Tensor
@@ -86,6 +93,7 @@ class Triangles:
     sphere: torch.Tensor
     spheres: torch.Tensor
     vertex: torch.Tensor
+    normal_row: torch.Tensor | None = None
 
     @property
     def count(self) -> int:
@@ -99,7 +107,7 @@ class Triangles:
             device = torch.device("cuda", torch.cuda.current_device())
         if self.p0.device == device:
             return self
-        return self.derived(("to", str(device)), lambda: Triangles(*(getattr(self, f).to(device) for f in self.__dataclass_fields__)))
+        return self.derived(("to", str(device)), lambda: Triangles(*(None if getattr(self, f) is None else getattr(self, f).to(device) for f in self.__dataclass_fields__)))
 
     def derived(self, key, build):
         """What ``build()`` computes from this geometry, computed once per ``key`` and kept with
@@ -291,7 +299,7 @@ def _checked_value(name: str, value, per_vertex: torch.Tensor | None = None) -> 
         if t.shape != per_vertex.shape:
             raise ParameterError(f"{name}: a per-vertex parameter keeps its shape {tuple(per_vertex.shape)}, got {tuple(t.shape)}")
         _check_tensor(name, t.detach(), per_vertex=True)
-        return t
+        return kind_of(name).normalized(t)
     if not (isinstance(value, torch.Tensor) and value.is_floating_point()):
         return check_param_value(name, value)
     t = value.expand(3) if value.ndim == 0 else _grey_map(name, value)
@@ -424,6 +432,7 @@ def build_scene(
     params.update({param_name(k, key): _plugin_value(e, k, key, v) for k, e in emitter_specs.items() for key, v in e.values.items()})
 
     tris, uvs, mats, emits, normals, smooth, sphere_of, spheres, rows = [], [], [], [], [], [], [], [], []
+    unit_normals, faces = [], []  # per mesh: its unit vertex normals (V, 3) or None, its faces
     first_vertex = 0
     for mesh in meshes:
         if mesh.material not in materials:
@@ -455,9 +464,13 @@ def build_scene(
             vn = np.asarray(mesh.normals, dtype=np.float64)
             if vn.shape != (len(v), 3) or not np.isfinite(vn).all():
                 raise SceneError(f"mesh normals must be finite with shape ({len(v)}, 3), got {vn.shape}")
-            normals.append(vn[f] / np.maximum(np.linalg.norm(vn[f], axis=2, keepdims=True), 1e-300))
+            unit = vn / np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-300)
+            normals.append(unit[f])
+            unit_normals.append(unit)
         else:
             normals.append(None)
+            unit_normals.append(None)
+        faces.append(f)
         smooth.append(np.full(len(f), mesh.normals is not None))
         mats.append(np.full(len(f), material_names.index(mesh.material)))
         emits.append(np.full(len(f), -1 if mesh.emitter is None else emitters.index(mesh.emitter)))
@@ -469,6 +482,10 @@ def build_scene(
         raise SceneError("scene has no triangles")
     for n, (material, attribute) in per_vertex.items():
         params[n] = _vertex_param(n, material, attribute, meshes, first_vertex)
+    normal_rows = _normal_params(params, material_names, meshes, unit_normals, faces)
+    for k, m in specs.items():
+        if m.perturbation is not None and m.perturbation.kind == "normalmap":
+            params[param_name(k, "normalmap")] = check_param_value(param_name(k, "normalmap"), m.perturbation.texture)
 
     corners = np.concatenate(tris)
     cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
@@ -504,6 +521,7 @@ def build_scene(
         sphere=t(np.concatenate(sphere_of), torch.int64),
         spheres=torch.tensor(spheres, dtype=torch.float32).reshape(-1, 4),
         vertex=t(np.concatenate(rows), torch.int64),
+        normal_row=None if normal_rows is None else t(normal_rows, torch.int64),
     )
     specs_only = tuple(dataclasses.replace(m, values={}) for m in specs.values())
     emitters_only = tuple(Emitter(e.type, {}, e.constants) for e in emitter_specs.values())
@@ -534,6 +552,26 @@ def _vertex_param(name: str, material: str, vertex_attribute: VertexAttribute, m
     t = torch.as_tensor(out, dtype=torch.float32)
     _check_tensor(name, t, per_vertex=True)
     return t
+
+
+def _normal_params(params: dict, materials: Sequence[str], meshes: Sequence[Mesh], unit_normals: list, faces: list) -> np.ndarray | None:
+    """Add ``"<material>.normals"`` to ``params`` for each material whose every mesh carries
+    vertex normals (each of length >= :data:`~invrender.scene.kinds.MIN_NORMAL`; a mesh file's
+    zero normal leaves its material without the parameter): (V, 3) float32, the meshes' unit
+    normals one mesh after another, the same floats the triangles' ``vertex_normal`` holds.
+    Returns each triangle's corner rows in them (:attr:`Triangles.normal_row`: (T, 3), -1 for
+    the other materials), or None where no material has them."""
+    corner_rows = [np.full((len(f), 3), -1, dtype=np.int64) for f in faces]
+    offset = 0
+    for material in materials:
+        members = [i for i, mesh in enumerate(meshes) if mesh.material == material]
+        if not members or any(unit_normals[i] is None or (np.linalg.norm(unit_normals[i], axis=1) < MIN_NORMAL).any() for i in members):
+            continue
+        for i in members:
+            corner_rows[i] = faces[i] + offset
+            offset += len(unit_normals[i])
+        params[param_name(material, NORMALS)] = torch.as_tensor(np.concatenate([unit_normals[i] for i in members]), dtype=torch.float32)
+    return np.concatenate(corner_rows) if offset else None
 
 
 def _plugin_value(spec, owner: str, key: str, value) -> torch.Tensor:

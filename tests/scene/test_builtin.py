@@ -72,7 +72,7 @@ def test_sky_spheres_loads_renders_and_shows_its_map():
     from invrender.scene.builtin import map_directions, sun_direction
 
     scene = ir.load_scene("sky_spheres", resolution=(32, 32), map_size=(8, 16), subdivisions=2)
-    assert set(scene.params) == {"floor.reflectance", "diffuse.reflectance", "glossy.specular_reflectance", "glossy.roughness", "sky.emission"}
+    assert set(scene.params) == {"floor.reflectance", "diffuse.reflectance", "glossy.specular_reflectance", "glossy.roughness", "sky.emission", "diffuse.normals", "glossy.normals"}
     sky = scene.params["sky.emission"]
     assert sky.shape == (8, 16, 3) and bool((sky > 0).all())
     luminance = sky @ torch.tensor([0.212671, 0.715160, 0.072169])
@@ -99,7 +99,7 @@ def test_cornell_materials_params_and_its_materials_show():
     scene = ir.load_scene("cornell_materials", resolution=(24, 24), subdivisions=1)
     assert set(scene.params) == {
         "white.reflectance", "red.reflectance", "green.reflectance", "light.emission",
-        "metal.specular_reflectance", "metal.roughness", "plastic.reflectance", "plastic.specular_reflectance",
+        "metal.specular_reflectance", "metal.roughness", "plastic.reflectance", "plastic.specular_reflectance", "plastic.normals",
     }  # fmt: skip
     torch.testing.assert_close(scene.params["metal.roughness"], torch.tensor([0.3] * 3))
     assert scene.triangles.count == 5 * 2 + 12 + 20 * 4 + 2

@@ -75,7 +75,7 @@ def test_material_types_load_with_their_parameters_and_constants(tmp_path):
     assert types == {"floor": "diffuse", "chrome": "mirror", "glass": "dielectric", "brushed": "glossy"}
     assert scene.material_spec(2).constants == {"ior": 1.33}
     assert scene.material_spec(3).constants == {"eta": (0.0, 0.0, 0.0), "k": (1.0, 1.0, 1.0), "alpha_v": 0.0}  # material none, isotropic
-    assert set(scene.params) == {"floor.reflectance", "chrome.specular_reflectance", "brushed.specular_reflectance", "brushed.roughness", "lamp.emission"}
+    assert set(scene.params) == {"floor.reflectance", "chrome.specular_reflectance", "brushed.specular_reflectance", "brushed.roughness", "lamp.emission", "chrome.normals"}  # the sphere's vertex normals
     torch.testing.assert_close(scene.params["brushed.roughness"], torch.full((3,), 0.3))  # a parameter now (differentiable)
     torch.testing.assert_close(scene.params["brushed.specular_reflectance"], torch.full((3,), 0.5))
     assert scene.camera.aperture_radius == 0.05 and scene.camera.focus_distance == 2.5
@@ -95,7 +95,7 @@ def test_type_defaults_to_diffuse_and_defaults_follow_mitsuba(tmp_path):
 
 def test_every_kind_and_type_is_registered_once():
     principled = {"base_color", "metallic", "spec_tint", "anisotropic", "sheen", "sheen_tint", "clearcoat", "clearcoat_gloss", "spec_trans", "flatness"}
-    assert set(KINDS) == {"reflectance", "specular_reflectance", "emission", "roughness", *principled, "weight", "opacity"}
+    assert set(KINDS) == {"reflectance", "specular_reflectance", "emission", "roughness", *principled, "weight", "opacity", "normals", "normalmap"}
     assert kind_of("white.reflectance").reparam == "sigmoid" and kind_of("light.emission").reparam == "exp"
     assert kind_of("a.b.specular_reflectance").upper == 1.0
     with pytest.raises(ParameterError, match="not a parameter name"):

@@ -44,7 +44,7 @@ def next_vertex(ctx: TransportContext, state: PathState, film: Film, depth: int,
     state, hits = state.select(hit), hits.select(hit)
     if not state.count:
         return state, None
-    s = surface_at(ctx.triangles, hits, state.d, ctx.textured)
+    s = surface_at(ctx.triangles, hits, state.d, ctx.textured, ctx.normals)
     film.visit(state.pixel, s)
     return state, s
 
