@@ -123,7 +123,7 @@ CONFIGS = [
     Config("rotate_shading_normals_plane",
            '<shape type="obj" id="plane"><string name="filename" value="{mesh}"/><bsdf type="diffuse"/></shape>'
            f'<shape type="rectangle" id="light">{SIDE}<emitter type="area"><rgb name="radiance" value="3,3,3"/></emitter></shape>',
-           "plane.normals", 0.02, 0.3, 0.00002, tangent=_normals_tangent, needs=["mesh"]),
+           "plane_bsdf.normals", 0.02, 0.3, 0.00002, tangent=_normals_tangent, needs=["mesh"]),
 ]
 
 
