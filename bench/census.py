@@ -179,7 +179,7 @@ def _worker(conn, args) -> None:
 def measure(path: Path, args, mi, mitsuba_ref, ir, SceneError) -> dict:
     out: dict = {}
     try:
-        with mitsuba_ref.whole_pool():  # Mitsuba loads in parallel: with the pool invrender's kernels leave (none) its EXR reads waited minutes
+        with mitsuba_ref.whole_pool():  # Mitsuba loads in parallel: with an empty pool its EXR reads waited minutes
             mscene = mi.load_file(str(path))
     except Exception as e:
         return {"mitsuba_error": str(e).replace("\n", " ")[:400]}

@@ -371,9 +371,9 @@ def load_scene(scene, spp: int, max_depth: int, filter: str = "box", integrator:
 
 @contextlib.contextmanager
 def whole_pool():
-    """Within the block, Dr.Jit's thread pool has one thread per core: invrender's compiled bounce
-    sets it to none (its kernels run in its render workers' threads), which would leave Mitsuba,
-    in the same process, one thread."""
+    """Within the block, Dr.Jit's thread pool has one thread per core, whatever a caller left it
+    at (invrender empties it while one of its renders runs, and gives it back after:
+    :func:`invrender.core.compiled.in_calling_threads`)."""
     _, dr = _require()
     before = dr.thread_count()
     dr.set_thread_count(len(os.sched_getaffinity(0)))

@@ -325,6 +325,4 @@ def _load(kind: str) -> DrJitArrays | None:
         packages.note_once(f"Dr.Jit's {kind} backend is unavailable ({e}): the bounce runs as eager torch")
         return None
     dr.set_flag(dr.JitFlag.FastMath, False)  # IEEE arithmetic, op by op as torch rounds it: the same images
-    if kind == "llvm":
-        dr.set_thread_count(0)  # kernels run in the calling thread: renders parallelize across chunks, one worker per core
     return DrJitArrays(dr, backend)

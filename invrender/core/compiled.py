@@ -19,6 +19,7 @@ parameters).
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 import threading
@@ -72,6 +73,38 @@ def run(fn, device: torch.device, *args, **static) -> tuple[torch.Tensor, ...]:
     if xp is not TORCH and any(isinstance(a, torch.Tensor) and not a.shape[0] for a in args):
         xp = TORCH  # no lanes (Dr.Jit has no empty arrays to broadcast against)
     return evaluate(xp, fn, *args, **static)
+
+
+@contextlib.contextmanager
+def in_calling_threads(device: torch.device):
+    """Within the block (a render: :func:`invrender.core.driver.for_each_chunk`), Dr.Jit's LLVM
+    kernels run in the threads that launch them, its thread pool emptied: a render parallelizes
+    across its chunks, one worker per core, and a kernel split over the pool as well would
+    oversubscribe the cores. The pool's size is restored when the last such block ends, so Dr.Jit's
+    other users in the process keep theirs (Mitsuba 3 loads scenes in parallel on it: with an empty
+    pool, its reads of EXR files waited minutes)."""
+    xp = namespace(device)
+    if xp is TORCH or not xp.name.endswith("llvm"):
+        yield
+        return
+    global _pool_users, _pool_size
+    with _POOL:
+        if not _pool_users:
+            _pool_size = xp.dr.thread_count()
+            xp.dr.set_thread_count(0)
+        _pool_users += 1
+    try:
+        yield
+    finally:
+        with _POOL:
+            _pool_users -= 1
+            if not _pool_users:
+                xp.dr.set_thread_count(_pool_size)
+
+
+#: the renders inside :func:`in_calling_threads` and the pool's size before the first of them
+_POOL = threading.Lock()
+_pool_users, _pool_size = 0, 0
 
 
 def evaluate(xp, fn, *args, **static) -> tuple[torch.Tensor, ...]:

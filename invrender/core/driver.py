@@ -25,7 +25,7 @@ from tqdm.auto import tqdm
 
 from invrender.errors import ParameterError
 from invrender.scene.scene import Scene
-from invrender.core import ranks
+from invrender.core import compiled, ranks
 from invrender.core.context import PathState
 from invrender.core.memory import keep_freed_blocks
 from invrender.core.camera_samples import camera_samples
@@ -172,7 +172,7 @@ def for_each_chunk(
                 work(*args, xy) if with_positions else work(*args)
                 bar.update(ids.numel())
 
-    with bar:
+    with bar, compiled.in_calling_threads(device):
         if workers == 1:
             run(0)
             return

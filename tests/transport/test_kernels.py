@@ -158,3 +158,30 @@ def test_cosine_directions_and_ray_origins_match_the_reference(reference):
     assert (o_fused - o_expected).abs().max() < 1e-6 and (o_through - o_through_expected).abs().max() < 1e-6
     # n faces the rays' origins: back along -d the new ray starts in front, onward along d behind
     assert (((o_fused - s.p) * s.n).sum(1) > 0).all() and (((o_through - s.p) * s.n).sum(1) < 0).all()
+
+
+def test_a_render_empties_drjits_pool_only_while_it_runs(monkeypatch):
+    """Inside a render Dr.Jit's kernels run in the render's workers (its pool emptied); after it the
+    pool has its size again, for Dr.Jit's other users in the process (Mitsuba loads scenes on it)."""
+    if arrays.drjit_arrays(torch.device("cpu")) is None:
+        pytest.skip("Dr.Jit's LLVM backend is unavailable")
+    import drjit as dr
+
+    from invrender.core import compiled
+
+    seen = []
+    original = compiled.run
+
+    def spy(*a, **k):
+        seen.append(dr.thread_count())
+        return original(*a, **k)
+
+    monkeypatch.setattr(compiled, "run", spy)
+    before = dr.thread_count()
+    try:
+        dr.set_thread_count(3)
+        ir.render(ir.load_scene("cornell_box", resolution=(16, 16)), spp=2, progress=False)
+        assert dr.thread_count() == 3
+        assert seen and set(seen) == {1}  # 1: the calling thread alone
+    finally:
+        dr.set_thread_count(before)
