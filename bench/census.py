@@ -237,8 +237,9 @@ def measure(path: Path, args, mi, mitsuba_ref, ir, SceneError) -> dict:
         noise = [math.hypot(a, b) / max(abs(c), 1e-12) * 100 for a, b, c in zip(se_ir, se_mi, m_mi)]
         out.update(spp=per * passes, invrender=m_ir, mitsuba=m_mi, se_invrender=se_ir, se_mitsuba=se_mi, noise_pct=noise,
                    seconds_invrender=t1 - t0, seconds_mitsuba=t2 - t1)
-        if max(noise) <= args.noise or spp * 4 > args.max_spp or t1 - t0 > args.timeout / 8:
-            break
+        off = any(abs(a / b - 1) * 100 > args.tolerance for a, b in zip(m_ir, m_mi) if abs(b) > 1e-12)
+        if (max(noise) <= args.noise and not off) or spp * 4 > args.max_spp or t1 - t0 > args.timeout / 8:
+            break  # a file off by more than the tolerance is rendered again too: a few passes' spread misses rare bright paths
         spp *= 4
     return out
 
@@ -315,7 +316,7 @@ def main(argv=None) -> int:
     p.add_argument("--resolution", type=int, default=RESOLUTION)
     p.add_argument("--spp", type=int, default=64, help="samples per pixel of each renderer (split over the passes)")
     p.add_argument("--passes", type=int, default=4, help="independent passes whose spread gives the noise")
-    p.add_argument("--noise", type=float, default=0.7, help="combined noise (%%) above which a file is rendered again at 4x spp")
+    p.add_argument("--noise", type=float, default=0.7, help="combined noise (%%) above which a file is rendered again at 4x spp (as is a file off by more than --tolerance)")
     p.add_argument("--max-spp", type=int, default=2048)
     p.add_argument("--tolerance", type=float, default=2.0, help="pass: every channel within this many percent of Mitsuba's")
     p.add_argument("--timeout", type=float, default=300.0, help="seconds per file")
@@ -417,8 +418,9 @@ def main(argv=None) -> int:
             fov = r.get("fov_check")
             fov_cell = "" if fov is None else f"{fov[0]:.3f} / {fov[1]:.3f}" + ("" if abs(fov[0] - fov[1]) < 1e-2 else " MISMATCH")
             settings = ", ".join(f"{k}={v}" for k, v in r["settings"].items())
+            known = next((why for key, why in MITSUBA_DIFFERS.items() if names[f].endswith(key)), None)
             rows.append([names[f], settings, r["spp"], fov_cell, _triple(r["invrender"], 4), _triple(r["mitsuba"], 4), _triple(diff, 2), _triple(r["noise_pct"], 2),
-                         "yes" if ok else "NO", f"{r['seconds_invrender']:.1f} / {r['seconds_mitsuba']:.1f}"])
+                         "yes" if ok else ("no: " + known if known else "NO"), f"{r['seconds_invrender']:.1f} / {r['seconds_mitsuba']:.1f}"])
         _print_table(res.tables[-1])
     summary = (f"{len(files)} files; Mitsuba 3 loads {len(population)} (the population); invrender loads {len(loaded)}"
                + ("" if args.no_render else f"; {passed} of those match Mitsuba within {args.tolerance:g}% in every channel mean"))
@@ -427,6 +429,14 @@ def main(argv=None) -> int:
     print("\n" + summary)
     res.write(args.json)
     return 0
+
+
+#: files on which Mitsuba 3.9.1 computes something else than its own documentation and the
+#: rendering equation say, which invrender does not copy (the pages that show it):
+MITSUBA_DIFFERS = {
+    "docs/scenes/bsdf_blendbsdf.xml": "Mitsuba mixes a delta sample's weight with the other material's density (biased; docs/rendering.md, blends)",
+    "scenes/hello.xml": "Mitsuba's direct with emitter_samples 4 counts each point light 4 times (mitsuba3 #1861; docs/rendering.md, direct)",
+}
 
 
 def differences(r: dict) -> list[float]:
