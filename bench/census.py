@@ -40,6 +40,7 @@ counts as timed out. ``--no-render`` stops after loading (the census without the
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import json
 import math
 import multiprocessing as mp
@@ -156,6 +157,7 @@ def blocker_key(problem: str) -> str:
 
 def _worker(conn, args) -> None:
     warnings.simplefilter("ignore")
+    faulthandler.enable()  # a crash of either renderer prints where it happened to the census's stderr
     import mitsuba_ref
 
     import invrender as ir
