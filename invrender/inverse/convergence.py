@@ -69,9 +69,10 @@ def adam_losses(history: list[dict], steps: int) -> list[float]:
     return [h["loss"] for h in history if h["step"] > steps // 2]
 
 
-def check_adam(history: list[dict], steps: int, window: int) -> bool | None:
+def check_adam(history: list[dict], steps: int, window: int, adam_only: bool = False) -> bool | None:
     """Whether an Adam fit's history ends on a plateau (None: ``window`` 0, no rule); warns in one
-    line when it does not: steps run, the last improvement against its noise, the gradient norm."""
+    line when it does not: steps run, the last improvement against its noise, the gradient norm,
+    and what to try (``adam_only``: a fitted parameter only Adam fits, so more steps alone)."""
     if window <= 0:
         return None
     p = plateau(adam_losses(history, steps), window)
@@ -84,7 +85,8 @@ def check_adam(history: list[dict], steps: int, window: int) -> bool | None:
         else f"too few steps at spp_final to measure a plateau (2 x plateau_window = {2 * window} needed)"
     )
     norm = f", gradient norm {grad:.3g}" if grad is not None else ""
-    warnings.warn(f"Adam did not converge in {len(history)} steps: {where}{norm}; give more steps, or solver 'auto' / 'lm'", ConvergenceWarning, stacklevel=4)
+    advice = "give more steps" if adam_only else "give more steps, or solver 'auto' / 'lm'"
+    warnings.warn(f"Adam did not converge in {len(history)} steps: {where}{norm}; {advice}", ConvergenceWarning, stacklevel=4)
     return False
 
 

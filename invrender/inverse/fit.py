@@ -440,7 +440,7 @@ def fit(
     recovered = {n: v.detach().clone() for n, v in _values(raw, scene_names, sensor, names).items()}
     out_scene = scene.with_params({n: recovered[n] for n in scene_names}, detach=True)
     result = FitResult(recovered, history, out_scene, cfg, initial, {k: v for k, v in truth.items() if k in names}, targets=[t.report() for _, t in views], pixels=_pixels(views))
-    result.converged = check_adam(history, cfg.steps, cfg.plateau_window)
+    result.converged = check_adam(history, cfg.steps, cfg.plateau_window, adam_only=any(kind_of(n).adam_only for n in scene_names))
     return _chosen(result, choice)
 
 

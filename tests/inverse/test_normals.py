@@ -12,6 +12,7 @@ import torch
 
 import invrender as ir
 from invrender.errors import ParameterError
+from invrender.inverse.convergence import ConvergenceWarning
 from invrender.scene.builtin import plane_views
 from invrender.scene.materials import Material, NormalPerturbation
 from invrender.scene.scene import build_scene
@@ -157,3 +158,13 @@ def test_a_normal_map_built_with_a_zero_normal_is_refused():
     material = dataclasses.replace(Material.of("diffuse", reflectance=0.5), perturbation=NormalPerturbation("normalmap", texels))
     with pytest.raises(ParameterError, match=r"^base.normalmap: the normal at texel \(row 0, column 0\) has length 0"):
         build_scene([Mesh(*sphere(0), material="base")], {"base": material}, {}, ir.Camera(), (4, 4))
+
+
+def test_an_unconverged_normal_fit_advises_more_steps_not_lm():
+    """Adam's warning that it did not converge names what can help: more steps (lm cannot fit a
+    normal map, so the advice leaves it out there and keeps it for an albedo)."""
+    scene = plane()
+    target = ir.render(scene, seed=1, **KW)
+    for name, advice in (("plane.normalmap", "; give more steps$"), ("plane.reflectance", "; give more steps, or solver 'auto' / 'lm'$")):
+        with pytest.warns(ConvergenceWarning, match=advice):
+            ir.fit(scene, target, [name], solver="adam", steps=3, spp=2, progress=False)
