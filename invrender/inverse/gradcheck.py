@@ -39,7 +39,9 @@ class GradcheckRow:
             grey parameter, the texel: its three channels together).
         fd: the central finite difference.
         gradients: estimator -> its gradient.
-        rel_errors: estimator -> ``|gradient - fd| / |fd|``.
+        rel_errors: estimator -> ``|gradient - fd| / max(|fd|, 1e-3 max_j |fd_j|)``, the max over the
+            parameter's components checked (a component the image does not depend on has
+            ``fd`` 0 and a gradient of float noise: measured against the parameter's scale).
     """
 
     name: str
@@ -103,6 +105,7 @@ def gradcheck(
             kind = kind_of(n)
             group = 3 if kind.grey else 1  # a grey parameter's channels move together
             flat = scene.params[n].view(-1, group)
+            first = len(rows)
             for i in range(min(flat.shape[0], max_components)):
                 original = flat[i].clone()
                 step = kind.fd_interval(float(original[0])) * h / kind.fd_step  # stays inside the kind's range
@@ -113,8 +116,13 @@ def gradcheck(
                 flat[i] = original
                 fd = (plus - minus) / (2 * step)
                 g = {e: float(grads[e][n].view(-1, group)[i].sum()) for e in estimators}
-                rel = {e: abs(v - fd) / max(abs(fd), 1e-12) for e, v in g.items()}
-                rows.append(GradcheckRow(n, i, fd, g, rel))
+                rows.append(GradcheckRow(n, i, fd, g, {}))
+            # relative to the component's finite difference, or to a thousandth of the parameter's
+            # largest where that is smaller: a component the image does not depend on (a normal
+            # moved along itself, renormalized) has a finite difference of 0 and a gradient of float noise
+            floor = max(1e-3 * max(abs(r.fd) for r in rows[first:]), 1e-12) if len(rows) > first else 1e-12
+            for r in rows[first:]:
+                r.rel_errors.update({e: abs(v - r.fd) / max(abs(r.fd), floor) for e, v in r.gradients.items()})
     return rows
 
 

@@ -83,11 +83,12 @@ def test_replay_equals_autodiff():
 def test_gradcheck_within_two_percent():
     """Each estimator's gradient within 2% of central differences with common random numbers
     (sampling held at the unperturbed normals): the map's texels and the vertex normals, every
-    component that moves the image (a unit normal's own direction does not: its difference is 0)."""
+    component (a unit normal's own direction does not move the image: its difference is 0 and its
+    gradient float noise, measured against the parameter's largest difference)."""
     rows = ir.gradcheck(plane(resolution=16), ["plane.normalmap", "plane.normals"], spp=16, max_depth=2, seed=1, max_components=6)
-    checked = [r for r in rows if abs(r.fd) > 1e-3]
-    assert len(checked) >= 8 and {r.name for r in checked} == {"plane.normalmap", "plane.normals"}
-    for r in checked:
+    assert len([r for r in rows if abs(r.fd) > 1e-3]) >= 8 and {r.name for r in rows} == {"plane.normalmap", "plane.normals"}
+    assert any(r.fd == 0.0 for r in rows)  # the normals' own directions
+    for r in rows:
         assert max(r.rel_errors.values()) < 0.02, r
 
 
