@@ -10,7 +10,9 @@ from invrender.cli.common import add_integrator_arguments, add_scene_argument, i
 DOC = """\
 Compare each gradient estimator (autodiff, replay) with central finite differences of a fixed random
 pixel weighting sum(W * I), re-rendered with the same seed (common random numbers). Prints one row
-per parameter component with the relative errors.
+per parameter component with the relative errors: |gradient - difference| over the component's
+difference, or over a thousandth of its parameter's largest where that is larger (a component the
+image does not depend on, such as a unit normal moved along itself, has a difference of 0).
 """
 
 #: Neumann terms the checked renders keep unless --max-depth (or --set max_depth) says otherwise
