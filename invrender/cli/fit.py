@@ -41,8 +41,10 @@ any integrator, listed below); with a recipe they change the recipe's integrator
 names an integrator of its own keeps it).
 
 Writes OUT/report.json (initial, recovered and, when a recipe knows it, true values with errors),
-OUT/loss.png (loss and parameter error per step), OUT/final.exr (the recovered scene rendered) and
-OUT/checkpoint.pt (every few steps and on Ctrl-C; --resume continues to the same result).
+OUT/loss.png (loss and parameter error per step), OUT/final.exr (the recovered scene rendered),
+OUT/NAME.exr and OUT/NAME.png for every recovered map (a texture or a normal map: its values, and a
+picture; a normal map's PNG holds its codes as a normal-map file does) and OUT/checkpoint.pt
+(every few steps and on Ctrl-C; --resume continues to the same result).
 A fit of one environment map's texels alone also writes the relighting product: OUT/map.exr (the
 recovered map), OUT/stderr.exr (its standard errors), OUT/resolution.png (its identifiability: 1
 set by the images, 0 by the prior), OUT/heldout*.exr/png (the --held-out views relit) and
@@ -229,6 +231,8 @@ def _summary(args, output) -> None:
     pixels = ", pixels*.png (the pixels that counted)" if any(n.startswith("pixels") for n in names) else ""
     product = ", " + ", ".join(n for n in ("map.exr", "stderr.exr", "resolution.png", "relighting.png") if n in names) if "map.exr" in names else ""
     held = ", held-out views relit (heldout*.exr, .png)" if any(n.startswith("heldout") for n in names) else ""
-    print(f"wrote {folder}/report.json, {figures}, final EXR and PNG{pixels}{product}{held}, checkpoint.pt", file=sys.stderr)
+    maps = sorted(n[: -len(".exr")] for n in names if n.endswith(".exr") and "." in n[: -len(".exr")])  # NAME.kind.exr: a recovered map
+    recovered = f", the recovered maps ({', '.join(maps)}: EXR and PNG)" if maps else ""
+    print(f"wrote {folder}/report.json, {figures}, final EXR and PNG{pixels}{product}{held}{recovered}, checkpoint.pt", file=sys.stderr)
     for label, error in output.report.get("relighting", {}).items():
         print(f"  {label} relit: channel means {' '.join(f'{100 * m:+.2f}%' for m in error['channel_means'])}, pooled relative RMSE {100 * error['rmse']:.2f}%", file=sys.stderr)

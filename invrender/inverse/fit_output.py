@@ -3,10 +3,12 @@
 :func:`fit_into` runs :func:`~invrender.inverse.fit.fit` with its checkpoint in the folder and
 writes, beside it, ``report.json`` (initial, recovered and, when known, true values with errors),
 ``loss.png`` (loss and parameter error per step), ``correlation.png`` (least-squares solvers) and
-the recovered scene rendered from each view (``final.exr`` / ``final.png``, or ``final_NN.*``), and,
-where a mask or the automatic exclusion of clipped pixels left pixels out, ``pixels.png`` (or
-``pixels_NN.png``): the target where it counted, saturated pixels red, pixels at 0 blue, masked
-ones dark.
+the recovered scene rendered from each view (``final.exr`` / ``final.png``, or ``final_NN.*``),
+every recovered map (a fitted parameter that varies over a surface: a texture, a normal map) as
+``NAME.exr`` (its values) and ``NAME.png`` (a picture: a colour map sRGB-encoded, a normal map its
+codes ``c`` as a normal-map file stores them), and, where a mask or the automatic exclusion of
+clipped pixels left pixels out, ``pixels.png`` (or ``pixels_NN.png``): the target where it counted,
+saturated pixels red, pixels at 0 blue, masked ones dark.
 
 A fit of one environment map's texels alone also writes the relighting product
 (:mod:`invrender.inverse.relighting`): ``map.exr`` the recovered map, ``stderr.exr`` its standard
@@ -25,6 +27,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from kornia.color import rgb_to_linear_rgb
+
 from invrender.estimators import render
 from invrender.inverse.fit import FitResult, fit
 from invrender.errors import ParameterError
@@ -35,6 +39,7 @@ from invrender.io.maps import write_environment
 from invrender.io.reports import write_json
 from invrender.io import write_image
 from invrender.scene.camera import Camera
+from invrender.scene.kinds import kind_of
 from invrender.scene.scene import Scene
 
 #: the final render's samples per pixel, as a multiple of the fit's ``spp_final``
@@ -54,6 +59,18 @@ class FitOutput:
     result: FitResult
     report: dict
     written: tuple[Path, ...]
+
+
+def write_map(out: Path, name: str, value) -> list[Path]:
+    """``OUT/NAME.exr`` (the (h, w, 3) values) and ``OUT/NAME.png`` (a picture of them: sRGB-encoded
+    colours, or a normal map's codes ``c`` as they are: written through the sRGB decoding that the
+    PNG's encoding undoes)."""
+    value = value.detach().float().cpu()
+    picture = rgb_to_linear_rgb(value.clamp(0.0, 1.0).permute(2, 0, 1)).permute(1, 2, 0) if kind_of(name).unit == "texel" else value
+    paths = [out / f"{name}.exr", out / f"{name}.png"]
+    write_image(paths[0], value)
+    write_image(paths[1], picture)
+    return paths
 
 
 def fit_into(
@@ -110,6 +127,9 @@ def fit_into(
 
     views = cameras or [result.scene.camera]
     finals = rendered("final", views, s.seed + 1)
+    for name, value in result.params.items():
+        if name != environment and value.ndim == 3:  # a map over a surface (the environment's: below)
+            written += write_map(out, name, value)
     for i, image in enumerate(result.pixels):  # which pixels counted, where some did not
         if image is not None:
             path = out / ("pixels.png" if len(result.pixels) == 1 else f"pixels_{i:02d}.png")

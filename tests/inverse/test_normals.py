@@ -169,3 +169,21 @@ def test_an_unconverged_normal_fit_advises_more_steps_not_lm():
     for name, advice in (("plane.normalmap", "; give more steps$"), ("plane.reflectance", "; give more steps, or solver 'auto' / 'lm'$")):
         with pytest.warns(ConvergenceWarning, match=advice):
             ir.fit(scene, target, [name], solver="adam", steps=3, spp=2, progress=False)
+
+
+def test_a_fit_writes_the_recovered_normal_map(tmp_path):
+    """``fit_into`` (what ``invrender fit`` writes) saves a recovered map as ``NAME.exr`` (its values)
+    and ``NAME.png`` (a normal map's codes as stored, within 8-bit rounding: not sRGB-encoded)."""
+    import numpy as np
+    from PIL import Image
+
+    from invrender.inverse.fit_output import fit_into
+
+    scene = plane()
+    target = ir.render(scene, seed=1, **KW)
+    out = fit_into(tmp_path / "run", scene, target, ["plane.normalmap"], solver="adam", steps=2, spp=2, progress=False)
+    recovered = out.result.params["plane.normalmap"]
+    torch.testing.assert_close(ir.read_image(tmp_path / "run" / "plane.normalmap.exr"), recovered)
+    codes = torch.from_numpy(np.asarray(Image.open(tmp_path / "run" / "plane.normalmap.png"), dtype=np.float32) / 255.0)
+    assert float((codes - recovered).abs().max()) <= 0.5 / 255 + 1e-4
+    assert {p.name for p in out.written} >= {"plane.normalmap.exr", "plane.normalmap.png"}
