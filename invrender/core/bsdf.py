@@ -171,7 +171,6 @@ class ShadingPoint:
 _POINT_FIELDS = ("wo", "n", "ng", "front", "uv", "material", "slot")
 
 
-
 @dataclass(frozen=True)
 class BSDFSample:
     """N sampled directions.

@@ -122,22 +122,25 @@ class TransportContext:
         material = self.material(s)
         vertex = {"corners": self.triangles.vertex.index_select(0, s.tri), "bary": s.bary} if self.per_vertex else {}
         sp = self._point(s, wo, material, vertex, s.ns, *shading.tables(self))
-        if self._turns(s):  # differentiated normals: sampling reads the frame at the values it is held at, detached
+        if self.normals_turn:  # differentiated normals: sampling reads the frame at the values it is held at, detached
             ns = s.ns.detach() if self.normals is None else self.normals.sampling_normal(s)
             with torch.no_grad():
                 sampling = self._point(s, wo, material, vertex, ns, *shading.tables(self, sampling=True))
             sp.__dict__["sampling"] = sampling
         return sp
 
-    def _turns(self, s: Surface) -> bool:
-        """Can the shading frame at the hits ``s`` differ from the one sampling reads: it carries a
+    @property
+    def normals_turn(self) -> bool:
+        """Can a hit's shading frame differ from the one sampling reads: the frame carries a
         derivative (a differentiated ``"<material>.normals"`` or ``"<material>.normalmap"``), or
-        sampling is held at other normals (``sampling_params``)?"""
-        if carries_derivative(s.ns) or getattr(self.materials, "sampling_perturbations", None) is not None:
+        sampling is held at other normals (``sampling_params``)? (Then the torch bounce runs,
+        sampling in the detached frame: :attr:`ShadingPoint.sampling`.)"""
+        n, materials = self.normals, self.materials
+        if n is not None and (n.carries_derivative or n.sampling is not None):
             return True
-        if self.normals is not None and self.normals.sampling is not None:
+        if getattr(materials, "sampling_perturbations", None) is not None:
             return True
-        return any(p is not None and carries_derivative(p.texture) for p in self.materials.perturbations or [])
+        return any(p is not None and carries_derivative(p.texture) for p in getattr(materials, "perturbations", None) or [])
 
     def _point(self, s: Surface, wo, material, vertex: dict, ns, frames, perturb) -> ShadingPoint:
         """The :class:`ShadingPoint` of hits ``s`` of shading normal ``ns`` with the shading tables

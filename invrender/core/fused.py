@@ -56,7 +56,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
-import torch.autograd.forward_ad as fwAD
 
 from invrender.scene.kinds import param_name
 from invrender.backends import kernels
@@ -67,6 +66,7 @@ from invrender.core import compiled, lanes, shading
 from invrender.core.compiled import Opaque
 from invrender.core.bsdf import LaneBSDF, Lobe
 from invrender.core.sampler import bounce_salt_values
+from invrender.core.surface import carries_derivative
 
 #: paths a chunk traced by the fused bounce holds at most on the CPU (about 400 bytes a path: 50
 #: MiB a worker): its per-chunk cost (a few dozen launches and queries a bounce, and the small
@@ -128,10 +128,8 @@ def tables(ctx: TransportContext, direct, hemisphere: str) -> FusedScene | None:
         return None
     if ctx.hide_emitters or ctx.ambient is not None or ctx.per_vertex:
         return None
-    if (ctx.normals is not None and (ctx.normals.carries_derivative or ctx.normals.sampling is not None)) or ctx.materials.sampling_perturbations is not None:
+    if ctx.normals_turn:
         return None  # differentiated normals, or sampling held at other ones: the torch bounce follows them
-    if any(p is not None and _carries_derivative(p.texture) for p in ctx.materials.perturbations or []):
-        return None
     emitters = _emitters(ctx.lights)
     if emitters is None:
         return None
@@ -139,7 +137,7 @@ def tables(ctx: TransportContext, direct, hemisphere: str) -> FusedScene | None:
     device = ctx.triangles.p0.device
     for bsdf in materials.bsdfs:
         form = bsdf.lane_form()
-        if form is None or not _written_once(bsdf) or any(_carries_derivative(v) for m in bsdf.values for v in m.values()):
+        if form is None or not _written_once(bsdf) or any(carries_derivative(v) for m in bsdf.values for v in m.values()):
             return None
         rows = lanes.material_rows(bsdf, form.keys, textures)
         if rows is None:
@@ -173,7 +171,7 @@ def _emitters(lights) -> list | None:
     out = []
     for light in lights.lights:
         form = light.lanes()
-        if form is None or any(_carries_derivative(v) for m in light.values for v in m.values()):
+        if form is None or any(carries_derivative(v) for m in light.values for v in m.values()):
             return None
         out.append((lanes.Emitter(form, light in lights.sampled, light.infinite, light.surface), form.tables))
     return out
@@ -194,10 +192,6 @@ def _written_once(bsdf) -> bool:
     """Are ``bsdf``'s torch methods its lane form's (not a subclass's own, which the compiled bounce
     would not follow)?"""
     return all(getattr(type(bsdf), m) is getattr(LaneBSDF, m) for m in ("eval", "pdf", "sample"))
-
-
-def _carries_derivative(x: torch.Tensor) -> bool:
-    return (x.requires_grad and torch.is_grad_enabled()) or fwAD.unpack_dual(x).tangent is not None
 
 
 def takes(film: Film, fused: FusedScene) -> bool:
