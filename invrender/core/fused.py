@@ -126,8 +126,8 @@ def tables(ctx: TransportContext, direct, hemisphere: str) -> FusedScene | None:
     ``hemisphere``: its diffuse sampling (the materials' lane forms follow it)."""
     if direct is None or not kernels.fused_bounce(ctx.triangles.p0.device):
         return None
-    if ctx.hide_emitters or ctx.ambient is not None or ctx.per_vertex:
-        return None
+    if (ctx.hide_emitters and ctx.lights.surfaces) or ctx.ambient is not None or ctx.per_vertex:
+        return None  # camera rays through emitting shapes (hide_emitters) are the torch bounce's
     if ctx.normals_turn:
         return None  # differentiated normals, or sampling held at other ones: the torch bounce follows them
     emitters = _emitters(ctx.lights)
@@ -196,12 +196,14 @@ def _written_once(bsdf) -> bool:
 
 def takes(film: Film, fused: FusedScene) -> bool:
     """Does ``film`` take the fused bounce's contributions: it has none of the hooks the torch
-    bounce calls (``visit``, ``arrive``, ``scatter``), or it takes contributions by monomial code
-    (:func:`places`) and the scene is Lambertian (``fused.rho``)?"""
+    bounce calls but ``arrive`` (``visit``, ``scatter``: the fused bounce tells ``arrive`` of each
+    contribution that may end on an emitter infinitely far away, as the torch bounce does: the
+    transport matrix's film), or it takes contributions by monomial code (:func:`places`) and the
+    scene is Lambertian (``fused.rho``)?"""
     if places(film) is not None or isinstance(film, TangentFilm):
         return fused.rho is not None
     cls = type(film)
-    return cls.visit is Film.visit and cls.arrive is Film.arrive and cls.scatter is Film.scatter and not film.detach_throughput
+    return cls.visit is Film.visit and cls.scatter is Film.scatter and not film.detach_throughput
 
 
 def places(film: Film) -> torch.Tensor | None:
@@ -363,13 +365,16 @@ def tangents_add(pixel, counts, rho, emitted, tangents: tuple, direct, occluded,
 
 def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film, settings) -> None:
     """Follow ``state``'s camera rays with the fused bounce and add each term to ``film`` (and,
-    into a :class:`TangentFilm`, each pixel's derivatives); ``settings``: the integrator's
-    (``max_depth``, ``rr_depth``)."""
+    into a :class:`TangentFilm`, each pixel's derivatives; a film with an ``arrive`` hook is told
+    the direction of every contribution that may end on an emitter infinitely far away just before
+    it); ``settings``: the integrator's (``max_depth``, ``rr_depth``). With ``hide_emitters`` (a
+    scene without emitting shapes: :func:`tables`) camera rays that leave the scene add nothing."""
     rr_start = math.inf if settings.rr_depth == -1 else settings.rr_depth
     pixel, keys, o, d, beta, pdf, delta = state.pixel, state.keys, state.o, state.d, state.beta, state.pdf_dir, state.delta
     coded = places(film)
     tangents = isinstance(film, TangentFilm) or coded is not None
     rho = fused.rho
+    arrives = fused.infinite and type(film).arrive is not Film.arrive
     counts = torch.zeros(keys.shape[0], rho.shape[0] if tangents else 0, dtype=torch.int32, device=keys.device)  # factors of each rho in beta
     # with materials of delta lobes only, shadow rays are cast from the others' vertices alone, as
     # the torch bounce casts them (path replay's adjoint pass takes the same queries in order)
@@ -377,12 +382,15 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
     depth = 0
     while keys.shape[0]:
         hits = ctx.accel.intersect(o, d)
-        if fused.infinite:  # term depth for the rays that leave the scene
+        if fused.infinite and not (depth == 0 and ctx.hide_emitters):  # term depth for the rays that leave the scene
             gone = (~hits.valid).nonzero()[:, 0]
             if gone.shape[0]:
-                args = (_take(x, gone) for x in (d, beta, pdf, delta))
+                args = [_take(x, gone) for x in (d, beta, pdf, delta)]
                 (seen,) = compiled.run(lanes.escaped_vertex, d.device, fused.lanes[1], fused.lanes[2], *args, emitters=fused.emitters, first=depth == 0, mis=fused.mis, nee_only=fused.nee_only)
-                film.add(depth, pixel.index_select(0, gone), seen)
+                at = pixel.index_select(0, gone)
+                if arrives:
+                    film.arrive(at, args[0])
+                film.add(depth, at, seen)
         hit = hits.valid.nonzero()[:, 0]  # a synchronization: the count of rays that hit
         prim, u, v, t = hits.prim, hits.u, hits.v, hits.t
         if hit.shape[0] < keys.shape[0]:
@@ -406,11 +414,13 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
             film.add_coded(depth, pixel, code_e, emitted)  # term depth
             if occluded is not None:
                 film.add_coded(depth + 1, pixel, code_d, direct)  # term depth + 1
-        elif occluded is not None and not film.terms and not tangents:  # both terms in one image: one addition (5% of a render's CPU time)
+        elif occluded is not None and not film.terms and not tangents and not arrives:  # both terms in one image: one addition (5% of a render's CPU time)
             film.add(depth, pixel, emitted + direct)
         else:
             film.add(depth, pixel, emitted)  # term depth
             if occluded is not None:
+                if arrives:
+                    film.arrive(pixel, shadow_d)
                 film.add(depth + 1, pixel, direct)  # term depth + 1
             if tangents:
                 tangents_add(pixel, counts, rho, emitted, out[11:], direct, occluded, more, jacobian=film.jacobian)

@@ -68,6 +68,7 @@ from invrender.inverse.map_normal import NormalEquations, from_matrix, normal_eq
 from invrender.io.maps import write_environment
 from invrender.io.reports import write_json
 from invrender.scene.scene import Scene
+from invrender.validate import check_int
 
 #: the rules that choose the prior's weight (``weight=None``)
 RULES = ("discrepancy", "gcv")
@@ -561,6 +562,7 @@ def fit_map(
     stderr: bool = True,
     unknowns: int = DEFAULT_UNKNOWNS,
     rounds="auto",
+    pilot_spp: int | None = None,
     memory_mb: float | None = None,
     progress: bool = False,
 ) -> MapFit:
@@ -576,7 +578,10 @@ def fit_map(
     again sampled by the first round's map (plus a tenth of its mean, so no direction is left
     unsampled), with the quadtree refined where that map has its power (a sun); ``"auto"`` does so
     when the basis is coarser than the texels or the first map's peak is over
-    :data:`SUN_RATIO` x its median. The scene's current map fixes the map's size and the first
+    :data:`SUN_RATIO` x its median. Where a second round follows whatever the first finds (2, or
+    ``"auto"`` with a basis coarser than the texels) the first is a pilot that only chooses the
+    second's sampling and basis, traced at ``pilot_spp`` per half (default ``spp // 4``, at least
+    1). The scene's current map fixes the map's size and the first
     round's sampling; ``start`` (default: a flat map of the targets' brightness) is the Tikhonov
     prior's centre. Refused before any work, in one line with the figure, when a view's halves,
     the normal equations and the solve (``24 P_v n + 72 n^2`` bytes) exceed ``memory_mb``
@@ -590,22 +595,25 @@ def fit_map(
     basis = MapBasis.uniform(h, w, unknowns)
     masks = None if all(t.plain for _, t in views) else [t.mask for _, t in views]
     linear = [t.linear for _, t in views]
-    render = {"integrator": integrator, "spp": spp, "max_depth": max_depth, "progress": progress}
+    second = rounds == 2 or (rounds == "auto" and not basis.is_texels)  # whatever the first round finds
+    pilot_spp = max(1, spp // 4) if pilot_spp is None else pilot_spp
+    check_int("fit_map ", "pilot_spp", pilot_spp, 1)
+    render = {"integrator": integrator, "max_depth": max_depth, "progress": progress}
     settings = {"start": start, "weight": weight, "rule": rule, "smoothness": smoothness, "tikhonov": tikhonov, "target_noise": target_noise, "stderr": stderr}
 
-    def round_(basis: MapBasis, seed: int, sampling_map=None) -> MapFit:
-        normal = normal_equations(scene, emitter, linear, cameras=cameras, masks=masks, basis=basis, memory_mb=memory_mb, extra_bytes=solver_bytes(basis.n), seed=seed, sampling_map=sampling_map, **render)
+    def round_(basis: MapBasis, seed: int, spp: int, sampling_map=None) -> MapFit:
+        normal = normal_equations(scene, emitter, linear, cameras=cameras, masks=masks, basis=basis, memory_mb=memory_mb, extra_bytes=solver_bytes(basis.n), seed=seed, sampling_map=sampling_map, spp=spp, **render)
         return solve_map(normal, **settings)
 
-    fit = round_(basis, seed)
-    if rounds == 2 or (rounds == "auto" and (not basis.is_texels or _has_sun(fit))):
+    fit = round_(basis, seed, pilot_spp if second else spp)
+    if second or (rounds == "auto" and _has_sun(fit)):
         first = fit.texels.reshape(-1, 3)
         sampling = first + 0.1 * first.mean(0)
         fine = basis.refined(first, unknowns) if not basis.is_texels else basis
-        second = round_(fine, seed + 1, sampling.reshape(h, w, 3))
-        second.seconds = {k: fit.seconds[k] + second.seconds[k] for k in second.seconds}
-        second.rounds = 2
-        fit = second
+        last = round_(fine, seed + 1, spp, sampling.reshape(h, w, 3))
+        last.seconds = {k: fit.seconds[k] + last.seconds[k] for k in last.seconds}
+        last.rounds = 2
+        fit = last
     return fit
 
 

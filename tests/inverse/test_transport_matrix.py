@@ -54,6 +54,29 @@ def test_matrix_times_map_is_the_render_of_the_same_seed():
     torch.testing.assert_close(tm.images(other, 0)[0], img, rtol=1e-5, atol=1e-6)
 
 
+def test_the_fused_bounce_renders_the_matrix_of_the_torch_bounce(monkeypatch):
+    """The matrix's film takes the compiled bounce (which tells it each escaped ray's and emitter
+    sample's direction, as the torch bounce does), also with hide_emitters: the same matrix."""
+    from invrender.backends import kernels
+    from invrender.core import fused
+
+    s = scene(10, sky=sky_map(*MAP))
+    traced = []
+    trace = fused.trace
+    monkeypatch.setattr(fused, "trace", lambda *a: traced.append(1) or trace(*a))
+    for integrator in (HIDDEN, "path", {"type": "path", "strategy": "bsdf"}):
+        kw = dict(cameras=CAMERAS[:2], integrator=integrator, spp=4, max_depth=3, seed=2, sampling_map=s.params["sky.emission"].detach())
+        monkeypatch.delenv(kernels.ENV, raising=False)
+        count = len(traced)
+        mine = ir.lighting.transport_matrix(s, "sky", **kw)
+        assert len(traced) > count  # the fused bounce ran
+        monkeypatch.setenv(kernels.ENV, "steps")
+        reference = ir.lighting.transport_matrix(s, "sky", **kw)
+        for a, b in zip(mine.halves, reference.halves):
+            assert float(b.abs().max()) > 0.05
+            torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5 * float(b.abs().max()))
+
+
 def test_halves_cross_product_is_unbiased_where_the_mean_gram_is_not():
     s = scene(6)
     cams = CAMERAS[:1]

@@ -59,6 +59,23 @@ def test_the_fused_bounce_renders_the_torch_bounces_image(integrator, options, u
     assert float(terms[2].mean()) > 0.01  # the indirect terms were traced
 
 
+def test_hide_emitters_under_a_sky_takes_the_fused_bounce(unfused):
+    """Without emitting shapes, hiding the emitters only drops the camera rays that leave the
+    scene: the fused bounce does that, with the torch bounce's image."""
+    from invrender.scene.builtin import sky_map, sky_spheres
+
+    scene = sky_spheres((16, 16), (4, 8), subdivisions=2, sky=sky_map(4, 8))
+    hidden = dict(integrator="path", hide_emitters=True)
+    assert _fused_scene(scene, **hidden) is not None
+    kw = dict(spp=8, seed=3, progress=False, max_depth=4, **hidden)
+    image = ir.render(scene, **kw)
+    seen = ir.render(scene, spp=8, seed=3, progress=False, max_depth=4)
+    unfused()
+    expected = ir.render(scene, **kw)
+    assert float(expected.mean()) > 0.02 and float((seen - image).amax()) > 0.1  # the sky is hidden behind the spheres' edges
+    assert (image - expected).abs().max() < 1e-5 * float(expected.max())
+
+
 def test_the_fused_bounce_applies_only_where_nothing_needs_the_torch_bounce(tmp_path, monkeypatch):
     box = ir.load_scene("cornell_box", resolution=(8, 8))
     assert _fused_scene(box) is not None
