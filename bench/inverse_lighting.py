@@ -1,7 +1,7 @@
 """Inverse lighting side by side: invrender's transport-matrix solve against Mitsuba 3 ``prb`` + Adam.
 
     python bench/inverse_lighting.py [--cases 32x64/3 64x128/6/sun] [--all] [--resolution 64]
-                                     [--target-spp 1024] [--max-depth 3] [--spp 64] [--unknowns 3072]
+                                     [--target-spp 1024] [--max-depth 3] [--spp 32] [--unknowns 256]
                                      [--lrs 0.01 0.03 0.1 0.3] [--mitsuba-spp 16] [--mitsuba-steps 400]
                                      [--mitsuba-seconds 180] [--eval-every 5] [--json PATH]
 
@@ -19,7 +19,11 @@ texel 1):
 
 - **invrender**: ``ir.lighting.fit_map`` (the transport matrix, two halves of ``--spp`` samples
   per pixel, the non-negative regularized solve with the prior's weight by the discrepancy
-  principle, a second round where ``auto`` finds a sun); its time is the whole call.
+  principle); its time is the whole call. The bench's setting, 2 x 32 spp and at most 256
+  unknowns (quadtree blocks: a pilot round at a quarter of the samples, then the second sampled
+  by the pilot's map in the quadtree it refines), is faster than fit_map's defaults (2 x 64 spp,
+  up to 3,072 unknowns: texel by texel, a second round only for a sun), which are a little more
+  accurate; ``--spp 64 --unknowns 3072`` runs those.
 - **Mitsuba**: the scene converted by ``mitsuba_ref.scene_dict`` (its envmap a bitmap of the map),
   integrator ``prb`` with ``hide_emitters``, one sensor per view (``mitsuba_ref.sensor_dict``);
   the classic inverse-lighting loop on the envmap's bitmap ``sky.data``: ``mi.ad.Adam(lr)``, per
@@ -341,8 +345,8 @@ def main() -> int:
     parser.add_argument("--resolution", type=int, default=64, help="each view's width and height")
     parser.add_argument("--target-spp", type=int, default=1024, help="the targets' and the held-out matrix's samples per pixel")
     parser.add_argument("--max-depth", type=int, default=3)
-    parser.add_argument("--spp", type=int, default=64, help="invrender: samples per pixel of each half of the matrix")
-    parser.add_argument("--unknowns", type=int, default=3072, help="invrender: fit_map's budget of unknowns")
+    parser.add_argument("--spp", type=int, default=32, help="invrender: samples per pixel of each half of the matrix (fit_map's default: 64)")
+    parser.add_argument("--unknowns", type=int, default=256, help="invrender: fit_map's budget of unknowns (fit_map's default: 3072, a 32 x 64 map texel by texel)")
     parser.add_argument("--rounds", type=lambda s: s if s == "auto" else int(s), default="auto", help="invrender: fit_map's rounds (1, 2 or auto)")
     parser.add_argument("--lrs", type=float, nargs="+", default=[0.03, 0.1, 0.3, 1.0], help="Mitsuba: Adam's learning rates (the sweep)")
     parser.add_argument("--mitsuba-spp", type=int, default=16, help="Mitsuba: samples per pixel of each step's renders")

@@ -233,7 +233,7 @@ def test_the_solution_is_optimal_over_every_unknown_and_the_search_is_short(prob
         assert excess * sign > 0, (factor, excess)
 
 
-def test_a_sun_takes_a_second_round_sampled_by_the_first_in_a_refined_quadtree():
+def test_a_sun_takes_a_second_round_sampled_by_the_first_in_a_refined_quadtree(monkeypatch):
     h, w = 8, 16
     truth = sky_map(h, w)
     lum = truth.mean(2)
@@ -242,7 +242,18 @@ def test_a_sun_takes_a_second_round_sampled_by_the_first_in_a_refined_quadtree()
     true_scene = sky_spheres((12, 12), (h, w), subdivisions=2, sky=truth)
     targets = [ir.render(true_scene.with_camera(c), HIDDEN, spp=128, max_depth=2, seed=50 + k, progress=False) for k, c in enumerate(CAMERAS)]
     start = sky_spheres((12, 12), (h, w), subdivisions=2, sky=torch.ones(h, w, 3))
+    from invrender.inverse import map_fit
+
+    traced = []
+    streamed = map_fit.normal_equations
+
+    def spy(*args, **kw):
+        traced.append(kw["spp"])
+        return streamed(*args, **kw)
+
+    monkeypatch.setattr(map_fit, "normal_equations", spy)
     fit = ir.lighting.fit_map(start, targets, "sky", cameras=CAMERAS, integrator=HIDDEN, spp=16, max_depth=2, unknowns=40)
+    assert traced == [4, 16]  # a coarser basis: the first round is a pilot at spp // 4
     assert fit.rounds == 2 and fit.basis.n <= 40 and not fit.basis.is_texels  # 2 x 2 blocks (32), refined
     column = fit.basis.columns()
     assert int((column == column[i * w + j]).sum()) == 1  # the sun's texel is an unknown of its own
