@@ -31,10 +31,12 @@ It applies (:func:`tables`) on the CPU and CUDA unless switched off
 or the path tracer's own (``fused_direct``), every material type gives its lane form
 (:meth:`BSDF.lane_form <invrender.core.bsdf.BSDF.lane_form>`, its torch methods not overridden)
 with parameters that are colours or textures, every emitter type gives its lane form
-(:meth:`Light.lanes <invrender.core.lights.Light.lanes>`), the camera sees emitters, there is no
-ambient term, no parameter is per vertex, and no parameter carries a gradient or a forward-mode
-tangent; and, per chunk, where the film has no hooks (:func:`takes`: path records' and replay's
-adjoint films do). Everywhere else the torch bounce runs. ``INVRENDER_KERNELS=steps`` (or
+(:meth:`Light.lanes <invrender.core.lights.Light.lanes>`), the camera sees emitters (or, hiding
+them, the scene has no emitting shapes: camera rays that leave add nothing), there is no ambient
+term, no parameter is per vertex, and no parameter carries a gradient or a forward-mode tangent;
+and, per chunk, where the film has no hooks but ``arrive`` (:func:`takes`: path records' and
+replay's adjoint films have others; the transport matrix's film is told the direction of each
+contribution that may end on an environment map, as the torch bounce tells it). Everywhere else the torch bounce runs. ``INVRENDER_KERNELS=steps`` (or
 ``torch``) switches it off; ``INVRENDER_BOUNCE=torch`` runs the kernel as eager torch.
 
 **Derivatives carried forward.** In a flat Lambertian scene lit by area emitters (``FusedScene.rho``)
