@@ -17,7 +17,10 @@ class Film:
 
     With ``terms`` each contribution is kept in the image of its Neumann term k (the contribution of
     paths with k reflections, ``g (Mg)^k eps``); otherwise everything goes to one image. Sums are
-    kept in float64, so the float32 image does not depend on the order in which chunks arrive.
+    kept in float64, so the float32 image does not depend on the order in which chunks arrive;
+    each image is stored as three planes (3, W * H), one per channel, which torch adds into by
+    index two to three times faster than (W * H, 3) rows (131k contributions on one core: 0.5-0.8
+    ms against 1.2-1.3 ms, whether they come as rows or as columns).
     """
 
     #: replay's adjoint pass sets this: the integrator then carries the throughput beta detached
@@ -38,17 +41,17 @@ class Film:
         index, sums = self.rfilter.splat(xy, values, self.width, self.height)  # (M,), (M, 3 T + 1): each term's RGB, then the weight
         self.weights.index_add_(0, index, sums[:, -1])
         for t, term in enumerate(terms):
-            key = term if self.terms else 0
-            if key not in self._images:
-                self._images[key] = torch.zeros(self.width * self.height, 3, dtype=torch.float64, device=self.device)
-            self._images[key].index_add_(0, index, sums[:, 3 * t : 3 * t + 3])
+            self._plane(term if self.terms else 0).index_add_(1, index, sums[:, 3 * t : 3 * t + 3].t())
 
     def add(self, term: int, pixel: torch.Tensor, radiance: torch.Tensor) -> None:
         """Add ``radiance`` (N, 3) to the flat ``pixel`` indices (N,) of Neumann term ``term``."""
-        key = term if self.terms else 0
+        self._plane(term if self.terms else 0).index_add_(1, pixel, radiance.t().double())
+
+    def _plane(self, key: int) -> torch.Tensor:
+        """(3, W * H) float64 the sums of image ``key`` (created at zero)."""
         if key not in self._images:
-            self._images[key] = torch.zeros(self.width * self.height, 3, dtype=torch.float64, device=self.device)
-        self._images[key].index_add_(0, pixel, radiance.double())
+            self._images[key] = torch.zeros(3, self.width * self.height, dtype=torch.float64, device=self.device)
+        return self._images[key]
 
     def visit(self, pixel: torch.Tensor, s) -> None:
         """Hook called when the paths writing to ``pixel`` (N,) reach new vertices ``s`` (a
@@ -75,10 +78,10 @@ class Film:
 
     def sums(self) -> torch.Tensor:
         """(W * H, 3) float64 sums of all contributions so far, all terms together."""
-        total = torch.zeros(self.width * self.height, 3, dtype=torch.float64, device=self.device)
+        total = torch.zeros(3, self.width * self.height, dtype=torch.float64, device=self.device)
         for img in self._images.values():
             total = total + img
-        return total
+        return total.t()
 
     @staticmethod
     def merge(films: list[Film]) -> Film:
@@ -99,7 +102,7 @@ class Film:
         count = max_across_ranks(max(self._images, default=-1) + 1, self.device)
         for k in range(count):
             image = self._images.get(k)
-            self._images[k] = sum_across_ranks(image if image is not None else torch.zeros(self.width * self.height, 3, dtype=torch.float64, device=self.device))
+            self._images[k] = sum_across_ranks(image if image is not None else torch.zeros(3, self.width * self.height, dtype=torch.float64, device=self.device))
         if self.weights is not None:
             self.weights = sum_across_ranks(self.weights)
         return self
@@ -111,12 +114,11 @@ class Film:
         terms nothing reached)."""
         shape = (self.height, self.width, 3)
         norm = spp if self.weights is None else self.weights.masked_fill(self.weights == 0, 1.0)[:, None]
+        zero = torch.zeros(3, self.width * self.height, dtype=torch.float64, device=self.device)
         if not self.terms:
-            img = self._images.get(0, torch.zeros(self.width * self.height, 3, device=self.device))
-            return (img / norm).float().reshape(shape)
+            return (self._images.get(0, zero).t() / norm).float().reshape(shape)
         count = max(max(self._images, default=-1) + 1, terms)
-        zero = torch.zeros(self.width * self.height, 3, dtype=torch.float64, device=self.device)
-        return torch.stack([(self._images.get(k, zero) / norm).float().reshape(shape) for k in range(count)])
+        return torch.stack([(self._images.get(k, zero).t() / norm).float().reshape(shape) for k in range(count)])
 
 
 class PathFilm(Film):
@@ -133,12 +135,12 @@ class PathFilm(Film):
 
     def add(self, term: int, pixel: torch.Tensor, radiance: torch.Tensor) -> None:
         key = term if self.terms else 0
-        if key not in self._images or self._images[key].shape[0] < self.size:
-            grown = torch.zeros(self.size, 3, dtype=torch.float64, device=self.device)
+        if key not in self._images or self._images[key].shape[1] < self.size:
+            grown = torch.zeros(3, self.size, dtype=torch.float64, device=self.device)
             if key in self._images:
-                grown[: self._images[key].shape[0]] = self._images[key]
+                grown[:, : self._images[key].shape[1]] = self._images[key]
             self._images[key] = grown
-        self._images[key].index_add_(0, pixel, radiance.double())
+        self._images[key].index_add_(1, pixel, radiance.t().double())
 
     def branch(self, pixel: torch.Tensor) -> torch.Tensor:
         new = torch.arange(self.size, self.size + pixel.numel(), device=pixel.device)
@@ -151,7 +153,7 @@ class PathFilm(Film):
         including all its branches'."""
         total = torch.zeros(self.size, 3, dtype=torch.float64, device=self.device)
         if term in self._images:
-            total[: self._images[term].shape[0]] = self._images[term]
+            total[: self._images[term].shape[1]] = self._images[term].t()
         for new, parent in reversed(self._branches):  # children are created after their parents
             total.index_add_(0, parent, total[new])
         return total

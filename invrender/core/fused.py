@@ -410,7 +410,10 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
                 cast = smooth.index_select(0, prim).nonzero()[:, 0]
                 occluded = torch.zeros_like(keys, dtype=torch.bool)
                 occluded[cast] = ctx.accel.occluded(*(_take(x, cast) for x in (shadow_o, shadow_d, shadow_t)))
-            direct.masked_fill_(occluded[:, None], 0.0)
+            # the occluded samples' direct light zeroed: a multiplication by 0 or 1 (the kernel's
+            # direct light is finite: samples that add nothing are 0), several times faster on the
+            # CPU than a fill by a boolean mask
+            direct.t().mul_((~occluded).to(direct.dtype)[None, :])
         if coded is not None:  # path records: each contribution with its monomial's code
             code_e, code_d = tangents_add(pixel, counts, rho, emitted, out[11:], direct, occluded, more, places=coded)
             film.add_coded(depth, pixel, code_e, emitted)  # term depth
