@@ -24,8 +24,8 @@ from invrender.core.sampler import _columns, _low32, bounce_salt_values, seed_sa
 MODES = {"stratified": 0, "independent": 1, "antithetic": 2}
 
 
-def lane_samples(xp, pixel, sample, first, cells, m, width, key_salt, pattern_salt, salts, mode: int, lens: bool):
-    """The camera samples of N paths.
+def lane_samples(xp, pixel, sample, first, cells, m, width, key_salt, pattern_salt, salts, pinhole, mode: int, lens: bool):
+    """The camera samples of N paths (and a pinhole camera's ray directions).
 
     Args:
         pixel, sample: UInt the path's pixel (in the sampled grid, ``width`` pixels a row) and its
@@ -34,9 +34,12 @@ def lane_samples(xp, pixel, sample, first, cells, m, width, key_salt, pattern_sa
             ``cells / m`` (:func:`invrender.core.sampler.multijitter`); scalars or UInt.
         key_salt, pattern_salt: the hashed seeds of the path keys and of the pixel patterns;
             salts: those of the camera's numbers (bounce 0: film x, film y, lens u, lens v).
+        pinhole: None, or a pinhole camera's (right, up, forward) 3-tuples, (tx, ty, ox, oy,
+            width, height, border) scalars (:func:`pinhole_constants`).
         mode: :data:`MODES`; lens: with the lens uniforms.
     Returns:
-        keys UInt, film positions (2 Floats, in pixels), and with ``lens`` the lens uniforms (2 Floats).
+        keys UInt, film positions (2 Floats, in pixels), with ``lens`` the lens uniforms (2 Floats),
+        with ``pinhole`` the rays' unit directions (3 Floats).
     """
     if mode == MODES["antithetic"]:  # pairs share their counters, the second mirrored
         cell = xp.shr(sample, 1)
@@ -49,22 +52,49 @@ def lane_samples(xp, pixel, sample, first, cells, m, width, key_salt, pattern_sa
         pattern = lanes.path_key(xp, pattern_salt, pixel, first)
         fx, fy = lanes.multijitter(xp, pattern, cell, cells, m, (fx, fy))
     film = (xp.float(xp.umod(pixel, width)) + fx, xp.float(xp.udiv(pixel, width)) + fy)
-    if not lens:
-        return keys, film
-    return keys, film, (lanes.uniform(xp, keys, salts[2]), lanes.uniform(xp, keys, salts[3]))
+    out = (keys, film)
+    if lens:
+        out += ((lanes.uniform(xp, keys, salts[2]), lanes.uniform(xp, keys, salts[3])),)
+    if pinhole is not None:
+        out += (pinhole_directions(xp, film, *pinhole),)
+    return out
 
 
-def camera_samples(ids: torch.Tensor, spp: int, width: int, sampler: str, seed: int, lens: bool, plan=None):
+def pinhole_directions(xp, film, right, up, forward, constants):
+    """Unit directions (3 Floats) of a pinhole camera's rays through film positions ``film`` (2
+    Floats, in the sampled grid's pixels): the expressions of
+    :meth:`~invrender.scene.camera.Camera.generate_rays`, lane by lane."""
+    tx, ty, ox2, oy2, width, height, border = constants
+    x, y = film[0] - border, film[1] - border
+    sx = (2.0 * x / width + ox2 - 1.0) * tx
+    sy = (1.0 - 2.0 * y / height - oy2) * ty
+    return lanes.normalize(xp, lanes.add(lanes.add(lanes.scale(right, sx), lanes.scale(up, sy)), forward))
+
+
+def pinhole_constants(camera, width: int, height: int, border: int) -> tuple:
+    """What :func:`pinhole_directions` reads of a pinhole ``camera`` with a ``width x height``
+    image and a sampled border of ``border`` pixels, as opaque scalars (one kernel for every view):
+    the frame's vectors rounded to float32 and twice the principal point offset, as the torch
+    expressions take them."""
+    right, up, forward = (tuple(Opaque(float(c)) for c in v.to(torch.float32)) for v in camera.frame())
+    tx, ty = camera.tan_half_fov(width, height)
+    ox, oy = camera.principal_point_offset
+    return right, up, forward, tuple(Opaque(float(v)) for v in (tx, ty, 2.0 * ox, 2.0 * oy, width, height, border))
+
+
+def camera_samples(ids: torch.Tensor, spp: int, width: int, sampler: str, seed: int, lens: bool, plan=None, pinhole=None):
     """The camera samples of path ids ``ids`` (N,) int64: :func:`lane_samples` run by
     :func:`invrender.core.compiled.run`.
 
     Args:
         spp: samples per pixel (without a ``plan``: ids are ``pixel * spp + sample``);
         width: pixels a row of the sampled grid; sampler: ``RenderSettings.sampler``; seed: the
-            render's; lens: draw lens uniforms; plan: a ``Plan`` (each pixel's count and first index).
+            render's; lens: draw lens uniforms; plan: a ``Plan`` (each pixel's count and first index);
+            pinhole: :func:`pinhole_constants`, or None.
     Returns:
         pixel (N,) int64, keys (N,) int32, film positions (N, 2) float32 in pixels, lens uniforms
-        (N, 2) float32 (None without ``lens``).
+        (N, 2) float32 (None without ``lens``), and with ``pinhole`` the rays' unit directions (N,
+        3) float32 (stored by columns).
     """
     if plan is None:
         pixel = ids // spp
@@ -80,5 +110,6 @@ def camera_samples(ids: torch.Tensor, spp: int, width: int, sampler: str, seed: 
         first, cells, m = _low32(first), _low32(cells), _low32(m)
     salts = tuple(Opaque(s) for s in bounce_salt_values(0, 4 if lens else 2))
     key_salt, pattern_salt = Opaque(seed_salt(seed)), Opaque(seed_salt(seed ^ 0x5EED))
-    out = compiled.run(lane_samples, ids.device, _low32(pixel), _low32(sample), first, cells, m, Opaque(width), key_salt, pattern_salt, salts, mode=MODES[sampler], lens=lens)
-    return pixel, out[0], out[1], out[2] if lens else None
+    out = compiled.run(lane_samples, ids.device, _low32(pixel), _low32(sample), first, cells, m, Opaque(width), key_salt, pattern_salt, salts, pinhole, mode=MODES[sampler], lens=lens)
+    samples = (pixel, out[0], out[1], out[2] if lens else None)
+    return samples if pinhole is None else samples + (out[-1],)
