@@ -18,6 +18,7 @@ from invrender.core.lights import Lights
 from invrender.core.surface import Surface, VertexNormals, carries_derivative
 from invrender.backends.arrays import TORCH
 from invrender.core.textures import gather_rgb
+from invrender.vec import where_true
 from invrender.vec import dot
 
 
@@ -261,6 +262,6 @@ def russian_roulette(state: PathState, u: torch.Tensor, depth: int, rr_depth: in
     if depth + 1 < rr_depth:
         return state if dead is None else state.select(~dead)
     q = state.beta.detach().amax(dim=1).clamp(max=0.95)
-    alive = (u < q).nonzero()[:, 0]  # one synchronization: the survivors' count
+    alive = where_true(u < q)  # one synchronization: the survivors' count
     state = state.select(alive)
     return dataclasses.replace(state, beta=state.beta / q.index_select(0, alive)[:, None])

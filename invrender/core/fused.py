@@ -69,6 +69,7 @@ from invrender.core.compiled import Opaque
 from invrender.core.bsdf import LaneBSDF, Lobe
 from invrender.core.sampler import bounce_salt_values
 from invrender.core.surface import carries_derivative
+from invrender.vec import where_true
 
 #: paths a chunk traced by the fused bounce holds at most on the CPU (about 400 bytes a path: 50
 #: MiB a worker): its per-chunk cost (a few dozen launches and queries a bounce, and the small
@@ -357,7 +358,7 @@ def tangents_add(pixel, counts, rho, emitted, tangents: tuple, direct, occluded,
         for m, d_rho in enumerate(out):
             flat.scatter_add_(0, (row + m).view(-1), d_rho.to(torch.float64).reshape(-1))
         for took, emitter, factor in ((hit, emitter_hit, emitted_factor), (lit, emitter_sampled, direct_factor)):
-            k = took.nonzero()[:, 0]
+            k = where_true(took)
             at = row.index_select(0, k) + (materials + emitter.index_select(0, k).to(torch.int64))[:, None]
             flat.scatter_add_(0, at.view(-1), factor.index_select(0, k).to(torch.float64).reshape(-1))
     if scatter and n:
@@ -385,7 +386,7 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
     while keys.shape[0]:
         hits = ctx.accel.intersect(o, d)
         if fused.infinite and not (depth == 0 and ctx.hide_emitters):  # term depth for the rays that leave the scene
-            gone = (~hits.valid).nonzero()[:, 0]
+            gone = where_true(~hits.valid)
             if gone.shape[0]:
                 args = [_take(x, gone) for x in (d, beta, pdf, delta)]
                 (seen,) = compiled.run(lanes.escaped_vertex, d.device, fused.lanes[1], fused.lanes[2], *args, emitters=fused.emitters, first=depth == 0, mis=fused.mis, nee_only=fused.nee_only)
@@ -393,7 +394,7 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
                 if arrives:
                     film.arrive(at, args[0])
                 film.add(depth, at, seen)
-        hit = hits.valid.nonzero()[:, 0]  # a synchronization: the count of rays that hit
+        hit = where_true(hits.valid)  # a synchronization: the count of rays that hit
         prim, u, v, t = hits.prim, hits.u, hits.v, hits.t
         if hit.shape[0] < keys.shape[0]:
             pixel, keys, d, beta, pdf, delta, prim, u, v, t, counts = (_take(x, hit) for x in (pixel, keys, d, beta, pdf, delta, prim, u, v, t, counts))
@@ -407,7 +408,7 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
             if smooth is None:
                 occluded = ctx.accel.occluded(shadow_o, shadow_d, shadow_t)
             else:
-                cast = smooth.index_select(0, prim).nonzero()[:, 0]
+                cast = where_true(smooth.index_select(0, prim))
                 occluded = torch.zeros_like(keys, dtype=torch.bool)
                 occluded[cast] = ctx.accel.occluded(*(_take(x, cast) for x in (shadow_o, shadow_d, shadow_t)))
             # the occluded samples' direct light zeroed: a multiplication by 0 or 1 (the kernel's
@@ -432,7 +433,7 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
         if not more:
             break
         if depth + 1 >= rr_start or fused.absorbing:
-            live = alive.nonzero()[:, 0]  # a synchronization: the survivors' count
+            live = where_true(alive)  # a synchronization: the survivors' count
             if live.shape[0] < keys.shape[0]:
                 pixel, keys, o, d, beta, pdf, delta, counts = (_take(x, live) for x in (pixel, keys, o, d, beta, pdf, delta, counts))
         depth += 1

@@ -15,6 +15,7 @@ from invrender.core.context import PathState, TransportContext
 from invrender.core.film import Film
 from invrender.core.lights import LightSample
 from invrender.core.surface import Surface, surface_at
+from invrender.vec import where_true
 
 
 def power_heuristic(pdf_a: torch.Tensor, pdf_b: torch.Tensor) -> torch.Tensor:
@@ -36,11 +37,11 @@ def next_vertex(ctx: TransportContext, state: PathState, film: Film, depth: int,
     if depth == 0 and ctx.hide_emitters and ctx.lights.surfaces:
         hits = through_emitters(ctx, state, hits)
     if ctx.lights.infinite:
-        missed = (~hits.valid).nonzero()[:, 0]
+        missed = where_true(~hits.valid)
         if missed.numel():
             gone = state.select(missed)
             add_emitted(ctx, gone, None, depth, film, mis, nee_only)
-    hit = hits.valid.nonzero()[:, 0]
+    hit = where_true(hits.valid)
     state, hits = state.select(hit), hits.select(hit)
     if not state.count:
         return state, None
