@@ -204,6 +204,42 @@ def test_a_thin_lens_camera_draws_its_lens_point_in_the_kernel(monkeypatch):
     assert 0.0 <= float(got[3].min()) and float(got[3].max()) < 1.0
 
 
+def test_a_pinhole_cameras_rays_come_from_the_samples_kernel_as_generate_rays_gives_them(monkeypatch):
+    """The pinhole's directions, computed in the camera samples' kernel, are generate_rays' within
+    an ulp (offset principal point, non-square pixels and a sampled border included); a
+    replacement of generate_rays is followed (the kernel only stands for the original)."""
+    from invrender.scene.camera import Camera
+
+    from invrender.plugins.filters import make_filter
+    from invrender.scene.film import FilmOptions
+
+    scene = ir.load_scene("cornell_box", resolution=(20, 12))
+    odd = dataclasses.replace(scene.camera, principal_point_offset=(0.11, -0.07), pixel_aspect=1.3)
+    bordered = dataclasses.replace(scene, film=FilmOptions(make_filter("gaussian"), True))
+    assert bordered.film.border > 0
+    for view in (scene, scene.with_camera(odd), bordered):
+        camera = view.camera
+        settings = RenderSettings(spp=3, seed=4)
+        ids = torch.arange(0, driver.total_paths(view, settings), dtype=torch.int64)
+        state, xy = driver.camera_paths(view, settings, ids, positions=True)
+        o, d = camera.generate_rays(xy, view.width, view.height)
+        assert (state.d - d).abs().max() <= 2.4e-7 and torch.equal(state.o, o.contiguous())
+    calls = []
+    original = Camera.generate_rays
+    monkeypatch.setattr(Camera, "generate_rays", lambda self, *a, **k: calls.append(1) or original(self, *a, **k))
+    driver.camera_paths(scene, RenderSettings(spp=1), torch.arange(8, dtype=torch.int64))
+    assert calls  # the replacement ran
+
+
+def test_where_true_is_nonzero():
+    from invrender.vec import where_true
+
+    for p in (0.0, 0.3, 1.0):
+        mask = torch.rand(10_000, generator=torch.Generator().manual_seed(1)) < p
+        got = where_true(mask)
+        assert got.dtype == torch.int64 and torch.equal(got, mask.nonzero()[:, 0])
+
+
 def _renders_as_torch(scene, unfused, kw: dict, agree: float, mean: float) -> torch.Tensor:
     """Render ``scene`` with the fused bounce, then (``unfused``) with the torch bounce on the same
     random bits: more than ``agree`` of the pixels equal to float rounding (a roulette decision
