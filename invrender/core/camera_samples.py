@@ -34,7 +34,7 @@ def lane_samples(xp, pixel, sample, first, cells, m, width, key_salt, pattern_sa
             ``cells / m`` (:func:`invrender.core.sampler.multijitter`); scalars or UInt.
         key_salt, pattern_salt: the hashed seeds of the path keys and of the pixel patterns;
             salts: those of the camera's numbers (bounce 0: film x, film y, lens u, lens v).
-        pinhole: None, or a pinhole camera's (right, up, forward) 3-tuples, (tx, ty, ox, oy,
+        pinhole: None, or a pinhole camera's (right, up, forward) 3-tuples, (tx, ty, 2 ox, 2 oy,
             width, height, border) scalars (:func:`pinhole_constants`).
         mode: :data:`MODES`; lens: with the lens uniforms.
     Returns:

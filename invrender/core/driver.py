@@ -13,6 +13,7 @@ end in float64, so the image is the same whatever the number of workers.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import sys
@@ -251,6 +252,21 @@ def check_film_memory(width: int, height: int, device: torch.device, images: int
             f"a {width}x{height} render needs {need / 2**30:.1f} GiB for its films ({images} image(s) of float64 RGB sums per worker), "
             f"more than the {have / 2**30:.1f} GiB available: lower the resolution"
         )
+
+
+@contextlib.contextmanager
+def one_thread(on: bool = True):
+    """Inside (where ``on``): this thread's torch ops single-threaded (OpenMP's thread count is
+    per thread), so a render started here also traces its chunks in this thread
+    (:func:`cpu_workers`); the count before is restored after."""
+    threads = torch.get_num_threads()
+    if on:
+        torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        if on:
+            torch.set_num_threads(threads)
 
 
 def cpu_workers(device: torch.device) -> int:

@@ -23,7 +23,6 @@ is rendered once with the map dark (:attr:`TransportMatrix.offset`), with the sa
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import math
 import time
@@ -35,7 +34,7 @@ from invrender.estimators.map_basis import MapBasis
 from invrender.errors import ParameterError
 from invrender.registry import EMITTERS
 from invrender.scene.scene import AMBIENT, Scene
-from invrender.core.driver import RenderSettings, available_memory_bytes, check_filter_supported, cpu_workers, for_each_chunk
+from invrender.core.driver import RenderSettings, available_memory_bytes, check_filter_supported, cpu_workers, for_each_chunk, one_thread
 from invrender.plugins.integrators import make_integrator
 from invrender.core.texel_film import TexelFilm
 from invrender.validate import check_int, check_paths
@@ -232,7 +231,7 @@ def view_halves(
         """Half ``matrix`` (3, P, n) of ``view`` traced with seed ``s``; the image of the light off
         the map (P, 3) where some other emitter is lit, else None."""
         settings = RenderSettings(spp=spp, seed=s, progress=progress, sampler=sampler, sampling_params=sampling)
-        with torch.no_grad(), one_worker(together):
+        with torch.no_grad(), one_thread(together):
             ctx = model.context(view, settings, device, params=values)
             light = next(light for light in ctx.lights.lights if k in light.emitters)
             slot = light.emitters.index(k)
@@ -255,19 +254,6 @@ def view_halves(
         offset = 0.5 * (darks[0] + darks[1]) if lit else None
         yield ViewHalves(v, (view.height, view.width), (halves[0], halves[1]), offset, pair)
 
-
-@contextlib.contextmanager
-def one_worker(on: bool):
-    """Inside (where ``on``): this thread's torch ops single-threaded, so a render traces its
-    chunks in the calling thread (:func:`~invrender.core.driver.cpu_workers`)."""
-    threads = torch.get_num_threads()
-    if on:
-        torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        if on:
-            torch.set_num_threads(threads)
 
 
 def transport_matrix(

@@ -48,7 +48,6 @@ the texels under 0.5 marked undetermined. One inverse of ``M`` and one product p
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import math
 import time
@@ -59,6 +58,7 @@ import scipy.sparse as sp
 import torch
 from scipy.sparse.linalg import splu
 
+from invrender.core.driver import one_thread
 from invrender.estimators.map_basis import MapBasis
 from invrender.estimators.transport_matrix import TransportMatrix, envmap_of
 from invrender.plugins.emitters.envmap import texel_solid_angles
@@ -80,21 +80,6 @@ UNDETERMINED = 0.5
 DEFAULT_UNKNOWNS = 3072
 #: fit_map's ``rounds="auto"`` takes a second round when the first map's peak is this many times its median
 SUN_RATIO = 100.0
-
-
-@contextlib.contextmanager
-def one_thread():
-    """torch's intra-op threads set to 1 inside: the solve is a chain of many small LAPACK calls
-    (triangular solves, the inverse of a factor), each of which synchronizes the whole OpenMP team;
-    on a machine shared with other work a descheduled thread stalls every one (measured on 2 loaded
-    cores, n = 1300: a triangular solve 0.2 s with 2 threads, 0.8 ms with 1; ``cholesky_inverse``
-    2.3 s against 0.05 s)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(threads)
 
 
 def solver_bytes(n: int) -> int:
@@ -478,6 +463,10 @@ def solve_map(
     bound = torch.zeros(3, dtype=torch.int64)
     evaluations = torch.zeros(3, dtype=torch.int64)
     hint = None
+    # single-threaded: the solve is a chain of many small LAPACK calls (triangular solves, the
+    # inverse of a factor), each of which synchronizes the whole OpenMP team; on a machine shared
+    # with other work a descheduled thread stalls every one (measured on 2 loaded cores, n = 1300:
+    # a triangular solve 0.2 s with 2 threads, 0.8 ms with 1; cholesky_inverse 2.3 s against 0.05 s)
     with one_thread():
         for c in range(3):
             p = prior.pull(x0[:, c])
