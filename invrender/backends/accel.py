@@ -43,6 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from invrender.backends.arrays import Columns, stacked
 from invrender.errors import ParameterError, did_you_mean
 from invrender.scene.scene import Triangles
 from invrender.backends import embree_native, packages
@@ -124,10 +125,16 @@ class Intersector(abc.ABC):
 
     name = ""
     checks_rays = False
+    #: its queries read rays given as :class:`~invrender.backends.arrays.Columns` as they are (the
+    #: others get them stacked)
+    takes_columns = False
 
     def intersect(self, o: torch.Tensor, d: torch.Tensor) -> Hits:
-        """Closest hits of rays with origins ``o`` (N, 3) and unit directions ``d`` (N, 3); a miss
-        (``t = inf``, ``prim = -1``, ``u = v = 0``) where the ray cannot be traced."""
+        """Closest hits of rays with origins ``o`` (N, 3) and unit directions ``d`` (N, 3) (or
+        :class:`~invrender.backends.arrays.Columns`); a miss (``t = inf``, ``prim = -1``, ``u =
+        v = 0``) where the ray cannot be traced."""
+        if not self.takes_columns:
+            o, d = stacked(o), stacked(d)
         ok = None if self.checks_rays else _untraceable_lanes(o, d)
         if ok is None:
             return self._intersect(o, d)
@@ -138,6 +145,8 @@ class Intersector(abc.ABC):
     def occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
         """(N,) bool: does anything lie along each ray strictly before ``tmax`` (N,)? False where
         ``tmax`` is not positive or NaN (not traced) and where the ray cannot be traced."""
+        if not self.takes_columns:
+            o, d = stacked(o), stacked(d)
         ok = None if self.checks_rays else _untraceable_lanes(o, d)
         if ok is None:
             return self._occluded(o, d, tmax)
@@ -166,6 +175,7 @@ class EmbreeIntersector(Intersector):
         if lib is not None:
             self._packets = embree_native.PacketScene(lib, triangles.corners())
             self.checks_rays = True  # the wrapper's lanes (embree_packets.cpp: traceable)
+            self.takes_columns = True  # a pointer per component (embree_native._strided)
         else:
             packages.require("embreex", "the embree intersection backend", f"{embree_native.INSTALL_HINT} for Embree's packets, or use backend 'torch'")
             if why:
@@ -192,12 +202,13 @@ class EmbreeIntersector(Intersector):
         return [f.result() for f in [self._pool.submit(job, a, b) for a, b in zip(bounds[:-1], bounds[1:])]]
 
     def _intersect(self, o: torch.Tensor, d: torch.Tensor) -> Hits:
-        n, dev = o.shape[0], o.device
         if self._packets is not None:
+            n, dev = _lanes(o), _device(o)
             o, d = _cpu32(o, rows=False), _cpu32(d, rows=False)
             out = (torch.empty(n), torch.empty(n, dtype=torch.int64), torch.empty(n), torch.empty(n))
-            self._split(n, lambda a, b: self._packets.intersect(o[a:b], d[a:b], tuple(x[a:b] for x in out)))
+            self._split(n, lambda a, b: self._packets.intersect(_rows(o, a, b), _rows(d, a, b), tuple(x[a:b] for x in out)))
             return Hits(*(x.to(dev) for x in out))
+        n, dev = o.shape[0], o.device
         o, d = _numpy(o), _numpy(d)
         parts = self._split(n, lambda a, b: self._scene.run(o[a:b], d[a:b], output=1))
 
@@ -210,12 +221,13 @@ class EmbreeIntersector(Intersector):
         return Hits(*(a.to(dev) for a in (t, prim, joined("u"), joined("v"))))
 
     def _occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
-        n, dev = o.shape[0], o.device
         if self._packets is not None:
+            n, dev = _lanes(o), _device(o)
             o, d, tmax = _cpu32(o, rows=False), _cpu32(d, rows=False), _cpu32(tmax)
             hit = torch.empty(n, dtype=torch.bool)
-            self._split(n, lambda a, b: self._packets.occluded(o[a:b], d[a:b], tmax[a:b], hit[a:b]))
+            self._split(n, lambda a, b: self._packets.occluded(_rows(o, a, b), _rows(d, a, b), tmax[a:b], hit[a:b]))
             return hit.to(dev)
+        n, dev = o.shape[0], o.device
         o, d, tmax = _numpy(o), _numpy(d), _numpy(tmax)
         parts = self._split(n, lambda a, b: self._scene.run(o[a:b], d[a:b], dists=tmax[a:b], query="OCCLUDED"))
         hit = torch.from_numpy(parts[0] if len(parts) == 1 else np.concatenate(parts)) != -1
@@ -360,11 +372,26 @@ def _numpy(x: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(x.detach().to("cpu", torch.float32).numpy())
 
 
-def _cpu32(x: torch.Tensor, rows: bool = True) -> torch.Tensor:
+def _cpu32(x, rows: bool = True):
     """``x`` as float32 on the CPU, contiguous, or (``rows=False``: for Embree's packet wrapper,
-    which reads (N, 3) rays through their strides) in whatever layout it has."""
+    which reads (N, 3) rays through their strides, or :class:`Columns` each contiguous) in
+    whatever layout it has."""
+    if isinstance(x, Columns):
+        return Columns(c.detach().to("cpu", torch.float32).contiguous() for c in x)
     x = x.detach().to("cpu", torch.float32)
     return x.contiguous() if rows else x
+
+
+def _lanes(x) -> int:
+    return x.lanes if isinstance(x, Columns) else x.shape[0]
+
+
+def _device(x) -> torch.device:
+    return x[0].device if isinstance(x, Columns) else x.device
+
+
+def _rows(x, a: int, b: int):
+    return x.rows(a, b) if isinstance(x, Columns) else x[a:b]
 
 
 class RepeatedQueries:
@@ -407,10 +434,10 @@ class RepeatedQueries:
         return _unpack_bits(answer, n) if kind == "occluded" else answer
 
     def intersect(self, o: torch.Tensor, d: torch.Tensor) -> Hits:
-        return self._answer("intersect", o.shape[0], lambda: self._backend.intersect(o, d))
+        return self._answer("intersect", _lanes(o), lambda: self._backend.intersect(o, d))
 
     def occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
-        return self._answer("occluded", o.shape[0], lambda: self._backend.occluded(o, d, tmax))
+        return self._answer("occluded", _lanes(o), lambda: self._backend.occluded(o, d, tmax))
 
 
 def _bit_weights(device) -> torch.Tensor:

@@ -96,8 +96,8 @@ def _build_and_load() -> tuple[ctypes.CDLL | None, str]:
     lib.ir_embree_new.restype = p
     lib.ir_embree_new.argtypes = [p, i64, ctypes.c_char_p, i64]
     lib.ir_embree_free.argtypes = [p]
-    lib.ir_embree_intersect.argtypes = [p, p, i64, i64, p, i64, i64, i64, p, p, p, p]
-    lib.ir_embree_occluded.argtypes = [p, p, i64, i64, p, i64, i64, p, i64, p]
+    lib.ir_embree_intersect.argtypes = [p, p, p, p, i64, p, p, p, i64, i64, p, p, p, p]
+    lib.ir_embree_occluded.argtypes = [p, p, p, p, i64, p, p, p, i64, p, i64, p]
     return lib, ""
 
 
@@ -118,20 +118,26 @@ class PacketScene:
             self._lib.ir_embree_free(self._handle)
             self._handle = None
 
-    def intersect(self, o: torch.Tensor, d: torch.Tensor, out: tuple[torch.Tensor, ...]) -> None:
-        """Closest hits of rays ``o``, ``d`` (N, 3) float32 on the CPU, any strides (rows or
-        columns: the wrapper reads through them), written into ``out`` = (t (N,) float32 (inf: a
-        miss), prim (N,) int64 (-1: a miss), u, v (N,) float32), contiguous."""
+    def intersect(self, o, d, out: tuple[torch.Tensor, ...]) -> None:
+        """Closest hits of rays ``o``, ``d`` on the CPU, each (N, 3) float32 of any strides (rows
+        or columns: the wrapper reads through them) or three contiguous (N,) float32 columns,
+        written into ``out`` = (t (N,) float32 (inf: a miss), prim (N,) int64 (-1: a miss), u, v
+        (N,) float32), contiguous."""
         t, prim, u, v = out
-        self._lib.ir_embree_intersect(self._handle, *_strided(o), *_strided(d), o.shape[0], t.data_ptr(), prim.data_ptr(), u.data_ptr(), v.data_ptr())
+        self._lib.ir_embree_intersect(self._handle, *_strided(o), *_strided(d), t.shape[0], t.data_ptr(), prim.data_ptr(), u.data_ptr(), v.data_ptr())
 
-    def occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor, out: torch.Tensor) -> None:
+    def occluded(self, o, d, tmax: torch.Tensor, out: torch.Tensor) -> None:
         """Into ``out`` (N,) bool: does something lie along each ray strictly before ``tmax`` (N,)
         float32 contiguous? False where ``tmax`` is not positive (not traced)."""
-        self._lib.ir_embree_occluded(self._handle, *_strided(o), *_strided(d), tmax.data_ptr(), o.shape[0], out.data_ptr())
+        self._lib.ir_embree_occluded(self._handle, *_strided(o), *_strided(d), tmax.data_ptr(), tmax.shape[0], out.data_ptr())
 
 
-def _strided(x: torch.Tensor) -> tuple[int, int, int]:
-    """A (N, 3) float32 tensor as the wrapper reads it: its data pointer and its strides in floats
-    (along the rays, along the components)."""
-    return x.data_ptr(), x.stride(0), x.stride(1)
+def _strided(x) -> tuple[int, int, int, int]:
+    """Rays' origins or directions as the wrapper reads them: each component's data pointer and the
+    stride along the rays in floats, of a (N, 3) float32 tensor or of three (N,) columns."""
+    if isinstance(x, torch.Tensor):
+        base, comp = x.data_ptr(), 4 * x.stride(1)
+        return base, base + comp, base + 2 * comp, x.stride(0)
+    if any(c.stride(0) != 1 for c in x):
+        raise ValueError("Embree's wrapper reads columns that are contiguous")
+    return x[0].data_ptr(), x[1].data_ptr(), x[2].data_ptr(), 1

@@ -24,15 +24,16 @@ namespace {
 constexpr int K = 16;  // rays per packet
 constexpr float kRayLimit = 1.844e18f;  // Embree's FLT_LARGE (RayK::valid); accel.RAY_LIMIT
 
-// A batch of rays read through strides (in floats): component j of ray i's origin is
-// o[i * o_lane + j * o_comp] (rows (n, 3): o_lane 3, o_comp 1; columns (3, n): o_lane 1, o_comp n).
+// A batch of rays read through a stride (in floats) per component array: component j of ray i's
+// origin is o[j][i * o_lane] (rows (n, 3): o[j] = base + j, o_lane 3; columns (3, n): o[j] = base
+// + j n, o_lane 1; or three arrays of their own, o_lane 1).
 struct Rays {
-    const float* o;
-    int64_t o_lane, o_comp;
-    const float* d;
-    int64_t d_lane, d_comp;
-    float origin(int64_t i, int j) const { return o[i * o_lane + j * o_comp]; }
-    float direction(int64_t i, int j) const { return d[i * d_lane + j * d_comp]; }
+    const float* o[3];
+    int64_t o_lane;
+    const float* d[3];
+    int64_t d_lane;
+    float origin(int64_t i, int j) const { return o[j][i * o_lane]; }
+    float direction(int64_t i, int j) const { return d[j][i * d_lane]; }
 };
 
 // Can ray i be traced: every component of its origin and direction finite and within kRayLimit?
@@ -114,10 +115,10 @@ void ir_embree_free(void* accel) {
     delete a;
 }
 
-// Closest hits of n rays (origins o, directions d through their strides, as Rays reads them): t
-// (n,) float32, prim (n,) int64, u, v (n,) float32.
-void ir_embree_intersect(void* accel, const float* o, int64_t o_lane, int64_t o_comp, const float* d, int64_t d_lane, int64_t d_comp, int64_t n, float* t, int64_t* prim, float* u, float* v) {
-    const Rays rays{o, o_lane, o_comp, d, d_lane, d_comp};
+// Closest hits of n rays (origins ox, oy, oz and directions dx, dy, dz through their strides, as
+// Rays reads them): t (n,) float32, prim (n,) int64, u, v (n,) float32.
+void ir_embree_intersect(void* accel, const float* ox, const float* oy, const float* oz, int64_t o_lane, const float* dx, const float* dy, const float* dz, int64_t d_lane, int64_t n, float* t, int64_t* prim, float* u, float* v) {
+    const Rays rays{{ox, oy, oz}, o_lane, {dx, dy, dz}, d_lane};
     RTCScene scene = static_cast<Accel*>(accel)->scene;
     RTCIntersectContext context;
     rtcInitIntersectContext(&context);
@@ -147,8 +148,8 @@ void ir_embree_intersect(void* accel, const float* o, int64_t o_lane, int64_t o_
 }
 
 // Shadow rays: hit[i] = 1 when something lies along ray i strictly before tmax[i], else 0.
-void ir_embree_occluded(void* accel, const float* o, int64_t o_lane, int64_t o_comp, const float* d, int64_t d_lane, int64_t d_comp, const float* tmax, int64_t n, uint8_t* hit) {
-    const Rays rays{o, o_lane, o_comp, d, d_lane, d_comp};
+void ir_embree_occluded(void* accel, const float* ox, const float* oy, const float* oz, int64_t o_lane, const float* dx, const float* dy, const float* dz, int64_t d_lane, const float* tmax, int64_t n, uint8_t* hit) {
+    const Rays rays{{ox, oy, oz}, o_lane, {dx, dy, dz}, d_lane};
     RTCScene scene = static_cast<Accel*>(accel)->scene;
     RTCIntersectContext context;
     rtcInitIntersectContext(&context);

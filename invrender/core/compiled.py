@@ -28,7 +28,7 @@ import torch
 
 from invrender.errors import ParameterError
 from invrender.backends import arrays
-from invrender.backends.arrays import TORCH
+from invrender.backends.arrays import TORCH, Columns, stacked  # noqa: F401  (stacked: for the callers of run)
 
 
 class Opaque:
@@ -54,25 +54,26 @@ def namespace(device: torch.device):
     return arrays.drjit_arrays(device) or TORCH
 
 
-def run(fn, device: torch.device, *args, **static) -> tuple[torch.Tensor, ...]:
+def run(fn, device: torch.device, *args, unstacked: bool = False, **static) -> tuple[torch.Tensor, ...]:
     """``fn(xp, *args, **static)`` evaluated on ``device``'s namespace (:func:`namespace`).
 
     Args:
         fn: a function written against the array interface returning a tuple of arrays and
             2- or 3-tuples of Float arrays, each of the lanes' length.
         args: torch tensors (1-D: lanes or flat tables; 2-D (N, 3): lanes of 3-vectors, passed as
-            three columns, without a copy where they are stored by columns), :class:`Opaque`
-            scalars, Python numbers.
+            three columns, without a copy where they are stored by columns), :class:`Columns`
+            (lanes of 3-vectors), :class:`Opaque` scalars, Python numbers.
+        unstacked: k-tuples returned as :class:`Columns` rather than (N, k) tensors.
         static: Python values that choose the code (flags), the same for every lane.
     Returns:
         torch tensors on ``device``: (N,) per array, (N, k) per k-tuple, stored by columns (a
-        view of a (k, N) tensor: the next call reads its columns without a copy); UInt arrays as
-        int32.
+        view of a (k, N) tensor: the next call reads its columns without a copy), or with
+        ``unstacked`` :class:`Columns`; UInt arrays as int32.
     """
     xp = namespace(device)
-    if xp is not TORCH and any(isinstance(a, torch.Tensor) and not a.shape[0] for a in args):
+    if xp is not TORCH and any((isinstance(a, torch.Tensor) and not a.shape[0]) or (isinstance(a, Columns) and not a.lanes) for a in args):
         xp = TORCH  # no lanes (Dr.Jit has no empty arrays to broadcast against)
-    return evaluate(xp, fn, *args, **static)
+    return evaluate(xp, fn, *args, unstacked=unstacked, **static)
 
 
 @contextlib.contextmanager
@@ -107,16 +108,19 @@ _POOL = threading.Lock()
 _pool_users, _pool_size = 0, 0
 
 
-def evaluate(xp, fn, *args, **static) -> tuple[torch.Tensor, ...]:
+def evaluate(xp, fn, *args, unstacked: bool = False, **static) -> tuple[torch.Tensor, ...]:
     """:func:`run` with the namespace given (the tests run both on the same inputs)."""
     if xp is TORCH:
-        return tuple(xp.to_torch(o) for o in fn(xp, *(_argument(xp, a) for a in args), **static))
+        out = fn(xp, *(_argument(xp, a) for a in args), **static)
+        return tuple(Columns(o) if unstacked and isinstance(o, tuple) else xp.to_torch(o) for o in out)
     if xp.name.endswith("cuda"):
         torch.cuda.current_stream().synchronize()  # torch's writes done before Dr.Jit's stream reads them
     # the lanes: the rows of the 3-vector arguments (else the longest array; tables are flat)
-    lanes = max((a.shape[0] for a in _tensors(args) if a.ndim == 2), default=max((a.shape[0] for a in _tensors(args)), default=0))
+    rows = [a.shape[0] for a in _tensors(args) if a.ndim == 2] + [a.lanes for a in _columns(args)]
+    lanes = max(rows, default=max((a.shape[0] for a in _tensors(args)), default=0))
     if lanes < FREEZE_LANES:  # padded: the same frozen kernel's arithmetic, whatever the chunking
-        return tuple(r[:lanes] for r in evaluate(xp, fn, *_padded(args, lanes), **static))
+        padded = evaluate(xp, fn, *_padded(args, lanes), unstacked=unstacked, **static)
+        return tuple(Columns(c[:lanes] for c in r) if isinstance(r, Columns) else r[:lanes] for r in padded)
     with _DRJIT:
         inputs = tuple(_argument(xp, a) for a in args)
         key = (xp.name, fn, tuple(sorted(static.items())))  # Python values choose the code: one recording each (lanes.signature)
@@ -127,7 +131,7 @@ def evaluate(xp, fn, *args, **static) -> tuple[torch.Tensor, ...]:
             try:
                 out, widths = frozen(inputs)
                 if all(xp.dr.width(o) == lanes for o in out):
-                    return _results(xp, out, widths)
+                    return _results(xp, out, widths, unstacked)
             except RuntimeError:  # a recording that failed
                 pass
             # a replay that returned an array of another call's length (a point light's zero
@@ -135,7 +139,7 @@ def evaluate(xp, fn, *args, **static) -> tuple[torch.Tensor, ...]:
             # can mistake one for the other) or a recording that failed: this kind of call is
             # traced from now on
             _FROZEN[key] = _TRACED
-        return _results(xp, *_body(xp, fn, static)(inputs))
+        return _results(xp, *_body(xp, fn, static)(inputs), unstacked)
 
 
 #: calls on fewer lanes run on about this many (:func:`_padded`): small calls (the last bounces of a
@@ -153,7 +157,7 @@ def _padded(args, lanes: int):
     out = []
     for a in args:
         if isinstance(a, (tuple, list)):
-            a = tuple(_padded(a, lanes))
+            a = type(a)(_padded(a, lanes)) if isinstance(a, Columns) else tuple(_padded(a, lanes))
         elif isinstance(a, torch.Tensor) and a.ndim and a.shape[0] == lanes:
             pad = FREEZE_LANES + lanes % 16 - lanes
             if a.ndim == 2:
@@ -164,13 +168,17 @@ def _padded(args, lanes: int):
     return out
 
 
-def _results(xp, out, widths) -> tuple[torch.Tensor, ...]:
-    """The evaluated arrays ``out`` as torch tensors: (N,) each, or (N, k) by columns per k-tuple."""
+def _results(xp, out, widths, unstacked: bool = False) -> tuple[torch.Tensor, ...]:
+    """The evaluated arrays ``out`` as torch tensors: (N,) each, and per k-tuple (N, k) by columns
+    or (``unstacked``) :class:`Columns`."""
     xp.dr.sync_thread()
     flat, at = [xp.to_torch(o) for o in out], 0
     results = []
     for k in widths:
-        results.append(torch.stack(flat[at : at + k]).t() if k else flat[at])  # (N, k) by columns: no interleaving copy
+        if not k:
+            results.append(flat[at])
+        else:  # (N, k) by columns: no interleaving copy
+            results.append(Columns(flat[at : at + k]) if unstacked else torch.stack(flat[at : at + k]).t())
         at += max(k, 1)
     return tuple(results)
 
@@ -217,6 +225,15 @@ def _tensors(args):
             yield a
         elif isinstance(a, (tuple, list)):
             yield from _tensors(a)
+
+
+def _columns(args):
+    """The :class:`Columns` among ``args`` (nested in tuples too)."""
+    for a in args:
+        if isinstance(a, Columns):
+            yield a
+        elif isinstance(a, (tuple, list)):
+            yield from _columns(a)
 
 
 def _argument(xp, a):

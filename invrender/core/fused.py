@@ -65,7 +65,7 @@ from invrender.core.context import PathState, TransportContext
 from invrender.core.film import Film
 from invrender.core.ranks import sum_across_ranks, world
 from invrender.core import compiled, lanes, shading
-from invrender.core.compiled import Opaque
+from invrender.core.compiled import Columns, Opaque, stacked
 from invrender.core.bsdf import LaneBSDF, Lobe
 from invrender.core.sampler import bounce_salt_values
 from invrender.core.surface import carries_derivative
@@ -284,16 +284,19 @@ def vertex(fused: FusedScene, hits: tuple, d, beta, pdf_dir, delta, keys, depth:
     salts = tuple(Opaque(s) for s in bounce_salt_values(depth + 1, DIMS))
     static = dict(materials=fused.materials, emitters=fused.emitters, first=depth == 0, mis=fused.mis, nee_only=fused.nee_only,
                   nee=fused.nee, more=more, roulette=roulette, absorbing=fused.absorbing, tangents=tangents)  # fmt: skip
-    out = compiled.run(lanes.path_vertex, d.device, *fused.lanes, *hits, d, beta, pdf_dir, delta, keys, salts, float(offset), **static)
+    out = compiled.run(lanes.path_vertex, keys.device, *fused.lanes, *hits, d, beta, pdf_dir, delta, keys, salts, float(offset), unstacked=True, **static)
     if not more:  # the emission alone: the other primal outputs are not read (the direct light: zero)
-        out = (out[0], None, None, None, torch.zeros_like(out[0]), None, None, None, None, None, None) + out[1:]
-    if tangents:  # the indices as int32
-        out = out[:-5] + tuple(x.to(torch.int32) if not x.is_floating_point() else x for x in out[-5:])
+        out = (out[0], None, None, None, Columns(torch.zeros_like(c) for c in out[0]), None, None, None, None, None, None) + out[1:]
+    if tangents:  # the factors as (N, 3), the indices as int32
+        out = out[:-5] + tuple(x.stacked() if isinstance(x, Columns) else x.to(torch.int32) if not x.is_floating_point() else x for x in out[-5:])
     return out
 
 
-def _take(x: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
-    """Rows ``index`` of ``x``, a (N, 3) stored by columns kept so (the kernels' layout)."""
+def _take(x, index: torch.Tensor):
+    """Rows ``index`` of ``x``, a (N, 3) stored by columns kept so (the kernels' layout), or
+    :class:`~invrender.backends.arrays.Columns`."""
+    if isinstance(x, Columns):
+        return x.take(index)
     if x.ndim == 2 and x.stride(0) == 1 and x.shape[1] > 1:
         return x.t().index_select(1, index).t()
     return x.index_select(0, index)
@@ -389,10 +392,10 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
             gone = where_true(~hits.valid)
             if gone.shape[0]:
                 args = [_take(x, gone) for x in (d, beta, pdf, delta)]
-                (seen,) = compiled.run(lanes.escaped_vertex, d.device, fused.lanes[1], fused.lanes[2], *args, emitters=fused.emitters, first=depth == 0, mis=fused.mis, nee_only=fused.nee_only)
+                (seen,) = compiled.run(lanes.escaped_vertex, keys.device, fused.lanes[1], fused.lanes[2], *args, emitters=fused.emitters, first=depth == 0, mis=fused.mis, nee_only=fused.nee_only)
                 at = pixel.index_select(0, gone)
                 if arrives:
-                    film.arrive(at, args[0])
+                    film.arrive(at, stacked(args[0]))
                 film.add(depth, at, seen)
         hit = where_true(hits.valid)  # a synchronization: the count of rays that hit
         prim, u, v, t = hits.prim, hits.u, hits.v, hits.t
@@ -414,20 +417,22 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
             # the occluded samples' direct light zeroed: a multiplication by 0 or 1 (the kernel's
             # direct light is finite: samples that add nothing are 0), several times faster on the
             # CPU than a fill by a boolean mask
-            direct.t().mul_((~occluded).to(direct.dtype)[None, :])
+            keep = (~occluded).to(torch.float32)
+            for c in direct:
+                c.mul_(keep)
         if coded is not None:  # path records: each contribution with its monomial's code
             code_e, code_d = tangents_add(pixel, counts, rho, emitted, out[11:], direct, occluded, more, places=coded)
-            film.add_coded(depth, pixel, code_e, emitted)  # term depth
+            film.add_coded(depth, pixel, code_e, emitted.stacked())  # term depth
             if occluded is not None:
-                film.add_coded(depth + 1, pixel, code_d, direct)  # term depth + 1
+                film.add_coded(depth + 1, pixel, code_d, direct.stacked())  # term depth + 1
         elif occluded is not None and not film.terms and not tangents and not arrives:  # both terms in one image: one addition (5% of a render's CPU time)
-            film.add(depth, pixel, emitted + direct)
+            film.add(depth, pixel, torch.stack([e + c for e, c in zip(emitted, direct)]).t())
         else:
-            film.add(depth, pixel, emitted)  # term depth
+            film.add(depth, pixel, emitted.stacked())  # term depth
             if occluded is not None:
                 if arrives:
-                    film.arrive(pixel, shadow_d)
-                film.add(depth + 1, pixel, direct)  # term depth + 1
+                    film.arrive(pixel, shadow_d.stacked())
+                film.add(depth + 1, pixel, direct.stacked())  # term depth + 1
             if tangents:
                 tangents_add(pixel, counts, rho, emitted, out[11:], direct, occluded, more, jacobian=film.jacobian)
         if not more:
