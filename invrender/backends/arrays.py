@@ -92,6 +92,11 @@ class Columns(tuple):
         """(N, k) stored by columns (a view of a (k, N) tensor)."""
         return torch.stack(tuple(self)).t()
 
+    @staticmethod
+    def of(x: torch.Tensor) -> Columns:
+        """The columns of ``x`` (N, k) as views (without a copy where it is stored by columns)."""
+        return Columns(x.t().unbind(0))
+
     def take(self, index: torch.Tensor) -> Columns:
         """The lanes at ``index`` (M,) int64."""
         return Columns(c.index_select(0, index) for c in self)

@@ -28,7 +28,7 @@ import torch
 
 from invrender.errors import ParameterError
 from invrender.backends import arrays
-from invrender.backends.arrays import TORCH, Columns, stacked  # noqa: F401  (stacked: for the callers of run)
+from invrender.backends.arrays import TORCH, Columns
 
 
 class Opaque:

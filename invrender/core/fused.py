@@ -65,7 +65,8 @@ from invrender.core.context import PathState, TransportContext
 from invrender.core.film import Film
 from invrender.core.ranks import sum_across_ranks, world
 from invrender.core import compiled, lanes, shading
-from invrender.core.compiled import Columns, Opaque, stacked
+from invrender.backends.arrays import Columns, stacked
+from invrender.core.compiled import Opaque
 from invrender.core.bsdf import LaneBSDF, Lobe
 from invrender.core.sampler import bounce_salt_values
 from invrender.core.surface import carries_derivative
@@ -287,7 +288,7 @@ def vertex(fused: FusedScene, hits: tuple, d, beta, pdf_dir, delta, keys, depth:
     out = compiled.run(lanes.path_vertex, keys.device, *fused.lanes, *hits, d, beta, pdf_dir, delta, keys, salts, float(offset), unstacked=not tangents, **static)
     if tangents:  # stacked, as views of three columns: copied out of Dr.Jit's memory at once (replay's increment 7 MiB lower)
         primal = 11 if more else 1
-        out = tuple(Columns(x.t().unbind(0)) if x.ndim == 2 else x for x in out[:primal]) + out[primal:]
+        out = tuple(Columns.of(x) if x.ndim == 2 else x for x in out[:primal]) + out[primal:]
     if not more:  # the emission alone: the other primal outputs are not read (the direct light: zero)
         out = (out[0], None, None, None, Columns(torch.zeros_like(c) for c in out[0]), None, None, None, None, None, None) + out[1:]
     if tangents:  # the factors as (N, 3), the indices as int32

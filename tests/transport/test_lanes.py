@@ -66,7 +66,7 @@ def test_the_compiled_bounce_is_the_eager_one(strategy, tangents, monkeypatch):
         monkeypatch.setenv(arrays.ENV, "torch")
         expected = vertex(*a, **k)
         for x, y in zip(got, expected):
-            x, y = compiled.stacked(x), compiled.stacked(y)  # 3-vectors come as Columns
+            x, y = arrays.stacked(x), arrays.stacked(y)  # 3-vectors come as Columns
             if x is None:
                 assert y is None
             elif x.dtype.is_floating_point:
