@@ -2,7 +2,7 @@
 of a list, for each pixel sampler, on the Cornell box and the specular box.
 
     python bench/pixel_samples.py [--spp 4 8 12 16 24 32 48 64 96 128] [--seeds 4]
-        [--reference-spp 8192] [--resolution 64] [--samplers stratified independent antithetic]
+        [--reference-spp 8192] [--resolution 64] [--samplers stratified independent antithetic stratified_direct]
 
 The RMSE is the mean over ``--seeds`` seeds; the reference is an ``independent`` render at
 ``--reference-spp`` of another seed (its own RMSE, estimated from two halves, is printed). A row says
@@ -37,7 +37,7 @@ def main() -> None:
     ap.add_argument("--reference-spp", type=int, default=8192)
     ap.add_argument("--resolution", type=int, default=64)
     ap.add_argument("--scenes", nargs="+", default=["cornell_box", "cornell_specular"])
-    ap.add_argument("--samplers", nargs="+", default=["stratified", "independent", "antithetic"])
+    ap.add_argument("--samplers", nargs="+", default=["stratified", "independent", "antithetic", "stratified_direct"])
     add_json_option(ap)
     args = ap.parse_args()
     warnings.simplefilter("ignore")

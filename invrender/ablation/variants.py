@@ -47,6 +47,7 @@ VARIANTS = (
     Variant("default", "stratified, cosine, MIS, roulette, uniform allocation"),
     Variant("independent", "pixel samples: independent", render={"sampler": "independent"}),
     Variant("antithetic", "pixel samples: antithetic pairs", render={"sampler": "antithetic"}),
+    Variant("stratified_direct", "pixel samples and the first vertex's BSDF and emitter samples: stratified", render={"sampler": "stratified_direct"}),
     Variant("uniform_hemisphere", "diffuse sampling: uniform hemisphere", integrator={"hemisphere": "uniform"}),
     Variant("bsdf_only", "direct light: BSDF samples only", integrator={"strategy": "bsdf"}),
     Variant("emitter_only", "direct light: emitter samples only", integrator={"strategy": "emitter"}),

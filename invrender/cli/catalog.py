@@ -191,7 +191,14 @@ FIT_OPTIONS = (('steps', 'int', "Adam's steps, at most (it stops earlier on a pl
   "against the one before: the fit stops once it fell by less than twice its noise, measured from the loss's "
   'step-to-step fluctuation, or 0.1%%; convergence.py); when the steps run out first it warns. 0: no rule, no warning. '
   '(default: 20)'))
-ABLATION_VARIANTS = ('independent', 'antithetic', 'uniform_hemisphere', 'bsdf_only', 'emitter_only', 'no_roulette', 'adaptive')
+ABLATION_VARIANTS = ('independent',
+ 'antithetic',
+ 'stratified_direct',
+ 'uniform_hemisphere',
+ 'bsdf_only',
+ 'emitter_only',
+ 'no_roulette',
+ 'adaptive')
 STUDY_CONFIGS = ('path/autodiff/correlated/sampler=independent',
  'path/autodiff/decorrelated/sampler=independent',
  'path/replay/decorrelated/sampler=independent')

@@ -21,10 +21,16 @@ from invrender.core.compiled import Opaque
 from invrender.core.sampler import _columns, _low32, bounce_salt_values, seed_salt
 
 #: the samplers' codes in :func:`lane_samples` (``RenderSettings.sampler``)
-MODES = {"stratified": 0, "independent": 1, "antithetic": 2}
+MODES = {"stratified": 0, "independent": 1, "antithetic": 2, "stratified_direct": 3}
+#: the first vertex's dimensions ``"stratified_direct"`` stratifies, in pairs (of the bounce's 7:
+#: :func:`invrender.core.lanes.path_vertex`): the BSDF sample's direction and the emitter sample's
+#: position, the 2-D integrals of the light the first vertex reflects
+DIRECT_PAIRS = ((0, 1), (3, 4))
+#: the bounce index of the first vertex's numbers (0 is the camera's)
+FIRST_VERTEX = 1
 
 
-def lane_samples(xp, pixel, sample, first, cells, m, width, key_salt, pattern_salt, salts, pinhole, mode: int, lens: bool):
+def lane_samples(xp, pixel, sample, first, cells, m, width, key_salt, pattern_salt, salts, pinhole, strata, mode: int, lens: bool):
     """The camera samples of N paths (and a pinhole camera's ray directions).
 
     Args:
@@ -36,10 +42,15 @@ def lane_samples(xp, pixel, sample, first, cells, m, width, key_salt, pattern_sa
             salts: those of the camera's numbers (bounce 0: film x, film y, lens u, lens v).
         pinhole: None, or a pinhole camera's (right, up, forward) 3-tuples, (tx, ty, 2 ox, 2 oy,
             width, height, border) scalars (:func:`pinhole_constants`).
+        strata: None, or per pair of :data:`DIRECT_PAIRS` the hashed seed of its patterns and the
+            salts of its two dimensions at the first vertex, ``(pattern salt, salt, salt)``.
         mode: :data:`MODES`; lens: with the lens uniforms.
     Returns:
         keys UInt, film positions (2 Floats, in pixels), with ``lens`` the lens uniforms (2 Floats),
-        with ``pinhole`` the rays' unit directions (3 Floats).
+        with ``pinhole`` the rays' unit directions (3 Floats), with ``strata`` the first vertex's
+        numbers of those dimensions (4 Floats): the pixel's samples multi-jittered per pair as
+        its film positions are, by a pattern of the pair's own, each placed in its sub-cell by the
+        number the vertex would otherwise draw.
     """
     if mode == MODES["antithetic"]:  # pairs share their counters, the second mirrored
         cell = xp.shr(sample, 1)
@@ -57,6 +68,9 @@ def lane_samples(xp, pixel, sample, first, cells, m, width, key_salt, pattern_sa
         out += ((lanes.uniform(xp, keys, salts[2]), lanes.uniform(xp, keys, salts[3])),)
     if pinhole is not None:
         out += (pinhole_directions(xp, film, *pinhole),)
+    if strata is not None:
+        pairs = [lanes.multijitter(xp, lanes.path_key(xp, p, pixel, first), cell, cells, m, (lanes.uniform(xp, keys, a), lanes.uniform(xp, keys, b))) for p, a, b in strata]
+        out += (tuple(u for pair in pairs for u in pair),)
     return out
 
 
@@ -82,6 +96,14 @@ def pinhole_constants(camera, width: int, height: int, border: int) -> tuple:
     return right, up, forward, tuple(Opaque(float(v)) for v in (tx, ty, 2.0 * ox, 2.0 * oy, width, height, border))
 
 
+def direct_strata(seed: int) -> tuple:
+    """:func:`lane_samples`' ``strata`` of a render's ``seed``: per pair of :data:`DIRECT_PAIRS`, a
+    pattern seed of its own (distinct from the film positions' and the other pair's, so the
+    pixel's permutations of its samples are independent) and the salts of its two dimensions."""
+    salts = bounce_salt_values(FIRST_VERTEX, 1 + max(max(p) for p in DIRECT_PAIRS))
+    return tuple((Opaque(seed_salt(seed ^ (0x5EED + 0x9E37 * (k + 1)))), Opaque(salts[a]), Opaque(salts[b])) for k, (a, b) in enumerate(DIRECT_PAIRS))
+
+
 def camera_samples(ids: torch.Tensor, spp: int, width: int, sampler: str, seed: int, lens: bool, plan=None, pinhole=None):
     """The camera samples of path ids ``ids`` (N,) int64: :func:`lane_samples` run by
     :func:`invrender.core.compiled.run`.
@@ -94,7 +116,8 @@ def camera_samples(ids: torch.Tensor, spp: int, width: int, sampler: str, seed: 
     Returns:
         pixel (N,) int64, keys (N,) int32, film positions (N, 2) float32 in pixels, lens uniforms
         (N, 2) float32 (None without ``lens``), and with ``pinhole`` the rays' unit directions (N,
-        3) float32 (stored by columns).
+        3) float32 (stored by columns); with the sampler ``"stratified_direct"``, last, the first
+        vertex's numbers of :data:`DIRECT_PAIRS` (N, 4) float32 (stored by columns).
     """
     if plan is None:
         pixel = ids // spp
@@ -110,6 +133,9 @@ def camera_samples(ids: torch.Tensor, spp: int, width: int, sampler: str, seed: 
         first, cells, m = _low32(first), _low32(cells), _low32(m)
     salts = tuple(Opaque(s) for s in bounce_salt_values(0, 4 if lens else 2))
     key_salt, pattern_salt = Opaque(seed_salt(seed)), Opaque(seed_salt(seed ^ 0x5EED))
-    out = compiled.run(lane_samples, ids.device, _low32(pixel), _low32(sample), first, cells, m, Opaque(width), key_salt, pattern_salt, salts, pinhole, mode=MODES[sampler], lens=lens)
+    strata = direct_strata(seed) if sampler == "stratified_direct" else None
+    out = compiled.run(lane_samples, ids.device, _low32(pixel), _low32(sample), first, cells, m, Opaque(width), key_salt, pattern_salt, salts, pinhole, strata, mode=MODES[sampler], lens=lens)
     samples = (pixel, out[0], out[1], out[2] if lens else None)
-    return samples if pinhole is None else samples + (out[-1],)
+    if pinhole is not None:
+        samples += (out[3 if lens else 2],)
+    return samples if strata is None else samples + (out[-1],)

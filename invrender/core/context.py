@@ -223,6 +223,9 @@ class PathState:
         beta: (N, 3) path throughput: the product of BSDF sample weights / RR survival so far.
         pdf_dir: (N,) solid-angle pdf with which ``d`` was sampled (for MIS); unused at depth 0.
         delta: (N,) bool, ``d`` came from a delta lobe (or the camera): no MIS on what it hits.
+        strata: (N, 4) float32 the first vertex's stratified numbers of the sampler
+            ``"stratified_direct"`` (:data:`~invrender.core.camera_samples.DIRECT_PAIRS`), drawn
+            in place of its hashed ones; None otherwise and once that vertex is past.
     """
 
     keys: torch.Tensor
@@ -232,17 +235,22 @@ class PathState:
     beta: torch.Tensor
     pdf_dir: torch.Tensor
     delta: torch.Tensor
+    strata: torch.Tensor | None = None
 
     def select(self, mask: torch.Tensor) -> "PathState":
         """The paths where ``mask`` (N,) bool is True, or at ``mask`` (M,) int64 (compaction:
         dead paths are dropped, not masked)."""
         index = mask.nonzero()[:, 0] if mask.dtype == torch.bool else mask
-        return PathState(*(getattr(self, f).index_select(0, index) for f in self.__dataclass_fields__))
+        return PathState(*(None if x is None else x.index_select(0, index) for x in self._fields()))
 
     @staticmethod
     def cat(states: list["PathState"]) -> "PathState":
         """The paths of ``states`` one after the other (for integrators whose paths split)."""
-        return PathState(*(torch.cat([getattr(s, f) for s in states]) for f in PathState.__dataclass_fields__))
+        columns = zip(*(s._fields() for s in states))
+        return PathState(*(None if any(x is None for x in c) else torch.cat(c) for c in columns))
+
+    def _fields(self) -> tuple:
+        return tuple(getattr(self, f) for f in self.__dataclass_fields__)
 
     def replace(self, **changes) -> "PathState":
         return dataclasses.replace(self, **changes)

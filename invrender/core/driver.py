@@ -41,7 +41,7 @@ BYTES_PER_REPLAYED_PATH = 5120
 
 
 #: how a pixel's samples are drawn (RenderSettings.sampler)
-SAMPLERS = ("stratified", "independent", "antithetic")
+SAMPLERS = ("stratified", "independent", "antithetic", "stratified_direct")
 #: intersection backends (RenderSettings.backend)
 BACKENDS = ("embree", "warp", "torch")
 
@@ -63,7 +63,10 @@ class RenderSettings:
             (correlated multi-jittered: every count stratified on both axes and in 2-D, the default), ``"independent"`` (each uniform over the pixel)
             or ``"antithetic"`` (pairs: the second path of each pair draws ``1 - u`` for every
             number ``u`` of the first, pixel jitter, lens, light samples, BSDF samples and
-            roulette; the pairs are stratified).
+            roulette; the pairs are stratified) or ``"stratified_direct"`` (as ``"stratified"``, and the
+            first vertex's BSDF and emitter samples stratified as well, a pattern per pair of
+            dimensions: the path tracer's direct light and first bounce with less noise for the
+            same spp; :func:`camera_paths`).
         plan: which samples each pixel traces (:class:`SamplePlan`, the passes of adaptive
             sampling); None = samples ``0 .. spp - 1`` in every pixel.
         sampling_params: parameter values (name -> tensor, all or some) the emitters' sampling
@@ -286,7 +289,11 @@ def camera_paths(scene: Scene, settings: RenderSettings, ids: torch.Tensor, posi
     unbiased);
     ``"independent"``: every sample uniform over the pixel; ``"antithetic"``: samples 2k and 2k + 1
     share their counters, the second mirrored (``sampler.mirrored``), and the pairs are stratified
-    as samples are. A thin lens draws its lens point from dimensions 2 and 3 of the same counters.
+    as samples are; ``"stratified_direct"``: as ``"stratified"``, and the numbers of the first
+    vertex's BSDF direction and emitter sample (:data:`~invrender.core.camera_samples.DIRECT_PAIRS`)
+    multi-jittered per pixel too, each pair by a pattern of its own (``PathState.strata``; each
+    number still uniform, so estimates stay unbiased). A thin lens draws its lens point from
+    dimensions 2 and 3 of the same counters.
     With a plan, spp is the pixel's count in the pass and sample k has the index ``first + k``.
     With the film's ``sample_border`` the pixels are those of the grown grid (:func:`sampled_size`),
     ``pixel`` indexes that grid, and film positions run from ``-border`` to ``width + border``.
@@ -295,10 +302,10 @@ def camera_paths(scene: Scene, settings: RenderSettings, ids: torch.Tensor, posi
     camera = scene.camera
     border = scene.film.border
     if type(camera) is Camera and camera.is_pinhole and Camera.generate_rays is _GENERATE_RAYS:  # the rays in the samples' kernel
-        pixel, keys, film_xy, lens, d = _camera_samples(scene, settings, ids, pinhole_constants(camera, scene.width, scene.height, border))
+        pixel, keys, film_xy, lens, d, *strata = _camera_samples(scene, settings, ids, pinhole_constants(camera, scene.width, scene.height, border))
         o = torch.tensor(camera.origin, dtype=torch.float32, device=ids.device).expand_as(d)
     else:
-        pixel, keys, film_xy, lens = _camera_samples(scene, settings, ids)
+        pixel, keys, film_xy, lens, *strata = _camera_samples(scene, settings, ids)
         d = None
     if border:
         film_xy = film_xy - float(border)  # the grown grid's origin is border pixels up and left of the image's
@@ -309,6 +316,7 @@ def camera_paths(scene: Scene, settings: RenderSettings, ids: torch.Tensor, posi
     state = PathState(
         keys=keys, pixel=pixel, o=o.contiguous(), d=d, beta=beta,
         pdf_dir=torch.ones(n_paths, device=ids.device), delta=torch.ones(n_paths, dtype=torch.bool, device=ids.device),
+        strata=strata[0] if strata else None,
     )  # fmt: skip
     return (state, film_xy) if positions else state
 

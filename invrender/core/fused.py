@@ -263,7 +263,7 @@ def slot_index(scene, fused: FusedScene) -> dict[str, int]:
     return index
 
 
-def vertex(fused: FusedScene, hits: tuple, d, beta, pdf_dir, delta, keys, depth: int, more: bool, roulette: bool, offset: float, tangents: bool) -> tuple:
+def vertex(fused: FusedScene, hits: tuple, d, beta, pdf_dir, delta, keys, depth: int, more: bool, roulette: bool, offset: float, tangents: bool, strata=None) -> tuple:
     """One bounce of N paths: :func:`invrender.core.lanes.path_vertex` run by Dr.Jit or eager
     torch (:func:`invrender.core.compiled.run`).
 
@@ -273,6 +273,8 @@ def vertex(fused: FusedScene, hits: tuple, d, beta, pdf_dir, delta, keys, depth:
             was sampled with; delta (N,) bool: ``d`` came from a delta lobe or the camera; keys
             (N,) int32 path keys; depth: the vertex's index (0: camera rays).
         more, roulette: do paths go on after it; does Russian roulette apply.
+        strata: (N, 4) the numbers of :data:`~invrender.core.camera_samples.DIRECT_PAIRS` drawn in
+            place of the hashed ones (``PathState.strata``), or None.
     Returns:
         emitted (N, 3) (term depth), shadow rays o (N, 3), d (N, 3), tmax (N,) and the direct light
         (N, 3) each adds if unoccluded (term depth + 1; tmax 0, a ray no backend traces, where the
@@ -285,7 +287,8 @@ def vertex(fused: FusedScene, hits: tuple, d, beta, pdf_dir, delta, keys, depth:
     salts = tuple(Opaque(s) for s in bounce_salt_values(depth + 1, DIMS))
     static = dict(materials=fused.materials, emitters=fused.emitters, first=depth == 0, mis=fused.mis, nee_only=fused.nee_only,
                   nee=fused.nee, more=more, roulette=roulette, absorbing=fused.absorbing, tangents=tangents)  # fmt: skip
-    out = compiled.run(lanes.path_vertex, keys.device, *fused.lanes, *hits, d, beta, pdf_dir, delta, keys, salts, float(offset), unstacked=not tangents, **static)
+    given = None if strata is None else Columns.of(strata)
+    out = compiled.run(lanes.path_vertex, keys.device, *fused.lanes, *hits, d, beta, pdf_dir, delta, keys, salts, given, float(offset), unstacked=not tangents, **static)
     if tangents:  # stacked, as views of three columns: copied out of Dr.Jit's memory at once (replay's increment 7 MiB lower)
         primal = 11 if more else 1
         out = tuple(Columns.of(x) if x.ndim == 2 else x for x in out[:primal]) + out[primal:]
@@ -380,7 +383,7 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
     it); ``settings``: the integrator's (``max_depth``, ``rr_depth``). With ``hide_emitters`` (a
     scene without emitting shapes: :func:`tables`) camera rays that leave the scene add nothing."""
     rr_start = math.inf if settings.rr_depth == -1 else settings.rr_depth
-    pixel, keys, o, d, beta, pdf, delta = state.pixel, state.keys, state.o, state.d, state.beta, state.pdf_dir, state.delta
+    pixel, keys, o, d, beta, pdf, delta, strata = state.pixel, state.keys, state.o, state.d, state.beta, state.pdf_dir, state.delta, state.strata
     coded = places(film)
     tangents = isinstance(film, TangentFilm) or coded is not None
     rho = fused.rho
@@ -405,10 +408,12 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
         prim, u, v, t = hits.prim, hits.u, hits.v, hits.t
         if hit.shape[0] < keys.shape[0]:
             pixel, keys, d, beta, pdf, delta, prim, u, v, t, counts = (_take(x, hit) for x in (pixel, keys, d, beta, pdf, delta, prim, u, v, t, counts))
+            strata = None if strata is None else _take(strata, hit)
             if not hit.shape[0]:
                 break
         more = settings.continues_after(depth)
-        out = vertex(fused, (prim, u, v, t), d, beta, pdf, delta, keys, depth, more, depth + 1 >= rr_start, ctx.ray_offset, tangents)
+        out = vertex(fused, (prim, u, v, t), d, beta, pdf, delta, keys, depth, more, depth + 1 >= rr_start, ctx.ray_offset, tangents, strata=strata)
+        strata = None  # the first vertex's alone
         emitted, shadow_o, shadow_d, shadow_t, direct, o, d, beta, pdf, delta, alive = out[:11]
         occluded = None
         if more and fused.nee:

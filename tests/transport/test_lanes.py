@@ -41,13 +41,14 @@ def test_the_light_pick_is_searchsorted(xp):
 
 
 def _bounce_inputs(strategy: str):
-    """The arguments of every :func:`fused.vertex` call of a small Cornell box render."""
+    """The arguments of every :func:`fused.vertex` call of a small Cornell box render (the first
+    vertex's with the stratified numbers of ``"stratified_direct"``)."""
     calls = []
     vertex = fused.vertex
     scene = ir.load_scene("cornell_box", resolution=(16, 16))
     try:
         fused.vertex = lambda *a, **k: (calls.append((a, k)), vertex(*a, **k))[1]
-        ir.render(scene, spp=4, seed=3, max_depth=6, rr_depth=2, strategy=strategy, progress=False)
+        ir.render(scene, spp=4, seed=3, max_depth=6, rr_depth=2, strategy=strategy, sampler="stratified_direct", progress=False)
     finally:
         fused.vertex = vertex
     return vertex, calls
@@ -59,6 +60,7 @@ def _bounce_inputs(strategy: str):
 def test_the_compiled_bounce_is_the_eager_one(strategy, tangents, monkeypatch):
     vertex, calls = _bounce_inputs(strategy)
     assert len(calls) >= 5 and any(a[8] for a, _ in calls) and any(not a[7] for a, _ in calls)  # roulette on, last bounce
+    assert calls[0][1]["strata"] is not None and calls[1][1]["strata"] is None
     for a, k in calls:
         a = a[:-1] + (tangents,)
         monkeypatch.setenv(arrays.ENV, "drjit")

@@ -48,7 +48,7 @@ def test_mirrored_keys_draw_one_minus_u_also_after_a_split():
     torch.testing.assert_close(uniform(branch_keys(mirrored(keys), 1), 2, 4), top - uniform(branch_keys(keys, 1), 2, 4), rtol=0, atol=0)
 
 
-@pytest.mark.parametrize("sampler", ["stratified", "independent", "antithetic"])
+@pytest.mark.parametrize("sampler", ["stratified", "independent", "antithetic", "stratified_direct"])
 def test_every_sampler_is_unbiased_and_antithetic_pairs_reduce_the_error(sampler):
     """Channel means over 8 seeds at 8 spp within 4 standard errors of a 2048-spp render; the
     antithetic pairs (mirrored light samples, directions and roulette) cut the squared error of the
@@ -71,5 +71,71 @@ def test_unknown_sampler_is_a_one_line_error():
     import invrender as ir
     from invrender.errors import ParameterError
 
-    with pytest.raises(ParameterError, match="unknown sampler 'sobol' \\(known: stratified, independent, antithetic\\)"):
+    with pytest.raises(ParameterError, match="unknown sampler 'sobol' \\(known: stratified, independent, antithetic, stratified_direct\\)"):
         ir.render(ir.load_scene("cornell_box", resolution=(4, 4)), spp=2, sampler="sobol")
+
+
+def _sky_spheres(res=16):
+    from invrender.scene.builtin import sky_map, sky_spheres
+
+    return sky_spheres((res, res), (8, 16), subdivisions=2, sky=sky_map(8, 16))
+
+
+def test_stratified_direct_draws_each_pixels_first_vertex_numbers_in_strata():
+    """Per pixel, the 4 numbers of the first vertex (BSDF direction, emitter sample) of its 16
+    samples: each pair multi-jittered (one sample per 1/16 strip on each axis, one per 4 x 4 cell),
+    by patterns of their own (the pairs' and the film positions' permutations differ), each
+    number the hashed one where a pixel has one sample."""
+    from invrender.core import driver
+    from invrender.core.driver import RenderSettings
+
+    scene = _sky_spheres(4)
+    spp = 16
+    ids = torch.arange(4 * 4 * spp)
+    state, xy = driver.camera_paths(scene, RenderSettings(spp=spp, seed=3, sampler="stratified_direct"), ids, positions=True)
+    strata = state.strata.reshape(16, spp, 4)
+    for pair in ((0, 1), (2, 3)):
+        u = strata[:, :, list(pair)]
+        for axis in (0, 1):
+            assert (torch.sort((u[:, :, axis] * spp).floor(), dim=1).values == torch.arange(spp)).all()
+        cells = (u[:, :, 0] * 4).floor() * 4 + (u[:, :, 1] * 4).floor()
+        assert (torch.sort(cells, dim=1).values == torch.arange(spp)).all()
+    rank = lambda x: torch.argsort(torch.argsort(x, dim=1), dim=1)  # noqa: E731
+    film = rank(xy[:, 0].reshape(16, spp))
+    assert not torch.equal(rank(strata[:, :, 0]), film) and not torch.equal(rank(strata[:, :, 0]), rank(strata[:, :, 2]))
+    plain = driver.camera_paths(scene, RenderSettings(spp=spp, seed=3), ids)
+    assert plain.strata is None
+    one = driver.camera_paths(scene, RenderSettings(spp=1, seed=3, sampler="stratified_direct"), torch.arange(16))
+    from invrender.core.sampler import uniform
+
+    torch.testing.assert_close(one.strata, uniform(one.keys, 1, 5)[:, [0, 1, 3, 4]], rtol=0, atol=0)
+
+
+def test_stratified_direct_is_the_same_compiled_and_eager_and_halves_the_variance():
+    """The compiled bounce and the torch bounce draw the same numbers (images within float
+    rounding); one sample per pixel draws what ``"stratified"`` does; at 16 spp the error of the
+    sky_spheres image (direct light from a sky, one bounce) falls by more than 2x in variance
+    (measured: 0.19 -> 0.115 relative RMSE, 2.8x)."""
+    import os
+
+    import invrender as ir
+    from invrender.backends import kernels
+
+    scene = _sky_spheres(24)
+    kw = dict(integrator={"type": "path", "hide_emitters": True}, max_depth=3, progress=False)
+    image = ir.render(scene, spp=8, seed=4, sampler="stratified_direct", **kw)
+    os.environ[kernels.ENV] = "steps"  # the torch bounce
+    try:
+        expected = ir.render(scene, spp=8, seed=4, sampler="stratified_direct", **kw)
+    finally:
+        del os.environ[kernels.ENV]
+    assert float(expected.mean()) > 0.02
+    assert (image - expected).abs().max() < 1e-5 * float(expected.max())
+    torch.testing.assert_close(ir.render(scene, spp=1, seed=4, sampler="stratified_direct", **kw), ir.render(scene, spp=1, seed=4, **kw), rtol=0, atol=0)
+    reference = ir.render(scene, spp=2048, seed=99, **kw).double()
+
+    def error(sampler: str) -> float:
+        sq = [float((ir.render(scene, spp=16, seed=s, sampler=sampler, **kw).double() - reference).square().mean()) for s in range(4)]
+        return sum(sq) / len(sq)
+
+    assert error("stratified_direct") < 0.5 * error("stratified")
