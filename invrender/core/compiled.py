@@ -129,9 +129,9 @@ def evaluate(xp, fn, *args, unstacked: bool = False, **static) -> tuple[torch.Te
             frozen = _FROZEN[key] = xp.dr.freeze(_body(xp, fn, static), warn_after=1 << 30)
         if frozen is not _TRACED:
             try:
-                out, widths = frozen(inputs)
+                out, widths, constants = frozen(inputs)
                 if all(xp.dr.width(o) == lanes for o in out):
-                    return _results(xp, out, widths, unstacked)
+                    return _results(xp, out, widths, constants, lanes, unstacked)
             except RuntimeError:  # a recording that failed
                 pass
             # a replay that returned an array of another call's length (a point light's zero
@@ -139,7 +139,7 @@ def evaluate(xp, fn, *args, unstacked: bool = False, **static) -> tuple[torch.Te
             # can mistake one for the other) or a recording that failed: this kind of call is
             # traced from now on
             _FROZEN[key] = _TRACED
-        return _results(xp, *_body(xp, fn, static)(inputs), unstacked)
+        return _results(xp, *_body(xp, fn, static)(inputs), lanes, unstacked)
 
 
 #: calls on fewer lanes run on about this many (:func:`_padded`): small calls (the last bounces of a
@@ -168,11 +168,14 @@ def _padded(args, lanes: int):
     return out
 
 
-def _results(xp, out, widths, unstacked: bool = False) -> tuple[torch.Tensor, ...]:
+def _results(xp, out, widths, constants, lanes: int, unstacked: bool = False) -> tuple[torch.Tensor, ...]:
     """The evaluated arrays ``out`` as torch tensors: (N,) each, and per k-tuple (N, k) by columns
-    or (``unstacked``) :class:`Columns`."""
+    or (``unstacked``) :class:`Columns`; the outputs ``constants`` names (:func:`_constant`) filled
+    with their value over ``lanes``."""
     xp.dr.sync_thread()
-    flat, at = [xp.to_torch(o) for o in out], 0
+    arrays = iter(out)
+    flat = [xp.to_torch(next(arrays)) if c is None else torch.full((lanes,), c[0], dtype=_DTYPES[c[1]], device="cuda" if xp.name.endswith("cuda") else "cpu") for c in constants]
+    at = 0
     results = []
     for k in widths:
         if not k:
@@ -212,10 +215,35 @@ def _body(xp, fn, static: dict):
         out = call(*args)
         widths = [len(o) if isinstance(o, tuple) else 0 for o in out]
         flat = [c for o in out for c in (o if isinstance(o, tuple) else (o,))]
-        evaluate(*flat)  # one kernel
-        return flat, widths
+        constants = [_constant(xp, c) for c in flat]
+        arrays = [c for c, k in zip(flat, constants) if k is None]
+        evaluate(*arrays)  # one kernel
+        return arrays, widths, constants
 
     return body
+
+
+#: torch's dtype of an output constant's kind (:func:`_constant`)
+_DTYPES = {"float": torch.float32, "int": torch.int32, "int64": torch.int64, "bool": torch.bool}
+
+
+def _constant(xp, x):
+    """(value, kind) of an output that is a literal, one value in every lane (no emitting shape
+    hit: no emission), else None. A replay returns a literal with the width of the recording's
+    call, not the replay's: such outputs are handed back as their value (a frozen function
+    returns the Python values of its recording) and filled over the lanes."""
+    if getattr(x, "state", None) != xp.dr.VarState.Literal:
+        return None
+    name = type(x).__name__
+    value = x[0]
+    if name.startswith("Bool"):
+        return (bool(value), "bool")
+    if name.startswith("Int64"):
+        return (int(value), "int64")
+    if name.startswith("UInt") or name.startswith("Int"):
+        value = int(value) & 0xFFFFFFFF
+        return (value - (1 << 32) if value >= 1 << 31 else value, "int")  # UInt as int32, as to_torch gives it
+    return (float(value), "float")
 
 
 def _tensors(args):

@@ -23,6 +23,7 @@ is rendered once with the map dark (:attr:`TransportMatrix.offset`), with the sa
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import time
@@ -229,12 +230,19 @@ def view_halves(
     # half the chunks' fixed costs (the launches and queries of every bounce)
     together = cpu_workers(device) > 1
 
+    def settings_of(s: int) -> RenderSettings:
+        return RenderSettings(spp=spp, seed=s, progress=progress, sampler=sampler, sampling_params=sampling)
+
+    # one render context for every view and half (it holds the geometry, materials and emitters,
+    # not the camera): built once, and single-threaded queries where the halves are traced at once
+    with torch.no_grad(), one_thread(together):
+        ctx = model.context(views[0], settings_of(0), device, params=values)
+
     def trace_half(view, matrix: torch.Tensor, s: int) -> torch.Tensor | None:
         """Half ``matrix`` (3, P, n) of ``view`` traced with seed ``s``; the image of the light off
         the map (P, 3) where some other emitter is lit, else None."""
-        settings = RenderSettings(spp=spp, seed=s, progress=progress, sampler=sampler, sampling_params=sampling)
+        settings = settings_of(s)
         with torch.no_grad(), one_thread(together):
-            ctx = model.context(view, settings, device, params=values)
             light = next(light for light in ctx.lights.lights if k in light.emitters)
             slot = light.emitters.index(k)
             film = TexelFilm(matrix, lambda d: light.texels(slot, d), view.width, view.height, 0, columns)
@@ -244,17 +252,17 @@ def view_halves(
                 return model.render(view, settings.replace(sampling_params={name: sampling[name]}), device, params={name: torch.zeros_like(current)}).reshape(-1, 3)
         return None
 
-    for v, view in enumerate(views):
-        pair = (2 * (seed * V + v), 2 * (seed * V + v) + 1)
-        P = view.width * view.height
-        halves = [torch.zeros(3, P, basis.n, dtype=torch.float32, device=device) for _ in range(2)]
-        if together:
-            with ThreadPoolExecutor(2) as pool:
+    with ThreadPoolExecutor(2) if together else contextlib.nullcontext() as pool:
+        for v, view in enumerate(views):
+            pair = (2 * (seed * V + v), 2 * (seed * V + v) + 1)
+            P = view.width * view.height
+            halves = [torch.zeros(3, P, basis.n, dtype=torch.float32, device=device) for _ in range(2)]
+            if together:
                 darks = list(pool.map(trace_half, (view, view), halves, pair))
-        else:
-            darks = [trace_half(view, m, s) for m, s in zip(halves, pair)]
-        offset = 0.5 * (darks[0] + darks[1]) if lit else None
-        yield ViewHalves(v, (view.height, view.width), (halves[0], halves[1]), offset, pair)
+            else:
+                darks = [trace_half(view, m, s) for m, s in zip(halves, pair)]
+            offset = 0.5 * (darks[0] + darks[1]) if lit else None
+            yield ViewHalves(v, (view.height, view.width), (halves[0], halves[1]), offset, pair)
 
 
 

@@ -90,3 +90,30 @@ def test_without_drjit_the_bounce_runs_as_eager_torch(monkeypatch):
     assert compiled.namespace(CPU) is arrays.TORCH
     again = ir.render(scene, spp=8, seed=1, progress=False)
     assert (image - again).abs().max() < 1e-5 * float(image.max())
+
+
+
+@needs_drjit
+def test_a_literal_output_keeps_its_kind_of_call_frozen_and_fills_every_lane(monkeypatch):
+    """Under a sky with no emitting shape a vertex's emission is a literal 0, and a replay returns
+    a literal with its recording's width: such outputs come back as their value, filled over the
+    call's lanes, and the bounce's kinds of call stay frozen (with a matrix's halves traced side by
+    side they were traced again on every call: its renders spent a third of their time so)."""
+    from invrender.core import compiled
+    from invrender.scene.builtin import sky_map, sky_spheres
+
+    monkeypatch.setattr(compiled, "_FROZEN", {})
+    from invrender.scene.camera import Camera
+
+    scene = sky_spheres((32, 32), (8, 16), subdivisions=2, sky=torch.ones(8, 16, 3))
+    camera = Camera(origin=(0.0, 0.35, 4.2), target=(0, -0.35, 0), up=(0, 1, 0), fov=40.0, fov_axis="smaller")
+    hidden = {"type": "path", "hide_emitters": True}
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)  # the matrix's halves traced side by side, as outside the tests
+    try:
+        matrices = [ir.lighting.transport_matrix(scene, "sky", cameras=[camera], integrator=hidden, spp=spp, max_depth=3) for spp in (1, 2, 1)]
+    finally:
+        torch.set_num_threads(threads)
+    assert float(matrices[0].halves[0].sum()) > 0 and torch.equal(matrices[0].halves[1], matrices[2].halves[1])
+    kinds = [v for k, v in compiled._FROZEN.items() if getattr(k[1], "__name__", "") == "path_vertex"]
+    assert kinds and all(v is not compiled._TRACED for v in kinds)

@@ -180,7 +180,9 @@ class Integrator(ABC):
 
     def context(self, scene: Scene, settings: RenderSettings, device: torch.device, params: dict | None = None) -> TransportContext:
         """The prepared :class:`TransportContext` of one render."""
-        threads = 1 if cpu_workers(device) > 1 else None
+        # one Embree thread per query where the render's workers share the cores, or where this
+        # thread's torch is single-threaded (driver.one_thread: renders traced side by side)
+        threads = 1 if cpu_workers(device) > 1 or (device.type == "cpu" and torch.get_num_threads() == 1) else None
         with first_use.announcing(settings.progress):  # a first use's compiles say so where progress shows
             ctx = TransportContext.build(scene, device, settings.backend, threads, params, self.bsdf_sampling, settings.sampling_params)
         if getattr(self.settings, "hide_emitters", False):  # settings without it (a plugin's own) show emitters
@@ -243,7 +245,11 @@ class Integrator(ABC):
     def fused_scene(self, ctx: TransportContext):
         """The fused primal bounce's view of the render ``ctx`` (:func:`invrender.core.fused.tables`),
         None where it does not apply (always for integrators without a random walk's bounce)."""
-        return fused.tables(ctx, getattr(self, "fused_direct", None), self.bsdf_sampling.hemisphere)
+        key = (getattr(self, "fused_direct", None), self.bsdf_sampling.hemisphere)
+        cache = ctx.__dict__.setdefault("_fused_scenes", {})  # per context (renders sharing one, chunks): built once
+        if key not in cache:
+            cache[key] = fused.tables(ctx, *key)
+        return cache[key]
 
 
 def make_integrator(integrator="path", **options) -> Integrator:
