@@ -1,7 +1,7 @@
 """Inverse lighting side by side: invrender's transport-matrix solve against Mitsuba 3 ``prb`` + Adam.
 
     python bench/inverse_lighting.py [--cases 32x64/3 64x128/6/sun] [--all] [--resolution 64]
-                                     [--target-spp 1024] [--max-depth 3] [--spp 32] [--unknowns 256]
+                                     [--target-spp 1024] [--max-depth 3] [--spp 16] [--unknowns 256] [--rounds R]
                                      [--lrs 0.01 0.03 0.1 0.3] [--mitsuba-spp 16] [--mitsuba-steps 400]
                                      [--mitsuba-seconds 180] [--eval-every 5] [--json PATH]
 
@@ -20,11 +20,13 @@ texel 1):
 - **invrender**: ``ir.lighting.fit_map`` (the transport matrix, two halves of ``--spp`` samples
   per pixel, the non-negative regularized solve with the prior's weight by the discrepancy
   principle); its time is the whole call, after an untimed warm-up that records its compiled
-  kernels (one view's matrix at 1 spp), as Mitsuba's warm-up gradient compiles its own. The bench's setting, 2 x 32 spp and at most 256
-  unknowns (quadtree blocks: a pilot round at a quarter of the samples, then the second sampled
-  by the pilot's map in the quadtree it refines), is faster than fit_map's defaults (2 x 64 spp,
-  up to 3,072 unknowns: texel by texel, a second round only for a sun), which are a little more
-  accurate; ``--spp 64 --unknowns 3072`` runs those.
+  kernels (one view's matrix at 1 spp), as Mitsuba's warm-up gradient compiles its own. The
+  bench's setting, 2 x 16 spp and at most 256 unknowns (quadtree blocks), is faster than
+  fit_map's defaults (2 x 64 spp, up to 3,072 unknowns: texel by texel), which are more
+  accurate; ``--spp 64 --unknowns 3072`` runs those. ``--rounds`` by default: 1 for a sky without
+  a sun (what a user who knows that passes), ``"auto"`` with one (a coarser basis than the texels
+  then takes a pilot round at a quarter of the samples and a second sampled by the pilot's map
+  in the quadtree it refines: the sun's block down to its texel).
 - **Mitsuba**: the scene converted by ``mitsuba_ref.scene_dict`` (its envmap a bitmap of the map),
   integrator ``prb`` with ``hide_emitters``, one sensor per view (``mitsuba_ref.sensor_dict``);
   the classic inverse-lighting loop on the envmap's bitmap ``sky.data``: ``mi.ad.Adam(lr)``, per
@@ -265,7 +267,8 @@ def run_case(case: dict, args, mitsuba: bool) -> dict:
     with tempfile.TemporaryDirectory(prefix="inverse_lighting_") as tmp:
         folder = Path(tmp)
         np.save(folder / "targets.npy", torch.stack(targets).numpy())
-        (folder / "case.json").write_text(json.dumps({**case, **{k: getattr(args, k) for k in ("resolution", "max_depth", "spp", "unknowns", "rounds", "mitsuba_spp", "mitsuba_steps", "mitsuba_seconds", "eval_every")}}))
+        rounds = args.rounds if args.rounds is not None else "auto" if case["sun"] else 1
+        (folder / "case.json").write_text(json.dumps({**case, "rounds": rounds, **{k: getattr(args, k) for k in ("resolution", "max_depth", "spp", "unknowns", "mitsuba_spp", "mitsuba_steps", "mitsuba_seconds", "eval_every")}}))
 
         def invrender_side() -> dict | str:
             say(f"[{case['name']}] invrender: ir.lighting.fit_map ...")
@@ -350,9 +353,9 @@ def main() -> int:
     parser.add_argument("--resolution", type=int, default=64, help="each view's width and height")
     parser.add_argument("--target-spp", type=int, default=1024, help="the targets' and the held-out matrix's samples per pixel")
     parser.add_argument("--max-depth", type=int, default=3)
-    parser.add_argument("--spp", type=int, default=32, help="invrender: samples per pixel of each half of the matrix (fit_map's default: 64)")
+    parser.add_argument("--spp", type=int, default=16, help="invrender: samples per pixel of each half of the matrix (fit_map's default: 64)")
     parser.add_argument("--unknowns", type=int, default=256, help="invrender: fit_map's budget of unknowns (fit_map's default: 3072, a 32 x 64 map texel by texel)")
-    parser.add_argument("--rounds", type=lambda s: s if s == "auto" else int(s), default="auto", help="invrender: fit_map's rounds (1, 2 or auto)")
+    parser.add_argument("--rounds", type=lambda s: s if s == "auto" else int(s), default=None, help="invrender: fit_map's rounds (1, 2 or auto; default: 1 for a sky without a sun, auto with one)")
     parser.add_argument("--lrs", type=float, nargs="+", default=[0.03, 0.1, 0.3, 1.0], help="Mitsuba: Adam's learning rates (the sweep)")
     parser.add_argument("--mitsuba-spp", type=int, default=16, help="Mitsuba: samples per pixel of each step's renders")
     parser.add_argument("--mitsuba-steps", type=int, default=400, help="Mitsuba: Adam steps per learning rate")

@@ -76,13 +76,12 @@ class NormalEquations:
         self._sums[0] += b.double().sum(0)
         self._sums[1] += 0.5 * total.sum((1, 2)).double()
         # the rows and columns some path of some channel links to the map: the others add nothing
-        live = (total != 0).any(0)
-        rows = (live.any(1) & (weight > 0).any(1)).nonzero()[:, 0]
+        # (the entries are >= 0, so a row or column is 0 where its sum is: two sums, no mask of A)
+        rows = ((total.sum((0, 2)) > 0) & (weight > 0).any(1)).nonzero()[:, 0]
         if not rows.numel():
             self.seconds["gram"] += time.perf_counter() - clock
             return
-        cols = live.any(0).nonzero()[:, 0]
-        del live
+        cols = (total.sum((0, 1)) > 0).nonzero()[:, 0]
         first, last = int(cols[0]), int(cols[-1]) + 1
         span = slice(first, last) if last - first <= 1.25 * cols.numel() else None  # a band of the map: a slice is faster
         r = weight.index_select(0, rows).float().sqrt().T[:, :, None]  # (3, rows, 1)
