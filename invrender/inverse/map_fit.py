@@ -127,7 +127,8 @@ class MapFit:
         rule: how the weight was chosen (``"discrepancy"``, ``"gcv"``, or ``"fixed"``).
         residual: (3,) ``||Abar x - b|| / ||b||`` per channel at the solution.
         noise: (3,) ``delta(x) / ||b||``, the Monte Carlo noise of the predicted images.
-        resolution: (h, w, 3) ``diag(M^-1 H)``: 1 where the images set a texel, 0 where the prior does.
+        resolution: (h, w, 3) ``diag(M^-1 H)`` clipped to [0, 1]: 1 where the images set a texel, 0
+            where the prior does.
         dof: (3,) the degrees of freedom the images determine (the resolution's sum over unknowns).
         undetermined: (h, w) bool, texels whose resolution is under 0.5 in some channel.
         active: (3,) unknowns held at 0 by the bound.
@@ -503,8 +504,11 @@ def solve_map(
                 R = (Minv.float() @ H.float()).double()  # the resolution matrix M^-1 H
                 s2 = (d2 + rows * target_noise**2) / max(rows, 1)  # per-pixel variance of the residual
                 se[a, c] = (s2 * (R * Minv).sum(1)).clamp_min(0.0).sqrt()  # diag(M^-1 H M^-1), M symmetric
-                res[a, c] = R.diagonal()
-                dof[c] = float(R.diagonal().sum())
+                # clipped to [0, 1]: H is unbiased but noisy and can be indefinite, and a prior weight
+                # near the edge of definiteness turned the noise's negative directions into
+                # negative resolutions (a "-41 of 512 determined" at 2 x 64 spp)
+                res[a, c] = R.diagonal().clamp(0.0, 1.0)
+                dof[c] = float(res[a, c].sum())
                 if prior.i.size and prior.border.size:  # the eliminated unknowns: x_I = ... - F x_border
                     bo = torch.from_numpy(prior.border)
                     cov = s2 * (R[bo] @ Minv[:, bo])
