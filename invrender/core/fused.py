@@ -123,6 +123,17 @@ class FusedScene:
     lanes: tuple
 
 
+def scene_of(ctx: TransportContext, direct, hemisphere: str) -> FusedScene | None:
+    """:func:`tables`, built once per render context (renders that share one, their chunks) and
+    grad mode (a value that requires grad keeps a render off the fused bounce only where grad is
+    on) and kernel choice."""
+    key = (direct, hemisphere, torch.is_grad_enabled(), kernels.fused_bounce(ctx.triangles.p0.device))
+    cache = ctx.__dict__.setdefault("_fused_scenes", {})
+    if key not in cache:
+        cache[key] = tables(ctx, direct, hemisphere)
+    return cache[key]
+
+
 def tables(ctx: TransportContext, direct, hemisphere: str) -> FusedScene | None:
     """The fused bounce's view of the render ``ctx``, or None where it does not apply (module
     docstring). ``direct``: the integrator's ``fused_direct`` (None: its vertex step is its own;

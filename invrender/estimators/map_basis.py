@@ -88,6 +88,34 @@ class MapBasis:
         """(T, ...) the texels of leaf values ``x`` (n, ...)."""
         return x[self.columns().to(x.device)]
 
+    def counts(self) -> np.ndarray:
+        """(n,) the texels of each leaf (``B^T B``'s diagonal)."""
+        return np.bincount(self.columns().numpy(), minlength=self.n).astype(np.float64)
+
+    def haar(self, chunk: int = 256):
+        """``(W B, details)``: the orthonormal 2-D Haar transform W of the texel grid (T x T: per
+        level each 2 x 2 group of the level's scaling coefficients (a, b, c, d) becomes
+        ``(a + b + c + d) / 2`` and the three details ``(a - b + c - d) / 2``, ``(a + b - c - d) / 2``,
+        ``(a - b - c + d) / 2``, down to a grid one texel high or wide) applied to the leaves'
+        membership B: a (T, n) scipy.sparse CSR whose row t is coefficient t as a function of the
+        leaf values (rows of details finer than a leaf are 0), and ``details`` (T,) bool, the rows
+        that are details (the rest: the top grid's scaling coefficients). W is orthonormal, so
+        ``(W B)^T (W B) = B^T B``, the leaves' texel counts. The map's height and width must be
+        powers of 2."""
+        import scipy.sparse as sp
+
+        h, w = self.shape
+        if h & (h - 1) or w & (w - 1):
+            raise ParameterError(f"the Haar basis needs a map whose height and width are powers of 2, got {h} x {w}")
+        col = self.columns().numpy().reshape(h, w)
+        parts = []
+        for start in range(0, self.n, chunk):
+            leaves = np.arange(start, min(self.n, start + chunk))
+            X = (col[:, :, None] == leaves[None, None, :]).astype(np.float64)  # (h, w, m) membership
+            coefficients, details = _haar_levels(X)
+            parts.append(sp.csr_matrix(coefficients))
+        return sp.hstack(parts, format="csr"), details
+
     def refined(self, texels: torch.Tensor, budget: int) -> MapBasis:
         """This basis with the leaves of most power split into their four children (and those
         again), greedily, while the leaf count stays within ``budget``: power = the map ``texels``
@@ -125,3 +153,18 @@ class MapBasis:
                     heapq.heappush(heap, (-block_power(*child), child))
         blocks = np.array(sorted(kept), dtype=np.int64)
         return MapBasis(self.shape, blocks)
+
+
+def _haar_levels(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The orthonormal 2-D Haar coefficients (T, m) of ``X`` (h, w, m), the details level by level
+    (finest first) then the top grid's scaling coefficients, and which rows are details (T,)."""
+    rows, details, cur = [], [], X
+    while cur.shape[0] >= 2 and cur.shape[1] >= 2:
+        a, b, c, d = cur[0::2, 0::2], cur[0::2, 1::2], cur[1::2, 0::2], cur[1::2, 1::2]
+        for part in ((a - b + c - d) / 2, (a + b - c - d) / 2, (a - b - c + d) / 2):
+            rows.append(part.reshape(-1, X.shape[2]))
+            details.append(np.ones(part.shape[0] * part.shape[1], dtype=bool))
+        cur = (a + b + c + d) / 2
+    rows.append(cur.reshape(-1, X.shape[2]))
+    details.append(np.zeros(cur.shape[0] * cur.shape[1], dtype=bool))
+    return np.concatenate(rows), np.concatenate(details)

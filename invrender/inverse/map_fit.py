@@ -290,6 +290,40 @@ def cholesky_solve(L: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
     return torch.linalg.solve_triangular(L.T, y, upper=True)[:, 0]
 
 
+def sparse_quadratic(M: torch.Tensor, r: torch.Tensor, C, details: np.ndarray, mu, x: torch.Tensor, iterations: int = 500, tol: float = 1e-5) -> torch.Tensor:
+    """argmin over x >= 0 of ``x^T M x - 2 r^T x + 2 mu ||(C x)_details||_1`` by ADMM (Boyd et al.,
+    "Distributed optimization and statistical learning via the alternating direction method of
+    multipliers", 2011, section 6): C (T, n) scipy.sparse the Haar coefficients of the unknowns
+    (:meth:`~invrender.estimators.map_basis.MapBasis.haar`, ``C^T C`` diagonal), ``details`` (T,)
+    bool the rows penalized. Each round: the non-negative quadratic
+    ``(M + rho C^T C) x = r + rho C^T (z - u)`` (:func:`bounded_quadratic`, one Cholesky factor for
+    all rounds), the details soft-thresholded by ``mu / rho``, the scaled dual updated; stops when
+    the primal and dual residuals fall under ``tol`` relative to the coefficients. ``x``: the
+    start (the solve without the L1 term)."""
+    Ct = C.T.tocsr()
+    counts = torch.from_numpy(np.asarray(C.multiply(C).sum(0)).ravel())
+    rho = float(M.diagonal().mean()) / max(float(counts.mean()), 1e-30)
+    Mr = M + torch.diag(rho * counts)
+    L = torch.linalg.cholesky(Mr)
+    to_t = lambda v: torch.from_numpy(np.asarray(v, dtype=np.float64).ravel())  # noqa: E731
+    z = to_t(C @ x.numpy())
+    u = torch.zeros_like(z)
+    threshold = torch.as_tensor(mu, dtype=torch.float64) / rho  # a number, or one per row
+    penalized = torch.from_numpy(details)
+    for _ in range(iterations):
+        x = bounded_quadratic(Mr, r + rho * to_t(Ct @ (z - u).numpy()), L)
+        cx = to_t(C @ x.numpy())
+        v = cx + u
+        z_next = torch.where(penalized, v.sign() * (v.abs() - threshold).clamp_min(0.0), v)
+        primal = float((cx - z_next).norm())
+        dual = rho * float(to_t(Ct @ (z_next - z).numpy()).norm())
+        u, z = v - z_next, z_next
+        size = max(float(cx.norm()), float(z.norm()), 1e-300)
+        if primal <= tol * size and dual <= tol * rho * max(float(to_t(Ct @ u.numpy()).norm()), size):
+            break
+    return x
+
+
 def bounded_quadratic(M: torch.Tensor, r: torch.Tensor, L: torch.Tensor | None = None, max_iter: int = 100, x: torch.Tensor | None = None) -> torch.Tensor:
     """argmin over x >= 0 of ``x^T M x - 2 r^T x`` (M (T, T) positive definite, r (T,)): non-negative
     least squares in normal-equation form by block principal pivoting (Kim and Park, "Fast
@@ -416,6 +450,7 @@ def solve_map(
     target_noise: float = 0.0,
     masks: list[torch.Tensor] | None = None,
     stderr: bool = True,
+    sparsity: float = 0.0,
 ) -> MapFit:
     """The non-negative regularized least-squares map (module docstring) of ``source``: a
     :class:`~invrender.estimators.transport_matrix.TransportMatrix` with its ``targets`` (one (H, W, 3)
@@ -431,9 +466,13 @@ def solve_map(
         smoothness, tikhonov: the two priors' relative weights (>= 0; tikhonov > 0).
         target_noise: the targets' own noise, a standard deviation per pixel and channel (0: exact).
         stderr: compute standard errors and the resolution (an inverse and a product per channel).
+        sparsity: the weight of an L1 prior on the map's Haar details (:func:`sparse_quadratic`;
+            dimensionless, relative to the prior's weight at the targets' brightness; 0: none), for
+            a sun: the map's height and width must be powers of 2. The weight rule, the standard
+            errors and the resolution are those of the problem without it.
     """
     clock = time.perf_counter()
-    for name, value, low in (("smoothness", smoothness, 0.0), ("tikhonov", tikhonov, 0.0), ("target_noise", target_noise, 0.0)):
+    for name, value, low in (("smoothness", smoothness, 0.0), ("tikhonov", tikhonov, 0.0), ("target_noise", target_noise, 0.0), ("sparsity", sparsity, 0.0)):
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= low):
             raise ParameterError(f"fit_map {name} must be a finite number >= {low:g}, got {value!r}")
     if tikhonov <= 0:
@@ -457,6 +496,7 @@ def solve_map(
     for c in range(3):
         active |= (normal.Gm[c].diagonal() > 0).numpy()
     prior = _Prior(basis, tikhonov, smoothness, active)
+    haar = basis.haar() if sparsity > 0 else None  # (W B, details): refused here for a map not 2^k x 2^l
     x0 = np.broadcast_to(normal.flat.numpy(), (n, 3)).copy() if start is None else _leaf_start(start, basis, prior.omega)
     a = torch.from_numpy(prior.a)
     x_all, se, res = (torch.zeros(n, 3, dtype=torch.float64) for _ in range(3))
@@ -492,6 +532,9 @@ def solve_map(
             evaluations[c] = solve.evaluations
             M = solve.matrix(point.lam)
             xa = bounded_quadratic(M, solve.g + (point.lam * scale) * solve.p, point.L, x=point.x)
+            if haar is not None:
+                mu = sparsity * point.lam * scale * float(normal.flat[c])
+                xa = sparse_quadratic(M, solve.g + (point.lam * scale) * solve.p, haar[0][:, a.numpy()], haar[1], mu, xa)
             x_all[:, c] = prior.extend(xa, p)
             weights[c] = point.lam
             d2 = float(xa @ (D @ xa))
@@ -550,6 +593,7 @@ def fit_map(
     smoothness: float = 1.0,
     tikhonov: float = 1e-2,
     target_noise: float = 0.0,
+    sparsity: float = 0.0,
     mask=None,
     start=None,
     stderr: bool = True,
@@ -592,7 +636,7 @@ def fit_map(
     pilot_spp = max(1, spp // 4) if pilot_spp is None else pilot_spp
     check_int("fit_map ", "pilot_spp", pilot_spp, 1)
     render = {"integrator": integrator, "max_depth": max_depth, "progress": progress}
-    settings = {"start": start, "weight": weight, "rule": rule, "smoothness": smoothness, "tikhonov": tikhonov, "target_noise": target_noise, "stderr": stderr}
+    settings = {"start": start, "weight": weight, "rule": rule, "smoothness": smoothness, "tikhonov": tikhonov, "target_noise": target_noise, "stderr": stderr, "sparsity": sparsity}
 
     def round_(basis: MapBasis, seed: int, spp: int, sampling_map=None) -> MapFit:
         normal = normal_equations(scene, emitter, linear, cameras=cameras, masks=masks, basis=basis, memory_mb=memory_mb, extra_bytes=solver_bytes(basis.n), seed=seed, sampling_map=sampling_map, spp=spp, **render)

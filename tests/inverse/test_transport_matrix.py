@@ -302,3 +302,43 @@ def test_sphere_smoothness_is_the_dirichlet_energy():
     a = torch.cos(phi).repeat(5)
     b = torch.cos(phi + 2 * math.pi / 8).repeat(5)
     assert abs(float(a @ S @ a) - float(b @ S @ b)) < 1e-9 * float(a @ S @ a)
+
+
+def test_sparse_quadratic_is_optimal_and_the_sparsity_prior_shrinks_the_haar_details(problem):
+    """The L1 prior on the Haar details (ADMM): with mu = 0 the bounded solve; otherwise no
+    feasible move from its answer lowers the objective (convex: optimal), and a larger weight
+    leaves the map's details smaller (their L1 norm falls) and its top grid alone."""
+    from invrender.estimators.map_basis import MapBasis
+    from invrender.inverse.map_fit import bounded_quadratic, sparse_quadratic
+
+    basis = MapBasis.of_texels(4, 8)
+    C, details = basis.haar()
+    gen = torch.Generator().manual_seed(3)
+    A = torch.rand(40, 32, generator=gen, dtype=torch.float64)
+    M = A.T @ A + 0.1 * torch.eye(32, dtype=torch.float64)
+    r = A.T @ torch.rand(40, generator=gen, dtype=torch.float64) * 3
+    smooth = bounded_quadratic(M, r, torch.linalg.cholesky(M))
+    torch.testing.assert_close(sparse_quadratic(M, r, C, details, 0.0, smooth), smooth, rtol=1e-6, atol=1e-8)
+    d = torch.from_numpy(details)
+
+    def F(x, mu):
+        c = torch.from_numpy(C @ x.numpy())
+        return float(x @ M @ x - 2 * r @ x + 2 * mu * c[d].abs().sum())
+
+    mu = 0.5
+    x = sparse_quadratic(M, r, C, details, mu, smooth, tol=1e-8, iterations=5000)
+    assert bool((x >= 0).all()) and F(x, mu) < F(smooth, mu) - 1e-6
+    for _ in range(200):
+        y = (x + 1e-3 * torch.randn(32, generator=gen, dtype=torch.float64) * x.abs().max()).clamp_min(0)
+        assert F(y, mu) >= F(x, mu) - 1e-7 * abs(F(x, mu))
+    # in a fit: the details' L1 norm falls as the weight grows
+    _, _, fit, _ = problem
+    norms = []
+    for sparsity in (0.0, 0.3, 3.0):
+        got = ir.lighting.solve_map(fit.normal, sparsity=sparsity, stderr=False)
+        norms.append(float(torch.from_numpy(C @ got.texels.reshape(-1, 3).double().numpy())[d].abs().sum()))
+    assert norms[0] > norms[1] > norms[2], norms
+    with pytest.raises(ParameterError, match="sparsity must be a finite number >= 0, got -1"):
+        ir.lighting.solve_map(fit.normal, sparsity=-1)
+    with pytest.raises(ParameterError, match="the Haar basis needs a map whose height and width are powers of 2, got 5 x 8"):
+        MapBasis.of_texels(5, 8).haar()

@@ -245,11 +245,7 @@ class Integrator(ABC):
     def fused_scene(self, ctx: TransportContext):
         """The fused primal bounce's view of the render ``ctx`` (:func:`invrender.core.fused.tables`),
         None where it does not apply (always for integrators without a random walk's bounce)."""
-        key = (getattr(self, "fused_direct", None), self.bsdf_sampling.hemisphere)
-        cache = ctx.__dict__.setdefault("_fused_scenes", {})  # per context (renders sharing one, chunks): built once
-        if key not in cache:
-            cache[key] = fused.tables(ctx, *key)
-        return cache[key]
+        return fused.scene_of(ctx, getattr(self, "fused_direct", None), self.bsdf_sampling.hemisphere)
 
 
 def make_integrator(integrator="path", **options) -> Integrator:
