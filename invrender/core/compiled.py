@@ -115,9 +115,7 @@ def evaluate(xp, fn, *args, unstacked: bool = False, **static) -> tuple[torch.Te
         return tuple(Columns(o) if unstacked and isinstance(o, tuple) else xp.to_torch(o) for o in out)
     if xp.name.endswith("cuda"):
         torch.cuda.current_stream().synchronize()  # torch's writes done before Dr.Jit's stream reads them
-    # the lanes: the rows of the 3-vector arguments (else the longest array; tables are flat)
-    rows = [a.shape[0] for a in _tensors(args) if a.ndim == 2] + [a.lanes for a in _columns(args)]
-    lanes = max(rows, default=max((a.shape[0] for a in _tensors(args)), default=0))
+    lanes = _lanes(args)
     if lanes < FREEZE_LANES:  # padded: the same frozen kernel's arithmetic, whatever the chunking
         padded = evaluate(xp, fn, *_padded(args, lanes), unstacked=unstacked, **static)
         return tuple(Columns(c[:lanes] for c in r) if isinstance(r, Columns) else r[:lanes] for r in padded)
@@ -246,22 +244,24 @@ def _constant(xp, x):
     return (float(value), "float")
 
 
-def _tensors(args):
-    """The torch tensors among ``args`` (nested in tuples too)."""
-    for a in args:
+def _lanes(args) -> int:
+    """The lanes of a call: the rows of its 3-vector arguments ((N, 3) tensors and
+    :class:`Columns`), else its longest array (tables are flat). One pass over the arguments,
+    nested tuples included, without generators (it runs on every call: a Cornell render's 72
+    calls walked their tables' tuples 6,000 times)."""
+    rows, longest, stack = -1, 0, list(args)
+    while stack:
+        a = stack.pop()
         if isinstance(a, torch.Tensor):
-            yield a
+            if a.ndim == 2:
+                rows = max(rows, a.shape[0])
+            elif a.ndim:
+                longest = max(longest, a.shape[0])
+        elif isinstance(a, Columns):
+            rows = max(rows, a.lanes)
         elif isinstance(a, (tuple, list)):
-            yield from _tensors(a)
-
-
-def _columns(args):
-    """The :class:`Columns` among ``args`` (nested in tuples too)."""
-    for a in args:
-        if isinstance(a, Columns):
-            yield a
-        elif isinstance(a, (tuple, list)):
-            yield from _columns(a)
+            stack.extend(a)
+    return rows if rows >= 0 else longest
 
 
 def _argument(xp, a):
