@@ -9,8 +9,9 @@ seed, and compares the two:
   backends (images: largest pixel difference at most 1e-4 of the image's mean);
 - ``kernels``: the compiled bounce (Dr.Jit's CUDA backend on a GPU: the lane functions of
   ``invrender.core.lanes`` and the plugins, the camera samples among them) against their eager torch
-  evaluation on the device (uniforms and camera samples bit for bit, images as above), and their
-  image against the CPU's;
+  evaluation on the device (uniforms, camera samples and the sampler ``"stratified_direct"``'s
+  first-vertex numbers bit for bit; images with the ``"stratified"`` and ``"stratified_direct"``
+  samplers as above), and their images against the CPU's;
 - ``grad_replay``, ``grad_autodiff``: the L2 gradient of four parameters by path replay and by
   autodiff (largest difference at most 1e-3 of the largest component);
 - ``records``: path records (:func:`invrender.record_paths`): their image and Jacobian;
@@ -150,12 +151,20 @@ def check_kernels(sizes: Sizes, device: torch.device) -> dict:
         expected_camera = driver._camera_samples(scene, RenderSettings(spp=sizes.spp, seed=3), ids)
     out["camera_samples"] = ("exact", camera[2])
     out["camera_samples_vs_torch"] = ("self", (camera[2], expected_camera[2], "exact"))
-    images = {}
+    strata = {}  # the first vertex's stratified numbers of "stratified_direct" (the camera samples' last output)
     for choice in ("warp", "torch"):
         with Kernels(choice):
-            images[choice] = ir.render(scene, spp=sizes.spp, max_depth=DEPTH, seed=3, backend="torch", progress=False)
-    out["image"] = ("image", images["warp"])
-    out["image_vs_torch"] = ("self", (images["warp"], images["torch"], "image"))
+            strata[choice] = driver._camera_samples(scene, RenderSettings(spp=sizes.spp, seed=3, sampler="stratified_direct"), ids)[-1]
+    out["direct_strata"] = ("exact", strata["warp"])
+    out["direct_strata_vs_torch"] = ("self", (strata["warp"], strata["torch"], "exact"))
+    images = {}
+    for choice in ("warp", "torch"):
+        for sampler in ("stratified", "stratified_direct"):
+            with Kernels(choice):
+                images[choice, sampler] = ir.render(scene, spp=sizes.spp, max_depth=DEPTH, seed=3, backend="torch", sampler=sampler, progress=False)
+    for sampler, suffix in (("stratified", ""), ("stratified_direct", "_stratified_direct")):
+        out["image" + suffix] = ("image", images["warp", sampler])
+        out[f"image{suffix}_vs_torch"] = ("self", (images["warp", sampler], images["torch", sampler], "image"))
     return out
 
 
