@@ -22,10 +22,6 @@ from invrender.core.sampler import _columns, _low32, bounce_salt_values, seed_sa
 
 #: the samplers' codes in :func:`lane_samples` (``RenderSettings.sampler``)
 MODES = {"stratified": 0, "independent": 1, "antithetic": 2, "stratified_direct": 3}
-#: the first vertex's dimensions ``"stratified_direct"`` stratifies, in pairs (of the bounce's 7:
-#: :func:`invrender.core.lanes.path_vertex`): the BSDF sample's direction and the emitter sample's
-#: position, the 2-D integrals of the light the first vertex reflects
-DIRECT_PAIRS = ((0, 1), (3, 4))
 #: the bounce index of the first vertex's numbers (0 is the camera's)
 FIRST_VERTEX = 1
 
@@ -42,7 +38,7 @@ def lane_samples(xp, pixel, sample, first, cells, m, width, key_salt, pattern_sa
             salts: those of the camera's numbers (bounce 0: film x, film y, lens u, lens v).
         pinhole: None, or a pinhole camera's (right, up, forward) 3-tuples, (tx, ty, 2 ox, 2 oy,
             width, height, border) scalars (:func:`pinhole_constants`).
-        strata: None, or per pair of :data:`DIRECT_PAIRS` the hashed seed of its patterns and the
+        strata: None, or per pair of :data:`~invrender.core.lanes.DIRECT_PAIRS` the hashed seed of its patterns and the
             salts of its two dimensions at the first vertex, ``(pattern salt, salt, salt)``.
         mode: :data:`MODES`; lens: with the lens uniforms.
     Returns:
@@ -97,11 +93,11 @@ def pinhole_constants(camera, width: int, height: int, border: int) -> tuple:
 
 
 def direct_strata(seed: int) -> tuple:
-    """:func:`lane_samples`' ``strata`` of a render's ``seed``: per pair of :data:`DIRECT_PAIRS`, a
+    """:func:`lane_samples`' ``strata`` of a render's ``seed``: per pair of :data:`~invrender.core.lanes.DIRECT_PAIRS`, a
     pattern seed of its own (distinct from the film positions' and the other pair's, so the
     pixel's permutations of its samples are independent) and the salts of its two dimensions."""
-    salts = bounce_salt_values(FIRST_VERTEX, 1 + max(max(p) for p in DIRECT_PAIRS))
-    return tuple((Opaque(seed_salt(seed ^ (0x5EED + 0x9E37 * (k + 1)))), Opaque(salts[a]), Opaque(salts[b])) for k, (a, b) in enumerate(DIRECT_PAIRS))
+    salts = bounce_salt_values(FIRST_VERTEX, 1 + max(lanes.DIRECT_DIMS))
+    return tuple((Opaque(seed_salt(seed ^ (0x5EED + 0x9E37 * (k + 1)))), Opaque(salts[a]), Opaque(salts[b])) for k, (a, b) in enumerate(lanes.DIRECT_PAIRS))
 
 
 def camera_samples(ids: torch.Tensor, spp: int, width: int, sampler: str, seed: int, lens: bool, plan=None, pinhole=None):
@@ -117,7 +113,7 @@ def camera_samples(ids: torch.Tensor, spp: int, width: int, sampler: str, seed: 
         pixel (N,) int64, keys (N,) int32, film positions (N, 2) float32 in pixels, lens uniforms
         (N, 2) float32 (None without ``lens``), and with ``pinhole`` the rays' unit directions (N,
         3) float32 (stored by columns); with the sampler ``"stratified_direct"``, last, the first
-        vertex's numbers of :data:`DIRECT_PAIRS` (N, 4) float32 (stored by columns).
+        vertex's numbers of :data:`~invrender.core.lanes.DIRECT_PAIRS` (N, 4) float32 (stored by columns).
     """
     if plan is None:
         pixel = ids // spp

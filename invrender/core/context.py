@@ -224,7 +224,7 @@ class PathState:
         pdf_dir: (N,) solid-angle pdf with which ``d`` was sampled (for MIS); unused at depth 0.
         delta: (N,) bool, ``d`` came from a delta lobe (or the camera): no MIS on what it hits.
         strata: (N, 4) float32 the first vertex's stratified numbers of the sampler
-            ``"stratified_direct"`` (:data:`~invrender.core.camera_samples.DIRECT_PAIRS`), drawn
+            ``"stratified_direct"`` (:data:`~invrender.core.lanes.DIRECT_PAIRS`), drawn
             in place of its hashed ones; None otherwise and once that vertex is past.
     """
 

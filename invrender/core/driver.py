@@ -292,7 +292,7 @@ def camera_paths(scene: Scene, settings: RenderSettings, ids: torch.Tensor, posi
     ``"independent"``: every sample uniform over the pixel; ``"antithetic"``: samples 2k and 2k + 1
     share their counters, the second mirrored (``sampler.mirrored``), and the pairs are stratified
     as samples are; ``"stratified_direct"``: as ``"stratified"``, and the numbers of the first
-    vertex's BSDF direction and emitter sample (:data:`~invrender.core.camera_samples.DIRECT_PAIRS`)
+    vertex's BSDF direction and emitter sample (:data:`~invrender.core.lanes.DIRECT_PAIRS`)
     multi-jittered per pixel too, each pair by a pattern of its own (``PathState.strata``; each
     number still uniform, so estimates stay unbiased). A thin lens draws its lens point from
     dimensions 2 and 3 of the same counters.

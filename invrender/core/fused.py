@@ -284,7 +284,7 @@ def vertex(fused: FusedScene, hits: tuple, d, beta, pdf_dir, delta, keys, depth:
             was sampled with; delta (N,) bool: ``d`` came from a delta lobe or the camera; keys
             (N,) int32 path keys; depth: the vertex's index (0: camera rays).
         more, roulette: do paths go on after it; does Russian roulette apply.
-        strata: (N, 4) the numbers of :data:`~invrender.core.camera_samples.DIRECT_PAIRS` drawn in
+        strata: (N, 4) the numbers of :data:`~invrender.core.lanes.DIRECT_PAIRS` drawn in
             place of the hashed ones (``PathState.strata``), or None.
     Returns:
         emitted (N, 3) (term depth), shadow rays o (N, 3), d (N, 3), tmax (N,) and the direct light

@@ -789,6 +789,22 @@ def escaped_vertex(xp, tables, share, d, beta, pdf_dir, delta, *, emitters, firs
     return (scale(scale(beta, w), Le),)
 
 
+#: the first vertex's dimensions the sampler ``"stratified_direct"`` stratifies, in pairs (of the
+#: bounce's 7, :func:`path_vertex`'s salts): the BSDF sample's direction and the emitter sample's
+#: position, the 2-D integrals of the light the first vertex reflects; ``strata`` holds them in
+#: the order of :data:`DIRECT_DIMS`
+DIRECT_PAIRS = ((0, 1), (3, 4))
+DIRECT_DIMS = tuple(d for pair in DIRECT_PAIRS for d in pair)
+
+
+def _number(xp, keys, salts, strata, j: int):
+    """Dimension ``j`` of a vertex's numbers: the stratified one where ``strata`` holds it, else
+    the hash of the path key."""
+    if strata is not None and j in DIRECT_DIMS:
+        return strata[DIRECT_DIMS.index(j)]
+    return uniform(xp, keys, salts[j])
+
+
 def path_vertex(
     xp, tri_table, emitter_tables, share, material_index, material_tables, shading, textures, prim, b1, b2, t, d, beta, pdf_dir, delta, keys, salts, strata, offset: float, *,
     materials, emitters, first: bool, mis: bool, nee_only: bool, nee: bool, more: bool, roulette: bool, absorbing: bool, tangents: bool,
@@ -810,8 +826,8 @@ def path_vertex(
             rays' directions and the throughputs; pdf_dir (N,) the pdf ``d`` was sampled with and
             delta (N,) Bool whether from a delta lobe (or the camera); keys (N,) UInt; salts: the
             bounce's 7 salts (0-1 BSDF direction, 2-4 emitter sample, 5 roulette, 6 BSDF lobe);
-            strata: None, or 4 Floats drawn for dimensions 0, 1, 3 and 4 in place of their hashed
-            numbers (the first vertex of the sampler ``"stratified_direct"``).
+            strata: None, or 4 Floats drawn for the dimensions :data:`DIRECT_DIMS` in place of
+            their hashed numbers (the first vertex of the sampler ``"stratified_direct"``).
         materials: per type a :class:`Material`; emitters: per type an :class:`Emitter`.
         first: camera rays (depth 0); mis, nee_only, nee, more, roulette: the integrator's
             strategy (:class:`invrender.core.fused.FusedScene`), whether paths go on after this
@@ -860,8 +876,7 @@ def path_vertex(
     # term depth + 1: one emitter sample (its shadow ray is cast by the caller) where the BSDF has a smooth lobe
     smooth = point.any("smooth")
     if nee and smooth is not False:
-        u0 = uniform(xp, keys, salts[2])
-        u1, u2 = (uniform(xp, keys, salts[j]) for j in (3, 4)) if strata is None else strata[2:]
+        u0, u1, u2 = (_number(xp, keys, salts, strata, j) for j in (2, 3, 4))
         so, wl, tmax, Ll, pdf, facing, light_delta, sampled = sample_emitters(xp, emitters, emitter_tables, share, u0, u1, u2, p, n, offset)
         through = point.any("smooth_transmission")
         if through is not False:  # behind a glossy transmitter: the same sample from the other side
@@ -891,8 +906,7 @@ def path_vertex(
     if sampled is None:
         sampled = xp.full(none, mat)
     # the BSDF sample, the new ray and Russian roulette
-    ub = (uniform(xp, keys, salts[0]), uniform(xp, keys, salts[1])) if strata is None else strata[:2]
-    wi, weight, pdf_next, delta_next = point.sample(uniform(xp, keys, salts[6]), *ub)
+    wi, weight, pdf_next, delta_next = point.sample(*(_number(xp, keys, salts, strata, j) for j in (6, 0, 1)))
     wi = to_world(f, wi)
     if bend is not None:
         g, kept = bend_lanes(xp, bend, wi)

@@ -88,10 +88,6 @@ class MapBasis:
         """(T, ...) the texels of leaf values ``x`` (n, ...)."""
         return x[self.columns().to(x.device)]
 
-    def counts(self) -> np.ndarray:
-        """(n,) the texels of each leaf (``B^T B``'s diagonal)."""
-        return np.bincount(self.columns().numpy(), minlength=self.n).astype(np.float64)
-
     def haar(self, chunk: int = 256):
         """``(W B, details)``: the orthonormal 2-D Haar transform W of the texel grid (T x T: per
         level each 2 x 2 group of the level's scaling coefficients (a, b, c, d) becomes

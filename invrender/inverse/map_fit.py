@@ -496,9 +496,11 @@ def solve_map(
     for c in range(3):
         active |= (normal.Gm[c].diagonal() > 0).numpy()
     prior = _Prior(basis, tikhonov, smoothness, active)
-    haar = basis.haar() if sparsity > 0 else None  # (W B, details): refused here for a map not 2^k x 2^l
     x0 = np.broadcast_to(normal.flat.numpy(), (n, 3)).copy() if start is None else _leaf_start(start, basis, prior.omega)
     a = torch.from_numpy(prior.a)
+    if sparsity > 0:  # the Haar coefficients of the reached unknowns (refused here for a map not 2^k x 2^l)
+        haar, details = basis.haar()
+        haar = haar[:, prior.a]
     x_all, se, res = (torch.zeros(n, 3, dtype=torch.float64) for _ in range(3))
     weights, residual, noise, dof = (torch.zeros(3, dtype=torch.float64) for _ in range(4))
     bound = torch.zeros(3, dtype=torch.int64)
@@ -532,9 +534,9 @@ def solve_map(
             evaluations[c] = solve.evaluations
             M = solve.matrix(point.lam)
             xa = bounded_quadratic(M, solve.g + (point.lam * scale) * solve.p, point.L, x=point.x)
-            if haar is not None:
+            if sparsity > 0:
                 mu = sparsity * point.lam * scale * float(normal.flat[c])
-                xa = sparse_quadratic(M, solve.g + (point.lam * scale) * solve.p, haar[0][:, a.numpy()], haar[1], mu, xa)
+                xa = sparse_quadratic(M, solve.g + (point.lam * scale) * solve.p, haar, details, mu, xa)
             x_all[:, c] = prior.extend(xa, p)
             weights[c] = point.lam
             d2 = float(xa @ (D @ xa))

@@ -19,13 +19,11 @@ from invrender.core.context import PathState, TransportContext, russian_roulette
 from invrender.core.film import Film
 from invrender.plugins.integrators.base import Integrator, SamplingSettings
 from invrender.plugins.integrators.vertex import absorbed, add_emitted, next_vertex, scattered
-from invrender.core.camera_samples import DIRECT_PAIRS
+from invrender.core.lanes import DIRECT_DIMS
 from invrender.core.sampler import uniform
 
 #: random numbers drawn per vertex: 0-1 BSDF direction, 2-4 emitter sample, 5 roulette, 6 BSDF lobe
 DIMS = 7
-#: the first vertex's dimensions a ``"stratified_direct"`` sampler gives (``PathState.strata``)
-DIRECT_DIMS = [d for pair in DIRECT_PAIRS for d in pair]
 
 
 class RandomWalk(Integrator):
@@ -85,7 +83,7 @@ class RandomWalk(Integrator):
                 break
             u = uniform(state.keys, depth + 1, DIMS)
             if state.strata is not None:  # the first vertex's stratified numbers (sampler "stratified_direct")
-                u[:, DIRECT_DIMS] = state.strata
+                u[:, list(DIRECT_DIMS)] = state.strata
                 state = state.replace(strata=None)
             sp = ctx.shading_point(s, -state.d)
             keep = self.at_vertex(ctx, state, s, sp, u, depth, film)  # terms depth + 1 (subclasses)
