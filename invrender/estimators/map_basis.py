@@ -101,8 +101,7 @@ class MapBasis:
         import scipy.sparse as sp
 
         h, w = self.shape
-        if h & (h - 1) or w & (w - 1):
-            raise ParameterError(f"the Haar basis needs a map whose height and width are powers of 2, got {h} x {w}")
+        check_haar(h, w)
         col = self.columns().numpy().reshape(h, w)
         parts = []
         for start in range(0, self.n, chunk):
@@ -149,6 +148,12 @@ class MapBasis:
                     heapq.heappush(heap, (-block_power(*child), child))
         blocks = np.array(sorted(kept), dtype=np.int64)
         return MapBasis(self.shape, blocks)
+
+
+def check_haar(h: int, w: int) -> None:
+    """A one-line :class:`ParameterError` unless an h x w map has a Haar basis (:meth:`MapBasis.haar`)."""
+    if h & (h - 1) or w & (w - 1):
+        raise ParameterError(f"the Haar basis needs a map whose height and width are powers of 2, got {h} x {w}")
 
 
 def _haar_levels(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

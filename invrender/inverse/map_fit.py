@@ -59,7 +59,7 @@ import torch
 from scipy.sparse.linalg import splu
 
 from invrender.core.driver import one_thread
-from invrender.estimators.map_basis import MapBasis
+from invrender.estimators.map_basis import MapBasis, check_haar
 from invrender.estimators.transport_matrix import TransportMatrix, envmap_of
 from invrender.plugins.emitters.envmap import texel_solid_angles
 from invrender.errors import ParameterError, did_you_mean
@@ -438,6 +438,22 @@ def _leaf_start(start, basis: MapBasis, omega: np.ndarray) -> np.ndarray:
     return (basis.matrix().T @ texel) / omega[:, None]
 
 
+def _check_solve(weight, rule, smoothness, tikhonov, target_noise, sparsity, shape: tuple[int, int] | None = None) -> None:
+    """A one-line :class:`ParameterError` for a solve setting out of range (and, with the map's
+    ``shape``, for a sparsity prior on a map that is not 2^k x 2^l): before any render."""
+    for name, value, low in (("smoothness", smoothness, 0.0), ("tikhonov", tikhonov, 0.0), ("target_noise", target_noise, 0.0), ("sparsity", sparsity, 0.0)):
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= low):
+            raise ParameterError(f"fit_map {name} must be a finite number >= {low:g}, got {value!r}")
+    if tikhonov <= 0:
+        raise ParameterError(f"fit_map tikhonov must be > 0 (it keeps the problem definite where smoothness leaves the map's mean free), got {tikhonov!r}")
+    if weight is not None and not (isinstance(weight, (int, float)) and math.isfinite(weight) and weight > 0):
+        raise ParameterError(f"fit_map weight must be a number > 0 or None (the rule's), got {weight!r}")
+    if rule not in RULES:
+        raise ParameterError(f"fit_map rule must be one of {', '.join(RULES)}, got {rule!r}{did_you_mean(str(rule), RULES)}")
+    if sparsity > 0 and shape is not None:
+        check_haar(*shape)
+
+
 def solve_map(
     source,
     targets: list[torch.Tensor] | None = None,
@@ -472,15 +488,7 @@ def solve_map(
             errors and the resolution are those of the problem without it.
     """
     clock = time.perf_counter()
-    for name, value, low in (("smoothness", smoothness, 0.0), ("tikhonov", tikhonov, 0.0), ("target_noise", target_noise, 0.0), ("sparsity", sparsity, 0.0)):
-        if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= low):
-            raise ParameterError(f"fit_map {name} must be a finite number >= {low:g}, got {value!r}")
-    if tikhonov <= 0:
-        raise ParameterError(f"fit_map tikhonov must be > 0 (it keeps the problem definite where smoothness leaves the map's mean free), got {tikhonov!r}")
-    if weight is not None and not (isinstance(weight, (int, float)) and math.isfinite(weight) and weight > 0):
-        raise ParameterError(f"fit_map weight must be a number > 0 or None (the rule's), got {weight!r}")
-    if rule not in RULES:
-        raise ParameterError(f"fit_map rule must be one of {', '.join(RULES)}, got {rule!r}{did_you_mean(str(rule), RULES)}")
+    _check_solve(weight, rule, smoothness, tikhonov, target_noise, sparsity)
     if isinstance(source, TransportMatrix):
         if targets is None:
             raise ParameterError("solve_map of a transport matrix needs its targets, one per view")
@@ -638,6 +646,7 @@ def fit_map(
     pilot_spp = max(1, spp // 4) if pilot_spp is None else pilot_spp
     check_int("fit_map ", "pilot_spp", pilot_spp, 1)
     render = {"integrator": integrator, "max_depth": max_depth, "progress": progress}
+    _check_solve(weight, rule, smoothness, tikhonov, target_noise, sparsity, (h, w))  # before any render
     settings = {"start": start, "weight": weight, "rule": rule, "smoothness": smoothness, "tikhonov": tikhonov, "target_noise": target_noise, "stderr": stderr, "sparsity": sparsity}
 
     def round_(basis: MapBasis, seed: int, spp: int, sampling_map=None) -> MapFit:

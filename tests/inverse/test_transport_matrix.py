@@ -342,3 +342,15 @@ def test_sparse_quadratic_is_optimal_and_the_sparsity_prior_shrinks_the_haar_det
         ir.lighting.solve_map(fit.normal, sparsity=-1)
     with pytest.raises(ParameterError, match="the Haar basis needs a map whose height and width are powers of 2, got 5 x 8"):
         MapBasis.of_texels(5, 8).haar()
+
+
+def test_fit_map_refuses_bad_solve_settings_before_any_render(monkeypatch):
+    from invrender.inverse import map_fit
+
+    monkeypatch.setattr(map_fit, "normal_equations", lambda *a, **k: pytest.fail("rendered before refusing"))
+    odd = scene(16, torch.ones(5, 8, 3))
+    targets = [torch.zeros(16, 16, 3)] * 3
+    for kw, message in (({"sparsity": 0.5}, "powers of 2, got 5 x 8"), ({"sparsity": float("nan")}, "sparsity must be a finite number >= 0, got nan"), ({"smoothness": -1}, "smoothness must be a finite number >= 0")):
+        with pytest.raises(ParameterError, match=message) as e:
+            ir.lighting.fit_map(odd, targets, "sky", cameras=CAMERAS, integrator=HIDDEN, spp=2, **kw)
+        assert "\n" not in str(e.value)
