@@ -16,7 +16,9 @@ instead of data-dependent shapes:
   :meth:`uint` (a Float holding an integer as a UInt), :meth:`full`, :meth:`opaque`;
 - on UInt read as unsigned: :meth:`udiv`, :meth:`umod`, :meth:`ult` (``<``; Python's comparisons
   are signed on :data:`TORCH`'s int32), :meth:`float` (the nearest Float);
-- :meth:`while_loop`: a loop whose lanes run until their condition fails (cycle walking).
+- :meth:`while_loop`: a loop whose lanes run until their condition fails (cycle walking);
+- :meth:`scatter_add_rows`: the one side effect, rows of Floats added in float64 to a flat
+  accumulator (:class:`~invrender.core.compiled.Sums`) at UInt row indices.
 
 Tables are read by rows where they can be: Dr.Jit turns a row of a power-of-two width into packet
 loads, where single-element gathers become the CPU's vector-gather instruction, which on the CPUs
@@ -190,6 +192,15 @@ class TorchArrays:
         return tuple(state)
 
     @staticmethod
+    def scatter_add_rows(target, values: tuple, index, active):
+        """Add row ``values`` (a tuple of ``width`` (N,) Float, ``width`` a multiple of 16) of each
+        ``active`` lane (N,) Bool, in float64, to row ``index`` (N,) of ``target`` ((R * width,)
+        float64, written in place)."""
+        k = active.nonzero().squeeze(1)
+        rows = torch.stack(values, 1).index_select(0, k).to(torch.float64)
+        target.view(-1, len(values)).index_add_(0, index.index_select(0, k).to(torch.int64), rows)
+
+    @staticmethod
     def full(value, like):
         """An array of ``like``'s length filled with ``value``: Bool for a bool, Float for a float,
         UInt for an int (a UInt constant above 2^31 through :meth:`u32`)."""
@@ -203,7 +214,7 @@ class TorchArrays:
         return value if isinstance(value, float) else _signed(value)
 
     @staticmethod
-    def from_torch(t: torch.Tensor, lanes: bool):
+    def from_torch(t: torch.Tensor, lanes: bool, held: list | None = None):
         """An argument as the functions see it: (N, 3) lanes as a tuple of three columns."""
         return tuple(t.unbind(1)) if lanes and t.ndim == 2 else t
 
@@ -227,6 +238,7 @@ class DrJitArrays:
         self.dr = dr
         self.name = f"drjit-{backend.__name__.rsplit('.', 1)[-1]}"
         self.Float, self.UInt, self.Bool, self.Int64, self._Int32 = backend.Float, backend.UInt32, backend.Bool, backend.Int64, backend.Int32
+        self.Float64, self._Matrix4f64 = backend.Float64, backend.Matrix4f64
         self._rows = {2: backend.Array2f, 4: backend.Array4f}
         self._Matrix4f = backend.Matrix4f
         for f in ELEMENTWISE:
@@ -285,6 +297,14 @@ class DrJitArrays:
         """A symbolic loop, compiled into the kernel (each lane stops on its own)."""
         return tuple(self.dr.while_loop(tuple(state), lambda *s: cond(*s, *args), lambda *s: tuple(body(*s, *args))))
 
+    def scatter_add_rows(self, target, values: tuple, index, active):
+        """(Rows of 16 float64 are packet scatter-adds: on the CPU, 7x faster than single ones.)"""
+        k = len(values) // 16
+        for j in range(k):
+            v = values[16 * j : 16 * j + 16]
+            packet = self._Matrix4f64(*([self.Float64(x) for x in v[4 * r : 4 * r + 4]] for r in range(4)))
+            self.dr.scatter_reduce(self.dr.ReduceOp.Add, target, packet, index * k + j if k > 1 else index, active)
+
     def full(self, value, like):
         """(Computed from ``like``, so a frozen kernel gives it ``like``'s size whatever that is;
         ``min(|x|, 0)`` is 0 for every x, NaN included, and not a literal the tracer folds.)"""
@@ -302,21 +322,32 @@ class DrJitArrays:
             return self.dr.opaque(self.Float, value)
         return self.dr.opaque(self.UInt, value & _U32)
 
-    def from_torch(self, t: torch.Tensor, lanes: bool):
+    def from_torch(self, t: torch.Tensor, lanes: bool, held: list | None = None):
         """A torch tensor as Dr.Jit arrays without a copy where it is contiguous: float32 as Float,
-        int32 and int64 as UInt (the same low 32 bits), bool as Bool; (N, 3) lanes as three Floats."""
+        int32 and int64 as UInt (the same low 32 bits), bool as Bool; (N, 3) lanes as three Floats.
+
+        ``held`` receives every tensor the arrays wrap (copies made here included): the caller
+        keeps them until the call's Dr.Jit arrays are released. A wrapped tensor that only Dr.Jit
+        references is freed by Dr.Jit, possibly inside a kernel's launch, which releases the GIL
+        holding Dr.Jit's lock; torch's deleter then waits for the GIL, while a render worker
+        freeing a kernel's output (Dr.Jit's memory) holds the GIL and waits for that lock: a
+        deadlock (seen with two workers)."""
+        held = [] if held is None else held
         if lanes and t.ndim == 2:
-            return tuple(self.Float(c) for c in t.t().contiguous())
+            columns = tuple(t.t().contiguous())
+            held.extend(columns)
+            return tuple(self.Float(c) for c in columns)
         t = t.contiguous()
+        if t.dtype == torch.int64:
+            t = t.to(torch.int32)  # the same low 32 bits
+        elif t.dtype not in (torch.float32, torch.int32, torch.bool):
+            t = t.to(torch.float32)
+        held.append(t)
         if t.dtype == torch.float32:
             return self.Float(t)
         if t.dtype == torch.int32:
             return self.dr.reinterpret_array(self.UInt, self._Int32(t))
-        if t.dtype == torch.int64:
-            return self.UInt(self.Int64(t))
-        if t.dtype == torch.bool:
-            return self.Bool(t)
-        return self.Float(t.to(torch.float32))
+        return self.Bool(t)
 
     def to_torch(self, x) -> torch.Tensor:
         """An evaluated array as a torch tensor sharing its memory: UInt as int32."""

@@ -42,6 +42,46 @@ class Opaque:
         self.value = value
 
 
+class Sums:
+    """A flat float64 accumulator that calls add to in place (:meth:`scatter_add_rows
+    <invrender.backends.arrays.TorchArrays.scatter_add_rows>`): per pixel sums that a render's
+    every bounce adds to (a per-pixel Jacobian). Passed to :func:`run` as an argument; under
+    Dr.Jit it lives as one Dr.Jit array between calls (no copy per call), as a torch tensor
+    otherwise.
+
+    Attributes:
+        size: its floats.
+    """
+
+    def __init__(self, size: int, device: torch.device):
+        self.size, self._tensor, self._drjit, self._zero = size, torch.zeros(size, dtype=torch.float64, device=device), None, True
+
+    def on(self, xp):
+        """The accumulator as ``xp``'s array (a call adds to it in place)."""
+        if xp is TORCH:
+            self._zero = False
+            return self.tensor()
+        if self._drjit is None:  # Dr.Jit's own memory from here on, never a view of torch's (whose
+            # release inside a kernel's launch would need the GIL: DrJitArrays.from_torch)
+            if self._zero:
+                self._drjit = xp.dr.zeros(xp.Float64, self.size)
+            else:
+                self._drjit = xp.Float64(self._tensor) + 0.0
+                xp.dr.eval(self._drjit)
+            self._tensor = None
+        return self._drjit
+
+    def tensor(self) -> torch.Tensor:
+        """(size,) float64: the sums so far."""
+        if self._drjit is not None:
+            with _DRJIT:
+                xp = arrays.drjit_arrays(torch.device("cuda" if type(self._drjit).__module__.startswith("drjit.cuda") else "cpu"))
+                xp.dr.eval(self._drjit)
+                xp.dr.sync_thread()
+                self._tensor, self._drjit = torch.from_dlpack(self._drjit).clone(), None
+        return self._tensor
+
+
 def namespace(device: torch.device):
     """The array namespace :func:`run` evaluates with on ``device``: Dr.Jit's where it loads and
     ``INVRENDER_BOUNCE`` is not ``torch``, else :data:`~invrender.backends.arrays.TORCH`. Another
@@ -119,8 +159,9 @@ def evaluate(xp, fn, *args, unstacked: bool = False, **static) -> tuple[torch.Te
     if lanes < FREEZE_LANES:  # padded: the same frozen kernel's arithmetic, whatever the chunking
         padded = evaluate(xp, fn, *_padded(args, lanes), unstacked=unstacked, **static)
         return tuple(Columns(c[:lanes] for c in r) if isinstance(r, Columns) else r[:lanes] for r in padded)
+    held: list[torch.Tensor] = []  # every tensor the inputs wrap, kept until they are released (DrJitArrays.from_torch)
     with _DRJIT:
-        inputs = tuple(_argument(xp, a) for a in args)
+        inputs = tuple(_argument(xp, a, held) for a in args)
         key = (xp.name, fn, tuple(sorted(static.items())))  # Python values choose the code: one recording each (lanes.signature)
         frozen = _FROZEN.get(key)
         if frozen is None:
@@ -129,7 +170,9 @@ def evaluate(xp, fn, *args, unstacked: bool = False, **static) -> tuple[torch.Te
             try:
                 out, widths, constants = frozen(inputs)
                 if all(xp.dr.width(o) == lanes for o in out):
-                    return _results(xp, out, widths, constants, lanes, unstacked)
+                    results = _results(xp, out, widths, constants, lanes, unstacked)
+                    del inputs, out  # released here, before the tensors they wrap
+                    return results
             except RuntimeError:  # a recording that failed
                 pass
             # a replay that returned an array of another call's length (a point light's zero
@@ -137,7 +180,9 @@ def evaluate(xp, fn, *args, unstacked: bool = False, **static) -> tuple[torch.Te
             # can mistake one for the other) or a recording that failed: this kind of call is
             # traced from now on
             _FROZEN[key] = _TRACED
-        return _results(xp, *_body(xp, fn, static)(inputs), lanes, unstacked)
+        results = _results(xp, *_body(xp, fn, static)(inputs), lanes, unstacked)
+        del inputs
+        return results
 
 
 #: calls on fewer lanes run on about this many (:func:`_padded`): small calls (the last bounces of a
@@ -149,7 +194,8 @@ FREEZE_LANES = 4096
 
 def _padded(args, lanes: int):
     """``args`` with every tensor of ``lanes`` rows padded by copies of its first row to
-    ``FREEZE_LANES + lanes % 16`` rows (3-vectors stored by columns stay so). A flat table of
+    ``FREEZE_LANES + lanes % 16`` rows (3-vectors stored by columns stay so), a Bool one by False
+    (an ``active`` mask: padded lanes add nothing to :class:`Sums`). A flat table of
     ``lanes`` floats by coincidence only grows past its end, which no lane reads, and keeps its
     length's divisibility by the 4, 8 or 16 floats of its rows."""
     out = []
@@ -160,6 +206,8 @@ def _padded(args, lanes: int):
             pad = FREEZE_LANES + lanes % 16 - lanes
             if a.ndim == 2:
                 a = torch.cat([a.t(), a.t()[:, :1].expand(-1, pad)], dim=1).t()  # by columns
+            elif a.dtype == torch.bool:
+                a = torch.cat([a, a.new_zeros(pad)])
             else:
                 a = torch.cat([a, a[:1].expand(pad)])
         out.append(a)
@@ -264,11 +312,13 @@ def _lanes(args) -> int:
     return rows if rows >= 0 else longest
 
 
-def _argument(xp, a):
+def _argument(xp, a, held: list | None = None):
+    if isinstance(a, Sums):
+        return a.on(xp)
     if isinstance(a, Opaque):
         return xp.opaque(a.value)
     if isinstance(a, torch.Tensor):
-        return xp.from_torch(a, lanes=True)
+        return xp.from_torch(a, lanes=True, held=held)
     if isinstance(a, (tuple, list)):
-        return tuple(_argument(xp, x) for x in a)
+        return tuple(_argument(xp, x, held) for x in a)
     return a

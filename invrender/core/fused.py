@@ -42,10 +42,9 @@ contribution that may end on an environment map, as the torch bounce tells it). 
 **Derivatives carried forward.** In a flat Lambertian scene lit by area emitters (``FusedScene.rho``)
 every factor of a path is linear in one of the scene's constant parameters (a material's rho, an
 emitter's eps), so each path counts its throughput's factors of each rho as it scatters
-(``counts``), and one more step per bounce (:func:`tangents_add`: the lane function
-:func:`rho_tangents`, then torch's adds by pixel) turns a contribution C into what two
-callers need: its derivatives, ``n C / rho_m`` and the
-factor beside eps, summed per pixel into a :class:`TangentFilm` (path replay's gradient is then one
+(``counts``), and one more step per bounce (:func:`tangents_add`) turns a contribution C into
+what two callers need: its derivatives, ``n C / rho_m`` and the factor beside eps, added per
+pixel into a :class:`TangentFilm` inside one more kernel (:func:`jacobian_lanes`; path replay's gradient is then one
 contraction with ``dl/dI``, no adjoint trace: :mod:`invrender.estimators.replay`), or its
 monomial's code ``sum_s k_s R_s`` for a film that takes contributions by code (path records:
 :func:`places`), instead of forward-mode autodiff.
@@ -79,8 +78,9 @@ from invrender.vec import where_true
 #: workers, interleaved, AMD EPYC AVX-512), and 2^18 no faster than 2^17
 CPU_CHUNK_PATHS = 1 << 17
 #: the same for a render that carries derivatives (path replay's gradient: its memory is what
-#: replay promises to keep small; half the chunk, about 25 MiB less, for a few % of its time)
-CPU_TANGENT_CHUNK_PATHS = 1 << 15
+#: replay promises to keep small): half the chunk, a gradient's increment 98 MiB against 164 MiB
+#: (Cornell box 128^2, 64 spp, 2 workers), for 10-20% of its time; 2^15 took 25-40% longer than 2^16
+CPU_TANGENT_CHUNK_PATHS = 1 << 16
 
 #: random numbers drawn per vertex (as the random walk draws them: 0-1 BSDF direction, 2-4 emitter
 #: sample, 5 roulette, 6 BSDF lobe)
@@ -243,18 +243,28 @@ class TangentFilm(Film):
 
     def __init__(self, width: int, height: int, slots: int, device):
         super().__init__(width, height, False, device)
-        self.jacobian = torch.zeros(width * height, 3, slots, dtype=torch.float64, device=device)
+        self.slots = slots
+        #: floats a pixel holds: its 3 x S derivatives, padded to packets of 16 (one packet add each)
+        self.row = -(-3 * slots // 16) * 16
+        self.sums = compiled.Sums(width * height * self.row, device)
+
+    @property
+    def jacobian(self) -> torch.Tensor:
+        """(W * H, 3, S) float64, a view of the pixels' rows."""
+        return self.sums.tensor().view(-1, self.row)[:, : 3 * self.slots].view(-1, 3, self.slots)
 
     @staticmethod
     def merge(films: list[TangentFilm]) -> TangentFilm:
         out = Film.merge(films)
+        total = out.sums.tensor()
         for other in films[1:]:
-            out.jacobian += other.jacobian
+            total += other.sums.tensor()
         return out
 
     def summed_across_ranks(self) -> TangentFilm:
         if world()[1] > 1:
-            self.jacobian = sum_across_ranks(self.jacobian)
+            total = self.sums.tensor()
+            total.copy_(sum_across_ranks(total))
         return super().summed_across_ranks()
 
 
@@ -287,6 +297,7 @@ def vertex(fused: FusedScene, hits: tuple, d, beta, pdf_dir, delta, keys, depth:
         strata: (N, 4) the numbers of :data:`~invrender.core.lanes.DIRECT_PAIRS` drawn in
             place of the hashed ones (``PathState.strata``), or None.
     Returns:
+        (3-vectors as :class:`~invrender.backends.arrays.Columns`)
         emitted (N, 3) (term depth), shadow rays o (N, 3), d (N, 3), tmax (N,) and the direct light
         (N, 3) each adds if unoccluded (term depth + 1; tmax 0, a ray no backend traces, where the
         light sample adds nothing whatever the parameters), then the continued paths' o, d, beta
@@ -299,14 +310,9 @@ def vertex(fused: FusedScene, hits: tuple, d, beta, pdf_dir, delta, keys, depth:
     static = dict(materials=fused.materials, emitters=fused.emitters, first=depth == 0, mis=fused.mis, nee_only=fused.nee_only,
                   nee=fused.nee, more=more, roulette=roulette, absorbing=fused.absorbing, tangents=tangents)  # fmt: skip
     given = None if strata is None else Columns.of(strata)
-    out = compiled.run(lanes.path_vertex, keys.device, *fused.lanes, *hits, d, beta, pdf_dir, delta, keys, salts, given, float(offset), unstacked=not tangents, **static)
-    if tangents:  # stacked, as views of three columns: copied out of Dr.Jit's memory at once (replay's increment 7 MiB lower)
-        primal = 11 if more else 1
-        out = tuple(Columns.of(x) if x.ndim == 2 else x for x in out[:primal]) + out[primal:]
+    out = compiled.run(lanes.path_vertex, keys.device, *fused.lanes, *hits, d, beta, pdf_dir, delta, keys, salts, given, float(offset), unstacked=True, **static)
     if not more:  # the emission alone: the other primal outputs are not read (the direct light: zero)
         out = (out[0], None, None, None, Columns(torch.zeros_like(c) for c in out[0]), None, None, None, None, None, None) + out[1:]
-    if tangents:  # the factors as (N, 3), the indices as int32
-        out = out[:-5] + tuple(x.stacked() if isinstance(x, Columns) else x.to(torch.int32) if not x.is_floating_point() else x for x in out[-5:])
     return out
 
 
@@ -320,71 +326,84 @@ def _take(x, index: torch.Tensor):
     return x.index_select(0, index)
 
 
-def rho_tangents(xp, rho, emitted, direct, lit, material_hit, counts: tuple, materials: int) -> tuple:
-    """Per lane, one vertex's derivatives in the materials' reflectance (:class:`TangentFilm`): a
-    contribution C with n factors of rho_m has ``n C / rho_m`` (0 in a channel where rho_m is 0).
+def jacobian_lanes(xp, sums, pixel, rho, emitted, direct, factor_e, emitter_hit, factor_d, emitter_sampled, material_hit, counts: tuple, active, occluded, *, materials: int, emitters: int, width: int, scatter: bool) -> tuple:
+    """One vertex's derivatives in the scene's constant parameters (:class:`TangentFilm`), added
+    to its pixel's row of ``sums``: a contribution C with n factors of rho_m has ``n C / rho_m``
+    (0 in a channel where rho_m is 0), one with the factor eps_e the factor beside it.
 
     Args:
-        rho: (M * 4,) Float the materials' rho rows (RGB and a pad); emitted, direct: 3 Floats the
-            vertex's emission and direct light; lit: Bool the direct light's sample is unoccluded;
-            material_hit: UInt the vertex's material (its direct light has one more factor of it);
-            counts: M UInts the factors of each rho in the path's throughput.
+        sums: the film's rows (:class:`~invrender.core.compiled.Sums`), ``width`` floats a pixel
+            (channel c, slot s at ``c S + s``); pixel: UInt the lane's pixel; rho: (M * 4,)
+            Float the materials' rho rows (RGB and a pad); emitted, direct: 3 Floats the vertex's
+            emission and direct light (zero where occluded); factor_e, factor_d: 3 Floats the
+            factors beside eps of the two; emitter_hit, emitter_sampled: UInt the emitters hit and
+            sampled (``0xFFFFFFFF``: none); material_hit: UInt the vertex's material (its direct
+            light has one more factor of it); counts: M UInts the factors of each rho in the
+            path's throughput; active: Bool the lanes to add; occluded: Bool the shadow rays'
+            answers, or None (no emitter samples).
+        scatter: the paths go on (their counts are returned with this vertex's material counted).
     Returns:
-        M 3-tuples of Floats: per material, the derivative of the lane's two contributions.
+        with ``scatter``, the M counts after this vertex; else nothing.
     """
-    out, lit_direct = [], tuple(xp.select(lit, direct[c], 0.0) for c in range(3))
+    lit = xp.ult(emitter_sampled, emitters) & ~occluded if occluded is not None else None
+    lit_direct = tuple(xp.select(lit, direct[c], 0.0) for c in range(3)) if lit is not None else None
+    zero = 0.0 * emitted[0]
+    row = [zero] * width
+    slots = materials + emitters
     for m in range(materials):
         r = xp.gather_rows(rho, xp.full(m, material_hit), 4)
         n = xp.float(counts[m])
         nd = xp.select(material_hit == m, n + 1.0, n)
         keep = nd > 0.0
-        out.append(tuple(xp.select(keep & (r[c] > 0.0), (n * emitted[c] + nd * lit_direct[c]) / r[c], 0.0) for c in range(3)))
-    return tuple(out)
+        for c in range(3):
+            c_m = n * emitted[c] if lit_direct is None else n * emitted[c] + nd * lit_direct[c]
+            row[c * slots + m] = xp.select(keep & (r[c] > 0.0), c_m / r[c], 0.0)
+    for e in range(emitters):
+        for c in range(3):
+            d_e = xp.select(emitter_hit == e, factor_e[c], 0.0)
+            row[c * slots + materials + e] = d_e if lit is None else d_e + xp.select(lit & (emitter_sampled == e), factor_d[c], 0.0)
+    xp.scatter_add_rows(sums, tuple(row), pixel, active)
+    if not scatter:
+        return ()
+    return (tuple(counts[m] + xp.uint(xp.select(material_hit == m, 1.0, 0.0)) for m in range(materials)),)
 
 
-def tangents_add(pixel, counts, rho, emitted, tangents: tuple, direct, occluded, scatter: bool, jacobian: torch.Tensor | None = None, places: torch.Tensor | None = None):
+def tangents_add(pixel, counts, rho, emitted, tangents: tuple, direct, occluded, scatter: bool, film: TangentFilm | None = None, places: torch.Tensor | None = None):
     """One bounce's contributions in the scene's constant parameters (slots 0 .. M - 1 the materials'
-    rho, M .. the emitters' eps): with a ``jacobian`` (P, 3, S) float64 their derivatives added per
-    pixel, channel and slot (:func:`rho_tangents` run by :func:`~invrender.core.compiled.run`, then
-    added by flat index; the factor beside eps for its emitter), and/or with ``places`` (S,) int64 their monomial codes
-    ``sum_s k_s places[s]`` (k_s the factors of slot s; -1 where there is no contribution: path
-    records' codes); then each path's vertex material counted in ``counts`` (N, M) int32 (its
-    throughput's factors of each rho) when the paths ``scatter`` on.
+    rho, M .. the emitters' eps): with a ``film`` their derivatives added per pixel, channel and
+    slot (:func:`jacobian_lanes`, run by :func:`~invrender.core.compiled.run`), or with ``places``
+    (S,) int64 their monomial codes ``sum_s k_s places[s]`` (k_s the factors of slot s; -1 where
+    there is no contribution: path records' codes); and each path's vertex material counted in
+    ``counts`` (N, M) int32 (its throughput's factors of each rho) when the paths ``scatter`` on.
 
     Args:
         pixel: (N,) int64 film index; rho (M, 3); emitted, direct (N, 3) the bounce's contributions
             (``direct`` zero where occluded); tangents: the extra outputs of :func:`vertex`;
         occluded: (N,) bool the shadow rays' answers (None: no emitter samples).
     Returns:
-        (codes of the emission (N,), of the direct light (N,)) int64 with ``places``, else None.
+        (codes of the emission (N,), of the direct light (N,)) int64 with ``places``, else None;
+        then the counts after this vertex.
     """
     n, materials = pixel.shape[0], rho.shape[0]
     emitted_factor, emitter_hit, direct_factor, emitter_sampled, material_hit = tangents
+    if film is not None:
+        if not n:
+            return None, counts
+        rows = torch.nn.functional.pad(rho.detach().float(), (0, 1)).reshape(-1)
+        active = torch.ones(n, dtype=torch.bool, device=pixel.device)
+        out = compiled.run(jacobian_lanes, pixel.device, film.sums, pixel, rows, emitted, direct, emitted_factor, emitter_hit, direct_factor, emitter_sampled,
+                           material_hit, tuple(counts.unbind(1)), active, occluded, materials=materials, emitters=film.slots - materials, width=film.row, scatter=scatter)  # fmt: skip
+        return None, out[0] if scatter else counts
     lit = emitter_sampled >= 0
     lit = lit & ~occluded if occluded is not None else torch.zeros_like(lit)
     hit = emitter_hit >= 0
-    codes = None
-    if places is not None:
-        base = (counts.to(torch.int64) * places[:materials]).sum(1)
-        to_emitter = places[materials:]
-        code_e = torch.where(hit, base + to_emitter.index_select(0, emitter_hit.clamp(min=0)), -1)
-        code_d = base + places.index_select(0, material_hit) + to_emitter.index_select(0, emitter_sampled.clamp(min=0))
-        codes = (code_e, torch.where(lit, code_d, -1))
-    if jacobian is not None and n:
-        slots = jacobian.shape[2]
-        rows = torch.nn.functional.pad(rho.detach().float(), (0, 1)).reshape(-1)
-        out = compiled.run(rho_tangents, pixel.device, rows, emitted, direct, lit, material_hit, tuple(counts.unbind(1)), materials=materials)
-        flat = jacobian.view(-1)  # (P * 3 * S,): added to by flat index (1-D scatter_add_: the fastest of torch's adds by index on the CPU)
-        row = (pixel[:, None] * 3 + torch.arange(3, device=pixel.device)) * slots  # (N, 3) each channel's slot 0
-        for m, d_rho in enumerate(out):
-            flat.scatter_add_(0, (row + m).view(-1), d_rho.to(torch.float64).reshape(-1))
-        for took, emitter, factor in ((hit, emitter_hit, emitted_factor), (lit, emitter_sampled, direct_factor)):
-            k = where_true(took)
-            at = row.index_select(0, k) + (materials + emitter.index_select(0, k).to(torch.int64))[:, None]
-            flat.scatter_add_(0, at.view(-1), factor.index_select(0, k).to(torch.float64).reshape(-1))
+    base = (counts.to(torch.int64) * places[:materials]).sum(1)
+    to_emitter = places[materials:]
+    code_e = torch.where(hit, base + to_emitter.index_select(0, emitter_hit.clamp(min=0)), -1)
+    code_d = base + places.index_select(0, material_hit) + to_emitter.index_select(0, emitter_sampled.clamp(min=0))
     if scatter and n:
-        counts.view(-1).scatter_add_(0, torch.arange(n, device=pixel.device) * materials + material_hit, torch.ones(n, dtype=counts.dtype, device=pixel.device))
-    return codes
+        counts.index_put_((torch.arange(n, device=pixel.device), material_hit.to(torch.int64)), torch.ones(n, dtype=counts.dtype, device=pixel.device), accumulate=True)
+    return (code_e, torch.where(lit, code_d, -1)), counts
 
 
 def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film, settings) -> None:
@@ -399,7 +418,7 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
     tangents = isinstance(film, TangentFilm) or coded is not None
     rho = fused.rho
     arrives = fused.infinite and type(film).arrive is not Film.arrive
-    counts = torch.zeros(keys.shape[0], rho.shape[0] if tangents else 0, dtype=torch.int32, device=keys.device)  # factors of each rho in beta
+    counts = torch.zeros(rho.shape[0] if tangents else 0, keys.shape[0], dtype=torch.int32, device=keys.device).t()  # factors of each rho in beta, (N, M) by columns (as the kernels give them)
     # with materials of delta lobes only, shadow rays are cast from the others' vertices alone, as
     # the torch bounce casts them (path replay's adjoint pass takes the same queries in order)
     smooth = ctx.materials.has_rows(Lobe.SMOOTH).index_select(0, ctx.triangles.material) if ctx.materials.any_delta_only else None
@@ -417,6 +436,7 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
                 film.add(depth, at, seen)
         hit = where_true(hits.valid)  # a synchronization: the count of rays that hit
         prim, u, v, t = hits.prim, hits.u, hits.v, hits.t
+        del hits  # (a bounce's arrays are released as soon as they are read: a chunk's peak memory is one bounce's)
         if hit.shape[0] < keys.shape[0]:
             pixel, keys, d, beta, pdf, delta, prim, u, v, t, counts = (_take(x, hit) for x in (pixel, keys, d, beta, pdf, delta, prim, u, v, t, counts))
             strata = None if strata is None else _take(strata, hit)
@@ -440,8 +460,9 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
             keep = (~occluded).to(torch.float32)
             for c in direct:
                 c.mul_(keep)
+            del keep
         if coded is not None:  # path records: each contribution with its monomial's code
-            code_e, code_d = tangents_add(pixel, counts, rho, emitted, out[11:], direct, occluded, more, places=coded)
+            (code_e, code_d), counts = tangents_add(pixel, counts, rho, emitted, out[11:], direct, occluded, more, places=coded)
             film.add_coded(depth, pixel, code_e, emitted.stacked())  # term depth
             if occluded is not None:
                 film.add_coded(depth + 1, pixel, code_d, direct.stacked())  # term depth + 1
@@ -454,7 +475,8 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
                     film.arrive(pixel, shadow_d.stacked())
                 film.add(depth + 1, pixel, direct.stacked())  # term depth + 1
             if tangents:
-                tangents_add(pixel, counts, rho, emitted, out[11:], direct, occluded, more, jacobian=film.jacobian)
+                _, counts = tangents_add(pixel, counts, rho, emitted, out[11:], direct, occluded, more, film=film)
+        del out, emitted, shadow_o, shadow_d, shadow_t, direct, occluded, prim, u, v, t, hit
         if not more:
             break
         if depth + 1 >= rr_start or fused.absorbing:

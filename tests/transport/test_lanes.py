@@ -117,3 +117,47 @@ def test_a_literal_output_keeps_its_kind_of_call_frozen_and_fills_every_lane(mon
     assert float(matrices[0].halves[0].sum()) > 0 and torch.equal(matrices[0].halves[1], matrices[2].halves[1])
     kinds = [v for k, v in compiled._FROZEN.items() if getattr(k[1], "__name__", "") == "path_vertex"]
     assert kinds and all(v is not compiled._TRACED for v in kinds)
+
+
+def _row_sums(xp, sums, index, active, v0, v1, *, width):
+    """Rows of ``width`` floats made of two arrays (then zeros), added to ``sums``; nothing out."""
+    zero = 0.0 * v0
+    row = (v0, v1) + tuple(v0 * float(k) + v1 if k % 7 == 0 else zero for k in range(2, width))
+    xp.scatter_add_rows(sums, row, index, active)
+    return ()
+
+
+@pytest.mark.parametrize("xp", NAMESPACES, ids=lambda xp: xp.name)
+@pytest.mark.parametrize("lanes_count", [300, 6000])  # padded to FREEZE_LANES (padded lanes inactive), and not
+@pytest.mark.parametrize("width", [16, 48])  # one packet of 16 floats a row, and three
+def test_rows_are_added_per_index_in_float64_by_both_evaluators(xp, lanes_count, width):
+    """The accumulator a render's bounces add their per-pixel derivatives to: every active lane's
+    row lands in its index's row, as float64 sums (repeated indices summed), and inactive lanes
+    add nothing, compiled and as eager torch; two calls accumulate."""
+    g = torch.Generator().manual_seed(lanes_count + width)
+    rows = 97
+    index = torch.randint(0, rows, (lanes_count,), generator=g)
+    v0, v1 = torch.rand(lanes_count, generator=g), torch.rand(lanes_count, generator=g) * 1e-3
+    active = torch.rand(lanes_count, generator=g) < 0.8
+    sums = compiled.Sums(rows * width, CPU)
+    for _ in range(2):
+        assert compiled.evaluate(xp, _row_sums, sums, index, active, v0, v1, width=width) == ()
+    full = torch.stack([v0, v1] + [v0 * float(k) + v1 if k % 7 == 0 else torch.zeros_like(v0) for k in range(2, width)], 1).double()
+    expected = torch.zeros(rows, width, dtype=torch.float64).index_add_(0, index[active], full[active]) * 2
+    got = sums.tensor().view(rows, width)
+    assert float(expected.abs().max()) > 0 and torch.allclose(got, expected, rtol=1e-12, atol=0)
+
+
+@needs_drjit
+def test_every_tensor_a_compiled_call_wraps_is_held_by_the_caller():
+    """Copies and narrowings made to pass tensors to Dr.Jit are handed to the caller to keep until
+    the call's arrays are released (freed by Dr.Jit inside a launch, torch's deleter waits for the
+    GIL: two render workers deadlocked)."""
+    held: list = []
+    rows = torch.rand(5000, 3)  # (N, 3) by rows: its columns are copies
+    DRJIT.from_torch(rows, lanes=True, held=held)
+    DRJIT.from_torch(torch.arange(5000), lanes=True, held=held)  # int64: narrowed to int32 by torch
+    strided = torch.rand(5000, 2)[:, 0]
+    DRJIT.from_torch(strided, lanes=True, held=held)
+    assert len(held) == 5 and all(t.is_contiguous() for t in held)
+    assert held[3].dtype == torch.int32 and torch.equal(held[3], torch.arange(5000, dtype=torch.int32))
