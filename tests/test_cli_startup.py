@@ -92,6 +92,26 @@ print("OK")
     assert run.returncode == 0 and run.stdout.strip() == "OK", run.stderr[-3000:]
 
 
+def test_a_render_to_a_tensor_loads_no_image_codec(tmp_path):
+    """A render (and a replayed gradient) that writes no file imports none of the image codecs
+    (kornia, OpenEXR, Pillow: about 2 s and 25 MiB of a first render in a fresh process, and of
+    a gradient's memory increment), yet ``ir.io.read_image`` is there when asked for."""
+    child = r"""
+import sys
+import torch
+import invrender as ir
+scene = ir.load_scene("cornell_box", resolution=(8, 8))
+scene.params["white.reflectance"].requires_grad_(True)
+ir.render(scene, spp=1, estimator="replay", progress=False).sum().backward()
+codecs = [m for m in ("kornia", "OpenEXR", "PIL") if m in sys.modules]
+assert not codecs, codecs
+assert callable(ir.io.read_image) and callable(ir.io.write_image) and "kornia" in sys.modules
+print("OK")
+"""
+    run = subprocess.run([sys.executable, "-c", child], capture_output=True, text=True, env=ENV, cwd=tmp_path, timeout=300)
+    assert run.returncode == 0 and run.stdout.strip() == "OK", run.stderr[-3000:]
+
+
 def test_every_api_name_resolves():
     assert all(getattr(ir, name) is not None for name in ir.__all__)
     assert ir.baseline.__name__ == "invrender.baseline" and ir.lighting.fit_sh is not None

@@ -446,6 +446,8 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
         out = vertex(fused, (prim, u, v, t), d, beta, pdf, delta, keys, depth, more, depth + 1 >= rr_start, ctx.ray_offset, tangents, strata=strata)
         strata = None  # the first vertex's alone
         emitted, shadow_o, shadow_d, shadow_t, direct, o, d, beta, pdf, delta, alive = out[:11]
+        factors = out[11:]  # what tangents_add reads
+        del out
         occluded = None
         if more and fused.nee:
             if smooth is None:
@@ -461,8 +463,9 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
             for c in direct:
                 c.mul_(keep)
             del keep
+        del shadow_o, shadow_t  # the shadow rays, once cast
         if coded is not None:  # path records: each contribution with its monomial's code
-            (code_e, code_d), counts = tangents_add(pixel, counts, rho, emitted, out[11:], direct, occluded, more, places=coded)
+            (code_e, code_d), counts = tangents_add(pixel, counts, rho, emitted, factors, direct, occluded, more, places=coded)
             film.add_coded(depth, pixel, code_e, emitted.stacked())  # term depth
             if occluded is not None:
                 film.add_coded(depth + 1, pixel, code_d, direct.stacked())  # term depth + 1
@@ -475,8 +478,8 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
                     film.arrive(pixel, shadow_d.stacked())
                 film.add(depth + 1, pixel, direct.stacked())  # term depth + 1
             if tangents:
-                _, counts = tangents_add(pixel, counts, rho, emitted, out[11:], direct, occluded, more, film=film)
-        del out, emitted, shadow_o, shadow_d, shadow_t, direct, occluded, prim, u, v, t, hit
+                _, counts = tangents_add(pixel, counts, rho, emitted, factors, direct, occluded, more, film=film)
+        del factors, emitted, shadow_d, direct, occluded, prim, u, v, t, hit
         if not more:
             break
         if depth + 1 >= rr_start or fused.absorbing:
