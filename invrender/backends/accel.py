@@ -394,6 +394,10 @@ def _rows(x, a: int, b: int):
     return x.rows(a, b) if isinstance(x, Columns) else x[a:b]
 
 
+class QueriesDiverged(RuntimeError):
+    """A repeated trace asked another query than its first trace had at that point."""
+
+
 class RepeatedQueries:
     """An intersector that answers one trace's queries and then the same trace's again, from memory.
 
@@ -426,7 +430,7 @@ class RepeatedQueries:
             return answer
         recorded_kind, size, answer = self._answers[self._next]
         if recorded_kind != kind or size != n:
-            raise RuntimeError(
+            raise QueriesDiverged(
                 f"path replay: the adjoint pass's query {self._next} ({kind} of {n} rays) differs from its primal pass's ({recorded_kind} of {size})"
             )
         self._answers[self._next] = None  # each answer is handed back once

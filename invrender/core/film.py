@@ -25,6 +25,9 @@ class Film:
 
     #: replay's adjoint pass sets this: the integrator then carries the throughput beta detached
     detach_throughput = False
+    #: may the fused bounce (:mod:`invrender.core.fused`) trace paths into this film, where it
+    #: applies (False: the torch bounce traces them, as it traces path replay's adjoint pass)
+    fused_bounce = True
 
     def __init__(self, width: int, height: int, terms: bool, device, rfilter=None):
         self.width, self.height, self.terms, self.device = width, height, terms, device

@@ -215,6 +215,8 @@ def takes(film: Film, fused: FusedScene) -> bool:
     contribution that may end on an emitter infinitely far away, as the torch bounce does: the
     transport matrix's film), or it takes contributions by monomial code (:func:`places`) and the
     scene is Lambertian (``fused.rho``)?"""
+    if not film.fused_bounce:
+        return False
     if places(film) is not None or isinstance(film, TangentFilm):
         return fused.rho is not None
     cls = type(film)

@@ -40,7 +40,7 @@ import torch
 
 from invrender.scene.scene import Scene
 from invrender.core import fused
-from invrender.backends.accel import RepeatedQueries
+from invrender.backends.accel import QueriesDiverged, RepeatedQueries
 from invrender.core.context import PathState
 from invrender.core.driver import BYTES_PER_REPLAYED_PATH, RenderSettings, cpu_workers, film_weights, for_each_chunk, total_paths
 from invrender.core.film import Film, PathFilm
@@ -208,26 +208,40 @@ def replay_gradient(
         weights = film_weights(scene, settings, device)
         g_image = (g_image.double() / weights.masked_fill(weights == 0, 1.0)[:, None]).float()
     rfilter = None if scene.film.is_box else scene.film.filter
+
+    def adjoint_pass(local: PathState, g: torch.Tensor, totals: torch.Tensor | None, queries: RepeatedQueries | None, torch_bounce: bool = False) -> AdjointFilm:
+        """The adjoint pass of one chunk's paths ``local`` (after their primal pass, unless its
+        ``totals`` and shadow-ray ``queries`` are given; with ``torch_bounce`` that pass is traced
+        by the adjoint's own bounce, not the fused one, whose float rounding may decide a path
+        differently)."""
+        if totals is None:
+            queries = RepeatedQueries(ctx.accel)  # the adjoint pass casts the primal pass's rays again
+            primal = PathFilm(local.count, device)
+            primal.fused_bounce = not torch_bounce
+            with torch.no_grad():
+                integrator.trace(dataclasses.replace(ctx, accel=queries), local, primal)
+            totals = primal.totals()
+            del primal
+        adjoint = AdjointFilm(g, totals, leaves)
+        del totals  # the film holds them now (as L_rem)
+        with torch.enable_grad():
+            integrator.trace(dataclasses.replace(ctx, accel=queries.repeat(ctx.accel)), local, adjoint)
+        return adjoint
     per_worker = [{k: torch.zeros_like(v) for k, v in leaves.items()} for _ in range(workers)]
     chunks_done = [0] * workers
 
     def chunk(worker: int, state: PathState, start: int, xy: torch.Tensor) -> None:
         n = state.count
         local = state.replace(pixel=torch.arange(n, device=device))  # film index = path
-        totals, queries = kept.pop(start) if kept is not None and start in kept else (None, None)
-        if totals is None:
-            queries = RepeatedQueries(ctx.accel)  # the adjoint pass casts the primal pass's rays again
-            primal = PathFilm(n, device)
-            with torch.no_grad():
-                integrator.trace(dataclasses.replace(ctx, accel=queries), local, primal)
-            totals = primal.totals()
-            del primal
-        chunk_ctx = dataclasses.replace(ctx, accel=queries.repeat(ctx.accel))
         g = g_image[state.pixel] if rfilter is None else rfilter.footprint(xy, scene.width, scene.height).gather(g_image)
-        adjoint = AdjointFilm(g, totals, leaves)
-        del totals  # the film holds them now (as L_rem)
-        with torch.enable_grad():
-            integrator.trace(chunk_ctx, local, adjoint)
+        totals, queries = kept.pop(start) if kept is not None and start in kept else (None, None)
+        try:
+            adjoint = adjoint_pass(local, g, totals, queries)
+        except QueriesDiverged:
+            # the primal pass's bounce (the fused one, compiled) and the adjoint's (torch) took a
+            # decision differently (float rounding: a roulette draw against a throughput a last
+            # bit apart): this chunk's primal pass is traced again by the adjoint's bounce
+            adjoint = adjoint_pass(local, g, None, None, torch_bounce=True)
         for k, v in adjoint.grads.items():
             per_worker[worker][k] += v
         del adjoint

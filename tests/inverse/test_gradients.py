@@ -1,10 +1,13 @@
 """Gradients of the Monte Carlo estimate: estimators against central finite differences with common
 random numbers, against each other, and against the furnace's closed forms (docs/closed_forms.md#furnace)."""
 
+import dataclasses
+
 import pytest
 import torch
 
 import invrender as ir
+from invrender.core.driver import RenderSettings
 from tests.conftest import furnace
 
 NAMES = ["red.reflectance", "white.reflectance", "light.emission"]
@@ -102,6 +105,45 @@ def test_textured_reflectance_gradient_matches_autodiff():
         ir.render(scene, spp=8, max_depth=3, estimator=estimator, progress=False).sum().backward()
         grads.append(tex.grad.clone())
     assert grads[0].abs().sum() > 0 and torch.allclose(grads[0], grads[1], rtol=1e-4, atol=1e-6)
+
+
+@pytest.mark.parametrize("kept", [True, False])
+def test_a_chunk_whose_passes_diverge_is_traced_again_by_one_bounce(monkeypatch, kept):
+    """The primal pass runs the fused bounce (compiled) and the adjoint pass the torch bounce; where
+    float rounding makes them decide a path differently (a roulette draw), the adjoint pass's
+    queries differ from the primal's: that chunk's primal pass is traced again by the torch bounce,
+    and the gradient is the one of passes that agree (seen on the specular box at 128^2, 64 spp,
+    which failed with an error before)."""
+    from invrender.backends.accel import QueriesDiverged, RepeatedQueries
+    from invrender.estimators import backpropagate
+    from invrender.plugins.integrators import make_integrator
+
+    scene = ir.load_scene("cornell_specular", resolution=(16, 16))
+    name = scene.materials[0] + ".reflectance"
+    weights = torch.rand(16, 16, 3, generator=torch.Generator().manual_seed(2))
+
+    def gradient() -> torch.Tensor:
+        p = scene.params[name].detach().clone().requires_grad_(True)
+        work = dataclasses.replace(scene, params={**scene.params, name: p})
+        if kept:  # the forward pass keeps each path's radiance and shadow-ray answers
+            (ir.render(work, spp=8, seed=3, estimator="replay", progress=False, chunk_paths=700) * weights).sum().backward()
+        else:  # a decorrelated gradient: replay traces the primal pass itself
+            backpropagate(work, weights, make_integrator("path"), RenderSettings(spp=8, seed=3, progress=False, chunk_paths=700), "replay")
+        return p.grad
+
+    expected = gradient()
+    answer, diverged = RepeatedQueries._answer, []
+
+    def diverging(self, kind, n, ask):
+        if self._next == 2 and not diverged:  # the first repeated trace takes another turn at its third query
+            diverged.append(kind)
+            raise QueriesDiverged("diverged")
+        return answer(self, kind, n, ask)
+
+    monkeypatch.setattr(RepeatedQueries, "_answer", diverging)
+    got = gradient()
+    assert diverged and float(expected.abs().max()) > 0
+    assert (got - expected).abs().max() <= 1e-4 * expected.abs().max()
 
 
 @pytest.mark.parametrize("scene_name, integrator", [("cornell_box", "path"), ("cornell_specular", "whitted")])
