@@ -338,15 +338,15 @@ class DrJitArrays:
             held.extend(columns)
             return tuple(self.Float(c) for c in columns)
         t = t.contiguous()
-        if t.dtype == torch.int64:
-            t = t.to(torch.int32)  # the same low 32 bits
-        elif t.dtype not in (torch.float32, torch.int32, torch.bool):
+        if t.dtype not in (torch.float32, torch.int32, torch.int64, torch.bool):
             t = t.to(torch.float32)
         held.append(t)
         if t.dtype == torch.float32:
             return self.Float(t)
         if t.dtype == torch.int32:
             return self.dr.reinterpret_array(self.UInt, self._Int32(t))
+        if t.dtype == torch.int64:  # the low 32 bits, converted inside the kernel
+            return self.UInt(self.Int64(t))
         return self.Bool(t)
 
     def to_torch(self, x) -> torch.Tensor:

@@ -15,6 +15,8 @@
 
 #include <embree3/rtcore.h>
 
+#include <xmmintrin.h>
+
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -62,6 +64,15 @@ inline void pack(RTCRay16& ray, int k, const Rays& r, int64_t i, float tfar, boo
     ray.tnear[k] = 0.0f, ray.tfar[k] = tfar, ray.time[k] = 0.0f;
     ray.mask[k] = ~0u, ray.id[k] = 0, ray.flags[k] = 0;
 }
+
+// Within a query, denormals flushed to zero (in and out: the MXCSR's FTZ and DAZ bits), as Embree
+// asks of the threads that trace; the caller's mode is restored on the way out (torch's
+// arithmetic in the same thread keeps IEEE denormals).
+struct FlushDenormals {
+    unsigned saved = _mm_getcsr();
+    FlushDenormals() { _mm_setcsr(saved | 0x8040u); }  // FTZ (bit 15) and DAZ (bit 6)
+    ~FlushDenormals() { _mm_setcsr(saved); }
+};
 
 void say(char* error, int64_t size, const char* what, RTCError code) {
     std::snprintf(error, size_t(size), "Embree: %s (error %d)", what, int(code));
@@ -119,6 +130,7 @@ void ir_embree_free(void* accel) {
 // Rays reads them): t (n,) float32, prim (n,) int64, u, v (n,) float32.
 void ir_embree_intersect(void* accel, const float* ox, const float* oy, const float* oz, int64_t o_lane, const float* dx, const float* dy, const float* dz, int64_t d_lane, int64_t n, float* t, int64_t* prim, float* u, float* v) {
     const Rays rays{{ox, oy, oz}, o_lane, {dx, dy, dz}, d_lane};
+    const FlushDenormals flush;
     RTCScene scene = static_cast<Accel*>(accel)->scene;
     RTCIntersectContext context;
     rtcInitIntersectContext(&context);
@@ -150,6 +162,7 @@ void ir_embree_intersect(void* accel, const float* ox, const float* oy, const fl
 // Shadow rays: hit[i] = 1 when something lies along ray i strictly before tmax[i], else 0.
 void ir_embree_occluded(void* accel, const float* ox, const float* oy, const float* oz, int64_t o_lane, const float* dx, const float* dy, const float* dz, int64_t d_lane, const float* tmax, int64_t n, uint8_t* hit) {
     const Rays rays{{ox, oy, oz}, o_lane, {dx, dy, dz}, d_lane};
+    const FlushDenormals flush;
     RTCScene scene = static_cast<Accel*>(accel)->scene;
     RTCIntersectContext context;
     rtcInitIntersectContext(&context);

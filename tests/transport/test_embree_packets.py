@@ -100,6 +100,19 @@ def test_rays_stored_by_columns_or_broadcast_are_read_through_their_strides():
         assert torch.equal(packets.occluded(o.t().contiguous().t(), d.t().contiguous().t(), tmax), packets.occluded(o.contiguous(), d.contiguous(), tmax))
 
 
+@needs_packets
+def test_the_queries_leave_the_callers_float_mode_as_it_was():
+    """Embree traces with denormals flushed to zero (as it asks), and the wrapper restores the
+    calling thread's mode: torch's arithmetic in the same thread keeps its denormals."""
+    scene = ir.load_scene("cornell_box", resolution=(8, 8))
+    o, d = random_rays(scene, 100, seed=3)  # one thread: the query runs in this one
+    packets = make_intersector(scene.triangles, "embree", 1)
+    tiny = torch.tensor([1e-39])  # a float32 denormal
+    hits = packets.intersect(o, d)
+    packets.occluded(o, d, hits.t.nan_to_num(posinf=3.0) * 0.5)
+    assert float(tiny * 1.0) > 0.0 and float(tiny * 2.0) == pytest.approx(2e-39, rel=1e-3)
+
+
 @pytest.mark.parametrize("backend", ["embree", "torch", pytest.param("warp", marks=pytest.mark.warp)])
 def test_a_shadow_ray_with_no_length_is_not_occluded(backend, monkeypatch):
     """Every backend answers False for a distance that is not positive (the fused bounce sets 0

@@ -156,8 +156,9 @@ def test_every_tensor_a_compiled_call_wraps_is_held_by_the_caller():
     held: list = []
     rows = torch.rand(5000, 3)  # (N, 3) by rows: its columns are copies
     DRJIT.from_torch(rows, lanes=True, held=held)
-    DRJIT.from_torch(torch.arange(5000), lanes=True, held=held)  # int64: narrowed to int32 by torch
+    index = DRJIT.from_torch(torch.arange(5000), lanes=True, held=held)  # int64: narrowed inside the kernel
     strided = torch.rand(5000, 2)[:, 0]
     DRJIT.from_torch(strided, lanes=True, held=held)
     assert len(held) == 5 and all(t.is_contiguous() for t in held)
-    assert held[3].dtype == torch.int32 and torch.equal(held[3], torch.arange(5000, dtype=torch.int32))
+    assert torch.equal(held[3], torch.arange(5000)) and torch.equal(held[4], strided)
+    assert torch.equal(DRJIT.to_torch(index + 0).long(), torch.arange(5000))
