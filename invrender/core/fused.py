@@ -92,9 +92,10 @@ class FusedScene:
     """What the fused bounce reads of one render's scene.
 
     Attributes:
-        rho: (M, 3) the materials' reflectance where every material is Lambertian with an RGB
-            constant, the scene flat and its emitters of the one type ``area`` (the derivatives and
-            monomial codes the bounce carries are then exact: :class:`TangentFilm`); else None
+        rho: (M, 3) the materials' reflectance where every material is Lambertian, the scene
+            flat and its emitters of the one type ``area`` (the derivatives and monomial codes the
+            bounce carries in the RGB constants among them are then exact: :class:`TangentFilm`;
+            a textured material's row is zeros, its factors constants of the paths); else None
             (the primal image only).
         eps: (E, 3) the emitters' radiance where ``rho`` is given, else None.
         mis: emission hit by BSDF samples is weighted against emitter samples (power heuristic).
@@ -103,7 +104,8 @@ class FusedScene:
         nee: emitter samples are taken (next-event estimation).
         materials: per material type present, its :class:`~invrender.core.lanes.Material`.
         emitters: per emitter type present, its :class:`~invrender.core.lanes.Emitter`.
-        absorbing: some BSDF weight can be zero (such paths end: not a flat Lambertian scene).
+        absorbing: some BSDF weight can be zero (such paths end: not a flat Lambertian scene with
+            constant colours).
         infinite: some emitter is infinitely far away (rays that leave the scene see it).
         lanes: the tables as the lane functions read them: triangles (T * 16,), per emitter type
             its tables and its share (:func:`~invrender.core.lanes.shares`), the material index (M * 4,), per material type its table, the vertex
@@ -177,7 +179,7 @@ def tables(ctx: TransportContext, direct, hemisphere: str) -> FusedScene | None:
         rho = None
     nee = direct in ("mis", "emitter") and ctx.lights.count > 0
     kinds = tuple(e for e, _ in emitters)
-    return FusedScene(rho, eps, direct == "mis", direct == "emitter", nee, tuple(m for m, _ in forms), kinds, rho is None or ctx.triangles.any_smooth, any(e.infinite for e in kinds), rows)
+    return FusedScene(rho, eps, direct == "mis", direct == "emitter", nee, tuple(m for m, _ in forms), kinds, rho is None or ctx.triangles.any_smooth or not textures.empty, any(e.infinite for e in kinds), rows)
 
 
 def _emitters(lights) -> list | None:
@@ -276,12 +278,14 @@ def slots(fused: FusedScene) -> int:
 
 
 def slot_index(scene, fused: FusedScene) -> dict[str, int]:
-    """Parameter name -> its slot (``NAME.reflectance`` of the scene's materials, then
-    ``NAME.emission`` of its emitters), the parameters whose derivatives and monomial codes the
-    fused bounce carries; empty when its tables do not have one row per material and emitter."""
+    """Parameter name -> its slot (``NAME.reflectance`` of the scene's materials whose reflectance
+    is an RGB constant, not a texture, then ``NAME.emission`` of its emitters), the parameters
+    whose derivatives and monomial codes the fused bounce carries; empty when its tables do not
+    have one row per material and emitter."""
     if fused.rho is None or slots(fused) != len(scene.materials) + len(scene.emitters):
         return {}
-    index = {param_name(m, "reflectance"): i for i, m in enumerate(scene.materials)}
+    names = [param_name(m, "reflectance") for m in scene.materials]
+    index = {n: i for i, n in enumerate(names) if n in scene.params and scene.params[n].ndim == 1}
     index.update({param_name(e, "emission"): len(scene.materials) + i for i, e in enumerate(scene.emitters)})
     return index
 

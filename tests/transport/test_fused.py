@@ -164,6 +164,29 @@ def test_the_fused_bounces_derivatives_are_autodiffs(strategy, unfused, monkeypa
             assert float(b.abs().max()) > 0 and (a - b).abs().max() < 1e-4 * float(b.abs().max())
 
 
+def test_beside_a_textured_material_the_colours_derivatives_are_carried_forward():
+    """A textured Lambertian's albedo is a constant factor of the paths that meet it: replay of
+    the other materials' colours and the emission still carries each pixel's derivatives forward
+    (one trace), equal to autodiff's; the texture itself is replayed by the adjoint pass."""
+    from invrender.estimators.replay import tangent_slots
+
+    scene = ir.load_scene(str(Path(__file__).resolve().parents[2] / "forward" / "textured_floor.toml"), resolution=(16, 16))
+    names = ["white.reflectance", "green.reflectance", "light.emission"]
+    settings = RenderSettings(spp=8, seed=2, progress=False)
+    integrator = make_integrator("path")
+    assert tangent_slots(scene, integrator, settings, CPU, names) is not None
+    assert tangent_slots(scene, integrator, settings, CPU, ["floor.reflectance"]) is None
+
+    def gradient(estimator):
+        params = {n: scene.params[n].clone().requires_grad_(True) for n in names}
+        work = dataclasses.replace(scene, params={**scene.params, **params})
+        (ir.render(work, spp=8, seed=2, progress=False, estimator=estimator) ** 2).sum().backward()
+        return [params[n].grad for n in names]
+
+    for a, b in zip(gradient("replay"), gradient("autodiff")):
+        assert float(b.abs().max()) > 0 and (a - b).abs().max() < 1e-4 * float(b.abs().max())
+
+
 def _camera_samples_both_ways(monkeypatch, scene, settings, ids):
     """The camera samples compiled (Dr.Jit) and as eager torch."""
     got = driver._camera_samples(scene, settings, ids)
