@@ -189,12 +189,29 @@ class Materials:
             return torch.zeros_like(self.slot_of, dtype=torch.bool)
         return self._one_sided[self.slot_of, self.local_of]
 
-    def fused_albedo(self) -> torch.Tensor | None:
-        """(M, 3) rho per scene material where one BSDF type holds them all, none one-sided, and
-        it gives its table (:meth:`BSDF.fused_albedo`); else None."""
-        if not self.single or self._one_sided is not None or self.perturbations is not None:
+    def fused_albedo(self) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """Where no material is one-sided or perturbed and some BSDF type gives its table
+        (:meth:`BSDF.fused_albedo`): (M, 3) rho per scene material, zeros for the others, and
+        (M,) bool whether each one's row is its reflectance (an RGB constant of a type that gives
+        its table: a parameter the fused bounce can carry derivatives in; the other materials'
+        factors are constants of the paths); else None."""
+        if self._one_sided is not None or self.perturbations is not None:
             return None
-        return self.bsdfs[0].fused_albedo()
+        tables = [b.fused_albedo() for b in self.bsdfs]
+        if all(t is None for t in tables):
+            return None
+        rho = torch.zeros(self.slot_of.shape[0], 3, device=self.slot_of.device)
+        slot = torch.zeros(self.slot_of.shape[0], dtype=torch.bool, device=self.slot_of.device)
+        for i, (t, local) in enumerate(zip(self.slot_of.tolist(), self.local_of.tolist())):
+            if tables[t] is not None:
+                row = tables[t][local]
+                rho[i], slot[i] = row.detach(), self._constant(t, local)
+        return rho, slot
+
+    def _constant(self, t: int, local: int) -> bool:
+        """Is material ``local`` of type ``t``'s reflectance an RGB constant (not a texture)?"""
+        value = self.bsdfs[t].values[local].get("reflectance")
+        return value is not None and value.ndim == 1
 
     def diffuse_reflectance(self, sp: ShadingPoint) -> torch.Tensor:
         """k_d (N, 3) of each hit for the ambient term (0 for materials without a diffuse part, and

@@ -92,20 +92,23 @@ class FusedScene:
     """What the fused bounce reads of one render's scene.
 
     Attributes:
-        rho: (M, 3) the materials' reflectance where every material is Lambertian, the scene
-            flat and its emitters of the one type ``area`` (the derivatives and monomial codes the
-            bounce carries in the RGB constants among them are then exact: :class:`TangentFilm`;
-            a textured material's row is zeros, its factors constants of the paths); else None
-            (the primal image only).
+        rho: (M, 3) the materials' reflectance where some are Lambertian (their factors are
+            linear in it), none one-sided or perturbed, and the emitters of the one type ``area``:
+            the derivatives and monomial codes the bounce carries in the ``slot`` materials' and
+            the emitters' parameters are then exact (:class:`TangentFilm`); the other materials'
+            rows are zeros, their factors (a texture's, a mirror's, a glossy lobe's) constants of
+            the paths. Else None (the primal image only).
         eps: (E, 3) the emitters' radiance where ``rho`` is given, else None.
+        slot: (M,) per material whether its reflectance is a slot (an RGB constant of a
+            Lambertian), where ``rho`` is given.
         mis: emission hit by BSDF samples is weighted against emitter samples (power heuristic).
         nee_only: emitter samples alone estimate direct light (emission counts on camera rays
             and after delta lobes only).
         nee: emitter samples are taken (next-event estimation).
         materials: per material type present, its :class:`~invrender.core.lanes.Material`.
         emitters: per emitter type present, its :class:`~invrender.core.lanes.Emitter`.
-        absorbing: some BSDF weight can be zero (such paths end: not a flat Lambertian scene with
-            constant colours).
+        absorbing: some BSDF weight can be zero (such paths end: not a flat scene of Lambertian
+            colours).
         infinite: some emitter is infinitely far away (rays that leave the scene see it).
         lanes: the tables as the lane functions read them: triangles (T * 16,), per emitter type
             its tables and its share (:func:`~invrender.core.lanes.shares`), the material index (M * 4,), per material type its table, the vertex
@@ -115,6 +118,7 @@ class FusedScene:
 
     rho: torch.Tensor | None
     eps: torch.Tensor | None
+    slot: tuple[bool, ...] | None
     mis: bool
     nee_only: bool
     nee: bool
@@ -172,14 +176,14 @@ def tables(ctx: TransportContext, direct, hemisphere: str) -> FusedScene | None:
         (ctx.normals.rows() if ctx.normals is not None else None, *shading.tables(ctx)),
         None if textures.empty else (lanes.uv_rows(ctx.triangles), *textures.tables(device)),
     )
-    rho, eps = materials.fused_albedo(), None
-    if rho is not None and len(emitters) == 1 and emitters[0][0].surface:  # the area emitter's eps rows: (E, 3)
-        rho, eps = rho.detach().float(), emitters[0][1][2].view(-1, 4)[:, :3]
-    else:
-        rho = None
+    albedo, rho, eps, slot = materials.fused_albedo(), None, None, None
+    if albedo is not None and len(emitters) == 1 and emitters[0][0].surface:  # the area emitter's eps rows: (E, 3)
+        (rho, slot), eps = albedo, emitters[0][1][2].view(-1, 4)[:, :3]
+        rho = rho.float()
     nee = direct in ("mis", "emitter") and ctx.lights.count > 0
     kinds = tuple(e for e, _ in emitters)
-    return FusedScene(rho, eps, direct == "mis", direct == "emitter", nee, tuple(m for m, _ in forms), kinds, rho is None or ctx.triangles.any_smooth or not textures.empty, any(e.infinite for e in kinds), rows)
+    flat = rho is not None and bool(slot.all()) and not ctx.triangles.any_smooth  # every material a Lambertian colour: no weight is 0
+    return FusedScene(rho, eps, tuple(slot.tolist()) if slot is not None else None, direct == "mis", direct == "emitter", nee, tuple(m for m, _ in forms), kinds, not flat, any(e.infinite for e in kinds), rows)
 
 
 def _emitters(lights) -> list | None:
@@ -278,14 +282,13 @@ def slots(fused: FusedScene) -> int:
 
 
 def slot_index(scene, fused: FusedScene) -> dict[str, int]:
-    """Parameter name -> its slot (``NAME.reflectance`` of the scene's materials whose reflectance
-    is an RGB constant, not a texture, then ``NAME.emission`` of its emitters), the parameters
+    """Parameter name -> its slot (``NAME.reflectance`` of the scene's Lambertian materials whose
+    reflectance is an RGB constant (``fused.slot``), then ``NAME.emission`` of its emitters), the parameters
     whose derivatives and monomial codes the fused bounce carries; empty when its tables do not
     have one row per material and emitter."""
     if fused.rho is None or slots(fused) != len(scene.materials) + len(scene.emitters):
         return {}
-    names = [param_name(m, "reflectance") for m in scene.materials]
-    index = {n: i for i, n in enumerate(names) if n in scene.params and scene.params[n].ndim == 1}
+    index = {param_name(m, "reflectance"): i for i, m in enumerate(scene.materials) if fused.slot[i]}
     index.update({param_name(e, "emission"): len(scene.materials) + i for i, e in enumerate(scene.emitters)})
     return index
 

@@ -164,18 +164,22 @@ def test_the_fused_bounces_derivatives_are_autodiffs(strategy, unfused, monkeypa
             assert float(b.abs().max()) > 0 and (a - b).abs().max() < 1e-4 * float(b.abs().max())
 
 
-def test_beside_a_textured_material_the_colours_derivatives_are_carried_forward():
-    """A textured Lambertian's albedo is a constant factor of the paths that meet it: replay of
-    the other materials' colours and the emission still carries each pixel's derivatives forward
-    (one trace), equal to autodiff's; the texture itself is replayed by the adjoint pass."""
+@pytest.mark.parametrize("scene_name, fixed", [("forward/textured_floor.toml", "floor.reflectance"), ("cornell_specular", "glossy.specular_reflectance")])
+def test_beside_other_materials_the_colours_derivatives_are_carried_forward(scene_name, fixed):
+    """A textured Lambertian's albedo, a mirror's, a glass's or a glossy lobe's factors are
+    constants of the paths that meet them (and shading normals only scale a Lambertian's weight):
+    replay of the Lambertian colours and the emission still carries each pixel's derivatives
+    forward (one trace), equal to autodiff's; the other materials' parameters are replayed by the
+    adjoint pass."""
     from invrender.estimators.replay import tangent_slots
 
-    scene = ir.load_scene(str(Path(__file__).resolve().parents[2] / "forward" / "textured_floor.toml"), resolution=(16, 16))
+    path = Path(__file__).resolve().parents[2] / scene_name
+    scene = ir.load_scene(str(path) if path.exists() else scene_name, resolution=(16, 16))
     names = ["white.reflectance", "green.reflectance", "light.emission"]
     settings = RenderSettings(spp=8, seed=2, progress=False)
     integrator = make_integrator("path")
     assert tangent_slots(scene, integrator, settings, CPU, names) is not None
-    assert tangent_slots(scene, integrator, settings, CPU, ["floor.reflectance"]) is None
+    assert tangent_slots(scene, integrator, settings, CPU, [fixed]) is None
 
     def gradient(estimator):
         params = {n: scene.params[n].clone().requires_grad_(True) for n in names}

@@ -90,11 +90,12 @@ class Diffuse(LaneBSDF):
     def fused_albedo(self) -> torch.Tensor | None:
         """(M, 3) rho of each material, zeros for a textured one (its factors are constants of
         the paths, not parameters the fused bounce differentiates), when sampling is
-        cosine-weighted and the scene has no shading normals (the fused bounce's Lambertian lobe);
-        else None. Not for a subclass that changes what the BSDF does (a plugin built on this one)."""
+        cosine-weighted (every sample weight and ``eval`` value is then rho times a factor of the
+        geometry, shading normals or not); else None. Not for a subclass that changes what the
+        BSDF does (a plugin built on this one)."""
         rho = [v["reflectance"] for v in self.values]
         changed = any(getattr(type(self), m) is not getattr(Diffuse, m) for m in ("eval", "pdf", "sample", "lane_form", "lobes", "params"))
-        if changed or not self.flat or self.sampling.hemisphere != "cosine":
+        if changed or self.sampling.hemisphere != "cosine":
             return None
         return torch.stack([r if r.ndim == 1 else r.new_zeros(3) for r in rho])
 
