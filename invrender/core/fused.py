@@ -39,9 +39,11 @@ replay's adjoint films have others; the transport matrix's film is told the dire
 contribution that may end on an environment map, as the torch bounce tells it). Everywhere else the torch bounce runs. ``INVRENDER_KERNELS=steps`` (or
 ``torch``) switches it off; ``INVRENDER_BOUNCE=torch`` runs the kernel as eager torch.
 
-**Derivatives carried forward.** In a flat Lambertian scene lit by area emitters (``FusedScene.rho``)
-every factor of a path is linear in one of the scene's constant parameters (a material's rho, an
-emitter's eps), so each path counts its throughput's factors of each rho as it scatters
+**Derivatives carried forward.** In a scene lit by area emitters, a path is linear in each
+Lambertian material's constant colour rho (each vertex on it multiplies the path by rho once) and
+in each emitter's eps, whatever else it meets (a texture's, a mirror's, a glass's or a glossy
+lobe's factors are constants of the path: ``FusedScene.rho`` and ``slot``), so each path counts
+its throughput's factors of each rho as it scatters
 (``counts``), and one more step per bounce (:func:`tangents_add`) turns a contribution C into
 what two callers need: its derivatives, ``n C / rho_m`` and the factor beside eps, added per
 pixel into a :class:`TangentFilm` inside one more kernel (:func:`jacobian_lanes`; path replay's gradient is then one
