@@ -15,7 +15,10 @@
 
 #include <embree3/rtcore.h>
 
+#if defined(__SSE__) || defined(__x86_64__)
 #include <xmmintrin.h>
+#define IR_HAS_MXCSR 1
+#endif
 
 #include <cmath>
 #include <cstdint>
@@ -68,11 +71,15 @@ inline void pack(RTCRay16& ray, int k, const Rays& r, int64_t i, float tfar, boo
 // Within a query, denormals flushed to zero (in and out: the MXCSR's FTZ and DAZ bits), as Embree
 // asks of the threads that trace; the caller's mode is restored on the way out (torch's
 // arithmetic in the same thread keeps IEEE denormals).
+#ifdef IR_HAS_MXCSR
 struct FlushDenormals {
     unsigned saved = _mm_getcsr();
     FlushDenormals() { _mm_setcsr(saved | 0x8040u); }  // FTZ (bit 15) and DAZ (bit 6)
     ~FlushDenormals() { _mm_setcsr(saved); }
 };
+#else
+struct FlushDenormals {};  // (no MXCSR: another architecture's default mode is kept)
+#endif
 
 void say(char* error, int64_t size, const char* what, RTCError code) {
     std::snprintf(error, size_t(size), "Embree: %s (error %d)", what, int(code));
