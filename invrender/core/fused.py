@@ -80,9 +80,11 @@ from invrender.vec import where_true
 #: workers, interleaved, AMD EPYC AVX-512), and 2^18 no faster than 2^17
 CPU_CHUNK_PATHS = 1 << 17
 #: the same for a render that carries derivatives (path replay's gradient: its memory is what
-#: replay promises to keep small): half the chunk, a gradient's increment 98 MiB against 164 MiB
-#: (Cornell box 128^2, 64 spp, 2 workers), for 10-20% of its time; 2^15 took 25-40% longer than 2^16
-CPU_TANGENT_CHUNK_PATHS = 1 << 16
+#: replay promises to keep small): 56k paths, a gradient's increment 93-94 MiB and 0.60-0.63x
+#: Mitsuba's prb (Cornell box 128^2, 64 spp, 2 workers; bench/gradient.py); 64k: 96-100 MiB,
+#: 0.65-0.71x; 48k: 87 MiB, 0.78-0.82x; 128k: 164 MiB; 32k took 25-40% longer than 64k (a
+#: compiled call's fixed cost, about 0.6 ms, paid per chunk and bounce)
+CPU_TANGENT_CHUNK_PATHS = 7 << 13
 
 #: random numbers drawn per vertex (as the random walk draws them: 0-1 BSDF direction, 2-4 emitter
 #: sample, 5 roulette, 6 BSDF lobe)
