@@ -50,11 +50,12 @@ class Sums:
     otherwise.
 
     Attributes:
-        size: its floats.
+        size: its floats; device: the device of its tensor.
     """
 
     def __init__(self, size: int, device: torch.device):
-        self.size, self._tensor, self._drjit, self._zero = size, torch.zeros(size, dtype=torch.float64, device=device), None, True
+        self.size, self.device = size, device
+        self._tensor, self._drjit, self._zero = torch.zeros(size, dtype=torch.float64, device=device), None, True
 
     def on(self, xp):
         """The accumulator as ``xp``'s array (a call adds to it in place)."""
@@ -75,7 +76,7 @@ class Sums:
         """(size,) float64: the sums so far."""
         if self._drjit is not None:
             with _DRJIT:
-                xp = arrays.drjit_arrays(torch.device("cuda" if type(self._drjit).__module__.startswith("drjit.cuda") else "cpu"))
+                xp = arrays.drjit_arrays(self.device)
                 xp.dr.eval(self._drjit)
                 xp.dr.sync_thread()
                 self._tensor, self._drjit = torch.from_dlpack(self._drjit).clone(), None

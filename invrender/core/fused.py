@@ -44,9 +44,9 @@ Lambertian material's constant colour rho (each vertex on it multiplies the path
 in each emitter's eps, whatever else it meets (a texture's, a mirror's, a glass's or a glossy
 lobe's factors are constants of the path: ``FusedScene.rho`` and ``slot``), so each path counts
 its throughput's factors of each rho as it scatters
-(``counts``), and one more step per bounce (:func:`tangents_add`) turns a contribution C into
+(``counts``), and one more step per bounce turns a contribution C into
 what two callers need: its derivatives, ``n C / rho_m`` and the factor beside eps, added per
-pixel into a :class:`TangentFilm` inside one more kernel (:func:`jacobian_lanes`; path replay's gradient is then one
+pixel into a :class:`TangentFilm` inside one more kernel (:func:`jacobian_add`; path replay's gradient is then one
 contraction with ``dl/dI``, no adjoint trace: :mod:`invrender.estimators.replay`), or its
 monomial's code ``sum_s k_s R_s`` for a film that takes contributions by code (path records:
 :func:`places`), instead of forward-mode autodiff.
@@ -250,7 +250,7 @@ class TangentFilm(Film):
     Every factor of a Lambertian path is linear in one of them, so a contribution C with n factors
     of rho_m has derivative ``n C / rho_m`` (0 in a channel where rho_m is 0, as path replay
     gives there) and one with the factor eps_e the factor beside it; a path counts its throughput's
-    factors per material as it scatters (:func:`tangents_add`).
+    factors per material as it scatters (:func:`jacobian_add`).
     """
 
     def __init__(self, width: int, height: int, slots: int, device):
@@ -315,7 +315,7 @@ def vertex(fused: FusedScene, hits: tuple, d, beta, pdf_dir, delta, keys, depth:
         (N, 3) each adds if unoccluded (term depth + 1; tmax 0, a ray no backend traces, where the
         light sample adds nothing whatever the parameters), then the continued paths' o, d, beta
         (N, 3), pdf (N,), delta (N,) and alive (N,) bool (without ``more``: None, the direct light
-        zero). With ``tangents``, then also what :func:`tangents_add`
+        zero). With ``tangents``, then also what :func:`jacobian_add` and :func:`tangents_add`
         reads: the factors beside eps of the emission (N, 3) and of the direct light (N, 3), the
         emitters hit (N,) int32 (-1: none) and sampled (N,), and the materials hit (N,).
     """
@@ -348,7 +348,7 @@ def jacobian_lanes(xp, sums, pixel, rho, emitted, direct, factor_e, emitter_hit,
         sums: the film's rows (:class:`~invrender.core.compiled.Sums`), ``width`` floats a pixel
             (channel c, slot s at ``c S + s``); pixel: UInt the lane's pixel; rho: (M * 4,)
             Float the materials' rho rows (RGB and a pad); emitted, direct: 3 Floats the vertex's
-            emission and direct light (zero where occluded); factor_e, factor_d: 3 Floats the
+            emission and direct light (counted where unoccluded); factor_e, factor_d: 3 Floats the
             factors beside eps of the two; emitter_hit, emitter_sampled: UInt the emitters hit and
             sampled (``0xFFFFFFFF``: none); material_hit: UInt the vertex's material (its direct
             light has one more factor of it); counts: M UInts the factors of each rho in the
@@ -381,32 +381,47 @@ def jacobian_lanes(xp, sums, pixel, rho, emitted, direct, factor_e, emitter_hit,
     return (tuple(counts[m] + xp.uint(xp.select(material_hit == m, 1.0, 0.0)) for m in range(materials)),)
 
 
-def tangents_add(pixel, counts, rho, emitted, tangents: tuple, direct, occluded, scatter: bool, film: TangentFilm | None = None, places: torch.Tensor | None = None):
-    """One bounce's contributions in the scene's constant parameters (slots 0 .. M - 1 the materials'
-    rho, M .. the emitters' eps): with a ``film`` their derivatives added per pixel, channel and
-    slot (:func:`jacobian_lanes`, run by :func:`~invrender.core.compiled.run`), or with ``places``
-    (S,) int64 their monomial codes ``sum_s k_s places[s]`` (k_s the factors of slot s; -1 where
-    there is no contribution: path records' codes); and each path's vertex material counted in
-    ``counts`` (N, M) int32 (its throughput's factors of each rho) when the paths ``scatter`` on.
+def jacobian_add(film: TangentFilm, pixel, counts, rho, emitted, tangents: tuple, direct, occluded, scatter: bool):
+    """One bounce's derivatives in the scene's constant parameters (slots 0 .. M - 1 the materials'
+    rho, M .. the emitters' eps) added per pixel, channel and slot into ``film``
+    (:func:`jacobian_lanes`, run by :func:`~invrender.core.compiled.run`).
+
+    Args:
+        pixel: (N,) int64 film index; counts: (N, M) int32 each path's throughput's factors of each
+            rho; rho (M, 3); emitted, direct (N, 3) the bounce's contributions (``direct`` as the
+            vertex gave it: the occluded samples are dropped here); tangents: the extra outputs of
+            :func:`vertex`; occluded: (N,) bool the shadow rays' answers (None: no emitter
+            samples); scatter: the paths go on.
+    Returns:
+        the counts after this vertex (its material counted where the paths ``scatter`` on).
+    """
+    n, materials = pixel.shape[0], rho.shape[0]
+    if not n:
+        return counts
+    emitted_factor, emitter_hit, direct_factor, emitter_sampled, material_hit = tangents
+    rows = torch.nn.functional.pad(rho.detach().float(), (0, 1)).reshape(-1)
+    active = torch.ones(n, dtype=torch.bool, device=pixel.device)  # (False in a padded call's extra lanes)
+    out = compiled.run(jacobian_lanes, pixel.device, film.sums, pixel, rows, emitted, direct, emitted_factor, emitter_hit, direct_factor, emitter_sampled,
+                       material_hit, tuple(counts.unbind(1)), active, occluded, materials=materials, emitters=film.slots - materials, width=film.row, scatter=scatter)  # fmt: skip
+    return out[0] if scatter else counts
+
+
+def tangents_add(pixel, counts, rho, emitted, tangents: tuple, direct, occluded, scatter: bool, places: torch.Tensor):
+    """One bounce's contributions' monomial codes ``sum_s k_s places[s]`` (``places`` (S,) int64;
+    k_s the factors of slot s of :func:`jacobian_add`; -1 where there is no contribution: path
+    records' codes), then each path's vertex material counted in ``counts`` (N, M) int32 (its
+    throughput's factors of each rho) when the paths ``scatter`` on.
 
     Args:
         pixel: (N,) int64 film index; rho (M, 3); emitted, direct (N, 3) the bounce's contributions
             (``direct`` zero where occluded); tangents: the extra outputs of :func:`vertex`;
         occluded: (N,) bool the shadow rays' answers (None: no emitter samples).
     Returns:
-        (codes of the emission (N,), of the direct light (N,)) int64 with ``places``, else None;
-        then the counts after this vertex.
+        (codes of the emission (N,), of the direct light (N,)) int64, then the counts after this
+        vertex.
     """
     n, materials = pixel.shape[0], rho.shape[0]
-    emitted_factor, emitter_hit, direct_factor, emitter_sampled, material_hit = tangents
-    if film is not None:
-        if not n:
-            return None, counts
-        rows = torch.nn.functional.pad(rho.detach().float(), (0, 1)).reshape(-1)
-        active = torch.ones(n, dtype=torch.bool, device=pixel.device)
-        out = compiled.run(jacobian_lanes, pixel.device, film.sums, pixel, rows, emitted, direct, emitted_factor, emitter_hit, direct_factor, emitter_sampled,
-                           material_hit, tuple(counts.unbind(1)), active, occluded, materials=materials, emitters=film.slots - materials, width=film.row, scatter=scatter)  # fmt: skip
-        return None, out[0] if scatter else counts
+    _, emitter_hit, _, emitter_sampled, material_hit = tangents
     lit = emitter_sampled >= 0
     lit = lit & ~occluded if occluded is not None else torch.zeros_like(lit)
     hit = emitter_hit >= 0
@@ -431,6 +446,7 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
     tangents = isinstance(film, TangentFilm) or coded is not None
     rho = fused.rho
     arrives = fused.infinite and type(film).arrive is not Film.arrive
+    at_once = not film.terms and not tangents and not arrives  # a bounce's two terms in one film addition
     counts = torch.zeros(rho.shape[0] if tangents else 0, keys.shape[0], dtype=torch.int32, device=keys.device).t()  # factors of each rho in beta, (N, M) by columns (as the kernels give them)
     # with materials of delta lobes only, shadow rays are cast from the others' vertices alone, as
     # the torch bounce casts them (path replay's adjoint pass takes the same queries in order)
@@ -459,7 +475,7 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
         out = vertex(fused, (prim, u, v, t), d, beta, pdf, delta, keys, depth, more, depth + 1 >= rr_start, ctx.ray_offset, tangents, strata=strata)
         strata = None  # the first vertex's alone
         emitted, shadow_o, shadow_d, shadow_t, direct, o, d, beta, pdf, delta, alive = out[:11]
-        factors = out[11:]  # what tangents_add reads
+        factors = out[11:]  # what jacobian_add and tangents_add read
         del out
         occluded = None
         if more and fused.nee:
@@ -473,7 +489,6 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
             # direct light is finite: samples that add nothing are 0), several times faster on the
             # CPU than a fill by a boolean mask
             keep = (~occluded).to(torch.float32)
-            at_once = not film.terms and not tangents and not arrives and coded is None
             if at_once:  # both terms in one image: one addition (5% of a render's CPU time), the occluded direct light dropped on the way
                 both = torch.stack(tuple(emitted)).addcmul_(torch.stack(tuple(direct)), keep)
             else:
@@ -496,7 +511,7 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
                     film.arrive(pixel, shadow_d.stacked())
                 film.add(depth + 1, pixel, direct.stacked())  # term depth + 1
             if tangents:
-                _, counts = tangents_add(pixel, counts, rho, emitted, factors, direct, occluded, more, film=film)
+                counts = jacobian_add(film, pixel, counts, rho, emitted, factors, direct, occluded, more)
         del factors, emitted, shadow_d, direct, occluded, prim, u, v, t, hit
         if not more:
             break
