@@ -134,6 +134,16 @@ def main() -> int:
     if args.child:
         print_json(child_invrender(args) if args.child == "replay" else child_mitsuba(args))
         return 0
+    for name in ("resolution", "spp", "max_depth", "repeats"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
+    from invrender.errors import InvRenderError
+
+    for scene in args.scenes.split(","):
+        try:
+            _scene(scene, 8)
+        except InvRenderError as e:
+            parser.error(str(e))
 
     with_mitsuba = mitsuba_ref.available()
     print(f"replay gradient per scene: {machine_info()}")
