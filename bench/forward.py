@@ -37,7 +37,7 @@ import invrender as ir  # noqa: E402
 from invrender.backends import embree_native  # noqa: E402
 from invrender.backends.embree_native import ENV as EMBREE_ENV  # noqa: E402
 from invrender.backends.kernels import ENV as KERNELS_ENV  # noqa: E402
-from invrender.backends.arrays import ENV as BOUNCE_ENV  # noqa: E402
+from invrender.backends.arrays import ENV as BOUNCE_ENV, stacked  # noqa: E402
 
 
 def sphere_in_box(n: int):
@@ -202,7 +202,7 @@ def rays(args, results: Results) -> None:
     rows = results.table(heading, ["query", "rays", "packets ns/ray (min, median)", "embreex ns/ray (min, median)", "embreex / packets"])
     for kind in ("closest hits", "shadow rays"):
         mine = [b for b in batches if b[0] == kind]
-        count = sum(b[1].shape[0] for b in mine)
+        count = sum(stacked(b[1]).shape[0] for b in mine)
         spent = {mode: [] for mode in engines}
         for _ in range(5):
             for mode, engine in engines.items():

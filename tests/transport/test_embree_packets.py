@@ -113,6 +113,30 @@ def test_the_queries_leave_the_callers_float_mode_as_it_was():
     assert float(tiny * 1.0) > 0.0 and float(tiny * 2.0) == pytest.approx(2e-39, rel=1e-3)
 
 
+@needs_packets
+@pytest.mark.parametrize("untraced", [0.0, 0.3, 0.97, 1.0])
+def test_shadow_rays_not_traced_leave_their_lanes_to_others(untraced):
+    """Shadow rays that are not traced (distance 0 or NaN, an origin past Embree's range) do not
+    take a packet's lane: the traced ones fill packets of their own (a Cornell render's shadow
+    rays are 30% untraced). Any mix, any position, one thread or two: the torch backend's
+    answers."""
+    scene = ir.load_scene("cornell_box", resolution=(8, 8))
+    n = 4999
+    o, d = random_rays(scene, n, seed=7)
+    reference = make_intersector(scene.triangles, "torch")
+    tmax = reference.intersect(o, d).t.nan_to_num(posinf=3.0) * torch.where(torch.arange(n) % 3 == 0, 0.8, 1.2)
+    g = torch.Generator().manual_seed(8)
+    skip = torch.rand(n, generator=g) < untraced
+    kind = torch.randint(0, 3, (n,), generator=g)
+    tmax = torch.where(skip & (kind == 0), 0.0, torch.where(skip & (kind == 1), float("nan"), tmax))
+    o = torch.where((skip & (kind == 2))[:, None], torch.tensor([1e30, 0.0, 0.0]), o)
+    want = reference.occluded(o, d, tmax) & ~skip
+    assert 0.0 < float(want.float().mean()) or untraced == 1.0
+    for threads in (1, 2):
+        got = make_intersector(scene.triangles, "embree", threads).occluded(o, d, tmax)
+        assert torch.equal(got, want), (untraced, threads)
+
+
 @pytest.mark.parametrize("backend", ["embree", "torch", pytest.param("warp", marks=pytest.mark.warp)])
 def test_a_shadow_ray_with_no_length_is_not_occluded(backend, monkeypatch):
     """Every backend answers False for a distance that is not positive (the fused bounce sets 0
