@@ -44,6 +44,7 @@ import numpy as np
 import torch
 
 from invrender.backends.arrays import Columns, stacked
+from invrender.vec import where_true
 from invrender.errors import ParameterError, did_you_mean
 from invrender.scene.scene import Triangles
 from invrender.backends import embree_native, packages
@@ -74,6 +75,33 @@ class Hits:
         """The hits where ``mask`` (N,) bool is True, or at ``mask`` (M,) int64."""
         index = mask.nonzero()[:, 0] if mask.dtype == torch.bool else mask
         return Hits(*(x.index_select(0, index) for x in (self.t, self.prim, self.u, self.v)))
+
+
+@dataclass(frozen=True)
+class FoundHits:
+    """The closest hits of a batch of N rays compacted to the H rays that hit
+    (:meth:`Intersector.closest_hits`).
+
+    Attributes:
+        index: (H,) int64 the rays that hit, in order.
+        t, prim, u, v: (H,) their hits (:class:`Hits`, all valid).
+        gone: (N - H,) int64 the rays that missed, in order; None unless asked for.
+    """
+
+    index: torch.Tensor
+    t: torch.Tensor
+    prim: torch.Tensor
+    u: torch.Tensor
+    v: torch.Tensor
+    gone: torch.Tensor | None
+
+
+def compacted(hits: Hits, misses: bool = False) -> FoundHits:
+    """``hits`` compacted to the rays that hit (:class:`FoundHits`; ``misses``: with the rays
+    that missed)."""
+    valid = hits.valid
+    index = where_true(valid)
+    return FoundHits(index, *(x.index_select(0, index) for x in (hits.t, hits.prim, hits.u, hits.v)), where_true(~valid) if misses else None)
 
 
 #: the largest magnitude of a ray's origin or direction components that is traced: Embree's
@@ -141,6 +169,12 @@ class Intersector(abc.ABC):
         hits = self._intersect(*_stand_ins(o, d, ok))
         miss = ~ok.to(hits.t.device)
         return Hits(hits.t.masked_fill(miss, math.inf), hits.prim.masked_fill(miss, -1), hits.u.masked_fill(miss, 0.0), hits.v.masked_fill(miss, 0.0))
+
+    def closest_hits(self, o: torch.Tensor, d: torch.Tensor, misses: bool = False) -> FoundHits:
+        """:meth:`intersect`'s answers compacted to the rays that hit (and, with ``misses``, the
+        rays that missed): a synchronization, their count. A backend that can compacts as it
+        answers (Embree's packets: no pass over the answers of its own)."""
+        return compacted(self.intersect(o, d), misses)
 
     def occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
         """(N,) bool: does anything lie along each ray strictly before ``tmax`` (N,)? False where
@@ -219,6 +253,27 @@ class EmbreeIntersector(Intersector):
         prim = joined("primID").long().masked_fill_(miss, -1)
         t = joined("tfar").masked_fill_(miss, math.inf)
         return Hits(*(a.to(dev) for a in (t, prim, joined("u"), joined("v"))))
+
+    def closest_hits(self, o: torch.Tensor, d: torch.Tensor, misses: bool = False) -> FoundHits:
+        if self._packets is None:
+            return super().closest_hits(o, d, misses)
+        n, dev = _lanes(o), _device(o)
+        o, d = _cpu32(o, rows=False), _cpu32(d, rows=False)
+        out = (torch.empty(n, dtype=torch.int64), torch.empty(n), torch.empty(n, dtype=torch.int64), torch.empty(n), torch.empty(n))
+        gone = torch.empty(n, dtype=torch.int64) if misses else None
+        # each thread's part compacted at the start of its rows
+        parts = self._split(n, lambda a, b: (a, b, self._packets.hits(_rows(o, a, b), _rows(d, a, b), tuple(x[a:b] for x in out), None if gone is None else gone[a:b])))
+        if len(parts) == 1:
+            h = parts[0][2]
+            found = [x[:h] for x in out]
+            missed = None if gone is None else gone[: n - h]
+        else:
+            found = [torch.cat([x[a : a + h] + (a if x is out[0] else 0) for a, _, h in parts]) for x in out]  # (a part's rays counted from its start)
+            missed = None if gone is None else torch.cat([gone[a : a + (b - a - h)] + a for a, b, h in parts])
+        if dev.type != "cpu":
+            found = [x.to(dev) for x in found]
+            missed = None if missed is None else missed.to(dev)
+        return FoundHits(*found, missed)
 
     def _occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
         if self._packets is not None:
@@ -442,6 +497,10 @@ class RepeatedQueries:
 
     def occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
         return self._answer("occluded", _lanes(o), lambda: self._backend.occluded(o, d, tmax))
+
+    def closest_hits(self, o: torch.Tensor, d: torch.Tensor, misses: bool = False) -> FoundHits:
+        """(Recorded as the closest-hit query it compacts: the other pass may ask either.)"""
+        return compacted(self.intersect(o, d), misses)
 
 
 def _bit_weights(device) -> torch.Tensor:

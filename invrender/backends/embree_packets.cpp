@@ -85,6 +85,32 @@ void say(char* error, int64_t size, const char* what, RTCError code) {
     std::snprintf(error, size_t(size), "Embree: %s (error %d)", what, int(code));
 }
 
+// Closest hits of the batch's n rays, each answered by answer(i, packet, k): ray i's hit is lane k
+// of the packet (geomID RTC_INVALID_GEOMETRY_ID: a miss), in the rays' order.
+template <class Answer>
+void closest(void* accel, const Rays& rays, int64_t n, Answer&& answer) {
+    const FlushDenormals flush;
+    RTCScene scene = static_cast<Accel*>(accel)->scene;
+    RTCIntersectContext context;
+    rtcInitIntersectContext(&context);
+    RTCRayHit16 packet;
+    alignas(64) int valid[K];
+    for (int64_t start = 0; start < n; start += K) {
+        const int lanes = int(n - start < K ? n - start : K);
+        int traced = 0;
+        for (int k = 0; k < K; ++k) {
+            const int64_t i = start + (k < lanes ? k : 0);
+            const bool live = k < lanes && traceable(rays, i);
+            valid[k] = live ? -1 : 0;
+            traced += live;
+            pack(packet.ray, k, rays, i, INFINITY, live);
+            packet.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID, packet.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
+        }
+        if (traced) rtcIntersect16(valid, scene, &context, &packet);
+        for (int k = 0; k < lanes; ++k) answer(start + k, packet, k);
+    }
+}
+
 }  // namespace
 
 extern "C" {
@@ -133,37 +159,33 @@ void ir_embree_free(void* accel) {
     delete a;
 }
 
+
 // Closest hits of n rays (origins ox, oy, oz and directions dx, dy, dz through their strides, as
 // Rays reads them): t (n,) float32, prim (n,) int64, u, v (n,) float32.
 void ir_embree_intersect(void* accel, const float* ox, const float* oy, const float* oz, int64_t o_lane, const float* dx, const float* dy, const float* dz, int64_t d_lane, int64_t n, float* t, int64_t* prim, float* u, float* v) {
-    const Rays rays{{ox, oy, oz}, o_lane, {dx, dy, dz}, d_lane};
-    const FlushDenormals flush;
-    RTCScene scene = static_cast<Accel*>(accel)->scene;
-    RTCIntersectContext context;
-    rtcInitIntersectContext(&context);
-    RTCRayHit16 packet;
-    alignas(64) int valid[K];
-    for (int64_t start = 0; start < n; start += K) {
-        const int lanes = int(n - start < K ? n - start : K);
-        int traced = 0;
-        for (int k = 0; k < K; ++k) {
-            const int64_t i = start + (k < lanes ? k : 0);
-            const bool live = k < lanes && traceable(rays, i);
-            valid[k] = live ? -1 : 0;
-            traced += live;
-            pack(packet.ray, k, rays, i, INFINITY, live);
-            packet.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID, packet.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
+    closest(accel, Rays{{ox, oy, oz}, o_lane, {dx, dy, dz}, d_lane}, n, [&](int64_t i, const RTCRayHit16& packet, int k) {
+        const bool hit = packet.hit.geomID[k] != RTC_INVALID_GEOMETRY_ID;
+        t[i] = hit ? packet.ray.tfar[k] : INFINITY;
+        prim[i] = hit ? int64_t(packet.hit.primID[k]) : -1;
+        u[i] = hit ? packet.hit.u[k] : 0.0f;
+        v[i] = hit ? packet.hit.v[k] : 0.0f;
+    });
+}
+
+// Closest hits of n rays (as ir_embree_intersect reads them) compacted to the rays that hit: returns
+// their count h, and for j < h, index[j] the j-th ray that hit (in the rays' order) and its hit t[j],
+// prim[j], u[j], v[j]; the rays that missed in gone[0 .. n - h), in order, unless gone is null.
+int64_t ir_embree_hits(void* accel, const float* ox, const float* oy, const float* oz, int64_t o_lane, const float* dx, const float* dy, const float* dz, int64_t d_lane, int64_t n, int64_t* index, float* t, int64_t* prim, float* u, float* v, int64_t* gone) {
+    int64_t h = 0, m = 0;
+    closest(accel, Rays{{ox, oy, oz}, o_lane, {dx, dy, dz}, d_lane}, n, [&](int64_t i, const RTCRayHit16& packet, int k) {
+        if (packet.hit.geomID[k] != RTC_INVALID_GEOMETRY_ID) {
+            index[h] = i, t[h] = packet.ray.tfar[k], prim[h] = int64_t(packet.hit.primID[k]), u[h] = packet.hit.u[k], v[h] = packet.hit.v[k];
+            ++h;
+        } else if (gone) {
+            gone[m++] = i;
         }
-        if (traced) rtcIntersect16(valid, scene, &context, &packet);
-        for (int k = 0; k < lanes; ++k) {
-            const int64_t i = start + k;
-            const bool hit = packet.hit.geomID[k] != RTC_INVALID_GEOMETRY_ID;
-            t[i] = hit ? packet.ray.tfar[k] : INFINITY;
-            prim[i] = hit ? int64_t(packet.hit.primID[k]) : -1;
-            u[i] = hit ? packet.hit.u[k] : 0.0f;
-            v[i] = hit ? packet.hit.v[k] : 0.0f;
-        }
-    }
+    });
+    return h;
 }
 
 // Shadow rays: hit[i] = 1 when something lies along ray i strictly before tmax[i], else 0.

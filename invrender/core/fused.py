@@ -453,21 +453,20 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
     smooth = ctx.materials.has_rows(Lobe.SMOOTH).index_select(0, ctx.triangles.material) if ctx.materials.any_delta_only else None
     depth = 0
     while keys.shape[0]:
-        hits = ctx.accel.intersect(o, d)
-        if fused.infinite and not (depth == 0 and ctx.hide_emitters):  # term depth for the rays that leave the scene
-            gone = where_true(~hits.valid)
-            if gone.shape[0]:
-                args = [_take(x, gone) for x in (d, beta, pdf, delta)]
-                (seen,) = compiled.run(lanes.escaped_vertex, keys.device, fused.lanes[1], fused.lanes[2], *args, emitters=fused.emitters, first=depth == 0, mis=fused.mis, nee_only=fused.nee_only)
-                at = pixel.index_select(0, gone)
-                if arrives:
-                    film.arrive(at, stacked(args[0]))
-                film.add(depth, at, seen)
-        hit = where_true(hits.valid)  # a synchronization: the count of rays that hit
-        prim, u, v, t = hits.prim, hits.u, hits.v, hits.t
-        del hits  # (a bounce's arrays are released as soon as they are read: a chunk's peak memory is one bounce's)
+        escape = fused.infinite and not (depth == 0 and ctx.hide_emitters)  # term depth for the rays that leave the scene
+        found = ctx.accel.closest_hits(o, d, misses=escape)  # a synchronization: the count of rays that hit
+        if escape and found.gone.shape[0]:
+            gone = found.gone
+            args = [_take(x, gone) for x in (d, beta, pdf, delta)]
+            (seen,) = compiled.run(lanes.escaped_vertex, keys.device, fused.lanes[1], fused.lanes[2], *args, emitters=fused.emitters, first=depth == 0, mis=fused.mis, nee_only=fused.nee_only)
+            at = pixel.index_select(0, gone)
+            if arrives:
+                film.arrive(at, stacked(args[0]))
+            film.add(depth, at, seen)
+        hit, prim, u, v, t = found.index, found.prim, found.u, found.v, found.t
+        del found  # (a bounce's arrays are released as soon as they are read: a chunk's peak memory is one bounce's)
         if hit.shape[0] < keys.shape[0]:
-            pixel, keys, d, beta, pdf, delta, prim, u, v, t, counts = (_take(x, hit) for x in (pixel, keys, d, beta, pdf, delta, prim, u, v, t, counts))
+            pixel, keys, d, beta, pdf, delta, counts = (_take(x, hit) for x in (pixel, keys, d, beta, pdf, delta, counts))
             strata = None if strata is None else _take(strata, hit)
             if not hit.shape[0]:
                 break

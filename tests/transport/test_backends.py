@@ -166,6 +166,13 @@ def test_repeated_queries_answer_the_adjoint_pass_from_the_primal_pass(monkeypat
             return _original(self, *args)
 
         monkeypatch.setattr(accel.EmbreeIntersector, kind, counted)
+    compacting = accel.EmbreeIntersector.closest_hits
+
+    def counted_hits(self, *args, **kwargs):  # a closest-hit query compacted as it is answered
+        calls["intersect"] += self.packets  # (without packets it asks intersect, counted there)
+        return compacting(self, *args, **kwargs)
+
+    monkeypatch.setattr(accel.EmbreeIntersector, "closest_hits", counted_hits)
     tangent_slots = replay.tangent_slots
     monkeypatch.setattr(replay, "tangent_slots", lambda *args, **kwargs: None)
     integrator, settings = make_integrator("path", max_depth=4), RenderSettings(spp=4, seed=1, progress=False, chunk_paths=512)

@@ -114,6 +114,30 @@ def test_the_queries_leave_the_callers_float_mode_as_it_was():
 
 
 @needs_packets
+@pytest.mark.parametrize("n", [0, 1, 17, 5003])
+def test_closest_hits_compacted_as_they_are_answered(n):
+    """The packets' ``closest_hits`` writes the rays that hit (and those that missed) as it
+    answers: the same rays, order and hits as the base class's compaction of ``intersect``, on one
+    thread and split across two, untraceable rays among the misses."""
+    scene = ir.load_scene("cornell_box", resolution=(8, 8))
+    o, d = random_rays(scene, n, seed=11)
+    if n > 3:
+        o[3] = float("nan")  # untraceable: a miss
+    for threads in (1, 2):
+        packets = make_intersector(scene.triangles, "embree", threads)
+        hits = packets.intersect(o, d)
+        want = accel.Intersector.closest_hits(packets, o, d, misses=True)  # the base class's: intersect, then compact
+        got = packets.closest_hits(o, d, misses=True)
+        assert 0 < got.index.shape[0] < n or n < 17
+        assert torch.equal(got.index, want.index) and torch.equal(got.gone, want.gone), threads
+        for a, b in zip((got.t, got.prim, got.u, got.v), (want.t, want.prim, want.u, want.v)):
+            assert torch.equal(a, b)
+        assert torch.equal(got.prim, hits.prim[hits.valid]) and packets.closest_hits(o, d).gone is None
+        if n > 3:
+            assert 3 in got.gone.tolist()
+
+
+@needs_packets
 @pytest.mark.parametrize("untraced", [0.0, 0.3, 0.97, 1.0])
 def test_shadow_rays_not_traced_leave_their_lanes_to_others(untraced):
     """Shadow rays that are not traced (distance 0 or NaN, an origin past Embree's range) do not
