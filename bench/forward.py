@@ -5,6 +5,7 @@
     python bench/forward.py --memory-spp 65536      # peak RSS of a 64x64 render at that spp
     python bench/forward.py --breakdown             # one worker's time: ray queries, compiled kernels, torch
     python bench/forward.py --rays                  # one render's ray queries: Embree's packets against embreex
+    ATEN_CPU_CAPABILITY=avx2 python bench/forward.py --llvm-target znver3:8   # AVX2 code on an AVX-512 CPU
 
 invrender with each intersection backend (``--backends``; default embree and warp on the CPU) and
 (when installed) Mitsuba 3 ``llvm_ad_rgb`` ``path`` render the same scene at the same settings in
@@ -15,6 +16,12 @@ throughput and the ratio. Two more rows render with the first backend without th
 embreex's single rays instead of Embree's 16-ray packets (``INVRENDER_EMBREE=embreex``). ``--scenes`` times other
 scenes the same way (e.g. ``cornell_specular``, ``forward/textured_floor.toml``: the torch bounce). With a GPU present the same follows on CUDA (invrender's warp and torch
 backends, Mitsuba's ``cuda_ad_rgb``). Figures are printed, never asserted.
+
+``--llvm-target CPU:WIDTH`` has Dr.Jit's LLVM backend, which compiles both Mitsuba's kernels and
+invrender's, generate code for another CPU and vector width (``znver3:8``: AVX2, 8 lanes, as a
+Zen 3 runs it), a stand-in for an AVX2 machine on an AVX-512 one (with ``ATEN_CPU_CAPABILITY=avx2``
+for torch's kernels). Embree keeps its own choice of instructions in both renderers (neither reads
+a setting for it from outside): not the same as a real AVX2 machine, and labelled so.
 """
 
 from __future__ import annotations
@@ -101,7 +108,7 @@ def throughput(args, results: Results) -> None:
                 times[b].append(ours(i + 1, b))
             if mi_scene is not None:
                 mi_times.append(mitsuba_ref.time_render(mi_scene, spp, seed=i + 1))
-        heading = f"{scene.name} ({scene.triangles.count} triangles) {n}x{n}, {spp} spp, max_depth {depth}, {device}, {args.repeats} repeats (median)"
+        heading = f"{scene.name} ({scene.triangles.count} triangles) {n}x{n}, {spp} spp, max_depth {depth}, {device}, {args.repeats} repeats (median)" + (f"; {args.target}" if args.target else "")
         print(heading)
         rows = results.table(heading, ["renderer", "time s (median)", "min-max s", "M path samples/s", "x Mitsuba"])
         for b in backends:
@@ -225,6 +232,27 @@ def memory(args, results: Results) -> None:
     rows.append([args.memory_spp, args.max_depth, round(seconds, 1), round(peak_rss_mib()), " ".join(f"{v:.4f}" for v in img.mean(dim=(0, 1)).tolist())])
 
 
+def llvm_target(spec: str) -> str:
+    """Dr.Jit's LLVM code for CPU ``spec`` = ``CPU:WIDTH`` (e.g. ``znver3:8``), for every kernel
+    compiled from here on (Mitsuba's and invrender's share Dr.Jit); returns a label."""
+    import ctypes
+
+    import drjit as dr
+    from drjit.llvm import Float
+
+    cpu, _, width = spec.partition(":")
+    if not cpu or not width.isdigit() or int(width) not in (4, 8, 16):
+        raise SystemExit(f"--llvm-target must be CPU:WIDTH with WIDTH 4, 8 or 16 (e.g. znver3:8), got {spec!r}")
+    dr.eval(Float(0.0) + 1.0)  # the LLVM backend initialized
+    core = ctypes.CDLL(str(Path(dr.__file__).parent / "libdrjit-core.so"))
+    setter = getattr(core, "_Z19jit_llvm_set_targetPKcS0_j", None)  # jit_llvm_set_target(cpu, features, width)
+    if setter is None:
+        raise SystemExit("--llvm-target: this Dr.Jit does not export jit_llvm_set_target")
+    setter.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_uint32]
+    setter(cpu.encode(), b"", int(width))
+    return f"Dr.Jit's LLVM code for {cpu}, {width} lanes; torch's kernels {os.environ.get('ATEN_CPU_CAPABILITY', 'as the CPU allows')}; Embree as the CPU allows"
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--resolution", type=int, default=128)
@@ -241,8 +269,12 @@ def main() -> int:
     parser.add_argument("--memory-spp", type=int, default=0, help="instead: peak memory of a 64x64 render at this spp")
     parser.add_argument("--breakdown", action="store_true", help="instead: where one worker's render time goes (ray queries, compiled kernels, torch), with and without the fused bounce")
     parser.add_argument("--rays", action="store_true", help="instead: one render's ray queries traced by Embree's packets and by embreex's single rays, ns per ray")
+    parser.add_argument("--llvm-target", default=None, metavar="CPU:WIDTH", help="Dr.Jit's LLVM code (Mitsuba's and invrender's kernels) for another CPU and vector width, e.g. znver3:8 (AVX2) on an AVX-512 CPU")
     add_json_option(parser)
     args = parser.parse_args()
+    args.target = llvm_target(args.llvm_target) if args.llvm_target else ""
+    if args.target:
+        print(args.target)
     title = "Forward rendering: memory" if args.memory_spp else "Forward rendering: where the time goes" if args.breakdown else "Forward rendering: ray queries" if args.rays else "Forward rendering throughput"
     results = Results("forward", title)
     memory(args, results) if args.memory_spp else breakdown(args, results) if args.breakdown else rays(args, results) if args.rays else throughput(args, results)
