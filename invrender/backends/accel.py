@@ -96,12 +96,25 @@ class FoundHits:
     gone: torch.Tensor | None
 
 
-def compacted(hits: Hits, misses: bool = False) -> FoundHits:
-    """``hits`` compacted to the rays that hit (:class:`FoundHits`; ``misses``: with the rays
-    that missed)."""
+def compacted_hits(intersect, o, d, misses: bool = False, alive: torch.Tensor | None = None) -> FoundHits:
+    """:meth:`Intersector.closest_hits` through ``intersect`` (a closest-hit query): the rays
+    ``alive`` picks (all without it) asked, then their hits compacted."""
+    live = None if alive is None else where_true(alive)
+    if live is not None:
+        o, d = _take(o, live), _take(d, live)
+    hits = intersect(o, d)
     valid = hits.valid
     index = where_true(valid)
-    return FoundHits(index, *(x.index_select(0, index) for x in (hits.t, hits.prim, hits.u, hits.v)), where_true(~valid) if misses else None)
+    found = [index, *(x.index_select(0, index) for x in (hits.t, hits.prim, hits.u, hits.v)), where_true(~valid) if misses else None]
+    if live is not None:  # back to the positions among all the rays
+        found[0] = live.index_select(0, index)
+        found[5] = None if found[5] is None else live.index_select(0, found[5])
+    return FoundHits(*found)
+
+
+def _take(x, index: torch.Tensor):
+    """Rays ``index`` of ``x`` (N, 3) or :class:`~invrender.backends.arrays.Columns`."""
+    return x.take(index) if isinstance(x, Columns) else x.index_select(0, index)
 
 
 #: the largest magnitude of a ray's origin or direction components that is traced: Embree's
@@ -170,11 +183,13 @@ class Intersector(abc.ABC):
         miss = ~ok.to(hits.t.device)
         return Hits(hits.t.masked_fill(miss, math.inf), hits.prim.masked_fill(miss, -1), hits.u.masked_fill(miss, 0.0), hits.v.masked_fill(miss, 0.0))
 
-    def closest_hits(self, o: torch.Tensor, d: torch.Tensor, misses: bool = False) -> FoundHits:
+    def closest_hits(self, o: torch.Tensor, d: torch.Tensor, misses: bool = False, alive: torch.Tensor | None = None) -> FoundHits:
         """:meth:`intersect`'s answers compacted to the rays that hit (and, with ``misses``, the
-        rays that missed): a synchronization, their count. A backend that can compacts as it
-        answers (Embree's packets: no pass over the answers of its own)."""
-        return compacted(self.intersect(o, d), misses)
+        rays that missed): a synchronization, their count. With ``alive`` (N,) bool, only the rays
+        where it is True are traced (the others, paths that ended, neither hit nor miss): a caller
+        need not compact its paths first. A backend that can compacts as it answers (Embree's
+        packets: no pass over the answers of its own)."""
+        return compacted_hits(self.intersect, o, d, misses, alive)
 
     def occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
         """(N,) bool: does anything lie along each ray strictly before ``tmax`` (N,)? False where
@@ -254,22 +269,22 @@ class EmbreeIntersector(Intersector):
         t = joined("tfar").masked_fill_(miss, math.inf)
         return Hits(*(a.to(dev) for a in (t, prim, joined("u"), joined("v"))))
 
-    def closest_hits(self, o: torch.Tensor, d: torch.Tensor, misses: bool = False) -> FoundHits:
+    def closest_hits(self, o: torch.Tensor, d: torch.Tensor, misses: bool = False, alive: torch.Tensor | None = None) -> FoundHits:
         if self._packets is None:
-            return super().closest_hits(o, d, misses)
+            return super().closest_hits(o, d, misses, alive)
         n, dev = _lanes(o), _device(o)
         o, d = _cpu32(o, rows=False), _cpu32(d, rows=False)
+        alive = None if alive is None else alive.to("cpu").contiguous()
         out = (torch.empty(n, dtype=torch.int64), torch.empty(n), torch.empty(n, dtype=torch.int64), torch.empty(n), torch.empty(n))
         gone = torch.empty(n, dtype=torch.int64) if misses else None
-        # each thread's part compacted at the start of its rows
-        parts = self._split(n, lambda a, b: (a, b, self._packets.hits(_rows(o, a, b), _rows(d, a, b), tuple(x[a:b] for x in out), None if gone is None else gone[a:b])))
+        # each thread's part compacted at the start of its rows: (start, hits, misses)
+        parts = self._split(n, lambda a, b: (a, *self._packets.hits(_rows(o, a, b), _rows(d, a, b), tuple(x[a:b] for x in out), None if gone is None else gone[a:b], None if alive is None else alive[a:b])))
         if len(parts) == 1:
-            h = parts[0][2]
-            found = [x[:h] for x in out]
-            missed = None if gone is None else gone[: n - h]
-        else:
-            found = [torch.cat([x[a : a + h] + (a if x is out[0] else 0) for a, _, h in parts]) for x in out]  # (a part's rays counted from its start)
-            missed = None if gone is None else torch.cat([gone[a : a + (b - a - h)] + a for a, b, h in parts])
+            found = [x[: parts[0][1]] for x in out]
+            missed = None if gone is None else gone[: parts[0][2]]
+        else:  # (a part's rays counted from its start)
+            found = [torch.cat([x[a : a + h] + (a if x is out[0] else 0) for a, h, _ in parts]) for x in out]
+            missed = None if gone is None else torch.cat([gone[a : a + m] + a for a, _, m in parts])
         if dev.type != "cpu":
             found = [x.to(dev) for x in found]
             missed = None if missed is None else missed.to(dev)
@@ -498,9 +513,10 @@ class RepeatedQueries:
     def occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
         return self._answer("occluded", _lanes(o), lambda: self._backend.occluded(o, d, tmax))
 
-    def closest_hits(self, o: torch.Tensor, d: torch.Tensor, misses: bool = False) -> FoundHits:
-        """(Recorded as the closest-hit query it compacts: the other pass may ask either.)"""
-        return compacted(self.intersect(o, d), misses)
+    def closest_hits(self, o: torch.Tensor, d: torch.Tensor, misses: bool = False, alive: torch.Tensor | None = None) -> FoundHits:
+        """(Recorded as the closest-hit query of the ``alive`` rays it compacts, as the torch
+        bounce asks it: the other pass may ask either.)"""
+        return compacted_hits(self.intersect, o, d, misses, alive)
 
 
 def _bit_weights(device) -> torch.Tensor:

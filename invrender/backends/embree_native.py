@@ -99,7 +99,7 @@ def _build_and_load() -> tuple[ctypes.CDLL | None, str]:
     lib.ir_embree_intersect.argtypes = [p, p, p, p, i64, p, p, p, i64, i64, p, p, p, p]
     lib.ir_embree_occluded.argtypes = [p, p, p, p, i64, p, p, p, i64, p, i64, p]
     lib.ir_embree_hits.restype = i64
-    lib.ir_embree_hits.argtypes = [p, p, p, p, i64, p, p, p, i64, i64, p, p, p, p, p, p]
+    lib.ir_embree_hits.argtypes = [p, p, p, p, i64, p, p, p, i64, i64, p, p, p, p, p, p, p, p]
     return lib, ""
 
 
@@ -128,13 +128,18 @@ class PacketScene:
         t, prim, u, v = out
         self._lib.ir_embree_intersect(self._handle, *_strided(o), *_strided(d), t.shape[0], t.data_ptr(), prim.data_ptr(), u.data_ptr(), v.data_ptr())
 
-    def hits(self, o, d, out: tuple[torch.Tensor, ...], gone: torch.Tensor | None) -> int:
-        """:meth:`intersect` compacted to the rays that hit: returns their count H and writes
-        ``out`` = (index, t, prim, u, v), each (N,) contiguous (int64, float32, int64, float32,
-        float32), in their first H entries: the rays that hit in order and their hits; with
-        ``gone`` (N,) int64, the N - H rays that missed into its first entries, in order."""
+    def hits(self, o, d, out: tuple[torch.Tensor, ...], gone: torch.Tensor | None, alive: torch.Tensor | None = None) -> tuple[int, int]:
+        """:meth:`intersect` compacted to the rays that hit: returns their count H and the count M
+        of the rays that missed, and writes ``out`` = (index, t, prim, u, v), each (N,) contiguous
+        (int64, float32, int64, float32, float32), in their first H entries: the rays that hit in
+        order and their hits; with ``gone`` (N,) int64, the rays that missed into its first M
+        entries, in order. With ``alive`` (N,) bool contiguous, the rays where it is False are not
+        traced and neither hit nor miss."""
         index, t, prim, u, v = out
-        return self._lib.ir_embree_hits(self._handle, *_strided(o), *_strided(d), t.shape[0], index.data_ptr(), t.data_ptr(), prim.data_ptr(), u.data_ptr(), v.data_ptr(), None if gone is None else gone.data_ptr())
+        missed = ctypes.c_int64(0)
+        h = self._lib.ir_embree_hits(self._handle, *_strided(o), *_strided(d), t.shape[0], None if alive is None else alive.data_ptr(), index.data_ptr(), t.data_ptr(), prim.data_ptr(),
+                                     u.data_ptr(), v.data_ptr(), None if gone is None else gone.data_ptr(), ctypes.byref(missed))  # fmt: skip
+        return h, missed.value
 
     def occluded(self, o, d, tmax: torch.Tensor, out: torch.Tensor) -> None:
         """Into ``out`` (N,) bool: does something lie along each ray strictly before ``tmax`` (N,)

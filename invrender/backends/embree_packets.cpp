@@ -85,29 +85,44 @@ void say(char* error, int64_t size, const char* what, RTCError code) {
     std::snprintf(error, size_t(size), "Embree: %s (error %d)", what, int(code));
 }
 
-// Closest hits of the batch's n rays, each answered by answer(i, packet, k): ray i's hit is lane k
-// of the packet (geomID RTC_INVALID_GEOMETRY_ID: a miss), in the rays' order.
-template <class Answer>
-void closest(void* accel, const Rays& rays, int64_t n, Answer&& answer) {
+// Closest hits of the batch's n rays: answer(i, packet, k) for ray i traced in lane k of the packet
+// (geomID RTC_INVALID_GEOMETRY_ID: a miss), skip(i) for a ray not traced, every ray once and in the
+// rays' order. A ray is traced when it is alive (alive null, or alive[i] not 0) and traceable; those
+// alone fill the packets' lanes (the others take none: packets full of traced rays cost less a ray).
+template <class Answer, class Skip>
+void closest(void* accel, const Rays& rays, int64_t n, const uint8_t* alive, Answer&& answer, Skip&& skip) {
     const FlushDenormals flush;
     RTCScene scene = static_cast<Accel*>(accel)->scene;
     RTCIntersectContext context;
     rtcInitIntersectContext(&context);
     RTCRayHit16 packet;
     alignas(64) int valid[K];
-    for (int64_t start = 0; start < n; start += K) {
-        const int lanes = int(n - start < K ? n - start : K);
-        int traced = 0;
-        for (int k = 0; k < K; ++k) {
-            const int64_t i = start + (k < lanes ? k : 0);
-            const bool live = k < lanes && traceable(rays, i);
-            valid[k] = live ? -1 : 0;
-            traced += live;
-            pack(packet.ray, k, rays, i, INFINITY, live);
-            packet.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID, packet.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
+    int64_t at[K];  // the ray in each lane
+    int64_t i = 0;
+    while (i < n) {
+        const int64_t first = i;
+        int lanes = 0;
+        for (; i < n && lanes < K; ++i) {
+            if ((!alive || alive[i]) && traceable(rays, i)) {
+                pack(packet.ray, lanes, rays, i, INFINITY, true);
+                at[lanes++] = i;
+            }
         }
-        if (traced) rtcIntersect16(valid, scene, &context, &packet);
-        for (int k = 0; k < lanes; ++k) answer(start + k, packet, k);
+        if (lanes) {
+            for (int k = 0; k < K; ++k) {
+                if (k >= lanes) pack(packet.ray, k, rays, 0, 0.0f, false);
+                valid[k] = k < lanes ? -1 : 0;
+                packet.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID, packet.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
+            }
+            rtcIntersect16(valid, scene, &context, &packet);
+        }
+        for (int64_t j = first, k = 0; j < i; ++j) {  // rays first .. i - 1 answered in order
+            if (k < lanes && at[k] == j) {
+                answer(j, packet, int(k++));
+            } else {
+                skip(j);
+            }
+        }
     }
 }
 
@@ -163,28 +178,29 @@ void ir_embree_free(void* accel) {
 // Closest hits of n rays (origins ox, oy, oz and directions dx, dy, dz through their strides, as
 // Rays reads them): t (n,) float32, prim (n,) int64, u, v (n,) float32.
 void ir_embree_intersect(void* accel, const float* ox, const float* oy, const float* oz, int64_t o_lane, const float* dx, const float* dy, const float* dz, int64_t d_lane, int64_t n, float* t, int64_t* prim, float* u, float* v) {
-    closest(accel, Rays{{ox, oy, oz}, o_lane, {dx, dy, dz}, d_lane}, n, [&](int64_t i, const RTCRayHit16& packet, int k) {
-        const bool hit = packet.hit.geomID[k] != RTC_INVALID_GEOMETRY_ID;
-        t[i] = hit ? packet.ray.tfar[k] : INFINITY;
-        prim[i] = hit ? int64_t(packet.hit.primID[k]) : -1;
-        u[i] = hit ? packet.hit.u[k] : 0.0f;
-        v[i] = hit ? packet.hit.v[k] : 0.0f;
-    });
+    auto miss = [&](int64_t i) { t[i] = INFINITY, prim[i] = -1, u[i] = v[i] = 0.0f; };
+    closest(accel, Rays{{ox, oy, oz}, o_lane, {dx, dy, dz}, d_lane}, n, nullptr, [&](int64_t i, const RTCRayHit16& packet, int k) {
+        if (packet.hit.geomID[k] == RTC_INVALID_GEOMETRY_ID) return miss(i);
+        t[i] = packet.ray.tfar[k], prim[i] = int64_t(packet.hit.primID[k]), u[i] = packet.hit.u[k], v[i] = packet.hit.v[k];
+    }, miss);
 }
 
 // Closest hits of n rays (as ir_embree_intersect reads them) compacted to the rays that hit: returns
 // their count h, and for j < h, index[j] the j-th ray that hit (in the rays' order) and its hit t[j],
-// prim[j], u[j], v[j]; the rays that missed in gone[0 .. n - h), in order, unless gone is null.
-int64_t ir_embree_hits(void* accel, const float* ox, const float* oy, const float* oz, int64_t o_lane, const float* dx, const float* dy, const float* dz, int64_t d_lane, int64_t n, int64_t* index, float* t, int64_t* prim, float* u, float* v, int64_t* gone) {
+// prim[j], u[j], v[j]; the rays that missed, in order, in gone (unless it is null), the count of
+// them in *missed. With alive (n,) bytes, only the rays where it is not 0 are traced, the others
+// neither hit nor miss (paths that ended).
+int64_t ir_embree_hits(void* accel, const float* ox, const float* oy, const float* oz, int64_t o_lane, const float* dx, const float* dy, const float* dz, int64_t d_lane, int64_t n, const uint8_t* alive, int64_t* index, float* t, int64_t* prim, float* u, float* v, int64_t* gone, int64_t* missed) {
     int64_t h = 0, m = 0;
-    closest(accel, Rays{{ox, oy, oz}, o_lane, {dx, dy, dz}, d_lane}, n, [&](int64_t i, const RTCRayHit16& packet, int k) {
-        if (packet.hit.geomID[k] != RTC_INVALID_GEOMETRY_ID) {
-            index[h] = i, t[h] = packet.ray.tfar[k], prim[h] = int64_t(packet.hit.primID[k]), u[h] = packet.hit.u[k], v[h] = packet.hit.v[k];
-            ++h;
-        } else if (gone) {
-            gone[m++] = i;
-        }
-    });
+    auto miss = [&](int64_t i) {
+        if (gone && (!alive || alive[i])) gone[m++] = i;
+    };
+    closest(accel, Rays{{ox, oy, oz}, o_lane, {dx, dy, dz}, d_lane}, n, alive, [&](int64_t i, const RTCRayHit16& packet, int k) {
+        if (packet.hit.geomID[k] == RTC_INVALID_GEOMETRY_ID) return miss(i);
+        index[h] = i, t[h] = packet.ray.tfar[k], prim[h] = int64_t(packet.hit.primID[k]), u[h] = packet.hit.u[k], v[h] = packet.hit.v[k];
+        ++h;
+    }, miss);
+    *missed = m;
     return h;
 }
 

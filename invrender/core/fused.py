@@ -451,10 +451,12 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
     # with materials of delta lobes only, shadow rays are cast from the others' vertices alone, as
     # the torch bounce casts them (path replay's adjoint pass takes the same queries in order)
     smooth = ctx.materials.has_rows(Lobe.SMOOTH).index_select(0, ctx.triangles.material) if ctx.materials.any_delta_only else None
-    depth = 0
+    depth, alive = 0, None  # alive: the paths that go on, where some ended at the last vertex
     while keys.shape[0]:
         escape = fused.infinite and not (depth == 0 and ctx.hide_emitters)  # term depth for the rays that leave the scene
-        found = ctx.accel.closest_hits(o, d, misses=escape)  # a synchronization: the count of rays that hit
+        # a synchronization: the count of rays that hit; the paths that ended are not traced and
+        # drop out with the misses (one compaction a bounce)
+        found = ctx.accel.closest_hits(o, d, misses=escape, alive=alive)
         if escape and found.gone.shape[0]:
             gone = found.gone
             args = [_take(x, gone) for x in (d, beta, pdf, delta)]
@@ -514,8 +516,6 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
         del factors, emitted, shadow_d, direct, occluded, prim, u, v, t, hit
         if not more:
             break
-        if depth + 1 >= rr_start or fused.absorbing:
-            live = where_true(alive)  # a synchronization: the survivors' count
-            if live.shape[0] < keys.shape[0]:
-                pixel, keys, o, d, beta, pdf, delta, counts = (_take(x, live) for x in (pixel, keys, o, d, beta, pdf, delta, counts))
+        if not (depth + 1 >= rr_start or fused.absorbing):
+            alive = None  # (every path goes on)
         depth += 1

@@ -115,26 +115,31 @@ def test_the_queries_leave_the_callers_float_mode_as_it_was():
 
 @needs_packets
 @pytest.mark.parametrize("n", [0, 1, 17, 5003])
-def test_closest_hits_compacted_as_they_are_answered(n):
+@pytest.mark.parametrize("ended", [None, 0.4, 1.0])
+def test_closest_hits_compacted_as_they_are_answered(n, ended):
     """The packets' ``closest_hits`` writes the rays that hit (and those that missed) as it
     answers: the same rays, order and hits as the base class's compaction of ``intersect``, on one
-    thread and split across two, untraceable rays among the misses."""
+    thread and split across two, untraceable rays among the misses; with ``alive``, the rays of
+    paths that ended are neither (not traced: the base class compacts them away first)."""
     scene = ir.load_scene("cornell_box", resolution=(8, 8))
     o, d = random_rays(scene, n, seed=11)
     if n > 3:
         o[3] = float("nan")  # untraceable: a miss
+    alive = None if ended is None else torch.rand(n, generator=torch.Generator().manual_seed(12)) >= ended
     for threads in (1, 2):
         packets = make_intersector(scene.triangles, "embree", threads)
         hits = packets.intersect(o, d)
-        want = accel.Intersector.closest_hits(packets, o, d, misses=True)  # the base class's: intersect, then compact
-        got = packets.closest_hits(o, d, misses=True)
-        assert 0 < got.index.shape[0] < n or n < 17
+        want = accel.Intersector.closest_hits(packets, o, d, misses=True, alive=alive)  # the base class's: intersect, then compact
+        got = packets.closest_hits(o, d, misses=True, alive=alive)
+        assert 0 < got.index.shape[0] < n or n < 17 or ended == 1.0
         assert torch.equal(got.index, want.index) and torch.equal(got.gone, want.gone), threads
         for a, b in zip((got.t, got.prim, got.u, got.v), (want.t, want.prim, want.u, want.v)):
             assert torch.equal(a, b)
-        assert torch.equal(got.prim, hits.prim[hits.valid]) and packets.closest_hits(o, d).gone is None
+        keep = hits.valid if alive is None else hits.valid & alive
+        assert torch.equal(got.prim, hits.prim[keep]) and packets.closest_hits(o, d).gone is None
+        assert torch.equal(got.gone, torch.nonzero(~hits.valid if alive is None else ~hits.valid & alive)[:, 0])
         if n > 3:
-            assert 3 in got.gone.tolist()
+            assert (3 in got.gone.tolist()) == (alive is None or bool(alive[3]))
 
 
 @needs_packets
