@@ -145,17 +145,22 @@ def breakdown(args, results: Results) -> None:
     torch.set_num_threads(1)  # one worker
     spent = {"rays": 0.0, "kernels": 0.0}
 
+    inside = {"rays": 0, "kernels": 0}
+
     def timed(key, call):
-        def run(*a, **k):
+        def run(*a, **k):  # (a query made inside another of the same key is counted once)
+            inside[key] += 1
             start = time.perf_counter()
             try:
                 return call(*a, **k)
             finally:
-                spent[key] += time.perf_counter() - start
+                inside[key] -= 1
+                if not inside[key]:
+                    spent[key] += time.perf_counter() - start
 
         return run
 
-    for kind in ("intersect", "occluded"):
+    for kind in ("intersect", "closest_hits", "occluded"):
         setattr(accel.EmbreeIntersector, kind, timed("rays", getattr(accel.EmbreeIntersector, kind)))
     compiled.run = timed("kernels", compiled.run)  # the bounce written once (Dr.Jit, or eager torch)
     build = context.TransportContext.build
@@ -191,11 +196,11 @@ def rays(args, results: Results) -> None:
     scene = ir.load_scene("cornell_box", resolution=(n, n))
     batches = []
     cls = accel.EmbreeIntersector
-    intersect, occluded = cls.intersect, cls.occluded
-    cls.intersect = lambda self, o, d: batches.append(("closest hits", o, d, None)) or intersect(self, o, d)
+    closest_hits, occluded = cls.closest_hits, cls.occluded
+    cls.closest_hits = lambda self, o, d, misses=False, alive=None: batches.append(("closest hits", o, d, alive)) or closest_hits(self, o, d, misses, alive)
     cls.occluded = lambda self, o, d, tmax: batches.append(("shadow rays", o, d, tmax)) or occluded(self, o, d, tmax)
     ir.render(scene, spp=spp, max_depth=args.max_depth, seed=0, progress=False)
-    cls.intersect, cls.occluded = intersect, occluded
+    cls.closest_hits, cls.occluded = closest_hits, occluded
     engines = {}
     for mode in ("packets", "embreex"):
         os.environ[EMBREE_ENV] = mode
@@ -209,13 +214,14 @@ def rays(args, results: Results) -> None:
     rows = results.table(heading, ["query", "rays", "packets ns/ray (min, median)", "embreex ns/ray (min, median)", "embreex / packets"])
     for kind in ("closest hits", "shadow rays"):
         mine = [b for b in batches if b[0] == kind]
-        count = sum(stacked(b[1]).shape[0] for b in mine)
+        # rays traced: a closest-hit batch's live ones (its last argument: the paths that go on)
+        count = sum(stacked(b[1]).shape[0] if b[3] is None or kind == "shadow rays" else int(b[3].sum()) for b in mine)
         spent = {mode: [] for mode in engines}
         for _ in range(5):
             for mode, engine in engines.items():
                 start = time.perf_counter()
-                for _, o, d, tmax in mine:
-                    engine.intersect(o, d) if tmax is None else engine.occluded(o, d, tmax)
+                for _, o, d, last in mine:
+                    engine.closest_hits(o, d, alive=last) if kind == "closest hits" else engine.occluded(o, d, last)
                 spent[mode].append((time.perf_counter() - start) / count * 1e9)
         p, e = (sorted(spent[m]) for m in ("packets", "embreex"))
         print(f"  {kind:13s} {count:9d} rays: packets {p[0]:6.1f} ns ({p[2]:.1f}), embreex {e[0]:6.1f} ns ({e[2]:.1f}): {e[2] / p[2]:.2f}x")
