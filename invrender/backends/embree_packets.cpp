@@ -1,9 +1,11 @@
 // Embree's packet queries for the embree intersection backend (invrender/backends/embree_native.py).
 //
 // A ray batch arrives as flat float32 arrays (origins and unit directions (N, 3), distances (N,));
-// each query packs 16 rays at a time into Embree's structure-of-arrays packet and writes its answers
-// straight into the caller's (torch) arrays: closest hits as (t, triangle, u, v) with t = inf and
-// triangle = -1 for a miss, shadow rays as one byte each. A shadow ray whose distance is not
+// each query packs the rays it traces 16 at a time into Embree's structure-of-arrays packet (the
+// rays it does not trace take no lane) and writes its answers straight into the caller's (torch)
+// arrays: closest hits as (t, triangle, u, v) with t = inf and triangle = -1 for a miss, or
+// compacted to the rays that hit (with, for paths that ended, rays not traced at all); shadow rays
+// as one byte each. A shadow ray whose distance is not
 // positive (or NaN) is not traced and answers "not occluded": nothing lies strictly before it.
 // A ray that Embree would refuse (a component of its origin or direction NaN, infinite or beyond
 // Embree's FLT_LARGE) is not traced either: a miss, not occluded. Embree built with assertions
@@ -53,19 +55,25 @@ struct Accel {
     RTCScene scene;
 };
 
-// Lane k of a packet: ray i of the batch from 0 to tfar; a lane that is not live gets a finite
-// stand-in ray (from the world origin along +z, tfar = 0).
-inline void pack(RTCRay16& ray, int k, const Rays& r, int64_t i, float tfar, bool live) {
-    if (live) {
-        ray.org_x[k] = r.origin(i, 0), ray.org_y[k] = r.origin(i, 1), ray.org_z[k] = r.origin(i, 2);
-        ray.dir_x[k] = r.direction(i, 0), ray.dir_y[k] = r.direction(i, 1), ray.dir_z[k] = r.direction(i, 2);
-    } else {
-        ray.org_x[k] = ray.org_y[k] = ray.org_z[k] = 0.0f;
-        ray.dir_x[k] = ray.dir_y[k] = 0.0f, ray.dir_z[k] = 1.0f;
-        tfar = 0.0f;
-    }
+// Lane k of a packet: ray i of the batch from 0 to tfar.
+inline void pack(RTCRay16& ray, int k, const Rays& r, int64_t i, float tfar) {
+    ray.org_x[k] = r.origin(i, 0), ray.org_y[k] = r.origin(i, 1), ray.org_z[k] = r.origin(i, 2);
+    ray.dir_x[k] = r.direction(i, 0), ray.dir_y[k] = r.direction(i, 1), ray.dir_z[k] = r.direction(i, 2);
     ray.tnear[k] = 0.0f, ray.tfar[k] = tfar, ray.time[k] = 0.0f;
     ray.mask[k] = ~0u, ray.id[k] = 0, ray.flags[k] = 0;
+}
+
+// A packet's lanes from `lanes` on made finite stand-ins (from the world origin along +z, tfar 0),
+// and its valid mask: -1 for the lanes below `lanes`, 0 for the others.
+inline void close_packet(RTCRay16& ray, int* valid, int lanes) {
+    for (int k = 0; k < K; ++k) {
+        valid[k] = k < lanes ? -1 : 0;
+        if (k < lanes) continue;
+        ray.org_x[k] = ray.org_y[k] = ray.org_z[k] = 0.0f;
+        ray.dir_x[k] = ray.dir_y[k] = 0.0f, ray.dir_z[k] = 1.0f;
+        ray.tnear[k] = 0.0f, ray.tfar[k] = 0.0f, ray.time[k] = 0.0f;
+        ray.mask[k] = ~0u, ray.id[k] = 0, ray.flags[k] = 0;
+    }
 }
 
 // Within a query, denormals flushed to zero (in and out: the MXCSR's FTZ and DAZ bits), as Embree
@@ -85,10 +93,38 @@ void say(char* error, int64_t size, const char* what, RTCError code) {
     std::snprintf(error, size_t(size), "Embree: %s (error %d)", what, int(code));
 }
 
+// Rays 0 .. n - 1 in packets of the ones traced(i) picks, which alone fill the lanes (a packet
+// full of traced rays costs less a ray than one with lanes masked off: 20% less for a Cornell
+// box's shadow rays, 30% of which are not traced): fill(k, i) puts ray i in lane k, launch(lanes)
+// traces a packet of that many; then answer(i, k) for each ray traced and skip(i) for each other,
+// every ray once and in order.
+template <class Traced, class Fill, class Launch, class Answer, class Skip>
+void in_packets(int64_t n, Traced&& traced, Fill&& fill, Launch&& launch, Answer&& answer, Skip&& skip) {
+    int64_t at[K];  // the ray in each lane
+    int64_t i = 0;
+    while (i < n) {
+        const int64_t first = i;
+        int lanes = 0;
+        for (; i < n && lanes < K; ++i) {
+            if (traced(i)) {
+                fill(lanes, i);
+                at[lanes++] = i;
+            }
+        }
+        if (lanes) launch(lanes);
+        for (int64_t j = first, k = 0; j < i; ++j) {  // rays first .. i - 1 answered in order
+            if (k < lanes && at[k] == j) {
+                answer(j, int(k++));
+            } else {
+                skip(j);
+            }
+        }
+    }
+}
+
 // Closest hits of the batch's n rays: answer(i, packet, k) for ray i traced in lane k of the packet
 // (geomID RTC_INVALID_GEOMETRY_ID: a miss), skip(i) for a ray not traced, every ray once and in the
-// rays' order. A ray is traced when it is alive (alive null, or alive[i] not 0) and traceable; those
-// alone fill the packets' lanes (the others take none: packets full of traced rays cost less a ray).
+// rays' order. A ray is traced when it is alive (alive null, or alive[i] not 0) and traceable.
 template <class Answer, class Skip>
 void closest(void* accel, const Rays& rays, int64_t n, const uint8_t* alive, Answer&& answer, Skip&& skip) {
     const FlushDenormals flush;
@@ -97,33 +133,17 @@ void closest(void* accel, const Rays& rays, int64_t n, const uint8_t* alive, Ans
     rtcInitIntersectContext(&context);
     RTCRayHit16 packet;
     alignas(64) int valid[K];
-    int64_t at[K];  // the ray in each lane
-    int64_t i = 0;
-    while (i < n) {
-        const int64_t first = i;
-        int lanes = 0;
-        for (; i < n && lanes < K; ++i) {
-            if ((!alive || alive[i]) && traceable(rays, i)) {
-                pack(packet.ray, lanes, rays, i, INFINITY, true);
-                at[lanes++] = i;
-            }
-        }
-        if (lanes) {
-            for (int k = 0; k < K; ++k) {
-                if (k >= lanes) pack(packet.ray, k, rays, 0, 0.0f, false);
-                valid[k] = k < lanes ? -1 : 0;
-                packet.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID, packet.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
-            }
+    in_packets(
+        n, [&](int64_t i) { return (!alive || alive[i]) && traceable(rays, i); },
+        [&](int k, int64_t i) {
+            pack(packet.ray, k, rays, i, INFINITY);
+            packet.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID, packet.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
+        },
+        [&](int lanes) {
+            close_packet(packet.ray, valid, lanes);
             rtcIntersect16(valid, scene, &context, &packet);
-        }
-        for (int64_t j = first, k = 0; j < i; ++j) {  // rays first .. i - 1 answered in order
-            if (k < lanes && at[k] == j) {
-                answer(j, packet, int(k++));
-            } else {
-                skip(j);
-            }
-        }
-    }
+        },
+        [&](int64_t i, int k) { answer(i, packet, k); }, skip);
 }
 
 }  // namespace
@@ -174,7 +194,6 @@ void ir_embree_free(void* accel) {
     delete a;
 }
 
-
 // Closest hits of n rays (origins ox, oy, oz and directions dx, dy, dz through their strides, as
 // Rays reads them): t (n,) float32, prim (n,) int64, u, v (n,) float32.
 void ir_embree_intersect(void* accel, const float* ox, const float* oy, const float* oz, int64_t o_lane, const float* dx, const float* dy, const float* dz, int64_t d_lane, int64_t n, float* t, int64_t* prim, float* u, float* v) {
@@ -213,27 +232,15 @@ void ir_embree_occluded(void* accel, const float* ox, const float* oy, const flo
     rtcInitIntersectContext(&context);
     RTCRay16 packet;
     alignas(64) int valid[K];
-    int64_t at[K];  // the ray in each lane
-    // only rays that are traced fill the lanes, the others answer 0 at once: 30% of a Cornell
-    // box's shadow rays add nothing (tmax 0), and packets full of traced rays took 20% less time
-    // per ray than packets with those lanes masked off (AMD EPYC, AVX-512)
-    int64_t i = 0;
-    while (i < n) {
-        int lanes = 0;
-        for (; i < n && lanes < K; ++i) {
-            if (tmax[i] > 0.0f && traceable(rays, i)) {  // false for a NaN tmax too
-                pack(packet, lanes, rays, i, tmax[i], true);
-                at[lanes++] = i;
-            } else {
-                hit[i] = 0;
-            }
-        }
-        if (!lanes) break;
-        for (int k = 0; k < K; ++k) valid[k] = k < lanes ? -1 : 0;
-        for (int k = lanes; k < K; ++k) pack(packet, k, rays, 0, 0.0f, false);
-        rtcOccluded16(valid, scene, &context, &packet);
-        for (int k = 0; k < lanes; ++k) hit[at[k]] = packet.tfar[k] < 0.0f;  // Embree sets tfar = -inf on a hit
-    }
+    in_packets(
+        n, [&](int64_t i) { return tmax[i] > 0.0f && traceable(rays, i); },  // false for a NaN tmax too
+        [&](int k, int64_t i) { pack(packet, k, rays, i, tmax[i]); },
+        [&](int lanes) {
+            close_packet(packet, valid, lanes);
+            rtcOccluded16(valid, scene, &context, &packet);
+        },
+        [&](int64_t i, int k) { hit[i] = packet.tfar[k] < 0.0f; },  // Embree sets tfar = -inf on a hit
+        [&](int64_t i) { hit[i] = 0; });
 }
 
 }  // extern "C"
