@@ -73,12 +73,17 @@ from invrender.core.sampler import bounce_salt_values
 from invrender.core.surface import carries_derivative
 from invrender.vec import where_true
 
-#: paths a chunk traced by the fused bounce holds at most on the CPU (about 400 bytes a path: 50
-#: MiB a worker): its per-chunk cost (a few dozen launches and queries a bounce, and the small
-#: calls of its last bounces) shrinks with the chunks' count; 2^17 against 2^16 rendered the
-#: Cornell box 7%, the specular box 9% and the textured floor 15% faster (wall and CPU time, 2
-#: workers, interleaved, AMD EPYC AVX-512), and 2^18 no faster than 2^17
-CPU_CHUNK_PATHS = 1 << 17
+#: paths a chunk traced by the fused bounce holds at most on the CPU (about 300 bytes a path,
+#: :data:`BYTES_PER_PATH`: 75 MiB a worker): its per-chunk cost (a few dozen launches and queries a
+#: bounce, and the small calls of its last bounces) shrinks with the chunks' count; on the Cornell
+#: box (128^2, 64 spp, 2 workers, AMD EPYC AVX-512, alternating in one process) 2^18 took 4% less
+#: time than 2^17 (0.302 s against 0.316 s; a render's memory 155 MiB against 81 MiB over a small
+#: render's) and 2^19 1% less again for 285 MiB; before the queries compacted their answers
+#: (Intersector.closest_hits), 2^17 had been 7-15% faster than 2^16 and 2^18 no faster
+CPU_CHUNK_PATHS = 1 << 18
+#: a fused chunk's working set a path (the chunk's arrays a bounce; measured: 155 MiB for two
+#: workers' chunks of 2^18), which sizes its chunks from ``RenderSettings.memory_mb``
+BYTES_PER_PATH = 320
 #: the same for a render that carries derivatives (path replay's gradient: its memory is what
 #: replay promises to keep small): 56k paths, a gradient's increment 93-94 MiB and 0.60-0.63x
 #: Mitsuba's prb (Cornell box 128^2, 64 spp, 2 workers; bench/gradient.py); 64k: 96-100 MiB,

@@ -233,8 +233,8 @@ class Integrator(ABC):
             if keep is not None:
                 keep[start] = (totals.float(), shadows)  # float32 until replay takes it up
 
-        size = BYTES_PER_PATH if keep is None else BYTES_PER_REPLAYED_PATH  # kept chunks are replay's chunks
         small = keep is None and device.type == "cpu" and scene_tables is not None  # fused chunks need not be large
+        size = fused.BYTES_PER_PATH if small else BYTES_PER_PATH if keep is None else BYTES_PER_REPLAYED_PATH  # kept chunks are replay's chunks
         cap = fused.CPU_TANGENT_CHUNK_PATHS if tangents is not None else fused.CPU_CHUNK_PATHS
         for_each_chunk(scene, settings, device, chunk, across_ranks=True, with_start=True, bytes_per_path=size, max_chunk=cap if small else None, with_positions=True)
         film = type(films[0]).merge(films).summed_across_ranks()
