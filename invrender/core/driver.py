@@ -314,7 +314,7 @@ def camera_paths(scene: Scene, settings: RenderSettings, ids: torch.Tensor, posi
     if d is None:
         o, d = camera.generate_rays(film_xy, scene.width, scene.height, lens)
     n_paths = ids.shape[0]
-    beta = torch.ones(n_paths, 3, device=ids.device)
+    beta = torch.ones(3, n_paths, device=ids.device).t()  # (N, 3) by columns, as the compiled bounce keeps its 3-vectors
     state = PathState(
         keys=keys, pixel=pixel, o=o.contiguous(), d=d, beta=beta,
         pdf_dir=torch.ones(n_paths, device=ids.device), delta=torch.ones(n_paths, dtype=torch.bool, device=ids.device),
