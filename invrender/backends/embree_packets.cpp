@@ -122,17 +122,23 @@ void in_packets(int64_t n, Traced&& traced, Fill&& fill, Launch&& launch, Answer
     }
 }
 
+// What a query holds while it traces: denormals flushed, the scene, Embree's context and a
+// packet's valid mask.
+struct Query {
+    const FlushDenormals flush;
+    RTCScene scene;
+    RTCIntersectContext context;
+    alignas(64) int valid[K];
+    explicit Query(void* accel) : scene(static_cast<Accel*>(accel)->scene) { rtcInitIntersectContext(&context); }
+};
+
 // Closest hits of the batch's n rays: answer(i, packet, k) for ray i traced in lane k of the packet
 // (geomID RTC_INVALID_GEOMETRY_ID: a miss), skip(i) for a ray not traced, every ray once and in the
 // rays' order. A ray is traced when it is alive (alive null, or alive[i] not 0) and traceable.
 template <class Answer, class Skip>
 void closest(void* accel, const Rays& rays, int64_t n, const uint8_t* alive, Answer&& answer, Skip&& skip) {
-    const FlushDenormals flush;
-    RTCScene scene = static_cast<Accel*>(accel)->scene;
-    RTCIntersectContext context;
-    rtcInitIntersectContext(&context);
+    Query q(accel);
     RTCRayHit16 packet;
-    alignas(64) int valid[K];
     in_packets(
         n, [&](int64_t i) { return (!alive || alive[i]) && traceable(rays, i); },
         [&](int k, int64_t i) {
@@ -140,8 +146,8 @@ void closest(void* accel, const Rays& rays, int64_t n, const uint8_t* alive, Ans
             packet.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID, packet.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
         },
         [&](int lanes) {
-            close_packet(packet.ray, valid, lanes);
-            rtcIntersect16(valid, scene, &context, &packet);
+            close_packet(packet.ray, q.valid, lanes);
+            rtcIntersect16(q.valid, q.scene, &q.context, &packet);
         },
         [&](int64_t i, int k) { answer(i, packet, k); }, skip);
 }
@@ -226,18 +232,14 @@ int64_t ir_embree_hits(void* accel, const float* ox, const float* oy, const floa
 // Shadow rays: hit[i] = 1 when something lies along ray i strictly before tmax[i], else 0.
 void ir_embree_occluded(void* accel, const float* ox, const float* oy, const float* oz, int64_t o_lane, const float* dx, const float* dy, const float* dz, int64_t d_lane, const float* tmax, int64_t n, uint8_t* hit) {
     const Rays rays{{ox, oy, oz}, o_lane, {dx, dy, dz}, d_lane};
-    const FlushDenormals flush;
-    RTCScene scene = static_cast<Accel*>(accel)->scene;
-    RTCIntersectContext context;
-    rtcInitIntersectContext(&context);
+    Query q(accel);
     RTCRay16 packet;
-    alignas(64) int valid[K];
     in_packets(
         n, [&](int64_t i) { return tmax[i] > 0.0f && traceable(rays, i); },  // false for a NaN tmax too
         [&](int k, int64_t i) { pack(packet, k, rays, i, tmax[i]); },
         [&](int lanes) {
-            close_packet(packet, valid, lanes);
-            rtcOccluded16(valid, scene, &context, &packet);
+            close_packet(packet, q.valid, lanes);
+            rtcOccluded16(q.valid, q.scene, &q.context, &packet);
         },
         [&](int64_t i, int k) { hit[i] = packet.tfar[k] < 0.0f; },  // Embree sets tfar = -inf on a hit
         [&](int64_t i) { hit[i] = 0; });
