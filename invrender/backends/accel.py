@@ -191,6 +191,12 @@ class Intersector(abc.ABC):
         packets: no pass over the answers of its own)."""
         return compacted_hits(self.intersect, o, d, misses, alive)
 
+    def records(self, kind: str) -> bool:
+        """Are the queries of ``kind`` recorded, to be answered again in order (a backend: never;
+        :class:`RepeatedQueries`: its kinds)? A caller then asks exactly the queries the torch
+        bounce asks."""
+        return False
+
     def occluded(self, o: torch.Tensor, d: torch.Tensor, tmax: torch.Tensor) -> torch.Tensor:
         """(N,) bool: does anything lie along each ray strictly before ``tmax`` (N,)? False where
         ``tmax`` is not positive or NaN (not traced) and where the ray cannot be traced."""
@@ -483,6 +489,9 @@ class RepeatedQueries:
     def __init__(self, backend, kinds: tuple[str, ...] = ("intersect", "occluded")):
         self.name = backend.name
         self._backend, self._kinds, self._answers, self._next = backend, kinds, [], None
+
+    def records(self, kind: str) -> bool:
+        return kind in self._kinds
 
     def repeat(self, backend=None) -> RepeatedQueries:
         """From now on, answer the recorded queries in order (the others from ``backend``, default

@@ -454,8 +454,11 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
     at_once = not film.terms and not tangents and not arrives  # a bounce's two terms in one film addition
     counts = torch.zeros(rho.shape[0] if tangents else 0, keys.shape[0], dtype=torch.int32, device=keys.device).t()  # factors of each rho in beta, (N, M) by columns (as the kernels give them)
     # with materials of delta lobes only, shadow rays are cast from the others' vertices alone, as
-    # the torch bounce casts them (path replay's adjoint pass takes the same queries in order)
-    smooth = ctx.materials.has_rows(Lobe.SMOOTH).index_select(0, ctx.triangles.material) if ctx.materials.any_delta_only else None
+    # the torch bounce casts them, where the queries are recorded (path replay's adjoint pass takes
+    # the same queries in order); elsewhere all are passed, those vertices' with tmax 0, which no
+    # backend traces (a compaction saved)
+    recorded = ctx.accel.records("occluded")
+    smooth = ctx.materials.has_rows(Lobe.SMOOTH).index_select(0, ctx.triangles.material) if ctx.materials.any_delta_only and recorded else None
     depth, alive = 0, None  # alive: the paths that go on, where some ended at the last vertex
     while keys.shape[0]:
         escape = fused.infinite and not (depth == 0 and ctx.hide_emitters)  # term depth for the rays that leave the scene
