@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from invrender.backends.arrays import Columns, stacked
+from invrender.backends.arrays import Columns, stacked, take
 from invrender.vec import where_true
 from invrender.errors import ParameterError, did_you_mean
 from invrender.scene.scene import Triangles
@@ -101,7 +101,7 @@ def compacted_hits(intersect, o, d, misses: bool = False, alive: torch.Tensor | 
     ``alive`` picks (all without it) asked, then their hits compacted."""
     live = None if alive is None else where_true(alive)
     if live is not None:
-        o, d = _take(o, live), _take(d, live)
+        o, d = take(o, live), take(d, live)
     hits = intersect(o, d)
     valid = hits.valid
     index = where_true(valid)
@@ -110,11 +110,6 @@ def compacted_hits(intersect, o, d, misses: bool = False, alive: torch.Tensor | 
         found[0] = live.index_select(0, index)
         found[5] = None if found[5] is None else live.index_select(0, found[5])
     return FoundHits(*found)
-
-
-def _take(x, index: torch.Tensor):
-    """Rays ``index`` of ``x`` (N, 3) or :class:`~invrender.backends.arrays.Columns`."""
-    return x.take(index) if isinstance(x, Columns) else x.index_select(0, index)
 
 
 #: the largest magnitude of a ray's origin or direction components that is traced: Embree's
@@ -289,7 +284,7 @@ class EmbreeIntersector(Intersector):
             found = [x[: parts[0][1]] for x in out]
             missed = None if gone is None else gone[: parts[0][2]]
         else:  # (a part's rays counted from its start)
-            found = [torch.cat([x[a : a + h] + (a if x is out[0] else 0) for a, h, _ in parts]) for x in out]
+            found = [torch.cat([out[0][a : a + h] + a for a, h, _ in parts])] + [torch.cat([x[a : a + h] for a, h, _ in parts]) for x in out[1:]]
             missed = None if gone is None else torch.cat([gone[a : a + m] + a for a, _, m in parts])
         if dev.type != "cpu":
             found = [x.to(dev) for x in found]

@@ -108,6 +108,16 @@ class Columns(tuple):
         return Columns(c[a:b] for c in self)
 
 
+def take(x, index: torch.Tensor):
+    """Lanes ``index`` (M,) int64 of ``x``: :class:`Columns`, a (N, k) tensor (one stored by
+    columns kept so: the kernels' layout) or a (N,) one."""
+    if isinstance(x, Columns):
+        return x.take(index)
+    if x.ndim == 2 and x.stride(0) == 1 and x.shape[1] > 1:
+        return x.t().index_select(1, index).t()
+    return x.index_select(0, index)
+
+
 def stacked(x):
     """``x`` as a tensor: :class:`Columns` stacked to (N, k), anything else as it is."""
     return x.stacked() if isinstance(x, Columns) else x

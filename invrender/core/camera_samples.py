@@ -130,9 +130,7 @@ def camera_samples(ids: torch.Tensor, spp: int, width: int, sampler: str, seed: 
     salts = tuple(Opaque(s) for s in bounce_salt_values(0, 4 if lens else 2))
     key_salt, pattern_salt = Opaque(seed_salt(seed)), Opaque(seed_salt(seed ^ 0x5EED))
     strata = direct_strata(seed) if sampler == "stratified_direct" else None
-    # (the low 32 bits: one conversion where the values fit, as a render's pixel and sample indices do)
-    low = (lambda x: x.to(torch.int32)) if plan is None and ids.numel() and int(ids.max()) < 2**31 else _low32  # (pixel, sample <= id)
-    out = compiled.run(lane_samples, ids.device, low(pixel), low(sample), first, cells, m, Opaque(width), key_salt, pattern_salt, salts, pinhole, strata, mode=MODES[sampler], lens=lens)
+    out = compiled.run(lane_samples, ids.device, _low32(pixel), _low32(sample), first, cells, m, Opaque(width), key_salt, pattern_salt, salts, pinhole, strata, mode=MODES[sampler], lens=lens)
     samples = (pixel, out[0], out[1], out[2] if lens else None)
     if pinhole is not None:
         samples += (out[3 if lens else 2],)

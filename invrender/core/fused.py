@@ -66,7 +66,7 @@ from invrender.core.context import PathState, TransportContext
 from invrender.core.film import Film
 from invrender.core.ranks import sum_across_ranks, world
 from invrender.core import compiled, lanes, shading
-from invrender.backends.arrays import Columns, stacked
+from invrender.backends.arrays import Columns, stacked, take
 from invrender.core.compiled import Opaque
 from invrender.core.bsdf import LaneBSDF, Lobe
 from invrender.core.sampler import bounce_salt_values
@@ -334,16 +334,6 @@ def vertex(fused: FusedScene, hits: tuple, d, beta, pdf_dir, delta, keys, depth:
     return out
 
 
-def _take(x, index: torch.Tensor):
-    """Rows ``index`` of ``x``, a (N, 3) stored by columns kept so (the kernels' layout), or
-    :class:`~invrender.backends.arrays.Columns`."""
-    if isinstance(x, Columns):
-        return x.take(index)
-    if x.ndim == 2 and x.stride(0) == 1 and x.shape[1] > 1:
-        return x.t().index_select(1, index).t()
-    return x.index_select(0, index)
-
-
 def jacobian_lanes(xp, sums, pixel, rho, emitted, direct, factor_e, emitter_hit, factor_d, emitter_sampled, material_hit, counts: tuple, active, occluded, *, materials: int, emitters: int, width: int, scatter: bool) -> tuple:
     """One vertex's derivatives in the scene's constant parameters (:class:`TangentFilm`), added
     to its pixel's row of ``sums``: a contribution C with n factors of rho_m has ``n C / rho_m``
@@ -467,7 +457,7 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
         found = ctx.accel.closest_hits(o, d, misses=escape, alive=alive)
         if escape and found.gone.shape[0]:
             gone = found.gone
-            args = [_take(x, gone) for x in (d, beta, pdf, delta)]
+            args = [take(x, gone) for x in (d, beta, pdf, delta)]
             (seen,) = compiled.run(lanes.escaped_vertex, keys.device, fused.lanes[1], fused.lanes[2], *args, emitters=fused.emitters, first=depth == 0, mis=fused.mis, nee_only=fused.nee_only)
             at = pixel.index_select(0, gone)
             if arrives:
@@ -476,8 +466,8 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
         hit, prim, u, v, t = found.index, found.prim, found.u, found.v, found.t
         del found  # (a bounce's arrays are released as soon as they are read: a chunk's peak memory is one bounce's)
         if hit.shape[0] < keys.shape[0]:
-            pixel, keys, d, beta, pdf, delta, counts = (_take(x, hit) for x in (pixel, keys, d, beta, pdf, delta, counts))
-            strata = None if strata is None else _take(strata, hit)
+            pixel, keys, d, beta, pdf, delta, counts = (take(x, hit) for x in (pixel, keys, d, beta, pdf, delta, counts))
+            strata = None if strata is None else take(strata, hit)
             if not hit.shape[0]:
                 break
         more = settings.continues_after(depth)
@@ -493,7 +483,7 @@ def trace(ctx: TransportContext, fused: FusedScene, state: PathState, film: Film
             else:
                 cast = where_true(smooth.index_select(0, prim))
                 occluded = torch.zeros_like(keys, dtype=torch.bool)
-                occluded[cast] = ctx.accel.occluded(*(_take(x, cast) for x in (shadow_o, shadow_d, shadow_t)))
+                occluded[cast] = ctx.accel.occluded(*(take(x, cast) for x in (shadow_o, shadow_d, shadow_t)))
             # the occluded samples' direct light zeroed: a multiplication by 0 or 1 (the kernel's
             # direct light is finite: samples that add nothing are 0), several times faster on the
             # CPU than a fill by a boolean mask

@@ -56,9 +56,9 @@ def _mix_int(x: int) -> int:
 
 
 def _low32(x: torch.Tensor) -> torch.Tensor:
-    """The low 32 bits of an int64 tensor, as int32."""
-    y = x & _MASK
-    return (y - ((y >> 31) << 32)).to(torch.int32)
+    """The low 32 bits of an int64 tensor, as int32: torch's integer conversion keeps them (it
+    wraps, as C's does; ``tests/sampling`` holds it to the bitwise form), in one pass."""
+    return x.to(torch.int32)
 
 
 def seed_salt(seed: int) -> int:

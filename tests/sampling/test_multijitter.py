@@ -14,7 +14,17 @@ import math
 import pytest
 import torch
 
-from invrender.core.sampler import _permuted, multijitter
+from invrender.core.sampler import _low32, _permuted, multijitter
+
+
+def test_low32_keeps_the_low_bits_of_any_int64():
+    """The counters' words are the low 32 bits of 64-bit ids (pattern seeds past 2^31, path ids
+    past 2^32): torch's conversion must keep them, as the bitwise form does, on every value."""
+    x = torch.cat([torch.tensor([0, 1, -1, 2**31 - 1, 2**31, 2**32 - 1, 2**32, 2**40 + 12345, -(2**40) - 7, 2**63 - 1, -(2**63)]),
+                   torch.randint(-(2**62), 2**62, (10000,), generator=torch.Generator().manual_seed(0))])  # fmt: skip
+    y = x & 0xFFFFFFFF
+    assert torch.equal(_low32(x), (y - ((y >> 31) << 32)).to(torch.int32))
+    assert _low32(x)[:9].tolist() == [0, 1, -1, 2**31 - 1, -(2**31), -1, 0, 12345, -7]
 
 
 @pytest.mark.parametrize("n", [1, 2, 3, 5, 16, 17, 100, 1000])
