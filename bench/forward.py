@@ -238,6 +238,11 @@ def memory(args, results: Results) -> None:
     rows.append([args.memory_spp, args.max_depth, round(seconds, 1), round(peak_rss_mib()), " ".join(f"{v:.4f}" for v in img.mean(dim=(0, 1)).tolist())])
 
 
+#: the CPUs ``--llvm-target`` accepts (LLVM's names), each with the instruction set its code needs
+LLVM_CPUS = {"x86-64-v2": "sse4_2", "x86-64-v3": "avx2", "x86-64-v4": "avx512f", "haswell": "avx2", "skylake": "avx2", "skylake-avx512": "avx512f",
+             "icelake-server": "avx512f", "znver2": "avx2", "znver3": "avx2", "znver4": "avx512f"}  # fmt: skip
+
+
 def llvm_target(spec: str) -> str:
     """Dr.Jit's LLVM code for CPU ``spec`` = ``CPU:WIDTH`` (e.g. ``znver3:8``), for every kernel
     compiled from here on (Mitsuba's and invrender's share Dr.Jit); returns a label."""
@@ -249,6 +254,11 @@ def llvm_target(spec: str) -> str:
     cpu, _, width = spec.partition(":")
     if not cpu or not width.isdigit() or int(width) not in (4, 8, 16):
         raise SystemExit(f"--llvm-target must be CPU:WIDTH with WIDTH 4, 8 or 16 (e.g. znver3:8), got {spec!r}")
+    if cpu not in LLVM_CPUS:  # (LLVM aborts the process on a name it does not know)
+        raise SystemExit(f"--llvm-target: unknown CPU {cpu!r}; one of {', '.join(LLVM_CPUS)}")
+    flags = Path("/proc/cpuinfo").read_text().split() if Path("/proc/cpuinfo").exists() else []
+    if LLVM_CPUS[cpu] not in flags:
+        raise SystemExit(f"--llvm-target: {cpu} code needs {LLVM_CPUS[cpu]}, which this CPU lacks")
     dr.eval(Float(0.0) + 1.0)  # the LLVM backend initialized
     core = ctypes.CDLL(str(Path(dr.__file__).parent / "libdrjit-core.so"))
     setter = getattr(core, "_Z19jit_llvm_set_targetPKcS0_j", None)  # jit_llvm_set_target(cpu, features, width)
