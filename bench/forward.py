@@ -20,8 +20,11 @@ backends, Mitsuba's ``cuda_ad_rgb``). Figures are printed, never asserted.
 ``--llvm-target CPU:WIDTH`` has Dr.Jit's LLVM backend, which compiles both Mitsuba's kernels and
 invrender's, generate code for another CPU and vector width (``znver3:8``: AVX2, 8 lanes, as a
 Zen 3 runs it), a stand-in for an AVX2 machine on an AVX-512 one (with ``ATEN_CPU_CAPABILITY=avx2``
-for torch's kernels). Embree keeps its own choice of instructions in both renderers (neither reads
-a setting for it from outside): not the same as a real AVX2 machine, and labelled so.
+for torch's kernels). Where that CPU has no AVX-512, both renderers' Embree run the kernels of its
+instruction set too: invrender's through ``INVRENDER_EMBREE_CONFIG=isa=avx2``, Mitsuba's, which
+takes no such setting, through ``bench/embree_isa.c`` (compiled here, loaded before Mitsuba: the
+settings are appended to those Mitsuba gives its Embree device). Still a stand-in, not a real AVX2
+machine (the same cores, caches and clocks), and labelled so.
 """
 
 from __future__ import annotations
@@ -266,7 +269,38 @@ def llvm_target(spec: str) -> str:
         raise SystemExit("--llvm-target: this Dr.Jit does not export jit_llvm_set_target")
     setter.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_uint32]
     setter(cpu.encode(), b"", int(width))
-    return f"Dr.Jit's LLVM code for {cpu}, {width} lanes; torch's kernels {os.environ.get('ATEN_CPU_CAPABILITY', 'as the CPU allows')}; Embree as the CPU allows"
+    isa = EMBREE_ISAS[LLVM_CPUS[cpu]]
+    if isa:
+        embree_isa(isa)
+    return (f"Dr.Jit's LLVM code for {cpu}, {width} lanes; torch's kernels {os.environ.get('ATEN_CPU_CAPABILITY', 'as the CPU allows')}; "
+            f"Embree's {'kernels for ' + isa if isa else 'as the CPU allows'} in both renderers")  # fmt: skip
+
+
+#: Embree's ``isa`` setting for the instruction set an ``--llvm-target`` CPU needs (None: AVX-512, Embree's own choice here)
+EMBREE_ISAS = {"sse4_2": "sse4.2", "avx2": "avx2", "avx512f": None}
+
+
+def embree_isa(isa: str) -> None:
+    """Both renderers' Embree on the kernels of ``isa`` from here on: invrender's by its device
+    setting (``INVRENDER_EMBREE_CONFIG``), Mitsuba's by ``embree_isa.c`` (compiled with the system's C
+    compiler and loaded before Mitsuba is)."""
+    import ctypes
+    import shutil
+    import subprocess
+    import tempfile
+
+    if "mitsuba" in sys.modules:
+        raise SystemExit("--llvm-target: Mitsuba was loaded before its Embree could be told the instruction set")
+    os.environ[embree_native.CONFIG_ENV] = f"isa={isa}"
+    os.environ["IR_BENCH_EMBREE_CONFIG"] = f"isa={isa}"
+    compiler = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
+    if compiler is None:
+        raise SystemExit("--llvm-target: a C compiler is needed to set Mitsuba's Embree instruction set (bench/embree_isa.c)")
+    built = Path(tempfile.mkdtemp(prefix="embree_isa")) / "embree_isa.so"
+    run = subprocess.run([compiler, "-O2", "-shared", "-fPIC", str(Path(__file__).with_name("embree_isa.c")), "-o", str(built), "-ldl"], capture_output=True, text=True)
+    if run.returncode:
+        raise SystemExit(f"--llvm-target: bench/embree_isa.c does not compile: {run.stderr.strip().splitlines()[0]}")
+    ctypes.CDLL(str(built), mode=ctypes.RTLD_GLOBAL)
 
 
 def main() -> int:

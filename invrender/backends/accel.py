@@ -6,7 +6,7 @@ A backend answers two queries for a batch of rays and returns plain, non-differe
 given distance; False, and not traced, where that distance is not positive). The backends give the
 same answers up to float rounding:
 
-- ``embree``: Intel Embree on the CPU (the fast default there), 16-ray packets through the compiled
+- ``embree``: Intel Embree on the CPU (the fast default there), packets of 16 rays (8 with AVX2) through the compiled
   wrapper of :mod:`~invrender.backends.embree_native` (embreex's single rays where it does not
   build), rays split across threads;
 - ``warp``: NVIDIA Warp's BVH (:mod:`invrender.backends.warp_bvh`), on CUDA (the default there)
@@ -213,7 +213,7 @@ class Intersector(abc.ABC):
 
 
 class EmbreeIntersector(Intersector):
-    """Intel Embree on the CPU: 16-ray packets through the compiled wrapper of
+    """Intel Embree on the CPU: packets of 16 rays (8 with AVX2) through the compiled wrapper of
     :mod:`~invrender.backends.embree_native` where it builds, else embreex's single rays (the same
     answers up to float rounding); each batch split across threads, results moved to the rays' device."""
 
@@ -229,7 +229,7 @@ class EmbreeIntersector(Intersector):
         else:
             packages.require("embreex", "the embree intersection backend", f"{embree_native.INSTALL_HINT} for Embree's packets, or use backend 'torch'")
             if why:
-                packages.note_once(f"the embree backend traces single rays through embreex: {why} ({embree_native.INSTALL_HINT} for 16-ray packets)")
+                packages.note_once(f"the embree backend traces single rays through embreex: {why} ({embree_native.INSTALL_HINT} for Embree's packets)")
             from embreex import rtcore_scene
             from embreex.mesh_construction import TriangleMesh
 

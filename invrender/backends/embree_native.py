@@ -1,9 +1,15 @@
-"""Embree's 16-ray packet queries for the ``embree`` backend, through a small compiled wrapper.
+"""Embree's packet queries for the ``embree`` backend, through a small compiled wrapper.
 
 embreex traces one ray per call; Embree's packet queries (``rtcIntersect16``, ``rtcOccluded16``)
 test 16 rays against each node and triangle at once in AVX-512 lanes, and a wrapper that writes the
 answers straight into torch tensors skips embreex's NumPy round trip. Measured on one path tracer's
-batches (docs/scale.md#ray-queries), closest hits cost about half and shadow rays a third.
+batches (docs/scale.md#ray-queries), closest hits cost about half and shadow rays a third. The
+packets are as wide as the CPU traces natively: 16 rays with AVX-512, 8 with AVX2 (where Embree
+would emulate 16-ray packets, at 5-8% more a closest hit), else 4.
+
+``$INVRENDER_EMBREE_CONFIG`` is handed to Embree's device as its configuration string
+(``rtcNewDevice``): ``isa=avx2`` runs Embree's AVX2 kernels, and packets of 8, on a CPU with
+AVX-512 too (a stand-in for an AVX2 machine); ``verbose=1`` prints what Embree chose.
 
 The wrapper (``embree_packets.cpp`` beside this module) is compiled on first use against the
 system's Embree 3 (Debian/Ubuntu: ``apt-get install g++ libembree-dev``) and cached in
@@ -32,6 +38,11 @@ from invrender import first_use
 #: the environment variable choosing the embree backend's queries: ``packets`` (default) or ``embreex``
 ENV = "INVRENDER_EMBREE"
 MODES = ("packets", "embreex")
+#: the environment variable holding Embree's device configuration string (empty: Embree's defaults)
+CONFIG_ENV = "INVRENDER_EMBREE_CONFIG"
+#: the instruction sets Embree 3's ``isa`` and ``max_isa`` settings name (another value would
+#: silently give its SSE kernels)
+ISAS = ("sse2", "sse4.2", "avx", "avx2", "avx512", "avx512skx")
 SOURCE = Path(__file__).with_name("embree_packets.cpp")
 INSTALL_HINT = "apt-get install g++ libembree-dev"
 
@@ -44,6 +55,20 @@ def mode() -> str:
     value = os.environ.get(ENV, "packets") or "packets"
     if value not in MODES:
         raise ParameterError(f"{ENV}={value!r} is not one of {', '.join(MODES)}")
+    return value
+
+
+def config() -> str:
+    """``$INVRENDER_EMBREE_CONFIG``, Embree's device configuration (``key=value`` settings separated
+    by commas; empty: the defaults); a one-line error for a setting that is not ``key=value`` or an
+    ``isa``/``max_isa`` Embree does not know (:data:`ISAS`)."""
+    value = os.environ.get(CONFIG_ENV, "").strip()
+    for setting in filter(None, (s.strip() for s in value.split(","))):
+        key, eq, choice = (part.strip() for part in setting.partition("="))
+        if not eq or not key or not choice:
+            raise ParameterError(f"{CONFIG_ENV}={value!r}: {setting!r} is not key=value (Embree's device settings, e.g. isa=avx2)")
+        if key in ("isa", "max_isa") and choice not in ISAS:
+            raise ParameterError(f"{CONFIG_ENV}={value!r}: {key} {choice!r} is not one of {', '.join(ISAS)}")
     return value
 
 
@@ -94,7 +119,9 @@ def _build_and_load() -> tuple[ctypes.CDLL | None, str]:
         return None, f"the wrapper does not load ({error})"
     p, i64 = ctypes.c_void_p, ctypes.c_int64
     lib.ir_embree_new.restype = p
-    lib.ir_embree_new.argtypes = [p, i64, ctypes.c_char_p, i64]
+    lib.ir_embree_new.argtypes = [p, i64, ctypes.c_char_p, ctypes.c_char_p, i64]
+    lib.ir_embree_lanes.restype = i64
+    lib.ir_embree_lanes.argtypes = [p]
     lib.ir_embree_free.argtypes = [p]
     lib.ir_embree_intersect.argtypes = [p, p, p, p, i64, p, p, p, i64, i64, p, p, p, p]
     lib.ir_embree_occluded.argtypes = [p, p, p, p, i64, p, p, p, i64, p, i64, p]
@@ -104,16 +131,24 @@ def _build_and_load() -> tuple[ctypes.CDLL | None, str]:
 
 
 class PacketScene:
-    """One triangle scene in Embree, queried 16 rays at a time; tensors in and out on the CPU."""
+    """One triangle scene in Embree, queried in packets of :attr:`lanes` rays; tensors in and out on
+    the CPU."""
 
     def __init__(self, lib: ctypes.CDLL, corners: torch.Tensor):
-        """``corners``: (T, 3, 3) triangle corners."""
+        """``corners``: (T, 3, 3) triangle corners. On a device configured by :func:`config`: a
+        device Embree refuses (a setting it cannot take, an ``isa`` this CPU lacks) is a one-line
+        :class:`~invrender.errors.ParameterError` naming the variable."""
         self._lib = lib
+        settings = config()
         corners = corners.detach().to("cpu", torch.float32).contiguous()
         error = ctypes.create_string_buffer(256)
-        self._handle = lib.ir_embree_new(corners.data_ptr(), corners.shape[0], error, len(error))
+        self._handle = lib.ir_embree_new(corners.data_ptr(), corners.shape[0], settings.encode(), error, len(error))
         if not self._handle:
+            if settings:
+                raise ParameterError(f"{CONFIG_ENV}={settings!r}: {error.value.decode()}")
             raise RuntimeError(error.value.decode())
+        #: the rays a packet holds: the widest Embree traces natively on this CPU (16, 8 or 4)
+        self.lanes = int(lib.ir_embree_lanes(self._handle))
 
     def __del__(self):
         if getattr(self, "_handle", None):

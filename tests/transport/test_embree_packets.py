@@ -1,11 +1,14 @@
-"""The embree backend's 16-ray packets (the compiled wrapper of ``invrender.backends.embree_native``)
+"""The embree backend's packets (the compiled wrapper of ``invrender.backends.embree_native``)
 against embreex's single rays and the torch backend: the same hits and shadow-ray answers on every
 shipped scene and an 80k-triangle mesh, at batch sizes that leave partial packets, with rays that are
-not traced (distance not positive or NaN); the same image; the fallback to embreex said once."""
+not traced (distance not positive or NaN), in packets of 16, 8 and 4 rays (Embree's AVX-512, AVX2
+and SSE kernels, chosen by ``INVRENDER_EMBREE_CONFIG``); the same image; the fallback to embreex
+said once."""
 
 from __future__ import annotations
 
 import os
+import re
 
 import pytest
 import torch
@@ -22,6 +25,25 @@ from tests.transport.test_backends import SHIPPED, assert_same_hits, random_rays
 
 built, why_not = embree_native.library()
 needs_packets = pytest.mark.skipif(built is None, reason=f"Embree's packets do not build here: {why_not} ({embree_native.INSTALL_HINT})")
+#: this CPU's widest vector instructions as torch sees them (AVX512, AVX2 or DEFAULT)
+CAPABILITY = torch.backends.cpu.get_cpu_capability()
+#: Embree's kernels each test of the answers runs on: its own choice (16 rays a packet with
+#: AVX-512), AVX2's (8) and SSE's (4), where this CPU has them
+WIDTHS = {
+    "native": ("", {"AVX512": 16, "AVX2": 8}.get(CAPABILITY, 4)),
+    "avx2": ("isa=avx2", 8),
+    "sse": ("isa=sse4.2", 4),
+}
+
+
+@pytest.fixture(params=list(WIDTHS))
+def lanes(request, monkeypatch) -> int:
+    """Embree's device configured for one packet width (``INVRENDER_EMBREE_CONFIG``): that width."""
+    config, width = WIDTHS[request.param]
+    if request.param == "avx2" and CAPABILITY not in ("AVX2", "AVX512"):
+        pytest.skip(f"this CPU has no AVX2 ({CAPABILITY})")
+    monkeypatch.setenv(embree_native.CONFIG_ENV, config)
+    return width
 
 
 def both(triangles, monkeypatch):
@@ -64,9 +86,17 @@ def test_packets_answer_as_embreex_does(name, monkeypatch):
 
 
 @needs_packets
-@pytest.mark.parametrize("n", [0, 1, 15, 16, 17, 4095, 4097])
-def test_partial_packets_and_thread_splits(n, monkeypatch):
-    """Batches of any size, on one thread and split across two (from 4096 rays)."""
+def test_the_packets_are_as_wide_as_the_cpu_traces_natively(lanes):
+    """16 rays with AVX-512, 8 with AVX2 (emulated packets of 16 cost more there), else 4."""
+    scene = ir.load_scene("cornell_box", resolution=(8, 8))
+    assert make_intersector(scene.triangles, "embree", 1)._packets.lanes == lanes
+
+
+@needs_packets
+@pytest.mark.parametrize("n", [0, 1, 3, 5, 7, 9, 15, 16, 17, 4095, 4097])
+def test_partial_packets_and_thread_splits(n, lanes):
+    """Batches of any size (partial packets of every width), on one thread and split across two
+    (from 4096 rays)."""
     scene = ir.load_scene("cornell_box", resolution=(8, 8))
     o, d = random_rays(scene, n, seed=n)
     reference = make_intersector(scene.triangles, "torch")
@@ -116,7 +146,7 @@ def test_the_queries_leave_the_callers_float_mode_as_it_was():
 @needs_packets
 @pytest.mark.parametrize("n", [0, 1, 17, 5003])
 @pytest.mark.parametrize("ended", [None, 0.4, 1.0])
-def test_closest_hits_compacted_as_they_are_answered(n, ended):
+def test_closest_hits_compacted_as_they_are_answered(n, ended, lanes):
     """The packets' ``closest_hits`` writes the rays that hit (and those that missed) as it
     answers: the same rays, order and hits as the base class's compaction of ``intersect``, on one
     thread and split across two, untraceable rays among the misses; with ``alive``, the rays of
@@ -144,7 +174,7 @@ def test_closest_hits_compacted_as_they_are_answered(n, ended):
 
 @needs_packets
 @pytest.mark.parametrize("untraced", [0.0, 0.3, 0.97, 1.0])
-def test_shadow_rays_not_traced_leave_their_lanes_to_others(untraced):
+def test_shadow_rays_not_traced_leave_their_lanes_to_others(untraced, lanes):
     """Shadow rays that are not traced (distance 0 or NaN, an origin past Embree's range) do not
     take a packet's lane: the traced ones fill packets of their own (a Cornell render's shadow
     rays are 30% untraced). Any mix, any position, one thread or two: the torch backend's
@@ -181,6 +211,26 @@ def test_a_shadow_ray_with_no_length_is_not_occluded(backend, monkeypatch):
         assert hit.tolist() == [True, False, False, False, True] * 4, (backend, mode)
 
 
+@pytest.mark.parametrize(
+    "config, message",
+    [
+        ("isa=foo", "INVRENDER_EMBREE_CONFIG='isa=foo': isa 'foo' is not one of sse2, sse4.2, avx, avx2, avx512, avx512skx"),
+        ("max_isa=AVX2", "max_isa 'AVX2' is not one of"),
+        ("verbose", "'verbose' is not key=value (Embree's device settings, e.g. isa=avx2)"),
+        ("isa=", "'isa=' is not key=value"),
+        ("threads=many", "INVRENDER_EMBREE_CONFIG='threads=many': Embree: no device"),
+    ],
+)
+@needs_packets
+def test_an_embree_configuration_embree_cannot_take_is_one_line(config, message, monkeypatch):
+    """Embree would quietly take its SSE kernels for an ``isa`` it does not know: refused by name
+    before; a setting Embree refuses is a one-line error naming the variable, not a traceback."""
+    monkeypatch.setenv(embree_native.CONFIG_ENV, config)
+    scene = ir.load_scene("cornell_box", resolution=(8, 8))
+    with pytest.raises(ParameterError, match=re.escape(message)):
+        make_intersector(scene.triangles, "embree", 1)
+
+
 def test_the_embree_query_switch(monkeypatch, capsys):
     monkeypatch.setenv(embree_native.ENV, "sse")
     with pytest.raises(ParameterError, match="INVRENDER_EMBREE='sse' is not one of packets, embreex"):
@@ -199,7 +249,7 @@ def test_without_a_compiler_the_backend_keeps_embreex_and_says_so_once(monkeypat
     make_intersector(scene.triangles, "embree", 1)
     assert not first.packets and accel.missing("embree") is None
     err = capsys.readouterr().err.splitlines()
-    assert err == [f"invrender: note: the embree backend traces single rays through embreex: no C++ compiler found ({embree_native.INSTALL_HINT} for 16-ray packets)"]
+    assert err == [f"invrender: note: the embree backend traces single rays through embreex: no C++ compiler found ({embree_native.INSTALL_HINT} for Embree's packets)"]
 
 
 def test_a_wrapper_that_does_not_compile_is_reported_not_raised(monkeypatch, tmp_path):
