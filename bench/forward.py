@@ -13,7 +13,7 @@ the same process, alternating, after one warm-up each; the median time of each g
 throughput and the ratio. Two more rows render with the first backend without the fused bounce
 (``INVRENDER_KERNELS=steps``: the compiled single steps on) and as eager torch throughout
 (``INVRENDER_KERNELS=torch`` with ``INVRENDER_BOUNCE=torch``): what each gains; with ``embree``, one more with
-embreex's single rays instead of Embree's 16-ray packets (``INVRENDER_EMBREE=embreex``). ``--scenes`` times other
+embreex's single rays instead of Embree's packets (``INVRENDER_EMBREE=embreex``). ``--scenes`` times other
 scenes the same way (e.g. ``cornell_specular``, ``forward/textured_floor.toml``: the torch bounce). With a GPU present the same follows on CUDA (invrender's warp and torch
 backends, Mitsuba's ``cuda_ad_rgb``). Figures are printed, never asserted.
 
@@ -77,7 +77,7 @@ def throughput(args, results: Results) -> None:
         backends.append(f"{backends[0]}/steps")  # the same without the fused bounce (the kernels of single steps on)
         backends.append(f"{backends[0]}/torch")  # the same, as eager torch throughout (the reference)
     if "embree" in backends and embree_native.library()[0] is not None:
-        backends.append("embree/embreex")  # Embree's single rays through embreex instead of its 16-ray packets
+        backends.append("embree/embreex")  # Embree's single rays through embreex instead of its packets
     with_mitsuba = mitsuba_ref.available() and not args.no_mitsuba and device.type == "cpu"
     scenes = [ir.load_scene(name, resolution=(n, n)) for name in args.scenes.split(",")]
     if args.mesh:
@@ -191,7 +191,7 @@ def breakdown(args, results: Results) -> None:
 
 def rays(args, results: Results) -> None:
     """The ray queries alone: the batches of one render (Cornell box, closest hits and shadow rays of
-    every bounce) traced again on one thread by Embree's 16-ray packets and by embreex's single
+    every bounce) traced again on one thread by Embree's packets and by embreex's single
     rays, alternating, 5 times each; nanoseconds per ray (minimum and median)."""
     from invrender.backends import accel
 
@@ -212,7 +212,7 @@ def rays(args, results: Results) -> None:
     if not engines["packets"].packets:
         print(f"  Embree's packets do not build here ({embree_native.library()[1]}): nothing to compare")
         return
-    heading = f"ray queries of one render: cornell_box {n}x{n}, {spp} spp, max_depth {args.max_depth}, one thread"
+    heading = f"ray queries of one render: cornell_box {n}x{n}, {spp} spp, max_depth {args.max_depth}, one thread, packets of {engines['packets']._packets.lanes} rays"
     print(heading)
     rows = results.table(heading, ["query", "rays", "packets ns/ray (min, median)", "embreex ns/ray (min, median)", "embreex / packets"])
     for kind in ("closest hits", "shadow rays"):
