@@ -194,7 +194,8 @@ class Results:
                 continue
             argv.append(a)
         niceness = self.machine.get("nice") or 0
-        command = ("nice " if niceness > 0 else "") + shlex.join(["python", str(script), *argv])
+        given = [f"{k}={shlex.quote(os.environ[k])}" for k in ("ATEN_CPU_CAPABILITY",) if os.environ.get(k)]  # read by torch at its import: part of the command
+        command = " ".join([*given, ("nice " if niceness > 0 else "") + shlex.join(["python", str(script), *argv])])
         record = {
             "benchmark": self.benchmark,
             "title": self.title,

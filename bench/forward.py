@@ -76,7 +76,7 @@ def throughput(args, results: Results) -> None:
     if not args.no_torch_steps:
         backends.append(f"{backends[0]}/steps")  # the same without the fused bounce (the kernels of single steps on)
         backends.append(f"{backends[0]}/torch")  # the same, as eager torch throughout (the reference)
-    if "embree" in backends and embree_native.library()[0] is not None:
+    if "embree" in backends and embree_native.library()[0] is not None and not args.target:  # (embreex's own Embree takes no instruction set from a stand-in)
         backends.append("embree/embreex")  # Embree's single rays through embreex instead of its packets
     with_mitsuba = mitsuba_ref.available() and not args.no_mitsuba and device.type == "cpu"
     scenes = [ir.load_scene(name, resolution=(n, n)) for name in args.scenes.split(",")]
@@ -326,7 +326,7 @@ def main() -> int:
     if args.target:
         print(args.target)
     title = "Forward rendering: memory" if args.memory_spp else "Forward rendering: where the time goes" if args.breakdown else "Forward rendering: ray queries" if args.rays else "Forward rendering throughput"
-    results = Results("forward", title)
+    results = Results("forward_avx2_standin" if args.target else "forward", title + (" (an AVX2 stand-in)" if args.target else ""))
     memory(args, results) if args.memory_spp else breakdown(args, results) if args.breakdown else rays(args, results) if args.rays else throughput(args, results)
     results.write(args.json)
     return 0

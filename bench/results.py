@@ -26,6 +26,7 @@ REPO = Path(__file__).resolve().parents[1]
 # it at its documented settings, its duration there, the docs page that explains it).
 BENCHMARKS = [
     ("forward", "forward-rendering throughput against Mitsuba 3", "python bench/forward.py", "~1 min", "scale.md#which-backend-where"),
+    ("forward_avx2_standin", "forward-rendering throughput against Mitsuba 3 as AVX2 code on an AVX-512 CPU (both renderers' kernels and Embree; a stand-in for an AVX2 machine)", "ATEN_CPU_CAPABILITY=avx2 python bench/forward.py --llvm-target znver3:8 --scenes cornell_box,cornell_specular,forward/textured_floor.toml --backends embree --no-torch-steps --repeats 9", "~1 min", "scale.md#which-backend-where"),
     ("gradient", "time and memory of one gradient against Mitsuba 3 `prb`", "python bench/gradient.py", "~5 min", "scale.md#gradients"),
     ("scale", "one process against torchrun ranks", "python bench/scale.py", "~2 min", "scale.md#across-processes-and-machines-torchdistributed"),
     ("radiosity", "radiosity against closed forms and the path tracer", "python bench/radiosity.py", "~3-6 min", "radiosity.md#measured-in-brief"),
