@@ -266,7 +266,8 @@ def test_a_wrapper_that_does_not_compile_is_reported_not_raised(monkeypatch, tmp
 
 
 @needs_packets
-def test_packets_render_the_image_embreex_renders(monkeypatch):
+def test_packets_render_the_image_embreex_renders(lanes, monkeypatch):
+    """Packets of every width (Embree's AVX-512, AVX2 and SSE kernels) render embreex's image."""
     scene = ir.load_scene("cornell_box", resolution=(16, 16))
     a = ir.render(scene, spp=8, seed=3, backend="embree", progress=False)
     monkeypatch.setenv(embree_native.ENV, "embreex")
