@@ -59,29 +59,21 @@ struct Accel {
     int lanes;  // the packets' width: the widest the device traces natively (16, 8 or 4)
 };
 
-// Embree's packet of K rays and its queries.
+// Embree's packet of K rays (16, 8 or 4) and its queries.
 template <int K>
-struct Packet;
-template <>
-struct Packet<16> {
-    using Ray = RTCRay16;
-    using RayHit = RTCRayHit16;
-    static void intersect(const int* valid, RTCScene s, RTCIntersectContext* c, RayHit* r) { rtcIntersect16(valid, s, c, r); }
-    static void occluded(const int* valid, RTCScene s, RTCIntersectContext* c, Ray* r) { rtcOccluded16(valid, s, c, r); }
-};
-template <>
-struct Packet<8> {
-    using Ray = RTCRay8;
-    using RayHit = RTCRayHit8;
-    static void intersect(const int* valid, RTCScene s, RTCIntersectContext* c, RayHit* r) { rtcIntersect8(valid, s, c, r); }
-    static void occluded(const int* valid, RTCScene s, RTCIntersectContext* c, Ray* r) { rtcOccluded8(valid, s, c, r); }
-};
-template <>
-struct Packet<4> {
-    using Ray = RTCRay4;
-    using RayHit = RTCRayHit4;
-    static void intersect(const int* valid, RTCScene s, RTCIntersectContext* c, RayHit* r) { rtcIntersect4(valid, s, c, r); }
-    static void occluded(const int* valid, RTCScene s, RTCIntersectContext* c, Ray* r) { rtcOccluded4(valid, s, c, r); }
+struct Packet {
+    using Ray = std::conditional_t<K == 16, RTCRay16, std::conditional_t<K == 8, RTCRay8, RTCRay4>>;
+    using RayHit = std::conditional_t<K == 16, RTCRayHit16, std::conditional_t<K == 8, RTCRayHit8, RTCRayHit4>>;
+    static void intersect(const int* valid, RTCScene s, RTCIntersectContext* c, RayHit* r) {
+        if constexpr (K == 16) rtcIntersect16(valid, s, c, r);
+        else if constexpr (K == 8) rtcIntersect8(valid, s, c, r);
+        else rtcIntersect4(valid, s, c, r);
+    }
+    static void occluded(const int* valid, RTCScene s, RTCIntersectContext* c, Ray* r) {
+        if constexpr (K == 16) rtcOccluded16(valid, s, c, r);
+        else if constexpr (K == 8) rtcOccluded8(valid, s, c, r);
+        else rtcOccluded4(valid, s, c, r);
+    }
 };
 
 // f(std::integral_constant<int, K>) for the accel's packet width K.
