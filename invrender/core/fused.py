@@ -15,7 +15,8 @@ or hooks, a bounce is instead:
    ray, the throughput and Russian roulette. The materials and emitters are the plugins' own lane
    forms (:class:`~invrender.core.bsdf.LaneForm`, :class:`~invrender.core.lights.LightLanes`):
    each type present runs on every lane and a lane keeps its own type's answer (masks, no
-   compaction); textures are read per lane (:class:`~invrender.core.lanes.TextureTable`);
+   compaction); textures are read per lane (:class:`~invrender.core.lanes.TextureTable`; a
+   render's one texture passes its row as values, not a table);
 3. the shadow-ray query, the two film additions, and the compaction to the surviving paths.
 
 The kernel draws the same counter-based numbers (the same salts, the same dimensions) and follows
@@ -183,7 +184,7 @@ def tables(ctx: TransportContext, direct, hemisphere: str) -> FusedScene | None:
         index.reshape(-1).contiguous(),
         tuple(t for _, t in forms),
         (ctx.normals.rows() if ctx.normals is not None else None, *shading.tables(ctx)),
-        None if textures.empty else (lanes.uv_rows(ctx.triangles), *textures.tables(device)),
+        None if textures.empty else (lanes.uv_rows(ctx.triangles), *textures.tables(device, one_as_scalars=True)),
     )
     albedo, rho, eps, slot = materials.fused_albedo(), None, None, None
     if albedo is not None and len(emitters) == 1 and emitters[0][0].surface:  # the area emitter's eps rows: (E, 3)

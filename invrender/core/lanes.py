@@ -428,10 +428,18 @@ class TextureTable:
     def empty(self) -> bool:
         return not self._rows
 
-    def tables(self, device) -> tuple[torch.Tensor, torch.Tensor]:
-        """(K * 16,) the textures' rows and (texels * 4,) their texels, flat float32 on ``device``."""
-        rows = torch.tensor(self._rows, dtype=torch.float32).reshape(-1)
-        return rows.to(device), torch.cat(self._texels).reshape(-1).to(device)
+    def tables(self, device, one_as_scalars: bool = False) -> tuple:
+        """(K * 16,) the textures' rows and (texels * 4,) their texels, flat float32 on ``device``;
+        with ``one_as_scalars`` and one texture, its row as 11 :class:`~invrender.core.compiled.Opaque`
+        floats instead (:func:`texture_lookup` reads either): the same for every lane, read without
+        a gather (a lane's gather of a row was 10 of the 120 ms of compiled kernels in a textured
+        Cornell render), and passed as values, so its size and options change no kernel."""
+        from invrender.core.compiled import Opaque
+
+        texels = torch.cat(self._texels).reshape(-1).to(device)
+        if one_as_scalars and len(self._rows) == 1:
+            return tuple(Opaque(float(torch.tensor(v, dtype=torch.float32))) for v in self._rows[0][:11]), texels
+        return torch.tensor(self._rows, dtype=torch.float32).reshape(-1).to(device), texels
 
 
 def material_rows(bsdf, keys, textures: TextureTable):
@@ -516,15 +524,19 @@ def material_values(xp, table, m, layout, lookup=None):
 
 def texture_lookup(xp, rows, texels, uv):
     """The lookup :func:`material_values` reads textured entries with, at texture coordinates
-    ``uv`` (a 2-tuple), from a :class:`TextureTable`'s ``rows`` and ``texels``: ``(texture id,
-    constant) -> `` the texture's filtered RGB, or the constant where the id is -1."""
+    ``uv`` (a 2-tuple), from a :class:`TextureTable`'s ``rows`` (a table, or one texture's row of
+    scalars) and ``texels``: ``(texture id, constant) -> `` the texture's filtered RGB, or the
+    constant where the id is -1."""
     from invrender.core.textures import filter_lanes
 
     def lookup(texture, constant):
         has = texture >= 0.0
-        r = xp.gather_rows(rows, xp.uint(xp.maximum(texture, 0.0)), 16)
+        if isinstance(rows, tuple):  # the one texture, whose texels start the table
+            r, first = rows, 0
+        else:
+            r = xp.gather_rows(rows, xp.uint(xp.maximum(texture, 0.0)), 16)
+            first = xp.uint(r[0])
         index, weight = filter_lanes(xp, uv[0], uv[1], r[2], r[1], r[3] > 0.5, r[4], r[5:11])
-        first = xp.uint(r[0])
         rgb = None
         for i, w in zip(index, weight):
             texel = scale(xp.gather_rows(texels, first + i, 4)[:3], w)

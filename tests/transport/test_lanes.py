@@ -162,3 +162,35 @@ def test_every_tensor_a_compiled_call_wraps_is_held_by_the_caller():
     assert len(held) == 5 and all(t.is_contiguous() for t in held)
     assert torch.equal(held[3], torch.arange(5000)) and torch.equal(held[4], strided)
     assert torch.equal(DRJIT.to_torch(index + 0).long(), torch.arange(5000))
+
+
+def _lookups(xp, rows, texels, u, v, texture):
+    """The lookups of texture ``texture`` (a Float per lane: -1 none) at (u, v): (the RGB,)."""
+    zero = 0.0 * u
+    return (lanes.texture_lookup(xp, rows, texels, (u, v))(texture, (zero + 0.1, zero + 0.2, zero + 0.3)),)
+
+
+@pytest.mark.parametrize("xp", NAMESPACES, ids=lambda xp: xp.name)
+@pytest.mark.parametrize("sampling", [None, ("nearest", "mirror", (2.0, 0.5, 0.1, -0.3, 3.0, 0.2)), ("bilinear", "clamp", None)], ids=["bilinear-repeat", "nearest-mirror-affine", "bilinear-clamp"])
+def test_one_texture_is_read_without_a_row_gather_and_reads_as_the_table(xp, sampling):
+    """A render's one texture hands its row to the bounce as scalars (no gather a lane): every
+    lookup equals the same texture's read through a table of two rows, bit for bit, in each
+    evaluator; lanes without the texture (id -1) keep their constant."""
+    from invrender.scene.textures import TextureSampling
+
+    g = torch.Generator().manual_seed(3)
+    tex = torch.rand(5, 7, 3, generator=g)
+    how = None if sampling is None else TextureSampling(*sampling)
+    one, two = lanes.TextureTable(), lanes.TextureTable()
+    assert one.add(tex, how) == 0 and two.add(tex, how) == 0 and two.add(torch.rand(3, 2, 3, generator=g), None) == 1
+    (row, texels_one), (table, texels_two) = one.tables(CPU, one_as_scalars=True), two.tables(CPU, one_as_scalars=True)
+    assert isinstance(one.tables(CPU)[0], torch.Tensor)  # (a normal map's table: rows gathered by lane)
+    assert isinstance(row, tuple) and len(row) == 11 and isinstance(table, torch.Tensor)
+    n = 5000
+    u, v = torch.rand(n, generator=g) * 3 - 1, torch.rand(n, generator=g) * 3 - 1  # outside [0, 1] too: the wrap modes
+    texture = torch.where(torch.rand(n, generator=g) < 0.2, -1.0, 0.0)
+    got = compiled.evaluate(xp, _lookups, row, texels_one, u, v, texture)[0]
+    want = compiled.evaluate(xp, _lookups, table, texels_two, u, v, texture)[0]
+    assert torch.equal(got, want)
+    assert torch.equal(got[texture < 0], torch.tensor([0.1, 0.2, 0.3]).expand(int((texture < 0).sum()), 3))
+    assert float(got[texture >= 0].std()) > 0.1  # the texture's values, not a constant
