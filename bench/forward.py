@@ -296,11 +296,12 @@ def embree_isa(isa: str) -> None:
     compiler = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
     if compiler is None:
         raise SystemExit("--llvm-target: a C compiler is needed to set Mitsuba's Embree instruction set (bench/embree_isa.c)")
-    built = Path(tempfile.mkdtemp(prefix="embree_isa")) / "embree_isa.so"
-    run = subprocess.run([compiler, "-O2", "-shared", "-fPIC", str(Path(__file__).with_name("embree_isa.c")), "-o", str(built), "-ldl"], capture_output=True, text=True)
-    if run.returncode:
-        raise SystemExit(f"--llvm-target: bench/embree_isa.c does not compile: {run.stderr.strip().splitlines()[0]}")
-    ctypes.CDLL(str(built), mode=ctypes.RTLD_GLOBAL)
+    with tempfile.TemporaryDirectory(prefix="embree_isa") as folder:  # (a loaded library outlives its file)
+        built = Path(folder) / "embree_isa.so"
+        run = subprocess.run([compiler, "-O2", "-shared", "-fPIC", str(Path(__file__).with_name("embree_isa.c")), "-o", str(built), "-ldl"], capture_output=True, text=True)
+        if run.returncode:
+            raise SystemExit(f"--llvm-target: bench/embree_isa.c does not compile: {run.stderr.strip().splitlines()[0]}")
+        ctypes.CDLL(str(built), mode=ctypes.RTLD_GLOBAL)
 
 
 def main() -> int:

@@ -103,13 +103,13 @@ def compacted_hits(intersect, o, d, misses: bool = False, alive: torch.Tensor | 
     if live is not None:
         o, d = take(o, live), take(d, live)
     hits = intersect(o, d)
-    valid = hits.valid
-    index = where_true(valid)
-    found = [index, *(x.index_select(0, index) for x in (hits.t, hits.prim, hits.u, hits.v)), where_true(~valid) if misses else None]
+    index = where_true(hits.valid)
+    gone = where_true(~hits.valid) if misses else None
+    t, prim, u, v = (x.index_select(0, index) for x in (hits.t, hits.prim, hits.u, hits.v))
     if live is not None:  # back to the positions among all the rays
-        found[0] = live.index_select(0, index)
-        found[5] = None if found[5] is None else live.index_select(0, found[5])
-    return FoundHits(*found)
+        index = live.index_select(0, index)
+        gone = None if gone is None else live.index_select(0, gone)
+    return FoundHits(index, t, prim, u, v, gone)
 
 
 #: the largest magnitude of a ray's origin or direction components that is traced: Embree's

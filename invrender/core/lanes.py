@@ -403,6 +403,8 @@ class TextureTable:
 
     #: texels the table holds at most (their places are exact floats)
     LIMIT = 1 << 24
+    #: the floats of a row that hold something (place, size, filter, wrap, ``to_uv``); zeros pad it to 16
+    ROW_VALUES = 11
 
     def __init__(self):
         self._texels, self._rows, self._count = [], [], 0
@@ -430,15 +432,15 @@ class TextureTable:
 
     def tables(self, device, one_as_scalars: bool = False) -> tuple:
         """(K * 16,) the textures' rows and (texels * 4,) their texels, flat float32 on ``device``;
-        with ``one_as_scalars`` and one texture, its row as 11 :class:`~invrender.core.compiled.Opaque`
-        floats instead (:func:`texture_lookup` reads either): the same for every lane, read without
+        with ``one_as_scalars`` and one texture, its row's :data:`ROW_VALUES` as
+        :class:`~invrender.core.compiled.Opaque` floats (rounded to float32) instead (:func:`texture_lookup` reads either): the same for every lane, read without
         a gather (a lane's gather of a row was 10 of the 120 ms of compiled kernels in a textured
         Cornell render), and passed as values, so its size and options change no kernel."""
         from invrender.core.compiled import Opaque
 
         texels = torch.cat(self._texels).reshape(-1).to(device)
         if one_as_scalars and len(self._rows) == 1:
-            return tuple(Opaque(float(torch.tensor(v, dtype=torch.float32))) for v in self._rows[0][:11]), texels
+            return tuple(Opaque(float(torch.tensor(v, dtype=torch.float32))) for v in self._rows[0][: self.ROW_VALUES]), texels
         return torch.tensor(self._rows, dtype=torch.float32).reshape(-1).to(device), texels
 
 
